@@ -1,0 +1,1 @@
+"""aat runtime: reads capture folders, runs ONNX depth-from-focus, writes results. Never imports torch."""

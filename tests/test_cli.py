@@ -1,0 +1,54 @@
+"""aat-lens command line: JSON keys, PNG output, errors."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from conftest import LENSES
+from training.cli.lens import main
+
+RF50 = str(LENSES / "canon_rf50mm_f1.8.json")
+
+
+def test_info_json_has_the_documented_keys(capsys):
+    assert main(["info", RF50, "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    for k in ("efl_mm", "bfl_mm", "fno", "entrance_pupil_mm", "hfov_deg", "sensor_mm", "pixel_um"):
+        assert k in d
+    assert d["efl_mm"] == pytest.approx(49.56, abs=0.05)
+    assert d["pixel_um"] == pytest.approx(37.5)
+
+
+def test_info_table(capsys):
+    assert main(["info", RF50]) == 0
+    out = capsys.readouterr().out
+    assert "STOP" in out and "EFL" in out and "asphere" in out
+
+
+def test_spot_json_and_png(tmp_path, capsys):
+    png = tmp_path / "spot.png"
+    assert main(["spot", RF50, "--field-deg", "10", "--focus-m", "2", "--json", "--png", str(png)]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["rms_um"] > 0 and png.stat().st_size > 1000
+    with pytest.raises(SystemExit, match="exists"):
+        main(["spot", RF50, "--field-deg", "10", "--focus-m", "2", "--png", str(png)])
+    defocused = main(["spot", RF50, "--field-deg", "0", "--focus-m", "2", "--defocus-mm", "0.2", "--json"])
+    assert defocused == 0
+    # 0.2 mm of defocus at F/1.88 gives a blur disk of radius ~53 um (RMS ~ radius / sqrt(2) ~ 38 um)
+    assert 25 < json.loads(capsys.readouterr().out)["rms_um"] < 50
+
+
+def test_layout_png(tmp_path):
+    png = tmp_path / "layout.png"
+    assert main(["layout", RF50, "--png", str(png), "--focus-m", "1.5"]) == 0
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_bad_lens_file_is_a_one_line_error(tmp_path, capsys):
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"format": "aat-lens-v1", "surfaces": []}')
+    assert main(["info", str(bad)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("aat-lens: error:") and "bad.json" in err and "\n" not in err

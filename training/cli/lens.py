@@ -1,0 +1,181 @@
+"""`aat-lens`: look at a lens prescription.
+
+    aat-lens info LENS [--json]
+    aat-lens spot LENS --field-deg F --focus-m D [--defocus-mm X] [--json] [--png out.png]
+    aat-lens layout LENS --png out.png [--focus-m D]
+
+Distances in metres are measured from the sensor plane (camera convention); lengths in mm.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+from training.lens.io import LensFileError, load_lens
+from training.lens.materials import UnknownMaterialError
+
+
+def _distance(text: str) -> float:
+    v = float(text)
+    if not (v > 0):
+        raise argparse.ArgumentTypeError(f"distance must be > 0 metres (or 'inf'), got {text}")
+    return v
+
+
+def _png_path(p: str | None, force: bool) -> Path | None:
+    if p is None:
+        return None
+    path = Path(p)
+    if path.suffix.lower() != ".png":
+        raise SystemExit(f"aat-lens: error: {p}: output must be a .png file")
+    if path.exists() and not force:
+        raise SystemExit(f"aat-lens: error: {p}: exists (use --force to overwrite)")
+    if not path.parent.exists():
+        raise SystemExit(f"aat-lens: error: {p}: folder {path.parent} does not exist")
+    return path
+
+
+def _atomic_png(draw, path: Path) -> None:
+    tmp = path.with_name(path.stem + ".tmp.png")
+    draw(tmp)
+    tmp.replace(path)
+
+
+def cmd_info(a) -> int:
+    from training.optics.paraxial import paraxial_data
+
+    lens = load_lens(a.lens)
+    p = paraxial_data(lens)
+    out = {
+        "name": lens.name,
+        "efl_mm": p.efl_mm,
+        "bfl_mm": p.bfl_mm,
+        "fno": p.fno,
+        "entrance_pupil_mm": p.entrance_pupil_mm,
+        "entrance_pupil_z_mm": p.entrance_pupil_z_mm,
+        "exit_pupil_mm": p.exit_pupil_mm,
+        "exit_pupil_z_mm": p.exit_pupil_z_mm,
+        "hfov_deg": p.hfov_deg,
+        "hfov_h_deg": p.hfov_h_deg,
+        "hfov_v_deg": p.hfov_v_deg,
+        "sensor_mm": list(p.sensor_mm),
+        "sensor_px": [lens.sensor.width_px, lens.sensor.height_px],
+        "pixel_um": p.pixel_um,
+        "total_track_mm": p.total_track_mm,
+        "stop_index": lens.stop_index,
+        "wavelength_nm": p.wavelength_nm,
+        "prescription_hash": lens.prescription_hash(),
+    }
+    if a.json:
+        print(json.dumps(out))
+        return 0
+    print(f"{lens.name}")
+    print(f"{'#':>3} {'radius mm':>11} {'thick mm':>9} {'semi-dia':>8} {'n@λ':>8}  material   notes")
+    idx = lens.indices(p.wavelength_nm)
+    for i, s in enumerate(lens.surfaces):
+        r = "inf" if math.isinf(s.radius_mm) else f"{s.radius_mm:.4f}"
+        notes = []
+        if i == lens.stop_index:
+            notes.append("STOP")
+        if s.kind == "ideal":
+            notes.append(f"ideal f={s.focal_length_mm:.4f}")
+        if s.conic:
+            notes.append(f"k={s.conic:g}")
+        if any(s.asphere_from_r2):
+            notes.append("asphere")
+        print(f"{i:>3} {r:>11} {s.thickness_mm:>9.4f} {s.semi_diameter_mm:>8.3f} {idx[i + 1]:>8.5f}  "
+              f"{s.material:<10} {' '.join(notes)}")
+    print(f"EFL {p.efl_mm:.4f} mm   BFL {p.bfl_mm:.4f} mm   F/{p.fno:.4f}   at {p.wavelength_nm} nm")
+    print(f"entrance pupil {p.entrance_pupil_mm:.4f} mm at z = {p.entrance_pupil_z_mm:.4f} mm; "
+          f"exit pupil {p.exit_pupil_mm:.4f} mm at z = {p.exit_pupil_z_mm:.4f} mm (z from the first vertex)")
+    print(f"sensor {p.sensor_mm[0]:.3f} x {p.sensor_mm[1]:.3f} mm, {lens.sensor.width_px} x "
+          f"{lens.sensor.height_px} px, {p.pixel_um:.2f} um pixels; half field of view {p.hfov_deg:.3f} deg "
+          f"(diagonal), {p.hfov_h_deg:.3f} (h), {p.hfov_v_deg:.3f} (v)")
+    return 0
+
+
+def cmd_spot(a) -> int:
+    from training.optics.spot import spot
+
+    png = _png_path(a.png, a.force)
+    lens = load_lens(a.lens)
+    sp = spot(lens, a.field_deg, a.focus_m, a.defocus_mm, wavelength_nm=a.wavelength_nm, grid=a.grid)
+    out = {
+        "rms_um": sp.rms_um,
+        "centroid_mm": list(sp.centroid_mm),
+        "n_rays": sp.n_rays,
+        "n_valid": sp.n_valid,
+        "sensor_z_mm": sp.sensor_z_mm,
+        "field_deg": a.field_deg,
+        "focus_m": a.focus_m,
+        "defocus_mm": a.defocus_mm,
+    }
+    if png:
+        from training.optics.layout import draw_spot
+
+        title = f"{lens.name}\nfield {a.field_deg}°, focus {a.focus_m} m, defocus {a.defocus_mm} mm"
+        _atomic_png(lambda p: draw_spot(sp, p, title), png)
+        out["png"] = str(png)
+    if a.json:
+        print(json.dumps(out))
+    else:
+        print(f"RMS spot radius {sp.rms_um:.3f} um (about the centroid); centroid y {sp.centroid_mm[1]:.4f} mm; "
+              f"{sp.n_valid}/{sp.n_rays} rays pass")
+        if png:
+            print(f"wrote {png}")
+    return 0
+
+
+def cmd_layout(a) -> int:
+    from training.optics.layout import draw_layout
+
+    png = _png_path(a.png, a.force)
+    lens = load_lens(a.lens)
+    _atomic_png(lambda p: draw_layout(lens, p, focus_m=a.focus_m), png)
+    print(f"wrote {png}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="aat-lens", description="Inspect a lens prescription (units: mm; distances "
+                                 "in metres from the sensor plane).")
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    p = sub.add_parser("info", help="surface table and paraxial data")
+    p.add_argument("lens")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=cmd_info)
+    p = sub.add_parser("spot", help="RMS spot radius (um, about the centroid) and spot diagram")
+    p.add_argument("lens")
+    p.add_argument("--field-deg", type=float, required=True, help="chief-ray field angle in degrees")
+    p.add_argument("--focus-m", type=_distance, required=True, help="focus (and object) distance, m from sensor")
+    p.add_argument("--defocus-mm", type=float, default=0.0, help="sensor shift from best focus (+ = away)")
+    p.add_argument("--wavelength-nm", type=float, default=None, help="default: the lens's design wavelength")
+    p.add_argument("--grid", type=int, default=36, help="pupil grid size across (default 36)")
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--png", default=None, help="write a spot diagram PNG")
+    p.add_argument("--force", action="store_true", help="overwrite an existing PNG")
+    p.set_defaults(func=cmd_spot)
+    p = sub.add_parser("layout", help="2-D drawing of the lens with ray fans")
+    p.add_argument("lens")
+    p.add_argument("--png", required=True)
+    p.add_argument("--focus-m", type=_distance, default=math.inf)
+    p.add_argument("--force", action="store_true")
+    p.set_defaults(func=cmd_layout)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    a = build_parser().parse_args(argv)
+    try:
+        return a.func(a)
+    except (LensFileError, UnknownMaterialError, FileExistsError, ValueError) as e:
+        print(f"aat-lens: error: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
