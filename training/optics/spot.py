@@ -43,7 +43,7 @@ def field_rays(lens: Lens, pupil: torch.Tensor, field_deg: float, object_m: floa
     if math.isinf(object_m):
         return rays_through_pupil(lens, pupil, None, (0.0, angle))
     zo = object_z_mm(sensor_z_mm, object_m)
-    z_ep = paraxial_data(lens, wavelength_nm).entrance_pupil_z_mm
+    z_ep = paraxial_data(lens).entrance_pupil_z_mm  # aim with the design-wavelength pupil, like rays_through_pupil
     p = torch.tensor([0.0, (z_ep - zo) * math.tan(angle), zo], dtype=torch.float64)
     return rays_through_pupil(lens, pupil, p)
 

@@ -65,10 +65,13 @@ def _sag_and_slope(s: Surface, r2: torch.Tensor):
     return z, dz, ok
 
 
-def _intersect(s: Surface, zv: float, o: torch.Tensor, d: torch.Tensor, tol: float):
-    """Distance t along each ray to the surface with vertex at z = zv, and a validity mask."""
-    px, py, pz = o[..., 0], o[..., 1], o[..., 2] - zv
-    dx, dy, dz = d[..., 0], d[..., 1], d[..., 2]
+def _intersect(s: Surface, zv: float, px, py, pz, dx, dy, dz, tol: float, fixed_iters: int | None = None):
+    """Distance t along each ray (components px.., dx..) to the surface with vertex at z = zv, and a mask.
+
+    fixed_iters: run exactly this many Newton steps with no data-dependent exit (for torch.compile); rays
+    whose last step still exceeds `tol` are lost.
+    """
+    pz = pz - zv
     c = s.curvature_per_mm
     if s.kind == "ideal" or (s.is_spherical and c == 0.0):
         t = -pz / dz
@@ -78,47 +81,50 @@ def _intersect(s: Surface, zv: float, o: torch.Tensor, d: torch.Tensor, tol: flo
         b = c * (px * dx + py * dy + pz * dz) - dz
         cc = c * (px * px + py * py + pz * pz) - 2.0 * pz
         disc = b * b - c * cc
-        ok = disc >= 0
-        den = -b + torch.sqrt(torch.clamp(disc, min=0.0)) * torch.where(b < 0, 1.0, -1.0)
-        t = cc / den
-        return t, ok & torch.isfinite(t)
+        root = torch.sqrt(torch.clamp(disc, min=0.0))
+        t = cc / (-b + torch.where(b < 0, root, -root))
+        return t, (disc >= 0) & torch.isfinite(t)
     # Conic / asphere: Newton on f(t) = z(t) - sag(r(t)^2), from the vertex plane.
     t = -pz / dz
     ok = torch.isfinite(t)
     t = torch.where(ok, t, torch.zeros_like(t))
-    converged = torch.zeros_like(ok)
-    for _ in range(NEWTON_MAX_ITERS):
-        x, y, z = px + t * dx, py + t * dy, pz + t * dz
-        r2 = x * x + y * y
-        sag, dsag, defined = _sag_and_slope(s, r2)
-        f = z - sag
-        fp = dz - dsag * 2.0 * (x * dx + y * dy)
-        step = f / fp
-        t = t - torch.where(converged, torch.zeros_like(step), step)
-        converged = converged | (step.abs() < tol)
-        if bool(converged.all()):
-            break
+
+    def newton_step(t):
+        x, y = px + t * dx, py + t * dy
+        sag, dsag, _ = _sag_and_slope(s, x * x + y * y)
+        return (pz + t * dz - sag) / (dz - dsag * 2.0 * (x * dx + y * dy))
+
+    if fixed_iters is not None:
+        step = t
+        for _ in range(fixed_iters):
+            step = newton_step(t)
+            t = t - step
+        converged = step.abs() < tol
+    else:
+        converged = torch.zeros_like(ok)
+        for _ in range(NEWTON_MAX_ITERS):
+            step = newton_step(t)
+            t = t - torch.where(converged, torch.zeros_like(step), step)
+            converged = converged | (step.abs() < tol)
+            if bool(converged.all()):
+                break
     x, y = px + t * dx, py + t * dy
     _, _, defined = _sag_and_slope(s, x * x + y * y)
     return t, ok & converged & defined & torch.isfinite(t)
 
 
-def _normal(s: Surface, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
-    """Unit surface normal (pointing towards +z) at (x, y) on the surface."""
-    _, dz, _ = _sag_and_slope(s, x * x + y * y)
-    nx, ny = -2.0 * x * dz, -2.0 * y * dz
-    n = torch.stack([nx, ny, torch.ones_like(nx)], dim=-1)
-    return n / torch.linalg.vector_norm(n, dim=-1, keepdim=True)
-
-
-def _refract(d: torch.Tensor, n: torch.Tensor, eta: float):
-    """Vector Snell's law; n is the unit normal oriented along the ray (d.n > 0). Returns (d', ok)."""
-    cos_i = (d * n).sum(-1, keepdim=True)
+def _refract(s: Surface, x, y, dx, dy, dz, eta: float):
+    """Vector Snell's law at (x, y) on surface s; the normal is oriented along +z (d.n > 0 for our rays).
+    Returns the new direction components and a mask (False = total internal reflection)."""
+    _, slope, _ = _sag_and_slope(s, x * x + y * y)
+    nx, ny = -2.0 * x * slope, -2.0 * y * slope
+    inv = torch.rsqrt(nx * nx + ny * ny + 1.0)
+    nx, ny, nz = nx * inv, ny * inv, inv
+    cos_i = dx * nx + dy * ny + dz * nz
     sin2_t = eta * eta * (1.0 - cos_i * cos_i)
-    ok = (sin2_t <= 1.0).squeeze(-1)  # otherwise total internal reflection
     cos_t = torch.sqrt(torch.clamp(1.0 - sin2_t, min=0.0))
-    out = eta * d + (cos_t - eta * cos_i) * n
-    return out, ok
+    k = cos_t - eta * cos_i
+    return eta * dx + k * nx, eta * dy + k * ny, eta * dz + k * nz, sin2_t <= 1.0
 
 
 def trace(
@@ -128,45 +134,52 @@ def trace(
     sensor_z_mm: float | None = None,
     record: bool = False,
     to_sensor: bool = True,
+    fixed_iters: int | None = None,
 ) -> TraceResult:
     """Trace `rays` (in object space, before the first surface) through every surface to the sensor plane.
 
     sensor_z_mm: sensor plane z (default: the prescription's nominal sensor position).
     record: also return the intercept at every surface (for layouts and cross-checks).
+    fixed_iters: a fixed Newton step count for aspheres (branch-free, compilable); None = iterate to `tol`.
     """
     w = wavelength_nm or lens.design_wavelength_nm
-    idx = lens.indices(w)
-    dtype = rays.o.dtype
-    tol = NEWTON_TOL_MM.get(dtype, 1e-6)
-    o, d, valid = rays.o, rays.d, rays.valid.clone()
+    zs = lens.nominal_sensor_z_mm if sensor_z_mm is None else sensor_z_mm
+    x, y, z, dx, dy, dz, valid, hits = trace_components(
+        lens, lens.indices(w), *rays.o.unbind(-1), *rays.d.unbind(-1), rays.valid,
+        zs if to_sensor else None, NEWTON_TOL_MM.get(rays.o.dtype, 1e-6), fixed_iters, record,
+    )
+    return TraceResult(Rays(torch.stack([x, y, z], -1), torch.stack([dx, dy, dz], -1), valid), hits)
+
+
+def trace_components(lens: Lens, indices, x, y, z, dx, dy, dz, valid, sensor_z_mm, tol, fixed_iters=None,
+                     record=False):
+    """The tracing loop on separate x, y, z, dx, dy, dz tensors (fuses well; torch.compile-friendly with
+    `fixed_iters` set and record=False). `indices`: refractive index before surface 0 then after each."""
     hits = [] if record else None
     for i, (s, zv) in enumerate(zip(lens.surfaces, lens.vertex_z_mm)):
-        t, ok = _intersect(s, zv, o, d, tol)
+        t, ok = _intersect(s, zv, x, y, z, dx, dy, dz, tol, fixed_iters)
         valid = valid & ok & (t > -1e-9)
         t = torch.where(valid, t, torch.zeros_like(t))
-        o = o + t.unsqueeze(-1) * d
-        r2 = o[..., 0] ** 2 + o[..., 1] ** 2
-        valid = valid & (r2 <= s.semi_diameter_mm**2)
+        x, y, z = x + t * dx, y + t * dy, z + t * dz
+        valid = valid & (x * x + y * y <= s.semi_diameter_mm**2)
         if record:
-            hits.append(o)
+            hits.append(torch.stack([x, y, z], -1))
         if s.kind == "ideal":
             # Perfect paraxial lens: slopes change by -h/f, which images every object plane without aberration.
-            tx = d[..., 0] / d[..., 2] - o[..., 0] / s.focal_length_mm
-            ty = d[..., 1] / d[..., 2] - o[..., 1] / s.focal_length_mm
-            nd = torch.stack([tx, ty, torch.ones_like(tx)], dim=-1)
-            d = nd / torch.linalg.vector_norm(nd, dim=-1, keepdim=True)
+            tx = dx / dz - x / s.focal_length_mm
+            ty = dy / dz - y / s.focal_length_mm
+            inv = torch.rsqrt(tx * tx + ty * ty + 1.0)
+            dx, dy, dz = tx * inv, ty * inv, inv
             continue
-        n1, n2 = idx[i], idx[i + 1]
+        n1, n2 = indices[i], indices[i + 1]
         if n1 == n2 and s.curvature_per_mm == 0 and s.is_spherical:
             continue  # a flat surface between equal media (e.g. the stop) does not bend rays
-        normal = _normal(s, o[..., 0], o[..., 1])
-        d, ok = _refract(d, normal, n1 / n2)
+        dx, dy, dz, ok = _refract(s, x, y, dx, dy, dz, n1 / n2)
         valid = valid & ok
-    if to_sensor:
-        zs = lens.nominal_sensor_z_mm if sensor_z_mm is None else sensor_z_mm
-        t = (zs - o[..., 2]) / d[..., 2]
-        o = o + t.unsqueeze(-1) * d
-    return TraceResult(Rays(o, d, valid), hits)
+    if sensor_z_mm is not None:
+        t = (sensor_z_mm - z) / dz
+        x, y, z = x + t * dx, y + t * dy, z + t * dz
+    return x, y, z, dx, dy, dz, valid, hits
 
 
 # ------------------------------------------------------------------------------------------------
