@@ -97,7 +97,7 @@ def thin_lens_blur_px(lens: Lens, depth_m, focus_m, sensor_z_fn=None) -> np.ndar
     f, epd = p.efl_mm, p.entrance_pupil_mm
     D = 1000.0 * np.asarray(focus_m, dtype=np.float64)
     # Lens-to-sensor distance v for a sensor-referenced focus distance D: u + v = D, 1/u + 1/v = 1/f.
-    v_f = (D - np.sqrt(np.maximum(D * D - 4 * D * f, 0.0))) / 2.0
+    v_f = 2 * D * f / (D + np.sqrt(np.maximum(D * D - 4 * D * f, 0.0)))  # the smaller root, stably
     u = 1000.0 * np.asarray(depth_m, dtype=np.float64) - v_f
     v_o = 1.0 / (1.0 / f - 1.0 / np.maximum(u, f * 1.0001))
     return epd * np.abs(v_f - v_o) / v_o / lens.sensor.pixel_mm
