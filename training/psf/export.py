@@ -1,0 +1,101 @@
+"""Export a PSF surrogate to ONNX with the metadata a runtime needs to use it correctly."""
+
+from __future__ import annotations
+
+import json
+import os
+import warnings
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from training.lens.schema import Lens
+from training.psf.surrogates import PSFModel
+
+INPUTS_DOC = ("query (B, 4) float32 = x, y, depth_m, focus_m. x, y: normalised upright image position in [-1, 1] "
+              "(x right, y up, +-1 = sensor edges), naming the object direction tan(theta) = x W/2 / EFL, "
+              "y H/2 / EFL. depth_m, focus_m: metres from the sensor plane.")
+OUTPUTS_DOC = ("kernels (B, k, k) float32: energy per cell (sum = energy reaching the sensor inside the window, "
+               "not renormalised), row 0 at the top, centre cell on the chief ray's hit. scale (B,) float32: cell "
+               "size in sensor pixels (>= 1; resample to pixels before convolving).")
+
+
+class _Wrapper(nn.Module):
+    def __init__(self, model: PSFModel):
+        super().__init__()
+        self.model = model
+
+    def forward(self, query: torch.Tensor):
+        return self.model(query), self.model.scale(query[:, 2], query[:, 3])
+
+
+def metadata(model: PSFModel, lens: Lens, extra: dict | None = None) -> dict[str, str]:
+    sen = lens.sensor
+    md = {
+        "aat.kind": "psf_surrogate",
+        "aat.model": type(model).__name__,
+        "aat.lens_name": lens.name,
+        "aat.lens_hash": lens.prescription_hash(),
+        "aat.sensor_mm": json.dumps([sen.width_mm, sen.height_mm]),
+        "aat.sensor_px": json.dumps([sen.width_px, sen.height_px]),
+        "aat.pixel_um": f"{sen.pixel_mm * 1000:.6g}",
+        "aat.kernel_size": str(model.k),
+        "aat.margin_px": str(model.margin_px),
+        "aat.depth_range_m": json.dumps([model.near_m, model.far_m]),
+        "aat.focus_range_m": json.dumps([model.near_m, model.far_m]),
+        "aat.distances": "metres from the sensor plane along the optical axis",
+        "aat.inputs": INPUTS_DOC,
+        "aat.outputs": OUTPUTS_DOC,
+        "aat.efl_mm": f"{model.efl_mm:.9g}",
+        "aat.entrance_pupil_mm": f"{model.epd_mm:.9g}",
+    }
+    md.update({f"aat.{k}": (v if isinstance(v, str) else json.dumps(v)) for k, v in (extra or {}).items()})
+    return md
+
+
+def export_psf_onnx(model: PSFModel, lens: Lens, path, extra_metadata: dict | None = None, force: bool = False,
+                    check: bool = True) -> dict[str, str]:
+    """Write `model` to ONNX (dynamic batch) with metadata; check onnxruntime against torch (max abs 1e-5)."""
+    import onnx
+
+    path = Path(path)
+    if path.exists() and not force:
+        raise FileExistsError(f"{path}: exists (use --force to overwrite)")
+    model = model.eval().float()
+    wrapper = _Wrapper(model)
+    q = torch.tensor([[0.1, 0.2, 1.0, 1.5], [0.9, -0.8, 0.4, 5.0]], dtype=torch.float32)
+    tmp = path.with_name(path.name + ".tmp")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the legacy exporter's deprecation notice
+        torch.onnx.export(wrapper, (q,), str(tmp), input_names=["query"], output_names=["kernels", "scale"],
+                          dynamic_axes={"query": {0: "batch"}, "kernels": {0: "batch"}, "scale": {0: "batch"}},
+                          opset_version=17, dynamo=False)
+    m = onnx.load(str(tmp))
+    md = metadata(model, lens, extra_metadata)
+    for k, v in md.items():
+        m.metadata_props.add(key=k, value=v)
+    onnx.save(m, str(tmp))
+    if check:
+        err = parity(wrapper, tmp)
+        if err > 1e-5:
+            tmp.unlink()
+            raise RuntimeError(f"onnxruntime differs from torch by {err:.2e} (> 1e-5)")
+    os.replace(tmp, path)
+    return md
+
+
+def parity(wrapper: nn.Module, onnx_path, n: int = 2048, seed: int = 0) -> float:
+    """Max abs difference between torch and onnxruntime on random queries over the valid range."""
+    import onnxruntime as ort
+
+    m = wrapper.model
+    rng = np.random.default_rng(seed)
+    inv = rng.uniform(m.d_lo, m.d_hi, (n, 2))
+    q = np.concatenate([rng.uniform(-1, 1, (n, 2)), 1 / inv], 1).astype(np.float32)
+    sess = ort.InferenceSession(str(onnx_path), providers=["CPUExecutionProvider"])
+    k_ort, s_ort = sess.run(None, {"query": q})
+    with torch.no_grad():
+        k_t, s_t = wrapper(torch.from_numpy(q))
+    return max(float(np.abs(k_ort - k_t.numpy()).max()), float(np.abs(s_ort - s_t.numpy()).max() / 100))
