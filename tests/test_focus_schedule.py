@@ -1,0 +1,41 @@
+"""Focus schedules: even in diopters, sorted, jitter keeps the order, no dependence on scene depth."""
+
+from __future__ import annotations
+
+import inspect
+
+import numpy as np
+import pytest
+
+from training.render.schedule import FocusSchedule
+
+
+def test_even_in_diopters_and_sorted_near_to_far():
+    d = FocusSchedule(0.5, 5.0, 8).distances()
+    assert d[0] == pytest.approx(0.5) and d[-1] == pytest.approx(5.0)
+    assert np.allclose(np.diff(1 / d), np.diff(1 / d)[0])
+    assert np.all(np.diff(d) > 0)
+
+
+def test_jitter_keeps_order_and_bounds():
+    s = FocusSchedule(0.4, 10.0, 10, jitter_d=0.45)
+    rng = np.random.default_rng(0)
+    base = s.distances()
+    for _ in range(200):
+        d = s.distances(rng)
+        assert np.all(np.diff(d) > 0)
+        assert np.all(np.abs(1 / d - 1 / base) <= 0.45 * s.spacing_d + 1e-12)
+    assert not np.allclose(s.distances(rng), base)
+
+
+def test_schedule_never_sees_depth():
+    # The reference code derives test-time focus from the ground-truth depth range; ours cannot.
+    params = set(inspect.signature(FocusSchedule.distances).parameters)
+    assert params == {"self", "rng"}
+
+
+def test_bad_schedules_are_rejected():
+    with pytest.raises(ValueError):
+        FocusSchedule(2.0, 1.0, 5)
+    with pytest.raises(ValueError):
+        FocusSchedule(0.5, 1.0, 1)
