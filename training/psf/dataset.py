@@ -14,6 +14,7 @@ import hashlib
 import json
 import os
 import tempfile
+import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -88,6 +89,7 @@ def build_psf_dataset(lens: Lens, cfg: PSFDataConfig, cache_dir: Path | None = N
     if path.exists():
         with np.load(path) as z:
             return {k: z[k] for k in z.files}
+    t_start = time.perf_counter()
     inp = sample_inputs(lens, cfg)
     spec = KernelSpec.for_lens(lens, cfg.kernel_size, cfg.margin_px)
     over = 2 if cfg.layout == "axis" else 1
@@ -110,7 +112,9 @@ def build_psf_dataset(lens: Lens, cfg: PSFDataConfig, cache_dir: Path | None = N
         kernels[sl], energy[sl], scale[sl] = b.kernels.numpy(), b.energy, b.scale
         _atomic_savez(part, kernels=kernels[sl], energy=energy[sl], scale=scale[sl])
     data = {**{k_: v.astype(np.float32) for k_, v in inp.items()}, "kernels": kernels, "energy": energy,
-            "scale": scale, "config": np.array(json.dumps(asdict(cfg)))}
+            "scale": scale, "config": np.array(json.dumps(asdict(cfg))),
+            # tracing wall time (s), kept so cached reruns still report what building the data cost
+            "build_seconds": np.array(time.perf_counter() - t_start)}
     _atomic_savez(path, **data)
     for p in parts_dir.glob("*.npz"):
         p.unlink()
@@ -133,4 +137,4 @@ def eval_grid(lens: Lens, n_focus: int = 20, n_depth: int = 40, n_rows: int = 8,
 
 
 def to_tensors(data: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
-    return {k: torch.from_numpy(np.asarray(v)) for k, v in data.items() if k != "config"}
+    return {k: torch.from_numpy(np.asarray(v)) for k, v in data.items() if k not in ("config", "build_seconds")}

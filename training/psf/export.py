@@ -94,6 +94,7 @@ def parity(wrapper: nn.Module, onnx_path, n: int = 2048, seed: int = 0) -> float
     rng = np.random.default_rng(seed)
     inv = rng.uniform(m.d_lo, m.d_hi, (n, 2))
     q = np.concatenate([rng.uniform(-1, 1, (n, 2)), 1 / inv], 1).astype(np.float32)
+    q[:8, :2] = [[0, 0], [0, 1], [1, 0], [0, -1], [-1, 0], [1, 1], [-1, -1], [0, 0]]  # axis and edges exactly
     sess = ort.InferenceSession(str(onnx_path), providers=["CPUExecutionProvider"])
     k_ort, s_ort = sess.run(None, {"query": q})
     with torch.no_grad():

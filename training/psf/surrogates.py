@@ -2,7 +2,8 @@
 representation of `training.psf.kernel` (energy per cell, cell = `scale` pixels, centred on the chief ray).
 
 - `GaussianPSF`: the thin-lens baseline. Circle of confusion from EFL, entrance pupil and distances; a Gaussian
-  with the disk's second moment (sigma = CoC / 4) plus the splat's tent (1/6 cell^2), energy 1.
+  with the disk's second moment (sigma = CoC / 4) plus the splat's tent (1/6 cell^2), energy 1 over the plane
+  (the tails outside the window are lost, not renormalised).
 - `PaperMLP`: the paper's network: 4 inputs -> 5 hidden layers of 256 (ReLU) -> k^2 (sigmoid).
   Inputs are normalised, depth and focus in diopters.
 - `RotPSF` (ours): uses the lens's rotational symmetry. An MLP maps (field radius, defocus in diopters, focus in
@@ -62,10 +63,13 @@ class GaussianPSF(PSFModel):
         depth, focus = q[:, 2], q[:, 3]
         s = self.scale(depth, focus)
         sigma2 = (self.blur_px(depth, focus) / 4.0 / s) ** 2 + 1.0 / 6.0  # cells^2
+        # Separable Gaussian, normalised over the whole cell lattice (not the window): what falls outside the
+        # window is lost, as for every other method; nothing is renormalised.
+        wide = torch.arange(-self.k - 40, self.k + 41, dtype=q.dtype, device=q.device)
+        norm = torch.exp(-(wide[None, :] ** 2) / (2 * sigma2[:, None])).sum(1, keepdim=True)
         g = torch.arange(self.k, dtype=q.dtype, device=q.device) - self.k // 2
-        e = torch.exp(-(g[None, :] ** 2) / (2 * sigma2[:, None]))  # separable
-        ker = e[:, :, None] * e[:, None, :]
-        return ker / ker.sum((1, 2), keepdim=True)
+        e = torch.exp(-(g[None, :] ** 2) / (2 * sigma2[:, None])) / norm
+        return e[:, :, None] * e[:, None, :]
 
 
 def _mlp(n_in: int, width: int, depth: int, n_out: int, act) -> nn.Sequential:
@@ -114,17 +118,22 @@ class RotPSF(PSFModel):
         log_s = torch.log(self.scale(depth_m, focus_m))
         return torch.stack([2 * r - 1, (inv_d - inv_f) / span, 2 * (inv_f - self.d_lo) / span - 1, log_s], -1)
 
-    def axis_kernel(self, r, depth_m, focus_m) -> torch.Tensor:
-        """(B, 2k+1, 2k+1) half-cell kernel of a point on the +y image axis at normalised radius r."""
+    def axis_shape_energy(self, r, depth_m, focus_m) -> tuple[torch.Tensor, torch.Tensor]:
+        """Shape (B, 2k+1, 2k+1), summing to 1, and energy (B,) of a point on the +y image axis at radius r."""
         out = self.net(self.features(r, depth_m, focus_m))
         logits, e = out[:, :-1].view(-1, self.kf, self.half), out[:, -1]
         full = torch.cat([logits, torch.flip(logits[:, :, :-1], (2,))], 2)  # mirror about the centre column
         shape = torch.softmax(full.reshape(full.shape[0], -1), -1).view(-1, self.kf, self.kf)
-        return shape * (self.max_energy * torch.sigmoid(e))[:, None, None]
+        return shape, self.max_energy * torch.sigmoid(e)
 
-    def rotate(self, fine: torch.Tensor, phi: torch.Tensor) -> torch.Tensor:
+    def axis_kernel(self, r, depth_m, focus_m) -> torch.Tensor:
+        """(B, 2k+1, 2k+1) half-cell kernel of a point on the +y image axis at normalised radius r."""
+        shape, energy = self.axis_shape_energy(r, depth_m, focus_m)
+        return shape * energy[:, None, None]
+
+    def rotate(self, fine: torch.Tensor, cos_phi: torch.Tensor, sin_phi: torch.Tensor) -> torch.Tensor:
         """Rotate axis kernels clockwise by phi (from +y towards +x), bicubic on the half-cell grid."""
-        c, s = torch.cos(phi)[:, None, None], torch.sin(phi)[:, None, None]
+        c, s = cos_phi[:, None, None], sin_phi[:, None, None]
         su = c * self.grid_u - s * self.grid_v
         sv = s * self.grid_u + c * self.grid_v
         half = (self.kf - 1) / 2
@@ -133,13 +142,20 @@ class RotPSF(PSFModel):
         return out[:, 0]
 
     def field_polar(self, x, y):
+        """(r, cos phi, sin phi): normalised radius and the direction's angle from +y towards +x.
+        Written without atan2, whose ONNX form is 0/0 on the axis; there the angle is irrelevant (phi = 0)."""
         u, v = x * self.half_w, y * self.half_h
-        return torch.sqrt(u * u + v * v) / self.half_diag, torch.atan2(u, v)
+        rho = torch.sqrt(u * u + v * v)
+        on_axis = rho < 1e-9
+        safe = torch.where(on_axis, torch.ones_like(rho), rho)
+        cos_phi = torch.where(on_axis, torch.ones_like(rho), v / safe)
+        sin_phi = torch.where(on_axis, torch.zeros_like(rho), u / safe)
+        return rho / self.half_diag, cos_phi, sin_phi
 
     def forward(self, q: torch.Tensor) -> torch.Tensor:
-        r, phi = self.field_polar(q[:, 0], q[:, 1])
+        r, cos_phi, sin_phi = self.field_polar(q[:, 0], q[:, 1])
         fine = self.axis_kernel(r, q[:, 2], q[:, 3])
-        return torch.clamp(downsample2(self.rotate(fine, phi)), min=0.0)
+        return torch.clamp(downsample2(self.rotate(fine, cos_phi, sin_phi)), min=0.0)
 
 
 class GridPSF(PSFModel):
