@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import math
 import subprocess
 import sys
@@ -15,7 +14,7 @@ from conftest import LENSES, ROOT
 from training.lens.io import load_lens
 from training.optics.paraxial import paraxial_data
 from training.psf.dataset import PSFDataConfig, build_psf_dataset, eval_grid, to_tensors
-from training.psf.fit import FitConfig, fit, psf_errors
+from training.psf.fit import FitConfig, fit
 from training.psf.geometry import thin_lens_blur_px
 from training.psf.kernel import KernelSpec
 from training.psf.raytrace import raytrace_psfs

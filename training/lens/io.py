@@ -431,7 +431,7 @@ def load_diffoptics_txt(path, resolution=DEFAULT_ZMX_RESOLUTION) -> Lens:
         raise _err(path, "not a DiffOptics lens: needs S/A rows and a final I (image) row")
     lens_rows = [r for r in rows if r[1] in ("S", "A")]
     surfaces, stop = [], None
-    for i, (lineno, typ, (dist, roc, diam), mat, extra) in enumerate(lens_rows):
+    for i, (lineno, typ, (_gap, roc, diam), mat, extra) in enumerate(lens_rows):
         nxt = rows[rows.index(lens_rows[i]) + 1]
         mat = "air" if mat.upper() in ("AIR", "VACUUM", "OCCLUDER") else mat
         try:
