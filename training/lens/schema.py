@@ -135,9 +135,6 @@ class Lens:
         """Refractive index before surface 0, then after each surface, at one wavelength."""
         return [float(m.n(wavelength_nm)) for m in self.materials()]
 
-    def with_sensor(self, sensor: Sensor) -> "Lens":
-        return replace(self, sensor=sensor)
-
     def with_stop_semi_diameter(self, semi_diameter_mm: float) -> "Lens":
         surfs = list(self.surfaces)
         surfs[self.stop_index] = replace(surfs[self.stop_index], semi_diameter_mm=float(semi_diameter_mm))

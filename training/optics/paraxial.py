@@ -66,12 +66,6 @@ class ParaxialData:
         return asdict(self)
 
 
-def efl_mm(lens: Lens, wavelength_nm: float | None = None) -> float:
-    w = wavelength_nm or lens.design_wavelength_nm
-    _, u = _trace(lens, 1.0, 0.0, w)
-    return -1.0 / u
-
-
 def stop_semi_diameter_for_epd(lens: Lens, epd_mm: float, wavelength_nm: float | None = None) -> float:
     """Stop semi-diameter that gives the requested entrance-pupil diameter."""
     w = wavelength_nm or lens.design_wavelength_nm

@@ -57,7 +57,10 @@ def _focus_table(lens: Lens, near_m: float, far_m: float, n: int, wavelength_nm:
 
 def focus_table(lens: Lens, near_m: float = 0.2, far_m: float = 100.0, n: int = 129,
                 wavelength_nm: float | None = None) -> FocusTable:
-    """Focus table from near_m to far_m (metres from the sensor), n samples even in diopters."""
+    """Focus table from near_m to far_m (metres from the sensor), n samples even in diopters.
+
+    Default wavelength: the lens's design wavelength. A camera focuses once; PSFs traced at other wavelengths
+    keep this sensor position, so their chromatic focus shift shows up as defocus."""
     return _focus_table(lens, near_m, far_m, n, wavelength_nm or lens.design_wavelength_nm)
 
 
@@ -87,7 +90,7 @@ def object_points_mm(lens: Lens, x, y, depth_m, sensor_z_mm) -> torch.Tensor:
     return torch.from_numpy(np.ascontiguousarray(pts, dtype=np.float64))
 
 
-def thin_lens_blur_px(lens: Lens, depth_m, focus_m, sensor_z_fn=None) -> np.ndarray:
+def thin_lens_blur_px(lens: Lens, depth_m, focus_m) -> np.ndarray:
     """Geometric blur-disk diameter in pixels of a thin lens with this lens's EFL and entrance pupil.
 
     Object and focus distances are from the sensor; the thin lens sits at the image-side distance v_f from
@@ -103,13 +106,7 @@ def thin_lens_blur_px(lens: Lens, depth_m, focus_m, sensor_z_fn=None) -> np.ndar
     return epd * np.abs(v_f - v_o) / v_o / lens.sensor.pixel_mm
 
 
-def sensor_z_for(lens: Lens, focus_m, table: FocusTable | None = None) -> np.ndarray:
-    """Sensor z (mm) for focus distances (m), from a focus table (default range 0.2..100 m)."""
-    table = table or focus_table(lens)
-    return np.asarray(table(focus_m))
-
-
 __all__ = [
     "FocusTable", "diopter_grid", "field_radius", "field_to_tan", "focus_table", "object_points_mm",
-    "sensor_z_for", "thin_lens_blur_px",
+    "thin_lens_blur_px",
 ]

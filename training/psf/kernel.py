@@ -16,7 +16,7 @@ reference point (the chief ray's hit).
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -29,7 +29,6 @@ from training.psf.geometry import thin_lens_blur_px
 class KernelSpec:
     size: int = 11  # k, odd
     margin_px: float = 4.0  # aberration allowance added to the thin-lens blur (px)
-    pixel_mm: float = 0.0375  # sensor pixel pitch
 
     def __post_init__(self):
         if self.size % 2 != 1 or self.size < 3:
@@ -40,12 +39,10 @@ class KernelSpec:
         b = thin_lens_blur_px(lens, depth_m, focus_m)
         return np.maximum(1.0, (b + self.margin_px) / (self.size - 1))
 
-    def as_dict(self) -> dict:
-        return asdict(self)
-
     @staticmethod
     def for_lens(lens: Lens, size: int = 11, margin_px: float = 4.0) -> "KernelSpec":
-        return KernelSpec(size=size, margin_px=margin_px, pixel_mm=lens.sensor.pixel_mm)
+        """The spec used with `lens` (sizes are in its sensor pixels; `scale` takes the lens at call time)."""
+        return KernelSpec(size=size, margin_px=margin_px)
 
 
 def splat_bilinear(col: torch.Tensor, row: torch.Tensor, weight: torch.Tensor, k: int) -> torch.Tensor:
