@@ -1,0 +1,96 @@
+"""ONNX export of the DfF nets: exact against torch at three (S, H, W) other than the export shape; metadata."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from conftest import LENSES
+from training.lens.io import load_lens
+from training.nets.export import dff_metadata, export_dff_onnx, parity, read_metadata
+from training.nets.model import build_model
+
+CONTRACT_KEYS = ("aat.kind", "aat.net", "aat.size", "aat.simulator", "aat.effects", "aat.lens_name", "aat.lens_hash",
+                 "aat.focal_length_mm", "aat.f_number", "aat.sensor_mm", "aat.sensor_px", "aat.pixel_um",
+                 "aat.focus_range_m", "aat.stack_min", "aat.stack_max", "aat.size_multiple",
+                 "aat.input_normalisation", "aat.config_hash", "aat.version", "aat.distances")
+SHAPES = [(1, 5, 64, 96), (2, 3, 32, 32), (1, 9, 96, 64)]  # (B, S, H, W); the export traces (1, 4, 64, 64)
+
+
+@pytest.fixture(scope="module")
+def lens():
+    return load_lens(LENSES / "canon_rf50mm_f1.8.json")
+
+
+def _trained_like(net: str) -> torch.nn.Module:
+    """Small model with non-trivial batch-norm statistics (as after training), in eval mode."""
+    torch.manual_seed(3)
+    model = build_model(net, "small")
+    with torch.no_grad():
+        for m in model.modules():
+            if isinstance(m, (torch.nn.BatchNorm2d, torch.nn.BatchNorm3d)):
+                m.running_mean.uniform_(-0.2, 0.2)
+                m.running_var.uniform_(0.5, 2.0)
+    return model.eval()
+
+
+@pytest.mark.parametrize("net", ["aifnet", "dfvnet"])
+def test_export_parity_and_metadata(tmp_path, lens, net):
+    model = _trained_like(net)
+    md = dff_metadata(model, lens, simulator="aat", effects=["psf"], focus_range_m=(0.5, 5.0), stack_range=(2, 16),
+                      config_hash="0123456789abcdef")
+    out = tmp_path / f"{net}.onnx"
+    err_export = export_dff_onnx(model, out, md, check_shapes=SHAPES[:1])
+    err = parity(model, out, SHAPES)
+    print(f"{net}: ORT vs torch max abs diff {err:.2e} at {SHAPES}")
+    assert err <= 1e-4 and err_export <= 1e-4
+    got = read_metadata(out)
+    for k in CONTRACT_KEYS:
+        assert got.get(k), k
+    assert got["aat.kind"] == "dff" and got["aat.net"] == net and got["aat.size"] == "small"
+    assert got["aat.lens_hash"] == lens.prescription_hash() and got["aat.lens_name"] == lens.name
+    assert json.loads(got["aat.sensor_px"]) == [lens.sensor.width_px, lens.sensor.height_px]
+    assert json.loads(got["aat.focus_range_m"]) == [0.5, 5.0] and json.loads(got["aat.effects"]) == ["psf"]
+    assert got["aat.stack_min"] == "2" and got["aat.stack_max"] == "16" and got["aat.size_multiple"] == "32"
+    assert 45 < float(got["aat.focal_length_mm"]) < 55 and 1.5 < float(got["aat.f_number"]) < 2.2
+    assert not list(tmp_path.glob("*.tmp"))
+    with pytest.raises(FileExistsError, match="force"):
+        export_dff_onnx(model, out, md)
+
+
+def test_onnx_io_names_and_dynamic_axes(tmp_path, lens):
+    import onnx
+
+    model = _trained_like("dfvnet")
+    md = dff_metadata(model, lens, simulator="thin_lens", effects=[], focus_range_m=(0.5, 5.0),
+                      stack_range=(2, 16), config_hash="x")
+    out = tmp_path / "m.onnx"
+    export_dff_onnx(model, out, md, check_shapes=[(1, 2, 32, 64)])
+    g = onnx.load(str(out)).graph
+    assert [i.name for i in g.input] == ["stack", "focus_m"]
+    assert [o.name for o in g.output] == ["depth_m", "aif", "std_m"]
+    dims = [d.dim_param or d.dim_value for d in g.input[0].type.tensor_type.shape.dim]
+    assert dims == ["B", "S", 3, "H", "W"]
+
+
+def test_metadata_rejects_bad_simulator(lens):
+    with pytest.raises(ValueError, match="simulator"):
+        dff_metadata(build_model("aifnet", "small"), lens, simulator="gauss", effects=[], focus_range_m=(1, 2),
+                     stack_range=(2, 8), config_hash="x")
+
+
+def test_parity_detects_a_different_model(tmp_path, lens):
+    model = _trained_like("aifnet")
+    md = dff_metadata(model, lens, simulator="aat", effects=[], focus_range_m=(0.5, 5.0), stack_range=(2, 8),
+                      config_hash="x")
+    out = tmp_path / "a.onnx"
+    export_dff_onnx(model, out, md, check_shapes=[(1, 3, 32, 32)])
+    with torch.no_grad():
+        model.net.out.bias += 1.0  # a logit shift common to all frames changes nothing: softmax is shift-invariant
+        assert parity(model, out, [(1, 3, 32, 32)]) < 1e-4
+        model.net.out.weight.mul_(3.0)
+    assert parity(model, out, [(1, 3, 32, 32)]) > 1e-3
+    assert np.isfinite(parity(model, out, [(1, 2, 64, 32)]))

@@ -1,0 +1,150 @@
+"""Export a trained DfF model to ONNX with the metadata of docs/contracts.md ("DfF model").
+
+Graph: inputs `stack` (B, S, 3, H, W) float32 normalised by aat_deploy.normalise.normalise_stack, frames sorted
+near to far, H and W multiples of `aat.size_multiple`; `focus_m` (B, S) float32 metres from the sensor plane.
+Outputs `depth_m` (B, H, W), `aif` (B, 3, H, W), `std_m` (B, H, W). B, S, H, W are dynamic; both nets have no
+shape-derived kernels, so one export is exact at every shape (checked against torch at three shapes when
+written). The graph neither sorts nor pads: the runtime does (as `training.nets.model.predict` does in torch).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import warnings
+from importlib import metadata as importlib_metadata
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from aat_deploy.normalise import DESCRIPTION as NORMALISATION
+from training.lens.schema import Lens
+from training.nets.model import DfFModel
+
+DISTANCES = "metres from the sensor plane along the optical axis"
+PARITY_TOL = 1e-4
+
+
+def config_hash(config: dict) -> str:
+    """SHA-256 (first 16 hex) of a JSON-serialisable config, key order ignored."""
+    return hashlib.sha256(json.dumps(config, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def package_version() -> str:
+    try:
+        return importlib_metadata.version("aat")
+    except importlib_metadata.PackageNotFoundError:
+        return "unknown"
+
+
+def dff_metadata(model: DfFModel, lens: Lens, *, simulator: str, effects: list[str],
+                 focus_range_m: tuple[float, float], stack_range: tuple[int, int], config_hash: str,
+                 extra: dict | None = None) -> dict[str, str]:
+    """metadata_props for a DfF model: every key of docs/contracts.md, strings (lists/numbers JSON-encoded)."""
+    from training.optics.paraxial import paraxial_data
+
+    if simulator not in ("aat", "thin_lens"):
+        raise ValueError(f"simulator must be 'aat' or 'thin_lens', got {simulator!r}")
+    if not model.name or not model.size:
+        raise ValueError("dff_metadata: the model has no net name / size (build it with build_model)")
+    par = paraxial_data(lens)
+    sen = lens.sensor
+    md = {
+        "aat.kind": "dff",
+        "aat.net": model.name,
+        "aat.size": model.size,
+        "aat.simulator": simulator,
+        "aat.effects": json.dumps(list(effects)),
+        "aat.lens_name": lens.name,
+        "aat.lens_hash": lens.prescription_hash(),
+        "aat.focal_length_mm": f"{par.efl_mm:.9g}",
+        "aat.f_number": f"{par.fno:.6g}",
+        "aat.sensor_mm": json.dumps([sen.width_mm, sen.height_mm]),
+        "aat.sensor_px": json.dumps([sen.width_px, sen.height_px]),
+        "aat.pixel_um": f"{sen.pixel_mm * 1000:.6g}",
+        "aat.focus_range_m": json.dumps([float(focus_range_m[0]), float(focus_range_m[1])]),
+        "aat.stack_min": str(int(stack_range[0])),
+        "aat.stack_max": str(int(stack_range[1])),
+        "aat.size_multiple": str(model.size_multiple),
+        "aat.input_normalisation": NORMALISATION,
+        "aat.config_hash": config_hash,
+        "aat.version": package_version(),
+        "aat.distances": DISTANCES,
+        "aat.n_params": str(model.n_params),
+    }
+    md.update({f"aat.{k}": (v if isinstance(v, str) else json.dumps(v)) for k, v in (extra or {}).items()})
+    return md
+
+
+def _example(b: int, s: int, h: int, w: int, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
+    g = torch.Generator().manual_seed(seed)
+    stack = torch.rand(b, s, 3, h, w, generator=g)
+    focus = torch.sort(torch.rand(b, s, generator=g) * 5 + 0.3, dim=1).values
+    return stack, focus
+
+
+def parity(model: DfFModel, onnx_path, shapes: list[tuple[int, int, int, int]]) -> float:
+    """Max abs difference over all outputs between torch and onnxruntime at each (B, S, H, W)."""
+    import onnxruntime as ort
+
+    sess = ort.InferenceSession(str(onnx_path), providers=["CPUExecutionProvider"])
+    worst = 0.0
+    model = model.eval()
+    for i, shp in enumerate(shapes):
+        stack, focus = _example(*shp, seed=i)
+        outs = sess.run(None, {"stack": stack.numpy(), "focus_m": focus.numpy()})
+        with torch.no_grad():
+            ref = model(stack, focus)
+        for o, r in zip(outs, ref):
+            if o.shape != tuple(r.shape):
+                raise RuntimeError(f"onnxruntime output shape {o.shape} != torch {tuple(r.shape)} at {shp}")
+            worst = max(worst, float(np.abs(o - r.numpy()).max()))
+    return worst
+
+
+def export_dff_onnx(model: DfFModel, path, metadata: dict[str, str], *, force: bool = False,
+                    check_shapes: list[tuple[int, int, int, int]] | None = None, opset: int = 17) -> float:
+    """Write `model` to ONNX at `path` (atomic: temporary file then rename; refuses to overwrite unless force)
+    with `metadata` (see dff_metadata). Checks onnxruntime against torch at `check_shapes` (B, S, H, W)
+    (default: three different shapes) and refuses to write if they differ by more than 1e-4.
+    Returns the max abs difference."""
+    import onnx
+
+    path = Path(path)
+    if path.exists() and not force:
+        raise FileExistsError(f"{path}: exists (use --force to overwrite)")
+    m = model.size_multiple
+    shapes = check_shapes or [(1, 5, 2 * m, 2 * m), (2, 3, m, 3 * m), (1, 8, 3 * m, 2 * m)]
+    model = model.eval().float()
+    stack, focus = _example(1, 4, 2 * m, 2 * m)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the legacy exporter's deprecation notice
+            torch.onnx.export(model, (stack, focus), str(tmp), input_names=["stack", "focus_m"],
+                              output_names=["depth_m", "aif", "std_m"], opset_version=opset, dynamo=False,
+                              dynamic_axes={"stack": {0: "B", 1: "S", 3: "H", 4: "W"}, "focus_m": {0: "B", 1: "S"},
+                                            "depth_m": {0: "B", 1: "H", 2: "W"}, "aif": {0: "B", 2: "H", 3: "W"},
+                                            "std_m": {0: "B", 1: "H", 2: "W"}})
+        proto = onnx.load(str(tmp))
+        for k, v in metadata.items():
+            proto.metadata_props.add(key=k, value=str(v))
+        onnx.save(proto, str(tmp))
+        err = parity(model, tmp, shapes)
+        if err > PARITY_TOL:
+            raise RuntimeError(f"onnxruntime differs from torch by {err:.2e} (> {PARITY_TOL:g})")
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return err
+
+
+def read_metadata(path) -> dict[str, str]:
+    """metadata_props of an ONNX file as a dict."""
+    import onnx
+
+    return {p.key: p.value for p in onnx.load(str(path), load_external_data=False).metadata_props}
