@@ -1,0 +1,71 @@
+"""Optional fallback: ask ExifTool (`exiftool -j -n`) when it is installed. Never required."""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import subprocess
+from dataclasses import dataclass, field
+from pathlib import Path
+
+# exiftool tag names that hold a focus distance in metres, in the order we trust them
+FOCUS_TAGS = ("FocusDistance", "FocusDistanceUpper", "SubjectDistance", "ObjectDistance", "ApproximateFocusDistance")
+_ASKED = ("FocusDistance", "FocusDistanceUpper", "FocusDistanceLower", "SubjectDistance", "ObjectDistance",
+          "ApproximateFocusDistance", "Make", "Model", "LensModel", "Lens", "FocalLength", "FNumber")
+
+
+@dataclass
+class ExifToolResult:
+    """What exiftool reported (distances in metres)."""
+
+    focus_m: float | None = None
+    focus_source: str | None = None
+    focus_tags: dict[str, float] = field(default_factory=dict)
+    make: str | None = None
+    model: str | None = None
+    lens: str | None = None
+    focal_length_mm: float | None = None
+    f_number: float | None = None
+
+
+def available() -> bool:
+    """True when an `exiftool` executable is on PATH."""
+    return shutil.which("exiftool") is not None
+
+
+def read(path: str | Path, timeout_s: float = 30.0) -> ExifToolResult:
+    """Run exiftool on one file; an empty result if it fails (exiftool is only a fallback)."""
+    out = ExifToolResult()
+    exe = shutil.which("exiftool")
+    if exe is None:
+        return out
+    try:
+        proc = subprocess.run([exe, "-j", "-n", *(f"-{t}" for t in _ASKED), str(path)],
+                              capture_output=True, text=True, timeout=timeout_s, check=False)
+        data = json.loads(proc.stdout)[0]
+    except (OSError, subprocess.SubprocessError, ValueError, IndexError, KeyError):
+        return out
+    for name in _ASKED[:6]:
+        v = data.get(name)
+        if isinstance(v, (int, float)) and math.isfinite(v):
+            out.focus_tags[name] = float(v)
+    for name in FOCUS_TAGS:
+        v = out.focus_tags.get(name)
+        if v is None:
+            continue
+        if name == "FocusDistanceUpper":
+            lower = out.focus_tags.get("FocusDistanceLower", v)
+            inv = 0.5 * ((0 if v > 655.345 else 1 / v) + (1 / lower if 0 < lower <= 655.345 else 0))
+            v = math.inf if inv == 0 else 1 / inv
+        if v > 0:
+            out.focus_m, out.focus_source = v, name
+            break
+    out.make = data.get("Make") or None
+    out.model = str(data["Model"]) if data.get("Model") is not None else None
+    out.lens = data.get("LensModel") or data.get("Lens") or None
+    for attr, name in (("focal_length_mm", "FocalLength"), ("f_number", "FNumber")):
+        v = data.get(name)
+        if isinstance(v, (int, float)):
+            setattr(out, attr, float(v))
+    return out

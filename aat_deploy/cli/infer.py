@@ -1,0 +1,77 @@
+"""aat-infer: run an ONNX depth-from-focus model on capture folders.
+
+    aat-infer CAPTURE_DIR... --model M.onnx [--out DIR] [--force] [--strict] [--threads N] [--tile N] [--align]
+
+Writes depth_mm.png, depth_m.npy, aif.png, std_m.npy, std_mm.png, summary.json and recording.rrd per capture,
+into DIR itself for one capture, DIR/<capture name>/ for several (default DIR: ./aat_out/<capture name>).
+A failing capture is reported on one line and the batch goes on; the exit status is 1 if any failed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+from ..errors import CaptureError
+from ..model import DfFModel
+from ..pipeline import Options, output_dir_for, run_capture
+
+
+def main(argv: list[str] | None = None) -> int:
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    ap = argparse.ArgumentParser(prog="aat-infer", description=__doc__.split("\n")[0])
+    ap.add_argument("captures", nargs="+", metavar="CAPTURE_DIR")
+    ap.add_argument("--model", required=True, type=Path, help="aat DfF model (.onnx)")
+    ap.add_argument("--out", type=Path, help="output folder (see above)")
+    ap.add_argument("--force", action="store_true", help="replace existing output folders")
+    ap.add_argument("--strict", action="store_true", help="camera/lens mismatch with the model is an error")
+    ap.add_argument("--threads", type=int, default=None, help="onnxruntime intra-op threads (default: all cores)")
+    ap.add_argument("--tile", type=int, default=None, help="run in overlapping tiles of N px (bounded memory)")
+    ap.add_argument("--align", action="store_true", help="align frames (affine) against focus breathing")
+    ap.add_argument("--no-exiftool", action="store_true", help="never fall back to exiftool")
+    ap.add_argument("--no-recording", action="store_true", help="skip recording.rrd")
+    ap.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
+    args = ap.parse_args(argv)
+    if args.threads is not None and args.threads < 1:
+        ap.error("--threads must be >= 1")
+    if args.tile is not None and args.tile < 16:
+        ap.error("--tile must be >= 16 px")
+    try:
+        model = DfFModel(args.model, threads=args.threads)
+    except CaptureError as e:
+        print(f"aat-infer: error: {e}", file=sys.stderr)
+        return 2
+    opts = Options(tile=args.tile, align=args.align, strict=args.strict, force=args.force,
+                   use_exiftool=not args.no_exiftool, record=not args.no_recording, quiet=args.quiet)
+    single = len(args.captures) == 1
+    failed = 0
+    for i, c in enumerate(args.captures, 1):
+        out = output_dir_for(Path(c), args.out, single)
+        t0 = time.perf_counter()
+        if not args.quiet:
+            print(f"[{i}/{len(args.captures)}] {c}", file=sys.stderr, flush=True)
+        try:
+            summary = run_capture(c, model, out, opts)
+        except CaptureError as e:
+            failed += 1
+            print(f"aat-infer: FAILED {c}: {e}", file=sys.stderr, flush=True)
+            continue
+        except MemoryError:
+            failed += 1
+            print(f"aat-infer: FAILED {c}: out of memory (try --tile 256)", file=sys.stderr, flush=True)
+            continue
+        for w in summary["warnings"]:
+            print(f"aat-infer: warning: {w}", file=sys.stderr)
+        lo, hi = summary["depth_m_range"]
+        print(f"{c} -> {out}  ({len(summary['focus_m'])} frames, depth {lo:.3g}..{hi:.3g} m, "
+              f"{time.perf_counter() - t0:.2f} s)", flush=True)
+    if failed:
+        print(f"aat-infer: {failed} of {len(args.captures)} capture(s) failed", file=sys.stderr)
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

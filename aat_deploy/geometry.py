@@ -1,0 +1,67 @@
+"""Frame geometry: fit a frame to the model's sensor (centre crop to its aspect, then resize) and optional
+alignment of the frames against focus breathing (affine ECC on a reduced grey image)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+
+def fit_to_sensor(img: np.ndarray, size_wh: tuple[int, int]) -> tuple[np.ndarray, dict]:
+    """img (H, W, 3) → (h, w, 3) with (w, h) = size_wh, keeping the field centred.
+
+    The frame is centre-cropped to the target aspect ratio, then resized (area averaging when shrinking,
+    bilinear when enlarging). Returns the image and {"crop_xywh": [...], "scale": s}.
+    """
+    tw, th = size_wh
+    h, w = img.shape[:2]
+    if (w, h) == (tw, th):
+        return img, {"crop_xywh": [0, 0, w, h], "scale": 1.0}
+    target = tw / th
+    if w / h > target:  # too wide: crop columns
+        cw, ch = int(round(h * target)), h
+    else:
+        cw, ch = w, int(round(w / target))
+    x0, y0 = (w - cw) // 2, (h - ch) // 2
+    crop = img[y0:y0 + ch, x0:x0 + cw]
+    interp = cv2.INTER_AREA if cw > tw else cv2.INTER_LINEAR
+    out = cv2.resize(np.ascontiguousarray(crop), (tw, th), interpolation=interp)
+    return out.astype(np.float32, copy=False), {"crop_xywh": [x0, y0, cw, ch], "scale": tw / cw}
+
+
+def align_stack(frames: list[np.ndarray], ref: int, max_side: int = 512) -> tuple[list[np.ndarray], list[dict]]:
+    """Align every frame (H, W, 3) to frames[ref] with an affine ECC fit (focus breathing is mostly a scale).
+
+    The fit runs on a grey copy reduced to at most `max_side` pixels; the warp is applied at full size.
+    A frame whose fit does not converge is left as it is (its info says so).
+    Returns the frames and per-frame {"matrix": 2x3 list, "converged": bool}.
+    """
+    h, w = frames[ref].shape[:2]
+    s = min(1.0, max_side / max(h, w))
+    small = lambda im: cv2.resize(cv2.cvtColor(im, cv2.COLOR_RGB2GRAY), None, fx=s, fy=s,  # noqa: E731
+                                  interpolation=cv2.INTER_AREA) if s < 1 else cv2.cvtColor(im, cv2.COLOR_RGB2GRAY)
+    ref_g = small(frames[ref]).astype(np.float32)
+    ref_g /= max(float(ref_g.max()), 1e-6)
+    out, info = [], []
+    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 100, 1e-6)
+    for i, im in enumerate(frames):
+        if i == ref:
+            out.append(im)
+            info.append({"matrix": [[1, 0, 0], [0, 1, 0]], "converged": True})
+            continue
+        g = small(im).astype(np.float32)
+        g /= max(float(g.max()), 1e-6)
+        warp = np.eye(2, 3, dtype=np.float32)
+        try:
+            _, warp = cv2.findTransformECC(ref_g, g, warp, cv2.MOTION_AFFINE, criteria, None, 5)
+        except cv2.error:
+            out.append(im)
+            info.append({"matrix": [[1, 0, 0], [0, 1, 0]], "converged": False})
+            continue
+        full = warp.copy()
+        full[:, 2] /= s  # translation back to full-resolution pixels
+        aligned = cv2.warpAffine(im, full, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                                 borderMode=cv2.BORDER_REFLECT)
+        out.append(aligned)
+        info.append({"matrix": full.astype(float).round(6).tolist(), "converged": True})
+    return out, info

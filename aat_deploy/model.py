@@ -1,0 +1,169 @@
+"""An ONNX depth-from-focus model (docs/contracts.md, "DfF model"): loading, metadata, padding, tiling.
+
+The model takes stack (B, S, 3, H, W) normalised, focus_m (B, S) ascending, and returns depth_m (B, H, W),
+aif (B, 3, H, W), std_m (B, H, W). H and W must be multiples of `aat.size_multiple`: we pad with reflection
+and crop back. Large images run in overlapping tiles blended with a linear ramp, so memory stays bounded.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import onnxruntime as ort
+
+from .errors import ModelError
+
+REQUIRED_META = ("aat.kind", "aat.lens_name", "aat.focal_length_mm", "aat.f_number", "aat.sensor_px",
+                 "aat.pixel_um", "aat.focus_range_m", "aat.stack_min", "aat.stack_max", "aat.size_multiple")
+SUMMARY_META = ("aat.kind", "aat.net", "aat.size", "aat.simulator", "aat.effects", "aat.lens_name", "aat.lens_hash",
+                "aat.focal_length_mm", "aat.f_number", "aat.sensor_mm", "aat.sensor_px", "aat.pixel_um",
+                "aat.focus_range_m", "aat.stack_min", "aat.stack_max", "aat.size_multiple",
+                "aat.input_normalisation", "aat.config_hash", "aat.version", "aat.distances")
+
+
+def _decode(v: str):
+    try:
+        return json.loads(v)
+    except (json.JSONDecodeError, TypeError):
+        return v
+
+
+@dataclass
+class DfFOutput:
+    """depth_m (H, W) metres, aif (3, H, W) normalised linear units, std_m (H, W) metres; all float32."""
+
+    depth_m: np.ndarray
+    aif: np.ndarray
+    std_m: np.ndarray
+
+
+class DfFModel:
+    """An aat DfF ONNX model on onnxruntime's CPU provider."""
+
+    def __init__(self, path: str | Path, threads: int | None = None):
+        path = Path(path)
+        if not path.is_file():
+            raise ModelError(f"{path}: no such model file")
+        opts = ort.SessionOptions()
+        if threads:
+            opts.intra_op_num_threads = int(threads)
+            opts.inter_op_num_threads = 1
+        try:
+            self.session = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+        except Exception as e:  # onnxruntime raises its own exception types
+            raise ModelError(f"{path}: not a loadable ONNX model ({str(e).splitlines()[0][:200]})") from None
+        self.path = path
+        raw = dict(self.session.get_modelmeta().custom_metadata_map)
+        if raw.get("aat.kind") != "dff":
+            raise ModelError(f"{path}: not an aat depth-from-focus model (metadata aat.kind = {raw.get('aat.kind')!r})")
+        missing = [k for k in REQUIRED_META if k not in raw]
+        if missing:
+            raise ModelError(f"{path}: metadata lacks {', '.join(missing)}")
+        self.meta = {k: _decode(v) for k, v in raw.items()}
+        names_in = {i.name for i in self.session.get_inputs()}
+        names_out = {o.name for o in self.session.get_outputs()}
+        if not {"stack", "focus_m"} <= names_in or not {"depth_m", "aif", "std_m"} <= names_out:
+            raise ModelError(f"{path}: inputs {sorted(names_in)} / outputs {sorted(names_out)} do not follow the "
+                             "contract (stack, focus_m -> depth_m, aif, std_m)")
+        try:
+            self.size_multiple = int(self.meta["aat.size_multiple"])
+            self.stack_range = (int(self.meta["aat.stack_min"]), int(self.meta["aat.stack_max"]))
+            self.sensor_px = tuple(int(v) for v in self.meta["aat.sensor_px"])  # (W, H)
+            self.focus_range_m = tuple(float(v) for v in self.meta["aat.focus_range_m"])
+            self.focal_length_mm = float(self.meta["aat.focal_length_mm"])
+            self.f_number = float(self.meta["aat.f_number"])
+            self.pixel_um = float(self.meta["aat.pixel_um"])
+            self.lens_name = str(self.meta["aat.lens_name"])
+        except (TypeError, ValueError, KeyError) as e:
+            raise ModelError(f"{path}: malformed metadata ({e})") from None
+        if self.size_multiple < 1 or len(self.sensor_px) != 2:
+            raise ModelError(f"{path}: malformed metadata (size_multiple {self.size_multiple}, sensor_px {self.sensor_px})")
+
+    def summary(self) -> dict:
+        """Path and the metadata subset worth recording with results."""
+        return {"path": str(self.path), **{k: self.meta[k] for k in SUMMARY_META if k in self.meta}}
+
+    @property
+    def focal_length_px(self) -> float:
+        """Focal length in pixels of the model's sensor (focal length mm / pixel pitch mm)."""
+        return self.focal_length_mm / (self.pixel_um * 1e-3)
+
+    # -- inference -------------------------------------------------------------------------------------------
+    def _run(self, stack: np.ndarray, focus_m: np.ndarray) -> DfFOutput:
+        """One padded run: stack (S, 3, H, W) with H, W any size; crops back to H, W."""
+        _, _, h, w = stack.shape
+        m = self.size_multiple
+        ph, pw = (-h) % m, (-w) % m
+        if ph or pw:
+            mode = "reflect" if ph < h and pw < w else "symmetric"
+            stack = np.pad(stack, ((0, 0), (0, 0), (0, ph), (0, pw)), mode=mode)
+        depth, aif, std = self.session.run(["depth_m", "aif", "std_m"],
+                                           {"stack": np.ascontiguousarray(stack[None], dtype=np.float32),
+                                            "focus_m": np.asarray(focus_m, np.float32)[None]})
+        return DfFOutput(depth[0, :h, :w], aif[0, :, :h, :w], std[0, :h, :w])
+
+    def infer(self, stack: np.ndarray, focus_m: np.ndarray, tile: int | None = None, overlap: int = 32,
+              progress=None) -> DfFOutput:
+        """Depth, all-in-focus and uncertainty for one normalised stack.
+
+        stack: (S, 3, H, W) float32 normalised, frames sorted by focus (ascending); focus_m: (S,) metres.
+        tile: tile side in pixels (rounded up to size_multiple); None or 0 = whole image at once.
+        progress: optional callable(done, total) for tiles.
+        """
+        s = stack.shape[0]
+        if stack.ndim != 4 or stack.shape[1] != 3 or len(focus_m) != s:
+            raise ModelError(f"stack must be (S, 3, H, W) with S focus distances, got {stack.shape}, {len(focus_m)}")
+        lo, hi = self.stack_range
+        if not lo <= s <= hi:
+            raise ModelError(f"{self.path}: the model takes {lo}..{hi} frames, the capture has {s}")
+        h, w = stack.shape[2:]
+        if not tile or (h <= tile and w <= tile):
+            return self._run(stack, focus_m)
+        m = self.size_multiple
+        tile = int(math.ceil(tile / m) * m)
+        overlap = min(int(overlap), tile // 4)
+        step = tile - overlap
+        ys = list(range(0, max(h - tile, 0) + 1, step))
+        xs = list(range(0, max(w - tile, 0) + 1, step))
+        if ys[-1] + tile < h:
+            ys.append(h - tile)
+        if xs[-1] + tile < w:
+            xs.append(w - tile)
+        ys, xs = [max(0, y) for y in ys], [max(0, x) for x in xs]
+        acc_d = np.zeros((h, w), np.float64)
+        acc_s = np.zeros((h, w), np.float64)
+        acc_a = np.zeros((3, h, w), np.float64)
+        acc_w = np.zeros((h, w), np.float64)
+        total, done = len(ys) * len(xs), 0
+        for y in ys:
+            for x in xs:
+                sub = stack[:, :, y:y + tile, x:x + tile]
+                out = self._run(sub, focus_m)
+                th, tw = out.depth_m.shape
+                wgt = np.outer(_ramp(th, overlap, y > 0, y + th < h), _ramp(tw, overlap, x > 0, x + tw < w))
+                acc_d[y:y + th, x:x + tw] += wgt * out.depth_m
+                acc_s[y:y + th, x:x + tw] += wgt * out.std_m
+                acc_a[:, y:y + th, x:x + tw] += wgt * out.aif
+                acc_w[y:y + th, x:x + tw] += wgt
+                done += 1
+                if progress:
+                    progress(done, total)
+        acc_w = np.maximum(acc_w, 1e-12)
+        return DfFOutput((acc_d / acc_w).astype(np.float32), (acc_a / acc_w).astype(np.float32),
+                         (acc_s / acc_w).astype(np.float32))
+
+
+def _ramp(n: int, overlap: int, ramp_start: bool, ramp_end: bool) -> np.ndarray:
+    """Blend weights along one tile axis: linear ramps over `overlap` pixels on sides shared with a neighbour."""
+    r = np.ones(n, np.float64)
+    if overlap > 0:
+        k = np.arange(1, overlap + 1, dtype=np.float64) / (overlap + 1)
+        if ramp_start:
+            r[:overlap] = np.minimum(r[:overlap], k)
+        if ramp_end:
+            r[-overlap:] = np.minimum(r[-overlap:], k[::-1])
+    return r

@@ -1,0 +1,293 @@
+"""One capture folder → depth, all-in-focus, uncertainty, summary and a rerun recording.
+
+Stages (each timed in summary.json): metadata (focus distances, identity check), decode (RAW/images to linear
+RGB), geometry (fit to the model's sensor px), align (optional), normalise, infer (onnxruntime, padded,
+tiled if asked), write (files), record (.rrd). Outputs go to a temporary sibling folder renamed into place
+at the end, so a failed run never leaves a half-written output folder.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .capture.folder import Capture, read_capture
+from .capture.raw import linear_to_srgb, load_frame
+from .errors import CaptureError, OutputError
+from .geometry import align_stack, fit_to_sensor
+from .model import DfFModel
+from .normalise import DESCRIPTION as NORMALISATION, normalise_stack
+from .recording import write_recording
+
+OUTPUT_FILES = ("depth_mm.png", "depth_m.npy", "aif.png", "std_m.npy", "std_mm.png", "summary.json", "recording.rrd")
+FOCAL_TOLERANCE = 0.02  # relative difference of focal length that counts as another lens
+FNUMBER_TOLERANCE = 0.05
+
+
+@dataclass
+class Options:
+    """Runtime switches (see `aat-infer --help`)."""
+
+    tile: int | None = None
+    align: bool = False
+    strict: bool = False
+    force: bool = False
+    use_exiftool: bool = True
+    record: bool = True
+    quiet: bool = False
+    warnings: list[str] = field(default_factory=list)
+
+
+def _progress(items, desc: str, quiet: bool):
+    """tqdm when it is installed (it is optional), else one plain line per item on stderr."""
+    items = list(items)
+    if quiet:
+        yield from items
+        return
+    try:
+        from tqdm import tqdm
+    except ImportError:
+        for i, it in enumerate(items):
+            print(f"  {desc} {i + 1}/{len(items)}", file=sys.stderr, flush=True)
+            yield it
+        return
+    yield from tqdm(items, desc=f"  {desc}", leave=False, file=sys.stderr)
+
+
+def identity_warnings(capture: Capture, model: DfFModel) -> list[str]:
+    """Differences between the capture's camera/lens (EXIF) and the lens the model was trained for."""
+    out = []
+    lenses = {f.meta.lens for f in capture.frames if f.meta.lens}
+    focals = {round(f.meta.focal_length_mm, 3) for f in capture.frames if f.meta.focal_length_mm}
+    fnums = {round(f.meta.f_number, 3) for f in capture.frames if f.meta.f_number}
+    where = capture.path
+    for what, values in (("lens", lenses), ("focal length", focals), ("F-number", fnums)):
+        if len(values) > 1:
+            out.append(f"{where}: frames disagree on the {what}: {sorted(values)}")
+    for lens in sorted(lenses):
+        if lens != model.lens_name:
+            out.append(f"{where}: lens {lens!r} is not the model's lens {model.lens_name!r}")
+    for fl in sorted(focals):
+        if abs(fl - model.focal_length_mm) > FOCAL_TOLERANCE * model.focal_length_mm:
+            out.append(f"{where}: focal length {fl:g} mm differs from the model's {model.focal_length_mm:g} mm")
+    for fn in sorted(fnums):
+        if abs(fn - model.f_number) > FNUMBER_TOLERANCE * model.f_number:
+            out.append(f"{where}: F-number {fn:g} differs from the model's F/{model.f_number:g}")
+    return out
+
+
+def _write_png(path: Path, img: np.ndarray) -> None:
+    if img.ndim == 3:
+        img = img[..., ::-1]  # RGB → BGR for OpenCV
+    if not cv2.imwrite(str(path), np.ascontiguousarray(img)):
+        raise OutputError(f"{path}: could not write PNG")
+
+
+def _to_mm16(x_m: np.ndarray) -> np.ndarray:
+    mm = np.nan_to_num(x_m * 1000.0, nan=0.0, posinf=65535.0, neginf=0.0)
+    return np.clip(np.rint(mm), 0, 65535).astype(np.uint16)
+
+
+def output_dir_for(capture_dir: Path, out: Path | None, single: bool) -> Path:
+    """Where a capture's results go: --out itself for a single capture, else --out/<capture name>;
+    without --out, ./aat_out/<capture name>."""
+    if out is None:
+        return Path("aat_out") / capture_dir.resolve().name
+    return out if single else out / capture_dir.resolve().name
+
+
+def check_output(out_dir: Path, force: bool) -> None:
+    """Fail early if the output folder exists and --force was not given."""
+    if out_dir.exists() and not force:
+        raise OutputError(f"{out_dir}: output folder exists (pass --force to overwrite)")
+    if out_dir.exists() and not out_dir.is_dir():
+        raise OutputError(f"{out_dir}: exists and is not a folder")
+
+
+def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, opts: Options) -> dict:
+    """Process one capture folder; returns the summary written to out_dir/summary.json."""
+    t_all = time.perf_counter()
+    capture_dir, out_dir = Path(capture_dir), Path(out_dir)
+    check_output(out_dir, opts.force)
+    timings: dict[str, float] = {}
+    clock = time.perf_counter()
+
+    def lap(stage: str) -> None:
+        nonlocal clock
+        now = time.perf_counter()
+        timings[stage] = round(now - clock, 4)
+        clock = now
+
+    cap = read_capture(capture_dir, use_exiftool=opts.use_exiftool)
+    warnings = list(cap.warnings)
+    ident = identity_warnings(cap, model)
+    if ident and opts.strict:
+        raise CaptureError(ident[0] + " (--strict)")
+    warnings += ident
+    frames = sorted(cap.frames, key=lambda f: f.focus_m)
+    focus = np.array([f.focus_m for f in frames], np.float32)
+    lo, hi = model.stack_range
+    if not lo <= len(frames) <= hi:
+        raise CaptureError(f"{capture_dir}: {len(frames)} frames, the model takes {lo}..{hi}")
+    near, far = model.focus_range_m
+    outside = [f"{f.path.name} ({f.focus_m:g} m)" for f in frames if not near * 0.999 <= f.focus_m <= far * 1.001]
+    if outside:
+        warnings.append(f"{capture_dir}: focus distances outside the model's range {near:g}..{far:g} m: "
+                        + ", ".join(outside))
+    lap("metadata")
+
+    images, decode_info, size0 = [], [], None
+    for f in _progress(frames, f"{cap.name}: decode", opts.quiet):
+        img, info = load_frame(f.path)
+        if size0 is None:
+            size0 = img.shape[:2]
+        elif img.shape[:2] != size0:
+            raise CaptureError(f"{f.path}: frame is {img.shape[1]}x{img.shape[0]} px, "
+                               f"{frames[0].path.name} is {size0[1]}x{size0[0]}: frames of different sizes")
+        images.append(img)
+        decode_info.append(info)
+    lap("decode")
+
+    w_px, h_px = model.sensor_px
+    fitted = [fit_to_sensor(im, (w_px, h_px)) for im in images]
+    geometry = fitted[0][1]
+    images = [im for im, _ in fitted]
+    if abs(size0[1] / size0[0] - w_px / h_px) > 0.01 * (w_px / h_px):
+        warnings.append(f"{capture_dir}: frames are {size0[1]}x{size0[0]} px, the model's sensor is {w_px}x{h_px}: "
+                        "centre-cropped to its aspect ratio")
+    lap("geometry")
+
+    align_info = None
+    if opts.align:
+        images, align_info = align_stack(images, ref=len(images) // 2)
+        bad = [frames[i].path.name for i, a in enumerate(align_info) if not a["converged"]]
+        if bad:
+            warnings.append(f"{capture_dir}: alignment did not converge for {', '.join(bad)} (left unaligned)")
+    lap("align")
+
+    stack = normalise_stack(np.stack([im.transpose(2, 0, 1) for im in images]))
+    del images
+    lap("normalise")
+
+    tiles_bar = None
+    if opts.tile and not opts.quiet:
+        tiles_bar = lambda d, n: print(f"  {cap.name}: tile {d}/{n}", file=sys.stderr, flush=True)  # noqa: E731
+    res = model.infer(stack, focus, tile=opts.tile, progress=tiles_bar)
+    lap("infer")
+
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out_dir.parent / f".{out_dir.name}.tmp-{os.getpid()}"
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    tmp.mkdir()
+    try:
+        aif8 = np.rint(linear_to_srgb(res.aif.transpose(1, 2, 0)) * 255).astype(np.uint8)
+        _write_png(tmp / "depth_mm.png", _to_mm16(res.depth_m))
+        np.save(tmp / "depth_m.npy", res.depth_m.astype(np.float32))
+        _write_png(tmp / "aif.png", aif8)
+        np.save(tmp / "std_m.npy", res.std_m.astype(np.float32))
+        _write_png(tmp / "std_mm.png", _to_mm16(res.std_m))
+        gt = _ground_truth(cap, size0, (w_px, h_px), warnings)
+        lap("write")
+        if opts.record:
+            frames8 = [np.rint(linear_to_srgb(fr.transpose(1, 2, 0)) * 255).astype(np.uint8) for fr in stack]
+            write_recording(tmp / "recording.rrd", frames_srgb8=frames8, focus_m=focus.tolist(),
+                            depth_m=res.depth_m, aif_srgb8=aif8, std_m=res.std_m, f_px=model.focal_length_px,
+                            gt_depth_m=gt, name=cap.name)
+        lap("record")
+        summary = {
+            "capture": str(capture_dir),
+            "frames": [{"file": f.path.name, "focus_m": float(f.focus_m), "focus_source": f.focus_source,
+                        "make": f.meta.make, "model": f.meta.model, "lens": f.meta.lens,
+                        "focal_length_mm": f.meta.focal_length_mm, "f_number": f.meta.f_number,
+                        **({"decode": d} if d else {})} for f, d in zip(frames, decode_info)],
+            "focus_m": [float(v) for v in focus],
+            "model": model.summary(),
+            "input_size_px": [int(size0[1]), int(size0[0])],
+            "output_size_px": [int(w_px), int(h_px)],
+            "geometry": geometry,
+            "align": align_info,
+            "normalisation": NORMALISATION,
+            "tile": opts.tile,
+            "depth_m_range": [float(np.nanmin(res.depth_m)), float(np.nanmax(res.depth_m))],
+            "ground_truth": _gt_stats(gt, res.depth_m),
+            "outputs": {"depth_mm.png": "uint16 depth in mm (0 = unknown)", "depth_m.npy": "float32 depth in m",
+                        "aif.png": "all-in-focus, 8-bit sRGB", "std_m.npy": "float32 uncertainty in m",
+                        "std_mm.png": "uint16 uncertainty in mm", "recording.rrd": "rerun recording"},
+            "timings_s": timings,
+            "warnings": warnings,
+        }
+        summary["timings_s"]["total"] = round(time.perf_counter() - t_all, 4)
+        (tmp / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=False, default=_json_default))
+        _replace(tmp, out_dir, opts.force)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return summary
+
+
+def _json_default(v):
+    if isinstance(v, (np.floating, np.integer)):
+        return v.item()
+    raise TypeError(f"not JSON serialisable: {type(v).__name__}")
+
+
+def _replace(tmp: Path, out_dir: Path, force: bool) -> None:
+    """Move the finished temporary folder into place (replacing an old one only with force)."""
+    old = None
+    if out_dir.exists():
+        if not force:
+            raise OutputError(f"{out_dir}: output folder exists (pass --force to overwrite)")
+        old = out_dir.parent / f".{out_dir.name}.old-{os.getpid()}"
+        os.replace(out_dir, old)
+    os.replace(tmp, out_dir)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+def _ground_truth(cap: Capture, size0: tuple[int, int], size_wh: tuple[int, int], warnings: list[str]):
+    """gt_depth_m.npy (or gt_depth_mm.png) brought to the output geometry (nearest), NaN = unknown; or None."""
+    gt = None
+    try:
+        if cap.gt_depth_m is not None:
+            gt = np.load(cap.gt_depth_m).astype(np.float32)
+        elif cap.gt_depth_mm is not None:
+            mm = cv2.imread(str(cap.gt_depth_mm), cv2.IMREAD_UNCHANGED)
+            gt = None if mm is None else mm.astype(np.float32) / 1000.0
+    except (OSError, ValueError) as e:
+        warnings.append(f"{cap.path}: ground truth unreadable ({e}); ignored")
+        return None
+    if gt is None:
+        return None
+    if gt.ndim != 2 or gt.shape != tuple(size0):
+        warnings.append(f"{cap.path}: ground truth is {gt.shape}, frames are {tuple(size0)}; ignored")
+        return None
+    gt = np.where(gt > 0, gt, np.nan).astype(np.float32)
+    if (gt.shape[1], gt.shape[0]) != tuple(size_wh):
+        tw, th = size_wh
+        h, w = gt.shape
+        target = tw / th
+        cw, ch = (int(round(h * target)), h) if w / h > target else (w, int(round(w / target)))
+        x0, y0 = (w - cw) // 2, (h - ch) // 2
+        gt = cv2.resize(np.ascontiguousarray(gt[y0:y0 + ch, x0:x0 + cw]), (tw, th), interpolation=cv2.INTER_NEAREST)
+    return gt
+
+
+def _gt_stats(gt: np.ndarray | None, depth_m: np.ndarray) -> dict | None:
+    if gt is None:
+        return None
+    ok = np.isfinite(gt) & (gt > 0)
+    if not ok.any():
+        return None
+    err = depth_m[ok] - gt[ok]
+    return {"pixels": int(ok.sum()), "mae_m": float(np.mean(np.abs(err))),
+            "abs_rel": float(np.mean(np.abs(err) / gt[ok])), "rmse_m": float(math.sqrt(np.mean(err ** 2)))}

@@ -1,0 +1,151 @@
+"""Test helpers for the runtime: a tiny contract-following ONNX DfF model and synthetic capture folders.
+
+The model is a classical depth-from-focus net with fixed weights (grey → Laplacian → local energy → softmax
+over the stack → the contract's head), so its depth is meaningful on the synthetic stacks: near pixels are
+sharpest in near-focused frames. Built with torch (tests may use torch; the runtime never does).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+XYZ_TO_SRGB = np.array([[3.2406, -1.5372, -0.4986], [-0.9689, 1.8758, 0.0415], [0.0557, -0.2040, 1.0570]])
+LENS = "Test Lens 50mm f/1.8"
+META = {"aat.kind": "dff", "aat.net": "aifnet", "aat.size": "small", "aat.simulator": "thin_lens",
+        "aat.effects": [], "aat.lens_name": LENS, "aat.lens_hash": "0" * 16, "aat.focal_length_mm": 50.0,
+        "aat.f_number": 1.8, "aat.sensor_mm": [34.56, 25.92], "aat.sensor_px": [64, 48], "aat.pixel_um": 540.0,
+        "aat.focus_range_m": [0.5, 5.0], "aat.stack_min": 2, "aat.stack_max": 16, "aat.size_multiple": 8,
+        "aat.input_normalisation": "percentile 99.5, clip [0, 1]", "aat.config_hash": "test",
+        "aat.version": "0.1.0", "aat.distances": "metres from the sensor plane"}
+
+
+def build_tiny_dff(path: Path, meta_over: dict | None = None, sharpness: float = 8.0) -> Path:
+    """Export the tiny DfF model to `path` (opset 17, dynamic B, S, H, W) with aat metadata."""
+    import onnx
+    import torch
+    from torch import nn
+
+    class TinyDfF(nn.Module):
+        def __init__(self):
+            super().__init__()
+            lap = torch.tensor([[0.0, 1.0, 0.0], [1.0, -4.0, 1.0], [0.0, 1.0, 0.0]])
+            self.lap = nn.Conv2d(1, 1, 3, padding=1, bias=False, padding_mode="replicate")
+            self.lap.weight.data[:] = lap
+            self.pool = nn.AvgPool2d(5, stride=1, padding=2, count_include_pad=False)
+
+        def forward(self, stack, focus_m):
+            b, s = stack.shape[0], stack.shape[1]
+            h, w = stack.shape[3], stack.shape[4]
+            grey = stack.mean(2).reshape(b * s, 1, h, w)
+            energy = self.pool(self.lap(grey) ** 2).reshape(b, s, h, w)
+            logits = sharpness * energy / (energy.mean(1, keepdim=True) + 1e-6)
+            p = torch.softmax(logits, 1)
+            f = focus_m[:, :, None, None]
+            depth = (p * f).sum(1)
+            std = torch.sqrt(((p * (f - depth[:, None]) ** 2).sum(1)).clamp_min(0) + 1e-12)
+            aif = (p[:, :, None] * stack).sum(1)
+            return depth, aif, std
+
+    torch.manual_seed(0)
+    net = TinyDfF().eval()
+    ex = (torch.rand(1, 3, 3, 16, 24), torch.tensor([[0.5, 1.0, 2.0]]))
+    path = Path(path)
+    torch.onnx.export(net, ex, str(path), dynamo=False, opset_version=17, input_names=["stack", "focus_m"],
+                      output_names=["depth_m", "aif", "std_m"],
+                      dynamic_axes={"stack": {0: "B", 1: "S", 3: "H", 4: "W"}, "focus_m": {0: "B", 1: "S"},
+                                    "depth_m": {0: "B", 1: "H", 2: "W"}, "aif": {0: "B", 2: "H", 3: "W"},
+                                    "std_m": {0: "B", 1: "H", 2: "W"}})
+    m = onnx.load(str(path))
+    meta = dict(META, **(meta_over or {}))
+    del m.metadata_props[:]
+    for k, v in meta.items():
+        p = m.metadata_props.add()
+        p.key, p.value = k, v if isinstance(v, str) else json.dumps(v)
+    onnx.save(m, str(path))
+    return path
+
+
+def synthetic_scene(h: int = 48, w: int = 64, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Textured linear RGB (h, w, 3) in [0.05, 0.9] and depth (h, w): left half 0.8 m, right half 3 m."""
+    rng = np.random.default_rng(seed)
+    tex = rng.uniform(0.05, 0.9, (h, w, 3)).astype(np.float32)
+    depth = np.full((h, w), 3.0, np.float32)
+    depth[:, : w // 2] = 0.8
+    return tex, depth
+
+
+def render_stack(tex: np.ndarray, depth: np.ndarray, focus_m: list[float], blur_px_per_diopter: float = 2.5
+                 ) -> list[np.ndarray]:
+    """Thin-lens-ish defocus: each depth layer blurred with sigma ∝ |1/d − 1/f| (diopters)."""
+    frames = []
+    for f in focus_m:
+        out = np.zeros_like(tex)
+        for d in np.unique(depth):
+            sigma = blur_px_per_diopter * abs(1 / d - 1 / f)
+            layer = cv2.GaussianBlur(tex, (0, 0), sigma) if sigma > 0.05 else tex
+            out[depth == d] = layer[depth == d]
+        frames.append(out)
+    return frames
+
+
+def mosaic(rgb: np.ndarray, black: int = 64, white: int = 4095, scale: float = 0.8) -> np.ndarray:
+    """Linear RGB (h, w, 3) → RGGB Bayer uint16 DN."""
+    h, w, _ = rgb.shape
+    cfa = np.empty((h, w), np.float32)
+    cfa[0::2, 0::2] = rgb[0::2, 0::2, 0]
+    cfa[0::2, 1::2] = rgb[0::2, 1::2, 1]
+    cfa[1::2, 0::2] = rgb[1::2, 0::2, 1]
+    cfa[1::2, 1::2] = rgb[1::2, 1::2, 2]
+    return np.clip(np.rint(black + cfa * scale * (white - black)), 0, white).astype(np.uint16)
+
+
+def write_dng_capture(folder: Path, focus_m: list[float], *, h: int = 48, w: int = 64, lens: str = LENS,
+                      focal_length_mm: float = 50.0, f_number: float = 1.8, gt: bool = True,
+                      names: list[str] | None = None) -> Path:
+    """A capture folder of DNG frames (EXIF SubjectDistance + XMP focus) written by the virtual camera's writer."""
+    from training.camera.dng import write_dng
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    tex, depth = synthetic_scene(h, w)
+    for i, (f, img) in enumerate(zip(focus_m, render_stack(tex, depth, focus_m))):
+        name = names[i] if names else f"frame_{i:02d}.dng"
+        write_dng(folder / name, mosaic(img), black_level=64, white_level=4095, color_matrix=XYZ_TO_SRGB,
+                  subject_distance_m=f, focal_length_mm=focal_length_mm, f_number=f_number, make="aat",
+                  model="virtual camera", lens_model=lens)
+    if gt:
+        np.save(folder / "gt_depth_m.npy", depth)
+        cv2.imwrite(str(folder / "gt_depth_mm.png"), np.rint(depth * 1000).astype(np.uint16))
+    return folder
+
+
+def write_png_capture(folder: Path, focus_m: list[float], *, h: int = 48, w: int = 64, sidecar: bool = True,
+                      bits: int = 16) -> Path:
+    """A capture folder of sRGB PNG frames with a capture.json sidecar giving the focus distances."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    tex, depth = synthetic_scene(h, w)
+    from aat_deploy.capture.raw import linear_to_srgb
+
+    frames = []
+    for i, (f, img) in enumerate(zip(focus_m, render_stack(tex, depth, focus_m))):
+        enc = linear_to_srgb(img)[..., ::-1]
+        arr = np.rint(enc * 65535).astype(np.uint16) if bits == 16 else np.rint(enc * 255).astype(np.uint8)
+        name = f"img_{i}.png"
+        cv2.imwrite(str(folder / name), arr)
+        frames.append({"file": name, "focus_m": f})
+    if sidecar:
+        (folder / "capture.json").write_text(json.dumps({"frames": frames}))
+    return folder
+
+
+def tiny_model_path(tmp_path_factory, name: str = "tiny_dff.onnx", **meta_over) -> Path:
+    """Build the tiny model once per test session (per distinct name) and return its path."""
+    path = tmp_path_factory.getbasetemp() / name
+    if not path.exists():
+        build_tiny_dff(path, meta_over or None)
+    return path
