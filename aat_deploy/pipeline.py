@@ -210,7 +210,7 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
                         "make": f.meta.make, "model": f.meta.model, "lens": f.meta.lens,
                         "focal_length_mm": f.meta.focal_length_mm, "f_number": f.meta.f_number,
                         **({"decode": d} if d else {})} for f, d in zip(frames, decode_info)],
-            "focus_m": [float(v) for v in focus],
+            "focus_m": [float(f.focus_m) for f in frames],
             "model": model.summary(),
             "input_size_px": [int(size0[1]), int(size0[0])],
             "output_size_px": [int(w_px), int(h_px)],
