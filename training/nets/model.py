@@ -50,8 +50,12 @@ class DfFModel(nn.Module):
             out.append((depth, aif, std))
         return out
 
-    def forward(self, stack: Tensor, focus_m: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-        depth, aif, std = self.levels(stack, focus_m)[0]
+    def forward(self, stack: Tensor, focus_m: Tensor, all_levels: bool = False):
+        """(depth_m, aif, std_m) of the finest level; with all_levels, the list of `levels` (for training)."""
+        levels = self.levels(stack, focus_m)
+        if all_levels:
+            return levels
+        depth, aif, std = levels[0]
         return depth, aif, std
 
 

@@ -1,0 +1,263 @@
+"""Training loop: config files, schedule, loss, learning on a tiny synthetic set, exact resume, DDP with gloo,
+evaluation, CLI. The synthetic set lives here (tests only): thin-lens Gaussian blur of random textures at two
+depth planes."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import socket
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import torch.nn.functional as F
+from torch.utils.data import Dataset
+
+from training.nets.normalise import normalise_stack
+from training.train.config import ConfigError, LossConfig, TrainConfig, config_from_dict, load_config
+from training.train.loss import depth_mask, dff_loss, edge_aware_smoothness, masked_l1
+from training.train.sampler import ResumableSampler
+from training.train.schedule import lr_at
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _blur(img: torch.Tensor, sigma_px: float) -> torch.Tensor:
+    """Gaussian blur of (3, H, W), reflect borders."""
+    if sigma_px < 0.3:
+        return img
+    r = int(math.ceil(3 * sigma_px))
+    x = torch.arange(-r, r + 1, dtype=torch.float32)
+    k = torch.exp(-0.5 * (x / sigma_px) ** 2)
+    k = k / k.sum()
+    y = F.pad(img[:, None], (r, r, r, r), mode="reflect")
+    y = F.conv2d(y, k.view(1, 1, 1, -1))
+    return F.conv2d(y, k.view(1, 1, -1, 1))[:, 0]
+
+
+class TwoPlaneStacks(Dataset):
+    """Item i: a random texture, left/right (random split) at two depths in [0.6, 3] m, S frames focused
+    evenly in diopters over [0.5, 4] m, thin-lens blur sigma = 2.5 px per diopter of defocus. Deterministic per i."""
+
+    def __init__(self, n: int = 16, size: int = 32, s: int = 4, seed: int = 0):
+        self.n, self.size, self.s, self.seed = n, size, s, seed
+
+    def __len__(self) -> int:
+        return self.n
+
+    def __getitem__(self, i: int) -> dict:
+        g = torch.Generator().manual_seed(self.seed * 100003 + i)
+        h = w = self.size
+        tex = torch.rand(3, h // 4, w // 4, generator=g)
+        tex = F.interpolate(tex[None], size=(h, w), mode="bilinear", align_corners=False)[0]
+        tex = 0.5 * tex + 0.5 * torch.rand(3, h, w, generator=g)
+        d = 1 / torch.empty(2).uniform_(1 / 3.0, 1 / 0.6, generator=g)
+        split = int(torch.randint(w // 4, 3 * w // 4, (1,), generator=g))
+        depth = torch.full((h, w), float(d[0]))
+        depth[:, split:] = d[1]
+        focus = 1 / torch.linspace(1 / 0.5, 1 / 4.0, self.s)
+        frames = []
+        for f in focus:
+            left = _blur(tex, 2.5 * abs(1 / float(d[0]) - 1 / float(f)))
+            right = _blur(tex, 2.5 * abs(1 / float(d[1]) - 1 / float(f)))
+            frames.append(torch.where(torch.arange(w) < split, left, right))
+        stack = normalise_stack(torch.stack(frames))
+        depth[0, 0] = 0.0  # one invalid pixel
+        return {"stack": stack, "focus_m": focus.float(), "depth_m": depth, "aif": tex.clamp(0, 1)}
+
+
+def _cfg(**kw) -> TrainConfig:
+    base = dict(name="t", net="aifnet", size="small", simulator="thin_lens", lens="lenses/canon_rf50mm_f1.8.json",
+                steps=6, batch_size=2, lr=2e-3, checkpoint_every=2, log_every=1, val_items=4)
+    base.update(kw)
+    return TrainConfig(**base).validate()
+
+
+def test_shipped_configs_load():
+    paths = sorted((ROOT / "configs").glob("dff_*.json"))
+    assert paths
+    for p in paths:
+        cfg = load_config(p)
+        assert (ROOT / cfg.lens).exists(), p
+    with pytest.raises(ConfigError, match="unknown config keys"):
+        config_from_dict({"name": "x", "net": "aifnet", "size": "small", "simulator": "aat", "lens": "l", "lr0": 1})
+    with pytest.raises(ConfigError, match="simulator"):
+        config_from_dict({"name": "x", "net": "aifnet", "size": "small", "simulator": "gauss", "lens": "l"})
+    c = _cfg()
+    assert config_from_dict(json.loads(json.dumps(c.to_dict()))) == c  # checkpoint round trip
+
+
+def test_cosine_schedule_spans_exactly_the_steps():
+    assert lr_at(0, 101, 1.0) == pytest.approx(1.0)
+    assert lr_at(50, 101, 1.0) == pytest.approx(0.5)
+    assert lr_at(100, 101, 1.0) == pytest.approx(0.0, abs=1e-12)
+    assert lr_at(100, 101, 1.0, lr_min=0.1) == pytest.approx(0.1)
+    assert lr_at(0, 100, 1.0, warmup_steps=4) == pytest.approx(0.25)
+    assert lr_at(4, 100, 1.0, warmup_steps=4) == pytest.approx(1.0)
+
+
+def test_loss_hand_computed():
+    gt = torch.tensor([[[1.0, 2.0], [0.0, 4.0]]])
+    pred = torch.tensor([[[1.5, 2.0], [9.0, 3.0]]], requires_grad=True)
+    m = depth_mask(gt)
+    assert masked_l1(pred, gt, m).item() == pytest.approx((0.5 + 0 + 1) / 3)
+    focus = torch.tensor([[1.0, 3.0]])
+    assert depth_mask(gt, focus).sum() == 2  # 4 m outside [1, 3]
+    aif = torch.zeros(1, 3, 2, 2)
+    cfg = LossConfig(level_weights=(3.0, 1.0))
+    coarse = pred.detach() + 1.0  # errors 1.5, 1, 0 -> mean 2.5 / 3
+    total, parts = dff_loss([(pred, aif, None), (coarse, None, None)], {"depth_m": gt, "focus_m": focus}, cfg)
+    assert total.item() == pytest.approx((3 * 1.5 / 3 + 1 * 2.5 / 3) / 4)
+    assert parts["depth_l1"] == pytest.approx(0.5)
+    total.backward()
+    assert pred.grad[0, 1, 0] == 0  # invalid pixel gets no gradient
+    empty = dff_loss([(pred, aif, None)], {"depth_m": torch.zeros(1, 2, 2), "focus_m": focus}, LossConfig())[0]
+    assert empty.item() == 0.0
+    with pytest.raises(ValueError, match="aif"):
+        dff_loss([(pred, aif, None)], {"depth_m": gt, "focus_m": focus}, LossConfig(aif=1.0))
+
+
+def test_smoothness_zero_for_flat_depth_and_edge_aware():
+    img = torch.zeros(1, 3, 4, 4)
+    flat = edge_aware_smoothness(torch.ones(1, 4, 4), img, eps=0.0)
+    assert flat.item() == 0.0
+    step_depth = torch.zeros(1, 4, 4)
+    step_depth[:, :, 2:] = 1.0
+    no_edge = edge_aware_smoothness(step_depth, img, eps=0.0)
+    img_edge = img.clone()
+    img_edge[..., 2:] = 1.0
+    with_edge = edge_aware_smoothness(step_depth, img_edge, eps=0.0)
+    assert no_edge.item() == pytest.approx(4 / 12) and with_edge.item() < 1e-6
+
+
+def test_sampler_shards_and_resumes():
+    a = list(ResumableSampler(10, 0, 2, seed=1))
+    b = list(ResumableSampler(10, 1, 2, seed=1))
+    assert len(a) == len(b) == 5 and not set(a) & set(b)
+    s = ResumableSampler(10, 0, 2, seed=1)
+    s.set_epoch(0, 3)
+    assert list(s) == a[3:]
+    s.set_epoch(1)
+    assert list(s) != a
+
+
+def _params(model: torch.nn.Module) -> torch.Tensor:
+    return torch.cat([p.detach().flatten() for p in model.state_dict().values() if p.dtype.is_floating_point])
+
+
+@pytest.mark.parametrize("net", ["aifnet", "dfvnet"])
+def test_resume_equals_uninterrupted(tmp_path, net):
+    from training.train.loop import load_trained, train
+
+    cfg = _cfg(net=net, loss=LossConfig(level_weights=(2.0, 1.0), aif=0.1, smooth=0.01))
+    data = TwoPlaneStacks(n=6)  # 3 batches per epoch: the run crosses an epoch boundary
+    full = train(cfg, tmp_path / "a", train_set=data, progress=False)
+    assert full.finished and full.step == 6
+    part = train(cfg, tmp_path / "b", train_set=data, stop_at_step=4, progress=False)
+    assert not part.finished and part.step == 4 and not (tmp_path / "b" / "model.pt").exists()
+    with pytest.raises(FileExistsError, match="--resume"):
+        train(cfg, tmp_path / "b", train_set=data, progress=False)
+    rest = train(cfg, tmp_path / "b", train_set=data, resume=True, progress=False)
+    assert rest.finished and rest.step == 6
+    ma, _ = load_trained(tmp_path / "a" / "model.pt")
+    mb, cfg_b = load_trained(tmp_path / "b" / "model.pt")
+    assert cfg_b == cfg
+    assert torch.equal(_params(ma), _params(mb))
+    init = _params(__import__("training.nets.model", fromlist=["x"]).build_model(net, "small"))
+    assert not torch.allclose(init, _params(ma))
+    log = [json.loads(line) for line in (tmp_path / "a" / "log.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in log] == [1, 2, 3, 4, 5, 6] and log[-1]["lr"] < log[0]["lr"]
+
+
+def test_training_learns_and_evaluates(tmp_path):
+    from training.train.evaluate import evaluate
+    from training.train.loop import load_trained, train
+
+    train_set, val_set = TwoPlaneStacks(n=32, seed=0), TwoPlaneStacks(n=6, seed=1)
+    cfg = _cfg(net="dfvnet", steps=60, batch_size=4, lr=3e-3, checkpoint_every=60, log_every=10, val_items=6)
+    torch.manual_seed(0)
+    before, _ = evaluate(__import__("training.nets.model", fromlist=["x"]).build_model("dfvnet", "small"), val_set)
+    res = train(cfg, tmp_path / "run", train_set=train_set, val_set=val_set, progress=False)
+    after = res.val_metrics
+    print(f"val MAE before {before['mae']:.3f} m, after {after['mae']:.3f} m; {res.seconds_per_step:.3f} s/step")
+    assert after["mae"] < 0.7 * before["mae"]
+    assert set(after) >= {"mae", "rmse", "abs_rel", "delta1", "psnr", "ssim", "n_images"}
+    emap = np.load(tmp_path / "run" / "val_error_map_m.npy")
+    assert emap.shape == (32, 32) and np.isnan(emap[0, 0]) and np.nanmean(emap) == pytest.approx(
+        np.nanmean(emap), rel=1e-6)
+    model, _ = load_trained(tmp_path / "run" / "model.pt")
+    again, _ = evaluate(model, val_set)
+    assert again["mae"] == pytest.approx(after["mae"], rel=1e-5)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _ddp_worker(rank: int, world: int, port: int, out: str) -> None:
+    """Train 3 steps in a 2-process gloo group (the env torchrun sets); save this replica's final state."""
+    os.environ.update({"MASTER_ADDR": "127.0.0.1", "MASTER_PORT": str(port), "RANK": str(rank),
+                       "WORLD_SIZE": str(world), "LOCAL_RANK": str(rank)})
+    torch.set_num_threads(1)
+    import training.train.loop as loop
+    from training.train.checkpoint import load
+
+    captured = {}
+    real_build = loop.build_model
+
+    def build_and_keep(net, size):
+        captured["model"] = real_build(net, size)
+        return captured["model"]
+
+    loop.build_model = build_and_keep
+    data = TwoPlaneStacks(n=8)
+    cfg = _cfg(net="dfvnet", steps=3, checkpoint_every=10, loss=LossConfig(level_weights=(2.0, 1.0)))
+    res = loop.train(cfg, Path(out) / "run", train_set=data, progress=False)
+    torch.save({"state": {k: v.clone() for k, v in captured["model"].state_dict().items()},
+                "ckpt": load(Path(out) / "run" / "last.pt")["model"], "step": res.step,
+                "items": list(ResumableSampler(len(data), rank, world, cfg.seed))},
+               Path(out) / f"rank{rank}.pt")
+
+
+def test_ddp_two_processes_keep_replicas_identical(tmp_path):
+    import torch.multiprocessing as mp
+
+    from training.nets.model import build_model
+
+    mp.spawn(_ddp_worker, args=(2, _free_port(), str(tmp_path)), nprocs=2, join=True)
+    r0 = torch.load(tmp_path / "rank0.pt", weights_only=False)
+    r1 = torch.load(tmp_path / "rank1.pt", weights_only=False)
+    assert r0["step"] == r1["step"] == 3
+    assert not set(r0["items"]) & set(r1["items"])  # each replica saw different data ...
+    for k in r0["state"]:
+        assert torch.equal(r0["state"][k], r1["state"][k]), k  # ... yet parameters and buffers are identical
+        assert torch.equal(r0["state"][k], r0["ckpt"][k]), k
+    torch.manual_seed(0)
+    init = build_model("dfvnet", "small").state_dict()
+    assert any(not torch.equal(init[k], r0["state"][k]) for k in init)  # and it trained
+
+
+def test_cli_trains_resumes_and_refuses(tmp_path, monkeypatch, capsys):
+    import training.train.data as data_mod
+    from training.cli.train import main
+
+    monkeypatch.setattr(data_mod, "make_dataset", lambda data, simulator, lens, effects=None:
+                        TwoPlaneStacks(n=data["n_items"], seed=data["seed"]))
+    out = tmp_path / "run"
+    args = ["--config", str(ROOT / "configs" / "dff_ci.json"), "--out", str(out), "--no-progress"]
+    assert main(args + ["--steps", "2"]) == 0
+    assert "finished at step 2/2" in capsys.readouterr().out
+    assert (out / "model.pt").exists() and (out / "val_metrics.json").exists()
+    assert main(args + ["--steps", "3"]) == 1
+    assert "--resume" in capsys.readouterr().err
+    assert main(args + ["--steps", "3", "--resume"]) == 0
+    assert "finished at step 3/3" in capsys.readouterr().out
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"name": "x"}')
+    assert main(["--config", str(bad)]) == 2
+    assert "missing config keys" in capsys.readouterr().err

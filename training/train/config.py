@@ -1,0 +1,129 @@
+"""Training configuration: a dataclass loaded from JSON (`configs/dff_*.json`), validated with one-line errors.
+
+`data` / `val_data` are passed through to the dataset config of `training.data.stacks` (see
+`training.train.data.make_dataset`); `simulator` ("aat" | "thin_lens") and `lens` are set on it by the loop,
+so the two simulators differ only in that field.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+
+from training.nets.export import config_hash
+from training.nets.model import NETS, SIZES
+
+SIMULATORS = ("aat", "thin_lens")
+
+
+class ConfigError(ValueError):
+    pass
+
+
+@dataclass
+class LossConfig:
+    """Weights of the loss terms. depth: L1 on depth over valid ground truth (the paper's loss). aif: L1 on the
+    all-in-focus image. smooth: edge-aware Charbonnier smoothness of depth (weights exp(-smooth_edge |grad I|)).
+    level_weights: per output level, finest first (DFVNet's deep supervision; missing levels get 0).
+    mask_focus_range: also mask ground truth outside each stack's focus range."""
+
+    depth: float = 1.0
+    aif: float = 0.0
+    smooth: float = 0.0
+    smooth_edge: float = 150.0
+    level_weights: tuple[float, ...] = (1.0,)
+    mask_focus_range: bool = False
+
+
+@dataclass
+class TrainConfig:
+    name: str
+    net: str  # "aifnet" | "dfvnet"
+    size: str  # "small" | "full"
+    simulator: str  # "aat" | "thin_lens"
+    lens: str  # lens file (path relative to the repository root or absolute)
+    data: dict = field(default_factory=dict)
+    val_data: dict | None = None
+    effects: list[str] = field(default_factory=list)
+    focus_range_m: tuple[float, float] = (0.5, 10.0)  # for the export metadata
+    stack_range: tuple[int, int] = (2, 16)  # stack sizes the exported model is declared for
+    steps: int = 1000  # optimizer steps (global); the cosine schedule spans exactly these
+    batch_size: int = 2  # per process
+    lr: float = 1e-4
+    lr_min: float = 0.0
+    warmup_steps: int = 0
+    weight_decay: float = 0.0
+    grad_clip: float = 1.0  # max global grad norm; 0 = off
+    loss: LossConfig = field(default_factory=LossConfig)
+    num_workers: int = 0
+    seed: int = 0
+    checkpoint_every: int = 50
+    log_every: int = 10
+    val_every: int = 0  # 0 = only at the end
+    val_items: int = 16
+
+    def validate(self) -> "TrainConfig":
+        if self.net not in NETS:
+            raise ConfigError(f"config {self.name}: net must be one of {NETS}, got {self.net!r}")
+        if self.size not in SIZES:
+            raise ConfigError(f"config {self.name}: size must be one of {SIZES}, got {self.size!r}")
+        if self.simulator not in SIMULATORS:
+            raise ConfigError(f"config {self.name}: simulator must be one of {SIMULATORS}, got {self.simulator!r}")
+        if self.steps < 1 or self.batch_size < 1:
+            raise ConfigError(f"config {self.name}: steps and batch_size must be >= 1")
+        if not 0 <= self.lr_min <= self.lr:
+            raise ConfigError(f"config {self.name}: need 0 <= lr_min <= lr")
+        if not 0 < self.focus_range_m[0] < self.focus_range_m[1]:
+            raise ConfigError(f"config {self.name}: focus_range_m must be [near, far] with 0 < near < far")
+        if not 2 <= self.stack_range[0] <= self.stack_range[1]:
+            raise ConfigError(f"config {self.name}: stack_range must be [min, max] with 2 <= min <= max")
+        if not self.loss.level_weights or sum(self.loss.level_weights) <= 0:
+            raise ConfigError(f"config {self.name}: loss.level_weights must have a positive sum")
+        return self
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    def hash(self) -> str:
+        """Hash of everything that defines the trained model (not logging / checkpoint cadence)."""
+        d = self.to_dict()
+        for k in ("checkpoint_every", "log_every", "val_every", "val_items", "num_workers"):
+            d.pop(k)
+        return config_hash(d)
+
+
+def config_from_dict(d: dict, where: str = "<dict>") -> TrainConfig:
+    known = {f.name for f in fields(TrainConfig)}
+    unknown = sorted(set(d) - known - {"comment"})
+    if unknown:
+        raise ConfigError(f"{where}: unknown config keys {unknown}")
+    d = {k: v for k, v in d.items() if k != "comment"}
+    loss = d.pop("loss", {}) or {}
+    lknown = {f.name for f in fields(LossConfig)}
+    if set(loss) - lknown:
+        raise ConfigError(f"{where}: unknown loss keys {sorted(set(loss) - lknown)}")
+    if "level_weights" in loss:
+        loss["level_weights"] = tuple(float(x) for x in loss["level_weights"])
+    for k in ("focus_range_m", "stack_range"):
+        if k in d:
+            d[k] = tuple(d[k])
+    missing = [k for k in ("name", "net", "size", "simulator", "lens") if k not in d]
+    if missing:
+        raise ConfigError(f"{where}: missing config keys {missing}")
+    try:
+        cfg = TrainConfig(**d, loss=LossConfig(**loss))
+    except TypeError as e:
+        raise ConfigError(f"{where}: {e}") from None
+    return cfg.validate()
+
+
+def load_config(path) -> TrainConfig:
+    path = Path(path)
+    try:
+        d = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such config file") from None
+    except json.JSONDecodeError as e:
+        raise ConfigError(f"{path}: invalid JSON ({e})") from None
+    return config_from_dict(d, str(path))

@@ -1,0 +1,205 @@
+"""One training loop for AiFNet and DFVNet and both simulators (the dataset's `simulator` field is the only
+difference between aberration-aware and thin-lens runs).
+
+Adam, cosine learning rate over the configured number of optimizer steps, gradient clipping, checkpoints every
+`checkpoint_every` steps (atomic) and resume from `last.pt`: the sampler order depends only on (seed, epoch) and
+an epoch can start part-way, so kill + rerun with resume continues exactly where it stopped.
+
+Distributed data parallel: under `torchrun --nproc_per_node=N` (env WORLD_SIZE > 1) the gloo process group is
+initialised here; each process reads its own shard, gradients are averaged, batch-norm buffers broadcast from
+rank 0; only rank 0 logs, validates and writes files.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.distributed as dist
+from torch.nn.parallel import DistributedDataParallel
+from torch.utils.data import DataLoader, Dataset
+from tqdm import tqdm
+
+from training.nets.model import build_model
+from training.train.checkpoint import load, save_atomic
+from training.train.config import TrainConfig
+from training.train.evaluate import evaluate
+from training.train.loss import dff_loss
+from training.train.sampler import ResumableSampler
+from training.train.schedule import lr_at
+
+
+@dataclass
+class TrainResult:
+    step: int
+    finished: bool
+    last_loss: float | None
+    seconds_per_step: float | None
+    val_metrics: dict = field(default_factory=dict)
+
+
+def setup_distributed() -> tuple[int, int, bool]:
+    """(rank, world size, whether this call created the process group). WORLD_SIZE > 1 -> gloo."""
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    created = False
+    if world > 1 and not dist.is_initialized():
+        dist.init_process_group("gloo")
+        created = True
+    if dist.is_initialized():
+        return dist.get_rank(), dist.get_world_size(), created
+    return 0, 1, created
+
+
+def _sync_buffers(model: torch.nn.Module, world: int) -> None:
+    """Batch-norm running statistics from rank 0 to every replica (DDP syncs them only before each forward)."""
+    if world > 1:
+        for b in model.buffers():
+            dist.broadcast(b, 0)
+
+
+def _barrier(world: int) -> None:
+    if world > 1:
+        dist.barrier()
+
+
+def _log(out_dir: Path, row: dict) -> None:
+    with open(out_dir / "log.jsonl", "a") as f:
+        f.write(json.dumps(row) + "\n")
+
+
+def _make_sets(cfg: TrainConfig, train_set: Dataset | None, val_set: Dataset | None):
+    if train_set is None or (val_set is None and cfg.val_data):
+        from training.train.data import make_dataset
+
+        if train_set is None:
+            train_set = make_dataset(cfg.data, cfg.simulator, cfg.lens, cfg.effects)
+        if val_set is None and cfg.val_data:
+            val_set = make_dataset(cfg.val_data, cfg.simulator, cfg.lens, cfg.effects)
+    return train_set, val_set
+
+
+def _validate_and_log(model, val_set, cfg: TrainConfig, out_dir: Path, step: int, final: bool) -> dict:
+    metrics, err_map = evaluate(model, val_set, cfg.val_items, cfg.loss.mask_focus_range)
+    _log(out_dir, {"step": step, "val": metrics})
+    if final:
+        (out_dir / "val_metrics.json").write_text(json.dumps(metrics, indent=1))
+        np.save(out_dir / "val_error_map_m.npy", err_map.astype(np.float32))
+    return metrics
+
+
+def train(cfg: TrainConfig, out_dir, *, train_set: Dataset | None = None, val_set: Dataset | None = None,
+          resume: bool = False, stop_at_step: int | None = None, progress: bool = True) -> TrainResult:
+    """Train `cfg` into `out_dir` (config.json, log.jsonl, last.pt, model.pt, val_*). Datasets default to
+    training.data.stacks built from cfg.data / cfg.val_data. stop_at_step: end this run early (as if killed
+    after that step's checkpoint). An existing last.pt needs resume=True."""
+    rank, world, created = setup_distributed()
+    try:
+        return _train(cfg, Path(out_dir), train_set, val_set, resume, stop_at_step, progress, rank, world)
+    finally:
+        if created:
+            dist.destroy_process_group()
+
+
+def _train(cfg, out_dir: Path, train_set, val_set, resume, stop_at_step, progress, rank, world) -> TrainResult:
+    cfg.validate()
+    ckpt_path = out_dir / "last.pt"
+    if ckpt_path.exists() and not resume:
+        raise FileExistsError(f"{out_dir}: has a checkpoint; pass --resume to continue or choose another --out")
+    train_set, val_set = _make_sets(cfg, train_set, val_set)
+    torch.manual_seed(cfg.seed)
+    model = build_model(cfg.net, cfg.size)
+    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    step = 0
+    if resume and ckpt_path.exists():
+        state = load(ckpt_path)
+        old = state["config"]
+        for k in ("net", "size", "simulator"):
+            if old[k] != getattr(cfg, k):
+                raise ValueError(f"{ckpt_path}: checkpoint has {k}={old[k]!r}, config has {getattr(cfg, k)!r}")
+        model.load_state_dict(state["model"])
+        opt.load_state_dict(state["optimizer"])
+        step = int(state["step"])
+        torch.set_rng_state(state["torch_rng"])
+    if rank == 0:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        (out_dir / "config.json").write_text(json.dumps(cfg.to_dict(), indent=1))
+    _barrier(world)
+    ddp = DistributedDataParallel(model) if world > 1 else model
+    model.train()
+
+    sampler = ResumableSampler(len(train_set), rank, world, cfg.seed)
+    per_epoch = sampler.per_rank // cfg.batch_size
+    if per_epoch == 0:
+        raise ValueError(f"dataset of {len(train_set)} items is too small for batch {cfg.batch_size} x {world} processes")
+    end = cfg.steps if stop_at_step is None else min(cfg.steps, stop_at_step)
+
+    def checkpoint() -> None:
+        _sync_buffers(model, world)
+        if rank == 0:
+            save_atomic({"model": model.state_dict(), "optimizer": opt.state_dict(), "step": step,
+                         "config": cfg.to_dict(), "torch_rng": torch.get_rng_state()}, ckpt_path)
+        _barrier(world)
+
+    bar = tqdm(total=cfg.steps, initial=step, disable=not progress or rank != 0, desc=cfg.name, unit="step")
+    last_loss, t_steps, n_timed = None, 0.0, 0
+    while step < end:
+        epoch, offset = divmod(step, per_epoch)
+        sampler.set_epoch(epoch, offset * cfg.batch_size)
+        loader = DataLoader(train_set, batch_size=cfg.batch_size, sampler=sampler, drop_last=True,
+                            num_workers=cfg.num_workers)
+        for batch in loader:
+            t0 = time.perf_counter()
+            lr = lr_at(step, cfg.steps, cfg.lr, cfg.lr_min, cfg.warmup_steps)
+            for g in opt.param_groups:
+                g["lr"] = lr
+            levels = ddp(batch["stack"].float(), batch["focus_m"].float(), all_levels=True)
+            loss, parts = dff_loss(levels, batch, cfg.loss)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            if cfg.grad_clip > 0:
+                parts["grad_norm"] = float(torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip))
+            opt.step()
+            step += 1
+            t_steps += time.perf_counter() - t0
+            n_timed += 1
+            last_loss = parts["total"]
+            bar.update(1)
+            bar.set_postfix(loss=f"{last_loss:.4f}", lr=f"{lr:.2e}")
+            if rank == 0 and (step % cfg.log_every == 0 or step == end):
+                _log(out_dir, {"step": step, "lr": lr, **parts, "s_per_step": t_steps / n_timed})
+            if step % cfg.checkpoint_every == 0 or step == end:
+                checkpoint()
+            if val_set is not None and cfg.val_every and step % cfg.val_every == 0 and step < cfg.steps:
+                if rank == 0:
+                    _validate_and_log(model, val_set, cfg, out_dir, step, final=False)
+                _barrier(world)
+            if step >= end:
+                break
+    bar.close()
+    _sync_buffers(model, world)
+    finished = step >= cfg.steps
+    val_metrics: dict = {}
+    if finished:
+        if rank == 0:
+            save_atomic({"model": model.state_dict(), "config": cfg.to_dict(), "config_hash": cfg.hash(),
+                         "step": step}, out_dir / "model.pt")
+            if val_set is not None:
+                val_metrics = _validate_and_log(model, val_set, cfg, out_dir, step, final=True)
+        _barrier(world)
+    return TrainResult(step, finished, last_loss, t_steps / n_timed if n_timed else None, val_metrics)
+
+
+def load_trained(path) -> tuple[torch.nn.Module, TrainConfig]:
+    """A DfFModel (eval mode) and its config from model.pt or last.pt."""
+    from training.train.config import config_from_dict
+
+    state = load(path)
+    cfg = config_from_dict(dict(state["config"]), str(path))
+    model = build_model(cfg.net, cfg.size)
+    model.load_state_dict(state["model"])
+    return model.eval(), cfg

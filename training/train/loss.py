@@ -1,0 +1,62 @@
+"""The DfF loss (the paper's): L1 on depth over valid ground truth, plus optional all-in-focus L1 and edge-aware
+smoothness terms. Depth in metres, images in normalised units."""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from training.train.config import LossConfig
+
+
+def depth_mask(gt_m: Tensor, focus_m: Tensor | None = None) -> Tensor:
+    """(B, H, W) bool: g > 0 and finite [and inside each stack's [min, max] focus when focus_m (B, S) given]."""
+    m = torch.isfinite(gt_m) & (gt_m > 0)
+    if focus_m is not None:
+        lo = focus_m.min(1).values[:, None, None]
+        hi = focus_m.max(1).values[:, None, None]
+        m = m & (gt_m >= lo) & (gt_m <= hi)
+    return m
+
+
+def masked_l1(pred: Tensor, gt: Tensor, mask: Tensor) -> Tensor:
+    """Mean |pred - gt| over the mask (0, still connected to the graph, when the mask is empty)."""
+    diff = torch.where(mask, (pred - torch.where(mask, gt, torch.zeros_like(gt))).abs(), torch.zeros_like(pred))
+    return diff.sum() / mask.sum().clamp_min(1)
+
+
+def edge_aware_smoothness(depth_m: Tensor, image: Tensor, edge: float = 150.0, eps: float = 1e-3) -> Tensor:
+    """Charbonnier of depth gradients weighted by exp(-edge * mean_c |image gradient|).
+    depth_m (B, H, W), image (B, 3, H, W)."""
+    dx = depth_m[:, :, 1:] - depth_m[:, :, :-1]
+    dy = depth_m[:, 1:, :] - depth_m[:, :-1, :]
+    wx = torch.exp(-edge * (image[..., :, 1:] - image[..., :, :-1]).abs().mean(1))
+    wy = torch.exp(-edge * (image[..., 1:, :] - image[..., :-1, :]).abs().mean(1))
+    return (wx * torch.sqrt(dx * dx + eps * eps)).mean() + (wy * torch.sqrt(dy * dy + eps * eps)).mean()
+
+
+def dff_loss(levels: list[tuple[Tensor, Tensor | None, Tensor]], batch: dict[str, Tensor],
+             cfg: LossConfig) -> tuple[Tensor, dict[str, float]]:
+    """levels: head outputs (depth_m (B, H, W), aif (B, 3, H, W) | None, std_m) finest first.
+    batch: "depth_m" (B, H, W), "focus_m" (B, S), optional "aif" (B, 3, H, W).
+    Returns the total loss and its parts as floats."""
+    gt = batch["depth_m"]
+    mask = depth_mask(gt, batch["focus_m"] if cfg.mask_focus_range else None)
+    weights = list(cfg.level_weights)[: len(levels)]
+    wsum = sum(weights)
+    l_depth = sum(w * masked_l1(lv[0], gt, mask) for w, lv in zip(weights, levels)) / wsum
+    total = cfg.depth * l_depth
+    parts = {"depth_l1": float(masked_l1(levels[0][0].detach(), gt, mask))}
+    depth0, aif0, _ = levels[0]
+    if cfg.aif > 0:
+        if "aif" not in batch or aif0 is None:
+            raise ValueError("loss.aif > 0 needs an 'aif' ground truth in the batch")
+        l_aif = (aif0 - batch["aif"]).abs().mean()
+        total = total + cfg.aif * l_aif
+        parts["aif_l1"] = float(l_aif.detach())
+    if cfg.smooth > 0:
+        l_s = edge_aware_smoothness(depth0, aif0.detach(), cfg.smooth_edge)
+        total = total + cfg.smooth * l_s
+        parts["smooth"] = float(l_s.detach())
+    parts["total"] = float(total.detach())
+    return total, parts
