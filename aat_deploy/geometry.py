@@ -19,9 +19,9 @@ def fit_to_sensor(img: np.ndarray, size_wh: tuple[int, int]) -> tuple[np.ndarray
         return img, {"crop_xywh": [0, 0, w, h], "scale": 1.0}
     target = tw / th
     if w / h > target:  # too wide: crop columns
-        cw, ch = int(round(h * target)), h
+        cw, ch = round(h * target), h
     else:
-        cw, ch = w, int(round(w / target))
+        cw, ch = w, round(w / target)
     x0, y0 = (w - cw) // 2, (h - ch) // 2
     crop = img[y0:y0 + ch, x0:x0 + cw]
     interp = cv2.INTER_AREA if cw > tw else cv2.INTER_LINEAR
@@ -38,7 +38,7 @@ def align_stack(frames: list[np.ndarray], ref: int, max_side: int = 512) -> tupl
     """
     h, w = frames[ref].shape[:2]
     s = min(1.0, max_side / max(h, w))
-    small = lambda im: cv2.resize(cv2.cvtColor(im, cv2.COLOR_RGB2GRAY), None, fx=s, fy=s,  # noqa: E731
+    small = lambda im: cv2.resize(cv2.cvtColor(im, cv2.COLOR_RGB2GRAY), None, fx=s, fy=s,
                                   interpolation=cv2.INTER_AREA) if s < 1 else cv2.cvtColor(im, cv2.COLOR_RGB2GRAY)
     ref_g = small(frames[ref]).astype(np.float32)
     ref_g /= max(float(ref_g.max()), 1e-6)

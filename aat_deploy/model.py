@@ -54,7 +54,7 @@ class DfFModel:
             opts.inter_op_num_threads = 1
         try:
             self.session = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
-        except Exception as e:  # onnxruntime raises its own exception types
+        except Exception as e:  # noqa: BLE001 (onnxruntime's pybind errors derive from Exception only)
             raise ModelError(f"{path}: not a loadable ONNX model ({str(e).splitlines()[0][:200]})") from None
         self.path = path
         raw = dict(self.session.get_modelmeta().custom_metadata_map)

@@ -25,7 +25,8 @@ from .capture.raw import linear_to_srgb, load_frame
 from .errors import CaptureError, OutputError
 from .geometry import align_stack, fit_to_sensor
 from .model import DfFModel
-from .normalise import DESCRIPTION as NORMALISATION, normalise_stack
+from .normalise import DESCRIPTION as NORMALISATION
+from .normalise import normalise_stack
 from .recording import write_recording
 
 OUTPUT_FILES = ("depth_mm.png", "depth_m.npy", "aif.png", "std_m.npy", "std_mm.png", "summary.json", "recording.rrd")
@@ -180,7 +181,7 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
 
     tiles_bar = None
     if opts.tile and not opts.quiet:
-        tiles_bar = lambda d, n: print(f"  {cap.name}: tile {d}/{n}", file=sys.stderr, flush=True)  # noqa: E731
+        tiles_bar = lambda d, n: print(f"  {cap.name}: tile {d}/{n}", file=sys.stderr, flush=True)
     res = model.infer(stack, focus, tile=opts.tile, progress=tiles_bar)
     lap("infer")
 
@@ -276,7 +277,7 @@ def _ground_truth(cap: Capture, size0: tuple[int, int], size_wh: tuple[int, int]
         tw, th = size_wh
         h, w = gt.shape
         target = tw / th
-        cw, ch = (int(round(h * target)), h) if w / h > target else (w, int(round(w / target)))
+        cw, ch = (round(h * target), h) if w / h > target else (w, round(w / target))
         x0, y0 = (w - cw) // 2, (h - ch) // 2
         gt = cv2.resize(np.ascontiguousarray(gt[y0:y0 + ch, x0:x0 + cw]), (tw, th), interpolation=cv2.INTER_NEAREST)
     return gt

@@ -32,7 +32,8 @@ def _listening(port: int) -> list[str]:
     out = []
     for name in ("/proc/net/tcp", "/proc/net/tcp6"):
         try:
-            lines = open(name).read().splitlines()[1:]
+            with open(name) as f:
+                lines = f.read().splitlines()[1:]
         except OSError:
             continue
         for ln in lines:

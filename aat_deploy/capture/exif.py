@@ -52,7 +52,7 @@ class FrameMeta:
     def as_json(self) -> dict:
         """JSON-safe dict: infinite distances become the string "inf"."""
         d = asdict(self)
-        fix = lambda v: "inf" if isinstance(v, float) and math.isinf(v) else v  # noqa: E731
+        fix = lambda v: "inf" if isinstance(v, float) and math.isinf(v) else v
         d["focus_m"] = fix(d["focus_m"])
         d["focus_tags"] = {k: fix(v) for k, v in d["focus_tags"].items()}
         return d
@@ -230,7 +230,7 @@ def _maker_note(buf: bytes, tb: TiffBuffer, mn, meta: FrameMeta) -> tuple[dict[s
         if note:
             meta.notes.append(note)
         return tags, "Nikon LensData"
-    if make.startswith("OLYMPUS") or make.startswith("OM DIGITAL"):
+    if make.startswith(("OLYMPUS", "OM DIGITAL")):
         return makernotes.olympus(buf, tb, mn), "Olympus FocusInfo"
     if "MINOLTA" in make:
         return makernotes.minolta(tb, mn), "Minolta CameraSettings"

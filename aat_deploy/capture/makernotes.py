@@ -99,7 +99,7 @@ def ciff(buf: bytes, start: int, length: int, depth: int = 0) -> dict[str, objec
 def nikon(buf: bytes, exif_tb: TiffBuffer, mn: Entry) -> tuple[dict[str, float], str | None]:
     """Nikon maker note → ({"FocusDistance": m}, note); note explains why nothing was decoded."""
     d = mn.data
-    if d.startswith(b"Nikon\0\x02") or d.startswith(b"Nikon\0\x03"):
+    if d.startswith((b"Nikon\0\x02", b"Nikon\0\x03")):
         hdr = TiffBuffer.from_header(buf, mn.data_offset + 10)
         if not hdr:
             return {}, None
@@ -116,7 +116,7 @@ def nikon(buf: bytes, exif_tb: TiffBuffer, mn: Entry) -> tuple[dict[str, float],
     if version == "0101" and len(e.data) > 0x09:
         raw = e.data[0x09]
         return ({"FocusDistance": 0.01 * 10 ** (raw / 40.0)} if raw else {}), None
-    if version.startswith("02") or version.startswith("08") or version.startswith("04"):
+    if version.startswith(("02", "04", "08")):
         return {}, f"Nikon LensData version {version} is encrypted (not decoded; exiftool can)"
     return {}, None
 
@@ -124,12 +124,12 @@ def nikon(buf: bytes, exif_tb: TiffBuffer, mn: Entry) -> tuple[dict[str, float],
 def olympus(buf: bytes, exif_tb: TiffBuffer, mn: Entry) -> dict[str, float]:
     """Olympus maker note FocusInfo → {"FocusDistance": m} (inf for 0xffffffff)."""
     d = mn.data
-    if d.startswith(b"OLYMPUS\0") or d.startswith(b"OM SYSTEM\0"):
+    if d.startswith((b"OLYMPUS\0", b"OM SYSTEM\0")):
         head = 8 if d.startswith(b"OLYMPUS\0") else 12
         endian = "<" if d[head:head + 2] == b"II" else ">"
         tb = TiffBuffer(buf, mn.data_offset, endian)
         ifd = tb.ifd(head + 4)
-    elif d.startswith(b"OLYMP\0") or d.startswith(b"EPSON\0"):
+    elif d.startswith((b"OLYMP\0", b"EPSON\0")):
         tb, ifd = exif_tb, exif_tb.ifd(mn.data_offset + 8, absolute=True)
     else:
         return {}

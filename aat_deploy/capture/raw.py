@@ -47,7 +47,7 @@ def raw_size(path: Path) -> tuple[int, int] | None:
             s = r.sizes
             w, h = int(s.width), int(s.height)
             return (h, w) if s.flip in (5, 6) else (w, h)
-    except Exception:  # rawpy raises several LibRaw error types
+    except (rawpy.LibRawError, OSError):
         return None
 
 

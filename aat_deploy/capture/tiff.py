@@ -34,7 +34,7 @@ class TiffBuffer:
         self.buf, self.base, self.endian = buf, base, endian
 
     @classmethod
-    def from_header(cls, buf: bytes, start: int = 0) -> tuple["TiffBuffer", int] | None:
+    def from_header(cls, buf: bytes, start: int = 0) -> tuple[TiffBuffer, int] | None:
         """Parse a TIFF header ('II*\\0' or 'MM\\0*') at `start`; returns (reader, first IFD offset) or None."""
         head = buf[start:start + 8]
         if len(head) < 8 or head[:2] not in (b"II", b"MM"):
