@@ -106,3 +106,15 @@ def test_inspect_json_and_text(recording, capsys):
     assert capture_cli.main(["inspect", str(cap / "nope.dng")]) == 1
     err = capsys.readouterr().err
     assert "nope.dng" in err and "Traceback" not in err
+
+
+def test_screenshot_or_clear_error(recording, tmp_path, capsys):
+    """With a Vulkan driver the headless viewer writes a PNG; without one aat-view says so on one line."""
+    out = tmp_path / "view.png"
+    rc = view_cli.main([str(recording), "--screenshot", str(out)])
+    if rc == 0:
+        assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    else:
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "screenshot failed" in err and "Vulkan" in err
+        assert not out.exists()
