@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 import torch
-
 from conftest import LENSES
+
 from training.lens.io import load_lens
 from training.nets.export import dff_metadata, export_dff_onnx, parity, read_metadata
 from training.nets.model import build_model
@@ -94,3 +94,18 @@ def test_parity_detects_a_different_model(tmp_path, lens):
         model.net.out.weight.mul_(3.0)
     assert parity(model, out, [(1, 3, 32, 32)]) > 1e-3
     assert np.isfinite(parity(model, out, [(1, 2, 64, 32)]))
+
+
+def test_export_trained_checkpoint(tmp_path):
+    from test_train import TwoPlaneStacks, _cfg
+
+    from training.train.export import export_checkpoint
+    from training.train.loop import train
+
+    cfg = _cfg(net="aifnet", steps=2, simulator="aat", effects=["psf"])
+    train(cfg, tmp_path / "run", train_set=TwoPlaneStacks(n=4), progress=False)
+    md, err = export_checkpoint(tmp_path / "run" / "model.pt", tmp_path / "m.onnx")
+    assert err <= 1e-4
+    got = read_metadata(tmp_path / "m.onnx")
+    assert got == md
+    assert got["aat.simulator"] == "aat" and got["aat.config_hash"] == cfg.hash() and got["aat.train_steps"] == "2"

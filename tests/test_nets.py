@@ -9,7 +9,13 @@ import torch
 from training.nets.blocks import count_params
 from training.nets.dfvnet import DFVNET_CONFIGS, DFVNet
 from training.nets.head import focus_head
-from training.nets.model import build_model, build_net, pad_to_multiple, predict, sort_by_focus
+from training.nets.model import (
+    build_model,
+    build_net,
+    pad_to_multiple,
+    predict,
+    sort_by_focus,
+)
 from training.nets.normalise import normalise_stack as normalise_torch
 
 # Published counts (reference-facts section 4). DFVNet L2's includes ResNet-18's unused 513,000-parameter fc layer.

@@ -17,7 +17,13 @@ import torch.nn.functional as F
 from torch.utils.data import Dataset
 
 from training.nets.normalise import normalise_stack
-from training.train.config import ConfigError, LossConfig, TrainConfig, config_from_dict, load_config
+from training.train.config import (
+    ConfigError,
+    LossConfig,
+    TrainConfig,
+    config_from_dict,
+    load_config,
+)
 from training.train.loss import depth_mask, dff_loss, edge_aware_smoothness, masked_l1
 from training.train.sampler import ResumableSampler
 from training.train.schedule import lr_at
@@ -29,7 +35,7 @@ def _blur(img: torch.Tensor, sigma_px: float) -> torch.Tensor:
     """Gaussian blur of (3, H, W), reflect borders."""
     if sigma_px < 0.3:
         return img
-    r = int(math.ceil(3 * sigma_px))
+    r = math.ceil(3 * sigma_px)
     x = torch.arange(-r, r + 1, dtype=torch.float32)
     k = torch.exp(-0.5 * (x / sigma_px) ** 2)
     k = k / k.sum()
@@ -70,8 +76,9 @@ class TwoPlaneStacks(Dataset):
 
 
 def _cfg(**kw) -> TrainConfig:
-    base = dict(name="t", net="aifnet", size="small", simulator="thin_lens", lens="lenses/canon_rf50mm_f1.8.json",
-                steps=6, batch_size=2, lr=2e-3, checkpoint_every=2, log_every=1, val_items=4)
+    base = {"name": "t", "net": "aifnet", "size": "small", "simulator": "thin_lens",
+            "lens": "lenses/canon_rf50mm_f1.8.json", "steps": 6, "batch_size": 2, "lr": 2e-3,
+            "checkpoint_every": 2, "log_every": 1, "val_items": 4}
     base.update(kw)
     return TrainConfig(**base).validate()
 
@@ -204,7 +211,7 @@ def _ddp_worker(rank: int, world: int, port: int, out: str) -> None:
     os.environ.update({"MASTER_ADDR": "127.0.0.1", "MASTER_PORT": str(port), "RANK": str(rank),
                        "WORLD_SIZE": str(world), "LOCAL_RANK": str(rank)})
     torch.set_num_threads(1)
-    import training.train.loop as loop
+    from training.train import loop
     from training.train.checkpoint import load
 
     captured = {}

@@ -46,7 +46,7 @@ AIFNET_CONFIGS = {
 
 
 def _w(c: int, width: float) -> int:
-    return max(4, int(round(c * width)))
+    return max(4, round(c * width))
 
 
 class Mixed3d(nn.Module):

@@ -22,7 +22,13 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from training.nets.blocks import BasicBlock2d, ConvBNReLU2d, ConvBNReLU3d, ResBlock3d, init_weights
+from training.nets.blocks import (
+    BasicBlock2d,
+    ConvBNReLU2d,
+    ConvBNReLU3d,
+    ResBlock3d,
+    init_weights,
+)
 
 
 @dataclass(frozen=True)

@@ -63,7 +63,7 @@ class TrainConfig:
     val_every: int = 0  # 0 = only at the end
     val_items: int = 16
 
-    def validate(self) -> "TrainConfig":
+    def validate(self) -> TrainConfig:
         if self.net not in NETS:
             raise ConfigError(f"config {self.name}: net must be one of {NETS}, got {self.net!r}")
         if self.size not in SIZES:

@@ -1,0 +1,22 @@
+"""Export a trained run (model.pt or last.pt) to ONNX with the metadata of docs/contracts.md."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from training.lens.io import load_lens
+from training.nets.export import dff_metadata, export_dff_onnx
+from training.train.data import resolve_lens_path
+from training.train.loop import load_trained
+
+
+def export_checkpoint(checkpoint, out, *, force: bool = False) -> tuple[dict[str, str], float]:
+    """checkpoint: a run's model.pt (or last.pt). Writes `out` (atomic, no overwrite unless force) and returns
+    (metadata, max abs ORT-vs-torch difference over three shapes)."""
+    model, cfg = load_trained(Path(checkpoint))
+    lens = load_lens(resolve_lens_path(cfg.lens))
+    md = dff_metadata(model, lens, simulator=cfg.simulator, effects=list(cfg.effects),
+                      focus_range_m=cfg.focus_range_m, stack_range=cfg.stack_range, config_hash=cfg.hash(),
+                      extra={"train_steps": cfg.steps, "config_name": cfg.name})
+    err = export_dff_onnx(model, out, md, force=force)
+    return md, err
