@@ -68,7 +68,7 @@ def test_frame_with_thin_lens_gaussian_and_orientation_of_field():
     lens = load_lens(LENSES / "canon_rf50mm_f1.8.json")
     x, y = pixel_fields(2, 3, (640, 960))
     assert x[0, 0] < 0 < y[0, 0] and x[0, -1] > x[0, 0] and y[-1, 0] < y[0, 0]  # x right, y up
-    src = ModelPSF(GaussianPSF(lens, KernelSpec.for_lens(lens), 0.3, 20.0))
+    src = ModelPSF(GaussianPSF(lens, KernelSpec.for_lens(lens), 0.3, 20.0), lens)
     img = torch.full((3, 24, 32), 0.5)
     depth = torch.full((24, 32), 1.2)
     out = render_frame_exact(img, depth, 2.0, src, (640, 960), origin=(300, 460))
