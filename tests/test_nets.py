@@ -141,3 +141,19 @@ def test_normalise_edge_cases():
     x = np.arange(1000, dtype=np.float32).reshape(10, 1, 10, 10)
     assert normalise_np(x).max() == 1.0
     assert normalise_np(x)[0, 0, 0, 1] == pytest.approx(1 / np.percentile(np.arange(1000.0), 99.5))
+
+
+def test_train_levels_pads_sorts_and_crops():
+    from training.nets.model import train_levels
+
+    torch.manual_seed(0)
+    model = build_model("dfvnet", "small").train()
+    stack, focus = _stack(2, 4, 40, 50)
+    levels = train_levels(model, stack.flip(1), focus.flip(1), model.size_multiple)
+    assert len(levels) == 2 and levels[0][0].shape == (2, 40, 50) and levels[0][1].shape == (2, 3, 40, 50)
+    assert levels[1][1] is None and levels[1][0].shape == (2, 40, 50)
+    model.eval()
+    with torch.no_grad():
+        a = train_levels(model, stack.flip(1), focus.flip(1), 32)[0][0]
+        b = predict(model, stack, focus)["depth_m"]
+    assert torch.allclose(a, b, atol=1e-6)

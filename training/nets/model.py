@@ -84,6 +84,15 @@ def pad_to_multiple(x: Tensor, multiple: int) -> tuple[Tensor, tuple[int, int]]:
     return flat.reshape(*lead, h + ph, w + pw), (h, w)
 
 
+def train_levels(module: nn.Module, stack: Tensor, focus_m: Tensor, size_multiple: int) -> list:
+    """Training forward of a DfFModel (or its DistributedDataParallel wrapper) on any batch: frames sorted,
+    H, W padded to `size_multiple` and every level's outputs cropped back. Returns [(depth_m, aif, std_m), ...]."""
+    stack, focus_m = sort_by_focus(stack, focus_m)
+    padded, (h, w) = pad_to_multiple(stack, size_multiple)
+    levels = module(padded, focus_m, all_levels=True)
+    return [tuple(None if t is None else t[..., :h, :w] for t in lv) for lv in levels]
+
+
 def predict(model: DfFModel, stack: Tensor, focus_m: Tensor) -> dict[str, Tensor]:
     """Run `model` on any stack: frames sorted by focus (any input order accepted), any H, W (padded and
     cropped back). stack (B, S, 3, H, W) normalised per docs/contracts.md, focus_m (B, S) metres.

@@ -25,7 +25,7 @@ from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader, Dataset
 from tqdm import tqdm
 
-from training.nets.model import build_model
+from training.nets.model import build_model, train_levels
 from training.train.checkpoint import load, save_atomic
 from training.train.config import TrainConfig
 from training.train.evaluate import evaluate
@@ -157,7 +157,7 @@ def _train(cfg, out_dir: Path, train_set, val_set, resume, stop_at_step, progres
             lr = lr_at(step, cfg.steps, cfg.lr, cfg.lr_min, cfg.warmup_steps)
             for g in opt.param_groups:
                 g["lr"] = lr
-            levels = ddp(batch["stack"].float(), batch["focus_m"].float(), all_levels=True)
+            levels = train_levels(ddp, batch["stack"].float(), batch["focus_m"].float(), model.size_multiple)
             loss, parts = dff_loss(levels, batch, cfg.loss)
             opt.zero_grad(set_to_none=True)
             loss.backward()
