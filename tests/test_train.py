@@ -268,3 +268,36 @@ def test_cli_trains_resumes_and_refuses(tmp_path, monkeypatch, capsys):
     bad.write_text('{"name": "x"}')
     assert main(["--config", str(bad)]) == 2
     assert "missing config keys" in capsys.readouterr().err
+
+
+def test_make_dataset_fills_simulator_lens_and_rejects_unknown_keys(monkeypatch):
+    """The adapter against a stand-in for training.data.stacks (the real module's interface)."""
+    import dataclasses
+    import sys
+    import types
+
+    from training.train.data import make_dataset
+
+    @dataclasses.dataclass(frozen=True)
+    class StackConfig:
+        height: int = 32
+        simulator: str = "aat"
+        lens: str = ""
+        effects: tuple = ()
+
+    class FocalStackDataset:
+        def __init__(self, cfg: StackConfig):
+            self.cfg = cfg
+
+    fake = types.ModuleType("training.data.stacks")
+    fake.FocalStackDataset, fake.StackConfig = FocalStackDataset, StackConfig
+    FocalStackDataset.__init__.__annotations__["cfg"] = StackConfig
+    monkeypatch.setitem(sys.modules, "training.data.stacks", fake)
+    import training.data
+
+    monkeypatch.setattr(training.data, "stacks", fake, raising=False)
+    ds = make_dataset({"height": 64}, "thin_lens", "lenses/canon_rf50mm_f1.8.json", ["noise"])
+    assert ds.cfg.height == 64 and ds.cfg.simulator == "thin_lens" and ds.cfg.effects == ("noise",)
+    assert Path(ds.cfg.lens).is_file()
+    with pytest.raises(ValueError, match="n_items"):
+        make_dataset({"n_items": 3}, "aat", "lenses/canon_rf50mm_f1.8.json")
