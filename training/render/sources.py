@@ -103,3 +103,16 @@ class OnnxPSF(_LensGeometry):
         lo, hi = self.model.depth_range_m
         k, s = self.model.query(x, y, np.clip(depth_m, lo, hi), focus_m)
         return torch.from_numpy(k), torch.from_numpy(s)
+
+
+class UnitEnergy:
+    """A source whose kernels are normalised to unit energy (per channel): light is redistributed, never lost.
+    The simulator's default; the `vignetting` effect puts the lens's light fall-off back explicitly."""
+
+    def __init__(self, source):
+        self.source = source
+        self.k, self.scale, self.blur_px = source.k, source.scale, source.blur_px
+
+    def __call__(self, x, y, depth_m, focus_m):
+        k, s = self.source(x, y, depth_m, focus_m)
+        return k / k.sum((-1, -2), keepdim=True).clamp_min(1e-12), s

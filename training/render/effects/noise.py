@@ -1,0 +1,28 @@
+"""noise: Poisson-Gaussian sensor noise in linear RAW units (photon shot noise + read noise)."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from training.render.effects import Effect, SimContext, register
+
+
+def poisson_gaussian(x: np.ndarray, full_well_e: float, read_noise_e: float, rng: np.random.Generator) -> np.ndarray:
+    """Noisy version of linear signal x (1.0 = white level = full_well_e electrons): Poisson electrons plus
+    Gaussian read noise (electrons RMS), back in white-level units. Negative values are kept (as in RAW)."""
+    e = rng.poisson(np.clip(x, 0, None) * full_well_e).astype(np.float64)
+    e += rng.normal(0.0, read_noise_e, size=e.shape)
+    return (e / full_well_e).astype(x.dtype)
+
+
+@register
+class Noise(Effect):
+    name = "noise"
+    description = "Poisson-Gaussian sensor noise in linear RAW units (shot noise from full_well_e, read noise)"
+    order = 90
+    defaults = {"full_well_e": 8000.0, "read_noise_e": 3.0}
+
+    def sensor(self, frame: torch.Tensor, ctx: SimContext, rng: np.random.Generator) -> torch.Tensor:
+        out = poisson_gaussian(frame.numpy(), self.params["full_well_e"], self.params["read_noise_e"], rng)
+        return torch.from_numpy(out)

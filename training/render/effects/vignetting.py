@@ -1,0 +1,49 @@
+"""vignetting: relative illumination, from the traced rays (mechanical vignetting) and the cos^4 law."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from training.psf.geometry import field_to_tan
+from training.render.effects import Effect, SimContext, register
+
+
+@register
+class Vignetting(Effect):
+    name = "vignetting"
+    description = ("relative illumination falls towards the corners: the fraction of the pupil's rays that get "
+                   "through (traced, relative to the axis) times cos^4 of the field angle")
+    order = 20
+    defaults = {"cos4": True}
+
+    def wrap_source(self, source, ctx: SimContext):
+        return _Vignetted(source, ctx, bool(self.params["cos4"]))
+
+
+class _Vignetted:
+    """Kernels normalised to unit energy, then scaled by the relative illumination."""
+
+    def __init__(self, source, ctx: SimContext, cos4: bool):
+        self.source, self.ctx, self.cos4 = source, ctx, cos4
+        self.k, self.scale, self.blur_px = source.k, source.scale, source.blur_px
+
+    def relative_illumination(self, x, y, depth_m, focus_m) -> np.ndarray:
+        """E(x, y) / E(axis) of the lens's traced PSFs (<= 1; 1 without a lens source) times cos^4(theta)."""
+        x, y, d, f = (np.asarray(a, dtype=np.float64).ravel() for a in np.broadcast_arrays(x, y, depth_m, focus_m))
+        ri = np.ones_like(x)
+        raw = self.ctx.lens_source
+        if raw is not None:
+            e = raw(x, y, d, f)[0].reshape(len(x), -1).sum(1).double().numpy()
+            e0 = raw(np.zeros_like(x), np.zeros_like(y), d, f)[0].reshape(len(x), -1).sum(1).double().numpy()
+            ri = np.clip(e / np.maximum(e0, 1e-12), 0.0, 1.0)
+        if self.cos4:
+            tx, ty = field_to_tan(self.ctx.lens, x, y)
+            ri = ri / (1.0 + tx * tx + ty * ty) ** 2  # cos^4(theta) = 1 / (1 + tan^2)^2
+        return ri
+
+    def __call__(self, x, y, depth_m, focus_m):
+        k, s = self.source(x, y, depth_m, focus_m)
+        k = k / k.sum((-1, -2), keepdim=True).clamp_min(1e-12)
+        ri = torch.from_numpy(self.relative_illumination(x, y, depth_m, focus_m)).to(k.dtype)
+        return k * ri.view(-1, *([1] * (k.ndim - 1))), s
