@@ -143,10 +143,15 @@ def _render_layer(img: torch.Tensor, w: torch.Tensor, m: int, anchors_field_fn, 
     kf = torch.fft.rfft2(px, s=(n_fft, n_fft))  # (U, C, n, n/2+1)
     yf = (xf * kf[inv].view(na, 4, ctot, n_fft, -1)).sum(1)
     y = torch.fft.irfft2(yf, s=(n_fft, n_fft))[..., :cc + 2 * r, :cc + 2 * r]  # (Na, C, cc+2r, cc+2r)
-    # Overlap-add the cells' spread light: fold sums overlapping blocks laid out with stride cc.
-    blocks = torch.zeros(ny * nx, ctot * (cc + 2 * r) ** 2, dtype=img.dtype)
-    blocks[idx[:, 0] * nx + idx[:, 1]] = y.reshape(na, -1)
-    canvas = F.fold(blocks.T[None], (ny * cc + 2 * r, nx * cc + 2 * r), cc + 2 * r, stride=cc)[0]
+    # Overlap-add the cells' spread light (blocks of cc + 2r laid out with stride cc).
+    canvas = torch.zeros(ctot, ny * cc + 2 * r, nx * cc + 2 * r, dtype=img.dtype)
+    if na <= 64:
+        for (cy, cx), blk in zip(idx.tolist(), y):
+            canvas[:, cy * cc:cy * cc + cc + 2 * r, cx * cc:cx * cc + cc + 2 * r] += blk
+    else:  # fold sums overlapping blocks in one call
+        blocks = torch.zeros(ny * nx, ctot * (cc + 2 * r) ** 2, dtype=img.dtype)
+        blocks[idx[:, 0] * nx + idx[:, 1]] = y.reshape(na, -1)
+        canvas = F.fold(blocks.T[None], tuple(canvas.shape[1:]), cc + 2 * r, stride=cc)[0]
     out = canvas[:, r:r + hc, r:r + wc]
     if m > 1:
         out = F.interpolate(out[None], scale_factor=m, mode="bilinear", align_corners=False)[0]

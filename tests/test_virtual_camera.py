@@ -1,0 +1,88 @@
+"""The virtual camera writes capture folders that the runtime reads like a real camera's."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from aat_deploy.capture.folder import read_capture
+from aat_deploy.capture.raw import load_raw
+from training.camera.virtual import BLACK_LEVEL, WHITE_LEVEL, mosaic_rggb, to_dn
+from training.cli.render import main as render_main
+from training.data.rgbd import linear_to_srgb
+from training.lens.io import load_lens
+from training.render import effects as fx
+from training.render.simulator import Simulator
+from training.render.sources import OnnxPSF
+
+from conftest import ROOT
+
+
+def test_mosaic_and_dn():
+    rgb = np.stack([np.full((4, 4), v) for v in (0.1, 0.5, 0.9)])
+    m = mosaic_rggb(rgb)
+    assert m[0, 0] == 0.1 and m[0, 1] == 0.5 and m[1, 0] == 0.5 and m[1, 1] == 0.9
+    span = WHITE_LEVEL - BLACK_LEVEL
+    assert to_dn(np.array([0.0, 1.0, 2.0, 0.01, -0.01, -1.0])).tolist() == [
+        BLACK_LEVEL, WHITE_LEVEL, WHITE_LEVEL, BLACK_LEVEL + round(0.01 * span), BLACK_LEVEL - round(0.01 * span), 0]
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    d = tmp_path_factory.mktemp("scene")
+    h, w = 320, 480  # scaled x2 to the RF50's 640 x 960 sensor
+    yy, xx = np.mgrid[0:h, 0:w]
+    lin = (0.25 + 0.2 * np.sin(xx / 7.0)[..., None] * np.array([1.0, 0.6, 0.3])
+           + 0.15 * np.cos(yy / 11.0)[..., None]).astype(np.float32)
+    cv2.imwrite(str(d / "rgb.png"), np.round(linear_to_srgb(lin)[..., ::-1] * 255).astype(np.uint8))
+    depth = np.where(xx < w // 2, 1.2, 3.0).astype(np.float32)
+    depth[:8, :8] = 0  # unknown
+    np.save(d / "depth.npy", depth)
+    return d
+
+
+def test_aat_render_writes_a_capture_the_runtime_reads(scene, tmp_path, capsys):
+    out = tmp_path / "cap"
+    args = [str(scene / "rgb.png"), str(scene / "depth.npy"), "--lens", str(ROOT / "lenses/canon_rf50mm_f1.8.json"),
+            "--focus-m", "2,1.2", "--out", str(out), "--psf", str(ROOT / "models/psf_rf50.onnx")]
+    assert render_main(args) == 0
+    cap = read_capture(out)
+    assert sorted(f.focus_m for f in cap.frames) == [1.2, 2.0]
+    assert all("SubjectDistance" in f.focus_source for f in cap.frames)
+    assert cap.gt_depth_m is not None and cap.gt_aif is not None
+    gt = np.load(out / "gt_depth_m.npy")
+    assert gt.shape == (640, 960) and gt[:16, :16].max() == 0
+    assert np.allclose(np.unique(gt[20:, :]), [1.2, 3.0])
+    mm = cv2.imread(str(out / "gt_depth_mm.png"), cv2.IMREAD_UNCHANGED)
+    assert mm.dtype == np.uint16 and np.array_equal(mm, np.round(gt * 1000).astype(np.uint16))
+    info = json.loads((out / "virtual_camera.json").read_text())
+    assert info["effects"] == ["aberrations"] and info["psf"].endswith("psf_rf50.onnx")
+    # Pixels: the developed RAW equals the rendered frame (demosaicking aside) in linear units.
+    lens = load_lens(ROOT / "lenses/canon_rf50mm_f1.8.json")
+    sim = Simulator(lens, OnnxPSF(ROOT / "models/psf_rf50.onnx", lens), fx.parse(["aberrations"]))
+    srgb = cv2.imread(str(scene / "rgb.png"))[..., ::-1].astype(np.float32) / 255
+    from training.cli.render import fit_to_sensor
+    from training.data.rgbd import fill_depth, srgb_to_linear
+
+    rgb, depth = fit_to_sensor(srgb_to_linear(srgb), np.load(scene / "depth.npy"), (640, 960))
+    ref = sim.render_stack(torch.from_numpy(rgb.transpose(2, 0, 1).copy()), torch.from_numpy(fill_depth(depth)),
+                           [1.2]).frames[0].numpy()
+    got, _ = load_raw(sorted(out.glob("*.dng"))[0] if cap.frames[0].focus_m == 1.2 else sorted(out.glob("*.dng"))[1])
+    inner = (slice(40, -40), slice(40, -40))
+    for c in range(3):
+        r = float(got[inner][..., c].mean() / ref[c][inner].mean())
+        assert abs(r - 1) < 0.02, (c, r)
+    # the existing folder is not overwritten
+    with pytest.raises(SystemExit, match="exists"):
+        render_main(args)
+
+
+def test_list_effects(capsys):
+    assert render_main(["--list-effects"]) == 0
+    out = capsys.readouterr().out
+    for name in fx.names():
+        assert name in out

@@ -1,0 +1,162 @@
+"""aat-render: the virtual camera. An all-in-focus image and a metric depth map in, a capture folder out.
+
+    aat-render RGB DEPTH --lens LENS --focus-m 0.5,1,2 --out DIR [--psf PSF.onnx] [--effects noise,vignetting]
+               [--thin-lens] [--depth-scale S] [--seed N] [--force]
+    aat-render --list-effects
+
+RGB: 8/16-bit sRGB image. DEPTH: .npy in metres or 16-bit PNG in millimetres (0 = unknown), metres from the
+sensor. The scene is scaled to cover the lens's sensor and centre-cropped; frames are rendered at the sensor's
+resolution with the lens's PSFs (its surrogate from --psf or models/, else ray-traced) unless --thin-lens.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _floats(text: str) -> list[float]:
+    try:
+        v = [float(t) for t in text.split(",") if t.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
+    if not v:
+        raise argparse.ArgumentTypeError("expected at least one number")
+    return v
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="aat-render", description=__doc__.split("\n\n")[0])
+    p.add_argument("rgb", nargs="?", help="all-in-focus image (8/16-bit sRGB)")
+    p.add_argument("depth", nargs="?", help="depth: .npy metres or 16-bit PNG millimetres (0 = unknown)")
+    p.add_argument("--lens", help="lens file (.json, .zmx)")
+    p.add_argument("--focus-m", type=_floats, help="focus distances, metres from the sensor (comma-separated)")
+    p.add_argument("--out", help="capture folder to write")
+    p.add_argument("--psf", help="PSF surrogate .onnx for this lens (default: a matching one in models/, else ray-trace)")
+    p.add_argument("--effects", default="", help="extra effects, comma-separated (see --list-effects)")
+    p.add_argument("--thin-lens", action="store_true", help="ideal thin lens (Gaussian PSFs) instead of the lens's")
+    p.add_argument("--depth-scale", type=float, help="metres per depth unit (default: 1 for .npy, 0.001 for PNG)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (noise)")
+    p.add_argument("--force", action="store_true", help="overwrite an existing capture folder")
+    p.add_argument("--list-effects", action="store_true", help="list the simulator's effects and exit")
+    return p
+
+
+def find_surrogate(lens) -> Path | None:
+    """A PSF surrogate in models/ made for exactly this prescription."""
+    import onnx
+
+    for f in sorted((ROOT / "models").glob("*.onnx")):
+        try:
+            meta = {p.key: p.value for p in onnx.load(str(f), load_external_data=False).metadata_props}
+        except Exception:
+            continue
+        if meta.get("aat.kind") == "psf_surrogate" and meta.get("aat.lens_hash") == lens.prescription_hash():
+            return f
+    return None
+
+
+def fit_to_sensor(rgb: np.ndarray, depth: np.ndarray, hw: tuple[int, int]):
+    """Scale image (bilinear/area) and depth (nearest: no invented depths at edges) to cover hw, centre crop."""
+    h, w = depth.shape
+    th, tw = hw
+    s = max(th / h, tw / w)
+    nh, nw = max(th, round(h * s)), max(tw, round(w * s))
+    interp = cv2.INTER_AREA if s < 1 else cv2.INTER_LINEAR
+    rgb = cv2.resize(rgb, (nw, nh), interpolation=interp)
+    depth = cv2.resize(depth, (nw, nh), interpolation=cv2.INTER_NEAREST)
+    y0, x0 = (nh - th) // 2, (nw - tw) // 2
+    return rgb[y0:y0 + th, x0:x0 + tw], depth[y0:y0 + th, x0:x0 + tw]
+
+
+def run(args) -> Path:
+    from training.data.rgbd import RGBDError, fill_depth, load_rgbd
+    from training.lens.io import load_lens
+    from training.render import effects as fx
+    from training.render.simulator import Simulator
+    from training.render.sources import OnnxPSF, RayTracedPSF
+    from training.camera.virtual import write_capture
+
+    out = Path(args.out)
+    if out.exists() and not args.force:
+        raise SystemExit(f"aat-render: error: {out}: exists (use --force to overwrite)")
+    lens = load_lens(args.lens)
+    try:
+        rgb, depth = load_rgbd(args.rgb, args.depth, args.depth_scale)
+    except RGBDError as e:
+        raise SystemExit(f"aat-render: error: {e}") from None
+    hs, ws = lens.sensor.height_px, lens.sensor.width_px
+    rgb, depth = fit_to_sensor(rgb, depth, (hs, ws))
+    effects = fx.parse(args.effects)
+    names = [e.name for e in effects]
+    lens_src, psf_used = None, None
+    if not args.thin_lens or "vignetting" in names:
+        psf = Path(args.psf) if args.psf else find_surrogate(lens)
+        if psf is not None:
+            lens_src, psf_used = OnnxPSF(psf, lens), str(psf)
+        else:
+            lens_src, psf_used = RayTracedPSF(lens, n_rays=1024), "ray-traced (1024 rays)"
+    if not args.thin_lens:
+        effects = fx.parse(["aberrations"] + names)
+    sim = Simulator(lens, lens_src, effects)
+    lo, hi = 0.2, 100.0
+    for f in args.focus_m:
+        if not lo <= f <= hi:
+            raise SystemExit(f"aat-render: error: focus distance {f} m outside {lo}..{hi} m")
+    focus = np.sort(np.asarray(args.focus_m, dtype=np.float64))
+    img = torch.from_numpy(np.ascontiguousarray(rgb.transpose(2, 0, 1))).float()
+    rng = np.random.default_rng(args.seed)
+    frames = []
+    t0 = time.time()
+    try:
+        from tqdm import tqdm
+    except ImportError:  # pragma: no cover
+        tqdm = None
+    it = tqdm(focus, desc="frames", unit="frame") if tqdm else focus
+    for f in it:
+        st = sim.render_stack(img, torch.from_numpy(fill_depth(depth)).float(), [f], rng=rng)
+        frames.append(st.frames[0].numpy())
+        reported = st.focus_reported_m
+    info = {"lens": lens.name, "lens_hash": lens.prescription_hash(), "psf": psf_used,
+            "effects": sim.effect_names, "focus_m": focus.tolist(), "seed": args.seed,
+            "rgb": str(args.rgb), "depth": str(args.depth), "render_seconds": round(time.time() - t0, 2)}
+    del reported
+    focus_reported = focus.copy()
+    for e in sim.effects:
+        focus_reported = e.report_focus(focus_reported, sim.context(), rng)
+    info["focus_reported_m"] = focus_reported.tolist()
+    try:
+        write_capture(out, np.stack(frames), focus_reported, lens, depth, rgb.transpose(2, 0, 1), info,
+                      force=args.force)
+    except (FileExistsError, ValueError) as e:
+        raise SystemExit(f"aat-render: error: {e}") from None
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if args.list_effects:
+        from training.render import effects as fx
+
+        for name, desc in fx.describe().items():
+            print(f"{name:16s} {desc}")
+        return 0
+    missing = [n for n in ("rgb", "depth", "lens", "focus_m", "out") if getattr(args, n) is None]
+    if missing:
+        build_parser().error(f"missing: {', '.join('--' + m.replace('_', '-') if m not in ('rgb', 'depth') else m.upper() for m in missing)}")
+    out = run(args)
+    print(json.dumps({"capture": str(out)}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,167 @@
+"""Focal-stack training data rendered on the fly: (stack, focus distances, depth, all-in-focus).
+
+Each item is a random crop placed anywhere on the full sensor; the crop is rendered with the PSFs of its true
+field position (the simulator gets the crop's origin). A margin around the crop is rendered and dropped so that
+light from outside the crop comes in as it would on the sensor. Items are deterministic in (seed, index), so the
+AAT and thin-lens datasets of one config show the same scenes, crops and focus distances: only the simulator
+differs. Rendered items can be cached on disk (`cache_dir`), as rendering costs more than a small net's step.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch.utils.data import Dataset
+
+from aat_deploy.normalise import PERCENTILE
+from training.data.rgbd import fill_depth, load_middlebury_motorcycle
+from training.data.scenes import SceneConfig, procedural_scene
+from training.lens.io import load_lens
+from training.render import effects as fx
+from training.render.layered import LayeredConfig
+from training.render.schedule import FocusSchedule
+from training.render.simulator import Simulator
+from training.render.sources import OnnxPSF, RayTracedPSF
+
+ROOT = Path(__file__).resolve().parents[2]
+SIMULATORS = ("aat", "thin_lens")
+
+
+@dataclass(frozen=True)
+class StackDataConfig:
+    """simulator: "aat" (the lens's PSFs) or "thin_lens" (Gaussian baseline); effects: extra effect names.
+    psf: the lens's surrogate (.onnx; null = ray-trace, slow). height, width: crop (px). Focus schedule:
+    stack_size distances even in diopters over [focus_near_m, focus_far_m], jittered by up to jitter_d.
+    scene: "procedural" (depths in [scene_near_m, scene_far_m]) or "middlebury"."""
+
+    simulator: str = "aat"
+    lens: str = "lenses/canon_rf50mm_f1.8.json"
+    psf: str | None = "models/psf_rf50.onnx"
+    effects: tuple = ()
+    height: int = 128
+    width: int = 128
+    stack_size: int = 8
+    focus_near_m: float = 0.5
+    focus_far_m: float = 10.0
+    jitter_d: float = 0.0
+    scene: str = "procedural"
+    scene_near_m: float = 0.5
+    scene_far_m: float = 10.0
+    n_items: int = 1000
+    seed: int = 0
+    margin_px: int = 16
+    cell_px: int = 32
+    cache_dir: str | None = None
+
+    def __post_init__(self):
+        if self.simulator not in SIMULATORS:
+            raise ValueError(f"simulator must be one of {SIMULATORS}, got {self.simulator!r}")
+        if self.scene not in ("procedural", "middlebury"):
+            raise ValueError(f"scene must be 'procedural' or 'middlebury', got {self.scene!r}")
+        if self.stack_size < 2 or self.height < 8 or self.width < 8:
+            raise ValueError("need stack_size >= 2 and a crop of at least 8 x 8 px")
+
+    def effect_list(self) -> list:
+        return (["aberrations"] if self.simulator == "aat" else []) + list(self.effects)
+
+    def key(self) -> str:
+        d = asdict(self)
+        d.pop("cache_dir")
+        d["n_items"] = None  # item i is the same whatever the dataset length
+        return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:12]
+
+
+def _resolve(p: str | None) -> Path | None:
+    if p is None:
+        return None
+    q = Path(p)
+    return q if q.is_absolute() or q.exists() else ROOT / q
+
+
+class FocalStackDataset(Dataset):
+    config_class = StackDataConfig
+
+    def __init__(self, cfg: StackDataConfig):
+        self.cfg = cfg
+        self.lens = load_lens(_resolve(cfg.lens))
+        lens_src = None
+        if cfg.simulator == "aat" or "vignetting" in cfg.effects:
+            lens_src = OnnxPSF(_resolve(cfg.psf), self.lens, threads=1) if cfg.psf else RayTracedPSF(self.lens)
+        self.sim = Simulator(self.lens, lens_src, fx.parse(cfg.effect_list()), LayeredConfig(cell_px=cfg.cell_px))
+        self.schedule = FocusSchedule(cfg.focus_near_m, cfg.focus_far_m, cfg.stack_size, cfg.jitter_d)
+        s = self.lens.sensor
+        self.sensor_hw = (s.height_px, s.width_px)
+        if cfg.height > s.height_px or cfg.width > s.width_px:
+            raise ValueError(f"crop {cfg.width}x{cfg.height} is larger than the sensor {s.width_px}x{s.height_px}")
+        self._middlebury = None
+        self.cache = Path(cfg.cache_dir) / cfg.key() if cfg.cache_dir else None
+
+    def __len__(self) -> int:
+        return self.cfg.n_items
+
+    def _scene(self, rng: np.random.Generator, h: int, w: int):
+        c = self.cfg
+        if c.scene == "procedural":
+            rgb, depth = procedural_scene(SceneConfig(height=h, width=w, near_m=c.scene_near_m,
+                                                      far_m=c.scene_far_m), rng)
+            return rgb, depth, depth
+        if self._middlebury is None:
+            self._middlebury = load_middlebury_motorcycle()
+        rgb, gt = self._middlebury
+        if h > rgb.shape[0] or w > rgb.shape[1]:
+            raise ValueError(f"middlebury scene is {rgb.shape[1]}x{rgb.shape[0]}, smaller than {w}x{h}")
+        r = int(rng.integers(0, rgb.shape[0] - h + 1))
+        q = int(rng.integers(0, rgb.shape[1] - w + 1))
+        g = gt[r:r + h, q:q + w]
+        return rgb[r:r + h, q:q + w], fill_depth(g), g
+
+    def render(self, index: int) -> dict:
+        c = self.cfg
+        rng = np.random.default_rng([c.seed, index])
+        m = c.margin_px
+        h, w = c.height + 2 * m, c.width + 2 * m
+        rgb, depth_fill, gt = self._scene(rng, h, w)
+        hs, ws = self.sensor_hw
+        origin = (int(rng.integers(0, hs - c.height + 1)), int(rng.integers(0, ws - c.width + 1)))
+        focus = self.schedule.distances(rng if c.jitter_d > 0 else None)
+        img = torch.from_numpy(np.ascontiguousarray(rgb.transpose(2, 0, 1))).float()
+        st = self.sim.render_stack(img, torch.from_numpy(depth_fill).float(), focus,
+                                   origin=(origin[0] - m, origin[1] - m), rng=rng)
+        sl = (slice(m, m + c.height), slice(m, m + c.width))
+        frames = st.frames[:, :, sl[0], sl[1]].numpy()
+        aif = img[:, sl[0], sl[1]].numpy()
+        p = np.float32(np.percentile(frames, PERCENTILE))
+        p = p if p > 0 else np.float32(1.0)
+        return {"stack": np.clip(frames / p, 0, 1).astype(np.float32),
+                "focus_m": st.focus_reported_m.astype(np.float32),
+                "depth_m": np.ascontiguousarray(gt[sl]).astype(np.float32),
+                "aif": np.clip(aif / p, 0, 1).astype(np.float32),
+                "origin": np.array(origin, dtype=np.int64)}
+
+    def __getitem__(self, index: int) -> dict:
+        if not 0 <= index < len(self):
+            raise IndexError(index)
+        item = None
+        if self.cache is not None:
+            f = self.cache / f"{index:06d}.npz"
+            if f.is_file():
+                try:
+                    with np.load(f) as z:
+                        item = {k: z[k] for k in z.files}
+                    item["stack"] = item["stack"].astype(np.float32)
+                except Exception:
+                    item = None  # a torn write: render again
+            if item is None:
+                item = self.render(index)
+                self.cache.mkdir(parents=True, exist_ok=True)
+                tmp = f.with_name(f.name + f".{np.random.randint(1 << 30)}.tmp.npz")
+                np.savez(tmp, **{**item, "stack": item["stack"].astype(np.float16)})
+                tmp.replace(f)
+        else:
+            item = self.render(index)
+        return {k: torch.from_numpy(np.asarray(v)) for k, v in item.items()}
