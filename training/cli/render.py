@@ -102,7 +102,7 @@ def run(args) -> Path:
     if not args.thin_lens or "vignetting" in names:
         psf = Path(args.psf) if args.psf else find_surrogate(lens)
         if psf is not None:
-            lens_src, psf_used = OnnxPSF(psf, lens), str(psf)
+            lens_src, psf_used = OnnxPSF(psf, lens), psf.name
         else:
             lens_src, psf_used = RayTracedPSF(lens, n_rays=1024), "ray-traced (1024 rays)"
     if not args.thin_lens:
@@ -128,7 +128,7 @@ def run(args) -> Path:
         reported = st.focus_reported_m
     info = {"lens": lens.name, "lens_hash": lens.prescription_hash(), "psf": psf_used,
             "effects": sim.effect_names, "focus_m": focus.tolist(), "seed": args.seed,
-            "rgb": str(args.rgb), "depth": str(args.depth), "render_seconds": round(time.time() - t0, 2)}
+            "rgb": Path(args.rgb).name, "depth": Path(args.depth).name, "render_seconds": round(time.time() - t0, 2)}
     del reported
     focus_reported = focus.copy()
     for e in sim.effects:

@@ -1,0 +1,44 @@
+"""Regenerate the shipped sample capture: a procedural scene through the RF50's virtual camera.
+
+    python scripts/make_sample_capture.py [--out captures/sample_rf50] [--force]
+
+Writes 8 DNG frames (focus 0.6..6 m, even in diopters) with ground truth, via `aat-render` (the same path a user
+takes), from a procedural scene (ours: no third-party data in the repository).
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--out", default=str(ROOT / "captures/sample_rf50"))
+    ap.add_argument("--force", action="store_true")
+    args = ap.parse_args()
+    from training.cli.render import main as render
+    from training.data.rgbd import linear_to_srgb
+    from training.data.scenes import SceneConfig, procedural_scene
+    from training.render.schedule import FocusSchedule
+
+    rgb, depth = procedural_scene(SceneConfig(height=640, width=960, near_m=0.7, far_m=5.0),
+                                  np.random.default_rng(2026))
+    focus = FocusSchedule(0.6, 6.0, 8).distances()
+    with tempfile.TemporaryDirectory() as d:
+        cv2.imwrite(f"{d}/rgb.png", np.round(linear_to_srgb(rgb)[..., ::-1] * 65535).astype(np.uint16))
+        np.save(f"{d}/depth.npy", depth)
+        argv = [f"{d}/rgb.png", f"{d}/depth.npy", "--lens", str(ROOT / "lenses/canon_rf50mm_f1.8.json"),
+                "--focus-m", ",".join(f"{f:.4f}" for f in focus), "--out", args.out,
+                "--effects", "vignetting,noise", "--seed", "1"]
+        render(argv + (["--force"] if args.force else []))
+
+
+if __name__ == "__main__":
+    main()
