@@ -1,0 +1,36 @@
+"""Export the trained DfF runs to the ONNX models shipped in models/ (metadata per docs/contracts.md).
+
+    python scripts/export_dff_models.py [--runs runs] [--force] [NAME ...]
+
+NAME defaults to the four runs of scripts/train_dff_models.sh; each runs/NAME/model.pt -> models/NAME.onnx
+with an onnxruntime-vs-torch parity check at three shapes.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+NAMES = ["dff_dfvnet_aat", "dff_dfvnet_thin", "dff_aifnet_aat", "dff_aifnet_thin"]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("names", nargs="*", default=NAMES)
+    ap.add_argument("--runs", default=str(ROOT / "runs"))
+    ap.add_argument("--force", action="store_true")
+    args = ap.parse_args()
+    from training.train.export import export_checkpoint
+
+    for name in args.names:
+        ckpt = Path(args.runs) / name / "model.pt"
+        if not ckpt.is_file():
+            print(f"{name}: no {ckpt} (train it first)")
+            continue
+        md, err = export_checkpoint(ckpt, ROOT / "models" / f"{name}.onnx", force=args.force)
+        print(f"{name}: models/{name}.onnx, max |ORT - torch| = {err:.2e}")
+
+
+if __name__ == "__main__":
+    main()
