@@ -51,9 +51,20 @@ def main() -> None:
     from training.lens.io import load_lens
     from training.psf.kernel import KernelSpec
     from training.psf.surrogates import PaperMLP
-    from training.render.exact import cells_to_pixels, pixel_kernel_size, render_exact, render_frame_exact
+    from training.render.exact import (
+        cells_to_pixels,
+        pixel_kernel_size,
+        render_exact,
+        render_frame_exact,
+    )
     from training.render.layered import LayeredConfig, render_layered
-    from training.render.sources import ModelPSF, OnnxPSF, field_of, pixel_fields, thin_lens_source
+    from training.render.sources import (
+        ModelPSF,
+        OnnxPSF,
+        field_of,
+        pixel_fields,
+        thin_lens_source,
+    )
 
     lens = load_lens(ROOT / "lenses/canon_rf50mm_f1.8.json")
     hs, ws = lens.sensor.height_px, lens.sensor.width_px
@@ -71,7 +82,7 @@ def main() -> None:
     spec = KernelSpec.for_lens(lens)
     mlp = ModelPSF(PaperMLP(lens, spec, 0.3, 20.0), lens)
     x, y = pixel_fields(h, w, (hs, ws), origins["centre"])
-    (ker, sc), t_query = timed(lambda: mlp(x.ravel(), y.ravel(), depth.ravel(), focus))
+    (ker, _), t_query = timed(lambda: mlp(x.ravel(), y.ravel(), depth.ravel(), focus))
     ker = ker / ker.sum((1, 2), keepdim=True).clamp_min(1e-12)
     size = pixel_kernel_size(11, 1.0)
     px = cells_to_pixels(ker[:, :, :].float(), torch.ones(ker.shape[0]), size)  # 11 x 11 as the paper
@@ -81,13 +92,15 @@ def main() -> None:
     rows = []
     for sname, src in sources.items():
         for oname, origin in origins.items():
-            exact, t_exact = timed(lambda: render_frame_exact(img, dep, focus, src, (hs, ws), origin))
+            exact, t_exact = timed(lambda src=src, origin=origin: render_frame_exact(img, dep, focus, src, (hs, ws),
+                                                                                     origin))
             for cname, cfg in cfgs.items():
                 def ff(r, c, origin=origin):
                     return field_of(r, c, (hs, ws), origin)
 
                 render_layered(img, dep, focus, src, ff, cfg)  # warm-up
-                fast, t_fast = timed(lambda: render_layered(img, dep, focus, src, ff, cfg), repeat=3)
+                fast, t_fast = timed(lambda src=src, ff=ff, cfg=cfg: render_layered(img, dep, focus, src, ff, cfg),
+                                     repeat=3)
                 err = float((fast - exact).abs().mean() / exact.abs().mean())
                 rows.append((sname, oname, cname, t_fast, err, t_exact))
             print(f"done {sname} {oname}", flush=True)

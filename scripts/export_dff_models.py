@@ -28,7 +28,7 @@ def main() -> None:
         if not ckpt.is_file():
             print(f"{name}: no {ckpt} (train it first)")
             continue
-        md, err = export_checkpoint(ckpt, ROOT / "models" / f"{name}.onnx", force=args.force)
+        _, err = export_checkpoint(ckpt, ROOT / "models" / f"{name}.onnx", force=args.force)
         print(f"{name}: models/{name}.onnx, max |ORT - torch| = {err:.2e}")
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from conftest import ROOT
 
 from training.lens.io import load_lens
 from training.render import effects as fx
@@ -13,8 +14,6 @@ from training.render.effects.noise import poisson_gaussian
 from training.render.layered import LayeredConfig
 from training.render.simulator import Simulator
 from training.render.sources import OnnxPSF
-
-from conftest import ROOT
 
 LENS = load_lens(ROOT / "lenses/canon_rf50mm_f1.8.json")
 SRC = OnnxPSF(ROOT / "models/psf_rf50.onnx", LENS, threads=1)

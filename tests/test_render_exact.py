@@ -57,8 +57,8 @@ def test_cells_to_pixels_conserves_energy_and_is_identity_at_scale_one():
 
 def test_frame_with_thin_lens_gaussian_and_orientation_of_field():
     import numpy as np
-
     from conftest import LENSES
+
     from training.lens.io import load_lens
     from training.psf.kernel import KernelSpec
     from training.psf.surrogates import GaussianPSF

@@ -6,7 +6,13 @@ import cv2
 import numpy as np
 import pytest
 
-from training.data.rgbd import RGBDError, fill_depth, load_middlebury_motorcycle, load_rgbd, read_depth
+from training.data.rgbd import (
+    RGBDError,
+    fill_depth,
+    load_middlebury_motorcycle,
+    load_rgbd,
+    read_depth,
+)
 from training.data.stacks import FocalStackDataset, StackDataConfig
 
 

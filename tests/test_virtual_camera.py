@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 import pytest
 import torch
+from conftest import ROOT
 
 from aat_deploy.capture.folder import read_capture
 from aat_deploy.capture.raw import load_raw
@@ -18,8 +19,6 @@ from training.lens.io import load_lens
 from training.render import effects as fx
 from training.render.simulator import Simulator
 from training.render.sources import OnnxPSF
-
-from conftest import ROOT
 
 
 def test_mosaic_and_dn():
@@ -71,7 +70,8 @@ def test_aat_render_writes_a_capture_the_runtime_reads(scene, tmp_path, capsys):
     rgb, depth = fit_to_sensor(srgb_to_linear(srgb), np.load(scene / "depth.npy"), (640, 960))
     ref = sim.render_stack(torch.from_numpy(rgb.transpose(2, 0, 1).copy()), torch.from_numpy(fill_depth(depth)),
                            [1.2]).frames[0].numpy()
-    got, _ = load_raw(sorted(out.glob("*.dng"))[0] if cap.frames[0].focus_m == 1.2 else sorted(out.glob("*.dng"))[1])
+    near = next(f.path for f in cap.frames if f.focus_m == 1.2)
+    got, _ = load_raw(near)
     inner = (slice(40, -40), slice(40, -40))
     for c in range(3):
         r = float(got[inner][..., c].mean() / ref[c][inner].mean())

@@ -62,7 +62,7 @@ def _xmp(distance: tuple[int, int]) -> bytes:
             '<x:xmpmeta xmlns:x="adobe:ns:meta/"><rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">'
             '<rdf:Description rdf:about="" xmlns:aux="http://ns.adobe.com/exif/1.0/aux/" '
             f'aux:ApproximateFocusDistance="{distance[0]}/{distance[1]}"/></rdf:RDF></x:xmpmeta>\n'
-            '<?xpacket end="w"?>').encode("utf-8")
+            '<?xpacket end="w"?>').encode()
 
 
 def _positive(name: str, x: float) -> float:

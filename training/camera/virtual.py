@@ -51,7 +51,7 @@ def write_capture(out_dir, frames: np.ndarray, focus_reported_m, lens: Lens, gt_
     if out_dir.exists() and not force:
         raise FileExistsError(f"{out_dir}: exists (use --force to overwrite)")
     frames = np.asarray(frames)
-    s, c, h, w = frames.shape
+    _, c, h, w = frames.shape
     if c != 3 or h % 2 or w % 2:
         raise ValueError(f"frames must be (S, 3, H, W) with even H, W; got {frames.shape}")
     p = paraxial_data(lens)

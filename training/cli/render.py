@@ -79,12 +79,12 @@ def fit_to_sensor(rgb: np.ndarray, depth: np.ndarray, hw: tuple[int, int]):
 
 
 def run(args) -> Path:
+    from training.camera.virtual import write_capture
     from training.data.rgbd import RGBDError, fill_depth, load_rgbd
     from training.lens.io import load_lens
     from training.render import effects as fx
     from training.render.simulator import Simulator
     from training.render.sources import OnnxPSF, RayTracedPSF
-    from training.camera.virtual import write_capture
 
     out = Path(args.out)
     if out.exists() and not args.force:
@@ -125,12 +125,10 @@ def run(args) -> Path:
     for f in it:
         st = sim.render_stack(img, torch.from_numpy(fill_depth(depth)).float(), [f], rng=rng)
         frames.append(st.frames[0].numpy())
-        reported = st.focus_reported_m
     info = {"lens": lens.name, "lens_hash": lens.prescription_hash(), "psf": psf_used,
             "effects": sim.effect_names, "focus_m": focus.tolist(), "seed": args.seed,
             "rgb": Path(args.rgb).name, "depth": Path(args.depth).name, "render_seconds": round(time.time() - t0, 2)}
-    del reported
-    focus_reported = focus.copy()
+    focus_reported = focus.copy()  # metadata effects (if any) decide what the EXIF says
     for e in sim.effects:
         focus_reported = e.report_focus(focus_reported, sim.context(), rng)
     info["focus_reported_m"] = focus_reported.tolist()

@@ -73,7 +73,7 @@ def render_frame_exact(image: torch.Tensor, depth_m: torch.Tensor, focus_m: floa
     pixels, scattered with true convolution. image (C, H, W) linear; depth_m (H, W) metres from the sensor."""
     from training.render.sources import pixel_fields
 
-    c, h, w = image.shape
+    _, h, w = image.shape
     x, y = pixel_fields(h, w, sensor_hw, origin)
     kernels, scale = psf_source(x.ravel(), y.ravel(), depth_m.reshape(-1).numpy(), focus_m)
     size = pixel_kernel_size(kernels.shape[-1], float(scale.max()))

@@ -32,7 +32,7 @@ class SimulatorConfig:
     n_rays: int = 1024
 
     @classmethod
-    def from_dict(cls, d: dict) -> "SimulatorConfig":
+    def from_dict(cls, d: dict) -> SimulatorConfig:
         d = dict(d)
         if "layered" in d:
             d["layered"] = LayeredConfig(**d["layered"])
@@ -56,7 +56,7 @@ class Simulator:
         self.layered = layered
 
     @classmethod
-    def from_config(cls, cfg: SimulatorConfig, root: Path | None = None) -> "Simulator":
+    def from_config(cls, cfg: SimulatorConfig, root: Path | None = None) -> Simulator:
         root = root or Path(".")
         lens = load_lens(root / cfg.lens)
         src = OnnxPSF(root / cfg.psf, lens) if cfg.psf else RayTracedPSF(lens, n_rays=cfg.n_rays)

@@ -17,15 +17,16 @@ from __future__ import annotations
 
 import importlib
 import pkgutil
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import torch
 
 from training.lens.schema import Lens
 
-_REGISTRY: dict[str, type["Effect"]] = {}
+_REGISTRY: dict[str, type[Effect]] = {}
 _LOADED = False
 
 

@@ -25,7 +25,7 @@ def breathing_scale(lens, focus_m) -> np.ndarray:
 def scale_about_axis(frame: torch.Tensor, scale: float, ctx: SimContext) -> torch.Tensor:
     """Magnify frame (C, H, W) by `scale` about the optical axis (the sensor centre), for a crop at ctx.origin:
     out(q) = frame(axis + (q - axis) / scale), bilinear, edges replicated."""
-    c, h, w = frame.shape
+    _, h, w = frame.shape
     hs, ws = ctx.sensor_hw
     cy, cx = hs / 2 - ctx.origin[0], ws / 2 - ctx.origin[1]  # axis in crop pixel coordinates
     rows = torch.arange(h, dtype=torch.float64) + 0.5
