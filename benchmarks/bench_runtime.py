@@ -1,0 +1,76 @@
+"""Runtime inference: onnxruntime (what `aat-infer` runs) vs torch eager on the same net and input.
+
+    OMP_WAIT_POLICY=PASSIVE python benchmarks/bench_runtime.py [--sizes small] [--hw 640x960] [--stack 8]
+
+For each net, a freshly built model (weights do not change the speed) is exported exactly as the shipped
+models are (training.nets.export), then one normalised (S, 3, H, W) stack is run by torch (`predict`, eager,
+no grad) and by the runtime (`aat_deploy.model.DfFModel.infer`), both on 2 threads; best of 3, one run.
+Prints a table: seconds per stack each way, the ratio, and the max |difference| of the depths.
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def best(fn, n: int = 3) -> tuple[object, float]:
+    out, t = None, float("inf")
+    for _ in range(n):
+        t0 = time.perf_counter()
+        out = fn()
+        t = min(t, time.perf_counter() - t0)
+    return out, t
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--sizes", default="small")
+    ap.add_argument("--hw", default="640x960")
+    ap.add_argument("--stack", type=int, default=8)
+    args = ap.parse_args()
+    h, w = (int(v) for v in args.hw.split("x"))
+    torch.set_num_threads(2)
+    from aat_deploy.model import DfFModel
+    from training.lens.io import load_lens
+    from training.nets.export import dff_metadata, export_dff_onnx
+    from training.nets.model import build_model, predict
+
+    lens = load_lens(ROOT / "lenses/canon_rf50mm_f1.8.json")
+    rng = np.random.default_rng(0)
+    stack = rng.random((args.stack, 3, h, w), dtype=np.float32)
+    focus = np.sort(1 / np.linspace(2.0, 0.1, args.stack)).astype(np.float32)
+    rows = []
+    for size in args.sizes.split(","):
+        for net in ("dfvnet", "aifnet"):
+            torch.manual_seed(0)
+            model = build_model(net, size).eval()
+            with tempfile.TemporaryDirectory() as d:
+                path = Path(d) / "m.onnx"
+                md = dff_metadata(model, lens, simulator="aat", effects=[], focus_range_m=(0.5, 10.0),
+                                  stack_range=(2, 16), config_hash="benchmark")
+                export_dff_onnx(model, path, md)
+                rt = DfFModel(path, threads=2)
+                with torch.no_grad():
+                    ref, t_torch = best(lambda m=model: predict(m, torch.from_numpy(stack)[None],
+                                                               torch.from_numpy(focus)[None]))
+                out, t_ort = best(lambda rt=rt: rt.infer(stack, focus))
+            diff = float(np.abs(out.depth_m - ref["depth_m"][0].numpy()).max())
+            rows.append((f"{net} {size}", t_torch, t_ort, diff))
+            print(f"done {net} {size}", flush=True)
+    print(f"\n### DfF inference, one stack of {args.stack} x 3 x {h} x {w}, 2 threads\n")
+    print("| net | torch eager | onnxruntime (aat-infer) | torch / ORT | max abs depth diff (m) |")
+    print("|---|---|---|---|---|")
+    for name, tt, to, d in rows:
+        print(f"| {name} | {tt:.2f} s | {to:.2f} s | {tt / to:.2f}x | {d:.1e} |")
+
+
+if __name__ == "__main__":
+    main()
