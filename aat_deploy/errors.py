@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 
 class CaptureError(ValueError):
     """Bad input: an unreadable file, an inconsistent capture folder, a model that does not fit."""
@@ -13,3 +15,14 @@ class ModelError(CaptureError):
 
 class OutputError(CaptureError):
     """An output cannot be written (exists without --force, not writable)."""
+
+
+def read_input_bytes(path: Path) -> bytes:
+    """A frame file's bytes; CaptureError naming the file if it cannot be read or is empty."""
+    try:
+        buf = Path(path).read_bytes()
+    except OSError as e:
+        raise CaptureError(f"{path}: cannot read ({e.strerror or e})") from None
+    if not buf:
+        raise CaptureError(f"{path}: empty file")
+    return buf

@@ -14,22 +14,15 @@ is the reference way's time over ours. Also writes the thin-lens vs aberrated st
 from __future__ import annotations
 
 import argparse
-import time
+import sys
 from pathlib import Path
 
 import numpy as np
 import torch
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def timed(fn, repeat: int = 1):
-    best, out = float("inf"), None
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - t0)
-    return out, best
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from timing import best_of  # noqa: E402
 
 
 def main() -> None:
@@ -82,25 +75,25 @@ def main() -> None:
     spec = KernelSpec.for_lens(lens)
     mlp = ModelPSF(PaperMLP(lens, spec, 0.3, 20.0), lens)
     x, y = pixel_fields(h, w, (hs, ws), origins["centre"])
-    (ker, _), t_query = timed(lambda: mlp(x.ravel(), y.ravel(), depth.ravel(), focus))
+    (ker, _), t_query = best_of(lambda: mlp(x.ravel(), y.ravel(), depth.ravel(), focus))
     ker = ker / ker.sum((1, 2), keepdim=True).clamp_min(1e-12)
     size = pixel_kernel_size(11, 1.0)
     px = cells_to_pixels(ker[:, :, :].float(), torch.ones(ker.shape[0]), size)  # 11 x 11 as the paper
-    _, t_gather = timed(lambda: render_exact(img, px))
+    _, t_gather = best_of(lambda: render_exact(img, px))
     t_ref = t_query + t_gather
 
     rows = []
     for sname, src in sources.items():
         for oname, origin in origins.items():
-            exact, t_exact = timed(lambda src=src, origin=origin: render_frame_exact(img, dep, focus, src, (hs, ws),
-                                                                                     origin))
+            exact, t_exact = best_of(lambda src=src, origin=origin: render_frame_exact(
+                img, dep, focus, src, (hs, ws), origin))
             for cname, cfg in cfgs.items():
                 def ff(r, c, origin=origin):
                     return field_of(r, c, (hs, ws), origin)
 
                 render_layered(img, dep, focus, src, ff, cfg)  # warm-up
-                fast, t_fast = timed(lambda src=src, ff=ff, cfg=cfg: render_layered(img, dep, focus, src, ff, cfg),
-                                     repeat=3)
+                fast, t_fast = best_of(lambda src=src, ff=ff, cfg=cfg: render_layered(
+                    img, dep, focus, src, ff, cfg), repeat=3)
                 err = float((fast - exact).abs().mean() / exact.abs().mean())
                 rows.append((sname, oname, cname, t_fast, err, t_exact))
             print(f"done {sname} {oname}", flush=True)

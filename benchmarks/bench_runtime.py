@@ -11,23 +11,16 @@ Prints a table: seconds per stack each way, the ratio, and the max |difference| 
 from __future__ import annotations
 
 import argparse
+import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def best(fn, n: int = 3) -> tuple[object, float]:
-    out, t = None, float("inf")
-    for _ in range(n):
-        t0 = time.perf_counter()
-        out = fn()
-        t = min(t, time.perf_counter() - t0)
-    return out, t
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from timing import best_of  # noqa: E402
 
 
 def main() -> None:
@@ -59,9 +52,9 @@ def main() -> None:
                 export_dff_onnx(model, path, md)
                 rt = DfFModel(path, threads=2)
                 with torch.no_grad():
-                    ref, t_torch = best(lambda m=model: predict(m, torch.from_numpy(stack)[None],
-                                                               torch.from_numpy(focus)[None]))
-                out, t_ort = best(lambda rt=rt: rt.infer(stack, focus))
+                    ref, t_torch = best_of(lambda m=model: predict(m, torch.from_numpy(stack)[None],
+                                                                  torch.from_numpy(focus)[None]), repeat=3)
+                out, t_ort = best_of(lambda rt=rt: rt.infer(stack, focus), repeat=3)
             diff = float(np.abs(out.depth_m - ref["depth_m"][0].numpy()).max())
             rows.append((f"{net} {size}", t_torch, t_ort, diff))
             print(f"done {net} {size}", flush=True)

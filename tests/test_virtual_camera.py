@@ -86,3 +86,27 @@ def test_list_effects(capsys):
     out = capsys.readouterr().out
     for name in fx.names():
         assert name in out
+
+
+def test_bad_input_is_one_line_and_force_replaces_atomically(scene, tmp_path):
+    lens = str(ROOT / "lenses/canon_rf50mm_f1.8.json")
+    base = [str(scene / "rgb.png"), str(scene / "depth.npy"), "--focus-m", "1", "--out", str(tmp_path / "c")]
+    bad_lens = tmp_path / "bad.json"
+    bad_lens.write_text("{not json")
+    with pytest.raises(SystemExit, match=r"aat-render: error: .*bad\.json"):
+        render_main(base + ["--lens", str(bad_lens)])
+    with pytest.raises(SystemExit, match="aat-render: error: unknown effect 'fog'"):
+        render_main(base + ["--lens", lens, "--effects", "fog"])
+    with pytest.raises(SystemExit, match="aat-render: error: .*nothing.npy: no such depth file"):
+        render_main([str(scene / "rgb.png"), str(tmp_path / "nothing.npy"), "--lens", lens, "--focus-m", "1",
+                     "--out", str(tmp_path / "c")])
+    assert not (tmp_path / "c").exists()  # nothing half-written
+    out = tmp_path / "c"
+    out.mkdir()
+    (out / "mine.txt").write_text("user data")
+    with pytest.raises(SystemExit, match="exists"):
+        render_main(base + ["--lens", lens, "--thin-lens"])
+    assert (out / "mine.txt").read_text() == "user data"
+    assert render_main(base + ["--lens", lens, "--thin-lens", "--force"]) == 0
+    assert not (out / "mine.txt").exists() and len(list(out.glob("*.dng"))) == 1
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # no temporary left behind

@@ -21,7 +21,7 @@ import struct
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from ..errors import CaptureError
+from ..errors import CaptureError, read_input_bytes
 from . import exiftool, makernotes
 from .containers import Blocks, find_blocks
 from .tiff import TiffBuffer
@@ -99,12 +99,7 @@ def _image_size(buf: bytes, blocks: Blocks) -> tuple[int | None, int | None]:
 def read_metadata(path: str | Path, use_exiftool: bool = True) -> FrameMeta:
     """Read one file's metadata (raises CaptureError for unreadable files)."""
     path = Path(path)
-    try:
-        buf = path.read_bytes()
-    except OSError as e:
-        raise CaptureError(f"{path}: cannot read ({e.strerror or e})") from None
-    if not buf:
-        raise CaptureError(f"{path}: empty file")
+    buf = read_input_bytes(path)
     meta = FrameMeta(file=str(path))
     blocks = find_blocks(buf)
     meta.container = blocks.container

@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 import rawpy
 
-from ..errors import CaptureError
+from ..errors import CaptureError, read_input_bytes
 
 RAW_EXTENSIONS = {".dng", ".cr2", ".cr3", ".crw", ".nef", ".nrw", ".arw", ".srf", ".sr2", ".raf", ".orf", ".rw2",
                   ".pef", ".kdc", ".dcr", ".mrw", ".x3f", ".iiq", ".3fr", ".erf", ".mef", ".mos", ".srw", ".rwl",
@@ -82,12 +82,7 @@ def _truncated(path: Path, buf: bytes) -> bool:
 
 def load_image(path: Path) -> tuple[np.ndarray, dict]:
     """Decode an 8/16-bit (or float) TIFF/PNG/JPEG to linear float32 RGB (H, W, 3)."""
-    try:
-        buf = path.read_bytes()
-    except OSError as e:
-        raise CaptureError(f"{path}: cannot read ({e.strerror or e})") from None
-    if not buf:
-        raise CaptureError(f"{path}: empty file")
+    buf = read_input_bytes(path)
     if _truncated(path, buf):
         raise CaptureError(f"{path}: truncated image file (no end marker)")
     img = cv2.imdecode(np.frombuffer(buf, np.uint8), cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR)

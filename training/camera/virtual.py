@@ -74,9 +74,13 @@ def write_capture(out_dir, frames: np.ndarray, focus_reported_m, lens: Lens, gt_
         (tmp / "virtual_camera.json").write_text(json.dumps(info, indent=2) + "\n")
         for f in tmp.iterdir():
             f.chmod(0o644)
-        if out_dir.exists():
-            shutil.rmtree(out_dir)
+        old = None
+        if out_dir.exists():  # --force: move the old folder aside, swap, then delete it
+            old = out_dir.with_name(f".{out_dir.name}.old.{tmp.name}")
+            out_dir.rename(old)
         tmp.rename(out_dir)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

@@ -66,22 +66,21 @@ def find_surrogate(lens) -> Path | None:
 
 
 def fit_to_sensor(rgb: np.ndarray, depth: np.ndarray, hw: tuple[int, int]):
-    """Scale image (bilinear/area) and depth (nearest: no invented depths at edges) to cover hw, centre crop."""
-    h, w = depth.shape
+    """The runtime's fit (centre crop to the sensor's aspect, then resize), so a rendered capture and a real
+    one are framed alike; depth takes the same crop, resized with nearest neighbour (no invented depths)."""
+    from aat_deploy.geometry import fit_to_sensor as fit
+
     th, tw = hw
-    s = max(th / h, tw / w)
-    nh, nw = max(th, round(h * s)), max(tw, round(w * s))
-    interp = cv2.INTER_AREA if s < 1 else cv2.INTER_LINEAR
-    rgb = cv2.resize(rgb, (nw, nh), interpolation=interp)
-    depth = cv2.resize(depth, (nw, nh), interpolation=cv2.INTER_NEAREST)
-    y0, x0 = (nh - th) // 2, (nw - tw) // 2
-    return rgb[y0:y0 + th, x0:x0 + tw], depth[y0:y0 + th, x0:x0 + tw]
+    out, info = fit(rgb, (tw, th))
+    x0, y0, cw, ch = info["crop_xywh"]
+    d = cv2.resize(np.ascontiguousarray(depth[y0:y0 + ch, x0:x0 + cw]), (tw, th), interpolation=cv2.INTER_NEAREST)
+    return out, d
 
 
 def run(args) -> Path:
     from training.camera.virtual import write_capture
     from training.data.rgbd import RGBDError, fill_depth, load_rgbd
-    from training.lens.io import load_lens
+    from training.lens.io import LensFileError, load_lens
     from training.render import effects as fx
     from training.render.simulator import Simulator
     from training.render.sources import OnnxPSF, RayTracedPSF
@@ -89,14 +88,14 @@ def run(args) -> Path:
     out = Path(args.out)
     if out.exists() and not args.force:
         raise SystemExit(f"aat-render: error: {out}: exists (use --force to overwrite)")
-    lens = load_lens(args.lens)
     try:
+        lens = load_lens(args.lens)
         rgb, depth = load_rgbd(args.rgb, args.depth, args.depth_scale)
-    except RGBDError as e:
+        effects = fx.parse(args.effects)
+    except (LensFileError, RGBDError, ValueError, OSError) as e:
         raise SystemExit(f"aat-render: error: {e}") from None
     hs, ws = lens.sensor.height_px, lens.sensor.width_px
     rgb, depth = fit_to_sensor(rgb, depth, (hs, ws))
-    effects = fx.parse(args.effects)
     names = [e.name for e in effects]
     lens_src, psf_used = None, None
     if not args.thin_lens or "vignetting" in names:

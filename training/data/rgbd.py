@@ -12,6 +12,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from aat_deploy.capture.raw import linear_to_srgb, srgb_to_linear  # one definition for both sides
+
 SHARED_MIDDLEBURY = Path(__file__).resolve().parents[3] / "shared" / "data" / "middlebury2014_motorcycle"
 # Calibration of the x4-downsampled Motorcycle images that scikit-image ships (Middlebury calib.txt / 4).
 MOTORCYCLE_F_PX, MOTORCYCLE_DOFFS_PX, MOTORCYCLE_BASELINE_MM = 994.978, 31.086, 193.001
@@ -19,16 +21,6 @@ MOTORCYCLE_F_PX, MOTORCYCLE_DOFFS_PX, MOTORCYCLE_BASELINE_MM = 994.978, 31.086, 
 
 class RGBDError(ValueError):
     """A scene file that cannot be used (message names the file and the problem)."""
-
-
-def srgb_to_linear(x: np.ndarray) -> np.ndarray:
-    x = np.asarray(x, dtype=np.float32)
-    return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4).astype(np.float32)
-
-
-def linear_to_srgb(x: np.ndarray) -> np.ndarray:
-    x = np.clip(np.asarray(x, dtype=np.float32), 0, 1)
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055).astype(np.float32)
 
 
 def read_rgb(path) -> np.ndarray:

@@ -35,7 +35,10 @@ class _Vignetted:
         raw = self.ctx.lens_source
         if raw is not None:
             e = raw(x, y, d, f)[0].reshape(len(x), -1).sum(1).double().numpy()
-            e0 = raw(np.zeros_like(x), np.zeros_like(y), d, f)[0].reshape(len(x), -1).sum(1).double().numpy()
+            # The on-axis reference depends on (depth, focus) only: one query per distinct pair.
+            df, inv = np.unique(np.stack([d, f], 1), axis=0, return_inverse=True)
+            k0 = raw(np.zeros(len(df)), np.zeros(len(df)), df[:, 0], df[:, 1])[0]
+            e0 = k0.reshape(len(df), -1).sum(1).double().numpy()[inv.ravel()]
             ri = np.clip(e / np.maximum(e0, 1e-12), 0.0, 1.0)
         if self.cos4:
             tx, ty = field_to_tan(self.ctx.lens, x, y)
