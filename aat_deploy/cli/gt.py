@@ -1,0 +1,154 @@
+"""aat-gt: ground-truth depth for evaluation.
+
+    aat-gt render MESH --pose POSE.json --lens M.onnx|INTRINSICS.json --out OUT [--width W --height H]
+                  [--pupil-to-sensor-mm D] [--mesh-scale S] [--max-incidence-deg A] [--force]
+    aat-gt check CAPTURE_DIR... [--model M.onnx]
+
+render: ray-casts a mesh (PLY/OBJ/..., e.g. a lidar scan) from the camera pose and writes depth in metres from
+the sensor plane: a 16-bit PNG in mm (0 = no surface), a float32 .npy in metres (NaN = no surface), a validity
+mask PNG (255 = valid) and a JSON of how it was rendered. OUT is a .png path, or a folder (a capture folder:
+gt_depth_mm.png, gt_depth_m.npy, gt_mask.png, gt_render.json). Needs the gt extra (pip install "aat[gt]").
+check: reads each capture's ground truth as aat-eval does and prints what it found (one line each).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..errors import CaptureError
+from ..eval.gt import check_units, find_gt, load_ground_truth
+from ..eval.raycast import load_intrinsics, load_mesh, load_pose, render_depth
+
+MM_MAX = 65535
+
+
+def output_paths(out: Path) -> dict[str, Path]:
+    """The files `render` writes for OUT: a folder → gt_* names inside it; a .png → beside it
+    (name_mm.png → name_m.npy; gt_*.png → gt_mask.png; else name.npy, name_mask.png)."""
+    if out.suffix.lower() != ".png":
+        return {"png": out / "gt_depth_mm.png", "npy": out / "gt_depth_m.npy", "mask": out / "gt_mask.png",
+                "json": out / "gt_render.json"}
+    stem = out.stem
+    npy = out.with_name((stem[:-3] + "_m" if stem.endswith("_mm") else stem) + ".npy")
+    mask = out.with_name("gt_mask.png" if stem.startswith("gt_") else stem + "_mask.png")
+    return {"png": out, "npy": npy, "mask": mask, "json": npy.with_suffix(".json")}
+
+
+def _write_atomic(paths: dict[str, Path], depth_m: np.ndarray, info: dict) -> None:
+    valid = np.isfinite(depth_m)
+    mm = np.where(valid, np.rint(np.nan_to_num(depth_m) * 1000.0), 0)
+    too_far = int((mm > MM_MAX).sum())
+    mm = np.where(mm > MM_MAX, 0, mm).astype(np.uint16)
+    info["beyond_png_range"] = too_far
+    tmp = {k: p.with_name(f".{p.name}.tmp-{os.getpid()}{p.suffix}") for k, p in paths.items()}
+    try:
+        np.save(tmp["npy"], depth_m.astype(np.float32))
+        if not cv2.imwrite(str(tmp["png"]), mm) or not cv2.imwrite(str(tmp["mask"]),
+                                                                    valid.astype(np.uint8) * 255):
+            raise OSError("could not write PNG")
+        tmp["json"].write_text(json.dumps(info, indent=2) + "\n")
+        for k, final in paths.items():
+            os.replace(tmp[k], final)
+    finally:
+        for p in tmp.values():
+            p.unlink(missing_ok=True)
+
+
+def cmd_render(a) -> int:
+    paths = output_paths(a.out)
+    if a.out.suffix.lower() != ".png":
+        a.out.mkdir(parents=True, exist_ok=True)
+    existing = [p for p in paths.values() if p.exists()]
+    if existing and not a.force:
+        raise CaptureError(f"{existing[0]}: exists (pass --force to overwrite)")
+    intr = load_intrinsics(a.lens, a.width, a.height, a.pupil_to_sensor_mm)
+    pose = load_pose(a.pose)
+    mesh = load_mesh(a.mesh, a.mesh_scale)
+    if not a.quiet:
+        print(f"aat-gt: {len(mesh.faces)} triangles, {intr.width}x{intr.height} rays", file=sys.stderr)
+    depth, rinfo = render_depth(mesh, intr, pose, a.max_incidence_deg)
+    if rinfo["hits"] == 0:
+        raise CaptureError(f"{a.mesh}: no pixel sees the mesh from {a.pose} (pose, axes or --mesh-scale wrong?)")
+    info = {"mesh": str(a.mesh), "mesh_scale_to_m": a.mesh_scale, "pose": str(a.pose),
+            "camera_to_world_rdf": pose.tolist(), "intrinsics": intr.as_dict(),
+            "depth": "metres from the sensor plane along the optical axis (z-depth from the entrance pupil + "
+                     "pupil_to_sensor_mm)", **rinfo}
+    _write_atomic(paths, depth, info)
+    for n in intr.notes:
+        print(f"aat-gt: note: {n}", file=sys.stderr)
+    ok = np.isfinite(depth)
+    print(f"{a.mesh} -> {paths['png']}  ({100 * ok.mean():.1f} % valid, depth "
+          f"{np.nanmin(depth):.3f}..{np.nanmax(depth):.3f} m from the sensor)")
+    return 0
+
+
+def cmd_check(a) -> int:
+    focus_range = None
+    if a.model:
+        from ..model import DfFModel
+
+        focus_range = DfFModel(a.model, threads=1).focus_range_m
+    bad = 0
+    for c in a.captures:
+        try:
+            src = find_gt(c)
+            if src is None:
+                raise CaptureError(f"{c}: no ground truth (gt.json, gt_depth_m.npy/.pfm/.tif, gt_depth_mm.png)")
+            gt = load_ground_truth(src)
+            if focus_range:
+                check_units(gt, focus_range)
+        except CaptureError as e:
+            bad += 1
+            print(f"aat-gt: error: {e}", file=sys.stderr)
+            continue
+        for w in gt.warnings:
+            print(f"aat-gt: warning: {w}", file=sys.stderr)
+        h, w = gt.depth_m.shape
+        print(f"{src.depth}: {w}x{h} px, scale_to_m {src.scale_to_m:g}, "
+              f"{100 * gt.valid_fraction:.1f} % valid{', mask ' + src.mask.name if src.mask else ''}, depth "
+              f"{np.nanmin(gt.depth_m):.3f}..{np.nanmax(gt.depth_m):.3f} m (median {np.nanmedian(gt.depth_m):.3f})")
+    return 1 if bad else 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    ap = argparse.ArgumentParser(prog="aat-gt", description=__doc__.split("\n")[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    r = sub.add_parser("render", help="ray-cast a mesh into a depth map from the camera's pose")
+    r.add_argument("mesh", type=Path, metavar="MESH")
+    r.add_argument("--pose", type=Path, required=True, help="camera pose JSON (docs/contracts.md)")
+    r.add_argument("--lens", type=Path, required=True,
+                   help="intrinsics: a DfF model .onnx or a JSON (e.g. `aat-lens info LENS --json`)")
+    r.add_argument("--out", type=Path, required=True, help="depth .png (mm) or an output/capture folder")
+    r.add_argument("--width", type=int, help="image width in px (default: the sensor's)")
+    r.add_argument("--height", type=int, help="image height in px (default: the sensor's)")
+    r.add_argument("--pupil-to-sensor-mm", type=float, default=None,
+                   help="entrance pupil to sensor plane distance (default: from the intrinsics)")
+    r.add_argument("--mesh-scale", type=float, default=1.0, help="mesh units to metres (0.001 for mm)")
+    r.add_argument("--max-incidence-deg", type=float, default=None,
+                   help="drop hits more oblique than this (ray vs surface normal)")
+    r.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    r.add_argument("-q", "--quiet", action="store_true")
+    c = sub.add_parser("check", help="read captures' ground truth as aat-eval does")
+    c.add_argument("captures", nargs="+", type=Path, metavar="CAPTURE_DIR")
+    c.add_argument("--model", type=Path, help="also check the units against this model's focus range")
+    a = ap.parse_args(argv)
+    if a.cmd == "render" and (a.mesh_scale <= 0 or (a.max_incidence_deg is not None
+                                                    and not 0 < a.max_incidence_deg <= 90)):
+        ap.error("--mesh-scale must be > 0 and --max-incidence-deg in (0, 90]")
+    try:
+        return cmd_render(a) if a.cmd == "render" else cmd_check(a)
+    except CaptureError as e:
+        print(f"aat-gt: error: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
