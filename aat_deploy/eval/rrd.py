@@ -1,7 +1,7 @@
 """The evaluation's rerun recording (`eval.rrd`): per capture (timeline `capture`, sequence = capture index),
 for each model `models/<label>/gt` and `models/<label>/depth` (DepthImage, metres, one shared depth range)
-and `models/<label>/abs_error` (colour-mapped |pred − GT|, uint8 RGB, scale in `models/<label>/abs_error_max_m`),
-plus `metrics/<label>/mae_m` and `metrics/<label>/abs_rel` Scalars and the capture's name as a TextLog on
+and `models/<label>/abs_error` (colour-mapped |pred − GT|, JPEG-compressed RGB, its scale in
+`models/<label>/abs_error_max_m`), plus `metrics/<label>/mae_m` and `metrics/<label>/abs_rel` Scalars and the capture's name as a TextLog on
 `capture`. The default blueprint puts GT, prediction and error side by side, a row per model.
 """
 
@@ -44,7 +44,8 @@ class EvalRecording:
             g = np.where(np.isfinite(gt[label]), gt[label], 0).astype(np.float32)
             rec.log(f"{e}/gt", rr.DepthImage(g, meter=1.0, depth_range=depth_range))
             rec.log(f"{e}/depth", rr.DepthImage(pred.astype(np.float32), meter=1.0, depth_range=depth_range))
-            rec.log(f"{e}/abs_error", rr.Image(colorize(np.abs(errors[label]), 0.0, err_max)))
+            err_rgb = colorize(np.abs(errors[label]), 0.0, err_max)
+            rec.log(f"{e}/abs_error", rr.Image(err_rgb).compress(jpeg_quality=90))
             rec.log(f"{e}/abs_error_max_m", rr.Scalars(float(err_max)))
             row = metrics.get(label, {})
             for k in ("mae", "abs_rel"):
