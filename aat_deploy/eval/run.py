@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,7 +24,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..capture.raw import FRAME_EXTENSIONS, load_frame
+from ..capture.raw import load_frame
 from ..errors import CaptureError
 from ..geometry import fit_to_sensor
 from ..metrics import MetricAccumulator, valid_mask
@@ -34,12 +33,12 @@ from ..pipeline import Options, check_output
 from ..pipeline import _replace as replace_folder
 from ..pipeline import run_capture as infer_capture
 from . import plots, report
+from .batch import Progress, capture_name, find_captures, model_labels
 from .gt import (
     GroundTruth,
     GTError,
     check_units,
     find_gt,
-    has_ground_truth,
     load_ground_truth,
     to_sensor,
 )
@@ -68,74 +67,6 @@ class EvalOptions:
     panels: bool = True
     quiet: bool = False
     messages: list[str] = field(default_factory=list)
-
-
-class Progress:
-    """A progress bar over the batch's (capture, model) jobs: tqdm when installed, else a line per job;
-    `note` prints a line without breaking the bar."""
-
-    def __init__(self, total: int, quiet: bool):
-        self.total, self.done, self.quiet, self.bar = total, 0, quiet, None
-        if not quiet:
-            try:
-                from tqdm import tqdm
-
-                self.bar = tqdm(total=total, desc="aat-eval", unit="run", file=sys.stderr, dynamic_ncols=True)
-            except ImportError:
-                pass
-
-    def step(self, what: str) -> None:
-        self.done += 1
-        if self.bar is not None:
-            self.bar.set_postfix_str(what[-40:], refresh=False)
-            self.bar.update(1)
-        elif not self.quiet:
-            print(f"aat-eval [{self.done}/{self.total}] {what}", file=sys.stderr, flush=True)
-
-    def note(self, line: str) -> None:
-        if self.bar is not None:
-            self.bar.write(line, file=sys.stderr)
-        else:
-            print(line, file=sys.stderr, flush=True)
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
-
-
-def find_captures(root: Path, exclude: list[Path] = ()) -> tuple[list[Path], list[Path]]:
-    """(folders with ground truth, folders with frames but none) under root (root itself included), by path.
-    Hidden folders and `exclude` are skipped; a capture folder's subfolders are not searched."""
-    root = Path(root)
-    if not root.is_dir():
-        raise CaptureError(f"{root}: not a folder")
-    excl = {p.resolve() for p in exclude}
-    with_gt, without = [], []
-    for cur, dirs, files in os.walk(root):
-        here = Path(cur)
-        dirs[:] = sorted(d for d in dirs if not d.startswith(".") and (here / d).resolve() not in excl)
-        if has_ground_truth(here):
-            with_gt.append(here)
-            dirs[:] = []
-        elif sum(1 for f in files if Path(f).suffix.lower() in FRAME_EXTENSIONS and not f.startswith(("gt_", "."))) >= 2:
-            without.append(here)
-    return with_gt, without
-
-
-def model_labels(paths: list[Path]) -> list[str]:
-    """Short names of the models: file stems, made unique with a suffix."""
-    out: list[str] = []
-    for p in paths:
-        base, label, i = Path(p).stem, Path(p).stem, 2
-        while label in out:
-            label, i = f"{base}_{i}", i + 1
-        out.append(label)
-    return out
-
-
-def _capture_name(root: Path, cap: Path) -> str:
-    rel = cap.resolve().relative_to(root.resolve()) if cap.resolve() != root.resolve() else Path(cap.resolve().name)
-    return "__".join(rel.parts)
 
 
 @dataclass
@@ -247,7 +178,7 @@ def _evaluate_into(tmp: Path, root: Path, caps: list[Path], without: list[Path],
 
     try:
         for ci, cap in enumerate(caps):
-            name = _capture_name(root, cap)
+            name = capture_name(root, cap)
             info = {"name": name, "path": str(cap)}
             cap_info.append(info)
             try:
