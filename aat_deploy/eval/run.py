@@ -201,6 +201,8 @@ def _evaluate_into(tmp: Path, root: Path, caps: list[Path], without: list[Path],
                     fail(name, lb, str(e))
                 except MemoryError:
                     fail(name, lb, "out of memory")
+                except Exception as e:  # noqa: BLE001 (one capture's surprise must not stop the batch)
+                    fail(name, lb, f"unexpected {type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}")
                 else:
                     s.row["capture"] = name
                     rows.append(s.row)
