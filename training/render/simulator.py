@@ -83,6 +83,24 @@ class Simulator:
         rng = rng or np.random.default_rng()
         focus = np.asarray(focus_m, dtype=np.float64).ravel()
         ctx = self.context(origin)
+        frames = self._frames(rgb, depth_m, focus, ctx, rng)
+        reported = focus.copy()
+        for e in self.effects:
+            reported = e.report_focus(reported, ctx, rng)
+        return Stack(frames, focus, reported)
+
+    def twin_focus(self, focus_reported_m, ctx: fx.SimContext, rng: np.random.Generator) -> np.ndarray:
+        """True focus distances for a digital twin that knows only the reported ones (effects' `twin_focus`)."""
+        focus = np.asarray(focus_reported_m, dtype=np.float64).ravel()
+        for e in self.effects:
+            focus = e.twin_focus(focus, ctx, rng)
+        return focus
+
+    def _frames(self, rgb, depth_m, focus: np.ndarray, ctx: fx.SimContext, rng: np.random.Generator) -> torch.Tensor:
+        return self.post(self.optical(rgb, depth_m, focus, ctx), focus, ctx, rng)
+
+    def optical(self, rgb, depth_m, focus: np.ndarray, ctx: fx.SimContext) -> torch.Tensor:
+        """Frames (S, C, H, W) through the lens: PSFs and per-field focus, before warps and the sensor."""
         src = self.source(ctx)
         focus_at = next((f for f in (e.focus_at(ctx) for e in self.effects) if f is not None), None)
         hs, ws = ctx.sensor_hw
@@ -90,15 +108,16 @@ class Simulator:
         def field_fn(r, c):
             return field_of(r, c, (hs, ws), ctx.origin)
 
-        frames = []
-        for f in focus:
-            fr = render_layered(rgb, depth_m, float(f), src, field_fn, self.layered, focus_at=focus_at)
+        return torch.stack([render_layered(rgb, depth_m, float(f), src, field_fn, self.layered, focus_at=focus_at)
+                            for f in focus])
+
+    def post(self, frames: torch.Tensor, focus: np.ndarray, ctx: fx.SimContext, rng: np.random.Generator) -> torch.Tensor:
+        """The effects' geometry (`warp`) then sensor (`sensor`) hooks, frame by frame."""
+        out = []
+        for fr, f in zip(frames, focus):
             for e in self.effects:
                 fr = e.warp(fr, float(f), ctx)
             for e in self.effects:
                 fr = e.sensor(fr, ctx, rng)
-            frames.append(fr)
-        reported = focus.copy()
-        for e in self.effects:
-            reported = e.report_focus(reported, ctx, rng)
-        return Stack(torch.stack(frames), focus, reported)
+            out.append(fr)
+        return torch.stack(out)

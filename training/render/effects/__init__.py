@@ -8,9 +8,11 @@ effect is adding one file. An effect changes the simulation through any of these
 - `focus_at(ctx)`: a per-field focus distance (sensor tilt);
 - `warp(frame, focus_m, ctx)`: the geometry of a rendered frame (focus breathing);
 - `sensor(frame, ctx, rng)`: linear RAW values (noise);
-- `report_focus(focus_m, ctx, rng)`: the focus distances written to metadata (EXIF errors).
+- `report_focus(focus_m, ctx, rng)`: the focus distances written to metadata (EXIF errors);
+- `twin_focus(focus_reported_m, ctx, rng)`: the inverse, for a digital twin that knows only what the metadata says.
 
-The sim-to-real diagnosis switches these on and off one at a time: `names()` lists them.
+The sim-to-real diagnosis switches these on and off one at a time (`names()` lists them); it does not know an
+effect's settings, so it tries each of the effect's `candidates` (parameter sets) and keeps the best fit.
 """
 
 from __future__ import annotations
@@ -47,6 +49,7 @@ class Effect:
     description: str = ""
     order: int = 50  # hooks run in ascending order (PSF wrappers: the lower, the closer to the raw source)
     defaults: dict[str, Any] = {}
+    candidates: list[dict[str, Any]] = [{}]  # settings the diagnosis tries ({} = the defaults)
 
     def __init__(self, **params: Any):
         unknown = set(params) - set(self.defaults)
@@ -70,8 +73,23 @@ class Effect:
     def report_focus(self, focus_m: np.ndarray, ctx: SimContext, rng: np.random.Generator) -> np.ndarray:
         return focus_m
 
+    def twin_focus(self, focus_reported_m: np.ndarray, ctx: SimContext, rng: np.random.Generator) -> np.ndarray:
+        return focus_reported_m
+
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.params})"
+
+
+def is_post(effect: Effect) -> bool:
+    """True when the effect only acts after the optics (warp / sensor hooks), so a rendered stack can be reused."""
+    t = type(effect)
+    return all(getattr(t, h) is getattr(Effect, h) for h in ("wrap_source", "focus_at", "twin_focus", "report_focus"))
+
+
+def spec(effect: Effect) -> str:
+    """'name' or 'name:k=v:k=v' for settings that differ from the defaults (what `parse` reads back)."""
+    changed = [f"{k}={v}" for k, v in effect.params.items() if type(effect).defaults.get(k) != v]
+    return ":".join([effect.name, *changed])
 
 
 def register(cls: type[Effect]) -> type[Effect]:
@@ -108,15 +126,26 @@ def make(name: str, **params: Any) -> Effect:
     return _REGISTRY[name](**params)
 
 
-def parse(spec: str | list | None) -> list[Effect]:
-    """Effects from 'a,b' or ['a', {'name': 'b', 'param': 1}] (None/'' -> none)."""
-    if not spec:
+def parse(specs: str | list | None) -> list[Effect]:
+    """Effects from 'a,b:k=v:k2=v2' or ['a', 'b:k=v', {'name': 'b', 'k': 1}] (None/'' -> none).
+    Values that read as numbers become floats."""
+    if not specs:
         return []
-    items = spec.split(",") if isinstance(spec, str) else spec
+    items = specs.split(",") if isinstance(specs, str) else specs
     out = []
     for it in items:
         if isinstance(it, str):
-            out.append(make(it.strip()))
+            name, *kvs = it.strip().split(":")
+            params = {}
+            for kv in kvs:
+                k, sep, v = kv.partition("=")
+                if not sep:
+                    raise ValueError(f"effect {name!r}: setting {kv!r} is not key=value")
+                try:
+                    params[k] = float(v)
+                except ValueError:
+                    params[k] = v
+            out.append(make(name, **params))
         else:
             it = dict(it)
             out.append(make(it.pop("name"), **it))

@@ -22,6 +22,7 @@ class Noise(Effect):
     description = "Poisson-Gaussian sensor noise in linear RAW units (shot noise from full_well_e, read noise)"
     order = 90
     defaults = {"full_well_e": 8000.0, "read_noise_e": 3.0}
+    candidates = [{"full_well_e": e} for e in (1000.0, 3000.0, 10000.0)]
 
     def sensor(self, frame: torch.Tensor, ctx: SimContext, rng: np.random.Generator) -> torch.Tensor:
         out = poisson_gaussian(frame.numpy(), self.params["full_well_e"], self.params["read_noise_e"], rng)

@@ -1,0 +1,91 @@
+"""The focus-metadata and sensor-tilt effects, effect settings on the command line, and the simulator's split
+into optics and post-processing."""
+
+import numpy as np
+import pytest
+import torch
+
+from training.lens.io import load_lens
+from training.render import effects as fx
+from training.render.effects.focus_metadata import quantise_focus_m
+from training.render.effects.sensor_tilt import tilted_focus_m
+from training.render.layered import LayeredConfig
+from training.render.simulator import Simulator
+from training.render.sources import thin_lens_source
+
+
+@pytest.fixture(scope="module")
+def lens():
+    return load_lens("lenses/canon_rf50mm_f1.8.json")
+
+
+def test_tilt_moves_focus_linearly_in_sensor_position(lens):
+    f = tilted_focus_m(lens, np.array([-1.0, 0.0, 1.0]), np.zeros(3), 2.0, 0.5, 0.0)
+    assert f[1] == pytest.approx(2.0, rel=1e-6)
+    # the right edge is 18 mm * tan(0.5 deg) = 0.157 mm further from the lens: focused nearer; left farther
+    assert f[2] < 2.0 < f[0]
+    # hand check with the thin-lens relation near focus: d(1/u) = dz / f^2 (f = 50 mm EFL, dz in m)
+    dz = 0.018 * np.tan(np.radians(0.5))
+    assert 1 / f[2] - 1 / f[1] == pytest.approx(dz / 0.05 ** 2, rel=0.15)
+    # no tilt, no change; vertical tilt acts on y only
+    assert np.allclose(tilted_focus_m(lens, np.array([1.0]), np.array([1.0]), 2.0, 0.0, 0.0), 2.0)
+    fy = tilted_focus_m(lens, np.array([1.0, 1.0]), np.array([-1.0, 1.0]), 2.0, 0.0, 0.5)
+    assert fy[1] < 2.0 < fy[0]
+
+
+def test_focus_metadata_bias_and_its_inverse(lens):
+    e = fx.make("focus_metadata", bias_d=0.1)
+    ctx = fx.SimContext(lens, (640, 960))
+    true = np.array([0.5, 1.0, 2.0, 5.0])
+    rep = e.report_focus(true, ctx, np.random.default_rng(0))
+    assert np.allclose(1 / rep - 1 / true, 0.1)
+    assert np.allclose(e.twin_focus(rep, ctx, np.random.default_rng(0)), true)
+
+
+def test_nikon_quantisation_matches_the_maker_note_formula():
+    # Nikon LensData stores v with distance 0.01 * 10^(v/40) m (integer v)
+    v = np.round(40 * np.log10(100 * 1.23))
+    assert quantise_focus_m(np.array([1.23]), "nikon", 0)[0] == pytest.approx(0.01 * 10 ** (v / 40))
+    q = quantise_focus_m(np.geomspace(0.5, 10, 50), "nikon", 0)
+    assert np.all(np.abs(np.log10(q * 100) * 40 - np.round(np.log10(q * 100) * 40)) < 1e-9)
+    assert quantise_focus_m(np.array([2.0]), "diopter", 0.3)[0] == pytest.approx(1 / 0.6)
+    with pytest.raises(ValueError, match="quantise"):
+        fx.make("focus_metadata", quantise="canon")
+
+
+def test_effect_settings_round_trip_through_text():
+    e = fx.parse("noise:full_well_e=3000,sensor_tilt:tilt_y_deg=-0.3:tilt_x_deg=0")
+    by = {x.name: x for x in e}
+    assert by["noise"].params["full_well_e"] == 3000.0
+    assert by["sensor_tilt"].params == {"tilt_x_deg": 0.0, "tilt_y_deg": -0.3}
+    again = fx.parse(",".join(fx.spec(x) for x in e))
+    assert [x.params for x in again] == [x.params for x in e]
+    with pytest.raises(ValueError, match="key=value"):
+        fx.parse("noise:3000")
+    assert fx.is_post(fx.make("noise")) and fx.is_post(fx.make("focus_breathing"))
+    assert not fx.is_post(fx.make("sensor_tilt")) and not fx.is_post(fx.make("focus_metadata"))
+    for name in fx.names():  # every effect's candidate settings are valid
+        for c in fx.make(name).candidates:
+            fx.make(name, **c)
+
+
+def test_tilt_changes_the_rendered_stack_and_post_effects_reuse_the_optics(lens):
+    rng = np.random.default_rng(0)
+    rgb = torch.from_numpy(rng.random((3, 64, 96), dtype=np.float32))
+    depth = torch.full((64, 96), 2.0)
+    small = lens.__class__(**{**lens.__dict__, "sensor": lens.sensor.__class__(36.0, 24.0, 96, 64)})
+    cfg = LayeredConfig(cell_px=32)
+    plain = Simulator(small, None, [], cfg, thin_lens_source(small))
+    tilt = Simulator(small, None, [fx.make("sensor_tilt", tilt_x_deg=5.0)], cfg, thin_lens_source(small))
+    a = plain.render_stack(rgb, depth, [2.0]).frames[0]
+    b = tilt.render_stack(rgb, depth, [2.0]).frames[0]
+    # focused at 2 m on axis: the centre columns agree; at the edges 5 deg is +-0.6 D, about 2 px of blur here
+    diff = (a - b).abs().mean(dim=(0, 1))
+    assert diff[40:56].mean() < 0.5 * min(diff[:12].mean(), diff[-12:].mean())
+    sharp = lambda x: float((x[:, :, 1:] - x[:, :, :-1]).abs().mean())  # noqa: E731
+    assert sharp(b[:, :, :12]) < 0.8 * sharp(a[:, :, :12]) and sharp(b[:, :, -12:]) < 0.8 * sharp(a[:, :, -12:])
+    noisy = Simulator(small, None, [fx.make("noise")], cfg, thin_lens_source(small))
+    ctx = noisy.context()
+    full = noisy.render_stack(rgb, depth, [2.0], rng=np.random.default_rng(3)).frames
+    split = noisy.post(plain.optical(rgb, depth, np.array([2.0]), ctx), np.array([2.0]), ctx, np.random.default_rng(3))
+    assert torch.equal(full, split)

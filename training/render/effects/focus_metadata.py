@@ -1,0 +1,66 @@
+"""focus_metadata: the focus distance the camera writes to its metadata is not the one it focused at.
+
+Two errors, both in the reported value: a bias (a mis-calibrated focus encoder, in diopters) and quantisation
+(cameras store focus distance coarsely: Nikon's LensData in steps of 10^(1/40), about 6 % of the distance;
+others in fixed diopter steps)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from training.render.effects import Effect, SimContext, register
+
+QUANTISERS = ("none", "nikon", "diopter")
+
+
+def _check(params: dict) -> None:
+    if params["quantise"] not in QUANTISERS:
+        raise ValueError(f"effect 'focus_metadata': quantise must be one of {QUANTISERS}, got {params['quantise']!r}")
+
+
+def quantise_focus_m(focus_m: np.ndarray, mode: str, step_d: float) -> np.ndarray:
+    """Focus distances (m) as a camera would store them: 'nikon' = 0.01 * 10^(round(40 log10(100 d)) / 40) m,
+    'diopter' = 1/d rounded to multiples of step_d, 'none' = unchanged."""
+    f = np.asarray(focus_m, np.float64)
+    if mode == "nikon":
+        return 0.01 * 10.0 ** (np.round(40 * np.log10(100 * f)) / 40)
+    if mode == "diopter":
+        return 1.0 / np.maximum(np.round(1.0 / f / step_d), 1) / step_d
+    return f
+
+
+def quantisation_bin_d(focus_m: np.ndarray, mode: str, step_d: float) -> np.ndarray:
+    """Width (diopters) of the quantisation bin around each reported value."""
+    f = np.asarray(focus_m, np.float64)
+    if mode == "nikon":
+        return (1 / f) * (10 ** (1 / 80) - 10 ** (-1 / 80))
+    if mode == "diopter":
+        return np.full_like(f, step_d)
+    return np.zeros_like(f)
+
+
+@register
+class FocusMetadata(Effect):
+    name = "focus_metadata"
+    description = "reported focus distance differs from the true one: bias_d (diopters, reported minus true) and quantisation ('none' | 'nikon' | 'diopter' with step_d)"
+    order = 95
+    defaults = {"bias_d": 0.05, "quantise": "none", "step_d": 0.05}
+    candidates = [{"bias_d": b} for b in (-0.12, -0.06, 0.06, 0.12)] + [{"bias_d": 0.0, "quantise": "nikon"}]
+
+    def __init__(self, **params):
+        super().__init__(**params)
+        _check(self.params)
+
+    def report_focus(self, focus_m: np.ndarray, ctx: SimContext, rng: np.random.Generator) -> np.ndarray:
+        p = self.params
+        biased = 1.0 / (1.0 / np.asarray(focus_m, np.float64) + p["bias_d"])
+        return quantise_focus_m(biased, p["quantise"], p["step_d"])
+
+    def twin_focus(self, focus_reported_m: np.ndarray, ctx: SimContext, rng: np.random.Generator) -> np.ndarray:
+        """A true focus consistent with the report: the bias removed and a uniform draw (in diopters) inside the
+        quantisation bin, since the twin cannot know where in the bin the camera really was."""
+        p = self.params
+        d = 1.0 / np.asarray(focus_reported_m, np.float64)
+        w = quantisation_bin_d(focus_reported_m, p["quantise"], p["step_d"])
+        d = d + rng.uniform(-0.5, 0.5, size=d.shape) * w - p["bias_d"]
+        return 1.0 / np.maximum(d, 1e-3)
