@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import shutil
 import stat
 
 import pytest
@@ -12,13 +13,16 @@ from conftest import SHARED
 
 from aat_deploy.capture import exiftool
 from aat_deploy.capture.exif import _diopter_midpoint, _xmp_focus, read_metadata
+from aat_deploy.capture.folder import read_capture
+from aat_deploy.errors import CaptureError
 
 SUMMARY = SHARED / "focus_tags_summary.jsonl"
 FOCUS_TAGS = ("FocusDistance", "FocusDistanceUpper", "FocusDistanceLower", "SubjectDistance", "ObjectDistance",
               "ApproximateFocusDistance")
 # Nikon LensData versions 0201-0204 are encrypted with the serial number and shutter count; we do not decrypt
-# them (issue 6 asks for the unencrypted versions), so for this file we only check that we say why.
+# them (issue 6 asks for the unencrypted versions): our decoders say why, and the exiftool fallback answers.
 ENCRYPTED = {"raw_exif_makernotes_exiftool/NikonD2Hs.jpg"}
+NO_EXIFTOOL = "exiftool not installed (Debian package libimage-exiftool-perl; .ci/run installs it)"
 
 
 def _cases():
@@ -44,6 +48,52 @@ def test_same_focus_distance_as_exiftool(row):
         assert tag in meta.focus_tags, f"{path.name}: {tag} not found (we have {meta.focus_tags})"
         assert math.isclose(meta.focus_tags[tag], value, rel_tol=1e-12, abs_tol=1e-12), (tag, meta.focus_tags[tag])
     assert meta.focus_m is not None and meta.focus_source
+
+
+@pytest.mark.parametrize("row", _cases())
+def test_with_exiftool_installed_every_focus_distance_matches(row):
+    """The runtime's default reading (our decoders first, then exiftool when installed): every file where exiftool
+    finds a focus distance gets exiftool's values, the encrypted Nikon LensData through the exiftool fallback."""
+    if not exiftool.available():
+        pytest.skip(NO_EXIFTOOL)
+    path = SHARED / row["file"]
+    meta = read_metadata(path)
+    expected = {k: v for k, v in row["exiftool"].items() if k in FOCUS_TAGS}
+    for tag, value in expected.items():
+        assert tag in meta.focus_tags, f"{path.name}: {tag} not found (we have {meta.focus_tags})"
+        assert math.isclose(meta.focus_tags[tag], value, rel_tol=1e-12, abs_tol=1e-12), (tag, meta.focus_tags[tag])
+    assert meta.focus_m is not None and meta.focus_source
+    if row["file"] in ENCRYPTED:
+        assert meta.focus_source == "exiftool FocusDistance"
+        assert meta.focus_m == pytest.approx(row["exiftool"]["FocusDistance"], rel=1e-12)
+        assert any("encrypted" in n for n in meta.notes), meta.notes
+    else:
+        assert not meta.focus_source.startswith("exiftool"), meta.focus_source  # our decoders come first
+
+
+@pytest.mark.parametrize("name", sorted(f.split("/")[-1] for f in ENCRYPTED))
+def test_encrypted_nikon_without_exiftool(name, tmp_path, monkeypatch):
+    """No exiftool on PATH: the encrypted LensData is reported as encrypted, no focus distance is made up, and a
+    capture folder of such frames fails with a one-line error that says why and asks for capture.json."""
+    path = SHARED / "raw_exif_makernotes_exiftool" / name
+    if not path.is_file():
+        pytest.skip(f"{path} not present (no ../shared/data)")
+    empty = tmp_path / "bin"
+    empty.mkdir()
+    monkeypatch.setenv("PATH", str(empty))
+    assert not exiftool.available()
+    meta = read_metadata(path)  # the default, which would ask exiftool if it were installed
+    assert meta.focus_m is None and meta.focus_source is None
+    assert any("encrypted" in n for n in meta.notes), meta.notes
+    cap = tmp_path / "cap"
+    cap.mkdir()
+    for i in range(2):
+        shutil.copy(path, cap / f"f{i}.jpg")
+    with pytest.raises(CaptureError) as err:
+        read_capture(cap)
+    msg = str(err.value)
+    assert "\n" not in msg and "f0.jpg: no focus distance" in msg and "encrypted" in msg and "capture.json" in msg
+    assert "(EXIF, maker notes, XMP; " in msg  # exiftool is not listed as asked: it is not there
 
 
 def test_every_file_with_focus_in_exiftool_is_covered():

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..errors import CaptureError
+from . import exiftool
 from .exif import FrameMeta, read_metadata
 from .raw import FRAME_EXTENSIONS
 
@@ -113,8 +114,10 @@ def read_capture(folder: str | Path, use_exiftool: bool = True) -> Capture:
             warnings.append(f"{p}: {note}")
     for fr in frames:
         if fr.focus_m is None:
-            raise CaptureError(f"{fr.path}: no focus distance in its metadata (EXIF, maker notes, XMP"
-                               f"{', exiftool' if use_exiftool else ''}); give it in {folder / SIDECAR}")
+            asked = "EXIF, maker notes, XMP" + (", exiftool" if use_exiftool and exiftool.available() else "")
+            why = "".join(f"; {n}" for n in fr.meta.notes)  # e.g. an encrypted Nikon LensData
+            raise CaptureError(f"{fr.path}: no focus distance in its metadata ({asked}{why}); "
+                               f"give it in {folder / SIDECAR}")
         if not math.isfinite(fr.focus_m) or fr.focus_m <= 0:
             raise CaptureError(f"{fr.path}: focus distance {fr.focus_m} m ({fr.focus_source}) is not usable "
                                f"(infinite or not positive); give it in {folder / SIDECAR}")
