@@ -69,7 +69,8 @@ class PSFExperiment:
             out[name]["_seconds"] = float(data["build_seconds"])  # tracing time when it was built
         return out
 
-    def run_fit(self, name: str, lens: Lens, data: dict, cache_dir=None) -> tuple[PSFModel, FitConfig]:
+    def run_fit(self, name: str, lens: Lens, data: dict, cache_dir=None, progress: bool = True,
+                ) -> tuple[PSFModel, FitConfig]:
         """Fit surrogate `name` (a key of `fits`; "rot*" = RotPSF on axis data, "paper_mlp*" = PaperMLP on
         field data), resuming from its checkpoint."""
         f = dict(self.fits[name])
@@ -79,7 +80,7 @@ class PSFExperiment:
         v = data["val"]
         val = (torch.stack([v["x"], v["y"], v["depth_m"], v["focus_m"]], -1), v["kernels"])
         ckpt = Path(cache_dir or DEFAULT_CACHE) / "psf_fit" / f"{Path(self.source).stem}_{name}.pt"
-        cfg = fit(model, train, FitConfig(**f), ckpt=ckpt, val=val)
+        cfg = fit(model, train, FitConfig(**f), ckpt=ckpt, val=val, progress=progress)
         model.eval()
         return model, cfg
 

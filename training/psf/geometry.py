@@ -52,12 +52,21 @@ class FocusTable:
 @lru_cache(maxsize=16)
 def _focus_table(lens: Lens, near_m: float, far_m: float, n: int, wavelength_nm: float) -> FocusTable:
     dist = diopter_grid(near_m, far_m, n)[::-1]  # far first = ascending diopters
-    return FocusTable(1.0 / dist, np.array([focus(lens, float(d), wavelength_nm) for d in dist]))
+    zs: list[float] = []
+    for d in dist:
+        try:
+            zs.append(focus(lens, float(d), wavelength_nm))
+        except RuntimeError:
+            if len(zs) < 2:
+                raise
+            break  # closer than the lens can focus (no sensor position images it): the table ends here
+    return FocusTable(1.0 / dist[:len(zs)], np.array(zs))
 
 
 def focus_table(lens: Lens, near_m: float = 0.2, far_m: float = 100.0, n: int = 129,
                 wavelength_nm: float | None = None) -> FocusTable:
-    """Focus table from near_m to far_m (metres from the sensor), n samples even in diopters.
+    """Focus table from near_m to far_m (metres from the sensor), n samples even in diopters. A lens that cannot
+    focus as close as near_m (e.g. a 50 mm lens below about 4 x EFL) gets a table ending at its nearest focus.
 
     Default wavelength: the lens's design wavelength. A camera focuses once; PSFs traced at other wavelengths
     keep this sensor position, so their chromatic focus shift shows up as defocus."""

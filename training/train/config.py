@@ -62,6 +62,7 @@ class TrainConfig:
     log_every: int = 10
     val_every: int = 0  # 0 = only at the end
     val_items: int = 16
+    init: str | None = None  # weights to start from: an exported DfF .onnx or a model.pt/last.pt (training.nets.init)
 
     def validate(self) -> TrainConfig:
         if self.net not in NETS:
@@ -90,6 +91,8 @@ class TrainConfig:
         d = self.to_dict()
         for k in ("checkpoint_every", "log_every", "val_every", "val_items", "num_workers"):
             d.pop(k)
+        if d.get("init") is None:
+            d.pop("init")  # configs without an init hash as they did before the field existed
         return config_hash(d)
 
 

@@ -10,13 +10,14 @@ from training.train.data import resolve_lens_path
 from training.train.loop import load_trained
 
 
-def export_checkpoint(checkpoint, out, *, force: bool = False) -> tuple[dict[str, str], float]:
+def export_checkpoint(checkpoint, out, *, force: bool = False, extra: dict | None = None,
+                      ) -> tuple[dict[str, str], float]:
     """checkpoint: a run's model.pt (or last.pt). Writes `out` (atomic, no overwrite unless force) and returns
-    (metadata, max abs ORT-vs-torch difference over three shapes)."""
+    (metadata, max abs ORT-vs-torch difference over three shapes). extra: more aat.* metadata keys."""
     model, cfg = load_trained(Path(checkpoint))
     lens = load_lens(resolve_lens_path(cfg.lens))
     md = dff_metadata(model, lens, simulator=cfg.simulator, effects=list(cfg.effects),
                       focus_range_m=cfg.focus_range_m, stack_range=cfg.stack_range, config_hash=cfg.hash(),
-                      extra={"train_steps": cfg.steps, "config_name": cfg.name})
+                      extra={"train_steps": cfg.steps, "config_name": cfg.name, **(extra or {})})
     err = export_dff_onnx(model, out, md, force=force)
     return md, err

@@ -1,7 +1,8 @@
 """One training loop for AiFNet and DFVNet and both simulators (the dataset's `simulator` field is the only
 difference between aberration-aware and thin-lens runs).
 
-Adam, cosine learning rate over the configured number of optimizer steps, gradient clipping, checkpoints every
+Adam, cosine learning rate over the configured number of optimizer steps, gradient clipping, optional start from
+trained weights (`init`: an exported .onnx or a checkpoint, training.nets.init), checkpoints every
 `checkpoint_every` steps (atomic) and resume from `last.pt`: the sampler order depends only on (seed, epoch) and
 an epoch can start part-way, so kill + rerun with resume continues exactly where it stopped.
 
@@ -125,6 +126,14 @@ def _train(cfg, out_dir: Path, train_set, val_set, resume, stop_at_step, progres
         opt.load_state_dict(state["optimizer"])
         step = int(state["step"])
         torch.set_rng_state(state["torch_rng"])
+    elif cfg.init:
+        from training.nets.init import init_model
+        from training.train.data import resolve_lens_path
+
+        info = init_model(model, resolve_lens_path(cfg.init), train_set)
+        if rank == 0:
+            out_dir.mkdir(parents=True, exist_ok=True)
+            _log(out_dir, {"step": 0, "init": info})
     if rank == 0:
         out_dir.mkdir(parents=True, exist_ok=True)
         (out_dir / "config.json").write_text(json.dumps(cfg.to_dict(), indent=1))
