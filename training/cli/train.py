@@ -1,11 +1,16 @@
-"""`aat-train`: train a DfF network from a config file (checkpoints, resume, DDP under torchrun).
+"""`aat-train`: train a DfF network from a config file, or run the whole chain from a lens file.
 
-    aat-train --config configs/dff_aifnet_aat.json [--out runs/NAME] [--resume] [--steps N]
-    torchrun --nproc_per_node=2 -m training.cli.train --config configs/dff_dfvnet_aat.json --out runs/x
+    aat-train --config configs/dff_aifnet_aat.json [--out runs/NAME] [--resume] [--steps N] [--init M.onnx]
+    aat-train --lens LENS.json|.zmx --sensor-mm W,H --resolution W,H --out DIR [--net dfv|aif] [--size small|full]
+              [--focus-range-m NEAR,FAR] [--stack N] [--effects a,b] [--init M.onnx|ckpt.pt] [--psf PSF.onnx]
+              [--preset tiny|small|paper] [--steps N] [--lr LR] [--no-baseline] [--force]
+    torchrun --nproc_per_node=2 --no-python aat-train ...      (or: torchrun ... -m training.cli.train ...)
 
-Re-running with --resume after a kill continues from the last checkpoint. Without --resume an existing run
-directory is refused. The full lens-to-model flow (--lens, --effects, --init) will add options in
-`build_parser` / `apply_overrides`.
+--config: re-running with --resume after a kill continues from the last checkpoint; without --resume an
+existing run directory is refused.
+--lens: lens check, PSF surrogate, AAT and thin-lens training, ONNX export, held-out evaluation and a report, all
+in DIR (training/pipeline). Re-running the same command continues where it stopped and skips finished stages;
+different settings on an existing DIR are refused unless --force, which reruns only the stages they change.
 """
 
 from __future__ import annotations
@@ -20,13 +25,52 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 
 
+def _pair(kind):
+    def parse(text: str):
+        try:
+            v = [kind(t) for t in text.split(",")]
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected two comma-separated numbers, got {text!r}") from None
+        if len(v) != 2:
+            raise argparse.ArgumentTypeError(f"expected two comma-separated numbers, got {text!r}")
+        return tuple(v)
+    return parse
+
+
+def _names(text: str) -> list[str]:
+    return [t.strip() for t in text.split(",") if t.strip()]
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="aat-train", description="Train a depth-from-focus network (AiFNet / DFVNet).")
-    p.add_argument("--config", required=True, help="training config JSON (configs/dff_*.json)")
-    p.add_argument("--out", help="run directory (default: runs/<config name>)")
-    p.add_argument("--resume", action="store_true", help="continue from <out>/last.pt if present")
-    p.add_argument("--steps", type=int, help="override the config's number of optimizer steps")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p = argparse.ArgumentParser(prog="aat-train", description="Train depth-from-focus networks (AiFNet / DFVNet): "
+                                "from a training config, or the whole chain from a lens file.")
+    mode = p.add_mutually_exclusive_group(required=True)
+    mode.add_argument("--config", help="training config JSON (configs/dff_*.json)")
+    mode.add_argument("--lens", help="lens file (.json, .zmx, .txt): run the whole lens-to-model chain into --out")
+    p.add_argument("--out", help="run directory (--config: default runs/<config name>; --lens: required)")
+    p.add_argument("--resume", action="store_true", help="--config: continue from <out>/last.pt if present "
+                   "(--lens runs always continue)")
+    p.add_argument("--steps", type=int, help="number of optimizer steps (overrides the config / preset)")
+    p.add_argument("--init", help="start from these weights: an exported DfF .onnx or a model.pt / last.pt")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    g = p.add_argument_group("lens-to-model chain (--lens)")
+    g.add_argument("--sensor-mm", type=_pair(float), metavar="W,H", help="sensor size in mm (default: the lens file's)")
+    g.add_argument("--resolution", type=_pair(int), metavar="W,H",
+                   help="working resolution in px, what the model and aat-infer use (default: the lens file's)")
+    g.add_argument("--net", choices=["dfv", "aif", "dfvnet", "aifnet"], help="network (default: dfv, or --init's)")
+    g.add_argument("--size", choices=["small", "full"], help="network size (default: small, or --init's)")
+    g.add_argument("--focus-range-m", type=_pair(float), default=(0.5, 10.0), metavar="NEAR,FAR",
+                   help="focus distances, metres from the sensor (default 0.5,10)")
+    g.add_argument("--stack", type=int, help="frames per stack (default: the preset's, 5 tiny / 8 otherwise)")
+    g.add_argument("--effects", type=_names, default=[], metavar="A,B",
+                   help="extra simulator effects for training and evaluation (aat-render --list-effects)")
+    g.add_argument("--psf", help="reuse this PSF surrogate (.onnx made for the same lens and sensor): no PSF fit")
+    g.add_argument("--preset", default="small", choices=["tiny", "small", "paper"],
+                   help="data, fit and training sizes (default small)")
+    g.add_argument("--lr", type=float, help="learning rate (default: the preset's; x0.1 with --init)")
+    g.add_argument("--seed", type=int, default=0, help="seed of data and initialisation (default 0)")
+    g.add_argument("--no-baseline", action="store_true", help="skip the thin-lens baseline (no comparison)")
+    g.add_argument("--force", action="store_true", help="accept changed settings on an existing --out")
     return p
 
 
@@ -35,12 +79,12 @@ def apply_overrides(cfg, args: argparse.Namespace):
     changes = {}
     if args.steps is not None:
         changes["steps"] = args.steps
+    if getattr(args, "init", None):
+        changes["init"] = str(Path(args.init).resolve())
     return dataclasses.replace(cfg, **changes).validate() if changes else cfg
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+def main_config(args: argparse.Namespace) -> int:
     from training.train.config import ConfigError, load_config
 
     try:
@@ -48,12 +92,13 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as e:
         print(f"aat-train: {e}", file=sys.stderr)
         return 2
+    from training.nets.init import InitError
     from training.train.loop import train
 
     out = Path(args.out) if args.out else ROOT / "runs" / cfg.name
     try:
         res = train(cfg, out, resume=args.resume, progress=not args.no_progress)
-    except (FileExistsError, ValueError, FileNotFoundError) as e:
+    except (FileExistsError, ValueError, FileNotFoundError, InitError) as e:
         print(f"aat-train: {e}", file=sys.stderr)
         return 1
     if int(os.environ.get("RANK", "0")) == 0:
@@ -63,6 +108,47 @@ def main(argv: list[str] | None = None) -> int:
         if res.val_metrics:
             print(json.dumps(res.val_metrics))
     return 0
+
+
+def chain_options(args: argparse.Namespace):
+    from training.pipeline.config import ChainOptions
+
+    return ChainOptions(lens=args.lens, out=args.out, sensor_mm=args.sensor_mm, resolution=args.resolution,
+                        net=args.net, size=args.size, focus_range_m=args.focus_range_m, stack=args.stack,
+                        effects=args.effects, init=args.init, psf=args.psf, preset=args.preset, steps=args.steps,
+                        lr=args.lr, baseline=not args.no_baseline, seed=args.seed)
+
+
+def main_lens(args: argparse.Namespace) -> int:
+    if not args.out:
+        print("aat-train: --lens needs --out DIR (the run folder)", file=sys.stderr)
+        return 2
+    from training.lens.io import LensFileError
+    from training.nets.init import InitError
+    from training.pipeline.config import ChainConfigError, resolve
+    from training.pipeline.runner import ChainError, run_chain
+
+    try:
+        cfg = resolve(chain_options(args))
+    except ChainConfigError as e:
+        print(f"aat-train: {e}", file=sys.stderr)
+        return 2
+    try:
+        res = run_chain(cfg, args.out, force=args.force, progress=not args.no_progress)
+    except (ChainError, LensFileError, InitError, FileNotFoundError, ValueError) as e:
+        print(f"aat-train: {str(e).splitlines()[0]}", file=sys.stderr)
+        return 1
+    if int(os.environ.get("RANK", "0")) == 0:
+        ran = [k for k, v in res.actions.items() if v != "skipped"]
+        print(f"{args.out}: done ({len(ran)} stage{'s' if len(ran) != 1 else ''} run, "
+              f"{len(res.actions) - len(ran)} up to date); see {Path(args.out) / 'report.md'}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    return main_lens(args) if args.lens else main_config(args)
 
 
 if __name__ == "__main__":
