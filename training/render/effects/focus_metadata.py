@@ -45,7 +45,7 @@ class FocusMetadata(Effect):
     description = "reported focus distance differs from the true one: bias_d (diopters, reported minus true) and quantisation ('none' | 'nikon' | 'diopter' with step_d)"
     order = 95
     defaults = {"bias_d": 0.05, "quantise": "none", "step_d": 0.05}
-    candidates = [{"bias_d": b} for b in (-0.12, -0.06, 0.06, 0.12)] + [{"bias_d": 0.0, "quantise": "nikon"}]
+    candidates = [{"bias_d": b} for b in (-0.2, -0.1, -0.05, 0.05, 0.1, 0.2)] + [{"bias_d": 0.0, "quantise": "nikon"}]
 
     def __init__(self, **params):
         super().__init__(**params)

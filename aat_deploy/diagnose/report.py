@@ -1,0 +1,172 @@
+"""The diagnosis report: `diagnosis.json` (for machines), `report.md` + PNG figures (for people) and
+`diagnosis.rrd` (captures, twins and gap maps side by side in the rerun viewer)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+ANSWER_KEYS = ("gap_significant", "where", "ranked_effects")
+
+
+def write_json(path: Path, obj: dict) -> None:
+    path.write_text(json.dumps(obj, indent=2, allow_nan=False, default=_default))
+
+
+def _default(v):
+    if isinstance(v, np.generic):
+        return v.item()
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    raise TypeError(f"not JSON-serialisable: {type(v).__name__}")
+
+
+def _fmt(x, nd=3) -> str:
+    return "—" if x is None else f"{x:.{nd}f}"
+
+
+def markdown(d: dict) -> str:
+    w = d["gap"]
+    lines = [f"# Sim-to-real diagnosis: {d['model']['file']}", "",
+             f"Model: {d['model']['net']} trained with the `{d['model']['simulator']}` simulator"
+             f"{' + ' + ', '.join(d['model']['effects']) if d['model']['effects'] else ''}; "
+             f"{len(d['captures'])} capture(s) with ground truth under `{d['root']}`.", "",
+             "## 1. Where", "",
+             f"Mean absolute depth error on the captures {w['real_mae_m']:.3f} m, on their digital twins "
+             f"{w['twin_mae_m']:.3f} m: gap {w['gap_m']:+.3f} m (95 % interval {w['ci_low']:+.3f} … {w['ci_high']:+.3f}). "
+             + ("**The gap is significant.**" if d["gap_significant"] else
+                f"**The gap is not significant** (interval includes 0 or |gap| < {w['threshold_m']:.3f} m, "
+                "5 % of the twin's error): nothing to blame."), ""]
+    if d["where"]:
+        lines += ["Significant bins (largest first):", "", "| by | bin | gap (m) | 95 % interval |", "|---|---|---|---|"]
+        lines += [f"| {x['by']} | {x['bin']} | {x['gap_m']:+.3f} | {_fmt(x['ci_low'])} … {_fmt(x['ci_high'])} |"
+                  for x in d["where"][:20]]
+        lines.append("")
+    lines += ["![gap by field radius and map](gap_where.png)", "", "![gap by depth, defocus, frame, texture](gap_by.png)", "",
+              "## 2. Which effect", ""]
+    if d["ranked_effects"]:
+        lines += ["| rank | effect | fitted settings | closer to the capture (95 %) | share of gap (95 %) |", "|---|---|---|---|---|"]
+        for i, e in enumerate(d["ranked_effects"], 1):
+            lines.append(f"| {i} | **{e['effect']}** | {_params(e['params'])} | {e['closeness']:.2f} "
+                         f"({e['closeness_ci'][0]:.2f} … {e['closeness_ci'][1]:.2f}) | {e['share_of_gap']:.2f} "
+                         f"({e['ci_low']:.2f} … {e['ci_high']:.2f}) |")
+        lines += ["", f"Named cause: **{d['ranked_effects'][0]['effect']}**."]
+    elif d["gap_significant"]:
+        lines.append("No registered effect brings the twin significantly closer to the captures: the cause is "
+                     "something the simulator does not model yet.")
+    else:
+        lines.append("Not searched: the gap is not significant.")
+    lines += ["", "All effects tried (first round), best setting each:", "",
+              "| effect | settings | closer (95 %) | share of gap (95 %) |", "|---|---|---|---|"]
+    for e in d["effects_evaluated"]:
+        if e["round"] == 1:
+            lines.append(f"| {e['effect']} | {_params(e['params'])} | {e['closeness']:.2f} ({e['closeness_ci'][0]:.2f} … "
+                         f"{e['closeness_ci'][1]:.2f}) | {e['share_of_gap']:.2f} ({e['ci_low']:.2f} … {e['ci_high']:.2f}) |")
+    lines += ["", "![effects](effects.png)", "", "## 3. How far it shrinks", ""]
+    s = d.get("shrink")
+    if s:
+        lines += ["| | gap (m) | MAE on captures (m) |", "|---|---|---|",
+                  f"| before (model's own simulator) | {s['gap_before_m']:+.3f} | {s['real_mae_before_m']:.3f} |",
+                  f"| predicted (twin with {', '.join(s['effects'])}) | {s['gap_predicted_m']:+.3f} | — |"]
+        if s.get("gap_after_m") is not None:
+            lines.append(f"| realised (retrained with them: `{s['retrain_command']}`) | {s['gap_after_m']:+.3f} | "
+                         f"{s['real_mae_after_m']:.3f} |")
+        else:
+            lines.append(f"| realised | run `{s['retrain_command']}` then `aat-diagnose` with the new model (or pass --retrain-steps) | |")
+    else:
+        lines.append("Nothing to retrain for.")
+    lines += ["", "Method: docs/diagnosis.md. Recording: `aat-view diagnosis.rrd`.", ""]
+    return "\n".join(lines)
+
+
+def _params(p: dict) -> str:
+    return ", ".join(f"{k}={v}" for k, v in p.items()) or "defaults"
+
+
+def figures(d: dict, out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    br = d["gap"]["breakdown"]
+
+    def bars(ax, name, rot=0):
+        rows = br[name]["bins"]
+        x = np.arange(len(rows))
+        m = np.array([r["gap_m"] if r["gap_m"] is not None else np.nan for r in rows])
+        lo = np.array([r["ci_low"] if r["ci_low"] is not None else np.nan for r in rows])
+        hi = np.array([r["ci_high"] if r["ci_high"] is not None else np.nan for r in rows])
+        col = ["tab:red" if r["significant"] else "tab:gray" for r in rows]
+        ax.bar(x, m, color=col)
+        ax.errorbar(x, m, yerr=[m - lo, hi - m], fmt="none", ecolor="k", capsize=2)
+        ax.axhline(0, color="k", lw=0.5)
+        ax.set_xticks(x, [r["bin"] for r in rows], rotation=rot, fontsize=7)
+        ax.set_title(f"gap by {name} ({br[name]['unit']})", fontsize=8)
+        ax.set_ylabel("gap (m)")
+
+    fig, axs = plt.subplots(1, 2, figsize=(10, 3.6))
+    bars(axs[0], "field_radius")
+    rows = br["field_map"]["bins"]
+    r_, c_ = (int(rows[-1]["bin"][1:].split("c")[0]) + 1, int(rows[-1]["bin"].split("c")[1]) + 1)
+    grid = np.array([r["gap_m"] if r["gap_m"] is not None else np.nan for r in rows]).reshape(r_, c_)
+    lim = np.nanmax(np.abs(grid)) if np.isfinite(grid).any() else 1
+    im = axs[1].imshow(grid, cmap="RdBu_r", vmin=-lim, vmax=lim)
+    for k, r in enumerate(rows):
+        if r["significant"]:
+            axs[1].text(k % c_, k // c_, "*", ha="center", va="center")
+    axs[1].set_title("gap map (m; * significant)", fontsize=8)
+    fig.colorbar(im, ax=axs[1])
+    fig.tight_layout()
+    fig.savefig(out / "gap_where.png", dpi=110)
+    plt.close(fig)
+
+    fig, axs = plt.subplots(1, 4, figsize=(16, 3.4))
+    for ax, name in zip(axs, ("depth", "defocus", "frame", "texture")):
+        bars(ax, name, rot=30)
+    fig.tight_layout()
+    fig.savefig(out / "gap_by.png", dpi=110)
+    plt.close(fig)
+
+    ev = [e for e in d["effects_evaluated"] if e["round"] == 1]
+    fig, ax = plt.subplots(figsize=(7, 3.2))
+    if ev:
+        x = np.arange(len(ev))
+        for off, key, ci, lab in ((-0.2, "closeness", "closeness_ci", "closer to the capture"),
+                                  (0.2, "share_of_gap", None, "share of the gap")):
+            m = np.array([e[key] for e in ev])
+            lo = np.array([e[ci][0] if ci else e["ci_low"] for e in ev])
+            hi = np.array([e[ci][1] if ci else e["ci_high"] for e in ev])
+            ax.bar(x + off, m, 0.4, label=lab)
+            ax.errorbar(x + off, m, yerr=[m - lo, hi - m], fmt="none", ecolor="k", capsize=2)
+        ax.set_xticks(x, [e["effect"] for e in ev], rotation=20, fontsize=8)
+        ax.axhline(0, color="k", lw=0.5)
+        ax.legend(fontsize=8)
+    ax.set_title("each effect added to the twin alone (95 % intervals)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(out / "effects.png", dpi=110)
+    plt.close(fig)
+
+
+def recording(path: Path, items: list[dict]) -> None:
+    """items: per capture {name, gt_m, pred_real_m, pred_twin_m, gap_m, twin_best_m (optional)} (H, W) arrays."""
+    import rerun as rr
+
+    rec = rr.RecordingStream(application_id="aat-diagnose", recording_id="diagnosis")
+    rec.save(str(path))
+    for it in items:
+        base = f"captures/{it['name']}"
+        for key in ("gt_m", "pred_real_m", "pred_twin_m", "pred_twin_best_m"):
+            if it.get(key) is not None:
+                a = np.where(np.isfinite(it[key]), it[key], 0).astype(np.float32)
+                rec.log(f"{base}/{key}", rr.DepthImage(a, meter=1.0), static=True)
+        gap = np.nan_to_num(it["gap_m"]).astype(np.float32)
+        lim = max(float(np.abs(gap).max()), 1e-6)
+        t = np.clip(gap / lim, -1, 1)
+        rgb = np.stack([np.clip(1 + np.minimum(t, 0), 0, 1), 1 - np.abs(t), np.clip(1 - np.maximum(t, 0), 0, 1)], -1)
+        rec.log(f"{base}/gap", rr.Image((rgb * 255).astype(np.uint8)), static=True)
+        rec.log(f"{base}/gap_m", rr.Image(gap, color_model="L"), static=True)
+    rec.flush()
+    rec.disconnect()

@@ -1,0 +1,184 @@
+"""Withheld-effect benchmark of `aat-diagnose` (issue: diagnose the sim-to-real gap).
+
+Capture sets are made with the virtual camera (DNG frames, EXIF focus, ground truth) by a simulator that has
+one effect more than the model's own (or two, or none). The effect is drawn at random per set, with random
+settings, and is not passed to the diagnosis. Scored: is the named cause the withheld effect; for two: are
+both named, in order; for none: is the gap called not significant. With --retrain-steps, the model is
+fine-tuned with the named effect (`aat-train --init ... --effects ...`) and the gap re-measured.
+
+Models: benchmarks/diagnose_setup.py (RF50 at 288x192, small DFVNets, AAT and thin-lens simulators).
+
+    python benchmarks/diagnose_setup.py
+    python benchmarks/bench_diagnose.py [--sets-per-effect 3] [--captures 3] [--retrain-steps 0]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+SETUP = ROOT / "cache" / "bench_diagnose"
+FOCUS = (0.5, 10.0, 8)
+
+
+def draw_params(name: str, rng: np.random.Generator) -> dict:
+    """Random settings of a withheld effect (drawn per set; the diagnosis only sees the captures)."""
+    if name == "noise":
+        return {"full_well_e": float(np.exp(rng.uniform(np.log(800), np.log(6000))))}
+    if name == "sensor_tilt":
+        t = float(rng.choice([-1, 1]) * rng.uniform(0.3, 0.6))
+        return {"tilt_x_deg": t, "tilt_y_deg": 0.0} if rng.random() < 0.5 else {"tilt_x_deg": 0.0, "tilt_y_deg": t}
+    if name == "focus_metadata":
+        return {"bias_d": float(rng.choice([-1, 1]) * rng.uniform(0.05, 0.12))}
+    return {}
+
+
+def scene(seed: int, h: int, w: int):
+    from training.data.scenes import SceneConfig, procedural_scene
+
+    rgb, depth = procedural_scene(SceneConfig(height=h, width=w, near_m=0.6, far_m=8.0), np.random.default_rng(seed))
+    return np.ascontiguousarray(rgb.transpose(2, 0, 1)), depth  # (3, H, W) linear, (H, W) m
+
+
+def make_set(folder: Path, lens, psf_src, base: list[str], withheld: list, scene_seeds: list[int], seed: int) -> None:
+    """Render one capture set (one folder per scene) with the model's effects plus the withheld ones."""
+    from training.camera.virtual import write_capture
+    from training.render import effects as fx
+    from training.render.schedule import FocusSchedule
+    from training.render.simulator import Simulator
+
+    sim = Simulator(lens, psf_src, fx.parse(base + withheld))
+    focus = FocusSchedule(*FOCUS).distances()
+    h, w = lens.sensor.height_px, lens.sensor.width_px
+    for k, s in enumerate(scene_seeds):
+        out = folder / f"scene{s}"
+        if out.exists():
+            continue
+        rgb, depth = scene(s, h, w)
+        st = sim.render_stack(torch.from_numpy(rgb), torch.from_numpy(depth), focus, rng=np.random.default_rng(seed + k))
+        write_capture(out, st.frames.numpy(), st.focus_reported_m, lens, depth, rgb,
+                      {"benchmark": "bench_diagnose", "withheld": withheld})
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--sets-per-effect", type=int, default=3)
+    ap.add_argument("--captures", type=int, default=3)
+    ap.add_argument("--retrain-steps", type=int, default=0)
+    ap.add_argument("--effects", help="only these withheld effects (comma-separated)")
+    ap.add_argument("--pairs", action="store_true", help="with --effects: also the two-effect and no-effect sets")
+    ap.add_argument("--out", default=str(SETUP / "results.json"), help="results (JSON lines are also printed)")
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args()
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    torch.set_num_threads(2)
+    from aat_deploy.diagnose.inputs import load_capture_data
+    from aat_deploy.model import DfFModel
+    from training.diagnose.run import DiagnoseConfig, diagnose
+    from training.diagnose.twin import TwinRenderer, find_lens, find_psf
+    from training.render import effects as fx
+
+    lens_path, psf_path = SETUP / "rf50_288x192.json", SETUP / "psf.onnx"
+    models = {"aat": SETUP / "diag_dfv_aat.onnx", "thin": SETUP / "diag_dfv_thin.onnx"}
+    rng = np.random.default_rng(args.seed)
+    names = [n for n in fx.names() if n != "aberrations"]
+    if args.effects:
+        names = args.effects.split(",")
+    plan = []  # (model key, withheld list)
+    for n in names:
+        plan += [("aat", [n])] * args.sets_per_effect
+    if not args.effects or "aberrations" in args.effects.split(","):
+        plan += [("thin", ["aberrations"])] * args.sets_per_effect
+    if not args.effects or args.pairs:
+        plan += [("aat", ["noise", "sensor_tilt"]), ("aat", [])]
+    for p in {lens_path, psf_path, *(models[k] for k, _ in plan)}:
+        if not p.exists():
+            raise SystemExit(f"{p}: missing; run python benchmarks/diagnose_setup.py first")
+    order = rng.permutation(len(plan))  # sets in random order; the diagnosis never sees the plan
+    ctx = {}
+    rows, t0 = [], time.time()
+    for i in order:
+        key, withheld_names = plan[i]
+        set_seed = int(rng.integers(1 << 30))
+        wrng = np.random.default_rng(set_seed)
+        withheld = [fx.spec(fx.make(n, **draw_params(n, wrng))) for n in withheld_names]
+        if key not in ctx:
+            m = DfFModel(models[key], threads=2)
+            lens, _ = find_lens(m, lens_path)
+            src = find_psf(lens, psf_path)
+            ctx[key] = (m, lens, src, TwinRenderer(m, lens, src))
+        m, lens, src, twins = ctx[key]
+        base = [fx.spec(e) for e in twins.base]
+        folder = SETUP / "sets" / f"set{i:02d}"
+        scene_seeds = [int(s) for s in wrng.choice(8, size=args.captures, replace=False)]
+        make_set(folder, lens, src, base, withheld, scene_seeds, set_seed)
+        caps = [load_capture_data(p, m) for p in sorted(folder.iterdir()) if p.is_dir()]
+        cfg = DiagnoseConfig(max_effects=2, n_boot=300)
+        ts = time.time()
+        res, _, _ = diagnose(m, twins, caps, cfg)
+        named = [e["effect"] for e in res["ranked_effects"]]
+        truth = [w.split(":")[0] for w in withheld]
+        if not truth:
+            ok = not res["gap_significant"]
+        elif len(truth) == 1:
+            ok = bool(named) and named[0] == truth[0]
+        else:
+            ok = set(named[:2]) == set(truth)
+        row = {"set": int(i), "model": key, "withheld": withheld, "named": named,
+               "shares": [round(e["share_of_gap"], 3) for e in res["ranked_effects"]],
+               "gap_significant": res["gap_significant"], "gap_m": res["gap"]["gap_m"],
+               "gap_predicted_m": res["shrink"]["gap_predicted_m"] if res["shrink"] else None,
+               "correct": ok, "seconds": round(time.time() - ts, 1)}
+        if args.retrain_steps and res["shrink"] and truth:
+            row.update(retrain(m, lens_path, psf_path, res, caps, folder, args.retrain_steps))
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+    Path(args.out).write_text(json.dumps(rows, indent=1))
+    table(rows, time.time() - t0)
+
+
+def retrain(m, lens_path: Path, psf_path: Path, res: dict, caps, folder: Path, steps: int) -> dict:
+    from training.diagnose.session import retrain_command, score_model
+    from training.diagnose.twin import find_lens, find_psf
+    from training.diagnose.run import DiagnoseConfig
+
+    out = folder.parent / f"{folder.name}_retrain"
+    cmd = retrain_command(m.path, lens_path, psf_path, res["shrink"]["effects"], steps, out,
+                          m.meta["aat.sensor_mm"], m.sensor_px)
+    if not out.exists():
+        subprocess.run(cmd, check=True, cwd=ROOT)
+    new = sorted(out.glob("dff_*_aat.onnx"))[0]
+    lens, _ = find_lens(m, lens_path)
+    after = score_model(new, lens, find_psf(lens, psf_path), caps, DiagnoseConfig(), 2)
+    return {"gap_after_m": after["gap_after_m"], "remaining": after["gap_after_m"] / res["gap"]["gap_m"]}
+
+
+def table(rows: list[dict], seconds: float) -> None:
+    print(f"\n{len(rows)} sets in {seconds / 60:.1f} min\n")
+    print("| withheld effect | sets | named correctly | mean share of gap (named) | gap remaining after retraining |")
+    print("|---|---|---|---|---|")
+    by: dict = {}
+    for r in rows:
+        k = " + ".join(w.split(":")[0] for w in r["withheld"]) or "(none)"
+        by.setdefault(k, []).append(r)
+    for k, rs in sorted(by.items()):
+        sh = [r["shares"][0] for r in rs if r["shares"]]
+        rem = [r["remaining"] for r in rs if r.get("remaining") is not None]
+        print(f"| {k} | {len(rs)} | {sum(r['correct'] for r in rs)}/{len(rs)} | "
+              f"{np.mean(sh):.2f} | " if sh else f"| {k} | {len(rs)} | {sum(r['correct'] for r in rs)}/{len(rs)} | — | ",
+              end="")
+        print(f"{np.mean(rem):.2f} |" if rem else "— |")
+    single = [r for r in rows if len(r["withheld"]) == 1]
+    print(f"\nsingle withheld effect: {sum(r['correct'] for r in single)}/{len(single)} named correctly")
+
+
+if __name__ == "__main__":
+    main()

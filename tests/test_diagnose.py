@@ -1,0 +1,148 @@
+"""aat-diagnose: its statistics against hand-computed cases, and end to end on virtual captures whose
+withheld effect is known."""
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from aat_deploy.diagnose import bins as B
+from aat_deploy.diagnose.bootstrap import binned_bootstrap, capture_bootstrap, ratio_bootstrap
+from aat_deploy.diagnose.compare import focus_curves, region_shifts
+from tests.deploy_fixtures import build_tiny_dff
+
+RF50 = "lenses/canon_rf50mm_f1.8.json"
+
+
+def test_binned_bootstrap_means_and_intervals():
+    rng = np.random.default_rng(0)
+    vals = [rng.normal(0.3, 0.05, (64, 64)), rng.normal(0.3, 0.05, (64, 64))]
+    idx = [np.zeros((64, 64), int), np.zeros((64, 64), int)]
+    for v, i in zip(vals, idx):
+        i[:, 32:] = 1
+        v[:, 32:] -= 0.3  # bin 1: mean 0
+        v[0, 0] = np.nan  # unknown pixels are skipped
+    st = binned_bootstrap(vals, idx, 3, n_boot=300)
+    assert st.mean[0] == pytest.approx(0.3, abs=0.01) and st.ci_low[0] > 0.25 and st.ci_high[0] < 0.35
+    assert st.ci_low[1] < 0 < st.ci_high[1]
+    assert st.pixels.tolist() == [2 * 64 * 32 - 2, 2 * 64 * 32, 0] and np.isnan(st.mean[2])
+
+
+def test_ratio_and_capture_bootstrap():
+    num = [np.full((32, 32), 1.0), np.full((32, 32), 3.0)]
+    den = [np.full((32, 32), 4.0), np.full((32, 32), 4.0)]
+    est, lo, hi = ratio_bootstrap(num, den, 200)
+    assert est == pytest.approx(0.5) and lo <= 0.5 <= hi
+    m, lo, hi = capture_bootstrap(np.array([1.0, 3.0]), np.array([1.0, 1.0]), 200)
+    assert m == 2.0 and 1.0 <= lo <= hi <= 3.0
+
+
+def test_covariates_by_hand():
+    r = B.field_radius(4, 6)
+    assert r[0, 0] == pytest.approx(np.hypot(2.5, 1.5) / np.hypot(3, 2)) and r.min() > 0
+    gt = np.full((4, 6), 2.2, np.float32)
+    gt[0, 0] = np.nan
+    focus = np.array([1.0, 2.5, 5.0])  # 1.0, 0.4, 0.2 diopters; a 2.2 m point is 0.4545 D: 0.055 D from frame 1
+    bs = {b.name: b for b in B.make_binnings(gt, focus, np.ones((3, 4, 6), np.float32),
+                                             np.array([0, 1.5, 3.0, np.inf]), np.array([-np.inf, np.inf]))}
+    assert (bs["frame"].index[1:] == 1).all() and bs["frame"].index[0, 0] == -1
+    assert bs["defocus"].labels[bs["defocus"].index[1, 1]] == "0.05-0.10"
+    assert bs["depth"].labels[bs["depth"].index[1, 1]] == "1.50-3.00"
+
+
+def test_focus_curves_and_shifts():
+    rng = np.random.default_rng(1)
+    sharp = rng.random((1, 96, 128)).astype(np.float32)
+    import cv2
+    blurred = cv2.GaussianBlur(sharp[0], (0, 0), 2.0)[None]
+    stack = np.stack([np.repeat(blurred, 3, 0), np.repeat(sharp, 3, 0)])  # frame 1 sharp
+    c = focus_curves(stack, (2, 2))
+    assert c.shape == (4, 2, 3) and (c[:, 1] > c[:, 0] + 1).all()
+    smooth = np.repeat(cv2.GaussianBlur(sharp[0], (0, 0), 1.0)[None], 3, 0)[None]
+    moved = np.roll(smooth, 2, axis=3)  # 2 px to the right
+    sh = region_shifts(smooth, moved, (2, 2))
+    # phase correlation's sub-pixel peak is biased low on smooth content (about 20 % here): a distance, not a
+    # measurement; the direction and the order of magnitude are what the diagnosis needs
+    assert (sh[..., 0] > 1.4).all() and (sh[..., 0] < 2.2).all() and np.allclose(sh[..., 1], 0.0, atol=0.2)
+    assert np.allclose(region_shifts(smooth, smooth, (2, 2)), 0.0, atol=1e-3)
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    """A classical-DfF model 'trained' for the RF50 on a 192x128 sensor with the thin-lens simulator, and capture
+    sets rendered with that simulator, with and without a withheld focus-metadata bias."""
+    from training.camera.virtual import write_capture
+    from training.data.scenes import SceneConfig, procedural_scene
+    from training.lens.io import load_lens
+    from training.render import effects as fx
+    from training.render.layered import LayeredConfig
+    from training.render.simulator import Simulator
+    from training.render.sources import thin_lens_source
+
+    tmp = tmp_path_factory.mktemp("diag")
+    lens = load_lens(RF50)
+    lens = dataclasses.replace(lens, sensor=dataclasses.replace(lens.sensor, width_px=192, height_px=128))
+    model = build_tiny_dff(tmp / "tiny.onnx", {"aat.lens_name": lens.name, "aat.sensor_mm": [36.0, 24.0],
+                                               "aat.sensor_px": [192, 128], "aat.pixel_um": 187.5,
+                                               "aat.focus_range_m": [0.5, 10.0]}, sharpness=20.0)
+    focus = 1.0 / np.linspace(1.6, 0.25, 6)
+    sets = {}
+    for name, extra in (("bias", [fx.make("focus_metadata", bias_d=0.25)]), ("none", [])):
+        sim = Simulator(lens, None, extra, LayeredConfig(cell_px=32), thin_lens_source(lens))
+        for s in range(3):
+            rgb, depth = procedural_scene(SceneConfig(height=128, width=192, near_m=0.8, far_m=3.0), np.random.default_rng(s))
+            rgb = np.ascontiguousarray(rgb.transpose(2, 0, 1))
+            st = sim.render_stack(torch.from_numpy(rgb), torch.from_numpy(depth), focus, rng=np.random.default_rng(s))
+            write_capture(tmp / name / f"scene{s}", st.frames.numpy(), st.focus_reported_m, lens, depth, rgb, {})
+        sets[name] = tmp / name
+    return tmp, model, sets
+
+
+def test_withheld_focus_bias_is_named(setup):
+    from training.cli.diagnose import main
+
+    tmp, model, sets = setup
+    out = tmp / "out_bias"
+    assert main([str(sets["bias"]), "--model", str(model), "--lens", RF50, "--out", str(out),
+                 "--effects", "focus_metadata,noise", "-q"]) == 0
+    d = json.loads((out / "diagnosis.json").read_text())
+    assert d["gap_significant"] is True and d["where"]
+    top = d["ranked_effects"][0]
+    assert top["effect"] == "focus_metadata" and top["params"]["bias_d"] > 0  # the sign of the withheld bias
+    for k in ("share_of_gap", "ci_low", "ci_high"):
+        assert isinstance(top[k], float)
+    assert top["ci_low"] <= top["share_of_gap"] <= top["ci_high"] and top["share_of_gap"] > 0.3
+    assert d["shrink"]["gap_predicted_m"] < d["shrink"]["gap_before_m"]
+    assert "aat-train" in d["shrink"]["retrain_command"] and "focus_metadata" in d["shrink"]["retrain_command"]
+    for f in ("report.md", "gap_where.png", "gap_by.png", "effects.png", "diagnosis.rrd"):
+        assert (out / f).stat().st_size > 0
+    assert "focus_metadata" in (out / "report.md").read_text()
+    # an existing report is not overwritten without --force
+    assert main([str(sets["bias"]), "--model", str(model), "--lens", RF50, "--out", str(out), "-q"]) == 2
+
+
+def test_no_withheld_effect_is_not_blamed(setup):
+    from training.cli.diagnose import main
+
+    tmp, model, sets = setup
+    out = tmp / "out_none"
+    assert main([str(sets["none"]), "--model", str(model), "--lens", RF50, "--out", str(out),
+                 "--effects", "focus_metadata,noise", "-q"]) == 0
+    d = json.loads((out / "diagnosis.json").read_text())
+    assert d["gap_significant"] is False and d["ranked_effects"] == [] and d["where"] == []
+
+
+def test_bad_inputs_get_one_line_errors(setup, tmp_path, capsys):
+    from training.cli.diagnose import main
+
+    _, model, _ = setup
+    (tmp_path / "empty").mkdir()
+    assert main([str(tmp_path / "empty"), "--model", str(model), "--lens", RF50, "--out", str(tmp_path / "o")]) == 1
+    err = capsys.readouterr().err.strip()
+    assert "no capture folder with ground truth" in err and "\n" not in err
+    assert main(["--list-effects"]) == 0
+    listed = capsys.readouterr().out
+    for name in ("aberrations", "focus_metadata", "sensor_tilt", "noise", "vignetting"):
+        assert name in listed

@@ -1,0 +1,69 @@
+"""`aat-diagnose`: where a DfF model's sim-to-real gap lies, which unmodelled effect causes it, and how far it
+shrinks once that effect is simulated (method: docs/diagnosis.md).
+
+    aat-diagnose ROOT --model M.onnx [--lens LENS] [--psf PSF.onnx] --out DIR [--retrain-steps N] [--force]
+    aat-diagnose --list-effects
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import sys
+import time
+from pathlib import Path
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="aat-diagnose", description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("root", nargs="?", help="a capture folder with ground truth, or a folder of them")
+    p.add_argument("--model", help="the DfF model (.onnx) to diagnose")
+    p.add_argument("--out", help="report folder (diagnosis.json, report.md, PNGs, diagnosis.rrd)")
+    p.add_argument("--lens", help="lens file the model was trained for (default: found in lenses/ by name)")
+    p.add_argument("--psf", help="PSF surrogate (.onnx) of that lens (default: found in models/; else ray tracing)")
+    p.add_argument("--effects", help="only try these registered effects (comma-separated; default all)")
+    p.add_argument("--retrain-steps", type=int, default=0,
+                   help="fine-tune the model with the named effects for this many steps and score it (needs aat-train)")
+    p.add_argument("--threads", type=int, default=2, help="onnxruntime threads")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--force", action="store_true", help="replace an existing --out folder")
+    p.add_argument("--list-effects", action="store_true", help="list the registered effects and exit")
+    p.add_argument("-q", "--quiet", action="store_true")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    a = build_parser().parse_args(argv)
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    from training.render import effects as fx
+
+    if a.list_effects:
+        for name, desc in fx.describe().items():
+            print(f"{name:16s} {desc}")
+        return 0
+    if not (a.root and a.model and a.out):
+        print("aat-diagnose: error: ROOT, --model and --out are required (or --list-effects)", file=sys.stderr)
+        return 2
+    from training.diagnose.session import DiagnoseError, run
+
+    out = Path(a.out)
+    if out.exists() and not a.force:
+        print(f"aat-diagnose: error: {out} exists (use --force to replace it)", file=sys.stderr)
+        return 2
+    try:
+        res = run(a.root, a.model, out, lens=a.lens, psf=a.psf, effects=a.effects, retrain_steps=a.retrain_steps,
+                  threads=a.threads, seed=a.seed, force=a.force, quiet=a.quiet)
+    except DiagnoseError as e:
+        print(f"aat-diagnose: error: {e}", file=sys.stderr)
+        return 1
+    top = res["ranked_effects"][0]["effect"] if res["ranked_effects"] else None
+    print(f"gap {'significant' if res['gap_significant'] else 'not significant'}"
+          + (f"; named cause: {top} ({res['ranked_effects'][0]['share_of_gap']:.0%} of the gap)" if top else "")
+          + f"; report in {out / 'report.md'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

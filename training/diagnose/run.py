@@ -1,0 +1,243 @@
+"""`aat-diagnose` step by step: where the sim-to-real gap lies, which unmodelled effect causes it, how far it
+shrinks once that effect is simulated.
+
+1. Each capture with ground truth is run through the model; its digital twin (same depth, all-in-focus image
+   and reported focus distances, rendered by the model's own simulator) is run too. gap = |error| on the
+   capture - |error| on the twin, per pixel, broken down by field position, depth, defocus, stack position and
+   texture with bootstrap intervals over captures and pixel tiles.
+2. Every registered effect the model's simulator lacks is added to the twin, each of its candidate settings
+   tried; the setting whose images come closest to the capture's is kept (fit on the images, not on the gap).
+   An effect scores by how much closer the twin comes, in the images (focus-measure curves, geometry) and in
+   the model's error pattern. The best is added for good and the rest tried again (greedy), while the gain is
+   significant.
+3. share_of_gap = how much of the gap the effect closes when added to the twin (predicted shrink); the
+   realised shrink comes from retraining with it (`retrain.py`).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from aat_deploy.diagnose import bins as B
+from aat_deploy.diagnose.bootstrap import binned_bootstrap, capture_bootstrap, ratio_bootstrap
+from aat_deploy.diagnose.compare import distances, focus_curves
+from aat_deploy.diagnose.inputs import CaptureData
+from aat_deploy.model import DfFModel
+from aat_deploy.normalise import normalise_stack
+from training.render import effects as fx
+
+
+@dataclass
+class DiagnoseConfig:
+    n_boot: int = 400
+    seed: int = 0
+    min_rel_gap: float = 0.05  # a gap smaller than this fraction of the twin's MAE is not worth naming
+    min_score: float = 0.05  # an effect must bring the twin this much closer (fraction, CI low) to be named
+    max_effects: int = 3  # greedy rounds
+    # floors of the three distances (capture vs twin): below these, differences are noise
+    floor_focus_curves: float = 0.02
+    floor_geometry_px: float = 0.2
+    floor_error_m: float = 0.005
+    effects: list[str] | None = None  # restrict the search (None = every registered effect)
+
+
+@dataclass
+class Scored:
+    """One twin variant evaluated on every capture."""
+
+    effects: list[fx.Effect]
+    pred: list[np.ndarray]  # per capture predicted depth on the twin (H, W), m
+    err: list[np.ndarray]  # per capture |pred - gt| on the twin (H, W), NaN = unknown
+    dist: list  # per capture compare.Distances
+
+
+@dataclass
+class CaptureRun:
+    data: CaptureData
+    stack: np.ndarray  # normalised capture stack
+    curves: np.ndarray
+    pred_m: np.ndarray
+    err: np.ndarray
+    aif_linear: np.ndarray
+    binnings: list = field(default_factory=list)
+
+
+def abs_error(pred_m: np.ndarray, gt_m: np.ndarray) -> np.ndarray:
+    return np.where(np.isfinite(gt_m) & (gt_m > 0), np.abs(pred_m - gt_m), np.nan).astype(np.float32)
+
+
+def effect_label(e: fx.Effect) -> str:
+    """'name(k=v, ...)'; the same text `--effects` accepts is `effect_spec`."""
+    return e.name + ("(" + ", ".join(f"{k}={v}" for k, v in e.params.items()) + ")" if e.params else "")
+
+
+class Diagnosis:
+    def __init__(self, model: DfFModel, twins, captures: list[CaptureData], cfg: DiagnoseConfig = DiagnoseConfig(),
+                 progress=None):
+        self.model, self.twins, self.cfg = model, twins, cfg
+        self.progress = progress or (lambda msg: None)
+        self.runs: list[CaptureRun] = []
+        for cap in captures:
+            stack = normalise_stack(cap.frames)
+            out = model.infer(stack, cap.focus_m.astype(np.float32))
+            aif = cap.aif_linear if cap.aif_linear is not None else out.aif
+            self.runs.append(CaptureRun(cap, stack, focus_curves(stack), out.depth_m, abs_error(out.depth_m, cap.gt_m), aif))
+        d_edges, t_edges = B.shared_edges([r.data.gt_m for r in self.runs], [r.aif_linear for r in self.runs])
+        self.depth_edges_m, self.texture_edges = d_edges, t_edges
+        for r in self.runs:
+            r.binnings = B.make_binnings(r.data.gt_m, r.data.focus_m, r.aif_linear, d_edges, t_edges)
+        # error-pattern bins: field radius x depth
+        n_d = len(d_edges) - 1
+        self.pattern = [np.where((b[0].index >= 0) & (b[2].index >= 0), b[0].index * n_d + b[2].index, -1)
+                        for b in (r.binnings for r in self.runs)]
+        self.n_pattern = (len(B.RADIUS_EDGES) - 1) * n_d
+
+    # --- twins -------------------------------------------------------------------------------------------
+    def score_twin(self, extra: list[fx.Effect]) -> Scored:
+        preds, errs, dists = [], [], []
+        for i, r in enumerate(self.runs):
+            twin = self.twins.render(r.data, r.aif_linear, extra, seed=self.cfg.seed + i)
+            pred = self.model.infer(twin, r.data.focus_m.astype(np.float32)).depth_m
+            e = abs_error(pred, r.data.gt_m)
+            preds.append(pred)
+            errs.append(e)
+            dists.append(distances(r.stack, r.curves, twin, r.err, e, self.pattern[i], self.n_pattern))
+        return Scored(list(extra), preds, errs, dists)
+
+    # --- where -------------------------------------------------------------------------------------------
+    def gap_maps(self, twin: Scored) -> list[np.ndarray]:
+        return [r.err - e for r, e in zip(self.runs, twin.err)]
+
+    def where(self, twin: Scored) -> dict:
+        gaps = self.gap_maps(twin)
+        cfg = self.cfg
+        overall = binned_bootstrap(gaps, [np.where(np.isfinite(g), 0, -1) for g in gaps], 1, cfg.n_boot, cfg.seed)
+        twin_mae = float(np.nanmean(np.concatenate([e.ravel() for e in twin.err])))
+        real_mae = float(np.nanmean(np.concatenate([r.err.ravel() for r in self.runs])))
+        thresh = cfg.min_rel_gap * twin_mae
+        sig = bool((overall.ci_low[0] > 0 or overall.ci_high[0] < 0) and abs(overall.mean[0]) >= thresh)
+        breakdown, where = {}, []
+        for k, name in enumerate(b.name for b in self.runs[0].binnings):
+            bn = self.runs[0].binnings[k]
+            st = binned_bootstrap(gaps, [r.binnings[k].index for r in self.runs], len(bn.labels), cfg.n_boot, cfg.seed)
+            rows = []
+            for j, lab in enumerate(bn.labels):
+                s = bool(st.pixels[j] > 0 and (st.ci_low[j] > 0 or st.ci_high[j] < 0) and abs(st.mean[j]) >= thresh)
+                rows.append({"bin": lab, "gap_m": _f(st.mean[j]), "ci_low": _f(st.ci_low[j]), "ci_high": _f(st.ci_high[j]),
+                             "pixels": int(st.pixels[j]), "significant": s})
+                if s and sig:
+                    where.append({"by": name, "bin": lab, "gap_m": _f(st.mean[j]), "ci_low": _f(st.ci_low[j]),
+                                  "ci_high": _f(st.ci_high[j])})
+            breakdown[name] = {"unit": bn.unit, "bins": rows}
+        where.sort(key=lambda w: -abs(w["gap_m"]))
+        return {"gap_m": _f(overall.mean[0]), "ci_low": _f(overall.ci_low[0]), "ci_high": _f(overall.ci_high[0]),
+                "real_mae_m": real_mae, "twin_mae_m": twin_mae, "threshold_m": thresh, "significant": sig,
+                "where": where, "breakdown": breakdown}
+
+    # --- which -------------------------------------------------------------------------------------------
+    def _closeness(self, base: Scored, cand: Scored) -> np.ndarray:
+        """Per capture, how much closer `cand` comes to the capture than `base`, as fractions
+        (d_base - d_cand) / (d_base + floor): images (focus curves, geometry; their mean counts twice) and the
+        model's error pattern. An effect that moves the images away from the capture scores at most that
+        image fraction, whatever it does to the errors: it cannot be the cause."""
+        c = self.cfg
+        out = []
+        for db, dc in zip(base.dist, cand.dist):
+            img = np.mean([(db.focus_curves - dc.focus_curves) / (db.focus_curves + c.floor_focus_curves),
+                           (db.geometry_px - dc.geometry_px) / (db.geometry_px + c.floor_geometry_px)])
+            err = (db.error_pattern_m - dc.error_pattern_m) / (db.error_pattern_m + c.floor_error_m)
+            both = (2 * img + err) / 3
+            out.append(both if img > 0 else min(img, both))
+        return np.array(out)
+
+    def _image_distance(self, s: Scored) -> float:
+        c = self.cfg
+        return float(sum(d.focus_curves / (1 + c.floor_focus_curves) + d.geometry_px * c.floor_focus_curves / c.floor_geometry_px
+                         for d in s.dist))
+
+    def _share(self, gap0: list[np.ndarray], base: Scored, cand: Scored) -> tuple[float, float, float]:
+        """Fraction of the original gap closed by going from `base` to `cand` twins, with its interval
+        (captures and tiles resampled together in numerator and denominator)."""
+        num = [ec - eb for ec, eb in zip(cand.err, base.err)]
+        return ratio_bootstrap(num, gap0, self.cfg.n_boot, self.cfg.seed)
+
+    def which(self, base: Scored, candidates: list[str]) -> tuple[list[dict], list[Scored]]:
+        """Greedy search. Returns the ranked list and the chain of twins (base, base+E1, ...)."""
+        cfg = self.cfg
+        gap0 = self.gap_maps(base)
+        chain, ranked, remaining = [base], [], list(candidates)
+        evaluated = []
+        for rnd in range(cfg.max_effects):
+            cur = chain[-1]
+            best = []
+            for name in remaining:
+                cls_cands = fx.make(name).candidates
+                fits = []
+                for params in cls_cands:
+                    eff = fx.make(name, **params)
+                    self.progress(f"round {rnd + 1}: {effect_label(eff)}")
+                    fits.append(self.score_twin(cur.effects + [eff]))
+                fit = min(fits, key=self._image_distance)
+                score = capture_bootstrap(self._closeness(cur, fit), n_boot=cfg.n_boot, seed=cfg.seed)
+                share = self._share(gap0, cur, fit)
+                entry = {"effect": name, "params": fit.effects[-1].params, "round": rnd + 1,
+                         "closeness": score[0], "closeness_ci": [score[1], score[2]],
+                         "share_of_gap": share[0], "ci_low": share[1], "ci_high": share[2],
+                         "distances": [asdict(d) for d in fit.dist]}
+                best.append((entry, fit))
+                evaluated.append(entry)
+            if not best:
+                break
+            best.sort(key=lambda t: -t[0]["closeness"])
+            top, fit = best[0]
+            if top["closeness_ci"][0] < cfg.min_score:
+                break
+            ranked.append(top)
+            chain.append(fit)
+            remaining.remove(top["effect"])
+        return ranked, chain, evaluated
+
+
+def _f(x) -> float | None:
+    x = float(x)
+    return x if np.isfinite(x) else None
+
+
+def shrink_summary(diag: Diagnosis, base: Scored, ranked: list[dict], chain: list[Scored]) -> dict | None:
+    """Gap before and predicted after (twin with the named effects)."""
+    if not ranked:
+        return None
+    before = float(np.nanmean(np.concatenate([g.ravel() for g in diag.gap_maps(base)])))
+    after = float(np.nanmean(np.concatenate([g.ravel() for g in diag.gap_maps(chain[-1])])))
+    return {"effects": [fx.spec(e) for e in chain[-1].effects], "gap_before_m": before, "gap_predicted_m": after,
+            "real_mae_before_m": float(np.nanmean(np.concatenate([r.err.ravel() for r in diag.runs])))}
+
+
+def diagnose(model: DfFModel, twins, captures: list[CaptureData], cfg: DiagnoseConfig, progress=None) -> tuple[dict, Diagnosis, list[Scored]]:
+    """The three answers as a JSON-ready dict (see docs/diagnosis.md), the Diagnosis and the twin chain."""
+    diag = Diagnosis(model, twins, captures, cfg, progress)
+    base = diag.score_twin([])
+    where = diag.where(base)
+    base_names = {e.name for e in twins.base}
+    candidates = [n for n in (cfg.effects or fx.names()) if n not in base_names]
+    ranked, chain, evaluated = ([], [base], [])
+    if where["significant"]:
+        ranked, chain, evaluated = diag.which(base, candidates)
+    out = {
+        "gap_significant": where["significant"],
+        "where": where["where"],
+        "ranked_effects": ranked,
+        "gap": {k: v for k, v in where.items() if k != "where"},
+        "effects_evaluated": evaluated,
+        "shrink": shrink_summary(diag, base, ranked, chain),
+        "captures": [{"name": r.data.name, "path": str(r.data.path), "focus_m": r.data.focus_m.tolist(),
+                      "mae_m": float(np.nanmean(r.err)), "twin_mae_m": float(np.nanmean(e)),
+                      "warnings": r.data.warnings} for r, e in zip(diag.runs, base.err)],
+        "config": asdict(cfg),
+        "twin_renders": twins.renders,
+    }
+    return out, diag, chain

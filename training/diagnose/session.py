@@ -1,0 +1,112 @@
+"""One `aat-diagnose` run: inputs, the diagnosis, the optional retraining, and the report folder (written to a
+temporary folder and renamed, so an interrupted run leaves nothing half-written)."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from aat_deploy.diagnose import report
+from aat_deploy.diagnose.inputs import find_captures, load_capture_data
+from aat_deploy.errors import CaptureError, ModelError
+from aat_deploy.model import DfFModel
+from training.diagnose.run import Diagnosis, DiagnoseConfig, diagnose
+from training.diagnose.twin import TwinError, TwinRenderer, find_lens, find_psf
+from training.render import effects as fx
+
+
+class DiagnoseError(RuntimeError):
+    pass
+
+
+def _say(quiet: bool):
+    return (lambda msg: None) if quiet else (lambda msg: print(f"  {msg}", file=sys.stderr, flush=True))
+
+
+def retrain_command(model_path: Path, lens_path: Path, psf_path: Path | None, effects: list[str], steps: int,
+                    out: Path, sensor_mm, sensor_px) -> list[str]:
+    """The `aat-train` call that fine-tunes the model with the named effects (aberrations = the AAT simulator,
+    which the chain always uses)."""
+    extra = [e for e in effects if not e.startswith("aberrations")]
+    cmd = ["aat-train", "--lens", str(lens_path), "--sensor-mm", f"{sensor_mm[0]},{sensor_mm[1]}",
+           "--resolution", f"{sensor_px[0]},{sensor_px[1]}", "--init", str(model_path), "--steps", str(steps),
+           "--no-baseline", "--out", str(out)]
+    if psf_path:
+        cmd += ["--psf", str(psf_path)]
+    if extra:
+        cmd += ["--effects", ",".join(extra)]
+    return cmd
+
+
+def run(root, model_path, out: Path, *, lens=None, psf=None, effects=None, retrain_steps: int = 0,
+        threads: int = 2, seed: int = 0, force: bool = False, quiet: bool = False, cfg: DiagnoseConfig | None = None) -> dict:
+    say = _say(quiet)
+    try:
+        model = DfFModel(model_path, threads=threads)
+        lens_obj, lens_file = find_lens(model, lens)
+        src = find_psf(lens_obj, psf)
+        twins = TwinRenderer(model, lens_obj, src)
+        folders = find_captures(root)
+        if not folders:
+            raise DiagnoseError(f"{root}: no capture folder with ground truth (gt_depth_m.npy / gt_depth_mm.png)")
+        say(f"{len(folders)} capture(s); model simulator: {', '.join(fx.spec(e) for e in twins.base) or 'thin lens'}")
+        caps = [load_capture_data(f, model) for f in folders]
+    except (ModelError, TwinError, CaptureError, FileNotFoundError, ValueError) as e:
+        raise DiagnoseError(str(e)) from None
+    cfg = cfg or DiagnoseConfig(seed=seed, effects=[s.strip() for s in effects.split(",")] if effects else None)
+    for n in cfg.effects or []:
+        fx.make(n)  # unknown names fail here, before any rendering
+    res, diag, chain = diagnose(model, twins, caps, cfg, progress=say)
+    res["root"] = str(root)
+    res["model"] = {"file": str(model_path), "net": model.meta.get("aat.net"), "simulator": model.meta.get("aat.simulator"),
+                    "effects": [fx.spec(e) for e in twins.base]}
+    shrink = res["shrink"]
+    out = Path(out)
+    tmp = out.parent / f".{out.name}.tmp"
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    tmp.mkdir(parents=True)
+    try:
+        if shrink:
+            named = [fx.spec(e) for e in chain[-1].effects]
+            cmd = retrain_command(Path(model_path), lens_file, Path(psf) if psf else getattr(src, "path", None),
+                                  named, retrain_steps or 300, out / "retrain", model.meta["aat.sensor_mm"], model.sensor_px)
+            shrink["retrain_command"] = " ".join(cmd)
+            if retrain_steps:
+                say("retraining: " + " ".join(cmd))
+                cmd[cmd.index("--out") + 1] = str(tmp / "retrain")
+                subprocess.run(cmd, check=True)
+                new = sorted((tmp / "retrain").glob("dff_*_aat.onnx"))
+                if not new:
+                    raise DiagnoseError(f"{tmp / 'retrain'}: aat-train wrote no dff_*_aat.onnx")
+                shrink.update(score_model(new[0], lens_obj, src, caps, cfg, threads))
+                shrink["retrained_model"] = str(out / "retrain" / new[0].name)
+        report.write_json(tmp / "diagnosis.json", res)
+        report.figures(res, tmp)
+        (tmp / "report.md").write_text(report.markdown(res))
+        report.recording(tmp / "diagnosis.rrd", [
+            {"name": r.data.name, "gt_m": r.data.gt_m, "pred_real_m": r.pred_m,
+             "pred_twin_m": p0, "pred_twin_best_m": p1, "gap_m": g}
+            for r, g, p0, p1 in zip(diag.runs, diag.gap_maps(chain[0]), chain[0].pred, chain[-1].pred)])
+        if out.exists():
+            if not force:
+                raise DiagnoseError(f"{out} exists (use --force)")
+            shutil.rmtree(out)
+        tmp.rename(out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return res
+
+
+def score_model(path: Path, lens_obj, src, caps, cfg: DiagnoseConfig, threads: int) -> dict:
+    """A retrained model's gap on the same captures, against its own simulator's twins."""
+    model = DfFModel(path, threads=threads)
+    d = Diagnosis(model, TwinRenderer(model, lens_obj, src), caps, cfg)
+    twin = d.score_twin([])
+    gap = float(np.nanmean(np.concatenate([g.ravel() for g in d.gap_maps(twin)])))
+    return {"gap_after_m": gap, "real_mae_after_m": float(np.nanmean(np.concatenate([r.err.ravel() for r in d.runs])))}
