@@ -37,6 +37,7 @@ class DiagnoseConfig:
     seed: int = 0
     min_rel_gap: float = 0.05  # a gap smaller than this fraction of the twin's MAE is not worth naming
     min_score: float = 0.05  # an effect must bring the twin this much closer (fraction, CI low) to be named
+    min_bin_pixels: int = 200  # smaller bins are reported but never called significant
     max_effects: int = 3  # greedy rounds
     # floors of the three distances (capture vs twin): below these, differences are noise
     floor_focus_curves: float = 0.02
@@ -126,7 +127,7 @@ class Diagnosis:
             st = binned_bootstrap(gaps, [r.binnings[k].index for r in self.runs], len(bn.labels), cfg.n_boot, cfg.seed)
             rows = []
             for j, lab in enumerate(bn.labels):
-                s = bool(st.pixels[j] > 0 and (st.ci_low[j] > 0 or st.ci_high[j] < 0) and abs(st.mean[j]) >= thresh)
+                s = bool(st.pixels[j] >= cfg.min_bin_pixels and (st.ci_low[j] > 0 or st.ci_high[j] < 0) and abs(st.mean[j]) >= thresh)
                 rows.append({"bin": lab, "gap_m": _f(st.mean[j]), "ci_low": _f(st.ci_low[j]), "ci_high": _f(st.ci_high[j]),
                              "pixels": int(st.pixels[j]), "significant": s})
                 if s and sig:
@@ -165,8 +166,9 @@ class Diagnosis:
         num = [ec - eb for ec, eb in zip(cand.err, base.err)]
         return ratio_bootstrap(num, gap0, self.cfg.n_boot, self.cfg.seed)
 
-    def which(self, base: Scored, candidates: list[str]) -> tuple[list[dict], list[Scored]]:
-        """Greedy search. Returns the ranked list and the chain of twins (base, base+E1, ...)."""
+    def which(self, base: Scored, candidates: list[str]) -> tuple[list[dict], list[Scored], list[dict]]:
+        """Greedy search. Returns the ranked effects, the chain of twins (base, base+E1, ...) and every
+        effect's best fit in every round."""
         cfg = self.cfg
         gap0 = self.gap_maps(base)
         chain, ranked, remaining = [base], [], list(candidates)
