@@ -172,13 +172,13 @@ def test_fine_tune_from_onnx_with_extra_effect_and_given_psf(chain, tmp_path):
     out = tmp_path / "ft"
     src = chain["out"]
     assert main(_args(out, "--init", str(src / "dff_dfvnet_aat.onnx"), "--psf", str(src / "psf.onnx"),
-                      "--effects", "noise", "--steps", "2", "--no-baseline")) == 0
+                      "--effects", "noise:full_well_e=3000", "--steps", "2", "--no-baseline")) == 0
     rec = _records(out)
     assert set(rec) == {"lens", "psf", "train_aat", "export", "evaluate", "report"}
     log = [json.loads(line) for line in (out / "train_aat" / "log.jsonl").read_text().splitlines()]
     assert log[0]["init"]["kind"] == "onnx" and log[0]["init"]["max_abs_vs_onnxruntime"] <= 1e-4
     md = read_metadata(out / "dff_dfvnet_aat.onnx")
-    assert json.loads(md["aat.effects"]) == ["noise"] and md["aat.init"] == "dff_dfvnet_aat.onnx"
+    assert json.loads(md["aat.effects"]) == ["noise:full_well_e=3000.0"] and md["aat.init"] == "dff_dfvnet_aat.onnx"
     cfg = json.loads((out / "config.json").read_text())
     assert cfg["train"]["lr"] == pytest.approx(1e-4)  # fine-tuning: the preset's rate x 0.1
     assert (out / "psf.onnx").read_bytes() == (src / "psf.onnx").read_bytes()
@@ -189,6 +189,8 @@ def test_bad_options_are_one_line_errors(chain, tmp_path, capsys):
     assert "aberrations" in capsys.readouterr().err
     assert main(_args(tmp_path / "b", "--effects", "fog")) == 2
     assert "unknown effect" in capsys.readouterr().err
+    assert main(_args(tmp_path / "b", "--effects", "noise:gain")) == 2
+    assert "key=value" in capsys.readouterr().err
     assert main(_args(tmp_path / "c", "--net", "aif", "--init", str(chain["out"] / "dff_dfvnet_aat.onnx"))) == 2
     assert "is a dfvnet small model" in capsys.readouterr().err
     rf50_psf = ROOT / "models" / "psf_rf50.onnx"

@@ -1,7 +1,8 @@
 """The resolved configuration of a lens-to-model run (`aat-train --lens ...`), written to DIR/config.json.
 
 Command-line options + a preset (tiny | small | paper) resolve to one plain dict: the lens file and the sensor,
-the net, focus range, stack size, effects, init weights, and per stage its settings (PSF dataset and fit budget,
+the net, focus range, stack size, effects (names or 'name:key=value' settings, as
+`training.render.effects.parse` reads them), init weights, and per stage its settings (PSF dataset and fit budget,
 training, evaluation). Files given by path (lens, --init, --psf) are recorded with their SHA-256 so that a
 changed file is a changed input. Units: mm for sensor sizes, pixels for resolutions and crops, metres from the
 sensor plane for distances, minutes for the PSF fit's wall-clock budget.
@@ -119,16 +120,17 @@ def resolve(opts: ChainOptions) -> dict:
     stack = int(opts.stack or pre["stack"])
     if stack < 2:
         raise ChainConfigError(f"--stack must be >= 2 frames, got {stack}")
-    known = fx.names()
     effects = []
     for e in opts.effects:
-        if e == "aberrations":
+        if effect_name(e) == "aberrations":
             raise ChainConfigError("--effects: 'aberrations' is what the AAT run adds over the thin-lens baseline; "
                                    "list only extra effects")
-        if e not in known:
-            raise ChainConfigError(f"--effects: unknown effect {e!r} (known: {', '.join(known)})")
-        if e not in effects:
-            effects.append(e)
+        try:
+            spec = fx.spec(fx.parse([e])[0])  # 'name' or 'name:k=v' (settings that differ from the defaults)
+        except (ValueError, TypeError) as err:
+            raise ChainConfigError(f"--effects: {err} (known: {', '.join(fx.names())})") from None
+        if spec not in effects:
+            effects.append(spec)
     if opts.sensor_mm is not None and min(opts.sensor_mm) <= 0:
         raise ChainConfigError(f"--sensor-mm must be positive W,H in mm, got {opts.sensor_mm}")
     if opts.resolution is not None and min(opts.resolution) < 8:
@@ -146,6 +148,8 @@ def resolve(opts: ChainOptions) -> dict:
             raise ChainConfigError(f"--lr must be > 0, got {opts.lr}")
         tr["lr"] = float(opts.lr)
     tr["checkpoint_every"] = min(tr["checkpoint_every"], tr["steps"])
+    # A short run (fine-tuning) sees at most steps x batch scenes: render only those (but a few batches' worth).
+    tr["n_items"] = min(tr["n_items"], max(tr["steps"] * tr["batch_size"], 8 * tr["batch_size"]))
     psf_ref = _file_ref(opts.psf, "--psf")
     pre["psf"].update({"near_m": near * PSF_NEAR_FACTOR, "far_m": far * PSF_FAR_FACTOR, "kernel_size": 11,
                        "margin_px": 4.0, "wavelength_nm": 589.0, "seed": opts.seed})
@@ -168,6 +172,11 @@ def resolve(opts: ChainOptions) -> dict:
         "train": tr,
         "eval": pre["eval"],
     }
+
+
+def effect_name(spec: str) -> str:
+    """'noise:full_well_e=3000' -> 'noise'."""
+    return spec.split(":", 1)[0].strip()
 
 
 def differences(old: dict, new: dict, prefix: str = "") -> list[str]:

@@ -76,7 +76,9 @@ def train_dir(simulator: str) -> str:
 def _uses_psf(simulator: str, effects: list[str]) -> bool:
     # Mirrors training.data.stacks.FocalStackDataset: the lens's PSF source is built for the AAT simulator and for
     # the vignetting effect (relative illumination from the lens).
-    return simulator == "aat" or "vignetting" in effects
+    from training.pipeline.config import effect_name
+
+    return simulator == "aat" or "vignetting" in {effect_name(e) for e in effects}
 
 
 # -- 1. lens -------------------------------------------------------------------------------------------------------
