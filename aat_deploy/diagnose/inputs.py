@@ -14,7 +14,8 @@ from aat_deploy.capture.raw import load_frame, srgb_to_linear
 from aat_deploy.errors import CaptureError
 from aat_deploy.geometry import fit_to_sensor
 from aat_deploy.model import DfFModel
-from aat_deploy.pipeline import _ground_truth
+from aat_deploy.eval import batch
+from aat_deploy.eval.gt import check_units, find_gt, load_ground_truth, to_sensor
 
 
 @dataclass
@@ -28,18 +29,9 @@ class CaptureData:
     warnings: list[str] = field(default_factory=list)
 
 
-def has_ground_truth(folder: Path) -> bool:
-    return (folder / "gt_depth_m.npy").is_file() or (folder / "gt_depth_mm.png").is_file()
-
-
-def find_captures(root: str | Path) -> list[Path]:
-    """ROOT itself if it is a capture folder with ground truth, else its sub-folders (recursively) that are."""
-    root = Path(root)
-    if not root.is_dir():
-        raise CaptureError(f"{root}: not a folder")
-    if has_ground_truth(root):
-        return [root]
-    return sorted(p for p in root.rglob("*") if p.is_dir() and has_ground_truth(p))
+def find_captures(root: str | Path, exclude: list[Path] = ()) -> list[Path]:
+    """Capture folders with ground truth under ROOT (ROOT included), as `aat-eval` finds them."""
+    return batch.find_captures(Path(root), list(exclude))[0]
 
 
 def load_capture_data(folder: str | Path, model: DfFModel, use_exiftool: bool = True) -> CaptureData:
@@ -54,16 +46,21 @@ def load_capture_data(folder: str | Path, model: DfFModel, use_exiftool: bool = 
             size0 = img.shape[:2]
         elif img.shape[:2] != size0:
             raise CaptureError(f"{f.path}: frame size differs from {frames[0].path.name}")
-        images.append(fit_to_sensor(img, (w_px, h_px))[0].transpose(2, 0, 1))
+        fitted, geometry = fit_to_sensor(img, (w_px, h_px))
+        images.append(fitted.transpose(2, 0, 1))
     warnings = list(cap.warnings)
-    gt = _ground_truth(cap, size0, (w_px, h_px), warnings)
-    if gt is None or not np.isfinite(gt).any():
-        raise CaptureError(f"{folder}: no usable ground-truth depth (gt_depth_m.npy or gt_depth_mm.png)")
+    src = find_gt(folder)
+    if src is None:
+        raise CaptureError(f"{folder}: no ground-truth depth (see docs/contracts.md)")
+    truth = load_ground_truth(src)
+    check_units(truth, model.focus_range_m)
+    warnings += truth.warnings
+    gt = to_sensor(truth.depth_m, (size0[1], size0[0]), geometry["crop_xywh"], (w_px, h_px), src.depth)
     aif = None
-    if cap.gt_aif is not None:
-        img = cv2.imread(str(cap.gt_aif), cv2.IMREAD_UNCHANGED)
+    if src.aif is not None:
+        img = cv2.imread(str(src.aif), cv2.IMREAD_UNCHANGED)
         if img is None:
-            raise CaptureError(f"{cap.gt_aif}: unreadable all-in-focus image")
+            raise CaptureError(f"{src.aif}: unreadable all-in-focus image")
         scale = 65535.0 if img.dtype == np.uint16 else 255.0
         rgb = srgb_to_linear(cv2.cvtColor(img, cv2.COLOR_BGR2RGB).astype(np.float32) / scale)
         aif = fit_to_sensor(rgb, (w_px, h_px))[0].transpose(2, 0, 1).astype(np.float32)

@@ -16,9 +16,7 @@ shrinks once that effect is simulated.
 
 from __future__ import annotations
 
-import json
 from dataclasses import asdict, dataclass, field
-from pathlib import Path
 
 import numpy as np
 

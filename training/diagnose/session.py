@@ -50,9 +50,9 @@ def run(root, model_path, out: Path, *, lens=None, psf=None, effects=None, retra
         lens_obj, lens_file = find_lens(model, lens)
         src = find_psf(lens_obj, psf)
         twins = TwinRenderer(model, lens_obj, src)
-        folders = find_captures(root)
+        folders = find_captures(root, exclude=[Path(out)])
         if not folders:
-            raise DiagnoseError(f"{root}: no capture folder with ground truth (gt_depth_m.npy / gt_depth_mm.png)")
+            raise DiagnoseError(f"{root}: no capture folder with ground truth (see docs/contracts.md)")
         say(f"{len(folders)} capture(s); model simulator: {', '.join(fx.spec(e) for e in twins.base) or 'thin lens'}")
         caps = [load_capture_data(f, model) for f in folders]
     except (ModelError, TwinError, CaptureError, FileNotFoundError, ValueError) as e:
