@@ -131,3 +131,23 @@ def paraxial_image_z_mm(lens: Lens, object_z_mm: float, wavelength_nm: float | N
     else:
         y, u = _trace(lens, -object_z_mm * 1e-3, 1e-3, w)  # from the axial object point, slope 1e-3
     return lens.vertex_z_mm[-1] - y / u
+
+
+def paraxial_focus_z_mm(lens: Lens, distance_m: float, wavelength_nm: float | None = None, tol_mm: float = 1e-7) -> float:
+    """Sensor z (mm from the first vertex) that paraxially images an on-axis point `distance_m` metres in front of
+    the sensor plane; NaN when no sensor position does (the point is closer than the lens can focus).
+
+    Distances are sensor-referenced, so this solves s = image_z(s - 1000 D) by fixed-point iteration (the map
+    contracts by the longitudinal magnification). `training.optics.focus` refines the same start with real rays."""
+    s_inf = paraxial_image_z_mm(lens, -math.inf, wavelength_nm)
+    if math.isinf(distance_m):
+        return s_inf
+    s = s_inf
+    for _ in range(100):
+        s_new = paraxial_image_z_mm(lens, s - 1000.0 * distance_m, wavelength_nm)
+        if not math.isfinite(s_new) or s_new < s_inf:  # virtual image: inside the focal length
+            return math.nan
+        if abs(s_new - s) < tol_mm:
+            return s_new
+        s = s_new
+    return math.nan

@@ -17,11 +17,12 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
-import torch
 
 from training.lens.schema import Lens
-from training.optics.focus import focus
-from training.optics.paraxial import paraxial_data
+from training.optics.paraxial import paraxial_data, paraxial_focus_z_mm
+
+# torch (the real-ray focus search, object points as tensors) is imported where it is needed: the focus table,
+# field geometry and thin-lens blur serve the torch-free runtime too (`aat_deploy.twin`).
 
 
 def diopter_grid(near_m: float, far_m: float, n: int) -> np.ndarray:
@@ -51,6 +52,8 @@ class FocusTable:
 
 @lru_cache(maxsize=16)
 def _focus_table(lens: Lens, near_m: float, far_m: float, n: int, wavelength_nm: float) -> FocusTable:
+    from training.optics.focus import focus  # real rays: torch
+
     dist = diopter_grid(near_m, far_m, n)[::-1]  # far first = ascending diopters
     zs: list[float] = []
     for d in dist:
@@ -71,6 +74,27 @@ def focus_table(lens: Lens, near_m: float = 0.2, far_m: float = 100.0, n: int = 
     Default wavelength: the lens's design wavelength. A camera focuses once; PSFs traced at other wavelengths
     keep this sensor position, so their chromatic focus shift shows up as defocus."""
     return _focus_table(lens, near_m, far_m, n, wavelength_nm or lens.design_wavelength_nm)
+
+
+def paraxial_focus_table(lens: Lens, near_m: float = 0.2, far_m: float = 100.0, n: int = 129,
+                         wavelength_nm: float | None = None) -> FocusTable:
+    """The focus table from paraxial optics (no ray tracing, no torch): the fallback when a real-ray table is not
+    at hand. It misses the lens's spherical aberration (best focus sits a little off the paraxial image)."""
+    dist = diopter_grid(near_m, far_m, n)[::-1]
+    zs = [paraxial_focus_z_mm(lens, float(d), wavelength_nm) for d in dist]
+    ok = np.isfinite(zs)
+    last = len(zs) if ok.all() else int(np.argmin(ok))  # closer than the lens focuses: the table ends there
+    if last < 2:
+        raise ValueError(f"{lens.name}: no paraxial focus between {far_m} and {near_m} m")
+    return FocusTable(1.0 / dist[:last], np.array(zs[:last]))
+
+
+def table_from_arrays(diopters, sensor_z_mm, source: str = "") -> FocusTable:
+    """A FocusTable from stored arrays (e.g. a PSF surrogate's metadata), checked: ascending diopters."""
+    d, z = np.asarray(diopters, dtype=np.float64), np.asarray(sensor_z_mm, dtype=np.float64)
+    if d.ndim != 1 or d.shape != z.shape or len(d) < 2 or np.any(np.diff(d) <= 0):
+        raise ValueError(f"{source or 'focus table'}: needs two equal-length arrays, diopters ascending")
+    return FocusTable(d, z)
 
 
 def field_to_tan(lens: Lens, x, y):
@@ -96,6 +120,8 @@ def object_points_mm(lens: Lens, x, y, depth_m, sensor_z_mm) -> torch.Tensor:
     z_ep = paraxial_data(lens).entrance_pupil_z_mm
     dist = z_ep - zo  # along the axis from the object plane to the entrance pupil
     pts = np.stack(np.broadcast_arrays(tx * dist, ty * dist, zo), -1).reshape(-1, 3)
+    import torch
+
     return torch.from_numpy(np.ascontiguousarray(pts, dtype=np.float64))
 
 
@@ -117,5 +143,5 @@ def thin_lens_blur_px(lens: Lens, depth_m, focus_m) -> np.ndarray:
 
 __all__ = [
     "FocusTable", "diopter_grid", "field_radius", "field_to_tan", "focus_table", "object_points_mm",
-    "thin_lens_blur_px",
+    "paraxial_focus_table", "table_from_arrays", "thin_lens_blur_px",
 ]

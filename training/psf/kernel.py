@@ -19,7 +19,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import torch
 
 from training.lens.schema import Lens
 from training.psf.geometry import thin_lens_blur_px
@@ -52,6 +51,8 @@ def splat_bilinear(col: torch.Tensor, row: torch.Tensor, weight: torch.Tensor, k
     each ray (0 for lost rays). A point spreads over its 4 nearest cells with weights (1-|dx|)(1-|dy|); the
     parts falling outside the window are dropped (they are energy outside the window).
     """
+    import torch  # lazily: KernelSpec serves the torch-free runtime too
+
     b = col.shape[0]
     c0, r0 = torch.floor(col), torch.floor(row)
     fc, fr = col - c0, row - r0
@@ -71,6 +72,8 @@ def downsample2(fine: torch.Tensor) -> torch.Tensor:
     A tent of half-width one cell equals the half-cell tent convolved with [1/2, 1, 1/2], so the coarse kernel is
     that convolution sampled at the odd fine indices.
     """
+    import torch
+
     t = torch.tensor([0.5, 1.0, 0.5], dtype=fine.dtype, device=fine.device)
     w = (t[:, None] * t[None, :]).view(1, 1, 3, 3)
     shp = fine.shape

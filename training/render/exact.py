@@ -11,16 +11,10 @@ the yardstick the fast renderer is measured against.
 
 from __future__ import annotations
 
-import math
-
 import torch
 import torch.nn.functional as F
 
-
-def pixel_kernel_size(k: int, scale: float) -> int:
-    """Odd pixel size that holds a k-cell kernel with cells of `scale` pixels (tent support included)."""
-    half = math.ceil((k // 2 + 1) * scale - 1e-9)
-    return 2 * half + 1
+from aat_deploy.twin.layered import pixel_kernel_size  # noqa: F401 (one definition for both renderers)
 
 
 def cells_to_pixels(kernels: torch.Tensor, scale: torch.Tensor, size: int) -> torch.Tensor:

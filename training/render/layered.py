@@ -21,61 +21,16 @@ all layers, and only cells a layer actually touches are convolved.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 
+# The configuration, layer placement and FFT sizes are shared with the numpy port (torch-free twins).
+from aat_deploy.twin.layered import LayeredConfig, fast_len, layer_diopters
 from training.render.exact import cells_to_pixels, pixel_kernel_size
 
 __all__ = ["LayeredConfig", "layer_diopters", "render_layered"]
-
-
-@dataclass(frozen=True)
-class LayeredConfig:
-    """cell_px: anchor spacing (full-resolution pixels). layer_blur_px: blur-diameter step between depth layers.
-    coarse_ratio: layers with PSF cell size s render at 1/floor(s / coarse_ratio) resolution.
-    occlusion: hard layer assignment composited front to back (near layers hide what lies behind them)."""
-
-    cell_px: int = 64
-    layer_blur_px: float = 1.0
-    max_layers: int = 128
-    coarse_ratio: float = 2.0
-    occlusion: bool = False
-
-    def __post_init__(self):
-        if self.cell_px < 4 or self.layer_blur_px <= 0 or self.max_layers < 1 or self.coarse_ratio < 1:
-            raise ValueError(f"invalid LayeredConfig {self}")
-
-
-def layer_diopters(inv_depth: torch.Tensor, blur_px_fn, focus_m: float, cfg: LayeredConfig) -> np.ndarray:
-    """Layer positions (1/m), ascending, spanning the image's inverse depths with a blur step <= layer_blur_px.
-
-    blur_px_fn(depth_m ndarray, focus_m) -> thin-lens blur diameter in pixels (for spacing only)."""
-    lo, hi = float(inv_depth.min()), float(inv_depth.max())
-    if hi - lo < 1e-9:
-        return np.array([lo])
-    probe = np.linspace(lo, hi, 65)
-    blur = np.asarray(blur_px_fn(1.0 / probe, focus_m), dtype=np.float64)
-    # Signed blur (negative in front of focus) so that the step counts blur *change* through the focal plane.
-    signed = np.where(probe > 1.0 / focus_m, -blur, blur)
-    travel = float(np.abs(np.diff(signed)).sum())
-    n = int(np.clip(math.ceil(travel / cfg.layer_blur_px) + 1, 2, cfg.max_layers))
-    return np.linspace(lo, hi, n)
-
-
-def _fast_len(n: int) -> int:
-    """Smallest m >= n whose prime factors are 2, 3 and 5 (fast FFT sizes)."""
-    m = n
-    while True:
-        k = m
-        for p in (2, 3, 5):
-            while k % p == 0:
-                k //= p
-        if k == 1:
-            return m
-        m += 1
 
 
 def _tent_weights(n: int, dtype) -> torch.Tensor:
@@ -135,7 +90,7 @@ def _render_layer(img: torch.Tensor, w: torch.Tensor, m: int, anchors_field_fn, 
     # Full linear convolution of each cell (cc x cc) with its corner kernels by FFT: output block cc + 2r,
     # block index i + j for source pixel i and kernel tap j (tap r = no offset). The four corners' shares are
     # summed in the frequency domain, so there is one inverse transform per cell and channel.
-    n_fft = _fast_len(cc + 2 * r)
+    n_fft = fast_len(cc + 2 * r)
     ty, tx = _tent_weights(cc, img.dtype), _tent_weights(cc, img.dtype)
     wgt = torch.stack([ty[a][:, None] * tx[b][None, :] for a in (0, 1) for b in (0, 1)])  # (4, cc, cc)
     x = cells[idx[:, 0], idx[:, 1]][:, None] * wgt[None, :, None]  # (Na, 4, C, cc, cc)

@@ -71,10 +71,7 @@ class Simulator:
         return fx.SimContext(self.lens, (s.height_px, s.width_px), tuple(origin), self.lens_source)
 
     def source(self, ctx: fx.SimContext):
-        src = self.thin_source
-        for e in self.effects:
-            src = e.wrap_source(src, ctx)
-        return src
+        return fx.wrap_source(self.effects, self.thin_source, ctx)
 
     def render_stack(self, rgb: torch.Tensor, depth_m: torch.Tensor, focus_m, origin=(0, 0),
                      rng: np.random.Generator | None = None) -> Stack:
@@ -91,10 +88,7 @@ class Simulator:
 
     def twin_focus(self, focus_reported_m, ctx: fx.SimContext, rng: np.random.Generator) -> np.ndarray:
         """True focus distances for a digital twin that knows only the reported ones (effects' `twin_focus`)."""
-        focus = np.asarray(focus_reported_m, dtype=np.float64).ravel()
-        for e in self.effects:
-            focus = e.twin_focus(focus, ctx, rng)
-        return focus
+        return fx.twin_focus(self.effects, focus_reported_m, ctx, rng)
 
     def _frames(self, rgb, depth_m, focus: np.ndarray, ctx: fx.SimContext, rng: np.random.Generator) -> torch.Tensor:
         return self.post(self.optical(rgb, depth_m, focus, ctx), focus, ctx, rng)
@@ -102,7 +96,7 @@ class Simulator:
     def optical(self, rgb, depth_m, focus: np.ndarray, ctx: fx.SimContext) -> torch.Tensor:
         """Frames (S, C, H, W) through the lens: PSFs and per-field focus, before warps and the sensor."""
         src = self.source(ctx)
-        focus_at = next((f for f in (e.focus_at(ctx) for e in self.effects) if f is not None), None)
+        focus_at = fx.focus_at(self.effects, ctx)
         hs, ws = ctx.sensor_hw
 
         def field_fn(r, c):
@@ -112,12 +106,7 @@ class Simulator:
                             for f in focus])
 
     def post(self, frames: torch.Tensor, focus: np.ndarray, ctx: fx.SimContext, rng: np.random.Generator) -> torch.Tensor:
-        """The effects' geometry (`warp`) then sensor (`sensor`) hooks, frame by frame."""
-        out = []
-        for fr, f in zip(frames, focus):
-            for e in self.effects:
-                fr = e.warp(fr, float(f), ctx)
-            for e in self.effects:
-                fr = e.sensor(fr, ctx, rng)
-            out.append(fr)
-        return torch.stack(out)
+        """The effects' geometry (`warp`) then sensor (`sensor`) hooks, frame by frame. The hooks work on numpy
+        (shared with the torch-free twin renderer): one conversion each way per frame."""
+        out = [fx.post_frame(self.effects, fr.numpy(), float(f), ctx, rng) for fr, f in zip(frames, focus)]
+        return torch.stack([torch.from_numpy(np.ascontiguousarray(fr)) for fr in out])

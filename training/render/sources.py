@@ -11,26 +11,15 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+# Backend-neutral pieces live with the torch-free twin renderer and are shared from there.
+from aat_deploy.twin.fields import field_of, pixel_fields  # noqa: F401 (re-exported)
+from aat_deploy.twin.sources import LensGeometry as _LensGeometry
+from aat_deploy.twin.sources import OnnxSource
+from aat_deploy.twin.sources import UnitEnergy  # noqa: F401 (re-exported)
 from training.lens.schema import Lens
-from training.psf.geometry import thin_lens_blur_px
 from training.psf.kernel import KernelSpec
 from training.psf.raytrace import DEFAULT_WAVELENGTH_NM, raytrace_psfs
 from training.psf.surrogates import GaussianPSF, PSFModel
-
-
-class _LensGeometry:
-    lens: Lens
-    spec: KernelSpec
-
-    @property
-    def k(self) -> int:
-        return self.spec.size
-
-    def scale(self, depth_m, focus_m) -> np.ndarray:
-        return self.spec.scale(self.lens, depth_m, focus_m)
-
-    def blur_px(self, depth_m, focus_m) -> np.ndarray:
-        return thin_lens_blur_px(self.lens, depth_m, focus_m)
 
 
 class RayTracedPSF(_LensGeometry):
@@ -68,51 +57,16 @@ def thin_lens_source(lens: Lens, spec: KernelSpec | None = None, near_m: float =
     return ModelPSF(GaussianPSF(lens, spec, near_m, far_m), lens)
 
 
-def pixel_fields(height: int, width: int, sensor_hw: tuple[int, int], origin: tuple[int, int] = (0, 0)):
-    """Normalised field (x, y) of every pixel centre of an (height, width) window whose top-left pixel is
-    `origin` = (row, col) of a full sensor of `sensor_hw` = (rows, cols) pixels. Returns two (H, W) arrays."""
-    rows = np.arange(height, dtype=np.float64) + 0.5
-    cols = np.arange(width, dtype=np.float64) + 0.5
-    cc, rr = np.meshgrid(cols, rows, indexing="xy")
-    return field_of(rr, cc, sensor_hw, origin)
-
-
-def field_of(rows, cols, sensor_hw: tuple[int, int], origin: tuple[int, int] = (0, 0)):
-    """Normalised field (x right, y up; +-1 at the sensor edges) of points at (rows, cols) pixel coordinates of a
-    window at `origin` of the sensor (pixel centres at +0.5)."""
-    hs, ws = sensor_hw
-    x = 2 * (np.asarray(cols, dtype=np.float64) + origin[1]) / ws - 1
-    y = 1 - 2 * (np.asarray(rows, dtype=np.float64) + origin[0]) / hs
-    return x, y
-
-
 class OnnxPSF(_LensGeometry):
     """An exported surrogate (`aat_deploy.psf.PSFSurrogate`, onnxruntime): the same PSFs the runtime renders
-    digital twins with. Depths outside the model's range are clamped to it (beyond ~100 m blur no longer
-    changes). The lens must be the one the surrogate was fitted for (checked by prescription hash)."""
+    digital twins with, as torch tensors. Depths outside the model's range are clamped to it (beyond ~100 m
+    blur no longer changes). The lens must be the one the surrogate was fitted for (checked by prescription hash).
+    `.numpy` is the torch-free source underneath (`aat_deploy.twin.sources.OnnxSource`)."""
 
     def __init__(self, path, lens: Lens, threads: int | None = None):
-        from aat_deploy.psf import PSFSurrogate
-
-        self.model, self.lens = PSFSurrogate(path, threads=threads), lens
-        if self.model.lens_hash != lens.prescription_hash():
-            raise ValueError(f"{path}: fitted for lens {self.model.meta.get('aat.lens_name')!r}, not {lens.name!r}")
-        self.spec = KernelSpec(size=self.model.kernel_size, margin_px=float(self.model.meta["aat.margin_px"]))
+        self.numpy = OnnxSource(path, lens, threads=threads)
+        self.model, self.lens, self.spec, self.path = self.numpy.model, lens, self.numpy.spec, self.numpy.path
 
     def __call__(self, x, y, depth_m, focus_m):
-        lo, hi = self.model.depth_range_m
-        k, s = self.model.query(x, y, np.clip(depth_m, lo, hi), focus_m)
+        k, s = self.numpy(x, y, depth_m, focus_m)
         return torch.from_numpy(k), torch.from_numpy(s)
-
-
-class UnitEnergy:
-    """A source whose kernels are normalised to unit energy (per channel): light is redistributed, never lost.
-    The simulator's default; the `vignetting` effect puts the lens's light fall-off back explicitly."""
-
-    def __init__(self, source):
-        self.source = source
-        self.k, self.scale, self.blur_px = source.k, source.scale, source.blur_px
-
-    def __call__(self, x, y, depth_m, focus_m):
-        k, s = self.source(x, y, depth_m, focus_m)
-        return k / k.sum((-1, -2), keepdim=True).clamp_min(1e-12), s

@@ -11,6 +11,11 @@ effect is adding one file. An effect changes the simulation through any of these
 - `report_focus(focus_m, ctx, rng)`: the focus distances written to metadata (EXIF errors);
 - `twin_focus(focus_reported_m, ctx, rng)`: the inverse, for a digital twin that knows only what the metadata says.
 
+One implementation serves both renderers: the torch simulator (`training.render.simulator`) and the torch-free
+twin renderer (`aat_deploy.twin`). So the registry and the effect modules import torch only inside code that
+needs it; frames given to `warp`/`sensor` are numpy (C, H, W) arrays; PSF wrappers take numpy or torch kernels,
+whichever their source returns. An effect that can only be rendered with torch says why in `needs_torch`.
+
 The sim-to-real diagnosis switches these on and off one at a time (`names()` lists them); it does not know an
 effect's settings, so it tries each of the effect's `candidates` (parameter sets) and keeps the best fit.
 """
@@ -24,22 +29,44 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import torch
 
 from training.lens.schema import Lens
+from training.optics.paraxial import paraxial_data
 
 _REGISTRY: dict[str, type[Effect]] = {}
 _LOADED = False
 
 
+class NeedsTorch(RuntimeError):
+    """Raised by the torch-free renderer for effects (or PSFs) that only the training simulator can render."""
+
+
 @dataclass
 class SimContext:
-    """What effects may look at: the lens, the full sensor (rows, cols) and the crop's top-left pixel."""
+    """What effects may look at: the lens, the full sensor (rows, cols), the crop's top-left pixel, the real
+    lens's PSF source, and the lens's focusing: `table` (sensor z vs diopters, `training.psf.geometry.FocusTable`;
+    None = real-ray traced from the lens on first use, which needs torch) and the paraxial exit pupil (mm from the
+    first vertex; None = computed from the lens). The torch simulator traces; the torch-free twin renderer fills
+    both from the PSF surrogate's metadata."""
 
     lens: Lens
     sensor_hw: tuple[int, int]
     origin: tuple[int, int] = (0, 0)
     lens_source: Any = None  # the real lens's PSF source (the `aberrations` effect switches to it)
+    table: Any = None
+    exit_pupil_z_mm: float | None = None
+
+    def __post_init__(self):
+        if self.exit_pupil_z_mm is None:
+            self.exit_pupil_z_mm = paraxial_data(self.lens).exit_pupil_z_mm
+
+    def focus_table(self):
+        """The lens's focus table (`FocusTable`), traced once if none was given."""
+        if self.table is None:
+            from training.psf.geometry import focus_table
+
+            self.table = focus_table(self.lens)
+        return self.table
 
 
 class Effect:
@@ -50,6 +77,8 @@ class Effect:
     order: int = 50  # hooks run in ascending order (PSF wrappers: the lower, the closer to the raw source)
     defaults: dict[str, Any] = {}
     candidates: list[dict[str, Any]] = [{}]  # settings the diagnosis tries ({} = the defaults)
+    needs_torch: str = ""  # why only the torch simulator can render it ("" = numpy can)
+    uses_lens_psfs: bool = False  # reads ctx.lens_source (the real lens's PSFs)
 
     def __init__(self, **params: Any):
         unknown = set(params) - set(self.defaults)
@@ -64,10 +93,12 @@ class Effect:
     def focus_at(self, ctx: SimContext) -> Callable | None:
         return None
 
-    def warp(self, frame: torch.Tensor, focus_m: float, ctx: SimContext) -> torch.Tensor:
+    def warp(self, frame: np.ndarray, focus_m: float, ctx: SimContext) -> np.ndarray:
+        """frame (C, H, W) linear, numpy."""
         return frame
 
-    def sensor(self, frame: torch.Tensor, ctx: SimContext, rng: np.random.Generator) -> torch.Tensor:
+    def sensor(self, frame: np.ndarray, ctx: SimContext, rng: np.random.Generator) -> np.ndarray:
+        """frame (C, H, W) linear (1.0 = white level), numpy."""
         return frame
 
     def report_focus(self, focus_m: np.ndarray, ctx: SimContext, rng: np.random.Generator) -> np.ndarray:
@@ -84,6 +115,37 @@ def is_post(effect: Effect) -> bool:
     """True when the effect only acts after the optics (warp / sensor hooks), so a rendered stack can be reused."""
     t = type(effect)
     return all(getattr(t, h) is getattr(Effect, h) for h in ("wrap_source", "focus_at", "twin_focus", "report_focus"))
+
+
+def wrap_source(effects: list[Effect], source, ctx: SimContext):
+    """The PSF source seen through every effect's `wrap_source`, in the effects' order (lowest first)."""
+    for e in sorted(effects, key=lambda e: e.order):
+        source = e.wrap_source(source, ctx)
+    return source
+
+
+def focus_at(effects: list[Effect], ctx: SimContext) -> Callable | None:
+    """The first per-field focus function among the effects (None: focus is the same everywhere)."""
+    return next((f for f in (e.focus_at(ctx) for e in sorted(effects, key=lambda e: e.order)) if f is not None), None)
+
+
+def twin_focus(effects: list[Effect], focus_reported_m, ctx: SimContext, rng: np.random.Generator) -> np.ndarray:
+    """True focus distances (m) for a digital twin that knows only the reported ones."""
+    focus = np.asarray(focus_reported_m, dtype=np.float64).ravel()
+    for e in sorted(effects, key=lambda e: e.order):
+        focus = e.twin_focus(focus, ctx, rng)
+    return focus
+
+
+def post_frame(effects: list[Effect], frame: np.ndarray, focus_m: float, ctx: SimContext,
+               rng: np.random.Generator) -> np.ndarray:
+    """One rendered frame (C, H, W), numpy, through the effects' geometry (`warp`) then sensor (`sensor`) hooks."""
+    effects = sorted(effects, key=lambda e: e.order)
+    for e in effects:
+        frame = e.warp(frame, focus_m, ctx)
+    for e in effects:
+        frame = e.sensor(frame, ctx, rng)
+    return frame
 
 
 def spec(effect: Effect) -> str:

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
+from aat_deploy.twin.sources import UnitEnergy
 from training.render.effects import Effect, SimContext, register
-from training.render.sources import UnitEnergy
 
 
 @register
@@ -12,6 +12,7 @@ class Aberrations(Effect):
     description = ("real-lens PSFs (ray-traced or surrogate: field curvature, astigmatism, coma, spherical) "
                    "instead of the thin-lens Gaussian")
     order = 0
+    uses_lens_psfs = True
 
     def wrap_source(self, source, ctx: SimContext):
         if ctx.lens_source is None:

@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import numpy as np
-import torch
-import torch.nn.functional as F
 
-from training.psf.geometry import focus_table
+from aat_deploy.twin.sources import UnitEnergy
+from training.psf.geometry import thin_lens_blur_px
 from training.psf.kernel import KernelSpec
-from training.psf.raytrace import raytrace_psfs
 from training.render.effects import Effect, SimContext, register
-from training.render.sources import UnitEnergy
+
+# The ray tracer and torch are imported where the kernels are made: the registry must import without torch.
 
 
 @register
@@ -20,6 +19,7 @@ class Chromatic(Effect):
                    "wavelength: longitudinal colour as defocus, lateral colour as a shift of each channel's "
                    "kernel by its chief ray's offset (implies the lens's aberrations)")
     order = 10
+    needs_torch = "it ray-traces the PSFs at three wavelengths (the surrogate knows one)"
     defaults = {"wavelengths_nm": [610.0, 540.0, 465.0], "n_rays": 1024, "compiled": False}
 
     def wrap_source(self, source, ctx: SimContext):
@@ -33,18 +33,20 @@ class _ThreeWavelengths:
     def __init__(self, ctx: SimContext, wavelengths_nm: list[float], n_rays: int, compiled: bool, k: int):
         self.lens, self.wavelengths, self.n_rays, self.compiled = ctx.lens, wavelengths_nm, n_rays, compiled
         self.spec = KernelSpec.for_lens(ctx.lens, size=k)
-        self.table = focus_table(ctx.lens)  # design wavelength: where the camera puts the sensor
+        self.table = ctx.focus_table()  # design wavelength: where the camera puts the sensor
         self.k = k
 
     def scale(self, depth_m, focus_m):
         return self.spec.scale(self.lens, depth_m, focus_m)
 
     def blur_px(self, depth_m, focus_m):
-        from training.psf.geometry import thin_lens_blur_px
-
         return thin_lens_blur_px(self.lens, depth_m, focus_m)
 
     def __call__(self, x, y, depth_m, focus_m):
+        import torch
+
+        from training.psf.raytrace import raytrace_psfs
+
         ref = raytrace_psfs(self.lens, x, y, depth_m, focus_m, self.spec, n_rays=16, table=self.table)
         out = []
         for w in self.wavelengths:
@@ -58,6 +60,9 @@ class _ThreeWavelengths:
 
 def _shift(kernels: torch.Tensor, shift_xy_cells: torch.Tensor) -> torch.Tensor:
     """Move (N, k, k) kernels by (dx right, dy up) cells, bilinear."""
+    import torch
+    import torch.nn.functional as F
+
     n, k, _ = kernels.shape
     g = torch.arange(k, dtype=torch.float32)
     cols = (g[None, :] - shift_xy_cells[:, :1])  # sample source column c - dx

@@ -3,39 +3,45 @@
 from __future__ import annotations
 
 import numpy as np
-import torch
-import torch.nn.functional as F
 
 from training.optics.paraxial import paraxial_data
-from training.psf.geometry import focus_table
+from training.psf.geometry import FocusTable, focus_table
 from training.render.effects import Effect, SimContext, register
 
 
-def breathing_scale(lens, focus_m) -> np.ndarray:
+def breathing_scale(lens, focus_m, table: FocusTable | None = None, exit_pupil_z_mm: float | None = None) -> np.ndarray:
     """Image-size ratio for a frame focused at focus_m (m from the sensor) relative to focus at infinity
     (the geometry of the all-in-focus image and the depth map): chief rays leave the exit pupil at fixed
-    angles, so image heights grow with the exit-pupil-to-sensor distance."""
-    p = paraxial_data(lens)
-    table = focus_table(lens)
+    angles, so image heights grow with the exit-pupil-to-sensor distance. table: the lens's focus table
+    (default: traced); exit_pupil_z_mm: mm from the first vertex (default: paraxial from the lens)."""
+    xp = paraxial_data(lens).exit_pupil_z_mm if exit_pupil_z_mm is None else exit_pupil_z_mm
+    table = focus_table(lens) if table is None else table
     z = np.asarray(table(np.asarray(focus_m, dtype=np.float64)))
     z_inf = float(table.sensor_z_mm[0])  # the table's farthest focus (100 m): infinity to 0.01 D
-    return (z - p.exit_pupil_z_mm) / (z_inf - p.exit_pupil_z_mm)
+    return (z - xp) / (z_inf - xp)
 
 
-def scale_about_axis(frame: torch.Tensor, scale: float, ctx: SimContext) -> torch.Tensor:
+def _bilinear_axis(src: np.ndarray, n: int):
+    """Taps (i0, i1) and weight of i1 for sampling n pixels at index coordinates `src` (pixel centres at
+    integers), clamped to the border (grid_sample's padding_mode='border')."""
+    src = np.clip(src, 0, n - 1)
+    i0 = np.floor(src).astype(np.intp)
+    i1 = np.minimum(i0 + 1, n - 1)
+    return i0, i1, src - i0
+
+
+def scale_about_axis(frame: np.ndarray, scale: float, ctx: SimContext) -> np.ndarray:
     """Magnify frame (C, H, W) by `scale` about the optical axis (the sensor centre), for a crop at ctx.origin:
-    out(q) = frame(axis + (q - axis) / scale), bilinear, edges replicated."""
+    out(q) = frame(axis + (q - axis) / scale), bilinear, edges replicated. Separable: rows, then columns."""
     _, h, w = frame.shape
     hs, ws = ctx.sensor_hw
     cy, cx = hs / 2 - ctx.origin[0], ws / 2 - ctx.origin[1]  # axis in crop pixel coordinates
-    rows = torch.arange(h, dtype=torch.float64) + 0.5
-    cols = torch.arange(w, dtype=torch.float64) + 0.5
-    sr = cy + (rows - cy) / scale
-    sc = cx + (cols - cx) / scale
-    gy = (2 * sr / h - 1).view(h, 1).expand(h, w)
-    gx = (2 * sc / w - 1).view(1, w).expand(h, w)
-    grid = torch.stack([gx, gy], -1)[None].to(frame.dtype)
-    return F.grid_sample(frame[None], grid, mode="bilinear", padding_mode="border", align_corners=False)[0]
+    # source position of each output pixel centre (coordinates with pixel centres at +0.5), as an index
+    r0, r1, wr = _bilinear_axis(cy + (np.arange(h) + 0.5 - cy) / scale - 0.5, h)
+    c0, c1, wc = _bilinear_axis(cx + (np.arange(w) + 0.5 - cx) / scale - 0.5, w)
+    wr, wc = wr.astype(frame.dtype)[:, None], wc.astype(frame.dtype)
+    rows = frame[:, r0] * (1 - wr) + frame[:, r1] * wr
+    return rows[:, :, c0] * (1 - wc) + rows[:, :, c1] * wc
 
 
 @register
@@ -44,5 +50,6 @@ class FocusBreathing(Effect):
     description = "image magnification changes with the focus distance (sensor moves; paraxial exit-pupil model)"
     order = 60
 
-    def warp(self, frame: torch.Tensor, focus_m: float, ctx: SimContext) -> torch.Tensor:
-        return scale_about_axis(frame, float(breathing_scale(ctx.lens, focus_m)), ctx)
+    def warp(self, frame: np.ndarray, focus_m: float, ctx: SimContext) -> np.ndarray:
+        s = float(breathing_scale(ctx.lens, focus_m, ctx.focus_table(), ctx.exit_pupil_z_mm))
+        return scale_about_axis(frame, s, ctx)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-import torch
 
 from training.render.effects import Effect, SimContext, register
 
@@ -24,6 +23,5 @@ class Noise(Effect):
     defaults = {"full_well_e": 8000.0, "read_noise_e": 3.0}
     candidates = [{"full_well_e": e} for e in (1000.0, 3000.0, 10000.0)]
 
-    def sensor(self, frame: torch.Tensor, ctx: SimContext, rng: np.random.Generator) -> torch.Tensor:
-        out = poisson_gaussian(frame.numpy(), self.params["full_well_e"], self.params["read_noise_e"], rng)
-        return torch.from_numpy(out)
+    def sensor(self, frame: np.ndarray, ctx: SimContext, rng: np.random.Generator) -> np.ndarray:
+        return poisson_gaussian(frame, self.params["full_well_e"], self.params["read_noise_e"], rng)
