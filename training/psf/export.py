@@ -11,7 +11,10 @@ import numpy as np
 import torch
 from torch import nn
 
+from aat_deploy.twin.sources import EXIT_PUPIL_KEY, TABLE_KEYS
 from training.lens.schema import Lens
+from training.optics.paraxial import paraxial_data
+from training.psf.geometry import focus_table
 from training.psf.surrogates import PSFModel
 
 INPUTS_DOC = ("query (B, 4) float32 = x, y, depth_m, focus_m. x, y: normalised upright image position in [-1, 1] "
@@ -50,8 +53,40 @@ def metadata(model: PSFModel, lens: Lens, extra: dict | None = None) -> dict[str
         "aat.outputs": OUTPUTS_DOC,
         "aat.efl_mm": f"{model.efl_mm:.9g}",
         "aat.entrance_pupil_mm": f"{model.epd_mm:.9g}",
+        **optics_metadata(lens),
     }
     md.update({f"aat.{k}": (v if isinstance(v, str) else json.dumps(v)) for k, v in (extra or {}).items()})
+    return md
+
+
+def optics_metadata(lens: Lens) -> dict[str, str]:
+    """The lens's focusing, for renderers without the ray tracer (`aat_deploy.twin`): the real-ray focus table of
+    `training.psf.geometry.focus_table(lens)` (diopters ascending, sensor z in mm from the first vertex) and the
+    paraxial exit pupil (mm from the first vertex), as JSON."""
+    t = focus_table(lens)
+    return {TABLE_KEYS[0]: json.dumps(t.diopters.tolist()), TABLE_KEYS[1]: json.dumps(t.sensor_z_mm.tolist()),
+            EXIT_PUPIL_KEY: json.dumps(float(paraxial_data(lens).exit_pupil_z_mm))}
+
+
+def stamp_optics_metadata(path, lens: Lens) -> dict[str, str]:
+    """Add (or refresh) the `optics_metadata` keys of an exported surrogate without retraining; the lens must be
+    the one it was fitted for (prescription hash). The file is replaced atomically. Returns the keys written."""
+    import onnx
+
+    path = Path(path)
+    m = onnx.load(str(path))
+    props = {p.key: p for p in m.metadata_props}
+    if "aat.lens_hash" not in props or props["aat.lens_hash"].value != lens.prescription_hash():
+        raise ValueError(f"{path}: not a PSF surrogate of {lens.name!r} (lens hash differs)")
+    md = optics_metadata(lens)
+    for k, v in md.items():
+        if k in props:
+            props[k].value = v
+        else:
+            m.metadata_props.add(key=k, value=v)
+    tmp = path.with_name(path.name + ".tmp")
+    onnx.save(m, str(tmp))
+    os.replace(tmp, path)
     return md
 
 
