@@ -10,6 +10,9 @@ Models: benchmarks/diagnose_setup.py (RF50 at 288x192, small DFVNets, AAT and th
 
     python benchmarks/diagnose_setup.py
     python benchmarks/bench_diagnose.py [--sets-per-effect 3] [--captures 3] [--retrain-steps 0]
+
+Results are appended to --out as JSON lines, one per set, and sets already there are skipped, so a stopped run
+continues where it stopped (delete the file to start again).
 """
 
 from __future__ import annotations
@@ -73,9 +76,13 @@ def main() -> None:
     ap.add_argument("--sets-per-effect", type=int, default=3)
     ap.add_argument("--captures", type=int, default=3)
     ap.add_argument("--retrain-steps", type=int, default=0)
+    ap.add_argument("--retrain", choices=["all", "first"], default="first",
+                    help="with --retrain-steps: retrain on every set, or on the first set of each withheld kind")
+    ap.add_argument("--rounds", type=int, default=2, help="greedy rounds for sets with one withheld effect "
+                    "(the two-effect set always gets 3)")
     ap.add_argument("--effects", help="only these withheld effects (comma-separated)")
     ap.add_argument("--pairs", action="store_true", help="with --effects: also the two-effect and no-effect sets")
-    ap.add_argument("--out", default=str(SETUP / "results.json"), help="results (JSON lines are also printed)")
+    ap.add_argument("--out", default=str(SETUP / "results.jsonl"), help="results, one JSON line per set (resumable)")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
@@ -104,12 +111,17 @@ def main() -> None:
             raise SystemExit(f"{p}: missing; run python benchmarks/diagnose_setup.py first")
     order = rng.permutation(len(plan))  # sets in random order; the diagnosis never sees the plan
     ctx = {}
-    rows, t0 = [], time.time()
+    out = Path(args.out)
+    done = {r["set"]: r for r in map(json.loads, out.read_text().splitlines())} if out.exists() else {}
+    rows, t0 = list(done.values()), time.time()
+    retrained: set[str] = {" + ".join(w.split(":")[0] for w in r["withheld"]) for r in rows if "remaining" in r}
     for i in order:
         key, withheld_names = plan[i]
-        set_seed = int(rng.integers(1 << 30))
+        set_seed = int(rng.integers(1 << 30))  # drawn for every set so that resuming keeps the same draws
         wrng = np.random.default_rng(set_seed)
         withheld = [fx.spec(fx.make(n, **draw_params(n, wrng))) for n in withheld_names]
+        if int(i) in done:
+            continue
         if key not in ctx:
             m = DfFModel(models[key], threads=2)
             lens, _ = find_lens(m, lens_path)
@@ -121,7 +133,7 @@ def main() -> None:
         scene_seeds = [int(s) for s in wrng.choice(8, size=args.captures, replace=False)]
         make_set(folder, lens, src, base, withheld, scene_seeds, set_seed)
         caps = [load_capture_data(p, m) for p in sorted(folder.iterdir()) if p.is_dir()]
-        cfg = DiagnoseConfig(max_effects=2, n_boot=300)
+        cfg = DiagnoseConfig(max_effects=3 if len(withheld) > 1 else args.rounds, n_boot=300)
         ts = time.time()
         res, _, _ = diagnose(m, twins, caps, cfg)
         named = [e["effect"] for e in res["ranked_effects"]]
@@ -137,11 +149,14 @@ def main() -> None:
                "gap_significant": res["gap_significant"], "gap_m": res["gap"]["gap_m"],
                "gap_predicted_m": res["shrink"]["gap_predicted_m"] if res["shrink"] else None,
                "correct": ok, "seconds": round(time.time() - ts, 1)}
-        if args.retrain_steps and res["shrink"] and truth:
+        kind = " + ".join(truth)
+        if args.retrain_steps and res["shrink"] and truth and (args.retrain == "all" or kind not in retrained):
             row.update(retrain(m, lens_path, psf_path, res, caps, folder, args.retrain_steps))
+            retrained.add(kind)
         rows.append(row)
         print(json.dumps(row), flush=True)
-    Path(args.out).write_text(json.dumps(rows, indent=1))
+        with out.open("a") as f:
+            f.write(json.dumps(row) + "\n")
     table(rows, time.time() - t0)
 
 
@@ -153,7 +168,8 @@ def retrain(m, lens_path: Path, psf_path: Path, res: dict, caps, folder: Path, s
     out = folder.parent / f"{folder.name}_retrain"
     cmd = retrain_command(m.path, lens_path, psf_path, res["shrink"]["effects"], steps, out,
                           m.meta["aat.sensor_mm"], m.sensor_px)
-    if not out.exists():
+    if not list(out.glob("dff_*_aat.onnx")):  # aat-train resumes a stopped run in the same folder
+        print("+", " ".join(cmd), flush=True)
         subprocess.run(cmd, check=True, cwd=ROOT)
     new = sorted(out.glob("dff_*_aat.onnx"))[0]
     lens, _ = find_lens(m, lens_path)
