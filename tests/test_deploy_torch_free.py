@@ -55,3 +55,34 @@ def test_runtime_runs_without_torch(tmp_path, tmp_path_factory):
     assert r.returncode == 0, r.stderr[-2000:]
     assert json.loads(r.stdout.strip().splitlines()[-1]) == {"torch_loaded": False}
     assert (out / "depth_m.npy").is_file() and (out / "recording.rrd").is_file()
+
+
+def test_twin_renderer_and_effects_run_without_torch(tmp_path):
+    """The torch-free twin renderer (`aat_deploy.twin`) and the effects registry it shares with training: every
+    effect module imports, every numpy-capable effect renders a crop through the shipped PSF surrogate, and
+    `chromatic` (ray tracing) says it needs torch."""
+    r = _run(f"""
+        import json, sys, warnings
+        import numpy as np
+        warnings.simplefilter("error")  # the shipped surrogate carries its focus table: no paraxial fallback
+        from aat_deploy.twin.renderer import optical_stack
+        from aat_deploy.twin.sources import GaussianSource, OnnxSource
+        from training.lens.io import load_lens
+        from training.render import effects as fx
+        lens = load_lens({str(ROOT / "lenses/canon_rf50mm_f1.8.json")!r})
+        src = OnnxSource({str(ROOT / "models/psf_rf50.onnx")!r}, lens, threads=1)
+        ctx = fx.SimContext(lens, (640, 960), (0, 0), src, src.focus_table(), src.exit_pupil_z_mm())
+        rng = np.random.default_rng(0)
+        rgb, depth = rng.random((3, 32, 48), dtype=np.float32), np.full((32, 48), 1.5, np.float32)
+        effects = fx.parse("aberrations,vignetting,sensor_tilt,focus_breathing,noise,focus_metadata")
+        focus = fx.twin_focus(effects, [1.0, 2.0], ctx, rng)
+        frames = optical_stack(effects, GaussianSource(lens), rgb, depth, focus, ctx)
+        frames = [fx.post_frame(effects, f, float(d), ctx, rng) for f, d in zip(frames, focus)]
+        assert all(f.shape == (3, 32, 48) and np.isfinite(f).all() for f in frames)
+        assert fx.parse("chromatic")[0].needs_torch
+        print(json.dumps({{"effects": fx.names(),
+                           "torch_loaded": any(k == "torch" or k.startswith("torch.") for k in sys.modules)}}))
+    """, tmp_path)
+    assert r.returncode == 0, r.stderr[-2000:]
+    out = json.loads(r.stdout.strip().splitlines()[-1])
+    assert out["torch_loaded"] is False and "chromatic" in out["effects"] and "sensor_tilt" in out["effects"]

@@ -1,0 +1,137 @@
+"""Digital twins without torch: a capture's scene (ground-truth depth + an all-in-focus image) rendered the way the
+model's training simulator would, at the capture's reported focus distances, optionally with extra effects.
+
+The simulator is rebuilt from the model's metadata (`aat.simulator`: `aat` = the lens's PSFs, i.e. the
+`aberrations` effect, or `thin_lens`; plus `aat.effects`), with the effects registry shared with training
+(`training.render.effects`), the exported PSF surrogate and the numpy layered renderer. Effects that only the
+torch simulator can render (`chromatic`; the lens's PSFs when there is no surrogate) raise `NeedsTorch`;
+`training.diagnose.twin.TwinRenderer` renders those with torch.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from aat_deploy.diagnose.inputs import CaptureData
+from aat_deploy.model import DfFModel
+from aat_deploy.normalise import normalise_stack
+from aat_deploy.twin.fields import field_of
+from aat_deploy.twin.layered import LayeredConfig, render_layered
+from aat_deploy.twin.sources import GaussianSource, OnnxSource
+from training.data.rgbd import fill_depth
+from training.lens.schema import Lens
+from training.psf.geometry import FocusTable, paraxial_focus_table
+from training.render import effects as fx
+
+
+class TwinError(ValueError):
+    pass
+
+
+def model_effects(model: DfFModel) -> list[fx.Effect]:
+    """The effects of the simulator the model was trained with (aat -> aberrations, plus `aat.effects`)."""
+    sim = model.meta.get("aat.simulator")
+    if sim not in ("aat", "thin_lens"):
+        raise TwinError(f"{model.path}: metadata aat.simulator is {sim!r}; cannot rebuild its simulator")
+    extra = model.meta.get("aat.effects") or []
+    return fx.parse((["aberrations"] if sim == "aat" else []) + list(extra))
+
+
+def optical_stack(effects: list[fx.Effect], thin_source, rgb: np.ndarray, depth_m: np.ndarray, focus_m,
+                  ctx: fx.SimContext, cfg: LayeredConfig = LayeredConfig()) -> np.ndarray:
+    """Frames (S, C, H, W) through the lens, before warps and the sensor: what `Simulator.optical` renders, in
+    numpy. thin_source: the baseline PSFs the effects wrap (`GaussianSource`); rgb (C, H, W) linear and depth_m
+    (H, W) metres from the sensor (> 0) of the crop at ctx.origin; focus_m (S,) true focus distances (m)."""
+    src = fx.wrap_source(effects, thin_source, ctx)
+    focus_at = fx.focus_at(effects, ctx)
+
+    def field_fn(r, c):
+        return field_of(r, c, ctx.sensor_hw, ctx.origin)
+
+    return np.stack([render_layered(rgb, depth_m, float(f), src, field_fn, cfg, focus_at=focus_at)
+                     for f in np.ravel(focus_m)])
+
+
+class TwinRenderer:
+    """Renders twins of captures for one model: `render(capture, aif_linear, extra_effects)`.
+
+    lens: the lens the model was trained for, with the model's sensor (`training.lens`). psf: the lens's exported
+    surrogate (.onnx path or an `OnnxSource`), or None (then only effects that do not need the lens's PSFs render).
+    Stacks through the optics are cached (keyed by the scene's content and the optical effects' settings), so
+    effects that act only after the optics (noise, focus breathing) and their candidate settings cost no new
+    rendering. `renders` counts optical renders (cache misses)."""
+
+    def __init__(self, model: DfFModel, lens: Lens, psf: str | Path | OnnxSource | None = None, cell_px: int = 64,
+                 cache_items: int = 256, threads: int | None = 2):
+        self.model, self.lens = model, lens
+        self.lens_source = psf if isinstance(psf, OnnxSource) or psf is None else OnnxSource(psf, lens, threads)
+        self.thin_source = GaussianSource(lens)
+        self.base = model_effects(model)
+        self.layered = LayeredConfig(cell_px=cell_px)
+        # The lens's focusing for sensor tilt and focus breathing: from the surrogate's metadata.
+        table = self.lens_source.focus_table() if self.lens_source is not None else None
+        self._table = table if table is not None else self.fallback_focus_table()
+        self._exit_pupil = self.lens_source.exit_pupil_z_mm() if self.lens_source is not None else None
+        self._cache: dict = {}
+        self.cache_items = cache_items
+        self.renders = 0
+
+    def fallback_focus_table(self) -> FocusTable | None:
+        """The focus table when the surrogate has none (older export, or no surrogate): the paraxial one, which
+        misses the lens's spherical aberration, with a warning."""
+        warnings.warn(f"{getattr(self.lens_source, 'path', 'no PSF surrogate')}: no real-ray focus table; sensor "
+                      "tilt and focus breathing use the paraxial one (stamp the surrogate with "
+                      "scripts/stamp_psf_optics.py)", stacklevel=3)
+        return paraxial_focus_table(self.lens)
+
+    def context(self) -> fx.SimContext:
+        s = self.lens.sensor
+        return fx.SimContext(self.lens, (s.height_px, s.width_px), (0, 0), self.lens_source, self._table,
+                             self._exit_pupil)
+
+    def why_torch(self, effects: list[fx.Effect]) -> str | None:
+        """Why these effects need the torch simulator, or None when numpy renders them."""
+        for e in effects:
+            if e.needs_torch:
+                return f"effect {e.name!r} needs the training package (torch): {e.needs_torch}"
+            if e.uses_lens_psfs and self.lens_source is None:
+                return (f"effect {e.name!r} needs the lens's PSFs and there is no PSF surrogate: ray tracing needs "
+                        "the training package (torch)")
+        return None
+
+    def optical(self, effects: list[fx.Effect], rgb: np.ndarray, depth_m: np.ndarray, focus_m: np.ndarray,
+                ctx: fx.SimContext) -> np.ndarray:
+        """Frames (S, C, H, W) float32 through the lens (PSFs, per-field focus) for rgb (C, H, W) linear, depth_m
+        (H, W) metres from the sensor (> 0) and true focus distances focus_m (S,) in metres."""
+        why = self.why_torch(effects)
+        if why:
+            raise fx.NeedsTorch(why)
+        return optical_stack(effects, self.thin_source, rgb, depth_m, focus_m, ctx, self.layered)
+
+    def render(self, cap: CaptureData, aif_linear: np.ndarray, extra: list[fx.Effect], seed: int = 0) -> np.ndarray:
+        """Normalised twin stack (S, 3, H, W) for a capture whose metadata says cap.focus_m. aif_linear (3, H, W)
+        is scaled to the capture's raw level first (noise depends on the absolute signal)."""
+        effects = sorted(self.base + list(extra), key=lambda e: e.order)
+        ctx, rng = self.context(), np.random.default_rng(seed)
+        focus = fx.twin_focus(effects, cap.focus_m, ctx, rng)
+        scale = np.percentile(cap.frames, 99.5) / max(float(np.percentile(aif_linear, 99.5)), 1e-6)
+        optical = [e for e in effects if not fx.is_post(e)]
+        h = hashlib.sha1()
+        for a in (cap.gt_m, aif_linear, focus, np.float64(scale)):
+            h.update(np.ascontiguousarray(a).tobytes())
+        key = (h.hexdigest(), tuple(fx.spec(e) for e in optical))
+        frames = self._cache.get(key)
+        if frames is None:
+            gt = np.where(np.isfinite(cap.gt_m), cap.gt_m, 0).astype(np.float32)
+            rgb = np.ascontiguousarray(aif_linear * scale, dtype=np.float32)
+            frames = self.optical(optical, rgb, fill_depth(gt), focus, ctx)
+            self.renders += 1
+            if len(self._cache) >= self.cache_items:
+                self._cache.pop(next(iter(self._cache)))
+            self._cache[key] = frames
+        frames = np.stack([fx.post_frame(effects, fr, float(f), ctx, rng) for fr, f in zip(frames, focus)])
+        return normalise_stack(np.clip(frames, 0, None))
