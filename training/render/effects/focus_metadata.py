@@ -63,4 +63,4 @@ class FocusMetadata(Effect):
         d = 1.0 / np.asarray(focus_reported_m, np.float64)
         w = quantisation_bin_d(focus_reported_m, p["quantise"], p["step_d"])
         d = d + rng.uniform(-0.5, 0.5, size=d.shape) * w - p["bias_d"]
-        return 1.0 / np.maximum(d, 1e-3)
+        return 1.0 / np.maximum(d, 1e-2)  # not beyond 100 m (the far end of focus tables): a bias past infinity
