@@ -57,8 +57,9 @@ def make_set(folder: Path, lens, psf_src, base: list[str], withheld: list, scene
     from training.render import effects as fx
     from training.render.schedule import FocusSchedule
     from training.render.simulator import Simulator
+    from training.render.sources import OnnxPSF
 
-    sim = Simulator(lens, psf_src, fx.parse(base + withheld))
+    sim = Simulator(lens, OnnxPSF.from_source(psf_src), fx.parse(base + withheld))
     focus = FocusSchedule(*FOCUS).distances()
     h, w = lens.sensor.height_px, lens.sensor.width_px
     for k, s in enumerate(scene_seeds):
@@ -89,8 +90,9 @@ def main() -> None:
     torch.set_num_threads(2)
     from aat_deploy.diagnose.inputs import load_capture_data
     from aat_deploy.model import DfFModel
-    from training.diagnose.run import DiagnoseConfig, diagnose
-    from training.diagnose.twin import TwinRenderer, find_lens, find_psf
+    from aat_deploy.diagnose.search import DiagnoseConfig, diagnose
+    from aat_deploy.diagnose.session import make_renderer
+    from aat_deploy.twin.lookup import find_lens, find_surrogate
     from training.render import effects as fx
 
     lens_path, psf_path = SETUP / "rf50_288x192.json", SETUP / "psf.onnx"
@@ -125,8 +127,8 @@ def main() -> None:
         if key not in ctx:
             m = DfFModel(models[key], threads=2)
             lens, _ = find_lens(m, lens_path)
-            src = find_psf(lens, psf_path)
-            ctx[key] = (m, lens, src, TwinRenderer(m, lens, src))
+            src = find_surrogate(lens, psf_path)
+            ctx[key] = (m, lens, src, make_renderer(m, lens, src))
         m, lens, src, twins = ctx[key]
         base = [fx.spec(e) for e in twins.base]
         folder = SETUP / "sets" / f"set{i:02d}"
@@ -161,9 +163,9 @@ def main() -> None:
 
 
 def retrain(m, lens_path: Path, psf_path: Path, res: dict, caps, folder: Path, steps: int) -> dict:
-    from training.diagnose.session import retrain_command, score_model
-    from training.diagnose.twin import find_lens, find_psf
-    from training.diagnose.run import DiagnoseConfig
+    from aat_deploy.diagnose.search import DiagnoseConfig
+    from aat_deploy.diagnose.session import retrain_command, score_model
+    from aat_deploy.twin.lookup import find_lens, find_surrogate
 
     out = folder.parent / f"{folder.name}_retrain"
     cmd = retrain_command(m.path, lens_path, psf_path, res["shrink"]["effects"], steps, out,
@@ -173,7 +175,7 @@ def retrain(m, lens_path: Path, psf_path: Path, res: dict, caps, folder: Path, s
         subprocess.run(cmd, check=True, cwd=ROOT)
     new = sorted(out.glob("dff_*_aat.onnx"))[0]
     lens, _ = find_lens(m, lens_path)
-    after = score_model(new, lens, find_psf(lens, psf_path), caps, DiagnoseConfig(), 2)
+    after = score_model(new, lens, find_surrogate(lens, psf_path), caps, DiagnoseConfig(), 2)
     return {"gap_after_m": after["gap_after_m"], "remaining": after["gap_after_m"] / res["gap"]["gap_m"]}
 
 

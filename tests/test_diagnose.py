@@ -11,6 +11,7 @@ import torch
 from aat_deploy.diagnose import bins as B
 from aat_deploy.diagnose.bootstrap import binned_bootstrap, capture_bootstrap, ratio_bootstrap
 from aat_deploy.diagnose.compare import focus_curves, region_shifts
+from conftest import ROOT
 from tests.deploy_fixtures import build_tiny_dff
 
 RF50 = "lenses/canon_rf50mm_f1.8.json"
@@ -101,7 +102,7 @@ def setup(tmp_path_factory):
 
 
 def test_withheld_focus_bias_is_named(setup):
-    from training.cli.diagnose import main
+    from aat_deploy.cli.diagnose import main
 
     tmp, model, sets = setup
     out = tmp / "out_bias"
@@ -124,7 +125,7 @@ def test_withheld_focus_bias_is_named(setup):
 
 
 def test_no_withheld_effect_is_not_blamed(setup):
-    from training.cli.diagnose import main
+    from aat_deploy.cli.diagnose import main
 
     tmp, model, sets = setup
     out = tmp / "out_none"
@@ -135,7 +136,7 @@ def test_no_withheld_effect_is_not_blamed(setup):
 
 
 def test_bad_inputs_get_one_line_errors(setup, tmp_path, capsys):
-    from training.cli.diagnose import main
+    from aat_deploy.cli.diagnose import main
 
     _, model, _ = setup
     (tmp_path / "empty").mkdir()
@@ -146,3 +147,26 @@ def test_bad_inputs_get_one_line_errors(setup, tmp_path, capsys):
     listed = capsys.readouterr().out
     for name in ("aberrations", "focus_metadata", "sensor_tilt", "noise", "vignetting"):
         assert name in listed
+
+
+def test_diagnosis_runs_without_torch(setup, tmp_path):
+    """The whole `aat-diagnose` in an interpreter where torch cannot be imported: same answer as with torch, and
+    an effect only torch can render (chromatic) is listed as skipped instead of guessed."""
+    from tests.test_deploy_torch_free import _run
+
+    tmp, model, sets = setup
+    out = tmp_path / "out"
+    r = _run(f"""
+        import json, sys
+        from aat_deploy.cli.diagnose import main
+        code = main([{str(sets["bias"])!r}, "--model", {str(model)!r}, "--lens", {str(ROOT / RF50)!r},
+                     "--out", {str(out)!r}, "--effects", "focus_metadata,noise,chromatic", "-q"])
+        print(json.dumps({{"code": code, "torch": any(k == "torch" or k.startswith("torch.") for k in sys.modules)}}))
+    """, tmp_path)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert json.loads(r.stdout.strip().splitlines()[-1]) == {"code": 0, "torch": False}
+    d = json.loads((out / "diagnosis.json").read_text())
+    top = d["ranked_effects"][0]
+    assert top["effect"] == "focus_metadata" and top["params"]["bias_d"] > 0 and top["share_of_gap"] > 0.3
+    assert [e["effect"] for e in d["effects_skipped"]] == ["chromatic"] and "torch" in d["effects_skipped"][0]["reason"]
+    assert "chromatic" in (out / "report.md").read_text()

@@ -64,6 +64,8 @@ def markdown(d: dict) -> str:
         if e["round"] == 1:
             lines.append(f"| {e['effect']} | {_params(e['params'])} | {e['closeness']:.2f} ({e['closeness_ci'][0]:.2f} … "
                          f"{e['closeness_ci'][1]:.2f}) | {e['share_of_gap']:.2f} ({e['ci_low']:.2f} … {e['ci_high']:.2f}) |")
+    for e in d.get("effects_skipped", []):
+        lines.append(f"| {e['effect']} | not tried: {e['reason']} | | |")
     lines += ["", "![effects](effects.png)", "", "## 3. How far it shrinks", ""]
     s = d.get("shrink")
     if s:

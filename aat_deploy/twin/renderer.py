@@ -5,7 +5,7 @@ The simulator is rebuilt from the model's metadata (`aat.simulator`: `aat` = the
 `aberrations` effect, or `thin_lens`; plus `aat.effects`), with the effects registry shared with training
 (`training.render.effects`), the exported PSF surrogate and the numpy layered renderer. Effects that only the
 torch simulator can render (`chromatic`; the lens's PSFs when there is no surrogate) raise `NeedsTorch`;
-`training.diagnose.twin.TwinRenderer` renders those with torch.
+`training.diagnose.twin.TwinRenderer` renders those with torch; `aat_deploy.diagnose.session.make_renderer` picks one.
 """
 
 from __future__ import annotations

@@ -55,9 +55,9 @@ class LensGeometry:
 
 
 class OnnxSource(LensGeometry):
-    """An exported surrogate on onnxruntime. Depths outside the model's range are clamped to it (beyond ~100 m
-    blur no longer changes). The lens must be the one the surrogate was fitted for (checked by prescription
-    hash, which includes the sensor)."""
+    """An exported surrogate on onnxruntime. Depths and focus distances outside the model's ranges are clamped
+    to them (the surrogate was not fitted there; near its far end blur changes little). The lens must be the
+    one the surrogate was fitted for (checked by prescription hash, which includes the sensor)."""
 
     def __init__(self, path, lens: Lens, threads: int | None = None):
         self.model, self.lens = PSFSurrogate(path, threads=threads), lens
@@ -68,7 +68,9 @@ class OnnxSource(LensGeometry):
 
     def __call__(self, x, y, depth_m, focus_m) -> tuple[np.ndarray, np.ndarray]:
         lo, hi = self.model.depth_range_m
-        return self.model.query(x, y, np.clip(depth_m, lo, hi), focus_m)
+        # Focus too: a twin's focus can leave the range (a metadata bias past infinity, a tilted corner).
+        flo, fhi = self.model.focus_range_m
+        return self.model.query(x, y, np.clip(depth_m, lo, hi), np.clip(focus_m, flo, fhi))
 
     def focus_table(self) -> FocusTable | None:
         """Sensor z (mm) vs focus (diopters) of the lens, real-ray traced at export; None for a surrogate exported

@@ -1,3 +1,3 @@
-"""Sim-to-real diagnosis, the training-side half: digital twins of real captures rendered with the simulator a
-model was trained with, effects added one at a time, and the orchestration (`run.py`). The statistics are in
-`aat_deploy.diagnose` (torch-free)."""
+"""Sim-to-real diagnosis, the training-side half: the torch simulator behind the torch-free twin renderer, for
+effects numpy cannot render (`chromatic`, the lens's PSFs without a surrogate). The diagnosis itself is
+`aat_deploy.diagnose`."""

@@ -9,56 +9,21 @@ at three wavelengths) and the lens's PSFs when no surrogate was found (ray traci
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 
 import numpy as np
 import torch
 
 from aat_deploy.model import DfFModel
-from aat_deploy.twin.renderer import TwinError, model_effects  # noqa: F401 (re-exported)
 from aat_deploy.twin.renderer import TwinRenderer as NumpyTwinRenderer
-from training.lens.io import load_lens
+from aat_deploy.twin.sources import OnnxSource
 from training.lens.schema import Lens
 from training.render import effects as fx
 from training.render.simulator import Simulator
 from training.render.sources import OnnxPSF, RayTracedPSF
 
-ROOT = Path(__file__).resolve().parents[2]
-
-
-def find_lens(model: DfFModel, lens_path: str | Path | None) -> tuple[Lens, Path]:
-    """The lens the model was trained for, with the model's sensor, and its file: `lens_path` or the file in
-    lenses/ with the model's aat.lens_name."""
-    if lens_path is None:
-        name = model.meta.get("aat.lens_name")
-        for p in sorted((ROOT / "lenses").glob("*.json")):
-            try:
-                cand = load_lens(p)
-            except Exception:  # a broken file in lenses/ must not stop the search
-                continue
-            if cand.name == name:
-                lens_path = p
-                break
-        else:
-            raise TwinError(f"{model.path}: lens {name!r} not found in {ROOT / 'lenses'}; pass --lens")
-    lens = load_lens(lens_path)
-    (w_mm, h_mm), (w_px, h_px) = model.meta["aat.sensor_mm"], model.sensor_px
-    sensor = dataclasses.replace(lens.sensor, width_mm=float(w_mm), height_mm=float(h_mm),
-                                 width_px=int(w_px), height_px=int(h_px))
-    return dataclasses.replace(lens, sensor=sensor), Path(lens_path)
-
-
-def find_psf(lens: Lens, psf_path: str | Path | None):
-    """The lens's PSF source: the given surrogate (.onnx) or the first in models/ made for this lens; without
-    one, ray tracing (slow)."""
-    if psf_path is not None:
-        return OnnxPSF(psf_path, lens, threads=2)
-    for p in sorted((ROOT / "models").glob("psf_*.onnx")):
-        try:
-            return OnnxPSF(p, lens, threads=2)
-        except ValueError:  # made for another lens / pixel pitch
-            continue
-    return RayTracedPSF(lens)
+def torch_source(lens: Lens, surrogate: OnnxSource | None):
+    """The lens's PSF source for the torch simulator: the surrogate on onnxruntime, else ray tracing (slow)."""
+    return OnnxPSF.from_source(surrogate) if surrogate is not None else RayTracedPSF(lens)
 
 
 class TwinRenderer(NumpyTwinRenderer):

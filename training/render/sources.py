@@ -64,8 +64,18 @@ class OnnxPSF(_LensGeometry):
     `.numpy` is the torch-free source underneath (`aat_deploy.twin.sources.OnnxSource`)."""
 
     def __init__(self, path, lens: Lens, threads: int | None = None):
-        self.numpy = OnnxSource(path, lens, threads=threads)
-        self.model, self.lens, self.spec, self.path = self.numpy.model, lens, self.numpy.spec, self.numpy.path
+        self._wrap(OnnxSource(path, lens, threads=threads))
+
+    @classmethod
+    def from_source(cls, source: OnnxSource) -> OnnxPSF:
+        """The same session as a torch-free `OnnxSource` (no second onnxruntime session)."""
+        obj = cls.__new__(cls)
+        obj._wrap(source)
+        return obj
+
+    def _wrap(self, source: OnnxSource) -> None:
+        self.numpy = source
+        self.model, self.lens, self.spec, self.path = source.model, source.lens, source.spec, source.path
 
     def __call__(self, x, y, depth_m, focus_m):
         k, s = self.numpy(x, y, depth_m, focus_m)

@@ -1,5 +1,10 @@
 """One `aat-diagnose` run: inputs, the diagnosis, the optional retraining, and the report folder (written to a
-temporary folder and renamed, so an interrupted run leaves nothing half-written)."""
+temporary folder and renamed, so an interrupted run leaves nothing half-written).
+
+Torch-free: twins are rendered by `aat_deploy.twin` with the exported PSF surrogate. When the training package
+(torch) is installed, the effects numpy cannot render (`chromatic`; the lens's PSFs without a surrogate) are
+rendered by the training simulator; without it they are skipped and listed in the report. Retraining runs
+`aat-train` (the `train` extra)."""
 
 from __future__ import annotations
 
@@ -12,10 +17,13 @@ import numpy as np
 
 from aat_deploy.diagnose import report
 from aat_deploy.diagnose.inputs import find_captures, load_capture_data
+from aat_deploy.diagnose.search import Diagnosis, DiagnoseConfig, diagnose
 from aat_deploy.errors import CaptureError, ModelError
 from aat_deploy.model import DfFModel
-from training.diagnose.run import Diagnosis, DiagnoseConfig, diagnose
-from training.diagnose.twin import TwinError, TwinRenderer, find_lens, find_psf
+from aat_deploy.twin.lookup import find_lens, find_surrogate
+from aat_deploy.twin.renderer import TwinError, TwinRenderer, model_effects
+from aat_deploy.twin.sources import OnnxSource
+from training.lens.schema import Lens
 from training.render import effects as fx
 
 
@@ -25,6 +33,22 @@ class DiagnoseError(RuntimeError):
 
 def _say(quiet: bool):
     return (lambda msg: None) if quiet else (lambda msg: print(f"  {msg}", file=sys.stderr, flush=True))
+
+
+def make_renderer(model: DfFModel, lens: Lens, surrogate: OnnxSource | None, torch_free: bool = False):
+    """The twin renderer: torch-free, with the training simulator behind it for torch-only effects when torch is
+    installed (and `torch_free` is not asked for)."""
+    if not torch_free:
+        try:
+            from training.diagnose.twin import TwinRenderer as TorchBacked, torch_source
+        except ImportError:  # no torch (runtime-only install): stay torch-free
+            pass
+        else:
+            return TorchBacked(model, lens, torch_source(lens, surrogate))
+    if surrogate is None and any(e.uses_lens_psfs for e in model_effects(model)):
+        raise TwinError(f"{model.path}: no PSF surrogate for lens {lens.name!r} at this sensor (pass --psf); "
+                        "ray tracing the lens's PSFs needs the training package (torch)")
+    return TwinRenderer(model, lens, surrogate)
 
 
 def retrain_command(model_path: Path, lens_path: Path, psf_path: Path | None, effects: list[str], steps: int,
@@ -43,13 +67,16 @@ def retrain_command(model_path: Path, lens_path: Path, psf_path: Path | None, ef
 
 
 def run(root, model_path, out: Path, *, lens=None, psf=None, effects=None, retrain_steps: int = 0,
-        threads: int = 2, seed: int = 0, force: bool = False, quiet: bool = False, cfg: DiagnoseConfig | None = None) -> dict:
+        threads: int = 2, seed: int = 0, force: bool = False, quiet: bool = False, cfg: DiagnoseConfig | None = None,
+        torch_free: bool = False) -> dict:
     say = _say(quiet)
+    if retrain_steps and shutil.which("aat-train") is None:
+        raise DiagnoseError("--retrain-steps needs aat-train (pip install -e '.[train]')")
     try:
         model = DfFModel(model_path, threads=threads)
         lens_obj, lens_file = find_lens(model, lens)
-        src = find_psf(lens_obj, psf)
-        twins = TwinRenderer(model, lens_obj, src)
+        src = find_surrogate(lens_obj, psf, threads)
+        twins = make_renderer(model, lens_obj, src, torch_free)
         folders = find_captures(root, exclude=[Path(out)])
         if not folders:
             raise DiagnoseError(f"{root}: no capture folder with ground truth (see docs/contracts.md)")
@@ -73,7 +100,7 @@ def run(root, model_path, out: Path, *, lens=None, psf=None, effects=None, retra
     try:
         if shrink:
             named = [fx.spec(e) for e in chain[-1].effects]
-            cmd = retrain_command(Path(model_path), lens_file, Path(psf) if psf else getattr(src, "path", None),
+            cmd = retrain_command(Path(model_path), lens_file, src.path if src is not None else None,
                                   named, retrain_steps or 300, out / "retrain", model.meta["aat.sensor_mm"], model.sensor_px)
             shrink["retrain_command"] = " ".join(cmd)
             if retrain_steps:
@@ -83,7 +110,7 @@ def run(root, model_path, out: Path, *, lens=None, psf=None, effects=None, retra
                 new = sorted((tmp / "retrain").glob("dff_*_aat.onnx"))
                 if not new:
                     raise DiagnoseError(f"{tmp / 'retrain'}: aat-train wrote no dff_*_aat.onnx")
-                shrink.update(score_model(new[0], lens_obj, src, caps, cfg, threads))
+                shrink.update(score_model(new[0], lens_obj, src, caps, cfg, threads, torch_free))
                 shrink["retrained_model"] = str(out / "retrain" / new[0].name)
         report.write_json(tmp / "diagnosis.json", res)
         report.figures(res, tmp)
@@ -103,10 +130,10 @@ def run(root, model_path, out: Path, *, lens=None, psf=None, effects=None, retra
     return res
 
 
-def score_model(path: Path, lens_obj, src, caps, cfg: DiagnoseConfig, threads: int) -> dict:
+def score_model(path: Path, lens_obj, src, caps, cfg: DiagnoseConfig, threads: int, torch_free: bool = False) -> dict:
     """A retrained model's gap on the same captures, against its own simulator's twins."""
     model = DfFModel(path, threads=threads)
-    d = Diagnosis(model, TwinRenderer(model, lens_obj, src), caps, cfg)
+    d = Diagnosis(model, make_renderer(model, lens_obj, src, torch_free), caps, cfg)
     twin = d.score_twin([])
     gap = float(np.nanmean(np.concatenate([g.ravel() for g in d.gap_maps(twin)])))
     return {"gap_after_m": gap, "real_mae_after_m": float(np.nanmean(np.concatenate([r.err.ravel() for r in d.runs])))}

@@ -3,6 +3,8 @@ shrinks once that effect is simulated (method: docs/diagnosis.md).
 
     aat-diagnose ROOT --model M.onnx [--lens LENS] [--psf PSF.onnx] --out DIR [--retrain-steps N] [--force]
     aat-diagnose --list-effects
+
+Runs without torch (twins from the exported PSF surrogate); only --retrain-steps needs the train extra.
 """
 
 from __future__ import annotations
@@ -24,6 +26,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--effects", help="only try these registered effects (comma-separated; default all)")
     p.add_argument("--retrain-steps", type=int, default=0,
                    help="fine-tune the model with the named effects for this many steps and score it (needs aat-train)")
+    p.add_argument("--torch-free", action="store_true",
+                   help="never use the training simulator, even if torch is installed (torch-only effects are skipped)")
     p.add_argument("--threads", type=int, default=2, help="onnxruntime threads")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--force", action="store_true", help="replace an existing --out folder")
@@ -44,7 +48,7 @@ def main(argv: list[str] | None = None) -> int:
     if not (a.root and a.model and a.out):
         print("aat-diagnose: error: ROOT, --model and --out are required (or --list-effects)", file=sys.stderr)
         return 2
-    from training.diagnose.session import DiagnoseError, run
+    from aat_deploy.diagnose.session import DiagnoseError, run
 
     out = Path(a.out)
     if out.exists() and not a.force:
@@ -52,7 +56,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         res = run(a.root, a.model, out, lens=a.lens, psf=a.psf, effects=a.effects, retrain_steps=a.retrain_steps,
-                  threads=a.threads, seed=a.seed, force=a.force, quiet=a.quiet)
+                  threads=a.threads, seed=a.seed, force=a.force, quiet=a.quiet,
+                  torch_free=a.torch_free)
     except DiagnoseError as e:
         print(f"aat-diagnose: error: {e}", file=sys.stderr)
         return 1

@@ -11,7 +11,10 @@ shrinks once that effect is simulated.
    the model's error pattern. The best is added for good and the rest tried again (greedy), while the gain is
    significant.
 3. share_of_gap = how much of the gap the effect closes when added to the twin (predicted shrink); the
-   realised shrink comes from retraining with it (`retrain.py`).
+   realised shrink comes from retraining with it (`session.py`).
+
+Torch-free: twins come from any renderer with `render(capture, aif, extra_effects, seed)`; an effect the
+renderer cannot render without torch (`NeedsTorch`) is skipped and listed, not guessed.
 """
 
 from __future__ import annotations
@@ -79,6 +82,7 @@ class Diagnosis:
                  progress=None):
         self.model, self.twins, self.cfg = model, twins, cfg
         self.progress = progress or (lambda msg: None)
+        self.skipped: list[dict] = []  # effects the renderer could not render (torch-only), with the reason
         self.runs: list[CaptureRun] = []
         for cap in captures:
             stack = normalise_stack(cap.frames)
@@ -174,13 +178,18 @@ class Diagnosis:
         for rnd in range(cfg.max_effects):
             cur = chain[-1]
             best = []
-            for name in remaining:
-                cls_cands = fx.make(name).candidates
+            for name in list(remaining):
                 fits = []
-                for params in cls_cands:
-                    eff = fx.make(name, **params)
-                    self.progress(f"round {rnd + 1}: {effect_label(eff)}")
-                    fits.append(self.score_twin(cur.effects + [eff]))
+                try:
+                    for params in fx.make(name).candidates:
+                        eff = fx.make(name, **params)
+                        self.progress(f"round {rnd + 1}: {effect_label(eff)}")
+                        fits.append(self.score_twin(cur.effects + [eff]))
+                except fx.NeedsTorch as e:
+                    self.skipped.append({"effect": name, "reason": str(e)})
+                    self.progress(f"skipped {name}: {e}")
+                    remaining.remove(name)
+                    continue
                 fit = min(fits, key=self._image_distance)
                 score = capture_bootstrap(self._closeness(cur, fit), n_boot=cfg.n_boot, seed=cfg.seed)
                 share = self._share(gap0, cur, fit)
@@ -233,6 +242,7 @@ def diagnose(model: DfFModel, twins, captures: list[CaptureData], cfg: DiagnoseC
         "ranked_effects": ranked,
         "gap": {k: v for k, v in where.items() if k != "where"},
         "effects_evaluated": evaluated,
+        "effects_skipped": diag.skipped,
         "shrink": shrink_summary(diag, base, ranked, chain),
         "captures": [{"name": r.data.name, "path": str(r.data.path), "focus_m": r.data.focus_m.tolist(),
                       "mae_m": float(np.nanmean(r.err)), "twin_mae_m": float(np.nanmean(e)),
