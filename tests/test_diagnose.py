@@ -133,6 +133,8 @@ def test_no_withheld_effect_is_not_blamed(setup):
                  "--effects", "focus_metadata,noise", "-q"]) == 0
     d = json.loads((out / "diagnosis.json").read_text())
     assert d["gap_significant"] is False and d["ranked_effects"] == [] and d["where"] == []
+    assert d["image_effects"] == []  # nor does it claim to see one in the images
+    assert "Nothing to blame" in (out / "report.md").read_text()
 
 
 def test_bad_inputs_get_one_line_errors(setup, tmp_path, capsys):

@@ -45,6 +45,7 @@ class DiagnoseConfig:
     floor_geometry_px: float = 0.2
     floor_error_m: float = 0.005
     effects: list[str] | None = None  # restrict the search (None = every registered effect)
+    image_search: bool = True  # without a significant gap, still search the effects the images show
 
 
 @dataclass
@@ -142,16 +143,20 @@ class Diagnosis:
                 "where": where, "breakdown": breakdown}
 
     # --- which -------------------------------------------------------------------------------------------
-    def _closeness(self, base: Scored, cand: Scored) -> np.ndarray:
+    def _closeness(self, base: Scored, cand: Scored, image_only: bool = False) -> np.ndarray:
         """Per capture, how much closer `cand` comes to the capture than `base`, as fractions
         (d_base - d_cand) / (d_base + floor): images (focus curves, geometry; their mean counts twice) and the
         model's error pattern. An effect that moves the images away from the capture scores at most that
-        image fraction, whatever it does to the errors: it cannot be the cause."""
+        image fraction, whatever it does to the errors: it cannot be the cause. image_only: the image part alone
+        (when there is no depth gap, the error pattern is noise)."""
         c = self.cfg
         out = []
         for db, dc in zip(base.dist, cand.dist):
             img = np.mean([(db.focus_curves - dc.focus_curves) / (db.focus_curves + c.floor_focus_curves),
                            (db.geometry_px - dc.geometry_px) / (db.geometry_px + c.floor_geometry_px)])
+            if image_only:
+                out.append(img)
+                continue
             err = (db.error_pattern_m - dc.error_pattern_m) / (db.error_pattern_m + c.floor_error_m)
             both = (2 * img + err) / 3
             out.append(both if img > 0 else min(img, both))
@@ -168,9 +173,10 @@ class Diagnosis:
         num = [ec - eb for ec, eb in zip(cand.err, base.err)]
         return ratio_bootstrap(num, gap0, self.cfg.n_boot, self.cfg.seed)
 
-    def which(self, base: Scored, candidates: list[str]) -> tuple[list[dict], list[Scored], list[dict]]:
+    def which(self, base: Scored, candidates: list[str], image_only: bool = False) -> tuple[list[dict], list[Scored], list[dict]]:
         """Greedy search. Returns the ranked effects, the chain of twins (base, base+E1, ...) and every
-        effect's best fit in every round."""
+        effect's best fit in every round. image_only: rank by the images alone and give no share of the gap
+        (for captures whose depth gap is not significant: what they show that the simulator lacks)."""
         cfg = self.cfg
         gap0 = self.gap_maps(base)
         chain, ranked, remaining = [base], [], list(candidates)
@@ -191,8 +197,8 @@ class Diagnosis:
                     remaining.remove(name)
                     continue
                 fit = min(fits, key=self._image_distance)
-                score = capture_bootstrap(self._closeness(cur, fit), n_boot=cfg.n_boot, seed=cfg.seed)
-                share = self._share(gap0, cur, fit)
+                score = capture_bootstrap(self._closeness(cur, fit, image_only), n_boot=cfg.n_boot, seed=cfg.seed)
+                share = (None, None, None) if image_only else self._share(gap0, cur, fit)
                 entry = {"effect": name, "params": fit.effects[-1].params, "round": rnd + 1,
                          "closeness": score[0], "closeness_ci": [score[1], score[2]],
                          "share_of_gap": share[0], "ci_low": share[1], "ci_high": share[2],
@@ -233,13 +239,17 @@ def diagnose(model: DfFModel, twins, captures: list[CaptureData], cfg: DiagnoseC
     where = diag.where(base)
     base_names = {e.name for e in twins.base}
     candidates = [n for n in (cfg.effects or fx.names()) if n not in base_names]
-    ranked, chain, evaluated = ([], [base], [])
+    ranked, chain, evaluated, seen = ([], [base], [], [])
     if where["significant"]:
         ranked, chain, evaluated = diag.which(base, candidates)
+    elif cfg.image_search:
+        # Nothing to blame for the depth error; still say what the captures show that the simulator lacks.
+        seen, _, evaluated = diag.which(base, candidates, image_only=True)
     out = {
         "gap_significant": where["significant"],
         "where": where["where"],
         "ranked_effects": ranked,
+        "image_effects": [{k: e[k] for k in ("effect", "params", "closeness", "closeness_ci")} for e in seen],
         "gap": {k: v for k, v in where.items() if k != "where"},
         "effects_evaluated": evaluated,
         "effects_skipped": diag.skipped,

@@ -21,7 +21,7 @@ class Noise(Effect):
     description = "Poisson-Gaussian sensor noise in linear RAW units (shot noise from full_well_e, read noise)"
     order = 90
     defaults = {"full_well_e": 8000.0, "read_noise_e": 3.0}
-    candidates = [{"full_well_e": e} for e in (1000.0, 3000.0, 10000.0)]
+    candidates = [{"full_well_e": e} for e in (300.0, 1000.0, 3000.0, 10000.0)]
 
     def sensor(self, frame: np.ndarray, ctx: SimContext, rng: np.random.Generator) -> np.ndarray:
         return poisson_gaussian(frame, self.params["full_well_e"], self.params["read_noise_e"], rng)
