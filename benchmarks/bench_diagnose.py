@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import subprocess
 import time
 from pathlib import Path
@@ -39,7 +40,7 @@ def draw_params(name: str, rng: np.random.Generator) -> dict:
     if name == "noise":  # a dim scene or high ISO: weaker noise does not cost these models depth accuracy
         return {"full_well_e": float(np.exp(rng.uniform(np.log(250), np.log(1000))))}
     if name == "sensor_tilt":
-        t = float(rng.choice([-1, 1]) * rng.uniform(0.3, 0.6))
+        t = float(rng.choice([-1, 1]) * rng.uniform(0.6, 1.2))  # smaller tilts defocus the edges < 0.1 D here
         return {"tilt_x_deg": t, "tilt_y_deg": 0.0} if rng.random() < 0.5 else {"tilt_x_deg": 0.0, "tilt_y_deg": t}
     if name == "focus_metadata":
         return {"bias_d": float(rng.choice([-1, 1]) * rng.uniform(0.05, 0.12))}
@@ -87,7 +88,11 @@ def main() -> None:
     ap.add_argument("--pairs", action="store_true", help="with --effects: also the two-effect and no-effect sets")
     ap.add_argument("--out", default=str(SETUP / "results.jsonl"), help="results, one JSON line per set (resumable)")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--table", action="store_true", help="only print the table of the sets in --out")
     args = ap.parse_args()
+    if args.table:
+        table([json.loads(x) for x in Path(args.out).read_text().splitlines()], 0.0)
+        return
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     torch.set_num_threads(2)
     from aat_deploy.diagnose.inputs import load_capture_data
@@ -174,8 +179,12 @@ def retrain(m, lens_path: Path, psf_path: Path, res: dict, caps, folder: Path, s
     out = folder.parent / f"{folder.name}_retrain"
     cmd = retrain_command(m.path, lens_path, psf_path, res["shrink"]["effects"], steps, out,
                           m.meta["aat.sensor_mm"], m.sensor_px)
+    stamp = out.with_suffix(".command")  # a folder made by another command (other effect settings) is redone
+    if out.exists() and (not stamp.exists() or stamp.read_text() != " ".join(cmd)):
+        shutil.rmtree(out)
     if not list(out.glob("dff_*_aat.onnx")):  # aat-train resumes a stopped run in the same folder
         print("+", " ".join(cmd), flush=True)
+        stamp.write_text(" ".join(cmd))
         subprocess.run(cmd, check=True, cwd=ROOT)
     new = sorted(out.glob("dff_*_aat.onnx"))[0]
     lens, _ = find_lens(m, lens_path)

@@ -21,7 +21,8 @@ class Noise(Effect):
     description = "Poisson-Gaussian sensor noise in linear RAW units (shot noise from full_well_e, read noise)"
     order = 90
     defaults = {"full_well_e": 8000.0, "read_noise_e": 3.0}
-    candidates = [{"full_well_e": e} for e in (300.0, 1000.0, 3000.0, 10000.0)]
+    # factor-2 steps: a poorly fitted noise level leaves a focus-curve residual that hides weaker effects
+    candidates = [{"full_well_e": e} for e in (300.0, 600.0, 1200.0, 2500.0, 5000.0, 10000.0)]
 
     def sensor(self, frame: np.ndarray, ctx: SimContext, rng: np.random.Generator) -> np.ndarray:
         return poisson_gaussian(frame, self.params["full_well_e"], self.params["read_noise_e"], rng)

@@ -33,8 +33,8 @@ class SensorTilt(Effect):
     description = "sensor tilted against the optical axis (degrees about its vertical / horizontal axis): focus varies linearly over the field"
     order = 20
     defaults = {"tilt_x_deg": 0.5, "tilt_y_deg": 0.0}
-    candidates = [{"tilt_x_deg": t, "tilt_y_deg": 0.0} for t in (-0.4, 0.4)] + \
-                 [{"tilt_x_deg": 0.0, "tilt_y_deg": t} for t in (-0.4, 0.4)]
+    candidates = [{"tilt_x_deg": t, "tilt_y_deg": 0.0} for t in (-1.0, -0.5, 0.5, 1.0)] + \
+                 [{"tilt_x_deg": 0.0, "tilt_y_deg": t} for t in (-1.0, -0.5, 0.5, 1.0)]
 
     def focus_at(self, ctx: SimContext) -> Callable:
         tx, ty = self.params["tilt_x_deg"], self.params["tilt_y_deg"]
