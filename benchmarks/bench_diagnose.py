@@ -193,6 +193,7 @@ def retrain(m, lens_path: Path, psf_path: Path, res: dict, caps, folder: Path, s
 
 
 def table(rows: list[dict], seconds: float) -> None:
+    rows = list({r["set"]: r for r in rows}.values())  # the last result of each set
     print(f"\n{len(rows)} sets in {seconds / 60:.1f} min (this run)\n")
     print("| withheld effect | sets | gap significant | named = withheld (gap) | seen = withheld (no gap) | "
           "correct | share of gap (named) | gap remaining after retraining |")
