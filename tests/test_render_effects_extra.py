@@ -89,3 +89,42 @@ def test_tilt_changes_the_rendered_stack_and_post_effects_reuse_the_optics(lens)
     full = noisy.render_stack(rgb, depth, [2.0], rng=np.random.default_rng(3)).frames
     split = noisy.post(plain.optical(rgb, depth, np.array([2.0]), ctx), np.array([2.0]), ctx, np.random.default_rng(3))
     assert torch.equal(full, split)
+
+
+def test_raw_pipeline_demosaic_by_hand(lens):
+    from training.render.effects.raw_pipeline import demosaic_bilinear
+
+    # bilinear interpolation reproduces flat colours everywhere and linear ramps away from the border
+    flat = np.broadcast_to(np.array([0.2, 0.5, 0.7], np.float32)[:, None, None], (3, 8, 10)).copy()
+    e = fx.make("raw_pipeline")
+    ctx = fx.SimContext(lens, (8, 10))
+    assert np.allclose(e.sensor(flat, ctx, np.random.default_rng(0)), flat, atol=1e-6)
+    yy, xx = np.mgrid[0:12, 0:16].astype(np.float32)
+    ramp = np.stack([0.01 * xx + 0.02 * yy, 0.03 * xx, 0.5 - 0.01 * yy])
+    out = e.sensor(ramp, ctx, np.random.default_rng(0))
+    assert np.allclose(out[:, 1:-1, 1:-1], ramp[:, 1:-1, 1:-1], atol=1e-5)
+    # measured photosites are kept: R at (even, even), B at (odd, odd)
+    from training.camera.virtual import mosaic_rggb
+    rnd = np.random.default_rng(1).random((3, 6, 6)).astype(np.float32)
+    dm = demosaic_bilinear(mosaic_rggb(rnd))
+    assert np.array_equal(dm[0, 0::2, 0::2], rnd[0, 0::2, 0::2]) and np.array_equal(dm[2, 1::2, 1::2], rnd[2, 1::2, 1::2])
+    # a crop at an odd origin keeps the sensor's colour phase: the same pixels as cropping the full result
+    full = e.sensor(rnd, fx.SimContext(lens, (6, 6)), None)
+    crop = e.sensor(np.ascontiguousarray(rnd[:, 1:, 1:]), fx.SimContext(lens, (6, 6), (1, 1)), None)
+    assert np.allclose(crop[:, 1:-1, 1:-1], full[:, 2:-1, 2:-1], atol=1e-6)
+
+
+def test_raw_pipeline_spreads_one_noise_draw_per_photosite(lens):
+    """Noise then raw_pipeline on a flat field: red is measured at 1 photosite in 4 and interpolated from 2 or 4
+    others elsewhere, so its variance is (1 + 1/2 + 1/2 + 1/4) / 4 = 0.5625 of the photosite's (hand count)."""
+    ctx = fx.SimContext(lens, (256, 256))
+    flat = np.full((3, 256, 256), 0.5, np.float32)
+    effects = fx.parse("noise:full_well_e=1000:read_noise_e=0,raw_pipeline")
+    rng = np.random.default_rng(0)
+    out = flat
+    for e in effects:
+        out = e.sensor(out, ctx, rng)
+    per_site = 0.5 / 1000  # Poisson: variance = mean electrons / full_well^2, in white-level units
+    inner = out[0, 2:-2, 2:-2]
+    assert inner.var() == pytest.approx(0.5625 * per_site, rel=0.05)
+    assert inner.mean() == pytest.approx(0.5, abs=1e-3)
