@@ -110,3 +110,20 @@ def test_bad_input_is_one_line_and_force_replaces_atomically(scene, tmp_path):
     assert render_main(base + ["--lens", lens, "--thin-lens", "--force"]) == 0
     assert not (out / "mine.txt").exists() and len(list(out.glob("*.dng"))) == 1
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # no temporary left behind
+
+
+def test_tiff_frames_skip_the_raw_pipeline(tmp_path):
+    """frame_format="tiff": float32 linear frames exactly as rendered, focus distances from capture.json."""
+    from training.camera.virtual import write_capture
+
+    lens = load_lens(ROOT / "lenses" / "canon_rf50mm_f1.8.json")
+    frames = np.random.default_rng(0).random((3, 3, 8, 12)).astype(np.float32)
+    out = write_capture(tmp_path / "cap", frames, [0.5, 1.0, 2.5], lens, np.ones((8, 12), np.float32), frames[0],
+                        {}, frame_format="tiff")
+    cap = read_capture(out)
+    assert [f.focus_m for f in cap.frames] == pytest.approx([0.5, 1.0, 2.5])
+    assert not list(out.glob("*.dng"))
+    from aat_deploy.capture.raw import load_frame
+    assert np.array_equal(load_frame(out / "frame_02.tif")[0].transpose(2, 0, 1), frames[2])
+    with pytest.raises(ValueError, match="frame_format"):
+        write_capture(tmp_path / "x", frames, [0.5, 1.0, 2.5], lens, None, None, {}, frame_format="png")

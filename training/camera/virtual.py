@@ -44,9 +44,13 @@ def to_dn(linear: np.ndarray) -> np.ndarray:
 
 
 def write_capture(out_dir, frames: np.ndarray, focus_reported_m, lens: Lens, gt_depth_m: np.ndarray | None,
-                  aif_linear: np.ndarray | None, info: dict, force: bool = False) -> Path:
+                  aif_linear: np.ndarray | None, info: dict, force: bool = False, frame_format: str = "dng") -> Path:
     """Write a capture folder atomically. frames (S, 3, H, W) linear (1.0 = white level), H and W even;
-    focus_reported_m (S,) what the EXIF says; gt_depth_m (H, W) metres (0 = unknown); aif_linear (3, H, W)."""
+    focus_reported_m (S,) what the EXIF says; gt_depth_m (H, W) metres (0 = unknown); aif_linear (3, H, W).
+    frame_format: "dng" (a RAW as a camera writes it: Bayer mosaic, 14-bit, EXIF focus) or "tiff" (float32 linear
+    RGB with the focus distances in capture.json: the frames exactly as rendered, with no RAW pipeline)."""
+    if frame_format not in ("dng", "tiff"):
+        raise ValueError(f"frame_format must be 'dng' or 'tiff', got {frame_format!r}")
     out_dir = Path(out_dir)
     if out_dir.exists() and not force:
         raise FileExistsError(f"{out_dir}: exists (use --force to overwrite)")
@@ -59,11 +63,21 @@ def write_capture(out_dir, frames: np.ndarray, focus_reported_m, lens: Lens, gt_
     tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
     tmp.chmod(0o755)  # mkdtemp makes it private; a capture folder is an ordinary folder
     try:
+        sidecar = []
         for i, (fr, f) in enumerate(zip(frames, np.asarray(focus_reported_m, dtype=np.float64))):
+            if frame_format == "tiff":
+                name = f"frame_{i:02d}.tif"
+                rgb = np.ascontiguousarray(np.transpose(fr, (1, 2, 0))[..., ::-1], dtype=np.float32)  # BGR
+                if not cv2.imwrite(str(tmp / name), rgb):
+                    raise OSError(f"{tmp / name}: OpenCV could not write the float TIFF")
+                sidecar.append({"file": name, "focus_m": float(f)})
+                continue
             write_dng(tmp / f"frame_{i:02d}.dng", to_dn(mosaic_rggb(fr)), cfa_pattern="RGGB",
                       black_level=BLACK_LEVEL, white_level=WHITE_LEVEL, color_matrix=XYZ_TO_SRGB,
                       subject_distance_m=round(float(f), 4), focal_length_mm=round(p.efl_mm, 2),
                       f_number=round(p.fno, 2), make=MAKE, model=MODEL, lens_model=lens.name)
+        if sidecar:
+            (tmp / "capture.json").write_text(json.dumps({"frames": sidecar}, indent=1) + "\n")
         if gt_depth_m is not None:
             g = np.where(np.isfinite(gt_depth_m) & (gt_depth_m > 0), gt_depth_m, 0).astype(np.float32)
             np.save(tmp / "gt_depth_m.npy", g)
