@@ -33,6 +33,9 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 SETUP = ROOT / "cache" / "bench_diagnose"
 FOCUS = (0.5, 10.0, 8)
+# Capture sets and results of this version of the plan (v2: TIFF frames unless raw_pipeline is withheld); an
+# older version's sets are not reused.
+SETS, RESULTS = SETUP / "sets_v2", SETUP / "results_v2.jsonl"
 
 
 def draw_params(name: str, rng: np.random.Generator) -> dict:
@@ -55,14 +58,18 @@ def scene(seed: int, h: int, w: int):
 
 
 def make_set(folder: Path, lens, psf_src, base: list[str], withheld: list, scene_seeds: list[int], seed: int) -> None:
-    """Render one capture set (one folder per scene) with the model's effects plus the withheld ones."""
+    """Render one capture set (one folder per scene) with the model's effects plus the withheld ones. A withheld
+    `raw_pipeline` is the real thing: DNG frames (Bayer mosaic) that the runtime develops with LibRaw; otherwise
+    frames are float TIFFs, exactly as rendered."""
     from training.camera.virtual import write_capture
     from training.render import effects as fx
     from training.render.schedule import FocusSchedule
     from training.render.simulator import Simulator
     from training.render.sources import OnnxPSF
 
-    sim = Simulator(lens, OnnxPSF.from_source(psf_src), fx.parse(base + withheld))
+    raw = any(w.split(":")[0] == "raw_pipeline" for w in withheld)
+    rendered = [w for w in withheld if w.split(":")[0] != "raw_pipeline"]
+    sim = Simulator(lens, OnnxPSF.from_source(psf_src), fx.parse(base + rendered))
     focus = FocusSchedule(*FOCUS).distances()
     h, w = lens.sensor.height_px, lens.sensor.width_px
     for k, s in enumerate(scene_seeds):
@@ -72,7 +79,7 @@ def make_set(folder: Path, lens, psf_src, base: list[str], withheld: list, scene
         rgb, depth = scene(s, h, w)
         st = sim.render_stack(torch.from_numpy(rgb), torch.from_numpy(depth), focus, rng=np.random.default_rng(seed + k))
         write_capture(out, st.frames.numpy(), st.focus_reported_m, lens, depth, rgb,
-                      {"benchmark": "bench_diagnose", "withheld": withheld})
+                      {"benchmark": "bench_diagnose", "withheld": withheld}, frame_format="dng" if raw else "tiff")
 
 
 def main() -> None:
@@ -86,7 +93,7 @@ def main() -> None:
                     "(the two-effect set always gets 3)")
     ap.add_argument("--effects", help="only these withheld effects (comma-separated)")
     ap.add_argument("--pairs", action="store_true", help="with --effects: also the two-effect and no-effect sets")
-    ap.add_argument("--out", default=str(SETUP / "results.jsonl"), help="results, one JSON line per set (resumable)")
+    ap.add_argument("--out", default=str(RESULTS), help="results, one JSON line per set (resumable)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--table", action="store_true", help="only print the table of the sets in --out")
     args = ap.parse_args()
@@ -138,7 +145,7 @@ def main() -> None:
             ctx[key] = (m, lens, src, make_renderer(m, lens, src))
         m, lens, src, twins = ctx[key]
         base = [fx.spec(e) for e in twins.base]
-        folder = SETUP / "sets" / f"set{i:02d}"
+        folder = SETS / f"set{i:02d}"
         scene_seeds = [int(s) for s in wrng.choice(8, size=args.captures, replace=False)]
         make_set(folder, lens, src, base, withheld, scene_seeds, set_seed)
         caps = [load_capture_data(p, m) for p in sorted(folder.iterdir()) if p.is_dir()]
