@@ -146,7 +146,8 @@ def main() -> None:
         m, lens, src, twins = ctx[key]
         base = [fx.spec(e) for e in twins.base]
         folder = SETS / f"set{i:02d}"
-        scene_seeds = [int(s) for s in wrng.choice(8, size=args.captures, replace=False)]
+        # v1 drew 3 of 8 scenes, so sets shared scenes (two aberration sets were identical)
+        scene_seeds = [int(s) for s in wrng.choice(100_000, size=args.captures, replace=False)]
         make_set(folder, lens, src, base, withheld, scene_seeds, set_seed)
         caps = [load_capture_data(p, m) for p in sorted(folder.iterdir()) if p.is_dir()]
         cfg = DiagnoseConfig(max_effects=3 if len(withheld) > 1 else args.rounds, n_boot=300)
