@@ -215,11 +215,12 @@ def table(rows: list[dict], seconds: float) -> None:
         sig = [r for r in rs if r["gap_significant"]]
         named = sum(r["named"][:len(truth)] == truth or set(r["named"][:2]) == set(truth) for r in sig)
         seen = sum(r["seen"][:1] == truth[:1] for r in rs if not r["gap_significant"])
+        seen_txt = "—" if k == "(none)" else f"{seen}/{len(rs) - len(sig)}"  # nothing to see
         sh = [r["shares"][0] for r in sig if r["shares"]]
         rem = [r["remaining"] for r in rs if r.get("remaining") is not None]
-        print(f"| {k} | {len(rs)} | {len(sig)} | {named}/{len(sig)} | {seen}/{len(rs) - len(sig)} | "
+        print(f"| {k} | {len(rs)} | {len(sig)} | {named}/{len(sig)} | {seen_txt} | "
               f"{sum(r['correct'] for r in rs)}/{len(rs)} | {np.mean(sh):.2f} | " if sh else
-              f"| {k} | {len(rs)} | {len(sig)} | {named}/{len(sig)} | {seen}/{len(rs) - len(sig)} | "
+              f"| {k} | {len(rs)} | {len(sig)} | {named}/{len(sig)} | {seen_txt} | "
               f"{sum(r['correct'] for r in rs)}/{len(rs)} | — | ", end="")
         print(", ".join(f"{x:.2f}" for x in rem) + " |" if rem else "— |")
     single = [r for r in rows if len(r["withheld"]) == 1]
