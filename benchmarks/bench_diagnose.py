@@ -8,10 +8,12 @@ effect opens no significant gap, nothing may be blamed: then the first effect th
 gap called not significant and nothing named. With --retrain-steps, the model is fine-tuned with the named
 effects (`aat-train --init ... --effects ...`) and the gap re-measured (remaining = gap after / gap before).
 
-Models: benchmarks/diagnose_setup.py (RF50 at 288x192, small DFVNets, AAT and thin-lens simulators).
+Models: benchmarks/diagnose_setup.py (RF50 at 288x192, small DFVNets, AAT and thin-lens simulators). The full
+frame at 125 um pixels is the default; `chromatic` is sub-pixel there and runs on the centre crop at 31.25 um:
 
-    python benchmarks/diagnose_setup.py
+    python benchmarks/diagnose_setup.py [--variant crop4]
     python benchmarks/bench_diagnose.py [--sets-per-effect 3] [--captures 3] [--retrain-steps 0]
+    python benchmarks/bench_diagnose.py --variant crop4 --effects chromatic
 
 Results are appended to --out as JSON lines, one per set, and sets already there are skipped, so a stopped run
 continues where it stopped (delete the file to start again).
@@ -30,12 +32,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from diagnose_setup import VARIANTS, setup_dir
+
 ROOT = Path(__file__).resolve().parents[1]
-SETUP = ROOT / "cache" / "bench_diagnose"
 FOCUS = (0.5, 10.0, 8)
-# Capture sets and results of this version of the plan (v2: TIFF frames unless raw_pipeline is withheld); an
-# older version's sets are not reused.
-SETS, RESULTS = SETUP / "sets_v2", SETUP / "results_v2.jsonl"
+# Capture sets and results of this version of the plan (v2: TIFF frames unless raw_pipeline is withheld), inside
+# the variant's setup folder; an older version's sets are not reused.
+SETS, RESULTS = "sets_v2", "results_v2.jsonl"
 
 
 def draw_params(name: str, rng: np.random.Generator) -> dict:
@@ -93,10 +96,15 @@ def main() -> None:
                     "(the two-effect set always gets 3)")
     ap.add_argument("--effects", help="only these withheld effects (comma-separated)")
     ap.add_argument("--pairs", action="store_true", help="with --effects: also the two-effect and no-effect sets")
-    ap.add_argument("--out", default=str(RESULTS), help="results, one JSON line per set (resumable)")
+    ap.add_argument("--variant", choices=sorted(VARIANTS), default="full", help="models and sensor "
+                    "(benchmarks/diagnose_setup.py)")
+    ap.add_argument("--out", help="results, one JSON line per set (resumable); default: the variant's "
+                    f"{RESULTS}")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--table", action="store_true", help="only print the table of the sets in --out")
     args = ap.parse_args()
+    setup = setup_dir(args.variant)
+    args.out = args.out or str(setup / RESULTS)
     if args.table:
         table([json.loads(x) for x in Path(args.out).read_text().splitlines()], 0.0)
         return
@@ -109,8 +117,8 @@ def main() -> None:
     from aat_deploy.twin.lookup import find_lens, find_surrogate
     from training.render import effects as fx
 
-    lens_path, psf_path = SETUP / "rf50_288x192.json", SETUP / "psf.onnx"
-    models = {"aat": SETUP / "diag_dfv_aat.onnx", "thin": SETUP / "diag_dfv_thin.onnx"}
+    lens_path, psf_path = setup / "rf50_288x192.json", setup / "psf.onnx"
+    models = {"aat": setup / "diag_dfv_aat.onnx", "thin": setup / "diag_dfv_thin.onnx"}
     rng = np.random.default_rng(args.seed)
     names = [n for n in fx.names() if n != "aberrations"]
     if args.effects:
@@ -124,7 +132,7 @@ def main() -> None:
         plan += [("aat", ["noise", "sensor_tilt"]), ("aat", [])]
     for p in {lens_path, psf_path, *(models[k] for k, _ in plan)}:
         if not p.exists():
-            raise SystemExit(f"{p}: missing; run python benchmarks/diagnose_setup.py first")
+            raise SystemExit(f"{p}: missing; run python benchmarks/diagnose_setup.py --variant {args.variant} first")
     order = rng.permutation(len(plan))  # sets in random order; the diagnosis never sees the plan
     ctx = {}
     out = Path(args.out)
@@ -145,7 +153,7 @@ def main() -> None:
             ctx[key] = (m, lens, src, make_renderer(m, lens, src))
         m, lens, src, twins = ctx[key]
         base = [fx.spec(e) for e in twins.base]
-        folder = SETS / f"set{i:02d}"
+        folder = setup / SETS / f"set{i:02d}"
         # v1 drew 3 of 8 scenes, so sets shared scenes (two aberration sets were identical)
         scene_seeds = [int(s) for s in wrng.choice(100_000, size=args.captures, replace=False)]
         make_set(folder, lens, src, base, withheld, scene_seeds, set_seed)
