@@ -62,6 +62,9 @@ def test_serve_binds_localhost_only(recording):
     try:
         line = proc.stdout.readline()
         assert f"http://127.0.0.1:{web}/" in line and f"127.0.0.1%3A{grpc}" in line
+        # the URL is printed only once the page loads: no polling between the line and the first request
+        with socket.create_connection(("127.0.0.1", web), timeout=2):
+            pass
         deadline = time.time() + 60
         while time.time() < deadline and not (_listening(web) and _listening(grpc)):
             time.sleep(0.3)
@@ -85,6 +88,22 @@ def test_view_rejects_non_recording(tmp_path, capsys):
     assert view_cli.main([str(bad)]) == 1
     assert "not a rerun recording" in capsys.readouterr().err
     assert view_cli.main([str(tmp_path / "missing.rrd")]) == 1
+
+
+def test_view_refuses_a_busy_port(recording, capsys):
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        assert view_cli.main([str(recording), "--port", str(port), "--grpc-port", str(_free_port())]) == 1
+    err = capsys.readouterr()
+    assert f"127.0.0.1:{port} is already in use" in err.err and "serving" not in err.out
+
+
+def test_wait_listening_gives_up_when_the_server_dies():
+    proc = subprocess.Popen([sys.executable, "-c", "raise SystemExit(3)"])
+    assert not view_cli.wait_listening(proc, _free_port(), timeout_s=20)
+    assert proc.returncode == 3
 
 
 def test_serve_command_binds_loopback(tmp_path):

@@ -11,9 +11,11 @@ from __future__ import annotations
 import argparse
 import os
 import signal
+import socket
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 HOST = "127.0.0.1"
@@ -40,6 +42,25 @@ def _check_rrd(path: Path) -> str | None:
         if f.read(4) not in (b"RRF2", b"RRF0", b"RRF1"):
             return f"{path}: not a rerun recording (.rrd)"
     return None
+
+
+def port_in_use(port: int, host: str = HOST) -> bool:
+    with socket.socket() as s:
+        s.settimeout(0.5)
+        return s.connect_ex((host, port)) == 0
+
+
+def wait_listening(proc: subprocess.Popen, port: int, timeout_s: float = 60.0, host: str = HOST) -> bool:
+    """True once something accepts connections on host:port; False if `proc` exits or time runs out first
+    (the URL is printed only when the page can load)."""
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if proc.poll() is not None:
+            return False
+        if port_in_use(port, host):
+            return True
+        time.sleep(0.2)
+    return False
 
 
 def _stop(proc: subprocess.Popen) -> None:
@@ -97,13 +118,23 @@ def main(argv: list[str] | None = None) -> int:
     def _interrupt(*_):
         raise KeyboardInterrupt
 
+    for port in (args.port, args.grpc_port):
+        if port_in_use(port):  # else rerun's own error arrives after a URL that shows someone else's page
+            print(f"aat-view: error: {HOST}:{port} is already in use; pick another with --port/--grpc-port",
+                  file=sys.stderr)
+            return 1
     signal.signal(signal.SIGTERM, _interrupt)  # a terminated aat-view stops its viewer too
     with tempfile.TemporaryFile() as log:
         proc = subprocess.Popen(serve_command(args.recording, args.port, args.grpc_port), stdout=subprocess.DEVNULL,
                                 stderr=log, start_new_session=True)
-        print(f"serving {args.recording} at {viewer_url(args.port, args.grpc_port)}  (Ctrl-C to stop)", flush=True)
         stopped = False
         try:
+            if wait_listening(proc, args.port):
+                print(f"serving {args.recording} at {viewer_url(args.port, args.grpc_port)}  (Ctrl-C to stop)",
+                      flush=True)
+            elif proc.poll() is None:
+                print(f"aat-view: error: the viewer did not open {HOST}:{args.port} within 60 s", file=sys.stderr)
+                return 1
             proc.wait()
         except KeyboardInterrupt:
             stopped = True
