@@ -120,14 +120,13 @@ def main() -> None:
     lens_path, psf_path = setup / "rf50_288x192.json", setup / "psf.onnx"
     models = {"aat": setup / "diag_dfv_aat.onnx", "thin": setup / "diag_dfv_thin.onnx"}
     rng = np.random.default_rng(args.seed)
-    names = [n for n in fx.names() if n != "aberrations"]
-    if args.effects:
-        names = args.effects.split(",")
+    names = args.effects.split(",") if args.effects else fx.names()
+    unknown = set(names) - set(fx.names())
+    if unknown:
+        raise SystemExit(f"--effects: unknown {', '.join(sorted(unknown))}; registered: {', '.join(fx.names())}")
     plan = []  # (model key, withheld list)
-    for n in names:
-        plan += [("aat", [n])] * args.sets_per_effect
-    if not args.effects or "aberrations" in args.effects.split(","):
-        plan += [("thin", ["aberrations"])] * args.sets_per_effect
+    for n in names:  # the AAT model's simulator has the aberrations: they are withheld from the thin-lens model
+        plan += [("thin" if n == "aberrations" else "aat", [n])] * args.sets_per_effect
     if not args.effects or args.pairs:
         plan += [("aat", ["noise", "sensor_tilt"]), ("aat", [])]
     for p in {lens_path, psf_path, *(models[k] for k, _ in plan)}:
