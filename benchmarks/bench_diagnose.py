@@ -101,12 +101,17 @@ def main() -> None:
     ap.add_argument("--out", help="results, one JSON line per set (resumable); default: the variant's "
                     f"{RESULTS}")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--table", action="store_true", help="only print the table of the sets in --out")
+    ap.add_argument("--table", nargs="*", metavar="RESULTS", help="only print the table of these results files "
+                    "(default: --out); sets of a variant other than `full` are labelled with it")
     args = ap.parse_args()
     setup = setup_dir(args.variant)
     args.out = args.out or str(setup / RESULTS)
-    if args.table:
-        table([json.loads(x) for x in Path(args.out).read_text().splitlines()], 0.0)
+    if args.table is not None:
+        rows = []
+        for f in args.table or [args.out]:
+            var = next((k for k, v in VARIANTS.items() if v.folder == Path(f).resolve().parent.name), "full")
+            rows += [dict(json.loads(x), variant=var, source=f) for x in Path(f).read_text().splitlines()]
+        table(rows, 0.0)
         return
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     torch.set_num_threads(2)
@@ -208,26 +213,27 @@ def retrain(m, lens_path: Path, psf_path: Path, res: dict, caps, folder: Path, s
 
 
 def table(rows: list[dict], seconds: float) -> None:
-    rows = list({r["set"]: r for r in rows}.values())  # the last result of each set
-    print(f"\n{len(rows)} sets in {seconds / 60:.1f} min (this run)\n")
+    rows = list({(r.get("source"), r["set"]): r for r in rows}.values())  # the last result of each set
+    print(f"\n{len(rows)} sets" + (f" in {seconds / 60:.1f} min (this run)" if seconds else "") + "\n")
     print("| withheld effect | sets | gap significant | named = withheld (gap) | seen = withheld (no gap) | "
           "correct | share of gap (named) | gap remaining after retraining |")
     print("|---|---|---|---|---|---|---|---|")
     by: dict = {}
     for r in rows:
         k = " + ".join(w.split(":")[0] for w in r["withheld"]) or "(none)"
-        by.setdefault(k, []).append(r)
-    for k, rs in sorted(by.items()):
+        by.setdefault((k, r.get("variant") or "full"), []).append(r)
+    for (k, var), rs in sorted(by.items()):
         truth = k.split(" + ")
+        label = k if var == "full" else f"{k} ({var})"
         sig = [r for r in rs if r["gap_significant"]]
         named = sum(r["named"][:len(truth)] == truth or set(r["named"][:2]) == set(truth) for r in sig)
         seen = sum(r["seen"][:1] == truth[:1] for r in rs if not r["gap_significant"])
         seen_txt = "—" if k == "(none)" else f"{seen}/{len(rs) - len(sig)}"  # nothing to see
         sh = [r["shares"][0] for r in sig if r["shares"]]
         rem = [r["remaining"] for r in rs if r.get("remaining") is not None]
-        print(f"| {k} | {len(rs)} | {len(sig)} | {named}/{len(sig)} | {seen_txt} | "
+        print(f"| {label} | {len(rs)} | {len(sig)} | {named}/{len(sig)} | {seen_txt} | "
               f"{sum(r['correct'] for r in rs)}/{len(rs)} | {np.mean(sh):.2f} | " if sh else
-              f"| {k} | {len(rs)} | {len(sig)} | {named}/{len(sig)} | {seen_txt} | "
+              f"| {label} | {len(rs)} | {len(sig)} | {named}/{len(sig)} | {seen_txt} | "
               f"{sum(r['correct'] for r in rs)}/{len(rs)} | — | ", end="")
         print(", ".join(f"{x:.2f}" for x in rem) + " |" if rem else "— |")
     single = [r for r in rows if len(r["withheld"]) == 1]
