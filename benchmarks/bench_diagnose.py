@@ -165,6 +165,8 @@ def main() -> None:
         cfg = DiagnoseConfig(max_effects=3 if len(withheld) > 1 else args.rounds, n_boot=300)
         ts = time.time()
         res, _, _ = diagnose(m, twins, caps, cfg)
+        # the whole answer (every effect's fits and distances), to study other ranking rules without re-rendering
+        (folder / "diagnosis.json").write_text(json.dumps(res, indent=1, default=float))
         named = [e["effect"] for e in res["ranked_effects"]]
         seen = [e["effect"] for e in res["image_effects"]]
         shares = [round(e["share_of_gap"], 3) for e in res["ranked_effects"]]

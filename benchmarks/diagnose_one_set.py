@@ -1,7 +1,7 @@
 """Every effect's best fit, closeness and share, round by round, for one capture set of the diagnosis benchmark
 (`bench_diagnose.py`): what BENCHMARKS.md quotes for the two-effect set.
 
-    python benchmarks/diagnose_one_set.py cache/bench_diagnose/sets/set21 [--model aat|thin] [--rounds 3]
+    python benchmarks/diagnose_one_set.py cache/bench_diagnose/sets_v2/set21 [--model aat|thin] [--rounds 3]
 """
 
 from __future__ import annotations
@@ -33,10 +33,10 @@ def main() -> None:
     res, _, _ = diagnose(m, twins, caps, cfg)
     g = res["gap"]
     print(f"gap {g['gap_m']:+.3f} m ({g['ci_low']:+.3f} … {g['ci_high']:+.3f}), significant: {res['gap_significant']}")
-    print("| round | effect | fitted settings | closeness (95 %) | share of gap |")
+    print("| round | effect | fitted settings | closeness (95 %) | share of gap (95 %) |")
     print("|---|---|---|---|---|")
     for e in res["effects_evaluated"]:
-        share = "—" if e["share_of_gap"] is None else f"{e['share_of_gap']:.2f}"
+        share = "—" if e["share_of_gap"] is None else f"{e['share_of_gap']:.2f} ({e['ci_low']:.2f} … {e['ci_high']:.2f})"
         print(f"| {e['round']} | {e['effect']} | {e['params']} | {e['closeness']:.3f} "
               f"({e['closeness_ci'][0]:.3f} … {e['closeness_ci'][1]:.3f}) | {share} |")
     print("named:", [e["effect"] for e in res["ranked_effects"]], "seen:", [e["effect"] for e in res["image_effects"]])
