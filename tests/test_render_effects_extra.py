@@ -42,6 +42,14 @@ def test_focus_metadata_bias_and_its_inverse(lens):
     assert np.allclose(e.twin_focus(rep, ctx, np.random.default_rng(0)), true)
 
 
+def test_focus_bias_past_infinity_reports_the_far_end(lens):
+    # a -0.1 D bias at 10 m (0.1 D) would report 1/0 m; at 5 m (0.2 D) it reports 10 m as usual
+    e = fx.make("focus_metadata", bias_d=-0.1)
+    ctx = fx.SimContext(lens, (640, 960))
+    rep = e.report_focus(np.array([5.0, 10.0, 50.0]), ctx, np.random.default_rng(0))
+    assert np.all(np.isfinite(rep)) and rep[0] == pytest.approx(10.0) and np.allclose(rep[1:], 100.0)
+
+
 def test_nikon_quantisation_matches_the_maker_note_formula():
     # Nikon LensData stores v with distance 0.01 * 10^(v/40) m (integer v)
     v = np.round(40 * np.log10(100 * 1.23))

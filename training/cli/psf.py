@@ -122,7 +122,7 @@ def cmd_fit(a) -> int:
         _, cfg = exp.run_fit(name, lens, data)
         last = cfg.history[-1] if cfg.history else {}
         print(f"{name}: validation l1 {last.get('l1', float('nan')):.3e} after {last.get('minutes', 0):.1f} min; "
-              f"checkpoint {exp.checkpoint(name)}")
+              f"checkpoint {exp.checkpoint(name, lens=lens)}")
     return 0
 
 
@@ -135,7 +135,7 @@ def cmd_export(a) -> int:
 
     exp = PSFExperiment.load(a.config)
     lens = exp.lens_obj()
-    ckpt = exp.checkpoint(a.fit)
+    ckpt = exp.checkpoint(a.fit, lens=lens)
     if not ckpt.exists():
         raise SystemExit(f"aat-psf: error: {ckpt}: no checkpoint; run `aat-psf fit --config {a.config}` first")
     model = make_model("rot" if a.fit.startswith("rot") else "paper_mlp", lens, exp.spec(lens), exp.near_m,

@@ -165,7 +165,7 @@ def fit_surrogate(ctx: Context, lens, out: Path) -> None:
         data[name] = to_tensors(d)
     ctx.log(f"psf: {p['axis_n']} axis PSFs traced; fitting RotPSF for {p['fit_minutes'] * 60:.0f} s")
     model, fit_cfg = exp.run_fit("rot", lens, data, cache_dir=work, progress=ctx.progress)
-    st = torch.load(exp.checkpoint("rot", work), weights_only=False)
+    st = torch.load(exp.checkpoint("rot", work, lens), weights_only=False)
     last = (fit_cfg.history or [{}])[-1]
     export_psf_onnx(model, lens, out, force=True, extra_metadata={
         "fit": "rot", "wavelength_nm": p["wavelength_nm"], "training_minutes": f"{st['elapsed'] / 60:.2f}",

@@ -3,8 +3,9 @@ functions that build its datasets and run its fits. Used by `aat-psf fit` and be
 
 from __future__ import annotations
 
+import hashlib
 import json
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import torch
@@ -79,10 +80,16 @@ class PSFExperiment:
         train = data["axis"] if kind == "rot" else data["field"]
         v = data["val"]
         val = (torch.stack([v["x"], v["y"], v["depth_m"], v["focus_m"]], -1), v["kernels"])
-        ckpt = Path(cache_dir or DEFAULT_CACHE) / "psf_fit" / f"{Path(self.source).stem}_{name}.pt"
-        cfg = fit(model, train, FitConfig(**f), ckpt=ckpt, val=val, progress=progress)
+        cfg = fit(model, train, FitConfig(**f), ckpt=self.checkpoint(name, cache_dir, lens), val=val, progress=progress)
         model.eval()
         return model, cfg
 
-    def checkpoint(self, name: str, cache_dir=None) -> Path:
-        return Path(cache_dir or DEFAULT_CACHE) / "psf_fit" / f"{Path(self.source).stem}_{name}.pt"
+    def checkpoint(self, name: str, cache_dir=None, lens: Lens | None = None) -> Path:
+        """Where fit `name` is checkpointed: named after the config file and keyed by what the fit depends on
+        (the lens's optics and sensor, the data and the fit settings), so that two configs of the same file
+        name, or an edited config, never resume each other's fit."""
+        lens = lens or self.lens_obj()
+        d = {k: v for k, v in asdict(self).items() if k not in ("lens", "source", "eval", "grid", "fits")}
+        blob = json.dumps({"lens": lens.prescription_hash(), "fit": self.fits.get(name), **d}, sort_keys=True)
+        key = hashlib.sha256(blob.encode()).hexdigest()[:10]
+        return Path(cache_dir or DEFAULT_CACHE) / "psf_fit" / f"{Path(self.source).stem}_{name}_{key}.pt"

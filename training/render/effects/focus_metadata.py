@@ -11,6 +11,9 @@ import numpy as np
 from training.render.effects import Effect, SimContext, register
 
 QUANTISERS = ("none", "nikon", "diopter")
+# Reports and twin foci stop at 100 m (the far end of focus tables): a bias can push a far focus past infinity,
+# where a camera reports its largest distance, not a negative or infinite one.
+FAR_D = 1e-2
 
 
 def _check(params: dict) -> None:
@@ -53,7 +56,7 @@ class FocusMetadata(Effect):
 
     def report_focus(self, focus_m: np.ndarray, ctx: SimContext, rng: np.random.Generator) -> np.ndarray:
         p = self.params
-        biased = 1.0 / (1.0 / np.asarray(focus_m, np.float64) + p["bias_d"])
+        biased = 1.0 / np.maximum(1.0 / np.asarray(focus_m, np.float64) + p["bias_d"], FAR_D)
         return quantise_focus_m(biased, p["quantise"], p["step_d"])
 
     def twin_focus(self, focus_reported_m: np.ndarray, ctx: SimContext, rng: np.random.Generator) -> np.ndarray:
@@ -63,4 +66,4 @@ class FocusMetadata(Effect):
         d = 1.0 / np.asarray(focus_reported_m, np.float64)
         w = quantisation_bin_d(focus_reported_m, p["quantise"], p["step_d"])
         d = d + rng.uniform(-0.5, 0.5, size=d.shape) * w - p["bias_d"]
-        return 1.0 / np.maximum(d, 1e-2)  # not beyond 100 m (the far end of focus tables): a bias past infinity
+        return 1.0 / np.maximum(d, FAR_D)
