@@ -172,3 +172,19 @@ def test_diagnosis_runs_without_torch(setup, tmp_path):
     assert top["effect"] == "focus_metadata" and top["params"]["bias_d"] > 0 and top["share_of_gap"] > 0.3
     assert [e["effect"] for e in d["effects_skipped"]] == ["chromatic"] and "torch" in d["effects_skipped"][0]["reason"]
     assert "chromatic" in (out / "report.md").read_text()
+
+
+def test_naming_rule_by_hand():
+    from aat_deploy.diagnose.search import is_named
+
+    # significant in images and errors together
+    assert is_named({"closeness": 0.3, "closeness_ci": [0.1, 0.5]}, 0.05)
+    # the two-effect set's tilt in round 2: one capture's error pattern moved away (-0.03), every capture's
+    # images came closer (0.11-0.14): named on the images, with a mean gain of 0.14
+    tilt = {"closeness": 0.141, "closeness_ci": [-0.027, 0.271], "image_closeness": 0.125,
+            "image_closeness_ci": [0.111, 0.141]}
+    assert is_named(tilt, 0.05)
+    # images alone are not enough when the mean gain is small, nor a mean gain without the images
+    assert not is_named(dict(tilt, closeness=0.04), 0.05)
+    assert not is_named(dict(tilt, image_closeness_ci=[0.01, 0.2]), 0.05)
+    assert not is_named({"closeness": 0.2, "closeness_ci": [0.0, 0.4]}, 0.05)

@@ -47,11 +47,14 @@ def markdown(d: dict) -> str:
     lines += ["![gap by field radius and map](gap_where.png)", "", "![gap by depth, defocus, frame, texture](gap_by.png)", "",
               "## 2. Which effect", ""]
     if d["ranked_effects"]:
-        lines += ["| rank | effect | fitted settings | closer to the capture (95 %) | share of gap (95 %) |", "|---|---|---|---|---|"]
+        lines += ["| rank | effect | fitted settings | closer to the capture (95 %) | images alone (95 %) | "
+                  "share of gap (95 %) |", "|---|---|---|---|---|---|"]
         for i, e in enumerate(d["ranked_effects"], 1):
+            img = e.get("image_closeness_ci")
+            img_txt = f"{e['image_closeness']:.2f} ({img[0]:.2f} … {img[1]:.2f})" if img else "—"
             lines.append(f"| {i} | **{e['effect']}** | {_params(e['params'])} | {e['closeness']:.2f} "
-                         f"({e['closeness_ci'][0]:.2f} … {e['closeness_ci'][1]:.2f}) | {e['share_of_gap']:.2f} "
-                         f"({e['ci_low']:.2f} … {e['ci_high']:.2f}) |")
+                         f"({e['closeness_ci'][0]:.2f} … {e['closeness_ci'][1]:.2f}) | {img_txt} | "
+                         f"{e['share_of_gap']:.2f} ({e['ci_low']:.2f} … {e['ci_high']:.2f}) |")
         lines += ["", f"Named cause: **{d['ranked_effects'][0]['effect']}**."]
     elif d["gap_significant"]:
         lines.append("No registered effect brings the twin significantly closer to the captures: the cause is "
