@@ -1,6 +1,7 @@
 """The focus-metadata and sensor-tilt effects, effect settings on the command line, and the simulator's split
 into optics and post-processing."""
 
+import cv2
 import numpy as np
 import pytest
 import torch
@@ -104,7 +105,7 @@ def test_raw_pipeline_demosaic_by_hand(lens):
 
     # bilinear interpolation reproduces flat colours everywhere and linear ramps away from the border
     flat = np.broadcast_to(np.array([0.2, 0.5, 0.7], np.float32)[:, None, None], (3, 8, 10)).copy()
-    e = fx.make("raw_pipeline")
+    e = fx.make("raw_pipeline", demosaic="bilinear")
     ctx = fx.SimContext(lens, (8, 10))
     assert np.allclose(e.sensor(flat, ctx, np.random.default_rng(0)), flat, atol=1e-6)
     yy, xx = np.mgrid[0:12, 0:16].astype(np.float32)
@@ -122,12 +123,33 @@ def test_raw_pipeline_demosaic_by_hand(lens):
     assert np.allclose(crop[:, 1:-1, 1:-1], full[:, 2:-1, 2:-1], atol=1e-6)
 
 
+def test_raw_pipeline_libraw_is_the_runtimes_development(lens, tmp_path):
+    """The default development is the runtime's: a frame through the effect equals the same frame written by the
+    virtual camera as a DNG and read back by aat_deploy (LibRaw), pixel for pixel; odd sizes and crops work."""
+    from aat_deploy.capture.raw import load_raw
+    from training.camera.virtual import write_capture
+
+    rng = np.random.default_rng(2)
+    frame = cv2.GaussianBlur(rng.random((40, 60, 3)).astype(np.float32), (0, 0), 1.5).transpose(2, 0, 1) * 0.8
+    frame = np.ascontiguousarray(frame)
+    e = fx.make("raw_pipeline")
+    out = e.sensor(frame, fx.SimContext(lens, (40, 60)), None)
+    write_capture(tmp_path / "cap", frame[None], [1.0], lens, None, None, {})
+    ref, _ = load_raw(tmp_path / "cap" / "frame_00.dng")
+    assert out.shape == frame.shape and np.array_equal(out, ref.transpose(2, 0, 1))
+    assert np.abs(out - frame).mean() < 0.02  # a development, not a different picture
+    odd = e.sensor(np.ascontiguousarray(frame[:, 1:20, 1:16]), fx.SimContext(lens, (40, 60), (1, 1)), None)
+    assert odd.shape == (3, 19, 15) and np.all(np.isfinite(odd))
+    with pytest.raises(ValueError, match="demosaic"):
+        fx.make("raw_pipeline", demosaic="vng")
+
+
 def test_raw_pipeline_spreads_one_noise_draw_per_photosite(lens):
     """Noise then raw_pipeline on a flat field: red is measured at 1 photosite in 4 and interpolated from 2 or 4
     others elsewhere, so its variance is (1 + 1/2 + 1/2 + 1/4) / 4 = 0.5625 of the photosite's (hand count)."""
     ctx = fx.SimContext(lens, (256, 256))
     flat = np.full((3, 256, 256), 0.5, np.float32)
-    effects = fx.parse("noise:full_well_e=1000:read_noise_e=0,raw_pipeline")
+    effects = fx.parse("noise:full_well_e=1000:read_noise_e=0,raw_pipeline:demosaic=bilinear")
     rng = np.random.default_rng(0)
     out = flat
     for e in effects:
