@@ -109,7 +109,9 @@ def main() -> None:
     if args.table is not None:
         rows = []
         for f in args.table or [args.out]:
-            var = next((k for k, v in VARIANTS.items() if v.folder == Path(f).resolve().parent.name), "full")
+            # the variant's cache folder, or its name in the file name (benchmarks/results/diagnose_v2_crop4.jsonl)
+            var = next((k for k, v in VARIANTS.items() if k != "full" and (v.folder == Path(f).resolve().parent.name
+                                                                          or k in Path(f).stem)), "full")
             rows += [dict(json.loads(x), variant=var, source=f) for x in Path(f).read_text().splitlines()]
         table(rows, 0.0)
         return
