@@ -145,6 +145,11 @@ def test_bad_inputs_get_one_line_errors(setup, tmp_path, capsys):
     assert main([str(tmp_path / "empty"), "--model", str(model), "--lens", RF50, "--out", str(tmp_path / "o")]) == 1
     err = capsys.readouterr().err.strip()
     assert "no capture folder with ground truth" in err and "\n" not in err
+    _, _, sets = setup
+    assert main([str(sets["bias"]), "--model", str(model), "--lens", RF50, "--out", str(tmp_path / "o"),
+                 "--effects", "noise,lens_flare"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert "unknown lens_flare" in err and "\n" not in err and not (tmp_path / "o").exists()
     assert main(["--list-effects"]) == 0
     listed = capsys.readouterr().out
     for name in ("aberrations", "focus_metadata", "sensor_tilt", "noise", "vignetting"):

@@ -198,7 +198,8 @@ class Diagnosis:
                     continue
                 fit = min(fits, key=self._image_distance)
                 score = capture_bootstrap(self._closeness(cur, fit, image_only), n_boot=cfg.n_boot, seed=cfg.seed)
-                img = capture_bootstrap(self._closeness(cur, fit, True), n_boot=cfg.n_boot, seed=cfg.seed)
+                img = score if image_only else capture_bootstrap(self._closeness(cur, fit, True), n_boot=cfg.n_boot,
+                                                                  seed=cfg.seed)
                 share = (None, None, None) if image_only else self._share(gap0, cur, fit)
                 entry = {"effect": name, "params": fit.effects[-1].params, "round": rnd + 1,
                          "closeness": score[0], "closeness_ci": [score[1], score[2]],

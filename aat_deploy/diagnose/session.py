@@ -72,6 +72,10 @@ def run(root, model_path, out: Path, *, lens=None, psf=None, effects=None, retra
     say = _say(quiet)
     if retrain_steps and shutil.which("aat-train") is None:
         raise DiagnoseError("--retrain-steps needs aat-train (pip install -e '.[train]')")
+    cfg = cfg or DiagnoseConfig(seed=seed, effects=[s.strip() for s in effects.split(",")] if effects else None)
+    unknown = sorted(set(cfg.effects or []) - set(fx.names()))
+    if unknown:  # before any model or capture is loaded
+        raise DiagnoseError(f"--effects: unknown {', '.join(unknown)}; registered: {', '.join(fx.names())}")
     try:
         model = DfFModel(model_path, threads=threads)
         lens_obj, lens_file = find_lens(model, lens)
@@ -84,9 +88,6 @@ def run(root, model_path, out: Path, *, lens=None, psf=None, effects=None, retra
         caps = [load_capture_data(f, model) for f in folders]
     except (ModelError, TwinError, CaptureError, FileNotFoundError, ValueError) as e:
         raise DiagnoseError(str(e)) from None
-    cfg = cfg or DiagnoseConfig(seed=seed, effects=[s.strip() for s in effects.split(",")] if effects else None)
-    for n in cfg.effects or []:
-        fx.make(n)  # unknown names fail here, before any rendering
     res, diag, chain = diagnose(model, twins, caps, cfg, progress=say)
     res["root"] = str(root)
     res["model"] = {"file": str(model_path), "net": model.meta.get("aat.net"), "simulator": model.meta.get("aat.simulator"),

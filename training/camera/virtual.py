@@ -23,6 +23,9 @@ from training.optics.paraxial import paraxial_data
 # XYZ (D65) -> linear sRGB: the rendered RGB has sRGB primaries, so this is the camera's ColorMatrix1.
 XYZ_TO_SRGB = np.array([[3.2406, -1.5372, -0.4986], [-0.9689, 1.8758, 0.0415], [0.0557, -0.2040, 1.0570]])
 BLACK_LEVEL, WHITE_LEVEL = 512, 16383  # 14-bit sensor
+# How the virtual sensor's RAW files describe themselves (every DNG it writes; raw_pipeline's twin frames too).
+SENSOR_DNG = {"cfa_pattern": "RGGB", "black_level": BLACK_LEVEL, "white_level": WHITE_LEVEL,
+              "color_matrix": XYZ_TO_SRGB}
 MAKE, MODEL = "aat", "virtual camera"
 
 
@@ -72,8 +75,7 @@ def write_capture(out_dir, frames: np.ndarray, focus_reported_m, lens: Lens, gt_
                     raise OSError(f"{tmp / name}: OpenCV could not write the float TIFF")
                 sidecar.append({"file": name, "focus_m": float(f)})
                 continue
-            write_dng(tmp / f"frame_{i:02d}.dng", to_dn(mosaic_rggb(fr)), cfa_pattern="RGGB",
-                      black_level=BLACK_LEVEL, white_level=WHITE_LEVEL, color_matrix=XYZ_TO_SRGB,
+            write_dng(tmp / f"frame_{i:02d}.dng", to_dn(mosaic_rggb(fr)), **SENSOR_DNG,
                       subject_distance_m=round(float(f), 4), focal_length_mm=round(p.efl_mm, 2),
                       f_number=round(p.fno, 2), make=MAKE, model=MODEL, lens_model=lens.name)
         if sidecar:

@@ -16,7 +16,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from training.camera.virtual import BLACK_LEVEL, WHITE_LEVEL, XYZ_TO_SRGB, mosaic_rggb, to_dn
+from training.camera.virtual import SENSOR_DNG, mosaic_rggb, to_dn
 from training.render.effects import Effect, SimContext, register
 
 DEMOSAIC = ("libraw", "bilinear")
@@ -60,9 +60,8 @@ def develop_libraw(mosaic_linear: np.ndarray) -> np.ndarray:
 
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "frame.dng"
-        write_dng(path, to_dn(mosaic_linear), cfa_pattern="RGGB", black_level=BLACK_LEVEL, white_level=WHITE_LEVEL,
-                  color_matrix=XYZ_TO_SRGB, subject_distance_m=1.0, focal_length_mm=50.0, f_number=2.0,
-                  make="aat", model="twin", lens_model="twin")
+        write_dng(path, to_dn(mosaic_linear), **SENSOR_DNG, subject_distance_m=1.0, focal_length_mm=50.0,
+                  f_number=2.0, make="aat", model="twin", lens_model="twin")  # EXIF fields: unused here
         rgb, _ = load_raw(path)
     return np.ascontiguousarray(rgb.transpose(2, 0, 1))
 
