@@ -25,7 +25,7 @@ from training.cli.train import main
 from training.nets.export import read_metadata
 
 EF50 = ROOT / "lenses" / "canon_ef50mm_f1.8.json"
-STAGES = ["lens", "psf", "train_aat", "train_thin", "export", "evaluate", "report"]
+STAGES = ["lens", "psf", "psf_colour", "train_aat", "train_thin", "export", "evaluate", "report"]
 
 
 def _args(out: Path, *extra: str) -> list[str]:
@@ -68,8 +68,8 @@ def chain(tmp_path_factory):
 
 def test_killed_run_resumes_without_redoing_finished_stages(chain):
     first, second = chain["first"], chain["second"]
-    assert set(first) == {"lens", "psf"}  # finished before the kill
-    for s in ("lens", "psf"):
+    assert set(first) == {"lens", "psf", "psf_colour"}  # finished before the kill (psf_colour: nothing to do)
+    for s in ("lens", "psf", "psf_colour"):
         assert second[s]["finished"] == first[s]["finished"]  # not recomputed
     assert second["train_aat"]["action"] == "resumed"
     assert second["train_aat"]["input_hash"] == chain["running"]["input_hash"]
@@ -135,7 +135,7 @@ def test_same_command_skips_everything_other_settings_need_force(chain, tmp_path
     out = tmp_path / "copy"
     shutil.copytree(chain["out"], out)
     assert main(_args(out)) == 0
-    assert "0 stages run, 7 up to date" in capsys.readouterr().out
+    assert "0 stages run, 8 up to date" in capsys.readouterr().out
     assert {k: v["finished"] for k, v in _records(out).items()} == {
         k: v["finished"] for k, v in chain["second"].items()}
     assert main(_args(out, "--steps", "3")) == 1
@@ -159,9 +159,9 @@ def test_changed_input_reruns_downstream_under_torchrun(chain, tmp_path):
     res = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=600, check=False)
     assert res.returncode == 0, res.stderr[-2000:]
     rec = _records(out)
-    for s in ("lens", "psf"):
+    for s in ("lens", "psf", "psf_colour"):
         assert rec[s]["finished"] == chain["second"][s]["finished"]
-    for s in STAGES[2:]:
+    for s in STAGES[3:]:
         assert rec[s]["finished"] > chain["second"][s]["finished"], s
     assert read_metadata(out / "dff_dfvnet_aat.onnx")["aat.train_steps"] == "3"
     assert json.loads((out / "train_aat" / "config.json").read_text())["steps"] == 3
@@ -174,7 +174,8 @@ def test_fine_tune_from_onnx_with_extra_effect_and_given_psf(chain, tmp_path):
     assert main(_args(out, "--init", str(src / "dff_dfvnet_aat.onnx"), "--psf", str(src / "psf.onnx"),
                       "--effects", "noise:full_well_e=3000", "--steps", "2", "--no-baseline")) == 0
     rec = _records(out)
-    assert set(rec) == {"lens", "psf", "train_aat", "export", "evaluate", "report"}
+    assert set(rec) == {"lens", "psf", "psf_colour", "train_aat", "export", "evaluate", "report"}
+    assert rec["psf_colour"]["outputs"] == {}  # no chromatic: nothing to fit
     log = [json.loads(line) for line in (out / "train_aat" / "log.jsonl").read_text().splitlines()]
     assert log[0]["init"]["kind"] == "onnx" and log[0]["init"]["max_abs_vs_onnxruntime"] <= 1e-4
     md = read_metadata(out / "dff_dfvnet_aat.onnx")
@@ -182,6 +183,68 @@ def test_fine_tune_from_onnx_with_extra_effect_and_given_psf(chain, tmp_path):
     cfg = json.loads((out / "config.json").read_text())
     assert cfg["train"]["lr"] == pytest.approx(1e-4)  # fine-tuning: the preset's rate x 0.1
     assert (out / "psf.onnx").read_bytes() == (src / "psf.onnx").read_bytes()
+
+
+@pytest.fixture(scope="module")
+def colour(chain, tmp_path_factory):
+    """Fine-tuning with --effects chromatic, with the ray tracer made to fail: colour must come from the
+    per-wavelength surrogates that stage psf_colour fits."""
+    from training.render.effects import chromatic
+
+    out = tmp_path_factory.mktemp("colour") / "ft"
+    src = chain["out"]
+    args = _args(out, "--init", str(src / "dff_dfvnet_aat.onnx"), "--psf", str(src / "psf.onnx"),
+                 "--effects", "chromatic", "--steps", "1", "--no-baseline")
+
+    def no_tracing(*a, **k):
+        raise AssertionError("chromatic traced its PSFs although per-wavelength surrogates exist")
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(chromatic, "_ThreeWavelengths", no_tracing)
+        assert main(args) == 0
+        first = _records(out)
+        assert main(args) == 0
+    return {"out": out, "first": first, "second": _records(out)}
+
+
+def test_chromatic_fits_per_wavelength_surrogates_and_trains_with_them(chain, colour):
+    """Stage psf_colour: one surrogate per wavelength (sensor where the design wavelength focuses, kernels
+    centred on its chief ray); training and evaluation render with them; a rerun refits nothing."""
+    from training.render.effects import chromatic
+
+    out, rec = colour["out"], colour["first"]
+    files = [chromatic.surrogate_name(w) for w in (610, 540, 465)]
+    assert sorted(rec["psf_colour"]["outputs"]) == sorted(files)
+    for f, w in zip(files, (610, 540, 465)):
+        md = read_metadata(out / f)
+        assert float(md["aat.wavelength_nm"]) == w and float(md["aat.center_wavelength_nm"]) == 589.0
+        assert md["aat.lens_hash"] == read_metadata(chain["out"] / "psf.onnx")["aat.lens_hash"]
+    assert json.loads(read_metadata(out / "dff_dfvnet_aat.onnx")["aat.effects"]) == ["chromatic"]
+    assert colour["second"]["psf_colour"]["finished"] == rec["psf_colour"]["finished"]
+
+
+def test_chromatic_twins_render_without_torch_next_to_their_surrogates(colour, tmp_path):
+    """With psf_<w>nm.onnx next to the lens's surrogate the torch-free twin renderer renders `chromatic`
+    (three different channels); psfs=trace still needs torch; a folder without them is a one-line error."""
+    from aat_deploy.twin.renderer import TwinRenderer
+    from aat_deploy.twin.sources import OnnxSource
+    from training.lens.io import load_lens
+    from training.render import effects as fx
+
+    out = colour["out"]
+    lens = load_lens(out / "lens.json")
+    twins = TwinRenderer(DfFModel(out / "dff_dfvnet_aat.onnx"), lens, OnnxSource(out / "psf.onnx", lens))
+    assert twins.why_torch(fx.parse("chromatic")) is None
+    assert "torch" in twins.why_torch(fx.parse("chromatic:psfs=trace"))
+    rgb = np.ones((3, 64, 96), np.float32)
+    rgb[:, :, 48:] = 0.1  # an edge: colour fringes where the channels' PSFs differ
+    depth = np.full((64, 96), 3.0, np.float32)
+    frames = twins.optical(fx.parse("chromatic"), rgb, depth, np.array([0.6]), twins.context())
+    assert frames.shape == (1, 3, 64, 96) and np.isfinite(frames).all()
+    assert np.abs(frames[0, 0] - frames[0, 2]).max() > 1e-3
+    with pytest.raises(FileNotFoundError, match=r"psf_610nm.onnx.*chromatic:psfs"):
+        twins.optical(fx.parse([{"name": "chromatic", "psfs": str(tmp_path)}]), rgb, depth, np.array([0.6]),
+                      twins.context())
 
 
 def test_bad_options_are_one_line_errors(chain, tmp_path, capsys):

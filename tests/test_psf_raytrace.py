@@ -131,3 +131,27 @@ def test_large_defocus_is_not_truncated():
     b = raytrace_psfs(RF50, [0.0, 0.9], [0.0, 0.9], 0.35, 20.0, n_rays=2048)
     assert b.scale[0] > 5  # the window grew with the blur
     assert b.energy_in_window.min() > 0.97
+
+
+def _centroid_cells(k: torch.Tensor) -> np.ndarray:
+    """(B, k, k) -> (B, 2) centroid (x right, y up) in cells from the window centre."""
+    g = torch.arange(k.shape[-1], dtype=torch.float64) - k.shape[-1] // 2
+    k = k.double()
+    e = k.sum((1, 2))
+    return torch.stack([(k.sum(1) * g).sum(1) / e, -(k.sum(2) * g).sum(1) / e], -1).numpy()
+
+
+def test_kernels_centred_on_another_wavelength_keep_lateral_colour():
+    """center_wavelength_nm: a blue PSF centred on the 589 nm chief ray is the blue PSF centred on its own chief
+    ray, moved by the offset between the two chief rays (lateral colour), and reports the 589 nm hit."""
+    spec = KernelSpec.for_lens(RF50)
+    x, y, d, f = np.array([0.0, 0.9, -0.8]), np.array([0.0, 0.9, 0.5]), np.array([2.0, 3.0, 1.5]), np.array([2.0, 3.0, 1.2])
+    ref = raytrace_psfs(RF50, x, y, d, f, spec, n_rays=16)
+    own = raytrace_psfs(RF50, x, y, d, f, spec, n_rays=8192, wavelength_nm=465.0)
+    moved = raytrace_psfs(RF50, x, y, d, f, spec, n_rays=8192, wavelength_nm=465.0, center_wavelength_nm=589.0)
+    np.testing.assert_allclose(moved.center_mm, ref.center_mm, atol=1e-6)
+    shift_cells = (own.center_mm - ref.center_mm) / RF50.sensor.pixel_mm / own.scale[:, None]
+    assert np.abs(shift_cells[1:]).max() > 0.01  # off axis the chief rays part
+    np.testing.assert_allclose(_centroid_cells(moved.kernels) - _centroid_cells(own.kernels), shift_cells, atol=2e-3)
+    same = raytrace_psfs(RF50, x, y, d, f, spec, n_rays=256, wavelength_nm=465.0, center_wavelength_nm=465.0)
+    assert torch.equal(same.kernels, raytrace_psfs(RF50, x, y, d, f, spec, n_rays=256, wavelength_nm=465.0).kernels)

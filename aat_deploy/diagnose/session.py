@@ -2,7 +2,8 @@
 temporary folder and renamed, so an interrupted run leaves nothing half-written).
 
 Torch-free: twins are rendered by `aat_deploy.twin` with the exported PSF surrogate. When the training package
-(torch) is installed, the effects numpy cannot render (`chromatic`; the lens's PSFs without a surrogate) are
+(torch) is installed, the effects numpy cannot render (`chromatic` without per-wavelength surrogates; the lens's
+PSFs without a surrogate) are
 rendered by the training simulator; without it they are skipped and listed in the report. Retraining runs
 `aat-train` (the `train` extra)."""
 

@@ -6,5 +6,6 @@ same layered renderer and the same effects registry (`training.render.effects`) 
 - `sources.py`: PSF sources (the ONNX surrogate, the thin-lens Gaussian) and the unit-energy wrapper;
 - `renderer.py`: `TwinRenderer`, twins of captures for one DfF model.
 
-Only the retraining, ray-traced PSFs and the `chromatic` effect need the training package (torch).
+Only the retraining, ray-traced PSFs and the `chromatic` effect without per-wavelength surrogates need the training
+package (torch).
 """

@@ -4,7 +4,8 @@ model's training simulator would, at the capture's reported focus distances, opt
 The simulator is rebuilt from the model's metadata (`aat.simulator`: `aat` = the lens's PSFs, i.e. the
 `aberrations` effect, or `thin_lens`; plus `aat.effects`), with the effects registry shared with training
 (`training.render.effects`), the exported PSF surrogate and the numpy layered renderer. Effects that only the
-torch simulator can render (`chromatic`; the lens's PSFs when there is no surrogate) raise `NeedsTorch`;
+torch simulator can render (`chromatic` without per-wavelength surrogates; the lens's PSFs when there is no
+surrogate) raise `NeedsTorch`;
 `training.diagnose.twin.TwinRenderer` renders those with torch; `aat_deploy.diagnose.session.make_renderer` picks one.
 """
 
@@ -95,9 +96,11 @@ class TwinRenderer:
 
     def why_torch(self, effects: list[fx.Effect]) -> str | None:
         """Why these effects need the torch simulator, or None when numpy renders them."""
+        ctx = self.context()
         for e in effects:
-            if e.needs_torch:
-                return f"effect {e.name!r} needs the training package (torch): {e.needs_torch}"
+            why = e.torch_reason(ctx)
+            if why:
+                return f"effect {e.name!r} needs the training package (torch): {why}"
             if e.uses_lens_psfs and self.lens_source is None:
                 return (f"effect {e.name!r} needs the lens's PSFs and there is no PSF surrogate: ray tracing needs "
                         "the training package (torch)")

@@ -3,7 +3,7 @@ model was trained with, at the capture's reported focus distances, optionally wi
 
 Twins are rendered torch-free (`aat_deploy.twin`, the exported PSF surrogate and the numpy layered renderer)
 whenever every effect involved allows it; the torch simulator takes over for the rest: `chromatic` (ray-traced
-at three wavelengths) and the lens's PSFs when no surrogate was found (ray tracing).
+at three wavelengths when no per-wavelength surrogates sit next to the lens's) and the lens's PSFs when no surrogate was found (ray tracing).
 """
 
 from __future__ import annotations

@@ -51,8 +51,9 @@ def _producers(ctx: Context) -> dict[str, str]:
     """Which stage writes each run-folder file a later stage reads."""
     out = {"lens.json": "lens", "lens_report.json": "lens", "psf.onnx": "psf",
            "metrics.json": "evaluate", "error_vs_radius.png": "evaluate", "error_over_field.png": "evaluate"}
-    from training.pipeline.stages import onnx_name, train_dir
+    from training.pipeline.stages import _colour_files, onnx_name, train_dir
 
+    out.update({f: "psf_colour" for f in _colour_files(ctx)})
     for s in ctx.simulators:
         out[f"{train_dir(s)}/model.pt"] = train_dir(s)
         out[onnx_name(ctx, s)] = "export"

@@ -4,6 +4,7 @@
 |------------|-------------------------------------|---------------------------------------------------------------|
 | lens       | the lens file, sensor, focus range  | lens.json (lens + your sensor), lens_report.json              |
 | psf        | lens.json (or --psf)                | psf.onnx (RotPSF surrogate, aat.* metadata); work: psf_work/  |
+| psf_colour | lens.json (only with chromatic)     | psf_<w>nm.onnx per wavelength; work: psf_colour_work/         |
 | train_aat  | lens.json, psf.onnx                 | train_aat/model.pt (+ last.pt, log.jsonl, rendered stacks)    |
 | train_thin | lens.json (psf.onnx with vignetting)| train_thin/model.pt                                           |
 | export     | lens.json, the model.pt files       | dff_<net>_aat.onnx, dff_<net>_thin.onnx                       |
@@ -74,11 +75,12 @@ def train_dir(simulator: str) -> str:
 
 
 def _uses_psf(simulator: str, effects: list[str]) -> bool:
-    # Mirrors training.data.stacks.FocalStackDataset: the lens's PSF source is built for the AAT simulator and for
-    # the vignetting effect (relative illumination from the lens).
+    # Mirrors training.data.stacks.FocalStackDataset: the lens's PSF source is built for the AAT simulator, for
+    # the vignetting effect (relative illumination from the lens) and for chromatic (its per-wavelength
+    # surrogates are found next to psf.onnx).
     from training.pipeline.config import effect_name
 
-    return simulator == "aat" or "vignetting" in {effect_name(e) for e in effects}
+    return simulator == "aat" or bool({"vignetting", "chromatic"} & {effect_name(e) for e in effects})
 
 
 # -- 1. lens -------------------------------------------------------------------------------------------------------
@@ -134,9 +136,11 @@ def _psf_run(ctx: Context) -> list[str]:
     return ["psf.onnx"]
 
 
-def fit_surrogate(ctx: Context, lens, out: Path) -> None:
-    """Trace the axis and validation PSF datasets (cached in psf_work/), fit RotPSF on its wall-clock budget
-    (resumable from psf_work/psf_fit/), export to `out` with metadata."""
+def fit_surrogate(ctx: Context, lens, out: Path, wavelength_nm: float | None = None,
+                  center_wavelength_nm: float | None = None, work_dir: str = "psf_work") -> None:
+    """Trace the axis and validation PSF datasets (cached in `work_dir`), fit RotPSF on its wall-clock budget
+    (resumable from `work_dir`/psf_fit/), export to `out` with metadata. wavelength_nm: None = the config's;
+    center_wavelength_nm: centre the kernels on that wavelength's chief ray (per-wavelength surrogates)."""
     import torch
 
     from training.pipeline.hashing import write_json_atomic
@@ -147,31 +151,76 @@ def fit_surrogate(ctx: Context, lens, out: Path) -> None:
     p = dict(ctx.cfg["psf"])
     nearest = json.loads(ctx.path("lens_report.json").read_text())["nearest_focus_m"]
     p["near_m"] = max(p["near_m"], nearest)  # the margin below the focus range stops at the lens's nearest focus
-    work = ctx.path("psf_work")
+    wavelength = float(wavelength_nm or p["wavelength_nm"])
+    work = ctx.path(work_dir)
     work.mkdir(parents=True, exist_ok=True)
+    name = "psf_chain" if center_wavelength_nm is None else f"psf_chain_{wavelength:g}nm"
     exp = PSFExperiment(lens=str(ctx.path("lens.json")), near_m=p["near_m"], far_m=p["far_m"],
-                        kernel_size=p["kernel_size"], margin_px=p["margin_px"], wavelength_nm=p["wavelength_nm"],
+                        kernel_size=p["kernel_size"], margin_px=p["margin_px"], wavelength_nm=wavelength,
+                        center_wavelength_nm=center_wavelength_nm,
                         train_axis={"n": p["axis_n"], "n_rays": p["axis_rays"], "seed": 1 + 10 * p["seed"]},
                         val={"n": p["val_n"], "n_rays": p["val_rays"], "seed": 3 + 10 * p["seed"]},
                         fits={"rot": {"minutes": p["fit_minutes"], "lr": 1e-3, "loss": "l1",
                                       "eval_every_s": max(5.0, 6.0 * p["fit_minutes"]),
                                       "checkpoint_every_s": 30.0}},
-                        source=str(work / "psf_chain.json"))
-    write_json_atomic(work / "psf_chain.json", {k: v for k, v in exp.__dict__.items() if k != "source"})
+                        source=str(work / f"{name}.json"))
+    write_json_atomic(work / f"{name}.json", {k: v for k, v in exp.__dict__.items() if k != "source"})
     data = {}
     for name, layout, part in (("axis", "axis", exp.train_axis), ("val", "field", exp.val)):
         d = build_psf_dataset(lens, exp.data_config(layout, part), work, compiled=p["compiled"],
                               progress=ctx.progress)
         data[name] = to_tensors(d)
-    ctx.log(f"psf: {p['axis_n']} axis PSFs traced; fitting RotPSF for {p['fit_minutes'] * 60:.0f} s")
+    ctx.log(f"psf: {p['axis_n']} axis PSFs traced at {wavelength:g} nm; fitting RotPSF for "
+            f"{p['fit_minutes'] * 60:.0f} s")
     model, fit_cfg = exp.run_fit("rot", lens, data, cache_dir=work, progress=ctx.progress)
     st = torch.load(exp.checkpoint("rot", work, lens), weights_only=False)
     last = (fit_cfg.history or [{}])[-1]
+    centre = {} if center_wavelength_nm is None else {"center_wavelength_nm": center_wavelength_nm}
     export_psf_onnx(model, lens, out, force=True, extra_metadata={
-        "fit": "rot", "wavelength_nm": p["wavelength_nm"], "training_minutes": f"{st['elapsed'] / 60:.2f}",
+        "fit": "rot", "wavelength_nm": wavelength, **centre, "training_minutes": f"{st['elapsed'] / 60:.2f}",
         "validation_l1": f"{last.get('l1', float('nan')):.4e}",
         "command": "aat-train --lens (training/pipeline, stage psf)"})
     ctx.log(f"psf: validation l1 {last.get('l1', float('nan')):.3e} per cell; wrote {out.name}")
+
+
+# -- 2b. psf_colour -----------------------------------------------------------------------------------------------
+def _chromatic(ctx: Context):
+    """The run's `chromatic` effect, or None."""
+    from training.render import effects as fx
+
+    return next((e for e in fx.parse(ctx.cfg["effects"]) if e.name == "chromatic"), None)
+
+
+def _colour_files(ctx: Context) -> list[str]:
+    """The per-wavelength surrogates stage psf_colour writes (none without chromatic, or when the effect is told
+    where its surrogates are or to trace)."""
+    from training.render.effects.chromatic import surrogate_name
+
+    e = _chromatic(ctx)
+    if e is None or e.params["psfs"] != "auto":
+        return []
+    return [surrogate_name(w) for w in e.wavelengths()]
+
+
+def _colour_settings(ctx: Context) -> dict:
+    files = _colour_files(ctx)
+    return {"files": files, "fit": ctx.cfg["psf"]} if files else {}
+
+
+def _colour_run(ctx: Context) -> list[str]:
+    """One RotPSF per wavelength of `chromatic`, traced with the sensor where the design wavelength focuses and
+    centred on its chief ray: chromatic then renders as fast as the lens's PSFs (else ~30 s a training stack)."""
+    from training.lens.io import load_lens
+    from training.render.effects.chromatic import REFERENCE_WAVELENGTH_NM
+
+    files = _colour_files(ctx)
+    if not files:
+        return []
+    lens = load_lens(ctx.path("lens.json"))
+    for w, f in zip(_chromatic(ctx).wavelengths(), files):
+        fit_surrogate(ctx, lens, ctx.path(f), wavelength_nm=w, center_wavelength_nm=REFERENCE_WAVELENGTH_NM,
+                      work_dir="psf_colour_work")
+    return files
 
 
 # -- 3./4. training ------------------------------------------------------------------------------------------------
@@ -207,7 +256,8 @@ def _sensor_px(ctx: Context) -> tuple[int, int]:
 
 
 def _train_reads(simulator: str) -> Callable[[Context], list[str]]:
-    return lambda ctx: ["lens.json"] + (["psf.onnx"] if _uses_psf(simulator, ctx.cfg["effects"]) else [])
+    return lambda ctx: ["lens.json"] + (["psf.onnx"] if _uses_psf(simulator, ctx.cfg["effects"]) else []) + \
+        _colour_files(ctx)
 
 
 def _train_settings(simulator: str) -> Callable[[Context], dict]:
@@ -308,6 +358,8 @@ def stages(ctx: Context) -> list[Stage]:
     out = [
         Stage("lens", lambda c: [], _lens_settings, _lens_run),
         Stage("psf", lambda c: ["lens.json", "lens_report.json"], _psf_settings, _psf_run, work=lambda c: ["psf_work", "psf.onnx"]),
+        Stage("psf_colour", lambda c: ["lens.json", "lens_report.json"], _colour_settings, _colour_run,
+              work=lambda c: ["psf_colour_work", *_colour_files(c)]),
     ]
     for sim in ctx.simulators:
         d = train_dir(sim)
@@ -318,7 +370,7 @@ def stages(ctx: Context) -> list[Stage]:
               lambda c: {"net": c.net, "simulators": c.simulators, "preset": c.cfg["preset"],
                          "init": Path(c.cfg["init"]["path"]).name if c.cfg["init"] else ""},
               _export_run),
-        Stage("evaluate", lambda c: ["lens.json", "psf.onnx"] + [onnx_name(c, s) for s in c.simulators],
+        Stage("evaluate", lambda c: ["lens.json", "psf.onnx", *_colour_files(c)] + [onnx_name(c, s) for s in c.simulators],
               _eval_settings, _eval_run),
         Stage("report", _report_reads, lambda c: {"config": c.cfg}, _report_run),
     ]

@@ -37,6 +37,7 @@ class PSFDataConfig:
     far_m: float = 20.0
     n_rays: int = 2048
     wavelength_nm: float = DEFAULT_WAVELENGTH_NM
+    center_wavelength_nm: float | None = None  # kernels centred on this wavelength's chief ray (None: their own)
     kernel_size: int = 11
     margin_px: float = 4.0
     near_focus_fraction: float = 0.5
@@ -44,7 +45,9 @@ class PSFDataConfig:
     seed: int = 0
 
     def key(self, lens: Lens) -> str:
-        blob = json.dumps({"lens": lens.prescription_hash(), **asdict(self)}, sort_keys=True)
+        # Unset options stay out of the key, so datasets cached before an option existed keep their names.
+        blob = json.dumps({"lens": lens.prescription_hash(), **{k: v for k, v in asdict(self).items() if v is not None}},
+                          sort_keys=True)
         return hashlib.sha256(blob.encode()).hexdigest()[:12]
 
 
@@ -108,7 +111,7 @@ def build_psf_dataset(lens: Lens, cfg: PSFDataConfig, cache_dir: Path | None = N
             continue
         b = raytrace_psfs(lens, inp["x"][sl], inp["y"][sl], inp["depth_m"][sl], inp["focus_m"][sl], spec,
                           n_rays=cfg.n_rays, wavelength_nm=cfg.wavelength_nm, seed=cfg.seed * 100003 + i,
-                          compiled=compiled, chunk=256, oversample=over)
+                          compiled=compiled, chunk=256, oversample=over, center_wavelength_nm=cfg.center_wavelength_nm)
         kernels[sl], energy[sl], scale[sl] = b.kernels.numpy(), b.energy, b.scale
         _atomic_savez(part, kernels=kernels[sl], energy=energy[sl], scale=scale[sl])
     data = {**{k_: v.astype(np.float32) for k_, v in inp.items()}, "kernels": kernels, "energy": energy,

@@ -28,6 +28,7 @@ class PSFExperiment:
     kernel_size: int = 11
     margin_px: float = 4.0
     wavelength_nm: float = 589.0
+    center_wavelength_nm: float | None = None  # see PSFDataConfig: for per-wavelength surrogates of one camera
     train_axis: dict = field(default_factory=dict)
     train_field: dict = field(default_factory=dict)
     val: dict = field(default_factory=dict)
@@ -58,7 +59,8 @@ class PSFExperiment:
 
     def data_config(self, layout: str, part: dict) -> PSFDataConfig:
         return PSFDataConfig(layout=layout, near_m=self.near_m, far_m=self.far_m, kernel_size=self.kernel_size,
-                             margin_px=self.margin_px, wavelength_nm=self.wavelength_nm, **part)
+                             margin_px=self.margin_px, wavelength_nm=self.wavelength_nm,
+                             center_wavelength_nm=self.center_wavelength_nm, **part)
 
     def datasets(self, lens: Lens, cache_dir=None, compiled=True) -> dict[str, dict]:
         """Train (axis, field) and validation sets as tensors, traced once and cached; with build times."""
@@ -89,7 +91,8 @@ class PSFExperiment:
         (the lens's optics and sensor, the data and the fit settings), so that two configs of the same file
         name, or an edited config, never resume each other's fit."""
         lens = lens or self.lens_obj()
-        d = {k: v for k, v in asdict(self).items() if k not in ("lens", "source", "eval", "grid", "fits")}
+        d = {k: v for k, v in asdict(self).items()
+             if k not in ("lens", "source", "eval", "grid", "fits") and v is not None}  # unset: keys unchanged
         blob = json.dumps({"lens": lens.prescription_hash(), "fit": self.fits.get(name), **d}, sort_keys=True)
         key = hashlib.sha256(blob.encode()).hexdigest()[:10]
         return Path(cache_dir or DEFAULT_CACHE) / "psf_fit" / f"{Path(self.source).stem}_{name}_{key}.pt"

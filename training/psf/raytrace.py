@@ -134,6 +134,16 @@ class _Tracer:
         return self.fn(*comps)
 
 
+def _chief_hit(lens: Lens, obj: torch.Tensor, wavelength_nm: float, sensor_z_mm: np.ndarray):
+    """Sensor hit (x, y), each (B, 1) float32 mm, of the chief ray at `wavelength_nm` from object points (B, 3)."""
+    p = paraxial_data(lens)
+    aim = chief_ray_pupil(lens, obj, wavelength_nm)
+    comps = _rays_to_pupil(lens, obj, aim[:, None, :], p.entrance_pupil_z_mm)
+    flat = [c.reshape(-1).float() for c in comps]
+    hx, hy, _ = _tracer(lens, wavelength_nm, False)(*flat, torch.from_numpy(sensor_z_mm).float())
+    return hx[:, None], hy[:, None]
+
+
 @lru_cache(maxsize=8)
 def _tracer(lens: Lens, wavelength_nm: float, compiled: bool) -> _Tracer:
     return _Tracer(lens, wavelength_nm, compiled)
@@ -153,6 +163,7 @@ def raytrace_psfs(
     compiled: bool = False,
     chunk: int = 128,
     oversample: int = 1,
+    center_wavelength_nm: float | None = None,
 ) -> PSFBatch:
     """Ray-traced PSFs for arrays x, y (normalised field), depth_m, focus_m (m from the sensor), broadcast.
 
@@ -160,6 +171,9 @@ def raytrace_psfs(
     datasets and benchmarks, not for a handful of PSFs.
     oversample: 2 splats on a half-cell grid of size 2k+1 (coarse cell i at fine index 2i+1) from which
         `kernel.downsample2` gives the k x k kernel exactly; surrogates that rotate kernels predict this grid.
+    center_wavelength_nm: centre the kernels on the chief ray of this wavelength instead of their own, so that
+        kernels of several wavelengths keep their lateral colour (the shift between their chief rays); `center_mm`
+        is then that reference hit. None: each kernel is centred on its own chief ray.
     """
     spec = spec or KernelSpec.for_lens(lens)
     table = table or focus_table(lens)
@@ -173,6 +187,7 @@ def raytrace_psfs(
     rho = pupil_sampling_scale(lens, wavelength_nm)
     gen = torch.Generator().manual_seed(seed)
     tracer = _tracer(lens, wavelength_nm, compiled)
+    recentre = center_wavelength_nm is not None and float(center_wavelength_nm) != float(wavelength_nm)
     scale = spec.scale(lens, depth_m, focus_m)
     sensor_z = np.asarray(table(focus_m))
     kernels = torch.zeros(n_psf, k, k)
@@ -199,6 +214,8 @@ def raytrace_psfs(
         hx, hy, valid = (t.view(len(idx), n_rays + 1)[:b] for t in (hx, hy, valid))
         # Upright image coordinates relative to the chief ray, in cells.
         cx, cy = hx[:, :1], hy[:, :1]
+        if recentre:
+            cx, cy = _chief_hit(lens, obj[:b], float(center_wavelength_nm), sensor_z[sl])
         cell = torch.from_numpy(scale[sl] * lens.sensor.pixel_mm / oversample).float()[:, None]
         col = (-(hx[:, 1:] - cx)) / cell + k // 2
         row = (hy[:, 1:] - cy) / cell + k // 2  # upright y up = sensor -y; rows grow downward

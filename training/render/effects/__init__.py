@@ -87,6 +87,11 @@ class Effect:
                              f"known: {sorted(self.defaults)}")
         self.params = {**self.defaults, **params}
 
+    def torch_reason(self, ctx: SimContext) -> str:
+        """Why rendering this effect for `ctx` needs torch ("" = numpy can); `needs_torch` unless the context
+        decides (e.g. `chromatic` with per-wavelength surrogates next to the lens's)."""
+        return self.needs_torch
+
     def wrap_source(self, source, ctx: SimContext):
         return source
 

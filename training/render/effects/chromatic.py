@@ -1,6 +1,15 @@
-"""chromatic: colour by tracing three wavelengths (longitudinal and lateral colour, per-channel aberrations)."""
+"""chromatic: colour from PSFs at three wavelengths (longitudinal and lateral colour, per-channel aberrations).
+
+The sensor stays where the camera focuses it at the design wavelength, so each channel's focus shift shows up as
+defocus; each channel's kernel is centred on the design wavelength's chief ray, so lateral colour shows up as a
+shift. The per-channel PSFs come from per-wavelength surrogates (`psf_<w>nm.onnx`, made by
+`aat-train --lens ... --effects chromatic`, stage psf_colour) when there are any, else from the ray tracer
+(torch, about 30 s a stack at training sizes).
+"""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 
@@ -11,24 +20,106 @@ from training.render.effects import Effect, SimContext, register
 
 # The ray tracer and torch are imported where the kernels are made: the registry must import without torch.
 
+REFERENCE_WAVELENGTH_NM = 589.0  # the kernels' centre: the design-wavelength surrogate's chief ray
+
+
+def surrogate_name(wavelength_nm: float) -> str:
+    """File name of the per-wavelength surrogate for `wavelength_nm` (e.g. psf_610nm.onnx)."""
+    return f"psf_{float(wavelength_nm):g}nm.onnx"
+
 
 @register
 class Chromatic(Effect):
     name = "chromatic"
-    description = ("per-channel PSFs traced at three wavelengths with the sensor focused at the design "
-                   "wavelength: longitudinal colour as defocus, lateral colour as a shift of each channel's "
-                   "kernel by its chief ray's offset (implies the lens's aberrations)")
+    description = ("per-channel PSFs at three wavelengths with the sensor focused at the design wavelength: "
+                   "longitudinal colour as defocus, lateral colour as a shift of each channel's kernel (implies "
+                   "the lens's aberrations). psfs: 'auto' = per-wavelength surrogates psf_<w>nm.onnx next to "
+                   "the lens's surrogate if there, else ray tracing; 'trace'; or a folder holding them")
     order = 10
-    needs_torch = "it ray-traces the PSFs at three wavelengths (the surrogate knows one)"
-    defaults = {"wavelengths_nm": [610.0, 540.0, 465.0], "n_rays": 1024, "compiled": False}
+    defaults = {"wavelengths_nm": [610.0, 540.0, 465.0], "n_rays": 1024, "compiled": False, "psfs": "auto"}
+
+    @property
+    def needs_torch(self) -> str:  # without a context: only a given folder is known to hold surrogates
+        return "" if self._folder(None) else "it ray-traces the PSFs at three wavelengths (no per-wavelength surrogates)"
+
+    def torch_reason(self, ctx: SimContext) -> str:
+        return "" if self._folder(ctx) else self.needs_torch
+
+    def wavelengths(self) -> list[float]:
+        return [float(w) for w in self.params["wavelengths_nm"]]
+
+    def _folder(self, ctx: SimContext | None) -> Path | None:
+        """The folder of per-wavelength surrogates to use, or None (trace)."""
+        mode = str(self.params["psfs"])
+        if mode == "trace":
+            return None
+        if mode != "auto":
+            folder = Path(mode)
+            missing = [surrogate_name(w) for w in self.wavelengths() if not (folder / surrogate_name(w)).is_file()]
+            if missing:
+                raise FileNotFoundError(f"{folder}: no per-wavelength surrogate {', '.join(missing)} (chromatic:psfs)")
+            return folder
+        path = getattr(ctx.lens_source, "path", None) if ctx is not None else None
+        if path is None:
+            return None
+        folder = Path(path).parent
+        return folder if all((folder / surrogate_name(w)).is_file() for w in self.wavelengths()) else None
 
     def wrap_source(self, source, ctx: SimContext):
-        return UnitEnergy(_ThreeWavelengths(ctx, [float(w) for w in self.params["wavelengths_nm"]], int(self.params["n_rays"]),
-                                 bool(self.params["compiled"]), k=source.k))
+        folder = self._folder(ctx)
+        if folder is None:
+            return UnitEnergy(_ThreeWavelengths(ctx, self.wavelengths(), int(self.params["n_rays"]),
+                                                bool(self.params["compiled"]), k=source.k))
+        return UnitEnergy(_Surrogates([folder / surrogate_name(w) for w in self.wavelengths()], ctx, source))
+
+
+class _Surrogates:
+    """Source of (N, 3, k, k) kernels from one surrogate per wavelength (numpy or torch, as the wrapped source
+    returns: the torch simulator and the torch-free twin renderer share it)."""
+
+    _cache: dict = {}  # (path, lens hash) -> OnnxSource: sessions are loaded once per process
+
+    def __init__(self, paths: list[Path], ctx: SimContext, wrapped):
+        from aat_deploy.twin.sources import OnnxSource
+
+        self.lens = ctx.lens
+        self.sources = []
+        for p in paths:
+            key = (str(Path(p).resolve()), ctx.lens.prescription_hash())
+            if key not in self._cache:
+                src = OnnxSource(p, ctx.lens)
+                meta = src.model.meta
+                centre = meta.get("aat.center_wavelength_nm")
+                if centre is None or abs(float(centre) - REFERENCE_WAVELENGTH_NM) > 1e-6:
+                    raise ValueError(f"{p}: not centred on the {REFERENCE_WAVELENGTH_NM:g} nm chief ray "
+                                     f"(aat.center_wavelength_nm = {centre}); refit it with stage psf_colour")
+                self._cache[key] = src
+            self.sources.append(self._cache[key])
+        self.spec = self.sources[0].spec
+        if any(s.spec != self.spec for s in self.sources) or self.spec.size != wrapped.k:
+            raise ValueError(f"{paths[0].parent}: per-wavelength surrogates with different kernel windows")
+        self.k = self.spec.size
+        k0, _ = wrapped(np.zeros(1), np.zeros(1), np.ones(1), np.ones(1))
+        self.torch = not isinstance(k0, np.ndarray)
+
+    def scale(self, depth_m, focus_m):
+        return self.spec.scale(self.lens, depth_m, focus_m)
+
+    def blur_px(self, depth_m, focus_m):
+        return thin_lens_blur_px(self.lens, depth_m, focus_m)
+
+    def __call__(self, x, y, depth_m, focus_m):
+        outs = [s(x, y, depth_m, focus_m) for s in self.sources]
+        kernels, scale = np.stack([k for k, _ in outs], 1), outs[0][1]
+        if self.torch:
+            import torch
+
+            return torch.from_numpy(kernels), torch.from_numpy(scale)
+        return kernels, scale
 
 
 class _ThreeWavelengths:
-    """Source of (N, 3, k, k) kernels (R, G, B), all centred on the design wavelength's chief ray."""
+    """Source of (N, 3, k, k) kernels (R, G, B), all centred on the design wavelength's chief ray, ray-traced."""
 
     def __init__(self, ctx: SimContext, wavelengths_nm: list[float], n_rays: int, compiled: bool, k: int):
         self.lens, self.wavelengths, self.n_rays, self.compiled = ctx.lens, wavelengths_nm, n_rays, compiled
@@ -47,7 +138,8 @@ class _ThreeWavelengths:
 
         from training.psf.raytrace import raytrace_psfs
 
-        ref = raytrace_psfs(self.lens, x, y, depth_m, focus_m, self.spec, n_rays=16, table=self.table)
+        ref = raytrace_psfs(self.lens, x, y, depth_m, focus_m, self.spec, n_rays=16, table=self.table,
+                            wavelength_nm=REFERENCE_WAVELENGTH_NM)
         out = []
         for w in self.wavelengths:
             b = raytrace_psfs(self.lens, x, y, depth_m, focus_m, self.spec, n_rays=self.n_rays, wavelength_nm=w,
@@ -58,7 +150,7 @@ class _ThreeWavelengths:
         return torch.stack(out, 1), torch.from_numpy(np.asarray(ref.scale, dtype=np.float32))
 
 
-def _shift(kernels: torch.Tensor, shift_xy_cells: torch.Tensor) -> torch.Tensor:
+def _shift(kernels, shift_xy_cells):
     """Move (N, k, k) kernels by (dx right, dy up) cells, bilinear."""
     import torch
     import torch.nn.functional as F
