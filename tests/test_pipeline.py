@@ -194,7 +194,7 @@ def colour(chain, tmp_path_factory):
     out = tmp_path_factory.mktemp("colour") / "ft"
     src = chain["out"]
     args = _args(out, "--init", str(src / "dff_dfvnet_aat.onnx"), "--psf", str(src / "psf.onnx"),
-                 "--effects", "chromatic", "--steps", "1", "--no-baseline")
+                 "--effects", "chromatic", "--steps", "1")  # both simulators: the thin-lens one too
 
     def no_tracing(*a, **k):
         raise AssertionError("chromatic traced its PSFs although per-wavelength surrogates exist")
@@ -219,7 +219,8 @@ def test_chromatic_fits_per_wavelength_surrogates_and_trains_with_them(chain, co
         md = read_metadata(out / f)
         assert float(md["aat.wavelength_nm"]) == w and float(md["aat.center_wavelength_nm"]) == 589.0
         assert md["aat.lens_hash"] == read_metadata(chain["out"] / "psf.onnx")["aat.lens_hash"]
-    assert json.loads(read_metadata(out / "dff_dfvnet_aat.onnx")["aat.effects"]) == ["chromatic"]
+    for name in ("dff_dfvnet_aat.onnx", "dff_dfvnet_thin.onnx"):
+        assert json.loads(read_metadata(out / name)["aat.effects"]) == ["chromatic"]
     assert colour["second"]["psf_colour"]["finished"] == rec["psf_colour"]["finished"]
 
 

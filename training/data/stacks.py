@@ -90,7 +90,9 @@ class FocalStackDataset(Dataset):
         self.cfg = cfg
         self.lens = load_lens(_resolve(cfg.lens))
         lens_src = None
-        if cfg.simulator == "aat" or "vignetting" in {str(e).split(":")[0] for e in cfg.effects}:  # 'name:k=v' too
+        names = {str(e).split(":")[0] for e in cfg.effects}  # 'name:k=v' too
+        # chromatic looks for its per-wavelength surrogates next to the lens's (else it ray-traces by itself)
+        if cfg.simulator == "aat" or "vignetting" in names or ("chromatic" in names and cfg.psf):
             lens_src = OnnxPSF(_resolve(cfg.psf), self.lens, threads=1) if cfg.psf else RayTracedPSF(self.lens)
         self.sim = Simulator(self.lens, lens_src, fx.parse(cfg.effect_list()), LayeredConfig(cell_px=cfg.cell_px))
         self.schedule = FocusSchedule(cfg.focus_near_m, cfg.focus_far_m, cfg.stack_size, cfg.jitter_d)
