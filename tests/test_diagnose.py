@@ -193,3 +193,42 @@ def test_naming_rule_by_hand():
     assert not is_named(dict(tilt, closeness=0.04), 0.05)
     assert not is_named(dict(tilt, image_closeness_ci=[0.01, 0.2]), 0.05)
     assert not is_named({"closeness": 0.2, "closeness_ci": [0.0, 0.4]}, 0.05)
+
+
+def test_brightness_distance_sees_fall_off_not_exposure():
+    """A corner fall-off (vignetting) is a brightness distance; a global exposure change is none; the distance
+    is the mean |log ratio - median| over the map's regions, checked on a hand-made two-level case."""
+    from aat_deploy.diagnose.bins import MAP_GRID
+    from aat_deploy.diagnose.compare import brightness_distance, region_index
+
+    rng = np.random.default_rng(0)
+    stack = rng.uniform(0.2, 0.8, (3, 3, 64, 96)).astype(np.float32)
+    assert brightness_distance(stack, 2.0 * stack) == pytest.approx(0.0, abs=1e-6)
+    reg = region_index(64, 96)
+    n = MAP_GRID[0] * MAP_GRID[1]
+    dark = np.isin(reg, np.arange(n)[: n // 4])  # a quarter of the regions at half the light
+    flat = np.full_like(stack, 0.5)
+    # log ratio 0 in 3/4 of the regions, log 2 in 1/4: median 0, mean |.| = log(2) / 4
+    assert brightness_distance(flat, flat * np.where(dark, 0.5, 1.0)) == pytest.approx(np.log(2) / 4, rel=1e-5)
+    y, x = np.mgrid[0:64, 0:96]
+    falloff = (1 - 0.5 * (((x - 47.5) / 48) ** 2 + ((y - 31.5) / 32) ** 2) / 2).astype(np.float32)
+    assert brightness_distance(stack * falloff, stack) > 0.05
+    assert brightness_distance(stack * falloff, stack * falloff) == pytest.approx(0.0, abs=1e-6)
+
+
+def test_brightness_fallback_rule_by_hand():
+    """named_by_brightness: lit significantly more like the captures AND a significant share of the gap."""
+    from aat_deploy.diagnose.search import named_by_brightness
+
+    # the shipped sample's round 2: vignetting after noise (images -0.03, lighting 0.64, share 0.63)
+    vign = {"brightness_closeness": 0.644, "brightness_closeness_ci": [0.644, 0.644], "image_closeness": -0.03,
+            "image_closeness_ci": [-0.03, -0.03], "share_of_gap": 0.63, "ci_low": 0.56, "ci_high": 0.71}
+    assert named_by_brightness(vign, 0.05)
+    # its round 3: focus breathing, which the capture lacks, moves the images far away (-1.24) although the
+    # shifted edges change the regions' brightness (0.28) and the share is large
+    breathing = dict(vign, brightness_closeness=0.282, brightness_closeness_ci=[0.282, 0.282],
+                     image_closeness=-1.242, image_closeness_ci=[-1.242, -1.242], share_of_gap=0.99, ci_low=0.86)
+    assert not named_by_brightness(breathing, 0.05)
+    assert not named_by_brightness(dict(vign, ci_low=-0.1), 0.05)  # no significant share of the gap
+    assert not named_by_brightness(dict(vign, brightness_closeness_ci=[0.01, 0.6]), 0.05)
+    assert not named_by_brightness(dict(vign, ci_low=None), 0.05)  # no gap: the image-only search never uses it

@@ -6,6 +6,8 @@ Image statistics are taken on normalised stacks (what the model sees):
   move these curves along the stack; noise raises their floor; vignetting lowers them towards the corners.
 - geometry: per region and frame, the sub-pixel shift between the capture and the twin (phase correlation);
   focus breathing makes it grow with field radius and with the frame's focus distance.
+- brightness: per region and frame, the log ratio of mean luminance, capture over twin, less its median (the
+  stacks' exposures are normalised anyway): vignetting shows here even where noise hides it in the focus curves.
 Model error pattern: the mean absolute depth error per bin (field radius x depth) on the capture vs on the twin."""
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ class Distances:
     focus_curves: float  # mean |log FM difference|, natural-log units
     geometry_px: float  # median shift magnitude over regions and frames, pixels
     error_pattern_m: float  # pixel-weighted mean |binned MAE difference|, metres
+    brightness: float = 0.0  # mean |log luminance ratio - its median| over regions and frames, natural-log units
 
 
 def region_index(h: int, w: int, grid: tuple[int, int] = MAP_GRID) -> np.ndarray:
@@ -45,6 +48,23 @@ def focus_curves(stack: np.ndarray, grid: tuple[int, int] = MAP_GRID) -> np.ndar
             fm = cv2.blur(lap * lap, (9, 9)).ravel()
             out[:, i, j] = np.bincount(reg, weights=fm, minlength=n_r) / np.bincount(reg, minlength=n_r)
     return np.log(out + 1e-8)
+
+
+def region_brightness(stack: np.ndarray, grid: tuple[int, int] = MAP_GRID) -> np.ndarray:
+    """stack (S, C, H, W) -> (R, S) log region-mean luminance (channel mean)."""
+    s, _, h, w = stack.shape
+    reg = region_index(h, w, grid).ravel()
+    n_r = grid[0] * grid[1]
+    count = np.bincount(reg, minlength=n_r)
+    lum = stack.mean(1).reshape(s, -1)
+    return np.log(np.stack([np.bincount(reg, weights=lum[i], minlength=n_r) / count for i in range(s)], 1) + 1e-8)
+
+
+def brightness_distance(a: np.ndarray, b: np.ndarray, grid: tuple[int, int] = MAP_GRID) -> float:
+    """Mean |log(region luminance of a / of b) - median| over regions and frames: how differently two stacks are
+    lit across the field (a global exposure difference counts nothing)."""
+    d = region_brightness(a, grid) - region_brightness(b, grid)
+    return float(np.mean(np.abs(d - np.median(d))))
 
 
 def region_shifts(a: np.ndarray, b: np.ndarray, grid: tuple[int, int] = MAP_GRID) -> np.ndarray:
@@ -89,4 +109,4 @@ def distances(real_stack: np.ndarray, real_curves: np.ndarray, twin_stack: np.nd
     mt, _ = error_pattern(twin_err, pattern_index, n_pattern)
     ok = k > 0
     d_err = float(np.sum(k[ok] * np.abs(mr[ok] - mt[ok])) / max(k[ok].sum(), 1))
-    return Distances(d_fm, d_geo, d_err)
+    return Distances(d_fm, d_geo, d_err, brightness_distance(real_stack, twin_stack))

@@ -48,14 +48,17 @@ def markdown(d: dict) -> str:
               "## 2. Which effect", ""]
     if d["ranked_effects"]:
         lines += ["| rank | effect | fitted settings | closer to the capture (95 %) | images alone (95 %) | "
-                  "share of gap (95 %) |", "|---|---|---|---|---|---|"]
+                  "lighting (95 %) | share of gap (95 %) |", "|---|---|---|---|---|---|---|"]
         for i, e in enumerate(d["ranked_effects"], 1):
-            img = e.get("image_closeness_ci")
+            img, bri = e.get("image_closeness_ci"), e.get("brightness_closeness_ci")
             img_txt = f"{e['image_closeness']:.2f} ({img[0]:.2f} … {img[1]:.2f})" if img else "—"
+            bri_txt = f"{e['brightness_closeness']:.2f} ({bri[0]:.2f} … {bri[1]:.2f})" if bri else "—"
             lines.append(f"| {i} | **{e['effect']}** | {_params(e['params'])} | {e['closeness']:.2f} "
-                         f"({e['closeness_ci'][0]:.2f} … {e['closeness_ci'][1]:.2f}) | {img_txt} | "
+                         f"({e['closeness_ci'][0]:.2f} … {e['closeness_ci'][1]:.2f}) | {img_txt} | {bri_txt} | "
                          f"{e['share_of_gap']:.2f} ({e['ci_low']:.2f} … {e['ci_high']:.2f}) |")
-        lines += ["", f"Named cause: **{d['ranked_effects'][0]['effect']}**."]
+        names = [f"**{e['effect']}**" for e in d["ranked_effects"]]
+        lines += ["", f"Named cause: {names[0]}." if len(names) == 1 else
+                  f"Named causes, in the order found: {', then '.join(names)}."]
     elif d["gap_significant"]:
         lines.append("No registered effect brings the twin significantly closer to the captures: the cause is "
                      "something the simulator does not model yet.")
