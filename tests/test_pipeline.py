@@ -243,9 +243,11 @@ def test_chromatic_twins_render_without_torch_next_to_their_surrogates(colour, t
     frames = twins.optical(fx.parse("chromatic"), rgb, depth, np.array([0.6]), twins.context())
     assert frames.shape == (1, 3, 64, 96) and np.isfinite(frames).all()
     assert np.abs(frames[0, 0] - frames[0, 2]).max() > 1e-3
-    with pytest.raises(FileNotFoundError, match=r"psf_610nm.onnx.*chromatic:psfs"):
-        twins.optical(fx.parse([{"name": "chromatic", "psfs": str(tmp_path)}]), rgb, depth, np.array([0.6]),
-                      twins.context())
+    with pytest.raises(ValueError, match=r"chromatic.*no per-wavelength surrogate psf_610nm.onnx"):
+        fx.parse([{"name": "chromatic", "psfs": str(tmp_path)}])  # before anything renders
+    frames_dir = twins.optical(fx.parse([{"name": "chromatic", "psfs": str(out)}]), rgb, depth, np.array([0.6]),
+                               twins.context())
+    np.testing.assert_array_equal(frames_dir, frames)  # the folder given explicitly: the same surrogates
 
 
 def test_bad_options_are_one_line_errors(chain, tmp_path, capsys):
@@ -255,6 +257,9 @@ def test_bad_options_are_one_line_errors(chain, tmp_path, capsys):
     assert "unknown effect" in capsys.readouterr().err
     assert main(_args(tmp_path / "b", "--effects", "noise:gain")) == 2
     assert "key=value" in capsys.readouterr().err
+    assert main(_args(tmp_path / "b", "--effects", f"chromatic:psfs={tmp_path}")) == 2
+    err = capsys.readouterr().err
+    assert "no per-wavelength surrogate psf_610nm.onnx" in err and len(err.strip().splitlines()) == 1
     assert main(_args(tmp_path / "c", "--net", "aif", "--init", str(chain["out"] / "dff_dfvnet_aat.onnx"))) == 2
     assert "is a dfvnet small model" in capsys.readouterr().err
     rf50_psf = ROOT / "models" / "psf_rf50.onnx"

@@ -179,7 +179,7 @@ def fit_surrogate(ctx: Context, lens, out: Path, wavelength_nm: float | None = N
     export_psf_onnx(model, lens, out, force=True, extra_metadata={
         "fit": "rot", "wavelength_nm": wavelength, **centre, "training_minutes": f"{st['elapsed'] / 60:.2f}",
         "validation_l1": f"{last.get('l1', float('nan')):.4e}",
-        "command": "aat-train --lens (training/pipeline, stage psf)"})
+        "command": f"aat-train --lens (training/pipeline, stage {'psf' if center_wavelength_nm is None else 'psf_colour'})"})
     ctx.log(f"psf: validation l1 {last.get('l1', float('nan')):.3e} per cell; wrote {out.name}")
 
 

@@ -38,6 +38,15 @@ class Chromatic(Effect):
     order = 10
     defaults = {"wavelengths_nm": [610.0, 540.0, 465.0], "n_rays": 1024, "compiled": False, "psfs": "auto"}
 
+    def __init__(self, **params):
+        super().__init__(**params)
+        mode = str(self.params["psfs"])
+        if mode not in ("auto", "trace"):  # a folder: checked now, so a bad path fails before any rendering
+            missing = [surrogate_name(w) for w in self.wavelengths() if not (Path(mode) / surrogate_name(w)).is_file()]
+            if missing:
+                raise ValueError(f"effect 'chromatic': {mode}: no per-wavelength surrogate {', '.join(missing)} "
+                                 "(psfs=auto|trace|FOLDER)")
+
     @property
     def needs_torch(self) -> str:  # without a context: only a given folder is known to hold surrogates
         return "" if self._folder(None) else "it ray-traces the PSFs at three wavelengths (no per-wavelength surrogates)"
@@ -54,11 +63,7 @@ class Chromatic(Effect):
         if mode == "trace":
             return None
         if mode != "auto":
-            folder = Path(mode)
-            missing = [surrogate_name(w) for w in self.wavelengths() if not (folder / surrogate_name(w)).is_file()]
-            if missing:
-                raise FileNotFoundError(f"{folder}: no per-wavelength surrogate {', '.join(missing)} (chromatic:psfs)")
-            return folder
+            return Path(mode)  # checked in __init__
         path = getattr(ctx.lens_source, "path", None) if ctx is not None else None
         if path is None:
             return None
@@ -77,7 +82,7 @@ class _Surrogates:
     """Source of (N, 3, k, k) kernels from one surrogate per wavelength (numpy or torch, as the wrapped source
     returns: the torch simulator and the torch-free twin renderer share it)."""
 
-    _cache: dict = {}  # (path, lens hash) -> OnnxSource: sessions are loaded once per process
+    _cache: dict = {}  # (path, mtime, lens hash) -> OnnxSource: each file's session is loaded once per process
 
     def __init__(self, paths: list[Path], ctx: SimContext, wrapped):
         from aat_deploy.twin.sources import OnnxSource
@@ -85,7 +90,7 @@ class _Surrogates:
         self.lens = ctx.lens
         self.sources = []
         for p in paths:
-            key = (str(Path(p).resolve()), ctx.lens.prescription_hash())
+            key = (str(Path(p).resolve()), Path(p).stat().st_mtime_ns, ctx.lens.prescription_hash())
             if key not in self._cache:
                 src = OnnxSource(p, ctx.lens)
                 meta = src.model.meta
