@@ -2,12 +2,17 @@
 
     aat-gt render MESH --pose POSE.json --lens M.onnx|INTRINSICS.json --out OUT [--width W --height H]
                   [--pupil-to-sensor-mm D] [--mesh-scale S] [--max-incidence-deg A] [--force]
+    aat-gt pose --points POINTS.json|.csv --lens M.onnx|INTRINSICS.json --out POSE.json [--init POSE.json]
+                [--image FRAME] [--width W --height H] [--mesh-scale S] [--force]
     aat-gt check CAPTURE_DIR... [--model M.onnx]
 
 render: ray-casts a mesh (PLY/OBJ/..., e.g. a lidar scan) from the camera pose and writes depth in metres from
 the sensor plane: a 16-bit PNG in mm (0 = no surface), a float32 .npy in metres (NaN = no surface), a validity
 mask PNG (255 = valid) and a JSON of how it was rendered. OUT is a .png path, or a folder (a capture folder:
 gt_depth_mm.png, gt_depth_m.npy, gt_mask.png, gt_render.json). Needs the gt extra (pip install "aat[gt]").
+pose: the camera pose from a few clicked correspondences (pixel in a frame, the same point on the mesh), solved or
+refined from --init, written as the pose file `render` reads, with each point's reprojection error; with --image,
+a picture of the clicks and where the pose puts them (POSE.png).
 check: reads each capture's ground truth as aat-eval does and prints what it found (one line each).
 """
 
@@ -89,6 +94,46 @@ def cmd_render(a) -> int:
     return 0
 
 
+def cmd_pose(a) -> int:
+    from ..eval.pose import fit_notes, load_correspondences, preview, solve_pose
+
+    outs = [a.out] + ([a.out.with_suffix(".png")] if a.image else [])
+    existing = [p for p in outs if p.exists()]
+    if existing and not a.force:
+        raise CaptureError(f"{existing[0]}: exists (pass --force to overwrite)")
+    intr = load_intrinsics(a.lens, a.width, a.height)
+    points = load_correspondences(a.points, a.mesh_scale)
+    init = load_pose(a.init) if a.init else None
+    fit = solve_pose(points, intr, init)
+    notes = fit_notes(fit, points, intr)
+    picture = None
+    if a.image:
+        from ..capture.raw import linear_to_srgb, load_frame
+
+        rgb, _ = load_frame(a.image)
+        picture = preview(linear_to_srgb(np.clip(rgb / max(float(np.percentile(rgb, 99.5)), 1e-6), 0, 1)),
+                          points, intr, fit)
+    a.out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = a.out.with_name(f".{a.out.name}.tmp-{os.getpid()}")
+    tmp_png = a.out.with_name(f".{a.out.stem}.tmp-{os.getpid()}.png")
+    try:
+        tmp.write_text(json.dumps(fit.as_json(intr, points, notes), indent=2) + "\n")
+        if picture is not None and not cv2.imwrite(str(tmp_png), picture):
+            raise OSError(f"{tmp_png}: could not write PNG")
+        os.replace(tmp, a.out)
+        if picture is not None:
+            os.replace(tmp_png, outs[1])
+    finally:
+        tmp.unlink(missing_ok=True)
+        tmp_png.unlink(missing_ok=True)
+    for n in intr.notes + notes:
+        print(f"aat-gt: note: {n}", file=sys.stderr)
+    pos = fit.cam_to_world[:3, 3]
+    print(f"{a.points} -> {a.out}  ({len(points.pixels)} points, reprojection RMS {fit.rms_px:.2f} px, max "
+          f"{fit.residuals_px.max():.2f} px; camera at [{pos[0]:.3f}, {pos[1]:.3f}, {pos[2]:.3f}] m)")
+    return 0
+
+
 def cmd_check(a) -> int:
     focus_range = None
     if a.model:
@@ -136,15 +181,29 @@ def main(argv: list[str] | None = None) -> int:
                    help="drop hits more oblique than this (ray vs surface normal)")
     r.add_argument("--force", action="store_true", help="overwrite existing outputs")
     r.add_argument("-q", "--quiet", action="store_true")
+    p = sub.add_parser("pose", help="the camera pose from clicked correspondences (pixel <-> mesh point)")
+    p.add_argument("--points", type=Path, required=True,
+                   help='JSON {"points": [{"pixel": [u, v], "world": [x, y, z]}, ...]} or CSV u,v,x,y,z')
+    p.add_argument("--lens", type=Path, required=True, help="intrinsics, as for render")
+    p.add_argument("--out", type=Path, required=True, help="the pose JSON to write (render's --pose)")
+    p.add_argument("--init", type=Path, help="a starting pose to refine (any pose file render reads)")
+    p.add_argument("--image", type=Path, help="the frame the pixels were clicked in: writes OUT.png, the clicks "
+                   "and their reprojections")
+    p.add_argument("--width", type=int, help="width in px of the image the pixels were clicked in")
+    p.add_argument("--height", type=int, help="height in px of the image the pixels were clicked in")
+    p.add_argument("--mesh-scale", type=float, default=1.0, help="world units of the points to metres")
+    p.add_argument("--force", action="store_true", help="overwrite an existing pose file")
     c = sub.add_parser("check", help="read captures' ground truth as aat-eval does")
     c.add_argument("captures", nargs="+", type=Path, metavar="CAPTURE_DIR")
     c.add_argument("--model", type=Path, help="also check the units against this model's focus range")
     a = ap.parse_args(argv)
+    if a.cmd == "pose" and a.mesh_scale <= 0:
+        ap.error("--mesh-scale must be > 0")
     if a.cmd == "render" and (a.mesh_scale <= 0 or (a.max_incidence_deg is not None
                                                     and not 0 < a.max_incidence_deg <= 90)):
         ap.error("--mesh-scale must be > 0 and --max-incidence-deg in (0, 90]")
     try:
-        return cmd_render(a) if a.cmd == "render" else cmd_check(a)
+        return {"render": cmd_render, "pose": cmd_pose, "check": cmd_check}[a.cmd](a)
     except CaptureError as e:
         print(f"aat-gt: error: {e}", file=sys.stderr)
         return 2
