@@ -16,7 +16,9 @@ frame at 125 um pixels is the default; `chromatic` is sub-pixel there and runs o
     python benchmarks/bench_diagnose.py --variant crop4 --effects chromatic
 
 Results are appended to --out as JSON lines, one per set, and sets already there are skipped, so a stopped run
-continues where it stopped (delete the file to start again).
+continues where it stopped (delete the file to start again). Capture sets are rendered once and kept;
+`--verify-sets` (with the run's own arguments) re-renders each set's first scene with the current code and
+compares the frames.
 """
 
 from __future__ import annotations
@@ -101,6 +103,9 @@ def main() -> None:
     ap.add_argument("--out", help="results, one JSON line per set (resumable); default: the variant's "
                     f"{RESULTS}")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--verify-sets", action="store_true", help="re-render each stored set's first scene with this "
+                    "code into a temporary folder and compare its frames with the stored ones (the sets are "
+                    "rendered once and kept; this shows the code still makes them), then exit")
     ap.add_argument("--table", nargs="*", metavar="RESULTS", help="only print the table of these results files "
                     "(default: --out); sets of a variant other than `full` are labelled with it")
     args = ap.parse_args()
@@ -140,6 +145,8 @@ def main() -> None:
         if not p.exists():
             raise SystemExit(f"{p}: missing; run python benchmarks/diagnose_setup.py --variant {args.variant} first")
     order = rng.permutation(len(plan))  # sets in random order; the diagnosis never sees the plan
+    if args.verify_sets:
+        return verify_sets(plan, order, rng, args.captures, setup, lens_path, psf_path, models)
     ctx = {}
     out = Path(args.out)
     done = {r["set"]: r for r in map(json.loads, out.read_text().splitlines())} if out.exists() else {}
@@ -193,6 +200,46 @@ def main() -> None:
         with out.open("a") as f:
             f.write(json.dumps(row) + "\n")
     table(rows, time.time() - t0)
+
+
+def verify_sets(plan, order, rng, captures: int, setup: Path, lens_path: Path, psf_path: Path, models: dict) -> None:
+    """Re-render the first scene of every stored set (same draws as `main`) and compare the frames, as the runtime
+    reads them, with the stored ones: max |difference| in units of the white level."""
+    import tempfile
+
+    from aat_deploy.diagnose.inputs import load_capture_data
+    from aat_deploy.model import DfFModel
+    from aat_deploy.diagnose.session import make_renderer
+    from aat_deploy.twin.lookup import find_lens, find_surrogate
+    from training.render import effects as fx
+
+    ctx, worst = {}, 0.0
+    print("| set | withheld | scene | frames | max abs diff |\n|---|---|---|---|---|")
+    for i in order:
+        key, withheld_names = plan[i]
+        set_seed = int(rng.integers(1 << 30))
+        wrng = np.random.default_rng(set_seed)
+        withheld = [fx.spec(fx.make(n, **draw_params(n, wrng))) for n in withheld_names]
+        folder = setup / SETS / f"set{i:02d}"
+        scene_seeds = [int(s) for s in wrng.choice(100_000, size=captures, replace=False)][:1]
+        stored = folder / f"scene{scene_seeds[0]}"
+        if not stored.is_dir():
+            print(f"| {i} | {' + '.join(withheld) or '(none)'} | {stored.name} | not rendered yet | — |")
+            continue
+        if key not in ctx:
+            m = DfFModel(models[key], threads=2)
+            lens, _ = find_lens(m, lens_path)
+            src = find_surrogate(lens, psf_path)
+            ctx[key] = (m, lens, src, [fx.spec(e) for e in make_renderer(m, lens, src).base])
+        m, lens, src, base = ctx[key]
+        with tempfile.TemporaryDirectory() as tmp:
+            make_set(Path(tmp), lens, src, base, withheld, scene_seeds, set_seed)
+            a = load_capture_data(stored, m, use_exiftool=False).frames
+            b = load_capture_data(Path(tmp) / stored.name, m, use_exiftool=False).frames
+        d = float(np.abs(a.astype(np.float64) - b).max()) if a.shape == b.shape else float("inf")
+        worst = max(worst, d)
+        print(f"| {i} | {' + '.join(withheld) or '(none)'} | {stored.name} | {len(a)} | {d:.3g} |", flush=True)
+    print(f"\nlargest difference: {worst:.3g}")
 
 
 def retrain(m, lens_path: Path, psf_path: Path, res: dict, caps, folder: Path, steps: int) -> dict:
