@@ -197,8 +197,8 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("captures", nargs="+", type=Path, metavar="CAPTURE_DIR")
     c.add_argument("--model", type=Path, help="also check the units against this model's focus range")
     a = ap.parse_args(argv)
-    if a.cmd == "pose" and a.mesh_scale <= 0:
-        ap.error("--mesh-scale must be > 0")
+    if a.cmd == "pose" and (a.mesh_scale <= 0 or a.out.suffix.lower() != ".json"):
+        ap.error("--mesh-scale must be > 0 and --out a .json path")
     if a.cmd == "render" and (a.mesh_scale <= 0 or (a.max_incidence_deg is not None
                                                     and not 0 < a.max_incidence_deg <= 90)):
         ap.error("--mesh-scale must be > 0 and --max-incidence-deg in (0, 90]")
