@@ -123,10 +123,7 @@ def main() -> None:
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     torch.set_num_threads(2)
     from aat_deploy.diagnose.inputs import load_capture_data
-    from aat_deploy.model import DfFModel
     from aat_deploy.diagnose.search import DiagnoseConfig, diagnose
-    from aat_deploy.diagnose.session import make_renderer
-    from aat_deploy.twin.lookup import find_lens, find_surrogate
     from training.render import effects as fx
 
     lens_path, psf_path = setup / "rf50_288x192.json", setup / "psf.onnx"
@@ -152,23 +149,14 @@ def main() -> None:
     done = {r["set"]: r for r in map(json.loads, out.read_text().splitlines())} if out.exists() else {}
     rows, t0 = list(done.values()), time.time()
     retrained: set[str] = {" + ".join(w.split(":")[0] for w in r["withheld"]) for r in rows if "remaining" in r}
-    for i in order:
-        key, withheld_names = plan[i]
-        set_seed = int(rng.integers(1 << 30))  # drawn for every set so that resuming keeps the same draws
-        wrng = np.random.default_rng(set_seed)
-        withheld = [fx.spec(fx.make(n, **draw_params(n, wrng))) for n in withheld_names]
-        if int(i) in done:
+    for i, key, withheld, set_seed, scene_seeds in drawn_sets(plan, order, rng, args.captures):
+        if i in done:
             continue
         if key not in ctx:
-            m = DfFModel(models[key], threads=2)
-            lens, _ = find_lens(m, lens_path)
-            src = find_surrogate(lens, psf_path)
-            ctx[key] = (m, lens, src, make_renderer(m, lens, src))
+            ctx[key] = load_model(models[key], lens_path, psf_path)
         m, lens, src, twins = ctx[key]
         base = [fx.spec(e) for e in twins.base]
         folder = setup / SETS / f"set{i:02d}"
-        # v1 drew 3 of 8 scenes, so sets shared scenes (two aberration sets were identical)
-        scene_seeds = [int(s) for s in wrng.choice(100_000, size=args.captures, replace=False)]
         make_set(folder, lens, src, base, withheld, scene_seeds, set_seed)
         caps = [load_capture_data(p, m) for p in sorted(folder.iterdir()) if p.is_dir()]
         cfg = DiagnoseConfig(max_effects=3 if len(withheld) > 1 else args.rounds, n_boot=300)
@@ -202,44 +190,59 @@ def main() -> None:
     table(rows, time.time() - t0)
 
 
+def drawn_sets(plan: list, order, rng: np.random.Generator, captures: int):
+    """Per set, in the benchmark's order: (index, model key, withheld effect specs, set seed, scene seeds). Every
+    set's draws are made whether or not it is run, so a resumed run (or --verify-sets) sees the same draws."""
+    from training.render import effects as fx
+
+    for i in order:
+        key, withheld_names = plan[i]
+        set_seed = int(rng.integers(1 << 30))
+        wrng = np.random.default_rng(set_seed)
+        withheld = [fx.spec(fx.make(n, **draw_params(n, wrng))) for n in withheld_names]
+        # v1 drew 3 of 8 scenes, so sets shared scenes (two aberration sets were identical)
+        scene_seeds = [int(s) for s in wrng.choice(100_000, size=captures, replace=False)]
+        yield int(i), key, withheld, set_seed, scene_seeds
+
+
+def load_model(model_path: Path, lens_path: Path, psf_path: Path):
+    """(model, lens, PSF surrogate source, twin renderer) as the diagnosis uses them."""
+    from aat_deploy.diagnose.session import make_renderer
+    from aat_deploy.model import DfFModel
+    from aat_deploy.twin.lookup import find_lens, find_surrogate
+
+    m = DfFModel(model_path, threads=2)
+    lens, _ = find_lens(m, lens_path)
+    src = find_surrogate(lens, psf_path)
+    return m, lens, src, make_renderer(m, lens, src)
+
+
 def verify_sets(plan, order, rng, captures: int, setup: Path, lens_path: Path, psf_path: Path, models: dict) -> None:
     """Re-render the first scene of every stored set (same draws as `main`) and compare the frames, as the runtime
     reads them, with the stored ones: max |difference| in units of the white level."""
     import tempfile
 
     from aat_deploy.diagnose.inputs import load_capture_data
-    from aat_deploy.model import DfFModel
-    from aat_deploy.diagnose.session import make_renderer
-    from aat_deploy.twin.lookup import find_lens, find_surrogate
     from training.render import effects as fx
 
-    ctx, worst = {}, 0.0
+    ctx, worst, t0 = {}, 0.0, time.time()
     print("| set | withheld | scene | frames | max abs diff |\n|---|---|---|---|---|")
-    for i in order:
-        key, withheld_names = plan[i]
-        set_seed = int(rng.integers(1 << 30))
-        wrng = np.random.default_rng(set_seed)
-        withheld = [fx.spec(fx.make(n, **draw_params(n, wrng))) for n in withheld_names]
-        folder = setup / SETS / f"set{i:02d}"
-        scene_seeds = [int(s) for s in wrng.choice(100_000, size=captures, replace=False)][:1]
-        stored = folder / f"scene{scene_seeds[0]}"
+    for i, key, withheld, set_seed, scene_seeds in drawn_sets(plan, order, rng, captures):
+        stored = setup / SETS / f"set{i:02d}" / f"scene{scene_seeds[0]}"
         if not stored.is_dir():
             print(f"| {i} | {' + '.join(withheld) or '(none)'} | {stored.name} | not rendered yet | — |")
             continue
         if key not in ctx:
-            m = DfFModel(models[key], threads=2)
-            lens, _ = find_lens(m, lens_path)
-            src = find_surrogate(lens, psf_path)
-            ctx[key] = (m, lens, src, [fx.spec(e) for e in make_renderer(m, lens, src).base])
-        m, lens, src, base = ctx[key]
+            ctx[key] = load_model(models[key], lens_path, psf_path)
+        m, lens, src, twins = ctx[key]
         with tempfile.TemporaryDirectory() as tmp:
-            make_set(Path(tmp), lens, src, base, withheld, scene_seeds, set_seed)
+            make_set(Path(tmp), lens, src, [fx.spec(e) for e in twins.base], withheld, scene_seeds[:1], set_seed)
             a = load_capture_data(stored, m, use_exiftool=False).frames
             b = load_capture_data(Path(tmp) / stored.name, m, use_exiftool=False).frames
         d = float(np.abs(a.astype(np.float64) - b).max()) if a.shape == b.shape else float("inf")
         worst = max(worst, d)
         print(f"| {i} | {' + '.join(withheld) or '(none)'} | {stored.name} | {len(a)} | {d:.3g} |", flush=True)
-    print(f"\nlargest difference: {worst:.3g}")
+    print(f"\nlargest difference: {worst:.3g} ({time.time() - t0:.0f} s)")
 
 
 def retrain(m, lens_path: Path, psf_path: Path, res: dict, caps, folder: Path, steps: int) -> dict:
