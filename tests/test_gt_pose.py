@@ -180,3 +180,24 @@ def test_load_correspondences_scales_world(tmp_path):
     f.write_text(json.dumps([{"pixel": [1, 2], "world": [1000, 2000, 3000]}]))
     c = load_correspondences(f, 0.001)
     assert c.world.tolist() == [[1.0, 2.0, 3.0]] and c.pixels.tolist() == [[1.0, 2.0]]
+
+
+def test_image_of_another_size_is_noted(tmp_path, capsys):
+    """Clicks are read in the intrinsics' pixels; a frame of another size is drawn resized and the user told."""
+    world = _scene_points(8)
+    rows = ["u,v,x,y,z"] + [",".join(f"{x:.6f}" for x in (*p, *w)) for p, w in zip(_clicks(world, TRUE), world)]
+    (tmp_path / "clicks.csv").write_text("\n".join(rows) + "\n")
+    (tmp_path / "intr.json").write_text(json.dumps(INTR))
+    cv2.imwrite(str(tmp_path / "half.png"), np.full((400, 600, 3), 90, np.uint8))
+    assert gt_cli.main(["pose", "--points", str(tmp_path / "clicks.csv"), "--lens", str(tmp_path / "intr.json"),
+                        "--out", str(tmp_path / "pose.json"), "--image", str(tmp_path / "half.png")]) == 0
+    err = capsys.readouterr().err
+    assert "is 600x400 px, the intrinsics 1200x800 px" in err and "pupil" not in err
+    saved = json.loads((tmp_path / "pose.json").read_text())
+    assert any("600x400" in n for n in saved["calibration"]["notes"])
+    assert cv2.imread(str(tmp_path / "pose.png")).shape == (800, 1200, 3)
+
+
+def test_out_must_be_json(tmp_path):
+    with pytest.raises(SystemExit):
+        gt_cli.main(["pose", "--points", "p.csv", "--lens", "i.json", "--out", str(tmp_path / "pose.png")])

@@ -111,6 +111,10 @@ def cmd_pose(a) -> int:
         from ..capture.raw import linear_to_srgb, load_frame
 
         rgb, _ = load_frame(a.image)
+        if rgb.shape[:2] != (intr.height, intr.width):  # the clicks are taken in the intrinsics' pixels
+            notes.append(f"{a.image} is {rgb.shape[1]}x{rgb.shape[0]} px, the intrinsics {intr.width}x{intr.height} "
+                         "px: the points are read as pixels of the latter (give --width/--height of the image "
+                         "they were clicked in)")
         picture = preview(linear_to_srgb(np.clip(rgb / max(float(np.percentile(rgb, 99.5)), 1e-6), 0, 1)),
                           points, intr, fit)
     a.out.parent.mkdir(parents=True, exist_ok=True)
@@ -126,7 +130,7 @@ def cmd_pose(a) -> int:
     finally:
         tmp.unlink(missing_ok=True)
         tmp_png.unlink(missing_ok=True)
-    for n in intr.notes + notes:
+    for n in notes:  # the intrinsics' pupil notes concern depth, not the pose
         print(f"aat-gt: note: {n}", file=sys.stderr)
     pos = fit.cam_to_world[:3, 3]
     print(f"{a.points} -> {a.out}  ({len(points.pixels)} points, reprojection RMS {fit.rms_px:.2f} px, max "
