@@ -113,15 +113,15 @@ def _train(cfg, out_dir: Path, train_set, val_set, resume, stop_at_step, progres
         raise FileExistsError(f"{out_dir}: has a checkpoint; pass --resume to continue or choose another --out")
     train_set, val_set = _make_sets(cfg, train_set, val_set)
     torch.manual_seed(cfg.seed)
-    model = build_model(cfg.net, cfg.size)
+    model = build_model(cfg.net, cfg.size, cfg.field_channels)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     step = 0
     if resume and ckpt_path.exists():
         state = load(ckpt_path)
         old = state["config"]
-        for k in ("net", "size", "simulator"):
-            if old[k] != getattr(cfg, k):
-                raise ValueError(f"{ckpt_path}: checkpoint has {k}={old[k]!r}, config has {getattr(cfg, k)!r}")
+        for k in ("net", "size", "simulator", "field_channels"):
+            if old.get(k, 0) != getattr(cfg, k):
+                raise ValueError(f"{ckpt_path}: checkpoint has {k}={old.get(k, 0)!r}, config has {getattr(cfg, k)!r}")
         model.load_state_dict(state["model"])
         opt.load_state_dict(state["optimizer"])
         step = int(state["step"])
@@ -166,7 +166,8 @@ def _train(cfg, out_dir: Path, train_set, val_set, resume, stop_at_step, progres
             lr = lr_at(step, cfg.steps, cfg.lr, cfg.lr_min, cfg.warmup_steps)
             for g in opt.param_groups:
                 g["lr"] = lr
-            levels = train_levels(ddp, batch["stack"].float(), batch["focus_m"].float(), model.size_multiple)
+            field = batch["field_xy"].float() if cfg.field_channels else None
+            levels = train_levels(ddp, batch["stack"].float(), batch["focus_m"].float(), model.size_multiple, field)
             loss, parts = dff_loss(levels, batch, cfg.loss)
             opt.zero_grad(set_to_none=True)
             loss.backward()
@@ -209,6 +210,6 @@ def load_trained(path) -> tuple[torch.nn.Module, TrainConfig]:
 
     state = load(path)
     cfg = config_from_dict(dict(state["config"]), str(path))
-    model = build_model(cfg.net, cfg.size)
+    model = build_model(cfg.net, cfg.size, cfg.field_channels)
     model.load_state_dict(state["model"])
     return model.eval(), cfg
