@@ -115,7 +115,8 @@ def _train(cfg, out_dir: Path, train_set, val_set, resume, stop_at_step, progres
     torch.manual_seed(cfg.seed)
     model = build_model(cfg.net, cfg.size, cfg.field_channels)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    step = 0
+    step, wall_before = 0, 0.0
+    t_start = time.perf_counter()
     if resume and ckpt_path.exists():
         state = load(ckpt_path)
         old = state["config"]
@@ -125,6 +126,7 @@ def _train(cfg, out_dir: Path, train_set, val_set, resume, stop_at_step, progres
         model.load_state_dict(state["model"])
         opt.load_state_dict(state["optimizer"])
         step = int(state["step"])
+        wall_before = float(state.get("wall_s", 0.0))
         torch.set_rng_state(state["torch_rng"])
     elif cfg.init:
         from training.nets.init import init_model
@@ -151,6 +153,7 @@ def _train(cfg, out_dir: Path, train_set, val_set, resume, stop_at_step, progres
         _sync_buffers(model, world)
         if rank == 0:
             save_atomic({"model": model.state_dict(), "optimizer": opt.state_dict(), "step": step,
+                         "wall_s": wall_before + time.perf_counter() - t_start,
                          "config": cfg.to_dict(), "torch_rng": torch.get_rng_state()}, ckpt_path)
         _barrier(world)
 
@@ -181,7 +184,9 @@ def _train(cfg, out_dir: Path, train_set, val_set, resume, stop_at_step, progres
             bar.update(1)
             bar.set_postfix(loss=f"{last_loss:.4f}", lr=f"{lr:.2e}")
             if rank == 0 and (step % cfg.log_every == 0 or step == end):
-                _log(out_dir, {"step": step, "lr": lr, **parts, "s_per_step": t_steps / n_timed})
+                _log(out_dir, {"step": step, "lr": lr, **parts, "s_per_step": t_steps / n_timed,
+                               "stacks_seen": step * cfg.batch_size * world,
+                               "wall_s": round(wall_before + time.perf_counter() - t_start, 1)})
             if step % cfg.checkpoint_every == 0 or step == end:
                 checkpoint()
             if val_set is not None and cfg.val_every and step % cfg.val_every == 0 and step < cfg.steps:
@@ -200,6 +205,13 @@ def _train(cfg, out_dir: Path, train_set, val_set, resume, stop_at_step, progres
                          "step": step}, out_dir / "model.pt")
             if val_set is not None:
                 val_metrics = _validate_and_log(model, val_set, cfg, out_dir, step, final=True)
+            seen = step * cfg.batch_size * world
+            summary = {"steps": step, "batch_size": cfg.batch_size, "processes": world, "stacks_seen": seen,
+                       "distinct_stacks": min(seen, len(train_set)), "dataset_items": len(train_set),
+                       "dataset_cache": str(getattr(train_set, "cache", None)),
+                       "wall_s": round(wall_before + time.perf_counter() - t_start, 1),
+                       "s_per_step_last_session": t_steps / n_timed if n_timed else None}
+            (out_dir / "train_summary.json").write_text(json.dumps(summary, indent=1))
         _barrier(world)
     return TrainResult(step, finished, last_loss, t_steps / n_timed if n_timed else None, val_metrics)
 
