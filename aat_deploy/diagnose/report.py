@@ -87,13 +87,17 @@ def markdown(d: dict) -> str:
               "| effect | settings | closer (95 %) | share of gap (95 %) |", "|---|---|---|---|"]
     for e in d["effects_evaluated"]:
         if e["round"] == 1:
-            lines.append(f"| {e['effect']} | {_params(e['params'])} | {e['closeness']:.2f} ({e['closeness_ci'][0]:.2f} … "
-                         f"{e['closeness_ci'][1]:.2f}) | {_share_cell(e, notes)} |")
+            clo = "—" if e.get("closeness") is None else \
+                f"{e['closeness']:.2f} ({e['closeness_ci'][0]:.2f} … {e['closeness_ci'][1]:.2f})"
+            where = " (1/N resolution)".replace("N", str(d.get("search_factor", "?"))) if e.get("screened_out") and \
+                e.get("closeness") is not None else ""
+            lines.append(f"| {e['effect']} | {_params(e['params']) if e['params'] is not None else 'none fitted'} | "
+                         f"{clo}{where} | {_share_cell(e, notes)} |")
     for e in d.get("effects_skipped", []):
         lines.append(f"| {e['effect']} | not tried: {e['reason']} | | |")
     if notes:
         lines += [""] + [f"[{i}] {n}" for i, n in enumerate(notes, 1)]
-    lines += ["", "![effects](effects.png)", "", "## 3. How far it shrinks", ""]
+    lines += ["", "![effects](effects.png)", ""] + focus_section(d) + ["## 3. How far it shrinks", ""]
     s = d.get("shrink")
     if s:
         lines += ["| | gap (m) | MAE on captures (m) |", "|---|---|---|",
@@ -110,6 +114,56 @@ def markdown(d: dict) -> str:
     return "\n".join(lines)
 
 
+def focus_section(d: dict) -> list[str]:
+    """The report's focus-metadata section: the error family the images support, its settings with intervals,
+    the families weighed, and the corrected focus distances (with the drop-in capture.json files)."""
+    f = d.get("focus")
+    if not f:
+        return []
+    lines = ["## Focus metadata", ""]
+    status = ("named, and it explains the gap" if f["explains_gap"] else "named" if f["named"] else
+              "not named (the twin with it did not come significantly closer to the captures)")
+    if f["family"] == "none":
+        lines.append("The images support no focus-metadata error: the reported focus distances fit best as they are.")
+    else:
+        ci = "; ".join(f"{k} {v[0]:.4g} … {v[1]:.4g}" for k, v in f.get("params_ci", {}).items())
+        lines.append(f"The images support a **{f['family']}** error of the reported focus "
+                     f"({_params({k: v for k, v in f['params'].items() if k in ('bias_d', 'scale', 'map_d')})}"
+                     f"{'; 95 % interval ' + ci if ci else ''}); `focus_metadata` was {status}.")
+    lines += ["", "| family | parameters | BIC | chosen in bootstrap replicates |", "|---|---|---|---|"]
+    for fam in f["families"]:
+        lines.append(f"| {fam['family']} | {fam['k']} | {fam['bic']:.1f} | {f['support'].get(fam['family'], 0):.0%} |")
+    if f["family"] != "none":
+        lines += ["", "Corrected focus distances (m, 95 % interval); drop-in `capture.json` files are in "
+                  "`corrected_focus/<capture>/` (copy one into its capture folder to use it with `aat-infer`):", "",
+                  "| capture | reported (m) | corrected (m) |", "|---|---|---|"]
+        for c in f["corrected_focus"]:
+            rep = ", ".join(f"{x:.3f}" for x in c["reported_m"])
+            cor = ", ".join(f"{x:.3f} ({lo:.3f} … {hi:.3f})" for x, (lo, hi) in zip(c["corrected_m"], c["ci_m"]))
+            lines.append(f"| {c['capture']} | {rep} | {cor} |")
+    return lines + [""]
+
+
+def write_focus_corrections(out: Path, d: dict) -> list[Path]:
+    """corrected_focus/<capture>/capture.json (the capture folder's sidecar format, docs/contracts.md) for every
+    capture, when the images support a focus-metadata error; the user's folders are never touched."""
+    f = d.get("focus")
+    if not f or f["family"] == "none":
+        return []
+    written = []
+    for c in f["corrected_focus"]:
+        if not c["files"]:
+            continue
+        path = out / "corrected_focus" / c["capture"] / "capture.json"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps({"frames": [{"file": n, "focus_m": round(float(m), 5)}
+                                               for n, m in zip(c["files"], c["corrected_m"])],
+                                    "note": f"focus corrected by aat-diagnose ({f['family']} error of the reported "
+                                            "focus fitted on the images; docs/diagnosis.md)"}, indent=1))
+        written.append(path)
+    return written
+
+
 def _share_txt(v, lo, hi) -> str:
     return "—" if v is None else f"{v:.2f} ({_fmt(lo, 2)} … {_fmt(hi, 2)})"
 
@@ -119,6 +173,10 @@ def _share_cell(e: dict, notes: list[str]) -> str:
     shown = e.get("share_shown", e.get("share_of_gap"))
     note = e.get("share_note")
     if e.get("share_of_gap") is None:
+        if note and e.get("screened_out"):
+            if note not in notes:
+                notes.append(note)
+            return f"— [{notes.index(note) + 1}]"
         return "—"
     txt = "withheld" if shown is None else (f"{shown:.2f} ({_fmt(e['ci_low'], 2)} … {_fmt(e['ci_high'], 2)})"
                                             if shown == e["share_of_gap"] else f"{shown:.2f}")
@@ -178,7 +236,7 @@ def figures(d: dict, out: Path) -> None:
     fig.savefig(out / "gap_by.png", dpi=110)
     plt.close(fig)
 
-    ev = [e for e in d["effects_evaluated"] if e["round"] == 1]
+    ev = [e for e in d["effects_evaluated"] if e["round"] == 1 and not e.get("screened_out")]
     fig, ax = plt.subplots(figsize=(7, 3.2))
     if ev:
         x = np.arange(len(ev))

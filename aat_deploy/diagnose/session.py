@@ -114,6 +114,7 @@ def run(root, model_path, out: Path, *, lens=None, psf=None, effects=None, retra
                     raise DiagnoseError(f"{tmp / 'retrain'}: aat-train wrote no dff_*_aat.onnx")
                 shrink.update(score_model(new[0], lens_obj, src, caps, cfg, threads, torch_free))
                 shrink["retrained_model"] = str(out / "retrain" / new[0].name)
+        report.write_focus_corrections(tmp, res)
         report.write_json(tmp / "diagnosis.json", res)
         report.figures(res, tmp)
         (tmp / "report.md").write_text(report.markdown(res))

@@ -47,9 +47,13 @@ def scale_about_axis(frame: np.ndarray, scale: float, ctx: SimContext) -> np.nda
 @register
 class FocusBreathing(Effect):
     name = "focus_breathing"
-    description = "image magnification changes with the focus distance (sensor moves; paraxial exit-pupil model)"
+    description = ("image magnification changes with the focus distance (sensor moves; paraxial exit-pupil model); "
+                   "coefficient scales the modelled change (1 = the lens's model; a lens that also moves groups "
+                   "to focus breathes more or less)")
     order = 60
+    defaults = {"coefficient": 1.0}
 
     def warp(self, frame: np.ndarray, focus_m: float, ctx: SimContext) -> np.ndarray:
         s = float(breathing_scale(ctx.lens, focus_m, ctx.focus_table(), ctx.exit_pupil_z_mm))
-        return scale_about_axis(frame, s, ctx)
+        k = float(self.params["coefficient"])
+        return scale_about_axis(frame, s if k == 1.0 else 1.0 + k * (s - 1.0), ctx)
