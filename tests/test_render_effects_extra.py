@@ -209,3 +209,43 @@ def test_breathing_coefficient_scales_the_magnification_change(lens):
     assert np.array_equal(fx.make("focus_breathing", coefficient=0.0).warp(frame, 0.5, ctx), frame)
     assert np.allclose(fx.make("focus_breathing", coefficient=2.0).warp(frame, 0.5, ctx),
                        scale_about_axis(frame, 1 + 2 * (s - 1), ctx))
+
+
+def test_exposure_scales_each_frame_before_the_noise(lens):
+    """Fixed gains multiply frame i by gains[i]; per-capture gains follow ctx.capture; random gains have the
+    asked spread; the training form is the fitted gains' spread."""
+    ctx = fx.SimContext(lens, (8, 12), capture="a")
+    frames = np.ones((3, 3, 8, 12), np.float32)
+    e = fx.make("exposure", gains=[1.0, 1.1, 0.9])
+    out = fx.post_stack([e], frames, np.array([1.0, 2.0, 3.0]), ctx, np.random.default_rng(0))
+    assert np.allclose(out[:, 0, 0, 0], [1.0, 1.1, 0.9])
+    by = fx.make("exposure", by_capture={"a": [0.8, 1.0, 1.25], "b": [1.0, 1.0, 1.0]})
+    assert np.allclose(by.stack(frames, None, ctx, None)[:, 0, 0, 0], [0.8, 1.0, 1.25])
+    g = fx.make("exposure", sigma_log=0.1).frame_gains(20000, ctx, np.random.default_rng(1))
+    assert np.std(np.log(g)) == pytest.approx(0.1, rel=0.03)
+    assert by.training_spec() == f"exposure:sigma_log={np.std(np.log([0.8, 1.0, 1.25, 1.0, 1.0, 1.0])):.4g}"
+    with pytest.raises(ValueError, match="3 gains for a stack of 2"):
+        e.stack(frames[:2], None, ctx, None)
+    assert fx.is_post(e) and fx.parse(fx.spec(e))[0].params["gains"] == [1.0, 1.1, 0.9]
+
+
+def test_misalignment_moves_each_frame(lens):
+    """by_capture warps move frame content by (dx, dy) px (right, down); phase correlation sees the same
+    direction; binning halves the shifts."""
+    import cv2
+
+    ctx = fx.SimContext(lens, (64, 96), capture="c")
+    rng = np.random.default_rng(0)
+    img = cv2.GaussianBlur(rng.random((64, 96)).astype(np.float32), (0, 0), 1.5)
+    frames = np.stack([np.repeat(img[None], 3, 0)] * 2)
+    e = fx.make("misalignment", by_capture={"c": [0.0, 0.0, 1.0, 2.0, -1.0, 1.0]})
+    out = fx.post_stack([e], frames, np.array([1.0, 2.0]), ctx, np.random.default_rng(0))
+    assert np.array_equal(out[0], frames[0])
+    # content moved 2 px right and 1 px up: out[r, c] = frame[r + 1, c - 2] (integer shifts are exact)
+    assert np.allclose(out[1, :, 5:-5, 5:-5], frames[1, :, 6:-4, 3:-7], atol=1e-6)
+    (dx, dy), _ = cv2.phaseCorrelate(np.ascontiguousarray(frames[1, 0]), np.ascontiguousarray(out[1, 0]))
+    assert dx > 1.2 and dy < -0.6  # what the fitter measures: the same direction (biased low on smooth content)
+    assert e.binned(2).params["by_capture"]["c"] == [0.0, 0.0, 1.0, 1.0, -0.5, 1.0]
+    assert "sigma_px=" in e.training_spec() and fx.is_post(e)
+    r = fx.make("misalignment", sigma_px=1.0).frame_warps(5000, ctx, np.random.default_rng(2))
+    assert np.std(r[:, :2]) == pytest.approx(1.0, rel=0.05) and np.all(r[:, 2] == 1.0)

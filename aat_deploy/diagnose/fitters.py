@@ -159,25 +159,57 @@ def fit_focus_metadata(state: FitState) -> Fitted:
     return Fitted(None if fit.best.name == "none" else _rounded(fit.best.params), rep)
 
 
-def fit_sensor_shift(state: FitState, name: str, keys: tuple[str, ...], step, lower, upper) -> Fitted:
-    """Settings of an effect that shifts the sensor across the field (`Effect.sensor_shift_mm`), by least squares
-    on the focus sweep; None when BIC prefers no shift."""
+def shift_fit(state: FitState, name: str, keys: tuple[str, ...], step, lower, upper, fixed: dict | None = None,
+              n_boot: int = 30) -> tuple[dict, ff.ShiftFit]:
+    """Least-squares fit on the focus sweep of an effect that shifts the sensor across the field
+    (`Effect.sensor_shift_mm`): the settings `keys` (others `fixed`) and the fit."""
     data = focus_sweep(state)
     table = state.tb.focus_table()
     ctx = state.tb.context()
     x, y = data.field_xy[:, 0], data.field_xy[:, 1]
     base_m = 1.0 / data.base_d
+    fixed = fixed or {}
 
     def focus_of(theta):
-        fn = state.make(name, **dict(zip(keys, map(float, theta)))).sensor_shift_mm(ctx)
+        fn = state.make(name, **fixed, **dict(zip(keys, map(float, theta)))).sensor_shift_mm(ctx)
+        if fn is None:
+            return np.broadcast_to(data.base_d[:, None, :], data.capture.shape)
         dz = np.stack([np.asarray(fn(x[:, None], y[:, None], base_m[i][None, :]), np.float64)
                        * np.ones((len(x), base_m.shape[1])) for i in range(len(base_m))])  # (n, R, S)
         return shifted_focus_d(table, data.base_d[:, None, :], dz)
 
-    fit = ff.fit_shift(data, focus_of, np.zeros(len(keys)), step, lower, upper, seed=state.seed)
-    params = dict(zip(keys, (float(v) for v in fit.params)))
-    rep = {"shift_fit": {"params": params, "params_ci": {k: fit.ci[j].tolist() for j, k in enumerate(keys)},
-                         "bic": fit.bic, "bic_none": fit.bic_none, "ss": fit.ss, "ss_none": fit.ss_none}}
+    fit = ff.fit_shift(data, focus_of, np.zeros(len(keys)), step, lower, upper, n_boot=n_boot, seed=state.seed)
+    return {**fixed, **dict(zip(keys, (float(v) for v in fit.params)))}, fit
+
+
+def _shift_report(params: dict, keys, fit: ff.ShiftFit) -> dict:
+    return {"params": params, "params_ci": {k: fit.ci[j].tolist() for j, k in enumerate(keys)}, "bic": fit.bic,
+            "bic_none": fit.bic_none, "ss": fit.ss, "ss_none": fit.ss_none}
+
+
+def fit_sensor_shift(state: FitState, name: str, keys: tuple[str, ...], step, lower, upper) -> Fitted:
+    """Settings of an effect that shifts the sensor across the field, by least squares on the focus sweep; None
+    when BIC (frames as observations) prefers no shift."""
+    params, fit = shift_fit(state, name, keys, step, lower, upper)
+    return Fitted(_rounded(params) if fit.bic < fit.bic_none else None, {"shift_fit": _shift_report(params, keys, fit)})
+
+
+def fit_lens_tolerance(state: FitState) -> Fitted:
+    """The single perturbation of the lens (one air gap, or one element decentred in x and y; `choices`) whose
+    change of the focal surface fits the focus sweep best by BIC (each fitted by least squares, amounts up to
+    +-0.5 mm), with its interval; None when no shift beats none."""
+    proto = state.make("lens_tolerance")
+    results = []
+    for choice in proto.choices(state.tb.lens):
+        keys = ("gap_mm",) if "gap" in choice else ("decentre_x_mm", "decentre_y_mm")
+        params, fit = shift_fit(state, "lens_tolerance", keys, [0.1] * len(keys), [-0.5] * len(keys),
+                                [0.5] * len(keys), fixed=choice, n_boot=0)
+        results.append((fit.bic, choice, keys, params, fit))
+    bic, choice, keys, _, _ = min(results, key=lambda r: r[0])
+    params, fit = shift_fit(state, "lens_tolerance", keys, [0.1] * len(keys), [-0.5] * len(keys), [0.5] * len(keys),
+                            fixed=choice, n_boot=20)
+    rep = {"shift_fit": _shift_report(params, keys, fit),
+           "alternatives": [{"choice": c, "params": p, "bic": b} for b, c, _, p, _ in sorted(results, key=lambda r: r[0])]}
     return Fitted(_rounded(params) if fit.bic < fit.bic_none else None, rep)
 
 
@@ -213,6 +245,8 @@ def fit_breathing(state: FitState) -> Fitted:
     against the shifts k = 1 causes; None when k < 0.1."""
     num = den = 0.0
     for i, (real, base) in enumerate(zip(state.real_b, state.base_b)):
+        # phase correlation: breathing moves the edges by pixels, beyond one Lucas-Kanade step; its low bias on
+        # smooth content hits both measurements alike, so their ratio holds
         s_obs = region_shifts(real, base)  # twin against capture
         unit = region_shifts(base, state.render_b(i, [state.make("focus_breathing", coefficient=1.0)]))
         num -= float(np.sum(s_obs * unit))  # the capture is the twin with breathing: shifts oppose
@@ -222,11 +256,114 @@ def fit_breathing(state: FitState) -> Fitted:
     return Fitted({"coefficient": _sig(min(k, 5.0), 2)} if k >= 0.1 else None, rep)
 
 
+def fit_exposure(state: FitState) -> Fitted:
+    """Every capture's per-frame gains from its regions' brightness against the twin's (`region_gains`); None
+    when no frame differs by 0.5 %."""
+    gains = {c.name: region_gains(r, b) for c, r, b in zip(state.caps, state.real_b, state.base_b)}
+    worst = max(float(np.max(np.abs(np.log(g)))) for g in gains.values())
+    rep = {"exposure_fit": {"gains": {k: v.tolist() for k, v in gains.items()}, "largest_log_gain": worst}}
+    if worst < 0.005:
+        return Fitted(None, rep)
+    return Fitted({"by_capture": {k: [round(float(x), 4) for x in v] for k, v in gains.items()}}, rep)
+
+
+def frame_warps(shifts: np.ndarray, h: int, w: int, grid: tuple[int, int]) -> np.ndarray:
+    """Per frame (dx, dy, scale) that moves the twin onto the capture, by least squares on region shifts (R, S, 2)
+    of the twin against the capture (`region_shifts(capture, twin)`; x right, y down, pixels) on `grid` regions
+    of an (h, w) image: capture = twin magnified by scale about the centre, then moved by (dx, dy). One pass of
+    outlier rejection (regions more than 3 median deviations off)."""
+    rows, cols = grid
+    r, q = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")
+    px = ((q.ravel() + 0.5) * w / cols - w / 2, (r.ravel() + 0.5) * h / rows - h / 2)
+    a = np.zeros((2 * rows * cols, 3))
+    a[0::2, 0], a[1::2, 1] = 1, 1
+    a[0::2, 2], a[1::2, 2] = px
+    out = []
+    for i in range(shifts.shape[1]):
+        u = -shifts[:, i, :].reshape(-1)  # capture content against the twin's
+        keep = np.ones(len(u), bool)
+        for _ in range(2):
+            sol = np.linalg.lstsq(a[keep], u[keep], rcond=None)[0]
+            res = np.abs(a @ sol - u)
+            keep = res <= max(3 * np.median(res), 0.05)
+        out.append((sol[0], sol[1], 1.0 + sol[2]))
+    return np.array(out)
+
+
+def region_shifts_lk(a: np.ndarray, b: np.ndarray, grid: tuple[int, int]) -> np.ndarray:
+    """(R, S, 2) shift (dx right, dy down; pixels) of stack b against stack a per region and frame, by one
+    Lucas-Kanade step on the luminance (lightly smoothed): unbiased for sub-pixel shifts of smooth, defocused
+    content, where phase correlation's estimate falls short; iterate (warp, measure again) for larger ones."""
+    import cv2
+
+    s, _, h, w = a.shape
+    rows, cols = grid
+    reg = region_index(h, w, grid).ravel()
+    n_r = rows * cols
+    out = np.zeros((n_r, s, 2))
+    for i in range(s):
+        la = cv2.GaussianBlur(a[i].mean(0).astype(np.float32), (0, 0), 1.0)
+        lb = cv2.GaussianBlur(b[i].mean(0).astype(np.float32), (0, 0), 1.0)
+        gy, gx = np.gradient(lb)
+        diff = (la - lb).ravel()
+        gx, gy = gx.ravel(), gy.ravel()
+        sums = [np.bincount(reg, weights=v, minlength=n_r) for v in (gx * gx, gx * gy, gy * gy, gx * diff, gy * diff)]
+        sxx, sxy, syy, bx, by = sums
+        det = sxx * syy - sxy * sxy
+        ok = det > 1e-12 * np.maximum(sxx + syy, 1e-30) ** 2
+        dx = np.where(ok, (syy * bx - sxy * by) / np.where(ok, det, 1), 0.0)
+        dy = np.where(ok, (sxx * by - sxy * bx) / np.where(ok, det, 1), 0.0)
+        out[:, i] = np.stack([dx, dy], 1)  # a(q) = b(q + d): b is a moved by d
+    return out
+
+
+def refine_warps(state: FitState, real: np.ndarray, twin: np.ndarray, iterations: int = 4) -> np.ndarray:
+    """(S, 3) per-frame dx, dy (binned pixels) and scale that move `twin` onto `real`: `frame_warps` on the region
+    shifts (`region_shifts_lk`), then again on the twin warped so far, until the remaining shift is gone."""
+    from aat_deploy.diagnose.bins import MAP_GRID
+
+    h, w = real.shape[-2:]
+    ctx = state.tb.context()
+    acc = np.tile([0.0, 0.0, 1.0], (len(real), 1))
+    moved = twin
+    for _ in range(iterations):
+        d = frame_warps(region_shifts_lk(real, moved, MAP_GRID), h, w, MAP_GRID)
+        acc[:, :2] = d[:, 2:3] * acc[:, :2] + d[:, :2]  # p -> s2 (s1 p + t1) + t2
+        acc[:, 2] *= d[:, 2]
+        moved = state.make("misalignment", sigma_px=0.0, by_capture={"": acc.ravel().tolist()}).stack(
+            twin, None, ctx, None)
+    return acc
+
+
+def fit_misalignment(state: FitState) -> Fitted:
+    """Every capture's per-frame shifts and magnifications from the capture-vs-twin region shifts (`refine_warps`),
+    at full-resolution pixels. The part of the magnification that focus breathing explains (least squares on the
+    magnifications breathing of coefficient 1 would add) is left to `focus_breathing`. None when no frame moves by
+    0.15 px nor scales by 5e-4."""
+    by, worst = {}, (0.0, 0.0)
+    for i, (c, real, base) in enumerate(zip(state.caps, state.real_b, state.base_b)):
+        wp = refine_warps(state, real, base)
+        unit = refine_warps(state, state.render_b(i, [state.make("focus_breathing", coefficient=1.0)]), base, 2)[:, 2] - 1
+        m = wp[:, 2] - 1.0
+        k = float(np.dot(m, unit) / np.dot(unit, unit)) if np.dot(unit, unit) > 0 else 0.0
+        wp[:, 2] = 1.0 + m - max(k, 0.0) * unit
+        wp[:, :2] *= state.factor
+        by[c.name] = [round(float(x), 4) for x in wp.ravel()]
+        worst = (max(worst[0], float(np.abs(wp[:, :2]).max())), max(worst[1], float(np.abs(wp[:, 2] - 1).max())))
+    rep = {"misalignment_fit": {"by_capture": by, "largest_shift_px": worst[0], "largest_scale_change": worst[1]}}
+    if worst[0] < 0.15 and worst[1] < 5e-4:
+        return Fitted(None, rep)
+    return Fitted({"sigma_px": 0.0, "by_capture": by}, rep)
+
+
 FITTERS: dict[str, Callable[[FitState], Fitted]] = {
     "focus_metadata": fit_focus_metadata,
     "sensor_tilt": fit_sensor_tilt,
     "noise": fit_noise,
     "focus_breathing": fit_breathing,
+    "exposure": fit_exposure,
+    "misalignment": fit_misalignment,
+    "lens_tolerance": fit_lens_tolerance,
 }
 
 

@@ -271,6 +271,13 @@ class Diagnosis:
             cur_b = [image_distances(r, c, b) for r, c, b in zip(state.real_b, state.real_curves_b, state.base_b)]
             best = []
             for name in list(remaining):
+                why = fx.make(name).torch_reason(self.twins.context())
+                if why and not getattr(self.twins, "uses_torch", False):
+                    self.skipped.append({"effect": name, "reason": f"effect {name!r} needs the training package "
+                                                                    f"(torch): {why}"})
+                    self.progress(f"skipped {name}: {why}")
+                    remaining.remove(name)
+                    continue
                 self.progress(f"round {rnd + 1}: fitting {name}")
                 report: dict = {}
                 if name in fitters.FITTERS:
@@ -387,7 +394,7 @@ def named_by_brightness(entry: dict, min_score: float) -> bool:
     return bri[0] >= min_score and (2 * img[0] + bri[0]) / 3 >= min_score and low > 0
 
 
-def share_view(entry: dict) -> tuple[float | None, str | None]:
+def share_view(entry: dict, min_image: float = 0.25) -> tuple[float | None, str | None]:
     """The share of the gap as people should read it: (value to show, note) from an entry's `share_of_gap`,
     its interval and its image closeness. A share is a ratio of sums: it means "this much of the gap closes"
     only when the effect's twin resembles the captures and the ratio lies in 0..1. Otherwise the value shown
@@ -397,8 +404,8 @@ def share_view(entry: dict) -> tuple[float | None, str | None]:
         return None, entry.get("note")
     if share is None:
         return None, "no significant gap: no share" if entry.get("closeness") is not None else None
-    img = entry.get("image_closeness")
-    if img is not None and img < 0:
+    img, bri = entry.get("image_closeness"), entry.get("brightness_closeness")
+    if img is not None and img < 0 and (bri is None or bri < min_image):  # nor did its lighting come closer
         return None, (f"not shown: its images moved away from the captures (closeness {img:.2f}), so its twin "
                       f"does not resemble them and its share ({share:.2f}) says nothing about the cause")
     if share > 1:
@@ -476,7 +483,7 @@ def annotate_shares(entries: list[dict], ranked: list[dict], cfg: DiagnoseConfig
     place."""
     named = {id(e) for e in ranked}
     for e in entries:
-        e["share_shown"], e["share_note"] = share_view(e)
+        e["share_shown"], e["share_note"] = share_view(e, cfg.min_image_explained)
         e["explains_gap"] = explains_gap(e, cfg.min_share, cfg.min_image_explained) if id(e) in named else None
 
 
@@ -504,7 +511,7 @@ def shrink_summary(diag: Diagnosis, base: Scored, ranked: list[dict], chain: lis
         return None
     before = float(np.nanmean(np.concatenate([g.ravel() for g in diag.gap_maps(base)])))
     after = float(np.nanmean(np.concatenate([g.ravel() for g in diag.gap_maps(chain[-1])])))
-    return {"effects": [fx.spec(e) for e in chain[-1].effects], "gap_before_m": before, "gap_predicted_m": after,
+    return {"effects": [e.training_spec() for e in chain[-1].effects], "gap_before_m": before, "gap_predicted_m": after,
             "real_mae_before_m": float(np.nanmean(np.concatenate([r.err.ravel() for r in diag.runs])))}
 
 

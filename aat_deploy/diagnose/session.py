@@ -101,7 +101,7 @@ def run(root, model_path, out: Path, *, lens=None, psf=None, effects=None, retra
     tmp.mkdir(parents=True)
     try:
         if shrink:
-            named = [fx.spec(e) for e in chain[-1].effects]
+            named = [e.training_spec() for e in chain[-1].effects]
             cmd = retrain_command(Path(model_path), lens_file, src.path if src is not None else None,
                                   named, retrain_steps or 300, out / "retrain", model.meta["aat.sensor_mm"], model.sensor_px)
             shrink["retrain_command"] = " ".join(cmd)

@@ -78,6 +78,7 @@ class TwinRenderer:
     rendering. `renders` counts optical renders (cache misses)."""
 
     factor = 1  # binning of the sensor (`binned`)
+    uses_torch = False  # renders effects that need torch (the training simulator behind it)
 
     def __init__(self, model: DfFModel, lens: Lens, psf: str | Path | OnnxSource | None = None, cell_px: int = 64,
                  cache_items: int = 256, threads: int | None = 2):
@@ -124,10 +125,10 @@ class TwinRenderer:
                       "scripts/stamp_psf_optics.py)", stacklevel=3)
         return paraxial_focus_table(self.lens)
 
-    def context(self) -> fx.SimContext:
+    def context(self, capture: str = "") -> fx.SimContext:
         s = self.lens.sensor
         return fx.SimContext(self.lens, (s.height_px, s.width_px), (0, 0), self.lens_source, self._table,
-                             self._exit_pupil)
+                             self._exit_pupil, capture)
 
     def why_torch(self, effects: list[fx.Effect]) -> str | None:
         """Why these effects need the torch simulator, or None when numpy renders them."""
@@ -163,7 +164,7 @@ class TwinRenderer:
         if self.factor > 1:
             extra = [x for x in (e.binned(self.factor) for e in extra) if x is not None]
         effects = sorted(self.base + list(extra), key=lambda e: e.order)
-        ctx, rng = self.context(), np.random.default_rng(seed)
+        ctx, rng = self.context(cap.name), np.random.default_rng(seed)
         focus = fx.twin_focus(effects, cap.focus_m, ctx, rng) if focus_true_m is None else \
             np.asarray(focus_true_m, np.float64).ravel()
         scale = np.percentile(cap.frames, 99.5) / max(float(np.percentile(aif_linear, 99.5)), 1e-6)
@@ -186,7 +187,7 @@ class TwinRenderer:
     def true_focus(self, cap: CaptureData, extra: list[fx.Effect], seed: int = 0) -> np.ndarray:
         """The focus distances (m) a twin of `cap` with these extra effects assumes (their `twin_focus`)."""
         effects = sorted(self.base + list(extra), key=lambda e: e.order)
-        return fx.twin_focus(effects, cap.focus_m, self.context(), np.random.default_rng(seed))
+        return fx.twin_focus(effects, cap.focus_m, self.context(cap.name), np.random.default_rng(seed))
 
     @staticmethod
     def has_stack_hook(effect: fx.Effect) -> bool:

@@ -56,7 +56,7 @@ class SimContext:
     lens's PSF source, and the lens's focusing: `table` (sensor z vs diopters, `training.psf.geometry.FocusTable`;
     None = real-ray traced from the lens on first use, which needs torch) and the paraxial exit pupil (mm from the
     first vertex; None = computed from the lens). The torch simulator traces; the torch-free twin renderer fills
-    both from the PSF surrogate's metadata."""
+    both from the PSF surrogate's metadata. `capture` names the capture a digital twin is rendered for."""
 
     lens: Lens
     sensor_hw: tuple[int, int]
@@ -64,6 +64,7 @@ class SimContext:
     lens_source: Any = None  # the real lens's PSF source (the `aberrations` effect switches to it)
     table: Any = None
     exit_pupil_z_mm: float | None = None
+    capture: str = ""  # the capture a twin is rendered for (settings fitted per capture: exposure, misalignment)
 
     def __post_init__(self):
         if self.exit_pupil_z_mm is None:
@@ -228,8 +229,10 @@ def _text(v) -> str:
 def spec(effect: Effect) -> str:
     """'name' or 'name:k=v:k=v' for settings that differ from the defaults (what `parse` reads back; lists as
     numbers joined by '/')."""
-    changed = [f"{k}={_text(v)}" for k, v in effect.params.items() if type(effect).defaults.get(k) != v]
-    return ":".join([effect.name, *changed])
+    changed = [f"{k}={_text(v)}" for k, v in effect.params.items()
+               if type(effect).defaults.get(k) != v and not isinstance(v, dict)]
+    fitted = [k for k, v in effect.params.items() if isinstance(v, dict) and v]
+    return ":".join([effect.name, *changed]) + ("" if not fitted else f"[{','.join(fitted)} fitted per capture]")
 
 
 def register(cls: type[Effect]) -> type[Effect]:
