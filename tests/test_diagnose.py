@@ -306,3 +306,18 @@ def test_verdict_by_hand():
     assert verdict(True, [stand_in], 0.52, cfg) == "unexplained"
     assert verdict(True, [noise, vign], 0.57, cfg) == "partly_explained"
     assert verdict(True, [bias], 0.05, cfg) == "explained"
+
+
+def test_alternatives_are_the_effects_the_images_cannot_tell_apart():
+    """_pick names the closest effect and lists the others that pass the rule with overlapping intervals."""
+    from aat_deploy.diagnose.search import DiagnoseConfig, Diagnosis
+
+    def e(name, clo, ci, img=None):
+        return ({"effect": name, "closeness": clo, "closeness_ci": ci, "image_closeness": img or clo,
+                 "image_closeness_ci": ci}, name)
+
+    best = [e("lens_tolerance", 0.40, [0.30, 0.50]), e("sensor_tilt", 0.45, [0.35, 0.55]),
+            e("noise", 0.10, [0.06, 0.14]), e("exposure", 0.02, [-0.1, 0.1])]
+    top = Diagnosis._pick(None, best, DiagnoseConfig())
+    assert top[1] == "sensor_tilt" and top[0]["alternatives"] == ["lens_tolerance"]
+    assert Diagnosis._pick(None, [e("exposure", 0.02, [-0.1, 0.1])], DiagnoseConfig()) is None

@@ -67,6 +67,10 @@ def markdown(d: dict) -> str:
         names = [f"**{e['effect']}**" for e in d["ranked_effects"]]
         lines += ["", f"Named: {names[0]}." if len(names) == 1 else
                   f"Named, in the order found: {', then '.join(names)}."]
+        for e in d["ranked_effects"]:
+            if e.get("alternatives"):
+                lines.append(f"In round {e['round']}, {', '.join(e['alternatives'])} brought the images about as close "
+                             f"as {e['effect']}: these captures cannot tell them apart.")
         if d.get("causes") is not None:
             lines.append("Effects that explain part of the gap: "
                          + (", ".join(f"**{c}**" for c in d["causes"]) or "none") + "; the others are in the "

@@ -226,14 +226,23 @@ class Diagnosis:
                 "distances": [asdict(d) for d in fit.dist]}
 
     def _pick(self, best: list, cfg: DiagnoseConfig):
-        """The round's named effect among (entry, twin) pairs, or None (`is_named`, then `named_by_brightness`)."""
+        """The round's named effect among (entry, twin) pairs, or None (`is_named`, then `named_by_brightness`).
+        The named entry lists in `alternatives` the other effects that would be named too and whose closeness
+        interval reaches its: on these captures the images cannot tell them apart (a tilted sensor and a
+        decentred element both tilt the focal surface)."""
         if not best:
             return None
         best.sort(key=lambda t: -t[0]["closeness"])
         if is_named(best[0][0], cfg.min_score):
-            return best[0]
-        lit = [t for t in best if named_by_brightness(t[0], cfg.min_score)]
-        return max(lit, key=lambda t: t[0]["brightness_closeness"]) if lit else None
+            top = best[0]
+        else:
+            lit = [t for t in best if named_by_brightness(t[0], cfg.min_score)]
+            if not lit:
+                return None
+            top = max(lit, key=lambda t: t[0]["brightness_closeness"])
+        top[0]["alternatives"] = [t[0]["effect"] for t in best if t is not top and is_named(t[0], cfg.min_score)
+                                  and t[0]["closeness_ci"][1] >= top[0]["closeness_ci"][0]]
+        return top
 
     def _screen(self, state: fitters.FitState, cur_b: list, name: str, proposals: list[dict]):
         """Each proposed setting's twin at reduced resolution against the round's: (best params, image closeness
