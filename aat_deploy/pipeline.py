@@ -30,6 +30,7 @@ from .model import DfFModel
 from .normalise import DESCRIPTION as NORMALISATION
 from .normalise import normalise_stack
 from .recording import write_recording
+from .io.images import imread, imwrite
 
 OUTPUT_FILES = ("depth_mm.png", "depth_m.npy", "aif.png", "std_m.npy", "std_mm.png", "summary.json", "recording.rrd")
 FOCAL_TOLERANCE = 0.02  # relative difference of focal length that counts as another lens
@@ -91,7 +92,7 @@ def identity_warnings(capture: Capture, model: DfFModel) -> list[str]:
 def _write_png(path: Path, img: np.ndarray) -> None:
     if img.ndim == 3:
         img = img[..., ::-1]  # RGB → BGR for OpenCV
-    if not cv2.imwrite(str(path), np.ascontiguousarray(img)):
+    if not imwrite(path, np.ascontiguousarray(img)):
         raise OutputError(f"{path}: could not write PNG")
 
 
@@ -259,7 +260,7 @@ def _ground_truth(cap: Capture, size0: tuple[int, int], size_wh: tuple[int, int]
         if cap.gt_depth_m is not None:
             gt = np.load(cap.gt_depth_m, allow_pickle=False).astype(np.float32)
         elif cap.gt_depth_mm is not None:
-            mm = cv2.imread(str(cap.gt_depth_mm), cv2.IMREAD_UNCHANGED)
+            mm = imread(cap.gt_depth_mm, cv2.IMREAD_UNCHANGED)
             gt = None if mm is None else mm.astype(np.float32) / 1000.0
     except (OSError, ValueError, TypeError, EOFError) as e:
         warnings.append(f"{cap.path}: ground truth unreadable ({str(e).splitlines()[0][:120] if str(e) else type(e).__name__}); ignored")

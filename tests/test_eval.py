@@ -30,11 +30,6 @@ FOCUS = [0.6, 0.8, 1.2, 2.0, 3.0, 4.5]
 
 
 @pytest.fixture(scope="module")
-def model_path(tmp_path_factory):
-    return tiny_model_path(tmp_path_factory)
-
-
-@pytest.fixture(scope="module")
 def base(tmp_path_factory, model_path):
     """A DNG capture without ground truth and the tiny model's prediction P (48, 64) on it."""
     d = tmp_path_factory.mktemp("eval")

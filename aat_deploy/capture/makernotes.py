@@ -35,7 +35,7 @@ def canon_focus_m(upper: float, lower: float) -> tuple[float, str]:
     Otherwise the bracket's midpoint in diopters, an upper bound at infinity counting as 0 D."""
     inv_up = 0.0 if upper > CANON_INFINITY_M else 1.0 / upper
     if lower <= 0:
-        return (math.inf if inv_up == 0 else 1.0 / inv_up), "Upper (Lower not recorded)"
+        return (math.inf if inv_up == 0 else 1.0 / inv_up), "Upper alone, Lower not recorded"
     inv_lo = 0.0 if lower > CANON_INFINITY_M else 1.0 / lower
     mid = 0.5 * (inv_up + inv_lo)
     return (math.inf if mid == 0 else 1.0 / mid), "diopter midpoint"

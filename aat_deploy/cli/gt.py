@@ -31,6 +31,7 @@ from ..errors import CaptureError, safe_output_streams
 from ..eval.gt import check_units, find_gt, load_ground_truth
 from ..eval.raycast import load_intrinsics, load_mesh, load_pose, render_depth
 from ..io.guard import check_output_files
+from ..io.images import imwrite
 
 MM_MAX = 65535
 
@@ -56,7 +57,7 @@ def _write_atomic(paths: dict[str, Path], depth_m: np.ndarray, info: dict) -> No
     tmp = {k: p.with_name(f".{p.name}.tmp-{os.getpid()}{p.suffix}") for k, p in paths.items()}
     try:
         np.save(tmp["npy"], depth_m.astype(np.float32))
-        if not cv2.imwrite(str(tmp["png"]), mm) or not cv2.imwrite(str(tmp["mask"]),
+        if not imwrite(tmp["png"], mm) or not imwrite(tmp["mask"],
                                                                     valid.astype(np.uint8) * 255):
             raise OSError("could not write PNG")
         tmp["json"].write_text(json.dumps(info, indent=2) + "\n")
@@ -125,7 +126,7 @@ def cmd_pose(a) -> int:
     tmp_png = a.out.with_name(f".{a.out.stem}.tmp-{os.getpid()}.png")
     try:
         tmp.write_text(json.dumps(fit.as_json(intr, points, notes), indent=2) + "\n")
-        if picture is not None and not cv2.imwrite(str(tmp_png), picture):
+        if picture is not None and not imwrite(tmp_png, picture):
             raise OSError(f"{tmp_png}: could not write PNG")
         os.replace(tmp, a.out)
         if picture is not None:

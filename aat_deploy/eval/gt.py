@@ -25,6 +25,7 @@ import numpy as np
 
 from ..capture.raw import FRAME_EXTENSIONS
 from ..errors import CaptureError, file_kind, load_json, member_path
+from ..io.images import imread
 
 GT_JSON = "gt.json"
 DEFAULT_FILES = (("gt_depth_m.npy", 1.0), ("gt_depth_m.pfm", 1.0), ("gt_depth_m.tif", 1.0),
@@ -158,7 +159,7 @@ def read_depth_file(path: Path) -> np.ndarray:
         elif suffix == ".pfm":
             arr = read_pfm(path)
         elif suffix in (".tif", ".tiff", ".png"):
-            arr = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+            arr = imread(path, cv2.IMREAD_UNCHANGED)
             if arr is None:
                 raise GTError(f"{path}: not a readable image")
             if suffix == ".png" and arr.dtype != np.uint16:
@@ -187,7 +188,7 @@ def load_ground_truth(src: GTSource) -> GroundTruth:
         d = np.where(np.isfinite(d) & (d > 0), d, np.nan).astype(np.float32)
     warnings = []
     if src.mask is not None:
-        m = cv2.imread(str(src.mask), cv2.IMREAD_UNCHANGED)
+        m = imread(src.mask, cv2.IMREAD_UNCHANGED)
         if m is None:
             raise GTError(f"{src.mask}: not a readable mask image")
         if m.ndim == 3:

@@ -29,6 +29,7 @@ from ..metrics import MetricAccumulator, valid_mask
 from ..model import DfFModel
 from ..io.atomic import atomic_folder
 from ..io.guard import check_no_overlap, check_output_dir
+from ..io.images import imread
 from ..pipeline import Options
 from ..pipeline import run_capture as infer_capture
 from . import plots, report
@@ -105,7 +106,7 @@ def _score_one(cap: Path, gt: GroundTruth, model: DfFModel, label: str, run_dir:
                             "a different aspect ratio; AiF not scored")
         else:
             ref_fit, _ = fit_to_sensor(ref, model.sensor_px)
-            aif8 = cv2.imread(str(run_dir / "aif.png"), cv2.IMREAD_COLOR)[..., ::-1]
+            aif8 = imread(run_dir / "aif.png", cv2.IMREAD_COLOR)[..., ::-1]
             aif_p, aif_r, gain = aif_pair(aif8, ref_fit)
     row = acc.add(pred_a, gt_s, aif_p, aif_r, focus_m=focus)
     err = np.where(mask, pred_a - np.where(mask, gt_s, 0), np.nan)
