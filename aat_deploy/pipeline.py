@@ -22,7 +22,7 @@ import numpy as np
 from .capture.folder import Capture, read_capture
 from .capture.raw import linear_to_srgb, load_frame
 from .errors import CaptureError, OutputError
-from .eval.gt import units_problem
+from .eval.gt import READ_ERRORS, units_problem
 from .geometry import align_stack, fit_to_sensor
 from .io.atomic import atomic_folder
 from .io.guard import check_output_dir
@@ -262,7 +262,7 @@ def _ground_truth(cap: Capture, size0: tuple[int, int], size_wh: tuple[int, int]
         elif cap.gt_depth_mm is not None:
             mm = imread(cap.gt_depth_mm, cv2.IMREAD_UNCHANGED)
             gt = None if mm is None else mm.astype(np.float32) / 1000.0
-    except (OSError, ValueError, TypeError, EOFError) as e:
+    except (*READ_ERRORS, TypeError) as e:
         warnings.append(f"{cap.path}: ground truth unreadable ({str(e).splitlines()[0][:120] if str(e) else type(e).__name__}); ignored")
         return None
     if gt is None:

@@ -356,6 +356,20 @@ def test_infer_checks_ground_truth_units(model_path, tmp_path, capsys):
     assert any("gt_depth_m.npy" in w and "wrong units" in w and "millimetres" in w for w in s["warnings"])
 
 
+def test_damaged_npy_header_is_a_clean_error(model_path, tmp_path, capsys):
+    """Found by benchmarks/fuzz_readers.py: np.load parses a .npy header with Python's tokenizer, and an
+    unbalanced bracket raised tokenize.TokenError (not a ValueError) out of aat-eval's reader and aat-infer."""
+    cap = write_dng_capture(tmp_path / "cap", FOCUS)
+    raw = bytearray((cap / "gt_depth_m.npy").read_bytes())
+    raw[raw.index(b"), }")] = ord(" ")  # the shape tuple loses its closing bracket
+    (cap / "gt_depth_m.npy").write_bytes(bytes(raw))
+    with pytest.raises(CaptureError, match=r"gt_depth_m.npy: unreadable"):
+        load_ground_truth(find_gt(cap))
+    rc, lines, _ = infer([cap, "--model", model_path, "--out", tmp_path / "o"], capsys)
+    s = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert rc == 0 and any("ground truth unreadable" in w for w in s["warnings"])
+
+
 # -- 9: ports and stale temporary folders --------------------------------------------------------------------------
 @pytest.mark.parametrize("flag, port", [("--port", 0), ("--port", 70000), ("--grpc-port", -1)])
 def test_view_port_out_of_range(flag, port, tmp_path, capsys):

@@ -15,7 +15,6 @@ import pytest
 from conftest import ROOT
 from deploy_fixtures import (
     build_tiny_dff,
-    tiny_model_path,
     write_dng_capture,
     write_png_capture,
 )

@@ -17,6 +17,7 @@ any size); each output pixel takes the ground-truth sample under its centre (nea
 from __future__ import annotations
 
 import math
+import tokenize
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -34,6 +35,9 @@ DEFAULT_MASK = "gt_mask.png"
 UNITS_FACTOR = 10.0  # median depth beyond this factor outside the model's focus range = wrong units
 ASPECT_TOLERANCE = 0.01
 FEW_VALID = 0.05
+# what reading a damaged depth file raises: np.load parses a .npy header with Python's tokenizer (SyntaxError,
+# TokenError) and gives EOFError on an empty file; OpenCV raises cv2.error
+READ_ERRORS = (OSError, ValueError, EOFError, SyntaxError, tokenize.TokenError, cv2.error)
 
 
 class GTError(CaptureError):
@@ -168,7 +172,7 @@ def read_depth_file(path: Path) -> np.ndarray:
             raise GTError(f"{path}: unknown depth format {suffix!r} (expected .npy, .pfm, .tif, .tiff or .png)")
     except GTError:
         raise
-    except (OSError, ValueError, EOFError, cv2.error) as e:  # np.load raises EOFError on an empty .npy
+    except READ_ERRORS as e:
         raise GTError(f"{path}: unreadable ({str(e).splitlines()[0][:120] if str(e) else type(e).__name__})") from None
     arr = np.asarray(arr)
     if arr.ndim == 3 and arr.shape[2] == 1:
