@@ -24,7 +24,6 @@ import os
 import sys
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from ..errors import CaptureError, safe_output_streams
