@@ -309,6 +309,27 @@ def test_unusual_but_valid_captures_run(case, model_path, good, tmp_path, capsys
     assert tree_hash(bad, cap, earlier) == before
 
 
+def test_unexpected_exception_is_one_line_with_its_type(model_path, good, tmp_path, capsys, monkeypatch):
+    """The per-capture boundary: an exception that is not the project's own (a bug not found yet) becomes one
+    line naming the capture and the exception type, and the batch goes on."""
+    cap, earlier = good
+    bad = write_dng_capture(tmp_path / "bad", FOCUS)
+    import aat_deploy.pipeline as pipeline
+
+    real = pipeline.read_capture
+
+    def boom(folder, **kw):
+        if Path(folder).name == "bad":
+            raise ZeroDivisionError("float division by zero")
+        return real(folder, **kw)
+
+    monkeypatch.setattr(pipeline, "read_capture", boom)
+    rc, lines, out = infer([bad, cap, "--model", model_path, "--out", tmp_path / "o"], capsys)
+    assert rc == 1 and len(lines) == 2
+    assert f"FAILED {bad}: unexpected ZeroDivisionError: float division by zero" in lines[0]
+    assert (tmp_path / "o" / "good" / "summary.json").is_file()
+
+
 def test_unwritable_output_fails_before_decoding(model_path, good, tmp_path, capsys, monkeypatch):
     """PermissionError/NotADirectoryError came after decoding and inference and stopped the batch."""
     cap, earlier = good
