@@ -95,7 +95,6 @@ def test_parity_detects_a_different_model(tmp_path, lens):
         model.net.out.bias += 1.0  # a logit shift common to all frames changes nothing: softmax is shift-invariant
         assert parity(model, out, [(1, 3, 32, 32)]) < PARITY_TOL
         model.net.out.weight.mul_(3.0)
-    print("changed", parity(model, out, [(1, 3, 32, 32)]))
     assert parity(model, out, [(1, 3, 32, 32)]) > 10 * PARITY_TOL
     assert np.isfinite(parity(model, out, [(1, 2, 64, 32)]))
 
