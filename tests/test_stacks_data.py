@@ -46,13 +46,14 @@ def _cfg(**kw):
     return StackDataConfig(**{**base, **kw})
 
 
+@pytest.mark.numerics
 def test_items_shapes_order_and_determinism():
     ds = FocalStackDataset(_cfg())
     a, b = ds[1], ds[1]
     assert a["stack"].shape == (4, 3, 48, 64) and a["aif"].shape == (3, 48, 64) and a["depth_m"].shape == (48, 64)
     f = a["focus_m"].numpy()
-    assert np.all(np.diff(f) > 0) and abs(f[0] - 0.5) < 1e-6 and abs(f[-1] - 10.0) < 1e-4
-    assert np.array_equal(a["stack"].numpy(), b["stack"].numpy())
+    assert np.all(np.diff(f) > 0) and f[[0, -1]] == pytest.approx([0.5, 10.0], rel=1e-6)  # float32 of 1 / diopters
+    assert np.array_equal(a["stack"].numpy(), b["stack"].numpy())  # deterministic: the same item, bit for bit
     assert 0 <= float(a["stack"].min()) and float(a["stack"].max()) <= 1.0
     with pytest.raises(IndexError):
         ds[3]
@@ -65,6 +66,7 @@ def test_aat_and_thin_share_scenes_but_not_blur():
     assert float((aat["stack"] - thin["stack"]).abs().mean()) > 1e-3
 
 
+@pytest.mark.numerics
 def test_crops_keep_the_psfs_of_their_field_position():
     ds = FocalStackDataset(_cfg(simulator="aat"))
     seen = []
@@ -91,4 +93,5 @@ def test_crops_keep_the_psfs_of_their_field_position():
     for sim, expect_same in ((FocalStackDataset(_cfg(simulator="thin_lens")).sim, True), (ds.sim, False)):
         a = sim.render_stack(t, d, [1.0], origin=(0, 0)).frames
         b = sim.render_stack(t, d, [1.0], origin=(hs // 2 - 24, ws // 2 - 32)).frames
-        assert (float((a - b).abs().max()) < 1e-5) == expect_same
+        # field-invariant PSFs render the same numbers up to the FFT's float32 rounding (~1e-6 of the frame)
+        assert (float((a - b).abs().max()) < 1e-5 * float(a.abs().max())) == expect_same
