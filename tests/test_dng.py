@@ -83,7 +83,7 @@ def test_optional_fields_omitted_and_awkward_distance(tmp_path):
     with open(p, "rb") as f:
         tags = exifread.process_file(f, details=False)
     assert not {"EXIF ExposureTime", "EXIF ISOSpeedRatings", "EXIF DateTimeOriginal"} & set(tags)
-    assert abs(float(tags["EXIF SubjectDistance"].values[0]) - 1.2345678) < 1e-9
+    assert float(tags["EXIF SubjectDistance"].values[0]) == pytest.approx(1.2345678, rel=1e-9)  # a close rational
 
 
 def test_tiff_structure_with_tifffile(tmp_path):
