@@ -1,8 +1,9 @@
 """Shared test helpers: paths to the repository's lenses and to ../shared/data (optional); float comparisons with
 stated relative tolerances; the strict numerics mode of the CI's second pass.
 
-AAT_TEST_NUMERICS=strict (set by .ci/run for `pytest -m numerics`): torch runs its deterministic algorithms on one
-thread, so that kernel-order differences between machines show in CI rather than on a user's first `pytest`."""
+AAT_TEST_NUMERICS=strict (set by .ci/run for `pytest -m numerics`, with OMP_NUM_THREADS=1 and, on AVX-512 CPUs,
+AVX2 kernels): torch runs only its deterministic algorithms, so that kernel-order differences between machines show
+in CI rather than on a user's first `pytest`. Tests marked `numerics` compare floats from different kernels."""
 
 from __future__ import annotations
 
@@ -23,9 +24,9 @@ SHARED = ROOT.parent / "shared" / "data"
 STRICT_NUMERICS = os.environ.get("AAT_TEST_NUMERICS", "") == "strict"
 
 if torch is not None:
-    torch.set_num_threads(1)  # 2-core machines: avoid OpenMP spin-waiting between tests
+    torch.set_num_threads(1)  # 2-core machines: avoid OpenMP spin-waiting between tests (the strict pass too)
     if STRICT_NUMERICS:
-        torch.use_deterministic_algorithms(True)
+        torch.use_deterministic_algorithms(True)  # an op without a deterministic kernel raises
 
 
 def rel_err(actual, desired, scale=None) -> float:
@@ -42,7 +43,6 @@ def rel_err(actual, desired, scale=None) -> float:
 def assert_close(actual, desired, rel: float, scale=None, what: str = "") -> None:
     """Fail unless rel_err(actual, desired, scale) <= rel; the message gives the measured value."""
     err = rel_err(actual, desired, scale)
-    print(f"REL {what} {err:.3e} / {rel:.0e}")  # MEASURE-TMP
     assert err <= rel, f"{what + ': ' if what else ''}relative difference {err:.2e} > {rel:.0e}"
 
 
