@@ -33,10 +33,11 @@ pytestmark = pytest.mark.numerics  # numpy vs torch renderers and sources
 # Relative agreement (max |difference| / max |value|, `conftest.rel_err`) of float32 frames and kernels.
 # With the surrogate both sides get the same onnxruntime kernels and differ only by the renderers' float32 FFTs and
 # sums (~log2(N) eps ~ 1e-6; 5e-7 seen). The thin-lens Gaussian is evaluated in float32 by each side: its blur near
-# focus is a difference of nearly equal image distances (~50 mm, a few ulps apart: 2e-4 px), so each kernel is
-# within ~1e-4 of its peak of the float64 one (5.5e-5 seen) and the two within twice that, as are frames built of them.
+# focus is a difference of nearly equal image distances (~50 mm, up to ~8 ulps apart: 4e-4 px), so each kernel is
+# within ~1e-4 of its peak of the float64 one (the worst of 400,000 queries near focus: benchmarks/bench_numerics.py)
+# and the two within twice that, as are frames built of them.
 TOL = 1e-5
-THIN_F32 = 1e-4  # a float32 thin-lens kernel vs float64, relative to its peak
+THIN_F32 = 2e-4  # a float32 thin-lens kernel vs float64, relative to its peak
 TOL_THIN = 2 * THIN_F32
 
 
@@ -64,7 +65,7 @@ def test_sources_match_torch():
     k64, s64 = thin_t.model(q64).numpy(), thin_t.model.scale(q64[:, 2], q64[:, 3]).numpy()
     peak_rel = lambda a, b: float((np.abs(a - b).max((1, 2)) / b.max((1, 2))).max())  # noqa: E731
     assert peak_rel(kt, k64) < THIN_F32 and peak_rel(kn, k64) < THIN_F32 and peak_rel(kt, kn) < TOL_THIN
-    # the cell size (blur + margin) / (k - 1) >= 1: the blur's ~2e-4 px are <= 2e-5 of it; twice that
+    # the cell size (blur + margin) / (k - 1) >= 1: the blur's ~4e-4 px are <= 4e-5 of it (6e-6 seen)
     assert np.abs(st / s64 - 1).max() < 4e-5 and np.abs(sn / s64 - 1).max() < 4e-5
     # exact: both sides call the same float64 numpy function (training.psf.geometry.thin_lens_blur_px)
     assert thin_n.k == thin_t.k and np.array_equal(thin_n.scale(d, f), thin_t.scale(d, f))
