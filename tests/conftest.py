@@ -1,5 +1,5 @@
-"""Shared test helpers: paths to the repository's lenses and to ../shared/data (optional); float comparisons with
-stated relative tolerances; the strict numerics mode of the CI's second pass.
+"""Shared test helpers: paths to the repository's lenses and to ../shared/data (optional), the tiny DfF model;
+float comparisons with stated relative tolerances; the strict numerics mode of the CI's second pass.
 
 AAT_TEST_NUMERICS=strict (set by .ci/run for `pytest -m numerics`, with OMP_NUM_THREADS=1 and, on AVX-512 CPUs,
 AVX2 kernels): torch runs only its deterministic algorithms, so that kernel-order differences between machines show
@@ -52,3 +52,11 @@ def shared_lenses() -> Path:
     if not d.is_dir():
         pytest.skip(f"{d} not present (a user's clone has no ../shared/data)")
     return d
+
+
+@pytest.fixture(scope="session")
+def model_path(tmp_path_factory) -> Path:
+    """The tiny contract-following DfF model of deploy_fixtures, built once per session."""
+    from deploy_fixtures import tiny_model_path
+
+    return tiny_model_path(tmp_path_factory)

@@ -12,7 +12,7 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 from training.nets.export import config_hash
-from training.nets.model import NETS, SIZES
+from training.nets.model import FIELD_CHANNELS, NETS, SIZES
 
 SIMULATORS = ("aat", "thin_lens")
 
@@ -34,6 +34,7 @@ class LossConfig:
     smooth_edge: float = 150.0
     level_weights: tuple[float, ...] = (1.0,)
     mask_focus_range: bool = False
+    depth_space: str = "m"  # "m": L1 on depth in metres (the paper's); "diopter": L1 on inverse depth (1/m)
 
 
 @dataclass
@@ -62,6 +63,7 @@ class TrainConfig:
     log_every: int = 10
     val_every: int = 0  # 0 = only at the end
     val_items: int = 16
+    field_channels: int = 0  # 2: the nets also see each pixel's normalised sensor position (training.nets.model)
     init: str | None = None  # weights to start from: an exported DfF .onnx or a model.pt/last.pt (training.nets.init)
 
     def validate(self) -> TrainConfig:
@@ -79,6 +81,10 @@ class TrainConfig:
             raise ConfigError(f"config {self.name}: focus_range_m must be [near, far] with 0 < near < far")
         if not 2 <= self.stack_range[0] <= self.stack_range[1]:
             raise ConfigError(f"config {self.name}: stack_range must be [min, max] with 2 <= min <= max")
+        if self.field_channels not in FIELD_CHANNELS:
+            raise ConfigError(f"config {self.name}: field_channels must be one of {FIELD_CHANNELS}")
+        if self.loss.depth_space not in ("m", "diopter"):
+            raise ConfigError(f"config {self.name}: loss.depth_space must be 'm' or 'diopter'")
         if not self.loss.level_weights or sum(self.loss.level_weights) <= 0:
             raise ConfigError(f"config {self.name}: loss.level_weights must have a positive sum")
         return self
@@ -93,6 +99,10 @@ class TrainConfig:
             d.pop(k)
         if d.get("init") is None:
             d.pop("init")  # configs without an init hash as they did before the field existed
+        if not d.get("field_channels"):
+            d.pop("field_channels")  # likewise
+        if d["loss"].get("depth_space") == "m":
+            d["loss"].pop("depth_space")  # likewise
         return config_hash(d)
 
 
