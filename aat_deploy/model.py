@@ -17,7 +17,9 @@ from pathlib import Path
 import numpy as np
 import onnxruntime as ort
 
+from .camera import model_intrinsics
 from .errors import ModelError
+from .eval.raycast import Intrinsics
 
 REQUIRED_META = ("aat.kind", "aat.lens_name", "aat.focal_length_mm", "aat.f_number", "aat.sensor_px",
                  "aat.pixel_um", "aat.focus_range_m", "aat.stack_min", "aat.stack_max", "aat.size_multiple")
@@ -148,6 +150,12 @@ class DfFModel:
     def summary(self) -> dict:
         """Path and the metadata subset worth recording with results."""
         return {"path": str(self.path), **{k: self.meta[k] for k in SUMMARY_META if k in self.meta}}
+
+    def intrinsics(self, size_wh: tuple[int, int] | None = None) -> Intrinsics:
+        """Pinhole intrinsics of the model's sensor (aat_deploy.camera), or of the same field of view sampled on
+        size_wh = (W, H) px."""
+        cam = model_intrinsics(self.meta, str(self.path))
+        return cam if size_wh is None or tuple(size_wh) == (cam.width, cam.height) else cam.resized(*size_wh)
 
     @property
     def focal_length_px(self) -> float:

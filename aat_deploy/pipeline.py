@@ -2,7 +2,8 @@
 
 Stages (each timed in summary.json): metadata (focus distances, identity check), decode (RAW/images to linear
 RGB), geometry (fit to the model's sensor px), align (optional), normalise, infer (onnxruntime, padded,
-tiled if asked), write (files), record (.rrd). The output folder is checked before any work
+tiled if asked), native (--native-res: depth and all-in-focus at the capture's resolution, aat_deploy.upsample),
+write (files, aat_deploy.outputs: the one writer every depth method uses), record (.rrd). The output folder is checked before any work
 (aat_deploy.io.guard) and written to a temporary sibling renamed into place at the end (aat_deploy.io.atomic), so a
 failed run never leaves a half-written output folder.
 """
@@ -20,19 +21,19 @@ import cv2
 import numpy as np
 
 from .capture.folder import Capture, read_capture
-from .capture.raw import linear_to_srgb, load_frame
-from .errors import CaptureError, OutputError
+from .capture.raw import load_frame
+from .errors import CaptureError
 from .eval.gt import READ_ERRORS, units_problem
 from .geometry import align_stack, fit_to_sensor
 from .io.atomic import atomic_folder
 from .io.guard import check_output_dir
 from .model import DfFModel
 from .normalise import DESCRIPTION as NORMALISATION
-from .normalise import normalise_stack
-from .recording import write_recording
-from .io.images import imread, imwrite
-
-OUTPUT_FILES = ("depth_mm.png", "depth_m.npy", "aif.png", "std_m.npy", "std_mm.png", "summary.json", "recording.rrd")
+from .normalise import normalise_scale, normalise_stack
+from .outputs import DepthMaps, RecordingInputs, write_outputs
+from .camera import camera_json
+from .upsample import native_maps
+from .io.images import imread
 FOCAL_TOLERANCE = 0.02  # relative difference of focal length that counts as another lens
 FNUMBER_TOLERANCE = 0.05
 
@@ -48,6 +49,7 @@ class Options:
     use_exiftool: bool = True
     record: bool = True
     quiet: bool = False
+    native: bool = False  # depth and all-in-focus at the capture's resolution (aat_deploy.upsample)
     warnings: list[str] = field(default_factory=list)
 
 
@@ -87,18 +89,6 @@ def identity_warnings(capture: Capture, model: DfFModel) -> list[str]:
         if abs(fn - model.f_number) > FNUMBER_TOLERANCE * model.f_number:
             out.append(f"{where}: F-number {fn:g} differs from the model's F/{model.f_number:g}")
     return out
-
-
-def _write_png(path: Path, img: np.ndarray) -> None:
-    if img.ndim == 3:
-        img = img[..., ::-1]  # RGB → BGR for OpenCV
-    if not imwrite(path, np.ascontiguousarray(img)):
-        raise OutputError(f"{path}: could not write PNG")
-
-
-def _to_mm16(x_m: np.ndarray) -> np.ndarray:
-    mm = np.nan_to_num(x_m * 1000.0, nan=0.0, posinf=65535.0, neginf=0.0)
-    return np.clip(np.rint(mm), 0, 65535).astype(np.uint16)
 
 
 def output_dir_for(capture_dir: Path, out: Path | None, single: bool) -> Path:
@@ -179,6 +169,8 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
     w_px, h_px = model.sensor_px
     fitted = [fit_to_sensor(im, (w_px, h_px)) for im in images]
     geometry = fitted[0][1]
+    # --native-res: keep the decoded frames for the native maps (nothing to do when they are the working size)
+    native = images if opts.native and tuple(geometry["crop_xywh"][2:]) != (w_px, h_px) else None
     images = [im for im, _ in fitted]
     if abs(size0[1] / size0[0] - w_px / h_px) > 0.01 * (w_px / h_px):
         warnings.append(f"{capture_dir}: frames are {size0[1]}x{size0[0]} px, the model's sensor is {w_px}x{h_px}: "
@@ -193,8 +185,10 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
             warnings.append(f"{capture_dir}: alignment did not converge for {', '.join(bad)} (left unaligned)")
     lap("align")
 
-    stack = normalise_stack(np.stack([im.transpose(2, 0, 1) for im in images]))
-    del images
+    raw_stack = np.stack([im.transpose(2, 0, 1) for im in images])
+    normalise_scale_of = float(normalise_scale(raw_stack))
+    stack = normalise_stack(raw_stack)
+    del images, raw_stack
     lap("normalise")
 
     tiles_bar = None
@@ -203,21 +197,21 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
     res = model.infer(stack, focus, tile=opts.tile, progress=tiles_bar)
     lap("infer")
 
+    maps = DepthMaps(res.depth_m, res.aif, res.std_m, getattr(res, "confidence", None))
+    camera = model.intrinsics((w_px, h_px))
+    if native is not None:
+        natives = native_frames(native, geometry, align_info, normalise_scale_of, (w_px, h_px))
+        depth_n, aif_n, std_n = native_maps(res.depth_m, res.std_m, natives, focus)
+        del natives
+        maps = DepthMaps(depth_n, aif_n, std_n, None)
+        camera = camera.resized(depth_n.shape[1], depth_n.shape[0])
+    lap("native")
+
     with atomic_folder(out_dir, opts.force) as tmp:
-        aif8 = np.rint(linear_to_srgb(res.aif.transpose(1, 2, 0)) * 255).astype(np.uint8)
-        _write_png(tmp / "depth_mm.png", _to_mm16(res.depth_m))
-        np.save(tmp / "depth_m.npy", res.depth_m.astype(np.float32))
-        _write_png(tmp / "aif.png", aif8)
-        np.save(tmp / "std_m.npy", res.std_m.astype(np.float32))
-        _write_png(tmp / "std_mm.png", _to_mm16(res.std_m))
         gt = _ground_truth(cap, size0, (w_px, h_px), warnings, model.focus_range_m)
-        lap("write")
-        if opts.record:
-            frames8 = [np.rint(linear_to_srgb(fr.transpose(1, 2, 0)) * 255).astype(np.uint8) for fr in stack]
-            write_recording(tmp / "recording.rrd", frames_srgb8=frames8, focus_m=focus.tolist(),
-                            depth_m=res.depth_m, aif_srgb8=aif8, std_m=res.std_m, f_px=model.focal_length_px,
-                            gt_depth_m=gt, name=cap.name)
-        lap("record")
+        rec = RecordingInputs(stack, focus, gt, cap.name) if opts.record else None
+        written = write_outputs(tmp, maps, camera, rec)
+        timings.update(written["timings_s"])
         summary = {
             "capture": str(capture_dir),
             "frames": [{"file": f.path.name, "focus_m": float(f.focus_m), "focus_source": f.focus_source,
@@ -227,22 +221,50 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
             "focus_m": [float(f.focus_m) for f in frames],
             "model": model.summary(),
             "input_size_px": [int(size0[1]), int(size0[0])],
-            "output_size_px": [int(w_px), int(h_px)],
+            "working_size_px": [int(w_px), int(h_px)],
+            "output_size_px": [int(camera.width), int(camera.height)],
+            "native_resolution": native is not None,
             "geometry": geometry,
             "align": align_info,
             "normalisation": NORMALISATION,
             "tile": opts.tile,
-            "depth_m_range": [float(np.nanmin(res.depth_m)), float(np.nanmax(res.depth_m))],
+            "depth_m_range": [float(np.nanmin(maps.depth_m)), float(np.nanmax(maps.depth_m))],
             "ground_truth": _gt_stats(gt, res.depth_m),
-            "outputs": {"depth_mm.png": "uint16 depth in mm (0 = unknown)", "depth_m.npy": "float32 depth in m",
-                        "aif.png": "all-in-focus, 8-bit sRGB", "std_m.npy": "float32 uncertainty in m",
-                        "std_mm.png": "uint16 uncertainty in mm", "recording.rrd": "rerun recording"},
+            "camera": camera_json(camera),
+            "color_scales": written["color_scales"],
+            "points": written["points"],
+            "outputs": {**written["outputs"], "summary.json": "this file"},
             "timings_s": timings,
             "warnings": warnings,
         }
         summary["timings_s"]["total"] = round(time.perf_counter() - t_all, 4)
         (tmp / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=False, default=_json_default))
     return summary
+
+
+def native_frames(images: list[np.ndarray], geometry: dict, align_info: list[dict] | None, scale: float,
+                  size_wh: tuple[int, int]) -> list[np.ndarray]:
+    """The decoded frames (H0, W0, 3) cropped as fit_to_sensor cropped them, aligned with the working size's
+    warps (scaled to the crop's pixels) if any, and normalised with the stack's divisor."""
+    x0, y0, cw, ch = geometry["crop_xywh"]
+    out = []
+    for i, im in enumerate(images):
+        crop = np.ascontiguousarray(im[y0:y0 + ch, x0:x0 + cw])
+        if align_info is not None:
+            m = native_warp(np.asarray(align_info[i]["matrix"], np.float64), (cw, ch), size_wh)
+            crop = cv2.warpAffine(crop, m, (cw, ch), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                                  borderMode=cv2.BORDER_REFLECT)
+        out.append(np.clip(crop / np.float32(scale), 0.0, 1.0).astype(np.float32))
+    return out
+
+
+def native_warp(m: np.ndarray, native_wh: tuple[int, int], work_wh: tuple[int, int]) -> np.ndarray:
+    """A 2x3 affine warp in working-size pixels as the same warp in native pixels (pixel centres matched as
+    cv2.resize matches them: x_work = sx (x_native + 0.5) - 0.5)."""
+    sx, sy = work_wh[0] / native_wh[0], work_wh[1] / native_wh[1]
+    a = np.array([[sx, 0, 0.5 * sx - 0.5], [0, sy, 0.5 * sy - 0.5], [0, 0, 1]])
+    full = np.vstack([m, [0, 0, 1]])
+    return (np.linalg.inv(a) @ full @ a)[:2].astype(np.float32)
 
 
 def _json_default(v):

@@ -50,7 +50,8 @@ def test_outputs_and_summary(model, dng_capture, tmp_path):
     out = tmp_path / "out"
     s = run_capture(dng_capture, model, out, Options(quiet=True))
     assert sorted(p.name for p in out.iterdir()) == sorted(
-        ["aif.png", "depth_m.npy", "depth_mm.png", "recording.rrd", "std_m.npy", "std_mm.png", "summary.json"])
+        ["aif.png", "depth_m.npy", "depth_m.tif", "depth_mm.png", "depth_color.png", "recording.rrd", "std_m.npy",
+         "std_mm.png", "std_color.png", "points.ply", "camera.json", "summary.json"])
     depth = np.load(out / "depth_m.npy")
     assert depth.dtype == np.float32 and depth.shape == (48, 64)
     mm = cv2.imread(str(out / "depth_mm.png"), cv2.IMREAD_UNCHANGED)
@@ -71,6 +72,7 @@ def test_outputs_and_summary(model, dng_capture, tmp_path):
     assert on_disk["model"]["aat.lens_name"] == model.lens_name and on_disk["model"]["path"]
     assert set(on_disk["timings_s"]) >= {"metadata", "decode", "geometry", "normalise", "infer", "write", "record",
                                          "total"}
+    assert sorted(on_disk["outputs"]) == sorted(p.name for p in out.iterdir())
     assert on_disk["warnings"] == [] and s["ground_truth"]["pixels"] == 48 * 64
 
 

@@ -35,6 +35,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--threads", type=int, default=None, help="onnxruntime intra-op threads (default: all cores)")
     ap.add_argument("--tile", type=int, default=None, help="run in overlapping tiles of N px (bounded memory)")
     ap.add_argument("--align", action="store_true", help="align frames (affine) against focus breathing")
+    ap.add_argument("--native-res", action="store_true",
+                    help="depth and all-in-focus at the capture's own resolution (the model runs at its sensor size; "
+                         "depth upsampled guided by the all-in-focus image)")
     ap.add_argument("--no-exiftool", action="store_true", help="never fall back to exiftool")
     ap.add_argument("--no-recording", action="store_true", help="skip recording.rrd")
     ap.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
@@ -57,7 +60,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"aat-infer: error: {e}", file=sys.stderr)
         return 2
     opts = Options(tile=args.tile, align=args.align, strict=args.strict, force=args.force,
-                   use_exiftool=not args.no_exiftool, record=not args.no_recording, quiet=args.quiet)
+                   use_exiftool=not args.no_exiftool, record=not args.no_recording, quiet=args.quiet,
+                   native=args.native_res)
     failed = 0
     for i, (c, out) in enumerate(zip(captures, outs)):
         t0 = time.perf_counter()
