@@ -1,0 +1,41 @@
+"""What every aat command shares: `--version`, `-q/--quiet`, one exit status convention stated in `--help`, and a
+one-line message instead of a traceback when a command needs the `train` extra (torch) that is not installed."""
+
+from __future__ import annotations
+
+import argparse
+
+from .. import DISTRIBUTION, __version__
+
+EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+EXIT_STATUS = ("exit status: 0 all done; 1 some capture or file failed (one line each, the others still ran); "
+               "2 usage error or nothing could be run")
+
+
+def version_text(prog: str) -> str:
+    return f"{prog} {__version__} ({DISTRIBUTION})"
+
+
+def parser(prog: str, description: str, *, quiet: bool = True, **kw) -> argparse.ArgumentParser:
+    """An ArgumentParser with --version, -q/--quiet (unless quiet=False: commands with subcommands give it to each
+    subcommand, see add_quiet) and the exit status as its epilog."""
+    ap = argparse.ArgumentParser(prog=prog, description=description, epilog=EXIT_STATUS, **kw)
+    ap.add_argument("--version", action="version", version=version_text(prog))
+    if quiet:
+        add_quiet(ap)
+    return ap
+
+
+def add_quiet(ap: argparse.ArgumentParser) -> None:
+    ap.add_argument("-q", "--quiet", action="store_true", help="no progress output: results, warnings and errors only")
+
+
+def subparser(sub, name: str, help: str, **kw) -> argparse.ArgumentParser:
+    """A subcommand parser with -q/--quiet and the exit status epilog."""
+    p = sub.add_parser(name, help=help, description=help, epilog=EXIT_STATUS, **kw)
+    add_quiet(p)
+    return p
+
+
+def install_hint(extra: str = "train") -> str:
+    return f'pip install "{DISTRIBUTION}[{extra}]"'
