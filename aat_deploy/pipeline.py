@@ -19,6 +19,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from tqdm import tqdm
 
 from .capture.folder import Capture, read_capture
 from .capture.raw import load_frame
@@ -54,19 +55,32 @@ class Options:
 
 
 def _progress(items, desc: str, quiet: bool):
-    """tqdm when it is installed (it is optional), else one plain line per item on stderr."""
+    """A tqdm bar over items on stderr (nothing when quiet)."""
     items = list(items)
     if quiet:
         yield from items
         return
-    try:
-        from tqdm import tqdm
-    except ImportError:
-        for i, it in enumerate(items):
-            print(f"  {desc} {i + 1}/{len(items)}", file=sys.stderr, flush=True)
-            yield it
-        return
     yield from tqdm(items, desc=f"  {desc}", leave=False, file=sys.stderr)
+
+
+class _TileBar:
+    """progress(done, total) for DfFModel.infer's tiles as a tqdm bar (created at the first tile)."""
+
+    def __init__(self, desc: str):
+        self.desc, self.bar = desc, None
+
+    def __call__(self, done: int, total: int) -> None:
+        if self.bar is None:
+            self.bar = tqdm(total=total, desc=f"  {self.desc}", unit="tile", leave=False, file=sys.stderr)
+        self.bar.update(done - self.bar.n)
+        if done >= total:
+            self.bar.close()
+
+
+def _say(quiet: bool, msg: str) -> None:
+    """A progress line on stderr for a stage without steps to count (one onnxruntime call, writing files)."""
+    if not quiet:
+        print(f"  {msg}", file=sys.stderr, flush=True)
 
 
 def identity_warnings(capture: Capture, model: DfFModel) -> list[str]:
@@ -191,15 +205,18 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
     del images, raw_stack
     lap("normalise")
 
-    tiles_bar = None
-    if opts.tile and not opts.quiet:
-        tiles_bar = lambda d, n: print(f"  {cap.name}: tile {d}/{n}", file=sys.stderr, flush=True)
+    s_, _, h_, w_ = stack.shape
+    tiled = bool(opts.tile) and max(h_, w_) > opts.tile
+    _say(opts.quiet or tiled, f"{cap.name}: inference, {s_} frames of {w_}x{h_} px")
+    tiles_bar = _TileBar(f"{cap.name}: inference in tiles of {opts.tile} px") if tiled and not opts.quiet else None
     res = model.infer(stack, focus, tile=opts.tile, progress=tiles_bar)
     lap("infer")
 
     maps = DepthMaps(res.depth_m, res.aif, res.std_m, getattr(res, "confidence", None))
     camera = model.intrinsics((w_px, h_px))
     if native is not None:
+        _say(opts.quiet, f"{cap.name}: depth and all-in-focus at the capture's "
+             f"{geometry['crop_xywh'][2]}x{geometry['crop_xywh'][3]} px")
         natives = native_frames(native, geometry, align_info, normalise_scale_of, (w_px, h_px))
         depth_n, aif_n, std_n = native_maps(res.depth_m, res.std_m, natives, focus)
         del natives
@@ -210,6 +227,7 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
     with atomic_folder(out_dir, opts.force) as tmp:
         gt = _ground_truth(cap, size0, (w_px, h_px), warnings, model.focus_range_m)
         rec = RecordingInputs(stack, focus, gt, cap.name) if opts.record else None
+        _say(opts.quiet, f"{cap.name}: writing outputs" + (" and the recording" if rec else ""))
         written = write_outputs(tmp, maps, camera, rec)
         timings.update(written["timings_s"])
         summary = {

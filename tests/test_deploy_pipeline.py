@@ -289,3 +289,14 @@ def test_cli_scripts_installed(model_path, dng_capture, tmp_path):
     r = subprocess.run([sys.executable, "-m", "aat_deploy.cli.infer", str(dng_capture), "--model",
                         str(tmp_path / "missing.onnx")], check=False, capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "missing.onnx" in r.stderr
+
+
+def test_progress_covers_inference_tiles_and_writing(model, dng_capture, tmp_path, capsys):
+    run_capture(dng_capture, model, tmp_path / "a", Options())
+    err = capsys.readouterr().err
+    assert "decode" in err and f"inference, {len(FOCUS)} frames of 64x48 px" in err and "writing outputs" in err
+    run_capture(dng_capture, model, tmp_path / "b", Options(tile=32))
+    err = capsys.readouterr().err
+    assert "inference in tiles of 32 px" in err and "0/6" in err  # a bar over 2 x 3 tiles of 32 px
+    run_capture(dng_capture, model, tmp_path / "c", Options(tile=32, quiet=True))
+    assert capsys.readouterr().err == ""

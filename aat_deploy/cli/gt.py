@@ -9,7 +9,7 @@
 render: ray-casts a mesh (PLY/OBJ/..., e.g. a lidar scan) from the camera pose and writes depth in metres from
 the sensor plane: a 16-bit PNG in mm (0 = no surface), a float32 .npy in metres (NaN = no surface), a validity
 mask PNG (255 = valid) and a JSON of how it was rendered. OUT is a .png path, or a folder (a capture folder:
-gt_depth_mm.png, gt_depth_m.npy, gt_mask.png, gt_render.json). Needs the gt extra (pip install "aat[gt]").
+gt_depth_mm.png, gt_depth_m.npy, gt_mask.png, gt_render.json). Needs the gt extra (pip install "aat-dff[gt]").
 pose: the camera pose from a few clicked correspondences (pixel in a frame, the same point on the mesh), solved or
 refined from --init, written as the pose file `render` reads, with each point's reprojection error; with --image,
 a picture of the clicks and where the pose puts them (POSE.png).
@@ -18,7 +18,6 @@ check: reads each capture's ground truth as aat-eval does and prints what it fou
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import sys
@@ -31,6 +30,7 @@ from ..eval.gt import check_units, find_gt, load_ground_truth
 from ..eval.raycast import load_intrinsics, load_mesh, load_pose, render_depth
 from ..io.guard import check_output_files
 from ..io.images import imwrite
+from .common import parser, subparser
 
 MM_MAX = 65535
 
@@ -172,9 +172,9 @@ def cmd_check(a) -> int:
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     safe_output_streams()
-    ap = argparse.ArgumentParser(prog="aat-gt", description=__doc__.split("\n")[0])
-    sub = ap.add_subparsers(dest="cmd", required=True)
-    r = sub.add_parser("render", help="ray-cast a mesh into a depth map from the camera's pose")
+    ap = parser("aat-gt", __doc__.split("\n")[0], quiet=False)
+    sub = ap.add_subparsers(dest="cmd", required=True, metavar="{render,pose,check}")
+    r = subparser(sub, "render", "ray-cast a mesh into a depth map from the camera's pose")
     r.add_argument("mesh", type=Path, metavar="MESH")
     r.add_argument("--pose", type=Path, required=True, help="camera pose JSON (docs/contracts.md)")
     r.add_argument("--lens", type=Path, required=True,
@@ -188,8 +188,7 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--max-incidence-deg", type=float, default=None,
                    help="drop hits more oblique than this (ray vs surface normal)")
     r.add_argument("--force", action="store_true", help="overwrite existing outputs")
-    r.add_argument("-q", "--quiet", action="store_true")
-    p = sub.add_parser("pose", help="the camera pose from clicked correspondences (pixel <-> mesh point)")
+    p = subparser(sub, "pose", "the camera pose from clicked correspondences (pixel <-> mesh point)")
     p.add_argument("--points", type=Path, required=True,
                    help='JSON {"points": [{"pixel": [u, v], "world": [x, y, z]}, ...]} or CSV u,v,x,y,z')
     p.add_argument("--lens", type=Path, required=True, help="intrinsics, as for render")
@@ -201,7 +200,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--height", type=int, help="height in px of the image the pixels were clicked in")
     p.add_argument("--mesh-scale", type=float, default=1.0, help="world units of the points to metres")
     p.add_argument("--force", action="store_true", help="overwrite an existing pose file")
-    c = sub.add_parser("check", help="read captures' ground truth as aat-eval does")
+    c = subparser(sub, "check", "read captures' ground truth as aat-eval does")
     c.add_argument("captures", nargs="+", type=Path, metavar="CAPTURE_DIR")
     c.add_argument("--model", type=Path, help="also check the units against this model's focus range")
     a = ap.parse_args(argv)

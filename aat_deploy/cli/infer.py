@@ -12,7 +12,6 @@ is an earlier aat-infer output. A failing capture is reported on one line and th
 
 from __future__ import annotations
 
-import argparse
 import os
 import sys
 import time
@@ -21,26 +20,28 @@ from pathlib import Path
 from ..errors import CaptureError, safe_output_streams
 from ..model import DfFModel
 from ..pipeline import Options, check_output, output_dir_for, output_dirs, run_capture
+from .common import parser
 
 
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     safe_output_streams()
-    ap = argparse.ArgumentParser(prog="aat-infer", description=__doc__.split("\n")[0])
-    ap.add_argument("captures", nargs="+", metavar="CAPTURE_DIR")
+    ap = parser("aat-infer", __doc__.split("\n")[0])
+    ap.add_argument("captures", nargs="+", metavar="CAPTURE_DIR", help="capture folder(s): frames + focus distances")
     ap.add_argument("--model", required=True, type=Path, help="aat DfF model (.onnx)")
-    ap.add_argument("--out", type=Path, help="output folder (see above)")
-    ap.add_argument("--force", action="store_true", help="replace existing output folders")
+    ap.add_argument("--out", type=Path, metavar="DIR", help="output folder: DIR itself for one capture, "
+                    "DIR/<capture name>/ for several (default ./aat_out/<capture name>/)")
+    ap.add_argument("--force", action="store_true", help="replace existing output folders (earlier aat-infer "
+                    "outputs only)")
     ap.add_argument("--strict", action="store_true", help="camera/lens mismatch with the model is an error")
-    ap.add_argument("--threads", type=int, default=None, help="onnxruntime intra-op threads (default: all cores)")
-    ap.add_argument("--tile", type=int, default=None, help="run in overlapping tiles of N px (bounded memory)")
+    ap.add_argument("--threads", type=int, default=None, metavar="N", help="onnxruntime intra-op threads (default: all cores)")
+    ap.add_argument("--tile", type=int, default=None, metavar="N", help="run in overlapping tiles of N px (bounded memory)")
     ap.add_argument("--align", action="store_true", help="align frames (affine) against focus breathing")
     ap.add_argument("--native-res", action="store_true",
                     help="depth and all-in-focus at the capture's own resolution (the model runs at its sensor size; "
                          "depth upsampled guided by the all-in-focus image)")
     ap.add_argument("--no-exiftool", action="store_true", help="never fall back to exiftool")
     ap.add_argument("--no-recording", action="store_true", help="skip recording.rrd")
-    ap.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
     args = ap.parse_args(argv)
     if args.threads is not None and args.threads < 1:
         ap.error("--threads must be >= 1")

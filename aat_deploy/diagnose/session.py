@@ -74,7 +74,7 @@ def run(root, model_path, out: Path, *, lens=None, psf=None, effects=None, retra
         torch_free: bool = False) -> dict:
     say = _say(quiet)
     if retrain_steps and shutil.which("aat-train") is None:
-        raise DiagnoseError("--retrain-steps needs aat-train (pip install -e '.[train]')")
+        raise DiagnoseError("--retrain-steps needs aat-train (pip install 'aat-dff[train]')")
     cfg = cfg or DiagnoseConfig(seed=seed, effects=[s.strip() for s in effects.split(",")] if effects else None)
     unknown = sorted(set(cfg.effects or []) - set(fx.names()))
     if unknown:  # before any model or capture is loaded

@@ -22,6 +22,8 @@ import os
 import sys
 from pathlib import Path
 
+from aat_deploy.cli.common import parser, run_or_hint
+
 ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -42,8 +44,8 @@ def _names(text: str) -> list[str]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="aat-train", description="Train depth-from-focus networks (AiFNet / DFVNet): "
-                                "from a training config, or the whole chain from a lens file.")
+    p = parser("aat-train", "Train depth-from-focus networks (AiFNet / DFVNet): from a training config, or the whole "
+               "chain from a lens file. Needs the train extra.", quiet=False)
     mode = p.add_mutually_exclusive_group(required=True)
     mode.add_argument("--config", help="training config JSON (configs/dff_*.json)")
     mode.add_argument("--lens", help="lens file (.json, .zmx, .txt): run the whole lens-to-model chain into --out")
@@ -52,7 +54,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "(--lens runs always continue)")
     p.add_argument("--steps", type=int, help="number of optimizer steps (overrides the config / preset)")
     p.add_argument("--init", help="start from these weights: an exported DfF .onnx or a model.pt / last.pt")
-    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.add_argument("-q", "--quiet", "--no-progress", dest="no_progress", action="store_true",
+                   help="no progress bars: results, warnings and errors only")
     g = p.add_argument_group("lens-to-model chain (--lens)")
     g.add_argument("--sensor-mm", type=_pair(float), metavar="W,H", help="sensor size in mm (default: the lens file's)")
     g.add_argument("--resolution", type=_pair(int), metavar="W,H",
@@ -164,6 +167,10 @@ def main_lens(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    return run_or_hint("aat-train", _main, argv)
+
+
+def _main(argv: list[str] | None) -> int:
     args = build_parser().parse_args(argv)
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     return main_lens(args) if args.lens else main_config(args)
