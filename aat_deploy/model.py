@@ -19,6 +19,7 @@ import onnxruntime as ort
 
 from .camera import model_intrinsics
 from .errors import ModelError
+from .shipped import shipped_hint
 from .eval.raycast import Intrinsics
 
 REQUIRED_META = ("aat.kind", "aat.lens_name", "aat.focal_length_mm", "aat.f_number", "aat.sensor_px",
@@ -100,7 +101,7 @@ class DfFModel:
     def __init__(self, path: str | Path, threads: int | None = None):
         path = Path(path)
         if not path.is_file():
-            raise ModelError(f"{path}: no such model file")
+            raise ModelError(f"{path}: no such model file{shipped_hint('models')}")
         opts = ort.SessionOptions()
         if threads:
             opts.intra_op_num_threads = int(threads)

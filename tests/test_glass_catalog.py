@@ -56,9 +56,20 @@ def test_catalog_has_required_glasses(glasses: dict[str, dict]) -> None:
     assert REQUIRED <= set(glasses)
     assert all(name == name.upper() for name in glasses)  # lookups upper-case the name
     for name, g in glasses.items():
-        assert g["model"] in ("sellmeier", "nd_vd"), name
+        assert g["model"] in ("sellmeier", "nd_vd", "schott"), name
         assert 1.3 < g["nd"] < 2.1 and 15 < g["vd"] < 100, name
         assert g["source"], name
+
+
+def test_schott_entries_reproduce_stored_nd_vd(glasses: dict[str, dict]) -> None:
+    for name, g in glasses.items():
+        if g["model"] != "schott":
+            continue
+        a = g["coefficients"]
+        n = lambda lam: math.sqrt(a[0] + a[1] * lam**2 + sum(a[k] * lam ** (-2 * (k - 1)) for k in range(2, 6)))
+        nd, nf, nc = n(LAMBDA_D), n(LAMBDA_F), n(LAMBDA_C)
+        assert nd == pytest.approx(g["nd"], abs=1e-6), name
+        assert (nd - 1) / (nf - nc) == pytest.approx(g["vd"], abs=1e-3), name
 
 
 def test_sellmeier_entries_reproduce_stored_nd_vd(glasses: dict[str, dict]) -> None:

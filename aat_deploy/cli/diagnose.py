@@ -40,6 +40,11 @@ def main(argv: list[str] | None = None) -> int:
     a = build_parser().parse_args(argv)
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     from aat_deploy.diagnose.session import DiagnoseError, run
+    from aat_deploy.shipped import resolve
+
+    a.model = str(resolve(a.model, "models"))
+    a.lens = str(resolve(a.lens, "lenses")) if a.lens else None
+    a.psf = str(resolve(a.psf, "models")) if a.psf else None
     from aat_deploy.errors import OutputError
     from aat_deploy.io.guard import check_output_dir
 

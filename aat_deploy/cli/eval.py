@@ -18,6 +18,7 @@ from ..errors import CaptureError, safe_output_streams
 from ..eval.report import MD_COLUMNS
 from ..eval.run import EvalOptions, evaluate
 from ..eval.score import ALIGN_MODES
+from ..shipped import resolve
 from .common import parser
 
 
@@ -46,6 +47,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.threads is not None and args.threads < 1:
         ap.error("--threads must be >= 1")
     models = ([args.model] if args.model else []) + [m for m in args.compare if m != args.model]
+    models = [resolve(m, "models") for m in models]  # paths, or shipped models' names
     if not models:
         ap.error("give --model M.onnx and/or --compare A.onnx B.onnx ...")
     opts = EvalOptions(align=args.align, align_frames=args.align_frames, focus_range_mask=args.focus_range_mask,

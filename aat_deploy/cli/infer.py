@@ -20,6 +20,7 @@ from pathlib import Path
 from ..errors import CaptureError, safe_output_streams
 from ..model import DfFModel
 from ..pipeline import Options, check_output, output_dir_for, output_dirs, run_capture
+from ..shipped import resolve
 from .common import parser
 
 
@@ -28,7 +29,8 @@ def main(argv: list[str] | None = None) -> int:
     safe_output_streams()
     ap = parser("aat-infer", __doc__.split("\n")[0])
     ap.add_argument("captures", nargs="+", metavar="CAPTURE_DIR", help="capture folder(s): frames + focus distances")
-    ap.add_argument("--model", required=True, type=Path, help="aat DfF model (.onnx)")
+    ap.add_argument("--model", required=True, type=Path, metavar="M.onnx",
+                    help="aat DfF model: a .onnx file or a shipped model's name (dff_dfvnet_aat, ...)")
     ap.add_argument("--out", type=Path, metavar="DIR", help="output folder: DIR itself for one capture, "
                     "DIR/<capture name>/ for several (default ./aat_out/<capture name>/)")
     ap.add_argument("--force", action="store_true", help="replace existing output folders (earlier aat-infer "
@@ -47,6 +49,7 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--threads must be >= 1")
     if args.tile is not None and args.tile < 16:
         ap.error("--tile must be >= 16 px")
+    args.model = resolve(args.model, "models")  # a path, or a shipped model's name
     captures = [Path(c) for c in args.captures]
     outs = output_dirs(captures, args.out)
     refused = {}  # before any work: an output folder that is, holds or sits in an input is never touched

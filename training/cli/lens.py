@@ -16,6 +16,7 @@ import sys
 from pathlib import Path
 
 from aat_deploy.cli.common import parser, run_or_hint, subparser
+from aat_deploy.shipped import resolve
 from training.lens.io import LensFileError, load_lens
 from training.lens.materials import UnknownMaterialError
 
@@ -141,7 +142,7 @@ def cmd_layout(a) -> int:
     return 0
 
 
-LENS_HELP = "lens file: our JSON, the paper's JSON, Zemax .zmx or DiffOptics .txt"
+LENS_HELP = "lens file (our JSON, the paper's JSON, Zemax .zmx, DiffOptics .txt) or a shipped lens's name"
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -178,6 +179,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def _main(argv: list[str] | None) -> int:
     a = build_parser().parse_args(argv)
+    a.lens = str(resolve(a.lens, "lenses"))  # a path, or a shipped lens's name
     try:
         return a.func(a)
     except (LensFileError, UnknownMaterialError, FileExistsError, ValueError) as e:

@@ -18,8 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from aat_deploy.cli.common import parser, run_or_hint, subparser
-
-ROOT = Path(__file__).resolve().parents[2]
+from aat_deploy.shipped import resolve, shipped_dir
 
 
 def _floats(text: str) -> list[float]:
@@ -38,7 +37,8 @@ def field_from_angle(lens, angle_deg: float) -> tuple[float, float]:
 
 
 def _default_model(lens) -> Path | None:
-    for p in sorted((ROOT / "models").glob("psf_*.onnx")):
+    models = shipped_dir("models")
+    for p in sorted(models.glob("psf_*.onnx")) if models else []:
         try:
             from aat_deploy.psf import PSFSurrogate
 
@@ -193,6 +193,8 @@ def main(argv: list[str] | None = None) -> int:
 
 def _main(argv: list[str] | None) -> int:
     a = build_parser().parse_args(argv)
+    if getattr(a, "lens", None):
+        a.lens = str(resolve(a.lens, "lenses"))  # a path, or a shipped lens's name
     try:
         return a.func(a)
     except (ValueError, FileNotFoundError, FileExistsError) as e:

@@ -21,8 +21,7 @@ import cv2
 import numpy as np
 
 from aat_deploy.cli.common import add_list_option, parser, print_effects, run_or_hint
-
-ROOT = Path(__file__).resolve().parents[2]
+from aat_deploy.shipped import resolve, shipped_dir
 
 
 def _floats(text: str) -> list[float]:
@@ -54,10 +53,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def find_surrogate(lens) -> Path | None:
-    """A PSF surrogate in models/ made for exactly this prescription."""
+    """A shipped PSF surrogate (models/) made for exactly this prescription."""
     import onnx
 
-    for f in sorted((ROOT / "models").glob("*.onnx")):
+    models = shipped_dir("models")
+    for f in sorted(models.glob("*.onnx")) if models else []:
         try:
             meta = {p.key: p.value for p in onnx.load(str(f), load_external_data=False).metadata_props}
         except Exception:
@@ -154,6 +154,8 @@ def main(argv: list[str] | None = None) -> int:
 
 def _main(argv: list[str] | None) -> int:
     args = build_parser().parse_args(argv)
+    args.lens = str(resolve(args.lens, "lenses"))  # a path, or a shipped lens's name
+    args.psf = str(resolve(args.psf, "models")) if args.psf else None
     out = run(args)
     print(json.dumps({"capture": str(out)}))
     return 0

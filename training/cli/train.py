@@ -23,6 +23,7 @@ import sys
 from pathlib import Path
 
 from aat_deploy.cli.common import parser, run_or_hint
+from aat_deploy.shipped import resolve
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -172,6 +173,10 @@ def main(argv: list[str] | None = None) -> int:
 
 def _main(argv: list[str] | None) -> int:
     args = build_parser().parse_args(argv)
+    if args.lens:
+        args.lens = str(resolve(args.lens, "lenses"))  # a path, or a shipped lens's name
+    if args.psf:
+        args.psf = str(resolve(args.psf, "models"))
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     return main_lens(args) if args.lens else main_config(args)
 
