@@ -25,15 +25,13 @@ from .capture.folder import Capture, read_capture
 from .capture.raw import load_frame
 from .errors import CaptureError
 from .eval.gt import READ_ERRORS, units_problem
-from .geometry import align_stack, fit_to_sensor
 from .io.atomic import atomic_folder
 from .io.guard import check_output_dir
 from .model import DfFModel
 from .normalise import DESCRIPTION as NORMALISATION
-from .normalise import normalise_scale, normalise_stack
-from .outputs import DepthMaps, RecordingInputs, write_outputs
+from .outputs import RecordingInputs, write_outputs
 from .camera import camera_json
-from .upsample import native_maps
+from .process import depth_from_frames, say
 from .io.images import imread
 FOCAL_TOLERANCE = 0.02  # relative difference of focal length that counts as another lens
 FNUMBER_TOLERANCE = 0.05
@@ -61,26 +59,6 @@ def _progress(items, desc: str, quiet: bool):
         yield from items
         return
     yield from tqdm(items, desc=f"  {desc}", leave=False, file=sys.stderr)
-
-
-class _TileBar:
-    """progress(done, total) for DfFModel.infer's tiles as a tqdm bar (created at the first tile)."""
-
-    def __init__(self, desc: str):
-        self.desc, self.bar = desc, None
-
-    def __call__(self, done: int, total: int) -> None:
-        if self.bar is None:
-            self.bar = tqdm(total=total, desc=f"  {self.desc}", unit="tile", leave=False, file=sys.stderr)
-        self.bar.update(done - self.bar.n)
-        if done >= total:
-            self.bar.close()
-
-
-def _say(quiet: bool, msg: str) -> None:
-    """A progress line on stderr for a stage without steps to count (one onnxruntime call, writing files)."""
-    if not quiet:
-        print(f"  {msg}", file=sys.stderr, flush=True)
 
 
 def identity_warnings(capture: Capture, model: DfFModel) -> list[str]:
@@ -180,54 +158,18 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
         decode_info.append(info)
     lap("decode")
 
+    res = depth_from_frames(images, focus, model, align=opts.align, tile=opts.tile, native=opts.native,
+                            name=cap.name, where=str(capture_dir), labels=[f.path.name for f in frames],
+                            quiet=opts.quiet, lap=lap)
+    del images
+    warnings += res.warnings
+    maps, camera, stack = res.maps, res.camera, res.stack
     w_px, h_px = model.sensor_px
-    fitted = [fit_to_sensor(im, (w_px, h_px)) for im in images]
-    geometry = fitted[0][1]
-    # --native-res: keep the decoded frames for the native maps (nothing to do when they are the working size)
-    native = images if opts.native and tuple(geometry["crop_xywh"][2:]) != (w_px, h_px) else None
-    images = [im for im, _ in fitted]
-    if abs(size0[1] / size0[0] - w_px / h_px) > 0.01 * (w_px / h_px):
-        warnings.append(f"{capture_dir}: frames are {size0[1]}x{size0[0]} px, the model's sensor is {w_px}x{h_px}: "
-                        "centre-cropped to its aspect ratio")
-    lap("geometry")
-
-    align_info = None
-    if opts.align:
-        images, align_info = align_stack(images, ref=len(images) // 2)
-        bad = [frames[i].path.name for i, a in enumerate(align_info) if not a["converged"]]
-        if bad:
-            warnings.append(f"{capture_dir}: alignment did not converge for {', '.join(bad)} (left unaligned)")
-    lap("align")
-
-    raw_stack = np.stack([im.transpose(2, 0, 1) for im in images])
-    normalise_scale_of = float(normalise_scale(raw_stack))
-    stack = normalise_stack(raw_stack)
-    del images, raw_stack
-    lap("normalise")
-
-    s_, _, h_, w_ = stack.shape
-    tiled = bool(opts.tile) and max(h_, w_) > opts.tile
-    _say(opts.quiet or tiled, f"{cap.name}: inference, {s_} frames of {w_}x{h_} px")
-    tiles_bar = _TileBar(f"{cap.name}: inference in tiles of {opts.tile} px") if tiled and not opts.quiet else None
-    res = model.infer(stack, focus, tile=opts.tile, progress=tiles_bar)
-    lap("infer")
-
-    maps = DepthMaps(res.depth_m, res.aif, res.std_m, getattr(res, "confidence", None))
-    camera = model.intrinsics((w_px, h_px))
-    if native is not None:
-        _say(opts.quiet, f"{cap.name}: depth and all-in-focus at the capture's "
-             f"{geometry['crop_xywh'][2]}x{geometry['crop_xywh'][3]} px")
-        natives = native_frames(native, geometry, align_info, normalise_scale_of, (w_px, h_px))
-        depth_n, aif_n, std_n = native_maps(res.depth_m, res.std_m, natives, focus)
-        del natives
-        maps = DepthMaps(depth_n, aif_n, std_n, None)
-        camera = camera.resized(depth_n.shape[1], depth_n.shape[0])
-    lap("native")
 
     with atomic_folder(out_dir, opts.force) as tmp:
         gt = _ground_truth(cap, size0, (w_px, h_px), warnings, model.focus_range_m)
         rec = RecordingInputs(stack, focus, gt, cap.name) if opts.record else None
-        _say(opts.quiet, f"{cap.name}: writing outputs" + (" and the recording" if rec else ""))
+        say(opts.quiet, f"{cap.name}: writing outputs" + (" and the recording" if rec else ""))
         written = write_outputs(tmp, maps, camera, rec)
         timings.update(written["timings_s"])
         summary = {
@@ -241,13 +183,13 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
             "input_size_px": [int(size0[1]), int(size0[0])],
             "working_size_px": [int(w_px), int(h_px)],
             "output_size_px": [int(camera.width), int(camera.height)],
-            "native_resolution": native is not None,
-            "geometry": geometry,
-            "align": align_info,
+            "native_resolution": (camera.width, camera.height) != (w_px, h_px),
+            "geometry": res.geometry,
+            "align": res.align_info,
             "normalisation": NORMALISATION,
             "tile": opts.tile,
             "depth_m_range": [float(np.nanmin(maps.depth_m)), float(np.nanmax(maps.depth_m))],
-            "ground_truth": _gt_stats(gt, res.depth_m),
+            "ground_truth": _gt_stats(gt, res.working.depth_m),  # at the model's size, as the GT is
             "camera": camera_json(camera),
             "color_scales": written["color_scales"],
             "points": written["points"],
@@ -258,31 +200,6 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
         summary["timings_s"]["total"] = round(time.perf_counter() - t_all, 4)
         (tmp / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=False, default=_json_default))
     return summary
-
-
-def native_frames(images: list[np.ndarray], geometry: dict, align_info: list[dict] | None, scale: float,
-                  size_wh: tuple[int, int]) -> list[np.ndarray]:
-    """The decoded frames (H0, W0, 3) cropped as fit_to_sensor cropped them, aligned with the working size's
-    warps (scaled to the crop's pixels) if any, and normalised with the stack's divisor."""
-    x0, y0, cw, ch = geometry["crop_xywh"]
-    out = []
-    for i, im in enumerate(images):
-        crop = np.ascontiguousarray(im[y0:y0 + ch, x0:x0 + cw])
-        if align_info is not None:
-            m = native_warp(np.asarray(align_info[i]["matrix"], np.float64), (cw, ch), size_wh)
-            crop = cv2.warpAffine(crop, m, (cw, ch), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                                  borderMode=cv2.BORDER_REFLECT)
-        out.append(np.clip(crop / np.float32(scale), 0.0, 1.0).astype(np.float32))
-    return out
-
-
-def native_warp(m: np.ndarray, native_wh: tuple[int, int], work_wh: tuple[int, int]) -> np.ndarray:
-    """A 2x3 affine warp in working-size pixels as the same warp in native pixels (pixel centres matched as
-    cv2.resize matches them: x_work = sx (x_native + 0.5) - 0.5)."""
-    sx, sy = work_wh[0] / native_wh[0], work_wh[1] / native_wh[1]
-    a = np.array([[sx, 0, 0.5 * sx - 0.5], [0, sy, 0.5 * sy - 0.5], [0, 0, 1]])
-    full = np.vstack([m, [0, 0, 1]])
-    return (np.linalg.inv(a) @ full @ a)[:2].astype(np.float32)
 
 
 def _json_default(v):

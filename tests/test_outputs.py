@@ -17,7 +17,8 @@ from aat_deploy.eval.raycast import Intrinsics, load_intrinsics
 from aat_deploy.io.colorize import depth_preview, depth_range
 from aat_deploy.model import DfFModel
 from aat_deploy.outputs import DepthMaps, RecordingInputs, write_outputs
-from aat_deploy.pipeline import Options, native_warp, run_capture
+from aat_deploy.pipeline import Options, run_capture
+from aat_deploy.process import native_warp
 from aat_deploy.upsample import blend_by_depth, guided_upsample
 
 FOCUS = [0.6, 0.8, 1.2, 2.0, 3.0, 4.5]
