@@ -45,27 +45,15 @@ def procedural_items(dataset, n: int, progress: bool = True) -> list[Item]:
 def rgbd_item(dataset, rgb: np.ndarray, gt_m: np.ndarray) -> Item:
     """A real RGB-D scene (rgb (H', W', 3) linear, depth (H', W') metres, 0 = unknown) scaled to cover the
     dataset's sensor, rendered with its simulator and fixed schedule."""
-    r = render_rgbd(dataset, rgb, gt_m)
-    return r["stack"], r["focus_m"], r["depth_m"]
-
-
-def render_rgbd(dataset, rgb: np.ndarray, gt_m: np.ndarray) -> dict:
-    """`rgbd_item` with the all-in-focus image: {"stack", "focus_m", "depth_m", "aif"}; aif (3, H, W) is the
-    scaled RGB in the stack's normalised units (divided by the same percentile, clipped to [0, 1])."""
     import torch
 
-    from aat_deploy.normalise import PERCENTILE
     from training.cli.render import fit_to_sensor
     from training.data.rgbd import fill_depth
 
     rgb, gt = fit_to_sensor(rgb, gt_m, dataset.sensor_hw)
     st = dataset.sim.render_stack(torch.from_numpy(rgb.transpose(2, 0, 1).copy()), torch.from_numpy(fill_depth(gt)),
                                   dataset.schedule.distances())
-    frames = st.frames.numpy()
-    p = np.float32(np.percentile(frames, PERCENTILE))
-    p = p if p > 0 else np.float32(1.0)
-    return {"stack": normalise_frames(frames), "focus_m": st.focus_m.astype(np.float32), "depth_m": gt,
-            "aif": np.clip(rgb.transpose(2, 0, 1) / p, 0, 1).astype(np.float32)}
+    return normalise_frames(st.frames.numpy()), st.focus_m.astype(np.float32), gt
 
 
 def radius_map(h: int, w: int) -> np.ndarray:
