@@ -3,6 +3,8 @@
 The model takes stack (B, S, 3, H, W) normalised, focus_m (B, S) ascending, and returns depth_m (B, H, W),
 aif (B, 3, H, W), std_m (B, H, W). H and W must be multiples of `aat.size_multiple`: we pad with reflection
 and crop back. Large images run in overlapping tiles blended with a linear ramp, so memory stays bounded.
+Field-aware models (an input `field_xy`, metadata `aat.field_channels`) also get each pixel's normalised sensor
+position; by default the stack is taken to cover the whole sensor, as the runtime's frames do.
 """
 
 from __future__ import annotations
@@ -80,6 +82,7 @@ class DfFModel:
             self.lens_name = str(self.meta["aat.lens_name"])
         except (TypeError, ValueError, KeyError) as e:
             raise ModelError(f"{path}: malformed metadata ({e})") from None
+        self.field_aware = "field_xy" in names_in
         if self.size_multiple < 1 or len(self.sensor_px) != 2:
             raise ModelError(f"{path}: malformed metadata (size_multiple {self.size_multiple}, sensor_px {self.sensor_px})")
 
@@ -93,26 +96,31 @@ class DfFModel:
         return self.focal_length_mm / (self.pixel_um * 1e-3)
 
     # -- inference -------------------------------------------------------------------------------------------
-    def _run(self, stack: np.ndarray, focus_m: np.ndarray) -> DfFOutput:
-        """One padded run: stack (S, 3, H, W) with H, W any size; crops back to H, W."""
+    def _run(self, stack: np.ndarray, focus_m: np.ndarray, field_xy: np.ndarray | None = None) -> DfFOutput:
+        """One padded run: stack (S, 3, H, W) with H, W any size (field_xy (2, H, W) for field-aware models);
+        crops back to H, W."""
         _, _, h, w = stack.shape
         m = self.size_multiple
         ph, pw = (-h) % m, (-w) % m
         if ph or pw:
             mode = "reflect" if ph < h and pw < w else "symmetric"
             stack = np.pad(stack, ((0, 0), (0, 0), (0, ph), (0, pw)), mode=mode)
-        depth, aif, std = self.session.run(["depth_m", "aif", "std_m"],
-                                           {"stack": np.ascontiguousarray(stack[None], dtype=np.float32),
-                                            "focus_m": np.asarray(focus_m, np.float32)[None]})
+        feeds = {"stack": np.ascontiguousarray(stack[None], dtype=np.float32),
+                 "focus_m": np.asarray(focus_m, np.float32)[None]}
+        if self.field_aware:
+            feeds["field_xy"] = _pad_linear(np.asarray(field_xy, np.float32), ph, pw)[None]
+        depth, aif, std = self.session.run(["depth_m", "aif", "std_m"], feeds)
         return DfFOutput(depth[0, :h, :w], aif[0, :, :h, :w], std[0, :h, :w])
 
     def infer(self, stack: np.ndarray, focus_m: np.ndarray, tile: int | None = None, overlap: int = 32,
-              progress=None) -> DfFOutput:
+              progress=None, field_xy: np.ndarray | None = None) -> DfFOutput:
         """Depth, all-in-focus and uncertainty for one normalised stack.
 
         stack: (S, 3, H, W) float32 normalised, frames sorted by focus (ascending); focus_m: (S,) metres.
         tile: tile side in pixels (rounded up to size_multiple); None or 0 = whole image at once.
         progress: optional callable(done, total) for tiles.
+        field_xy: (2, H, W) normalised sensor position of each pixel, for field-aware models; default: the
+        stack covers the whole sensor.
         """
         s = stack.shape[0]
         if stack.ndim != 4 or stack.shape[1] != 3 or len(focus_m) != s:
@@ -121,8 +129,12 @@ class DfFModel:
         if not lo <= s <= hi:
             raise ModelError(f"{self.path}: the model takes {lo}..{hi} frames, the capture has {s}")
         h, w = stack.shape[2:]
+        if self.field_aware and field_xy is None:
+            from .twin.fields import pixel_fields
+
+            field_xy = np.stack(pixel_fields(h, w, (h, w))).astype(np.float32)
         if not tile or (h <= tile and w <= tile):
-            return self._run(stack, focus_m)
+            return self._run(stack, focus_m, field_xy)
         m = self.size_multiple
         tile = int(math.ceil(tile / m) * m)
         overlap = min(int(overlap), tile // 4)
@@ -142,7 +154,7 @@ class DfFModel:
         for y in ys:
             for x in xs:
                 sub = stack[:, :, y:y + tile, x:x + tile]
-                out = self._run(sub, focus_m)
+                out = self._run(sub, focus_m, None if field_xy is None else field_xy[:, y:y + tile, x:x + tile])
                 th, tw = out.depth_m.shape
                 wgt = np.outer(_ramp(th, overlap, y > 0, y + th < h), _ramp(tw, overlap, x > 0, x + tw < w))
                 acc_d[y:y + th, x:x + tw] += wgt * out.depth_m
@@ -155,6 +167,19 @@ class DfFModel:
         acc_w = np.maximum(acc_w, 1e-12)
         return DfFOutput((acc_d / acc_w).astype(np.float32), (acc_a / acc_w).astype(np.float32),
                          (acc_s / acc_w).astype(np.float32))
+
+
+def _pad_linear(field: np.ndarray, ph: int, pw: int) -> np.ndarray:
+    """(C, H, W) coordinates padded at the bottom/right by continuing them linearly (they are linear in the
+    pixel index), as training.nets.model.pad_field does in torch."""
+    if pw:
+        step = field[:, :, -1:] - field[:, :, -2:-1] if field.shape[2] > 1 else 0 * field[:, :, -1:]
+        field = np.concatenate([field, field[:, :, -1:] + step * np.arange(1, pw + 1, dtype=field.dtype)], 2)
+    if ph:
+        step = field[:, -1:, :] - field[:, -2:-1, :] if field.shape[1] > 1 else 0 * field[:, -1:, :]
+        k = np.arange(1, ph + 1, dtype=field.dtype)[:, None]
+        field = np.concatenate([field, field[:, -1:, :] + step * k], 1)
+    return field
 
 
 def _ramp(n: int, overlap: int, ramp_start: bool, ramp_end: bool) -> np.ndarray:

@@ -39,3 +39,14 @@ def test_bad_schedules_are_rejected():
         FocusSchedule(2.0, 1.0, 5)
     with pytest.raises(ValueError):
         FocusSchedule(0.5, 1.0, 1)
+
+
+def test_scene_range_protocol_spreads_over_the_depth_range():
+    from training.render.schedule import scene_range_distances
+
+    depth = np.array([[0.0, 2.0], [3.0, 5.0]])  # 0 = unknown
+    assert np.allclose(scene_range_distances(depth, 4), [2.0, 3.0, 4.0, 5.0])
+    f = scene_range_distances(depth, 4, np.random.default_rng(0), perturb=0.25)
+    assert np.all(np.diff(f) > 0) and np.all(np.abs(f - [2.0, 3.0, 4.0, 5.0]) <= 0.25 + 1e-12)
+    with pytest.raises(ValueError, match="no valid depth"):
+        scene_range_distances(np.zeros((2, 2)), 4)

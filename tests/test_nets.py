@@ -157,3 +157,22 @@ def test_train_levels_pads_sorts_and_crops():
         a = train_levels(model, stack.flip(1), focus.flip(1), 32)[0][0]
         b = predict(model, stack, focus)["depth_m"]
     assert torch.allclose(a, b, atol=1e-6)
+
+
+@pytest.mark.parametrize("net", ["aifnet", "dfvnet"])
+def test_field_aware_nets_use_the_field(net):
+    """field_channels 2: the field coordinates are an input (the output changes with them) and are required."""
+    from training.nets.model import pad_field
+
+    torch.manual_seed(0)
+    m = build_model(net, "small", field_channels=2).eval()
+    stack, focus = torch.rand(1, 4, 3, 64, 64), torch.tensor([[0.5, 1.0, 2.0, 4.0]])
+    f0 = torch.zeros(1, 2, 64, 64)
+    with torch.no_grad():
+        a, b = m(stack, focus, f0)[0], m(stack, focus, f0 + 0.5)[0]
+    assert a.shape == (1, 64, 64) and not torch.allclose(a, b)
+    with pytest.raises(ValueError, match="field_xy"):
+        m(stack, focus)
+    # padding continues the coordinate ramp
+    ramp = torch.arange(5.0)[None, None, None].expand(1, 2, 3, 5)
+    assert torch.allclose(pad_field(ramp, 4)[0, 0, 0], torch.arange(8.0))

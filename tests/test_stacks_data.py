@@ -92,3 +92,61 @@ def test_crops_keep_the_psfs_of_their_field_position():
         a = sim.render_stack(t, d, [1.0], origin=(0, 0)).frames
         b = sim.render_stack(t, d, [1.0], origin=(hs // 2 - 24, ws // 2 - 32)).frames
         assert (float((a - b).abs().max()) < 1e-5) == expect_same
+
+
+def test_default_fields_keep_the_cache_key_and_the_scenes():
+    """The richer-data fields are off by default: a config that does not use them hashes and renders as before."""
+    base = _cfg()
+    assert base.key() == _cfg(scene_range="fixed", photo_fraction=0.0, schedule="fixed").key()
+    assert base.key() == _cfg(crop_height=32, crop_width=32, flips=True).key()  # crops are cut when read
+    assert base.key() != _cfg(photo_fraction=0.5).key()
+    a = FocalStackDataset(base).render(0)
+    b = FocalStackDataset(_cfg(crop_height=32, crop_width=32)).render(0)
+    assert np.array_equal(a["stack"], b["stack"])
+
+
+def test_photo_textures_random_ranges_and_the_scene_schedule():
+    ds = FocalStackDataset(_cfg(scene_range="random", photo_fraction=1.0, schedule="scene", n_items=6))
+    spans = []
+    for i in range(6):
+        it = ds.render(i)
+        d, f = it["depth_m"], it["focus_m"]
+        assert np.all(np.diff(f) > 0)
+        # the paper's protocol: focus spread over this item's own depth range (perturbed by < 1/4 spacing)
+        step = (d.max() - d.min()) / (len(f) - 1)
+        assert f[0] >= d.min() - 0.26 * step - 1e-4 and f[-1] <= d.max() + 0.26 * step + 1e-4
+        spans.append(d.max() / d.min())
+        assert 0.5 - 1e-4 <= d.min() and d.max() <= 10.0 + 1e-3
+    assert min(spans) < 8  # some items got a sub-range (the full range spans 20x)
+
+
+def test_random_crops_flips_and_field_coordinates():
+    """A crop is a window of the cached item; a mirrored crop shows the window mirrored, and its field
+    coordinates are those of the mirrored sensor position (sign flipped), as the rotationally symmetric lens's."""
+    import torch
+
+    ds = FocalStackDataset(_cfg(height=64, width=96, crop_height=32, crop_width=48, flips=True, n_items=2))
+    whole = ds.load_or_render(0)
+    hs, ws = ds.sensor_hw
+    torch.manual_seed(0)
+    flips_seen = set()
+    for _ in range(16):
+        it = ds[0]
+        assert it["stack"].shape == (4, 3, 32, 48) and it["field_xy"].shape == (2, 32, 48)
+        r0, c0 = (int(v) for v in it["origin"])
+        x_plain = 2 * (c0 + np.arange(48) + 0.5) / ws - 1
+        y_plain = 1 - 2 * (r0 + np.arange(32) + 0.5) / hs
+        fx, fy = it["field_xy"][0, 0].numpy(), it["field_xy"][1, :, 0].numpy()
+        lr = not np.allclose(fx, x_plain, atol=1e-5)
+        ud = not np.allclose(fy, y_plain, atol=1e-5)
+        if lr:
+            assert np.allclose(fx, -x_plain[::-1], atol=1e-5)
+        if ud:
+            assert np.allclose(fy, -y_plain[::-1], atol=1e-5)
+        r, c = r0 - int(whole["origin"][0]), c0 - int(whole["origin"][1])
+        sub = whole["stack"][..., r:r + 32, c:c + 48]
+        sub = sub[..., ::-1] if lr else sub
+        sub = sub[..., ::-1, :] if ud else sub
+        assert np.array_equal(it["stack"].numpy(), sub)
+        flips_seen.add((lr, ud))
+    assert len(flips_seen) >= 3

@@ -217,8 +217,8 @@ def _ddp_worker(rank: int, world: int, port: int, out: str) -> None:
     captured = {}
     real_build = loop.build_model
 
-    def build_and_keep(net, size):
-        captured["model"] = real_build(net, size)
+    def build_and_keep(net, size, field_channels=0):
+        captured["model"] = real_build(net, size, field_channels)
         return captured["model"]
 
     loop.build_model = build_and_keep

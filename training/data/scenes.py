@@ -3,7 +3,8 @@
 A textured background plane, slanted in depth, and textured shapes (ellipses, polygons, rectangles) at random
 metric depths, composited far to near so nearer shapes occlude farther ones. Each shape is a slanted plane too:
 its inverse depth varies linearly across the image, as a 3-D plane's does. Textures mix multi-scale noise,
-stripes, checkers and gradients so every depth has focus cues. Output: linear RGB in [0, 1] (H, W, 3) float32
+stripes, checkers and gradients so every depth has focus cues, and optionally real photographs
+(`photo_fraction`, training.data.textures). Output: linear RGB in [0, 1] (H, W, 3) float32
 and depth in metres from the sensor (H, W) float32, sampled in diopters between near_m and far_m.
 """
 
@@ -24,6 +25,18 @@ class SceneConfig:
     min_shapes: int = 4
     max_shapes: int = 12
     max_slant_d: float = 0.3  # largest change of inverse depth across the image (diopters)
+    photo_fraction: float = 0.0  # chance that a surface is textured with a real photograph (training.data.textures)
+    photo_split: str = "train"  # which photographs: "train" or "test" (held-out scenes)
+
+
+def _surface(rng: np.random.Generator, h: int, w: int, cfg: SceneConfig) -> np.ndarray:
+    """A texture for one surface: a photograph with probability photo_fraction, else a procedural one. With
+    photo_fraction 0 no extra random number is drawn, so such scenes are the same as before photographs existed."""
+    if cfg.photo_fraction > 0 and rng.random() < cfg.photo_fraction:
+        from training.data.textures import photo_texture
+
+        return photo_texture(rng, h, w, cfg.photo_split)
+    return texture(rng, h, w)
 
 
 def _noise(rng: np.random.Generator, h: int, w: int, octaves: int = 7) -> np.ndarray:
@@ -99,14 +112,14 @@ def procedural_scene(cfg: SceneConfig, rng: np.random.Generator) -> tuple[np.nda
     # Background in the farther part of the range, shapes anywhere; paint far -> near.
     bg_inv = rng.uniform(lo, lo + 0.3 * (hi - lo))
     inv = _plane_inv_depth(rng, h, w, bg_inv, rng.uniform(0, cfg.max_slant_d))
-    rgb = texture(rng, h, w)
+    rgb = _surface(rng, h, w, cfg)
     n = int(rng.integers(cfg.min_shapes, cfg.max_shapes + 1))
     layers = sorted(rng.uniform(lo, hi, n))  # ascending inverse depth = far first
     for inv0 in layers:
         m = _shape_mask(rng, h, w)
         plane = _plane_inv_depth(rng, h, w, inv0, rng.uniform(0, cfg.max_slant_d))
         front = m & (plane > inv)  # a shape only covers what is behind it
-        rgb[front] = texture(rng, h, w)[front]
+        rgb[front] = _surface(rng, h, w, cfg)[front]
         inv[front] = plane[front]
     inv = np.clip(inv, lo, hi)
     return rgb, (1.0 / inv).astype(np.float32)

@@ -19,12 +19,13 @@ import torch
 from torch.utils.data import Dataset
 
 from aat_deploy.normalise import PERCENTILE
+from aat_deploy.twin.fields import pixel_fields
 from training.data.rgbd import fill_depth, load_middlebury_motorcycle
 from training.data.scenes import SceneConfig, procedural_scene
 from training.lens.io import load_lens
 from training.render import effects as fx
 from training.render.layered import LayeredConfig
-from training.render.schedule import FocusSchedule
+from training.render.schedule import FocusSchedule, scene_range_distances
 from training.render.simulator import Simulator
 from training.render.sources import OnnxPSF, RayTracedPSF
 
@@ -37,7 +38,18 @@ class StackDataConfig:
     """simulator: "aat" (the lens's PSFs) or "thin_lens" (Gaussian baseline); effects: extra effect names.
     psf: the lens's surrogate (.onnx; null = ray-trace, slow). height, width: crop (px). Focus schedule:
     stack_size distances even in diopters over [focus_near_m, focus_far_m], jittered by up to jitter_d.
-    scene: "procedural" (depths in [scene_near_m, scene_far_m]) or "middlebury"."""
+    scene: "procedural" (depths in [scene_near_m, scene_far_m]) or "middlebury".
+
+    Richer data (all off by default, so older configs render and hash as before):
+    scene_range: "fixed" (every scene spans [scene_near_m, scene_far_m]) or "random" (a random sub-range in
+    diopters per item, the whole range with probability 0.3). photo_fraction: chance that a surface is textured
+    with a real photograph of `photo_split` (training.data.textures). schedule: "fixed" (the camera-like schedule
+    above), "scene" (the paper's protocol: linear in depth over the item's own depth range, perturbed by up to
+    scene_perturb of the spacing; it reads the ground truth) or "mixed" (scene with probability
+    scene_schedule_fraction). crop_height, crop_width: when set, __getitem__ returns a random crop of that size
+    from the rendered (cached) item, mirrored at random when `flips` (its field coordinates mirrored with it, as
+    a rotationally symmetric lens's PSFs are). Every item carries "field_xy" (2, H, W): the normalised sensor
+    position of each pixel (x right, y up, +-1 at the sensor edges; aat_deploy.twin.fields)."""
 
     simulator: str = "aat"
     lens: str = "lenses/canon_rf50mm_f1.8.json"
@@ -57,6 +69,15 @@ class StackDataConfig:
     margin_px: int = 16
     cell_px: int = 32
     cache_dir: str | None = None
+    scene_range: str = "fixed"
+    photo_fraction: float = 0.0
+    photo_split: str = "train"
+    schedule: str = "fixed"
+    scene_schedule_fraction: float = 0.5
+    scene_perturb: float = 0.25
+    crop_height: int = 0
+    crop_width: int = 0
+    flips: bool = False
 
     def __post_init__(self):
         if self.simulator not in SIMULATORS:
@@ -65,6 +86,15 @@ class StackDataConfig:
             raise ValueError(f"scene must be 'procedural' or 'middlebury', got {self.scene!r}")
         if self.stack_size < 2 or self.height < 8 or self.width < 8:
             raise ValueError("need stack_size >= 2 and a crop of at least 8 x 8 px")
+        if self.scene_range not in ("fixed", "random"):
+            raise ValueError(f"scene_range must be 'fixed' or 'random', got {self.scene_range!r}")
+        if self.schedule not in ("fixed", "scene", "mixed"):
+            raise ValueError(f"schedule must be 'fixed', 'scene' or 'mixed', got {self.schedule!r}")
+        if not 0.0 <= self.photo_fraction <= 1.0 or not 0.0 <= self.scene_schedule_fraction <= 1.0:
+            raise ValueError("photo_fraction and scene_schedule_fraction must be in [0, 1]")
+        if (self.crop_height > 0) != (self.crop_width > 0) or self.crop_height > self.height \
+                or self.crop_width > self.width:
+            raise ValueError(f"crop_height/crop_width must both be set and fit in {self.width}x{self.height}")
 
     def effect_list(self) -> list:
         return (["aberrations"] if self.simulator == "aat" else []) + list(self.effects)
@@ -73,6 +103,12 @@ class StackDataConfig:
         d = asdict(self)
         d.pop("cache_dir")
         d["n_items"] = None  # item i is the same whatever the dataset length
+        for f in ("crop_height", "crop_width", "flips"):
+            d.pop(f)  # crops are cut from the cached item when it is read: they do not change what is rendered
+        for f in ("scene_range", "photo_fraction", "photo_split", "schedule", "scene_schedule_fraction",
+                  "scene_perturb"):
+            if d[f] == StackDataConfig.__dataclass_fields__[f].default:
+                d.pop(f)  # configs that do not use a field hash as they did before it existed
         return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:12]
 
 
@@ -106,11 +142,26 @@ class FocalStackDataset(Dataset):
     def __len__(self) -> int:
         return self.cfg.n_items
 
+    def _scene_range(self, rng: np.random.Generator) -> tuple[float, float]:
+        """Depth range (m) of one procedural scene: the configured one, or with scene_range "random" a random
+        sub-range at least 1.5x deep in distance (the whole range with probability 0.3)."""
+        c = self.cfg
+        if c.scene_range == "fixed":
+            return c.scene_near_m, c.scene_far_m
+        if rng.random() < 0.3:
+            return c.scene_near_m, c.scene_far_m
+        lo, hi = np.log(c.scene_near_m), np.log(c.scene_far_m)
+        span = rng.uniform(min(np.log(1.5), hi - lo), hi - lo)
+        near = float(np.exp(rng.uniform(lo, hi - span)))
+        return near, float(near * np.exp(span))
+
     def _scene(self, rng: np.random.Generator, h: int, w: int):
         c = self.cfg
         if c.scene == "procedural":
-            rgb, depth = procedural_scene(SceneConfig(height=h, width=w, near_m=c.scene_near_m,
-                                                      far_m=c.scene_far_m), rng)
+            near, far = self._scene_range(rng)
+            rgb, depth = procedural_scene(SceneConfig(height=h, width=w, near_m=near, far_m=far,
+                                                      photo_fraction=c.photo_fraction,
+                                                      photo_split=c.photo_split), rng)
             return rgb, depth, depth
         if self._middlebury is None:
             self._middlebury = load_middlebury_motorcycle()
@@ -122,6 +173,14 @@ class FocalStackDataset(Dataset):
         g = gt[r:r + h, q:q + w]
         return rgb[r:r + h, q:q + w], fill_depth(g), g
 
+    def _focus(self, rng: np.random.Generator, gt: np.ndarray) -> np.ndarray:
+        """Focus distances (m) of one item: the camera-like schedule or the paper's scene-range protocol."""
+        c = self.cfg
+        use_scene = c.schedule == "scene" or (c.schedule == "mixed" and rng.random() < c.scene_schedule_fraction)
+        if use_scene:
+            return scene_range_distances(gt, c.stack_size, rng, c.scene_perturb)
+        return self.schedule.distances(rng if c.jitter_d > 0 else None)
+
     def render(self, index: int) -> dict:
         c = self.cfg
         rng = np.random.default_rng([c.seed, index])
@@ -130,7 +189,7 @@ class FocalStackDataset(Dataset):
         rgb, depth_fill, gt = self._scene(rng, h, w)
         hs, ws = self.sensor_hw
         origin = (int(rng.integers(0, hs - c.height + 1)), int(rng.integers(0, ws - c.width + 1)))
-        focus = self.schedule.distances(rng if c.jitter_d > 0 else None)
+        focus = self._focus(rng, gt[m:m + c.height, m:m + c.width])
         img = torch.from_numpy(np.ascontiguousarray(rgb.transpose(2, 0, 1))).float()
         st = self.sim.render_stack(img, torch.from_numpy(depth_fill).float(), focus,
                                    origin=(origin[0] - m, origin[1] - m), rng=rng)
@@ -148,6 +207,14 @@ class FocalStackDataset(Dataset):
     def __getitem__(self, index: int) -> dict:
         if not 0 <= index < len(self):
             raise IndexError(index)
+        item = self._crop(self.load_or_render(index))
+        return {k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in item.items()}
+
+    def is_cached(self, index: int) -> bool:
+        return self.cache is not None and (self.cache / f"{index:06d}.npz").is_file()
+
+    def load_or_render(self, index: int) -> dict:
+        """Item `index` as numpy arrays, whole (not cropped): from the cache, else rendered (and cached)."""
         item = None
         if self.cache is not None:
             f = self.cache / f"{index:06d}.npz"
@@ -166,4 +233,36 @@ class FocalStackDataset(Dataset):
                 tmp.replace(f)
         else:
             item = self.render(index)
-        return {k: torch.from_numpy(np.asarray(v)) for k, v in item.items()}
+        return item
+
+    def _crop(self, item: dict) -> dict:
+        """Add "field_xy"; with crop_height/crop_width cut a random crop (torch's RNG, so a resumed run draws
+        the same crops), mirrored at random when `flips`. A mirrored crop is the render of the mirrored scene
+        at the mirrored sensor position (the lens is rotationally symmetric), so its field coordinates flip sign."""
+        c = self.cfg
+        h, w = item["depth_m"].shape
+        origin = tuple(int(v) for v in item["origin"])
+        out = dict(item)
+        if c.crop_height:
+            r = int(torch.randint(0, h - c.crop_height + 1, ()))
+            q = int(torch.randint(0, w - c.crop_width + 1, ()))
+            h, w = c.crop_height, c.crop_width
+            origin = (origin[0] + r, origin[1] + q)
+            out["stack"] = item["stack"][..., r:r + h, q:q + w]
+            out["aif"] = item["aif"][..., r:r + h, q:q + w]
+            out["depth_m"] = item["depth_m"][r:r + h, q:q + w]
+            out["origin"] = np.array(origin, dtype=np.int64)
+        fx_, fy_ = pixel_fields(h, w, self.sensor_hw, origin)
+        field = np.stack([fx_, fy_]).astype(np.float32)
+        if c.flips:
+            flip = torch.randint(0, 2, (2,)).tolist()  # (left-right, up-down)
+            for axis, (do, sign_row) in enumerate(zip(flip, (0, 1))):
+                if do:
+                    ax = -1 if axis == 0 else -2
+                    out["stack"] = np.flip(out["stack"], ax)
+                    out["aif"] = np.flip(out["aif"], ax)
+                    out["depth_m"] = np.flip(out["depth_m"], ax)
+                    field = np.flip(field, ax)
+                    field[sign_row] = -field[sign_row]
+        out["field_xy"] = np.ascontiguousarray(field)
+        return out

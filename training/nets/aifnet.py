@@ -85,12 +85,12 @@ class AiFNet(nn.Module):
 
     size_multiple = 32
 
-    def __init__(self, cfg: AiFNetConfig = AiFNetConfig()):
+    def __init__(self, cfg: AiFNetConfig = AiFNetConfig(), in_channels: int = 3):
         super().__init__()
         self.cfg = cfg
         w = cfg.width
         c1, c2b, c2c = _w(64, w), _w(64, w), _w(192, w)
-        self.stem = ConvBNReLU3d(3, c1, 7, (1, 2, 2))  # 1/2
+        self.stem = ConvBNReLU3d(in_channels, c1, 7, (1, 2, 2))  # 1/2
         self.pool2 = nn.MaxPool3d((1, 3, 3), (1, 2, 2), (0, 1, 1))  # 1/4
         self.conv2 = nn.Sequential(ConvBNReLU3d(c1, c2b, 1), ConvBNReLU3d(c2b, c2c, 3))
         self.pool3 = nn.MaxPool3d((1, 3, 3), (1, 2, 2), (0, 1, 1))  # 1/8
@@ -112,7 +112,8 @@ class AiFNet(nn.Module):
         init_weights(self)
 
     def forward(self, stack: Tensor) -> list[Tensor]:
-        """stack (B, S, 3, H, W), H and W multiples of 32 -> [logits (B, S, H, W)]."""
+        """stack (B, S, C, H, W) (C = in_channels: RGB [+ field coordinates]), H and W multiples of 32 ->
+        [logits (B, S, H, W)]."""
         x = stack.transpose(1, 2)  # (B, 3, S, H, W)
         e1 = self.stem(x)
         e2 = self.conv2(self.pool2(e1))

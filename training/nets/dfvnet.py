@@ -90,10 +90,10 @@ class TopDown2d(nn.Module):
 class FrameEncoder(nn.Module):
     """ResNet-18-like trunk + pyramid pooling + top-down path: frames (N, 3, H, W) -> [/4, /8, /16, /32] features."""
 
-    def __init__(self, cfg: DFVNetConfig):
+    def __init__(self, cfg: DFVNetConfig, in_channels: int = 3):
         super().__init__()
         e = cfg.encoder
-        self.stem = nn.Sequential(ConvBNReLU2d(3, e[0], 7, 2), nn.MaxPool2d(3, 2, 1))  # /4
+        self.stem = nn.Sequential(ConvBNReLU2d(in_channels, e[0], 7, 2), nn.MaxPool2d(3, 2, 1))  # /4
         stages, c = [], e[0]
         for i, w in enumerate(e):
             stride = 1 if i == 0 else 2
@@ -160,12 +160,12 @@ class DFVNet(nn.Module):
 
     size_multiple = 32
 
-    def __init__(self, cfg: DFVNetConfig = DFVNetConfig(), differential: bool = True):
+    def __init__(self, cfg: DFVNetConfig = DFVNetConfig(), differential: bool = True, in_channels: int = 3):
         super().__init__()
         if not 1 <= cfg.levels <= 4:
             raise ValueError(f"DFVNet levels must be 1..4, got {cfg.levels}")
         self.cfg, self.differential = cfg, differential
-        self.encoder = FrameEncoder(cfg)
+        self.encoder = FrameEncoder(cfg, in_channels)
         feats = tuple(reversed(cfg.features))  # /4, /8, /16, /32
         decs = []
         for i in range(cfg.levels):  # i = 0 is /4
@@ -183,7 +183,8 @@ class DFVNet(nn.Module):
         return f.transpose(1, 2)
 
     def forward(self, stack: Tensor) -> list[Tensor]:
-        """stack (B, S, 3, H, W), H and W multiples of 32 -> [logits (B, S, H, W), ...] finest first."""
+        """stack (B, S, C, H, W) (C = in_channels: RGB [+ field coordinates]), H and W multiples of 32 ->
+        [logits (B, S, H, W), ...] finest first."""
         b, s, c, h, w = stack.shape
         feats = self.encoder(stack.reshape(b * s, c, h, w))
         logits, state = [], None

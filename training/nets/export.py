@@ -2,6 +2,8 @@
 
 Graph: inputs `stack` (B, S, 3, H, W) float32 normalised by aat_deploy.normalise.normalise_stack, frames sorted
 near to far, H and W multiples of `aat.size_multiple`; `focus_m` (B, S) float32 metres from the sensor plane.
+Field-aware models (`aat.field_channels` = 2) take a third input `field_xy` (B, 2, H, W) float32: each pixel's
+normalised sensor position (x right, y up, +-1 at the sensor edges; padded pixels continue the ramp).
 Outputs `depth_m` (B, H, W), `aif` (B, 3, H, W), `std_m` (B, H, W). B, S, H, W are dynamic; both nets have no
 shape-derived kernels, so one export is exact at every shape (checked against torch at three shapes when
 written). The graph neither sorts nor pads: the runtime does (as `training.nets.model.predict` does in torch).
@@ -25,6 +27,8 @@ from training.nets.model import DfFModel
 
 DISTANCES = "metres from the sensor plane along the optical axis"
 PARITY_TOL = 1e-4
+FIELD_CONVENTION = ("input field_xy (B, 2, H, W): normalised sensor position of each pixel centre, x right, y up, "
+                    "-1..1 from edge to edge of the sensor (aat_deploy.twin.fields.pixel_fields); padding continues it")
 
 
 def config_hash(config: dict) -> str:
@@ -74,15 +78,26 @@ def dff_metadata(model: DfFModel, lens: Lens, *, simulator: str, effects: list[s
         "aat.distances": DISTANCES,
         "aat.n_params": str(model.n_params),
     }
+    if model.field_channels:
+        md["aat.field_channels"] = str(model.field_channels)
+        md["aat.field_convention"] = FIELD_CONVENTION
     md.update({f"aat.{k}": (v if isinstance(v, str) else json.dumps(v)) for k, v in (extra or {}).items()})
     return md
 
 
-def _example(b: int, s: int, h: int, w: int, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
+def _example(b: int, s: int, h: int, w: int, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     g = torch.Generator().manual_seed(seed)
     stack = torch.rand(b, s, 3, h, w, generator=g)
     focus = torch.sort(torch.rand(b, s, generator=g) * 5 + 0.3, dim=1).values
-    return stack, focus
+    field = torch.rand(b, 2, h, w, generator=g) * 2 - 1
+    return stack, focus, field
+
+
+def _feeds(model: DfFModel, stack, focus, field) -> tuple[tuple, dict]:
+    """Torch arguments and onnxruntime feeds of one example (field only for field-aware models)."""
+    if model.field_channels:
+        return (stack, focus, field), {"stack": stack.numpy(), "focus_m": focus.numpy(), "field_xy": field.numpy()}
+    return (stack, focus), {"stack": stack.numpy(), "focus_m": focus.numpy()}
 
 
 def parity(model: DfFModel, onnx_path, shapes: list[tuple[int, int, int, int]]) -> float:
@@ -93,10 +108,10 @@ def parity(model: DfFModel, onnx_path, shapes: list[tuple[int, int, int, int]]) 
     worst = 0.0
     model = model.eval()
     for i, shp in enumerate(shapes):
-        stack, focus = _example(*shp, seed=i)
-        outs = sess.run(None, {"stack": stack.numpy(), "focus_m": focus.numpy()})
+        args, feeds = _feeds(model, *_example(*shp, seed=i))
+        outs = sess.run(None, feeds)
         with torch.no_grad():
-            ref = model(stack, focus)
+            ref = model(*args)
         for o, r in zip(outs, ref):
             if o.shape != tuple(r.shape):
                 raise RuntimeError(f"onnxruntime output shape {o.shape} != torch {tuple(r.shape)} at {shp}")
@@ -118,17 +133,20 @@ def export_dff_onnx(model: DfFModel, path, metadata: dict[str, str], *, force: b
     m = model.size_multiple
     shapes = check_shapes or [(1, 5, 2 * m, 2 * m), (2, 3, m, 3 * m), (1, 8, 3 * m, 2 * m)]
     model = model.eval().float()
-    stack, focus = _example(1, 4, 2 * m, 2 * m)
+    args, _ = _feeds(model, *_example(1, 4, 2 * m, 2 * m))
+    names = ["stack", "focus_m"] + (["field_xy"] if model.field_channels else [])
+    axes = {"stack": {0: "B", 1: "S", 3: "H", 4: "W"}, "focus_m": {0: "B", 1: "S"},
+            "depth_m": {0: "B", 1: "H", 2: "W"}, "aif": {0: "B", 2: "H", 3: "W"}, "std_m": {0: "B", 1: "H", 2: "W"}}
+    if model.field_channels:
+        axes["field_xy"] = {0: "B", 2: "H", 3: "W"}
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # the legacy exporter's deprecation notice
-            torch.onnx.export(model, (stack, focus), str(tmp), input_names=["stack", "focus_m"],
+            torch.onnx.export(model, args, str(tmp), input_names=names,
                               output_names=["depth_m", "aif", "std_m"], opset_version=opset, dynamo=False,
-                              dynamic_axes={"stack": {0: "B", 1: "S", 3: "H", 4: "W"}, "focus_m": {0: "B", 1: "S"},
-                                            "depth_m": {0: "B", 1: "H", 2: "W"}, "aif": {0: "B", 2: "H", 3: "W"},
-                                            "std_m": {0: "B", 1: "H", 2: "W"}})
+                              dynamic_axes=axes)
         proto = onnx.load(str(tmp))
         for k, v in metadata.items():
             proto.metadata_props.add(key=k, value=str(v))

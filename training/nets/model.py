@@ -18,49 +18,68 @@ from training.nets.head import focus_head
 
 NETS = ("aifnet", "dfvnet")
 SIZES = ("small", "full")
+FIELD_CHANNELS = (0, 2)  # 2: normalised sensor x, y (x right, y up, +-1 at the edges) as extra input channels
 
 
-def build_net(net: str, size: str) -> nn.Module:
-    """A fresh (randomly initialised) AiFNet or DFVNet in its 'small' or 'full' configuration."""
+def build_net(net: str, size: str, field_channels: int = 0) -> nn.Module:
+    """A fresh (randomly initialised) AiFNet or DFVNet in its 'small' or 'full' configuration; field_channels
+    extra input channels per frame (2: the normalised sensor position x, y of each pixel)."""
     if net not in NETS:
         raise ValueError(f"unknown net {net!r}; expected one of {NETS}")
     if size not in SIZES:
         raise ValueError(f"unknown size {size!r}; expected one of {SIZES}")
-    return AiFNet(AIFNET_CONFIGS[size]) if net == "aifnet" else DFVNet(DFVNET_CONFIGS[size])
+    if field_channels not in FIELD_CHANNELS:
+        raise ValueError(f"field_channels must be one of {FIELD_CHANNELS}, got {field_channels!r}")
+    c = 3 + field_channels
+    return AiFNet(AIFNET_CONFIGS[size], c) if net == "aifnet" else DFVNet(DFVNET_CONFIGS[size], in_channels=c)
 
 
 class DfFModel(nn.Module):
-    """Network + head. forward(stack (B, S, 3, H, W), focus_m (B, S)) -> (depth_m (B, H, W), aif (B, 3, H, W),
-    std_m (B, H, W)); frames sorted near to far, H, W multiples of `size_multiple`."""
+    """Network + head. forward(stack (B, S, 3, H, W), focus_m (B, S)[, field_xy (B, 2, H, W)]) ->
+    (depth_m (B, H, W), aif (B, 3, H, W), std_m (B, H, W)); frames sorted near to far, H, W multiples of
+    `size_multiple`. A field-aware model (field_channels 2) also takes each pixel's normalised sensor position
+    (x right, y up, +-1 at the sensor edges), so it can know where in the field a patch lies: a translation-
+    invariant CNN cannot, yet field curvature moves best focus with field position."""
 
-    def __init__(self, net: nn.Module, name: str = "", size: str = ""):
+    def __init__(self, net: nn.Module, name: str = "", size: str = "", field_channels: int = 0):
         super().__init__()
         self.net, self.name, self.size = net, name, size
+        self.field_channels = int(field_channels)
         self.size_multiple: int = int(net.size_multiple)
+
+    def net_input(self, stack: Tensor, field_xy: Tensor | None) -> Tensor:
+        """The net's input: the stack, with the field coordinates appended to every frame when field-aware."""
+        if not self.field_channels:
+            return stack
+        if field_xy is None:
+            raise ValueError("a field-aware model needs field_xy (B, 2, H, W)")
+        f = field_xy[:, None].to(stack.dtype).expand(-1, stack.shape[1], -1, -1, -1)
+        return torch.cat([stack, f], 2)
 
     @property
     def n_params(self) -> int:
         return count_params(self)
 
-    def levels(self, stack: Tensor, focus_m: Tensor) -> list[tuple[Tensor, Tensor, Tensor]]:
+    def levels(self, stack: Tensor, focus_m: Tensor, field_xy: Tensor | None = None
+               ) -> list[tuple[Tensor, Tensor, Tensor]]:
         """Head outputs for every logit level the net returns (finest first; coarser ones only in training)."""
         out = []
-        for i, lg in enumerate(self.net(stack)):
+        for i, lg in enumerate(self.net(self.net_input(stack, field_xy))):
             depth, aif, std = focus_head(lg, stack if i == 0 else None, focus_m)
             out.append((depth, aif, std))
         return out
 
-    def forward(self, stack: Tensor, focus_m: Tensor, all_levels: bool = False):
+    def forward(self, stack: Tensor, focus_m: Tensor, field_xy: Tensor | None = None, all_levels: bool = False):
         """(depth_m, aif, std_m) of the finest level; with all_levels, the list of `levels` (for training)."""
-        levels = self.levels(stack, focus_m)
+        levels = self.levels(stack, focus_m, field_xy)
         if all_levels:
             return levels
         depth, aif, std = levels[0]
         return depth, aif, std
 
 
-def build_model(net: str, size: str) -> DfFModel:
-    return DfFModel(build_net(net, size), net, size)
+def build_model(net: str, size: str, field_channels: int = 0) -> DfFModel:
+    return DfFModel(build_net(net, size, field_channels), net, size, field_channels)
 
 
 def sort_by_focus(stack: Tensor, focus_m: Tensor) -> tuple[Tensor, Tensor]:
@@ -84,18 +103,38 @@ def pad_to_multiple(x: Tensor, multiple: int) -> tuple[Tensor, tuple[int, int]]:
     return flat.reshape(*lead, h + ph, w + pw), (h, w)
 
 
-def train_levels(module: nn.Module, stack: Tensor, focus_m: Tensor, size_multiple: int) -> list:
+def pad_field(field_xy: Tensor, multiple: int) -> Tensor:
+    """Pad field coordinates (B, 2, H, W) at the bottom/right to multiples of `multiple` by continuing them
+    linearly (they are linear in the pixel index), so padded pixels carry the positions they would have."""
+    h, w = field_xy.shape[-2:]
+    ph, pw = (-h) % multiple, (-w) % multiple
+    out = field_xy
+    if pw:
+        step = out[..., :, -1:] - out[..., :, -2:-1] if w > 1 else torch.zeros_like(out[..., :, -1:])
+        k = torch.arange(1, pw + 1, dtype=out.dtype, device=out.device)
+        out = torch.cat([out, out[..., :, -1:] + step * k], -1)
+    if ph:
+        step = out[..., -1:, :] - out[..., -2:-1, :] if h > 1 else torch.zeros_like(out[..., -1:, :])
+        k = torch.arange(1, ph + 1, dtype=out.dtype, device=out.device)[:, None]
+        out = torch.cat([out, out[..., -1:, :] + step * k], -2)
+    return out
+
+
+def train_levels(module: nn.Module, stack: Tensor, focus_m: Tensor, size_multiple: int,
+                 field_xy: Tensor | None = None) -> list:
     """Training forward of a DfFModel (or its DistributedDataParallel wrapper) on any batch: frames sorted,
     H, W padded to `size_multiple` and every level's outputs cropped back. Returns [(depth_m, aif, std_m), ...]."""
     stack, focus_m = sort_by_focus(stack, focus_m)
     padded, (h, w) = pad_to_multiple(stack, size_multiple)
-    levels = module(padded, focus_m, all_levels=True)
+    field = None if field_xy is None else pad_field(field_xy, size_multiple)
+    levels = module(padded, focus_m, field, all_levels=True)
     return [tuple(None if t is None else t[..., :h, :w] for t in lv) for lv in levels]
 
 
-def predict(model: DfFModel, stack: Tensor, focus_m: Tensor) -> dict[str, Tensor]:
+def predict(model: DfFModel, stack: Tensor, focus_m: Tensor, field_xy: Tensor | None = None) -> dict[str, Tensor]:
     """Run `model` on any stack: frames sorted by focus (any input order accepted), any H, W (padded and
     cropped back). stack (B, S, 3, H, W) normalised per docs/contracts.md, focus_m (B, S) metres.
+    field_xy (B, 2, H, W): each pixel's normalised sensor position, for field-aware models.
     Returns {"depth_m": (B, H, W), "aif": (B, 3, H, W), "std_m": (B, H, W)}."""
     if stack.dim() != 5 or stack.shape[2] != 3 or focus_m.shape != stack.shape[:2]:
         raise ValueError(f"predict: stack (B, S, 3, H, W) and focus_m (B, S) expected, got "
@@ -104,5 +143,6 @@ def predict(model: DfFModel, stack: Tensor, focus_m: Tensor) -> dict[str, Tensor
         raise ValueError(f"predict: a stack needs at least 2 frames, got {stack.shape[1]}")
     stack, focus_m = sort_by_focus(stack, focus_m)
     padded, (h, w) = pad_to_multiple(stack, model.size_multiple)
-    depth, aif, std = model(padded, focus_m)
+    field = None if field_xy is None else pad_field(field_xy, model.size_multiple)
+    depth, aif, std = model(padded, focus_m, field)
     return {"depth_m": depth[..., :h, :w], "aif": aif[..., :h, :w], "std_m": std[..., :h, :w]}

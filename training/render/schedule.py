@@ -1,5 +1,6 @@
 """Focus schedules like a camera's: a fixed set of focus distances, chosen from the lens and the working range,
-never from the scene's depth.
+never from the scene's depth; and, for comparison with the paper, its protocol, which spreads the distances over
+each image's own depth range (`scene_range_distances`: ground truth chooses the focus distances).
 
 Distances are metres from the sensor plane, returned sorted near -> far (DfF nets expect frames sorted by
 focus). Spacing is even in diopters, where defocus blur is linear. Training may jitter each distance by a small
@@ -39,3 +40,22 @@ class FocusSchedule:
             inv = inv + rng.uniform(-1, 1, self.n) * self.jitter_d * self.spacing_d
             inv = np.clip(inv, 1.0 / self.far_m * 0.5, None)
         return 1.0 / inv
+
+
+def scene_range_distances(depth_m: np.ndarray, n: int, rng: np.random.Generator | None = None,
+                          perturb: float = 0.25) -> np.ndarray:
+    """The paper's protocol (Yang et al. 2023, Sec. 5.1): n focus distances (m) linear in depth from the minimum
+    to the maximum valid depth of this image, each moved by a uniform random perturbation of up to `perturb` of
+    the spacing (with `rng`), sorted near -> far. It reads the ground truth, so results under it are labelled so."""
+    d = np.asarray(depth_m, dtype=np.float64)
+    d = d[np.isfinite(d) & (d > 0)]
+    if d.size == 0:
+        raise ValueError("scene_range_distances: no valid depth")
+    lo, hi = float(d.min()), float(d.max())
+    if hi <= lo * 1.001:
+        hi = lo * 1.05  # a flat scene still gets distinct focus distances
+    out = np.linspace(lo, hi, n)
+    if rng is not None and perturb > 0:
+        step = (hi - lo) / (n - 1)
+        out = out + rng.uniform(-perturb, perturb, n) * step
+    return np.sort(np.clip(out, 0.5 * lo, None))

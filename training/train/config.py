@@ -12,7 +12,7 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 from training.nets.export import config_hash
-from training.nets.model import NETS, SIZES
+from training.nets.model import FIELD_CHANNELS, NETS, SIZES
 
 SIMULATORS = ("aat", "thin_lens")
 
@@ -62,6 +62,7 @@ class TrainConfig:
     log_every: int = 10
     val_every: int = 0  # 0 = only at the end
     val_items: int = 16
+    field_channels: int = 0  # 2: the nets also see each pixel's normalised sensor position (training.nets.model)
     init: str | None = None  # weights to start from: an exported DfF .onnx or a model.pt/last.pt (training.nets.init)
 
     def validate(self) -> TrainConfig:
@@ -79,6 +80,8 @@ class TrainConfig:
             raise ConfigError(f"config {self.name}: focus_range_m must be [near, far] with 0 < near < far")
         if not 2 <= self.stack_range[0] <= self.stack_range[1]:
             raise ConfigError(f"config {self.name}: stack_range must be [min, max] with 2 <= min <= max")
+        if self.field_channels not in FIELD_CHANNELS:
+            raise ConfigError(f"config {self.name}: field_channels must be one of {FIELD_CHANNELS}")
         if not self.loss.level_weights or sum(self.loss.level_weights) <= 0:
             raise ConfigError(f"config {self.name}: loss.level_weights must have a positive sum")
         return self
@@ -93,6 +96,8 @@ class TrainConfig:
             d.pop(k)
         if d.get("init") is None:
             d.pop("init")  # configs without an init hash as they did before the field existed
+        if not d.get("field_channels"):
+            d.pop("field_channels")  # likewise
         return config_hash(d)
 
 

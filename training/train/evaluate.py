@@ -23,7 +23,8 @@ def evaluate(model: DfFModel, dataset: Dataset, max_items: int | None = None, fo
     try:
         for i in range(n):
             item = dataset[i]
-            out = predict(model, item["stack"][None].float(), item["focus_m"][None].float())
+            field = item["field_xy"][None].float() if model.field_channels and "field_xy" in item else None
+            out = predict(model, item["stack"][None].float(), item["focus_m"][None].float(), field)
             aif_ref = item.get("aif")
             acc.add(out["depth_m"][0].numpy(), np.asarray(item["depth_m"]), out["aif"][0].clamp(0, 1).numpy(),
                     None if aif_ref is None else np.asarray(aif_ref), focus_m=np.asarray(item["focus_m"]))

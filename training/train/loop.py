@@ -113,18 +113,20 @@ def _train(cfg, out_dir: Path, train_set, val_set, resume, stop_at_step, progres
         raise FileExistsError(f"{out_dir}: has a checkpoint; pass --resume to continue or choose another --out")
     train_set, val_set = _make_sets(cfg, train_set, val_set)
     torch.manual_seed(cfg.seed)
-    model = build_model(cfg.net, cfg.size)
+    model = build_model(cfg.net, cfg.size, cfg.field_channels)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    step = 0
+    step, wall_before = 0, 0.0
+    t_start = time.perf_counter()
     if resume and ckpt_path.exists():
         state = load(ckpt_path)
         old = state["config"]
-        for k in ("net", "size", "simulator"):
-            if old[k] != getattr(cfg, k):
-                raise ValueError(f"{ckpt_path}: checkpoint has {k}={old[k]!r}, config has {getattr(cfg, k)!r}")
+        for k in ("net", "size", "simulator", "field_channels"):
+            if old.get(k, 0) != getattr(cfg, k):
+                raise ValueError(f"{ckpt_path}: checkpoint has {k}={old.get(k, 0)!r}, config has {getattr(cfg, k)!r}")
         model.load_state_dict(state["model"])
         opt.load_state_dict(state["optimizer"])
         step = int(state["step"])
+        wall_before = float(state.get("wall_s", 0.0))
         torch.set_rng_state(state["torch_rng"])
     elif cfg.init:
         from training.nets.init import init_model
@@ -151,6 +153,7 @@ def _train(cfg, out_dir: Path, train_set, val_set, resume, stop_at_step, progres
         _sync_buffers(model, world)
         if rank == 0:
             save_atomic({"model": model.state_dict(), "optimizer": opt.state_dict(), "step": step,
+                         "wall_s": wall_before + time.perf_counter() - t_start,
                          "config": cfg.to_dict(), "torch_rng": torch.get_rng_state()}, ckpt_path)
         _barrier(world)
 
@@ -166,7 +169,8 @@ def _train(cfg, out_dir: Path, train_set, val_set, resume, stop_at_step, progres
             lr = lr_at(step, cfg.steps, cfg.lr, cfg.lr_min, cfg.warmup_steps)
             for g in opt.param_groups:
                 g["lr"] = lr
-            levels = train_levels(ddp, batch["stack"].float(), batch["focus_m"].float(), model.size_multiple)
+            field = batch["field_xy"].float() if cfg.field_channels else None
+            levels = train_levels(ddp, batch["stack"].float(), batch["focus_m"].float(), model.size_multiple, field)
             loss, parts = dff_loss(levels, batch, cfg.loss)
             opt.zero_grad(set_to_none=True)
             loss.backward()
@@ -180,7 +184,9 @@ def _train(cfg, out_dir: Path, train_set, val_set, resume, stop_at_step, progres
             bar.update(1)
             bar.set_postfix(loss=f"{last_loss:.4f}", lr=f"{lr:.2e}")
             if rank == 0 and (step % cfg.log_every == 0 or step == end):
-                _log(out_dir, {"step": step, "lr": lr, **parts, "s_per_step": t_steps / n_timed})
+                _log(out_dir, {"step": step, "lr": lr, **parts, "s_per_step": t_steps / n_timed,
+                               "stacks_seen": step * cfg.batch_size * world,
+                               "wall_s": round(wall_before + time.perf_counter() - t_start, 1)})
             if step % cfg.checkpoint_every == 0 or step == end:
                 checkpoint()
             if val_set is not None and cfg.val_every and step % cfg.val_every == 0 and step < cfg.steps:
@@ -199,6 +205,13 @@ def _train(cfg, out_dir: Path, train_set, val_set, resume, stop_at_step, progres
                          "step": step}, out_dir / "model.pt")
             if val_set is not None:
                 val_metrics = _validate_and_log(model, val_set, cfg, out_dir, step, final=True)
+            seen = step * cfg.batch_size * world
+            summary = {"steps": step, "batch_size": cfg.batch_size, "processes": world, "stacks_seen": seen,
+                       "distinct_stacks": min(seen, len(train_set)), "dataset_items": len(train_set),
+                       "dataset_cache": str(getattr(train_set, "cache", None)),
+                       "wall_s": round(wall_before + time.perf_counter() - t_start, 1),
+                       "s_per_step_last_session": t_steps / n_timed if n_timed else None}
+            (out_dir / "train_summary.json").write_text(json.dumps(summary, indent=1))
         _barrier(world)
     return TrainResult(step, finished, last_loss, t_steps / n_timed if n_timed else None, val_metrics)
 
@@ -209,6 +222,6 @@ def load_trained(path) -> tuple[torch.nn.Module, TrainConfig]:
 
     state = load(path)
     cfg = config_from_dict(dict(state["config"]), str(path))
-    model = build_model(cfg.net, cfg.size)
+    model = build_model(cfg.net, cfg.size, cfg.field_channels)
     model.load_state_dict(state["model"])
     return model.eval(), cfg

@@ -1,0 +1,196 @@
+"""The paper's Table 2 (and its Table 3, the all-in-focus image), with intervals: AAT vs thin-lens training on one
+lens, tested on held-out stacks rendered through that lens (training/train/testsets.py).
+
+    OMP_WAIT_POLICY=PASSIVE python benchmarks/bench_table2.py --lens paper50 --protocol paper fixed [--n 32]
+    OMP_WAIT_POLICY=PASSIVE python benchmarks/bench_table2.py --lens rf50 --protocol fixed
+    ... [--models A.onnx B.onnx ...] [--no-classical] [--out benchmarks/results]
+
+Models default to `models/<lens>_{dfvnet,aifnet}_{aat,thin}[_field].onnx` that exist. They run with onnxruntime
+exactly as `aat-infer` runs them (aat_deploy.model.DfFModel; a field-aware model gets each pixel's sensor position).
+Beside them, the simplest honest baseline on the same stacks: the runtime's classical focus-measure method
+(aat_deploy.focus, when present), with the nominal (thin-lens) focus mapping and with the lens's best-focus map.
+
+Metrics per image, then the mean over images (aat_deploy.metrics), depth in metres from the sensor, over valid
+ground truth; MAE in the centre (normalised field radius < 0.33) and the outer field (> 0.66); all-in-focus PSNR
+and SSIM (normalised units, data range 1). 95 % intervals: bootstrap over scenes (procedural set; Middlebury is
+one scene, no interval). "ratio" rows: mean MAE of the AAT model / mean MAE of its thin-lens twin, with a paired
+bootstrap interval over scenes. Results as JSON in --out, tables printed (markdown) for BENCHMARKS.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+LENSES = {
+    "paper50": {"lens": "lenses/paper_50mm_f2.8.json", "psf": "models/psf_paper50.onnx", "stack_size": 10},
+    "rf50": {"lens": "lenses/canon_rf50mm_f1.8.json", "psf": "models/psf_rf50.onnx", "stack_size": 8},
+}
+KEYS = ("mae", "mse", "rmse", "abs_rel", "sq_rel", "delta1", "delta2", "delta3", "mae_centre", "mae_outer",
+        "psnr", "ssim")
+N_BOOT = 2000
+
+
+def score(depth_m: np.ndarray, gt_m: np.ndarray, aif: np.ndarray | None, aif_ref: np.ndarray | None) -> dict:
+    """Per-image metrics: the paper's depth metrics, zone MAE, all-in-focus PSNR/SSIM (NaN without an AiF)."""
+    from aat_deploy.metrics import depth_metrics, psnr, ssim
+    from training.train.heldout import zone_masks
+
+    m = depth_metrics(depth_m, gt_m)
+    for z, mask in zone_masks(*gt_m.shape).items():
+        m[f"mae_{z}"] = depth_metrics(depth_m, gt_m, mask=mask)["mae"]
+    if aif is not None and aif_ref is not None:
+        a, r = np.clip(aif, 0, 1), np.clip(aif_ref, 0, 1)
+        m["psnr"] = psnr(a, r)
+        m["ssim"] = ssim(a, r, channel_axis=0)
+    else:
+        m["psnr"] = m["ssim"] = float("nan")
+    return m
+
+
+def summarise(per_scene: list[dict]) -> dict:
+    """{key: [mean, ci_low, ci_high]} over scenes (interval NaN-free only with >= 2 scenes)."""
+    from aat_deploy.diagnose.bootstrap import capture_bootstrap
+
+    out = {}
+    for k in KEYS:
+        v = np.array([s[k] for s in per_scene], np.float64)
+        v = v[np.isfinite(v)]
+        if v.size == 0:
+            out[k] = [float("nan")] * 3
+        else:
+            out[k] = list(capture_bootstrap(v, n_boot=N_BOOT, seed=1))
+    return out
+
+
+def paired_ratio(a: list[dict], b: list[dict], key: str = "mae") -> list[float]:
+    """mean(a[key]) / mean(b[key]) over the same scenes, with a paired bootstrap interval (scenes resampled)."""
+    x = np.array([s[key] for s in a], np.float64)
+    y = np.array([s[key] for s in b], np.float64)
+    est = float(x.mean() / y.mean())
+    if len(x) < 2:
+        return [est, float("nan"), float("nan")]
+    rng = np.random.default_rng(2)
+    idx = rng.integers(0, len(x), size=(N_BOOT, len(x)))
+    reps = x[idx].mean(1) / y[idx].mean(1)
+    return [est, float(np.quantile(reps, 0.025)), float(np.quantile(reps, 0.975))]
+
+
+def run_model(path: Path, items, threads: int) -> tuple[list[dict], np.ndarray, dict]:
+    from aat_deploy.model import DfFModel
+
+    model = DfFModel(path, threads=threads)
+    per, err = [], []
+    for it in items:
+        out = model.infer(it.stack, it.focus_m)
+        per.append(score(out.depth_m, it.depth_m, out.aif, it.aif))
+        valid = it.depth_m > 0
+        err.append(np.where(valid, np.abs(out.depth_m - it.depth_m), np.nan))
+    return per, np.nanmean(np.stack(err), 0), dict(model.meta)
+
+
+def classical_methods():
+    """[(label, fn(item) -> (depth, aif))] of the runtime's classical focus method, if it is there."""
+    try:
+        from aat_deploy.focus import depth_from_focus  # noqa: F401 (issue 19's method)
+    except ImportError:
+        return []
+    return []  # filled in when the method lands: thin-lens mapping and the lens's best-focus map
+
+
+def label_of(meta: dict, path: Path) -> str:
+    net = {"dfvnet": "DFVNet", "aifnet": "AiFNet"}.get(str(meta.get("aat.net")), path.stem)
+    sim = "AAT" if meta.get("aat.simulator") == "aat" else "Baseline"
+    return f"{sim} {net}" + (" + field" if meta.get("aat.field_channels") else "")
+
+
+def fmt(v: list[float], digits: int = 4) -> str:
+    m, lo, hi = v
+    if not np.isfinite(m):
+        return "–"
+    if not (np.isfinite(lo) and np.isfinite(hi)) or lo == hi:
+        return f"{m:.{digits}f}"
+    return f"{m:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
+
+
+def table(rows: list[tuple[str, dict]]) -> str:
+    head = ("| model | MAE | MSE | RMSE | AbsRel | SqRel | δ1 | δ2 | δ3 | MAE centre | MAE outer | AiF PSNR | AiF SSIM |\n"
+            "|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    lines = [head]
+    for label, s in rows:
+        cells = [fmt(s[k], 2 if k == "psnr" else 4) for k in KEYS]
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--lens", choices=sorted(LENSES), required=True)
+    ap.add_argument("--protocol", nargs="+", choices=("fixed", "paper"), default=["fixed"])
+    ap.add_argument("--n", type=int, default=32, help="held-out procedural scenes")
+    ap.add_argument("--models", nargs="*", help="ONNX models (default: models/<lens>_*.onnx)")
+    ap.add_argument("--no-classical", action="store_true")
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--out", default=str(ROOT / "benchmarks/results"))
+    ap.add_argument("--figures", default=str(ROOT / "benchmarks/figures"))
+    a = ap.parse_args(argv)
+    from training.train.testsets import TestSetSpec, load_test_set
+
+    spec_l = LENSES[a.lens]
+    paths = [Path(m) for m in a.models] if a.models else sorted((ROOT / "models").glob(f"{a.lens}_*.onnx"))
+    if not paths:
+        raise SystemExit(f"no models for {a.lens}: pass --models")
+    for protocol in a.protocol:
+        spec = TestSetSpec(spec_l["lens"], spec_l["psf"], spec_l["stack_size"], protocol=protocol, n_procedural=a.n)
+        sets = load_test_set(spec, str(ROOT / "cache/heldout"))
+        result = {"lens": a.lens, "protocol": protocol, "spec": spec.__dict__, "sets": {}}
+        for sname, items in sets.items():
+            rows, per_model = [], {}
+            for path in paths:
+                t0 = time.time()
+                per, err_map, meta = run_model(path, items, a.threads)
+                lab = label_of(meta, path)
+                per_model[lab] = per
+                rows.append((lab, summarise(per)))
+                print(f"{sname} {protocol}: {lab} ({path.name}) {time.time() - t0:.0f} s", file=sys.stderr)
+            if not a.no_classical:
+                for lab, fn in classical_methods():
+                    per = [score(*fn(it), it.depth_m, it.aif) for it in items]
+                    per_model[lab] = per
+                    rows.append((lab, summarise(per)))
+            ratios = {}
+            for lab in per_model:
+                if lab.startswith("AAT "):
+                    twin = "Baseline " + lab[4:].replace(" + field", "")
+                    if twin in per_model:
+                        ratios[f"{lab} / {twin}"] = {k: paired_ratio(per_model[lab], per_model[twin], k)
+                                                     for k in ("mae", "mae_centre", "mae_outer")}
+            result["sets"][sname] = {"n_scenes": len(items), "rows": dict(rows), "ratios": ratios,
+                                     "per_scene": per_model}
+            print(f"\n### {a.lens}, protocol {protocol}"
+                  f"{' (focus from each scene’s ground-truth range)' if protocol == 'paper' else ''}: "
+                  f"{sname}, {len(items)} stack{'s' if len(items) > 1 else ''}\n")
+            print(table(rows))
+            if ratios:
+                print("\n| ratio (AAT / thin, paired over scenes) | MAE | MAE centre | MAE outer |\n|---|---|---|---|")
+                for k, r in ratios.items():
+                    print(f"| {k} | {fmt(r['mae'], 3)} | {fmt(r['mae_centre'], 3)} | {fmt(r['mae_outer'], 3)} |")
+        out = Path(a.out) / f"table2_{a.lens}_{protocol}.json"
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp = out.with_name(out.name + ".tmp")
+        tmp.write_text(json.dumps(result, indent=1, default=float))
+        tmp.replace(out)
+        print(f"\nwrote {out}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

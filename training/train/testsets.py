@@ -1,0 +1,134 @@
+"""Held-out test sets for the DfF tables, rendered once and cached by content (the paper's Table 2 on our lenses).
+
+A test set is whole-sensor stacks rendered through one lens with its PSFs (the `aat` simulator): procedural
+scenes from their own seed, textured with the held-out photographs (training.data.textures, "test" split) and
+random depth ranges, plus the real Middlebury 2014 Motorcycle scene scaled to cover the sensor. Two focus
+protocols:
+- "fixed": the camera-like schedule, `stack_size` distances even in diopters over [focus_near_m, focus_far_m],
+  never looking at the scene;
+- "paper": the paper's (Yang et al. 2023, Sec. 5.1), distances linear in depth over each image's own ground-truth
+  depth range with a random perturbation (seeded). It lets ground truth choose the focus distances: results
+  under it are labelled so.
+Items are cached under `cache_dir` by a hash of everything that defines them (procedural items through
+FocalStackDataset's own cache), so every benchmark (bench_table2, the classical focus method's) scores exactly
+the same stacks.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+PROTOCOLS = ("fixed", "paper")
+
+
+@dataclass(frozen=True)
+class TestSetSpec:
+    lens: str
+    psf: str | None
+    stack_size: int
+    protocol: str = "fixed"
+    n_procedural: int = 32
+    seed: int = 777777
+    focus_near_m: float = 0.5
+    focus_far_m: float = 10.0
+    photo_fraction: float = 0.5
+    scene_range: str = "random"
+    middlebury: bool = True
+    simulator: str = "aat"
+    cell_px: int = 64
+
+    def __post_init__(self):
+        if self.protocol not in PROTOCOLS:
+            raise ValueError(f"protocol must be one of {PROTOCOLS}, got {self.protocol!r}")
+
+    def key(self) -> str:
+        """Hash of what defines the Middlebury item (the procedural items are cached by their dataset's key)."""
+        d = asdict(self)
+        d.pop("n_procedural")
+        return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:12]
+
+
+@dataclass
+class TestItem:
+    """One test stack: stack (S, 3, H, W) normalised as the runtime normalises, focus_m (S,) ascending, depth_m
+    (H, W) metres from the sensor (0 = unknown), aif (3, H, W) the all-in-focus image in the stack's units."""
+
+    name: str
+    stack: np.ndarray
+    focus_m: np.ndarray
+    depth_m: np.ndarray
+    aif: np.ndarray
+
+
+def _dataset(spec: TestSetSpec, cache_dir: str | None):
+    from training.data.stacks import FocalStackDataset, StackDataConfig
+    from training.train.data import resolve_lens_path
+
+    lens_path = resolve_lens_path(spec.lens)
+    from training.lens.io import load_lens
+
+    sensor = load_lens(lens_path).sensor
+    cfg = StackDataConfig(simulator=spec.simulator, lens=lens_path, psf=spec.psf, height=sensor.height_px,
+                          width=sensor.width_px, stack_size=spec.stack_size, focus_near_m=spec.focus_near_m,
+                          focus_far_m=spec.focus_far_m, scene_range=spec.scene_range,
+                          photo_fraction=spec.photo_fraction, photo_split="test",
+                          schedule="scene" if spec.protocol == "paper" else "fixed", scene_perturb=0.25,
+                          n_items=max(1, spec.n_procedural), seed=spec.seed, margin_px=0, cell_px=spec.cell_px,
+                          cache_dir=cache_dir)
+    return FocalStackDataset(cfg)
+
+
+def _middlebury(spec: TestSetSpec, ds, cache_dir: str | None) -> TestItem:
+    """Middlebury Motorcycle scaled to cover the sensor, rendered with the set's simulator and protocol."""
+    f = Path(cache_dir) / f"middlebury_{spec.key()}.npz" if cache_dir else None
+    if f is not None and f.is_file():
+        with np.load(f) as z:
+            return TestItem("middlebury", z["stack"].astype(np.float32), z["focus_m"], z["depth_m"], z["aif"])
+    import torch
+
+    from training.cli.render import fit_to_sensor
+    from training.data.rgbd import fill_depth, load_middlebury_motorcycle
+    from training.render.schedule import scene_range_distances
+    from training.train.heldout import normalise_frames
+
+    rgb, gt = fit_to_sensor(*load_middlebury_motorcycle(), ds.sensor_hw)
+    if spec.protocol == "paper":
+        focus = scene_range_distances(gt, spec.stack_size, np.random.default_rng([spec.seed, 1 << 20]), 0.25)
+    else:
+        focus = ds.schedule.distances()
+    img = torch.from_numpy(rgb.transpose(2, 0, 1).copy()).float()
+    st = ds.sim.render_stack(img, torch.from_numpy(fill_depth(gt)).float(), focus)
+    frames = st.frames.numpy()
+    from aat_deploy.normalise import PERCENTILE
+
+    p = np.float32(np.percentile(frames, PERCENTILE))
+    p = p if p > 0 else np.float32(1.0)
+    item = TestItem("middlebury", normalise_frames(frames), st.focus_m.astype(np.float32), gt.astype(np.float32),
+                    np.clip(rgb.transpose(2, 0, 1) / p, 0, 1).astype(np.float32))
+    if f is not None:
+        f.parent.mkdir(parents=True, exist_ok=True)
+        tmp = f.with_name(f.name + ".tmp.npz")
+        np.savez(tmp, stack=item.stack.astype(np.float16), focus_m=item.focus_m, depth_m=item.depth_m, aif=item.aif)
+        tmp.replace(f)
+    return item
+
+
+def load_test_set(spec: TestSetSpec, cache_dir: str | None = "cache/heldout", progress: bool = True
+                  ) -> dict[str, list[TestItem]]:
+    """{"procedural": [...], "middlebury": [...]} of `spec`, rendered on first use and cached."""
+    from tqdm import tqdm
+
+    ds = _dataset(spec, cache_dir)
+    out: dict[str, list[TestItem]] = {"procedural": []}
+    for i in tqdm(range(spec.n_procedural), desc=f"test set {spec.protocol}", disable=not progress, unit="stack"):
+        it = ds.load_or_render(i)
+        out["procedural"].append(TestItem(f"procedural_{i:03d}", it["stack"].astype(np.float32), it["focus_m"],
+                                          it["depth_m"], it["aif"]))
+    if spec.middlebury:
+        out["middlebury"] = [_middlebury(spec, ds, cache_dir)]
+    return out
