@@ -46,6 +46,8 @@ class DfFOutput:
 class DfFModel:
     """An aat DfF ONNX model on onnxruntime's CPU provider."""
 
+    kind = "model"  # what the pipeline calls it in messages (the classical method says "method")
+
     def __init__(self, path: str | Path, threads: int | None = None):
         path = Path(path)
         if not path.is_file():
@@ -89,6 +91,14 @@ class DfFModel:
     def summary(self) -> dict:
         """Path and the metadata subset worth recording with results."""
         return {"path": str(self.path), **{k: self.meta[k] for k in SUMMARY_META if k in self.meta}}
+
+    def working_size(self, frame_hw: tuple[int, int]) -> tuple[int, int]:
+        """(W, H) the pipeline brings frames to: the model's sensor, whatever the frames' size."""
+        return self.sensor_px
+
+    def focal_length_px_at(self, size_wh: tuple[int, int]) -> float:
+        """Focal length in pixels at the working size (the model's sensor)."""
+        return self.focal_length_px
 
     @property
     def focal_length_px(self) -> float:

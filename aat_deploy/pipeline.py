@@ -23,7 +23,7 @@ import numpy as np
 from .capture.folder import Capture, read_capture
 from .capture.raw import linear_to_srgb, load_frame
 from .errors import CaptureError, OutputError
-from .geometry import align_stack, fit_to_sensor
+from .geometry import align_stack, equalise_exposure, fit_to_sensor
 from .model import DfFModel
 from .normalise import DESCRIPTION as NORMALISATION
 from .normalise import normalise_stack
@@ -43,6 +43,7 @@ class Options:
     strict: bool = False
     force: bool = False
     use_exiftool: bool = True
+    focus_m: list[float] | None = None  # --focus-m: focus distances (m) of the frames in file-name order
     record: bool = True
     quiet: bool = False
     warnings: list[str] = field(default_factory=list)
@@ -74,14 +75,16 @@ def identity_warnings(capture: Capture, model: DfFModel) -> list[str]:
     for what, values in (("lens", lenses), ("focal length", focals), ("F-number", fnums)):
         if len(values) > 1:
             out.append(f"{where}: frames disagree on the {what}: {sorted(values)}")
+    if model.lens_name is None:  # the classical method without a lens: nothing to compare with
+        return out
     for lens in sorted(lenses):
         if lens != model.lens_name:
             out.append(f"{where}: lens {lens!r} is not the model's lens {model.lens_name!r}")
     for fl in sorted(focals):
-        if abs(fl - model.focal_length_mm) > FOCAL_TOLERANCE * model.focal_length_mm:
+        if model.focal_length_mm and abs(fl - model.focal_length_mm) > FOCAL_TOLERANCE * model.focal_length_mm:
             out.append(f"{where}: focal length {fl:g} mm differs from the model's {model.focal_length_mm:g} mm")
     for fn in sorted(fnums):
-        if abs(fn - model.f_number) > FNUMBER_TOLERANCE * model.f_number:
+        if model.f_number and abs(fn - model.f_number) > FNUMBER_TOLERANCE * model.f_number:
             out.append(f"{where}: F-number {fn:g} differs from the model's F/{model.f_number:g}")
     return out
 
@@ -128,7 +131,8 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
         timings[stage] = round(now - clock, 4)
         clock = now
 
-    cap = read_capture(capture_dir, use_exiftool=opts.use_exiftool)
+    cap = read_capture(capture_dir, use_exiftool=opts.use_exiftool, focus_m=opts.focus_m,
+                       equal_focus_ok=model.kind == "method")  # the focus method places tied frames itself
     warnings = list(cap.warnings)
     ident = identity_warnings(cap, model)
     if ident and opts.strict:
@@ -138,7 +142,7 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
     focus = np.array([f.focus_m for f in frames], np.float32)
     lo, hi = model.stack_range
     if not lo <= len(frames) <= hi:
-        raise CaptureError(f"{capture_dir}: {len(frames)} frames, the model takes {lo}..{hi}")
+        raise CaptureError(f"{capture_dir}: {len(frames)} frames, the {model.kind} takes {lo}..{hi}")
     near, far = model.focus_range_m
     outside = [f"{f.path.name} ({f.focus_m:g} m)" for f in frames if not near * 0.999 <= f.focus_m <= far * 1.001]
     if outside:
@@ -158,7 +162,9 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
         decode_info.append(info)
     lap("decode")
 
-    w_px, h_px = model.sensor_px
+    w_px, h_px = model.working_size(size0)
+    if model.kind == "method":
+        warnings += model.frame_warnings(size0, capture_dir)
     fitted = [fit_to_sensor(im, (w_px, h_px)) for im in images]
     geometry = fitted[0][1]
     images = [im for im, _ in fitted]
@@ -170,6 +176,9 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
     align_info = None
     if opts.align:
         images, align_info = align_stack(images, ref=len(images) // 2)
+        images, gains = equalise_exposure(images, ref=len(images) // 2)
+        for a, g in zip(align_info, gains):
+            a["exposure_gain"] = g
         bad = [frames[i].path.name for i, a in enumerate(align_info) if not a["converged"]]
         if bad:
             warnings.append(f"{capture_dir}: alignment did not converge for {', '.join(bad)} (left unaligned)")
@@ -183,6 +192,7 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
     if opts.tile and not opts.quiet:
         tiles_bar = lambda d, n: print(f"  {cap.name}: tile {d}/{n}", file=sys.stderr, flush=True)
     res = model.infer(stack, focus, tile=opts.tile, progress=tiles_bar)
+    warnings += getattr(res, "warnings", [])
     lap("infer")
 
     out_dir.parent.mkdir(parents=True, exist_ok=True)
@@ -197,12 +207,16 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
         _write_png(tmp / "aif.png", aif8)
         np.save(tmp / "std_m.npy", res.std_m.astype(np.float32))
         _write_png(tmp / "std_mm.png", _to_mm16(res.std_m))
+        confidence = getattr(res, "confidence", None)  # the focus method's per-pixel confidence
+        if confidence is not None:
+            np.save(tmp / "confidence.npy", confidence.astype(np.float32))
+            _write_png(tmp / "confidence.png", np.rint(np.clip(confidence, 0, 1) * 255).astype(np.uint8))
         gt = _ground_truth(cap, size0, (w_px, h_px), warnings)
         lap("write")
         if opts.record:
             frames8 = [np.rint(linear_to_srgb(fr.transpose(1, 2, 0)) * 255).astype(np.uint8) for fr in stack]
             write_recording(tmp / "recording.rrd", frames_srgb8=frames8, focus_m=focus.tolist(),
-                            depth_m=res.depth_m, aif_srgb8=aif8, std_m=res.std_m, f_px=model.focal_length_px,
+                            depth_m=res.depth_m, aif_srgb8=aif8, std_m=res.std_m, f_px=model.focal_length_px_at((w_px, h_px)),
                             gt_depth_m=gt, name=cap.name)
         lap("record")
         summary = {
@@ -221,9 +235,12 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
             "tile": opts.tile,
             "depth_m_range": [float(np.nanmin(res.depth_m)), float(np.nanmax(res.depth_m))],
             "ground_truth": _gt_stats(gt, res.depth_m),
+            **({"method_info": res.info} if getattr(res, "info", None) else {}),
             "outputs": {"depth_mm.png": "uint16 depth in mm (0 = unknown)", "depth_m.npy": "float32 depth in m",
                         "aif.png": "all-in-focus, 8-bit sRGB", "std_m.npy": "float32 uncertainty in m",
-                        "std_mm.png": "uint16 uncertainty in mm", "recording.rrd": "rerun recording"},
+                        "std_mm.png": "uint16 uncertainty in mm", "recording.rrd": "rerun recording",
+                        **({"confidence.npy": "float32 confidence in [0, 1]", "confidence.png": "8-bit confidence"}
+                           if confidence is not None else {})},
             "timings_s": timings,
             "warnings": warnings,
         }

@@ -79,8 +79,13 @@ def _sidecar(folder: Path) -> dict[str, float] | None:
     return out
 
 
-def read_capture(folder: str | Path, use_exiftool: bool = True) -> Capture:
-    """Read and validate a capture folder's frame list and focus distances (pixels are not decoded here)."""
+def read_capture(folder: str | Path, use_exiftool: bool = True, focus_m: list[float] | None = None,
+                 equal_focus_ok: bool = False) -> Capture:
+    """Read and validate a capture folder's frame list and focus distances (pixels are not decoded here).
+
+    focus_m: the frames' focus distances (m, `aat-infer --focus-m`) in file-name order, overriding metadata and
+    capture.json (as many as there are frames). equal_focus_ok: frames with equal focus distances are a warning
+    (the caller places them), not an error."""
     folder = Path(folder)
     if not folder.is_dir():
         raise CaptureError(f"{folder}: not a folder")
@@ -103,10 +108,16 @@ def read_capture(folder: str | Path, use_exiftool: bool = True) -> Capture:
         raise CaptureError(f"{folder}: empty capture folder (no RAW, TIFF, PNG or JPEG frames)")
     if len(files) < 2:
         raise CaptureError(f"{folder}: only one frame ({files[0].name}); a focal stack needs at least two")
+    if focus_m is not None and len(focus_m) != len(files):
+        raise CaptureError(f"{folder}: --focus-m gives {len(focus_m)} focus distances for {len(files)} frames")
+    if focus_m is not None and sidecar:
+        warnings.append(f"{folder}: --focus-m overrides the focus distances in {SIDECAR}")
     frames = []
-    for p in files:
+    for i, p in enumerate(files):
         meta = read_metadata(p, use_exiftool=use_exiftool)
-        if sidecar:
+        if focus_m is not None:
+            frames.append(Frame(p, float(focus_m[i]), "--focus-m", meta))
+        elif sidecar:
             frames.append(Frame(p, sidecar[p.name], SIDECAR, meta))
         else:
             frames.append(Frame(p, meta.focus_m, meta.focus_source, meta))
@@ -117,13 +128,17 @@ def read_capture(folder: str | Path, use_exiftool: bool = True) -> Capture:
             asked = "EXIF, maker notes, XMP" + (", exiftool" if use_exiftool and exiftool.available() else "")
             why = "".join(f"; {n}" for n in fr.meta.notes)  # e.g. an encrypted Nikon LensData
             raise CaptureError(f"{fr.path}: no focus distance in its metadata ({asked}{why}); "
-                               f"give it in {folder / SIDECAR}")
+                               f"give it in {folder / SIDECAR} or with aat-infer --focus-m")
         if not math.isfinite(fr.focus_m) or fr.focus_m <= 0:
             raise CaptureError(f"{fr.path}: focus distance {fr.focus_m} m ({fr.focus_source}) is not usable "
                                f"(infinite or not positive); give it in {folder / SIDECAR}")
     seen: dict[float, Path] = {}
     for fr in frames:
         key = round(fr.focus_m, 6)
+        if key in seen and equal_focus_ok:
+            warnings.append(f"{fr.path}: focus distance {fr.focus_m:g} m equals {seen[key].name}'s "
+                            "(coarse metadata?): placed from the images")
+            continue
         if key in seen:
             raise CaptureError(f"{fr.path}: duplicate focus distance {fr.focus_m:g} m (same as {seen[key].name})")
         seen[key] = fr.path

@@ -1,6 +1,10 @@
 """aat-infer: run an ONNX depth-from-focus model on capture folders.
 
     aat-infer CAPTURE_DIR... --model M.onnx [--out DIR] [--force] [--strict] [--threads N] [--tile N] [--align]
+    aat-infer CAPTURE_DIR... --method focus [--lens LENS | --psf PSF.onnx] [--focus-m 0.6,0.8,...] [--max-side N]
+
+--method focus needs no trained model: classical depth from focus (aat_deploy.focus) at the capture's own
+resolution, aberration-aware with the lens's best-focus map (--lens, --psf). It also writes confidence.npy/png.
 
 Writes depth_mm.png, depth_m.npy, aif.png, std_m.npy, std_mm.png, summary.json and recording.rrd per capture,
 into DIR itself for one capture, DIR/<capture name>/ for several (default DIR: ./aat_out/<capture name>).
@@ -15,7 +19,9 @@ import sys
 import time
 from pathlib import Path
 
+from ..capture.focuslist import parse_focus_list
 from ..errors import CaptureError
+from ..focus.runner import FocusMethod
 from ..model import DfFModel
 from ..pipeline import Options, output_dir_for, run_capture
 
@@ -24,7 +30,14 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     ap = argparse.ArgumentParser(prog="aat-infer", description=__doc__.split("\n")[0])
     ap.add_argument("captures", nargs="+", metavar="CAPTURE_DIR")
-    ap.add_argument("--model", required=True, type=Path, help="aat DfF model (.onnx)")
+    ap.add_argument("--model", type=Path, help="aat DfF model (.onnx); required unless --method focus")
+    ap.add_argument("--method", choices=("model", "focus"), default="model",
+                    help="model (a trained DfF net, default) or focus (classical focus measures, no model)")
+    ap.add_argument("--lens", type=Path, help="--method focus: lens file, for its best-focus map (aberration-aware)")
+    ap.add_argument("--psf", type=Path, help="--method focus: PSF surrogate carrying the lens's best-focus map")
+    ap.add_argument("--focus-m", metavar="F1,F2,...", help="focus distances (m) of the frames in file-name order, "
+                    "for files without focus metadata (overrides capture.json)")
+    ap.add_argument("--max-side", type=int, help="--method focus: work at most this many px on the longer side")
     ap.add_argument("--out", type=Path, help="output folder (see above)")
     ap.add_argument("--force", action="store_true", help="replace existing output folders")
     ap.add_argument("--strict", action="store_true", help="camera/lens mismatch with the model is an error")
@@ -39,13 +52,24 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--threads must be >= 1")
     if args.tile is not None and args.tile < 16:
         ap.error("--tile must be >= 16 px")
+    if args.method == "model" and args.model is None:
+        ap.error("--model is required (or --method focus, which needs no trained model)")
+    if args.method == "model" and (args.lens or args.psf or args.max_side):
+        ap.error("--lens, --psf and --max-side belong to --method focus")
+    if args.method == "focus" and args.model is not None:
+        ap.error("--method focus uses no --model")
+    if args.max_side is not None and args.max_side < 16:
+        ap.error("--max-side must be >= 16 px")
     try:
-        model = DfFModel(args.model, threads=args.threads)
+        focus_m = parse_focus_list(args.focus_m) if args.focus_m is not None else None
+        model = (FocusMethod(lens=args.lens, psf=args.psf, max_side=args.max_side, progress=not args.quiet)
+                 if args.method == "focus" else DfFModel(args.model, threads=args.threads))
     except CaptureError as e:
         print(f"aat-infer: error: {e}", file=sys.stderr)
         return 2
     opts = Options(tile=args.tile, align=args.align, strict=args.strict, force=args.force,
-                   use_exiftool=not args.no_exiftool, record=not args.no_recording, quiet=args.quiet)
+                   use_exiftool=not args.no_exiftool, focus_m=focus_m, record=not args.no_recording,
+                   quiet=args.quiet)
     single = len(args.captures) == 1
     failed = 0
     for i, c in enumerate(args.captures, 1):

@@ -4,14 +4,13 @@ Real metadata can be coarse: a Canon macro stack converted through Lightroom rep
 0.35 / 0.35 / 0.34 m, two frames alike, though the lens moved between them. Refusing the stack loses the capture;
 here each such frame gets the focus position its images imply.
 
-Model: near its peak a pixel's focus curve is a Gaussian in diopters, log m_s = log A - (x_s - D)^2 / (2 w^2).
-From the frames with distinct reported focus (the "known" frames) each confident pixel's peak D, width w and height
-A are fitted (a parabola through log m at the sharpest known frame and its two neighbours). A tied frame t at the
-unknown position x then predicts log m_t = log A - (x - D)^2 / (2 w^2) at every such pixel; x is the position in
-the interval between the neighbouring known levels (widened by half a step) that best explains all of them (least
-squares over a grid of candidates, then refined). Pixels whose peaks lie at different depths break the
-sign ambiguity of a single pixel. With fewer than 3 known levels, or too few usable pixels, the tied frames are
-spread evenly over their interval and the result says so.
+Method: from the frames with distinct reported focus (the "known" frames) each pixel's in-focus position D_p is
+estimated (`estimate.estimate_peak`, two-point ratio); a tied frame t is sharpest, relative to the best known frame,
+at the pixels whose D_p equals its own focus position. So x_t is where the score "log m_t - log max_known m",
+averaged over textured pixels with D_p near x (a Gaussian kernel in diopters), peaks, searched between the
+neighbouring known levels (widened by a quarter of the interval) and refined by a parabola. It needs no model of
+the focus curve's shape, only that it is symmetric. With fewer than 3 known frames, or too few textured pixels near
+the interval, the tied frames are spread evenly over it and the result says so.
 """
 
 from __future__ import annotations
@@ -19,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 MAX_PIXELS = 40000  # pixels sampled for the fit (a regular subsample: enough, and fast)
-N_CANDIDATES = 81
+N_CANDIDATES = 81  # positions searched over the interval
 
 
 def tied_groups(focus_m: np.ndarray, rel_tol: float = 1e-6) -> list[list[int]]:
@@ -32,33 +31,7 @@ def tied_groups(focus_m: np.ndarray, rel_tol: float = 1e-6) -> list[list[int]]:
     return [g for g in groups.values() if len(g) > 1]
 
 
-def _known_fit(volume: np.ndarray, x: np.ndarray, known: np.ndarray):
-    """Per sampled pixel: Gaussian peak D, log height L and 1/(2 w^2) from the known frames; and a usable mask."""
-    v = np.log(volume[known] + 1e-30)  # (K, N)
-    xk = x[known]
-    order = np.argsort(xk)
-    v, xk = v[order], xk[order]
-    k = np.argmax(v, 0)
-    inner = (k > 0) & (k < len(xk) - 1)
-    kk = np.clip(k, 1, len(xk) - 2)
-    n = np.arange(v.shape[1])
-    x0, x1, x2 = xk[kk - 1], xk[kk], xk[kk + 1]
-    y0, y1, y2 = v[kk - 1, n], v[kk, n], v[kk + 1, n]
-    # parabola y = c0 + c1 x + c2 x^2 through three points (any spacing)
-    d01, d12, d02 = (y1 - y0) / (x1 - x0), (y2 - y1) / (x2 - x1), x2 - x0
-    c2 = (d12 - d01) / d02
-    c1 = d01 - c2 * (x0 + x1)
-    c0 = y0 - c1 * x0 - c2 * x0 * x0
-    ok = inner & (c2 < 0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        peak = -c1 / (2 * c2)
-        top = c0 + c1 * peak + c2 * peak * peak
-    ok &= np.isfinite(peak) & np.isfinite(top)
-    return peak, top, -c2, ok
-
-
-def place_equal_focus(volume: np.ndarray, focus_m: np.ndarray, confidence: np.ndarray | None = None
-                      ) -> tuple[np.ndarray, list[dict]]:
+def place_equal_focus(volume: np.ndarray, focus_m: np.ndarray) -> tuple[np.ndarray, list[dict]]:
     """volume (S, H, W) focus measure, focus_m (S,) reported (metres, any order) -> (placed focus_m (S,), notes).
 
     Frames with a distinct reported focus keep it. Each note: {"frame", "reported_m", "placed_m", "method",
@@ -79,9 +52,14 @@ def place_equal_focus(volume: np.ndarray, focus_m: np.ndarray, confidence: np.nd
     h, w = volume.shape[1:]
     idx = (np.arange(0, h, step)[:, None] * w + np.arange(0, w, step)[None, :]).ravel()
     sub = flat[:, idx].astype(np.float64)
-    conf = None if confidence is None else confidence.reshape(-1)[idx]
     notes: list[dict] = []
-    fit = _known_fit(sub, x, known) if len(known) >= 3 else None
+    est = None
+    if len(known) >= 3:
+        from .estimate import estimate_peak
+
+        kv = sub[known][:, None, :].astype(np.float32)
+        pk = estimate_peak(kv, x[known].astype(np.float32), estimator="ratio", gamma=1.0)
+        est = (pk.diopters[0].astype(np.float64), pk.confidence[0], np.log(kv[:, 0].max(0) + 1e-30))
     for g in groups:
         x0 = x[g[0]]
         lower = levels[levels < x0 - 1e-9]
@@ -89,25 +67,29 @@ def place_equal_focus(volume: np.ndarray, focus_m: np.ndarray, confidence: np.nd
         lo = lower.max() if lower.size else x0 - (upper.min() - x0 if upper.size else 0.1)
         hi = upper.min() if upper.size else x0 + (x0 - lo)
         span = hi - lo
+        evenly = np.linspace(lo, hi, len(g) + 2)[1:-1][::-1]  # near (high diopters) first, as frames sort
         lo, hi = lo - 0.25 * span, hi + 0.25 * span
-        evenly = np.linspace(x0 - 0.25 * span, x0 + 0.25 * span, len(g) + 2)[1:-1]
+        cand = np.linspace(lo, hi, N_CANDIDATES)
+        bw = max(span / 8, 1e-3)
         for j, t in enumerate(g):
             placed, how, used = None, "images", 0
-            if fit is not None:
-                peak, top, curv, ok = fit
-                near = ok & (peak > lo - span) & (peak < hi + span)
-                if conf is not None:
-                    near &= conf > 0.2
+            if est is not None:
+                dp, cp, lref = est
+                near = (cp > 0.3) & (dp > lo - 2 * bw) & (dp < hi + 2 * bw)
                 used = int(near.sum())
                 if used >= 50:
-                    y = np.log(sub[t, near] + 1e-30)
-                    cand = np.linspace(lo, hi, N_CANDIDATES)
-                    pred = top[near][None] - curv[near][None] * (cand[:, None] - peak[near][None]) ** 2
-                    cost = np.median(np.abs(pred - y[None]), 1)  # robust to pixels the Gaussian model misses
-                    i = int(np.argmin(cost))
-                    fine = np.linspace(cand[max(i - 1, 0)], cand[min(i + 1, N_CANDIDATES - 1)], 41)
-                    pred = top[near][None] - curv[near][None] * (fine[:, None] - peak[near][None]) ** 2
-                    placed = float(fine[int(np.argmin(np.median(np.abs(pred - y[None]), 1)))])
+                    score = np.log(sub[t, near] + 1e-30) - lref[near]
+                    wk = np.exp(-0.5 * ((cand[:, None] - dp[near][None]) / bw) ** 2)
+                    mass = wk.sum(1)
+                    curve = np.where(mass > 1.0, (wk * score[None]).sum(1) / np.maximum(mass, 1e-12), -np.inf)
+                    i = int(np.argmax(curve))
+                    if np.isfinite(curve[i]):
+                        placed = float(cand[i])
+                        if 0 < i < N_CANDIDATES - 1 and np.isfinite(curve[i - 1]) and np.isfinite(curve[i + 1]):
+                            y0, y1, y2 = curve[i - 1:i + 2]
+                            den = y0 - 2 * y1 + y2
+                            if den < 0:
+                                placed += 0.5 * (y0 - y2) / den * (cand[1] - cand[0])
             if placed is None or placed <= 0:
                 placed, how = float(evenly[j]), "spread evenly (too few textured pixels or known frames)"
             notes.append({"frame": int(t), "reported_m": float(f[t]), "placed_m": float(1.0 / placed),
