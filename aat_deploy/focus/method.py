@@ -121,8 +121,8 @@ def depth_from_focus(stack: np.ndarray, focus_m, best_focus: BestFocusMap | None
         if any(p["method"] != "images" for p in placements):
             warnings.append("some tied frames could not be placed from the images and were spread evenly")
     order = np.argsort(f, kind="stable")
-    f = f[order]
-    stack, vol = stack[order], vol[order]
+    if np.any(order != np.arange(f.size)):  # (copies of the stack cost time: only when the order changes)
+        f, stack, vol = f[order], stack[order], vol[order]
     lap("placement")
 
     s, _, h, w = stack.shape
