@@ -2,16 +2,15 @@
 
 Stages (each timed in summary.json): metadata (focus distances, identity check), decode (RAW/images to linear
 RGB), geometry (fit to the model's sensor px), align (optional), normalise, infer (onnxruntime, padded,
-tiled if asked), write (files), record (.rrd). Outputs go to a temporary sibling folder renamed into place
-at the end, so a failed run never leaves a half-written output folder.
+tiled if asked), write (files), record (.rrd). The output folder is checked before any work
+(aat_deploy.io.guard) and written to a temporary sibling renamed into place at the end (aat_deploy.io.atomic), so a
+failed run never leaves a half-written output folder.
 """
 
 from __future__ import annotations
 
 import json
 import math
-import os
-import shutil
 import sys
 import time
 from dataclasses import dataclass, field
@@ -23,11 +22,15 @@ import numpy as np
 from .capture.folder import Capture, read_capture
 from .capture.raw import linear_to_srgb, load_frame
 from .errors import CaptureError, OutputError
+from .eval.gt import READ_ERRORS, units_problem
 from .geometry import align_stack, equalise_exposure, fit_to_sensor
+from .io.atomic import atomic_folder
+from .io.guard import check_output_dir
 from .model import DfFModel
 from .normalise import DESCRIPTION as NORMALISATION
 from .normalise import normalise_stack
 from .recording import write_recording
+from .io.images import imread, imwrite
 
 OUTPUT_FILES = ("depth_mm.png", "depth_m.npy", "aif.png", "std_m.npy", "std_mm.png", "summary.json", "recording.rrd")
 FOCAL_TOLERANCE = 0.02  # relative difference of focal length that counts as another lens
@@ -92,7 +95,7 @@ def identity_warnings(capture: Capture, model: DfFModel) -> list[str]:
 def _write_png(path: Path, img: np.ndarray) -> None:
     if img.ndim == 3:
         img = img[..., ::-1]  # RGB → BGR for OpenCV
-    if not cv2.imwrite(str(path), np.ascontiguousarray(img)):
+    if not imwrite(path, np.ascontiguousarray(img)):
         raise OutputError(f"{path}: could not write PNG")
 
 
@@ -109,19 +112,34 @@ def output_dir_for(capture_dir: Path, out: Path | None, single: bool) -> Path:
     return out if single else out / capture_dir.resolve().name
 
 
-def check_output(out_dir: Path, force: bool) -> None:
-    """Fail early if the output folder exists and --force was not given."""
-    if out_dir.exists() and not force:
-        raise OutputError(f"{out_dir}: output folder exists (pass --force to overwrite)")
-    if out_dir.exists() and not out_dir.is_dir():
-        raise OutputError(f"{out_dir}: exists and is not a folder")
+def output_dirs(captures: list[Path], out: Path | None) -> list[Path]:
+    """output_dir_for each capture of a batch; captures with the same folder name (x/cap, y/cap) get distinct
+    folders in batch order: cap, cap_2, cap_3, ..."""
+    single = len(captures) == 1
+    dirs: list[Path] = []
+    taken: set[str] = set()
+    for c in captures:
+        d = output_dir_for(Path(c), out, single)
+        base, k = d, 2
+        while d.name in taken:
+            d, k = base.with_name(f"{base.name}_{k}"), k + 1
+        taken.add(d.name)
+        dirs.append(d)
+    return dirs
+
+
+def check_output(out_dir: Path, force: bool, inputs: list[Path] = ()) -> None:
+    """Fail before any work if the output folder may not be written (aat_deploy.io.guard): it is, contains or
+    lies inside an input, is the current folder, exists without --force (or, with it, is not an earlier
+    aat-infer output), or its location is not writable."""
+    check_output_dir(out_dir, inputs, force, marker="summary.json", tool="aat-infer")
 
 
 def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, opts: Options) -> dict:
     """Process one capture folder; returns the summary written to out_dir/summary.json."""
     t_all = time.perf_counter()
     capture_dir, out_dir = Path(capture_dir), Path(out_dir)
-    check_output(out_dir, opts.force)
+    check_output(out_dir, opts.force, [capture_dir])
     timings: dict[str, float] = {}
     clock = time.perf_counter()
 
@@ -195,12 +213,7 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
     warnings += getattr(res, "warnings", [])
     lap("infer")
 
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out_dir.parent / f".{out_dir.name}.tmp-{os.getpid()}"
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    tmp.mkdir()
-    try:
+    with atomic_folder(out_dir, opts.force) as tmp:
         aif8 = np.rint(linear_to_srgb(res.aif.transpose(1, 2, 0)) * 255).astype(np.uint8)
         _write_png(tmp / "depth_mm.png", _to_mm16(res.depth_m))
         np.save(tmp / "depth_m.npy", res.depth_m.astype(np.float32))
@@ -211,7 +224,7 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
         if confidence is not None:
             np.save(tmp / "confidence.npy", confidence.astype(np.float32))
             _write_png(tmp / "confidence.png", np.rint(np.clip(confidence, 0, 1) * 255).astype(np.uint8))
-        gt = _ground_truth(cap, size0, (w_px, h_px), warnings)
+        gt = _ground_truth(cap, size0, (w_px, h_px), warnings, model.focus_range_m)
         lap("write")
         if opts.record:
             frames8 = [np.rint(linear_to_srgb(fr.transpose(1, 2, 0)) * 255).astype(np.uint8) for fr in stack]
@@ -246,10 +259,6 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
         }
         summary["timings_s"]["total"] = round(time.perf_counter() - t_all, 4)
         (tmp / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=False, default=_json_default))
-        _replace(tmp, out_dir, opts.force)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return summary
 
 
@@ -259,37 +268,34 @@ def _json_default(v):
     raise TypeError(f"not JSON serialisable: {type(v).__name__}")
 
 
-def _replace(tmp: Path, out_dir: Path, force: bool) -> None:
-    """Move the finished temporary folder into place (replacing an old one only with force)."""
-    old = None
-    if out_dir.exists():
-        if not force:
-            raise OutputError(f"{out_dir}: output folder exists (pass --force to overwrite)")
-        old = out_dir.parent / f".{out_dir.name}.old-{os.getpid()}"
-        os.replace(out_dir, old)
-    os.replace(tmp, out_dir)
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
-
-
-def _ground_truth(cap: Capture, size0: tuple[int, int], size_wh: tuple[int, int], warnings: list[str]):
-    """gt_depth_m.npy (or gt_depth_mm.png) brought to the output geometry (nearest), NaN = unknown; or None."""
+def _ground_truth(cap: Capture, size0: tuple[int, int], size_wh: tuple[int, int], warnings: list[str],
+                  focus_range_m: tuple[float, float]):
+    """gt_depth_m.npy (or gt_depth_mm.png) brought to the output geometry (nearest), NaN = unknown; or None.
+    Ground truth in the wrong units for the model's focus range (as aat-eval checks) is ignored with a warning."""
     gt = None
     try:
         if cap.gt_depth_m is not None:
-            gt = np.load(cap.gt_depth_m).astype(np.float32)
+            gt = np.load(cap.gt_depth_m, allow_pickle=False).astype(np.float32)
         elif cap.gt_depth_mm is not None:
-            mm = cv2.imread(str(cap.gt_depth_mm), cv2.IMREAD_UNCHANGED)
+            mm = imread(cap.gt_depth_mm, cv2.IMREAD_UNCHANGED)
             gt = None if mm is None else mm.astype(np.float32) / 1000.0
-    except (OSError, ValueError) as e:
-        warnings.append(f"{cap.path}: ground truth unreadable ({e}); ignored")
+    except (*READ_ERRORS, TypeError) as e:
+        warnings.append(f"{cap.path}: ground truth unreadable ({str(e).splitlines()[0][:120] if str(e) else type(e).__name__}); ignored")
         return None
     if gt is None:
         return None
     if gt.ndim != 2 or gt.shape != tuple(size0):
         warnings.append(f"{cap.path}: ground truth is {gt.shape}, frames are {tuple(size0)}; ignored")
         return None
-    gt = np.where(gt > 0, gt, np.nan).astype(np.float32)
+    with np.errstate(invalid="ignore"):
+        gt = np.where(np.isfinite(gt) & (gt > 0), gt, np.nan).astype(np.float32)
+    if not np.isfinite(gt).any():
+        return None
+    src = cap.gt_depth_m if cap.gt_depth_m is not None else cap.gt_depth_mm
+    why = units_problem(float(np.nanmedian(gt)), focus_range_m, src, 1.0 if cap.gt_depth_m is not None else 0.001)
+    if why is not None:
+        warnings.append(f"{why}; ground truth ignored")
+        return None
     if (gt.shape[1], gt.shape[0]) != tuple(size_wh):
         tw, th = size_wh
         h, w = gt.shape

@@ -42,8 +42,14 @@ def write_recording(path: str | Path, *, frames_srgb8: list[np.ndarray], focus_m
     depth_m, std_m: (H, W) float32 metres; aif_srgb8: (H, W, 3) uint8; f_px: focal length in pixels.
     """
     h, w = depth_m.shape
-    rec = rr.RecordingStream(application_id="aat", recording_id=name)
-    rec.save(str(path))
+    safe = name.encode("utf-8", "backslashreplace").decode("utf-8")  # a non-UTF-8 folder name (surrogates)
+    rec = rr.RecordingStream(application_id="aat", recording_id=safe)
+    mem = None
+    try:
+        str(path).encode("utf-8")
+        rec.save(str(path))
+    except UnicodeEncodeError:  # rerun takes UTF-8 paths only: record in memory, Python writes the file
+        mem = rec.memory_recording()
     rec.log("world/camera", rr.ViewCoordinates.RDF, static=True)
     rec.log("world/camera", rr.Pinhole(focal_length=float(f_px), width=w, height=h,
                                        camera_xyz=rr.ViewCoordinates.RDF), static=True)
@@ -62,4 +68,6 @@ def write_recording(path: str | Path, *, frames_srgb8: list[np.ndarray], focus_m
     pts, rc = backproject(depth_m, f_px, stride)
     rec.log("world/points", rr.Points3D(pts, colors=aif_srgb8[rc[:, 0], rc[:, 1]]), static=True)
     rec.flush()
+    if mem is not None:
+        Path(path).write_bytes(mem.drain_as_bytes())
     rec.disconnect()

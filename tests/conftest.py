@@ -1,4 +1,4 @@
-"""Shared test helpers: paths to the repository's lenses and to ../shared/data (optional)."""
+"""Shared test helpers: paths to the repository's lenses and to ../shared/data (optional), the tiny DfF model."""
 
 from __future__ import annotations
 
@@ -20,3 +20,11 @@ def shared_lenses() -> Path:
     if not d.is_dir():
         pytest.skip(f"{d} not present (a user's clone has no ../shared/data)")
     return d
+
+
+@pytest.fixture(scope="session")
+def model_path(tmp_path_factory) -> Path:
+    """The tiny contract-following DfF model of deploy_fixtures, built once per session."""
+    from deploy_fixtures import tiny_model_path
+
+    return tiny_model_path(tmp_path_factory)

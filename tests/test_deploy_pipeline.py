@@ -36,11 +36,6 @@ def _first(batch, column):
 
 
 @pytest.fixture(scope="module")
-def model_path(tmp_path_factory):
-    return tiny_model_path(tmp_path_factory)
-
-
-@pytest.fixture(scope="module")
 def model(model_path):
     return DfFModel(model_path, threads=1)
 

@@ -15,7 +15,6 @@ import pytest
 from conftest import ROOT
 from deploy_fixtures import (
     build_tiny_dff,
-    tiny_model_path,
     write_dng_capture,
     write_png_capture,
 )
@@ -27,11 +26,6 @@ from aat_deploy.model import DfFModel
 from aat_deploy.pipeline import Options, run_capture
 
 FOCUS = [0.6, 0.8, 1.2, 2.0, 3.0, 4.5]
-
-
-@pytest.fixture(scope="module")
-def model_path(tmp_path_factory):
-    return tiny_model_path(tmp_path_factory)
 
 
 @pytest.fixture(scope="module")

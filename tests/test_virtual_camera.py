@@ -107,8 +107,14 @@ def test_bad_input_is_one_line_and_force_replaces_atomically(scene, tmp_path):
     with pytest.raises(SystemExit, match="exists"):
         render_main(base + ["--lens", lens, "--thin-lens"])
     assert (out / "mine.txt").read_text() == "user data"
+    with pytest.raises(SystemExit, match="not an earlier aat-render output"):  # --force replaces only its own
+        render_main(base + ["--lens", lens, "--thin-lens", "--force"])
+    assert (out / "mine.txt").read_text() == "user data"
+    (out / "mine.txt").unlink()  # an empty folder may be replaced, and then an earlier capture
     assert render_main(base + ["--lens", lens, "--thin-lens", "--force"]) == 0
-    assert not (out / "mine.txt").exists() and len(list(out.glob("*.dng"))) == 1
+    (out / "extra.txt").write_text("made by the last render's owner")
+    assert render_main(base + ["--lens", lens, "--thin-lens", "--force"]) == 0
+    assert not (out / "extra.txt").exists() and len(list(out.glob("*.dng"))) == 1
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # no temporary left behind
 
 

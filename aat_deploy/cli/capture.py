@@ -17,7 +17,7 @@ from pathlib import Path
 from ..capture.exif import read_metadata
 from ..capture.folder import SIDECAR, _sidecar, frame_files
 from ..capture.raw import FRAME_EXTENSIONS, is_raw, raw_size
-from ..errors import CaptureError
+from ..errors import CaptureError, safe_output_streams
 
 
 def _rows(targets: list[str], use_exiftool: bool) -> list[dict]:
@@ -26,19 +26,20 @@ def _rows(targets: list[str], use_exiftool: bool) -> list[dict]:
         p = Path(t)
         if p.is_dir():
             sidecar = _sidecar(p) or {}
-            files = [p / n for n in sidecar] if sidecar else frame_files(p)
+            files = [p / n for n in sidecar] if sidecar else frame_files(p)  # names confined by _sidecar
+            focus = dict(zip(files, sidecar.values())) if sidecar else {}
             if not files:
                 raise CaptureError(f"{p}: empty capture folder (no RAW, TIFF, PNG or JPEG frames)")
         elif p.is_file():
             if p.suffix.lower() not in FRAME_EXTENSIONS:
                 raise CaptureError(f"{p}: unknown frame type {p.suffix!r} (expected RAW, TIFF, PNG or JPEG)")
-            files, sidecar = [p], {}
+            files, focus = [p], {}
         else:
             raise CaptureError(f"{p}: no such file or folder")
         for f in files:
             meta = read_metadata(f, use_exiftool=use_exiftool)
-            if f.name in sidecar:
-                meta.focus_m, meta.focus_source = sidecar[f.name], SIDECAR
+            if f in focus:
+                meta.focus_m, meta.focus_source = focus[f], SIDECAR
             if meta.width is None and is_raw(f):
                 size = raw_size(f)
                 if size:
@@ -58,6 +59,7 @@ def _fmt(v, unit: str = "", digits: int = 4) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    safe_output_streams()
     ap = argparse.ArgumentParser(prog="aat-capture", description=__doc__.split("\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
     ins = sub.add_parser("inspect", help="per-frame focus distance, its source, camera and lens")

@@ -49,10 +49,15 @@ def main(argv: list[str] | None = None) -> int:
         print("aat-diagnose: error: ROOT, --model and --out are required (or --list-effects)", file=sys.stderr)
         return 2
     from aat_deploy.diagnose.session import DiagnoseError, run
+    from aat_deploy.errors import OutputError
+    from aat_deploy.io.guard import check_output_dir
 
     out = Path(a.out)
-    if out.exists() and not a.force:
-        print(f"aat-diagnose: error: {out} exists (use --force to replace it)", file=sys.stderr)
+    try:  # before any work: the report folder may be replaced, so it must never hold or sit in an input
+        check_output_dir(out, [a.root, a.model, *(p for p in (a.lens, a.psf) if p)], a.force,
+                         marker="diagnosis.json", tool="aat-diagnose", nest_ok=[a.root])
+    except OutputError as e:
+        print(f"aat-diagnose: error: {e}", file=sys.stderr)
         return 2
     try:
         res = run(a.root, a.model, out, lens=a.lens, psf=a.psf, effects=a.effects, retrain_steps=a.retrain_steps,

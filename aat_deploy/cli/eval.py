@@ -15,7 +15,7 @@ import os
 import sys
 from pathlib import Path
 
-from ..errors import CaptureError
+from ..errors import CaptureError, safe_output_streams
 from ..eval.report import MD_COLUMNS
 from ..eval.run import EvalOptions, evaluate
 from ..eval.score import ALIGN_MODES
@@ -23,6 +23,7 @@ from ..eval.score import ALIGN_MODES
 
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    safe_output_streams()
     ap = argparse.ArgumentParser(prog="aat-eval", description=__doc__.split("\n")[0])
     ap.add_argument("root", type=Path, metavar="ROOT", help="a capture folder or a folder of capture folders")
     ap.add_argument("--model", type=Path, help="aat DfF model (.onnx)")

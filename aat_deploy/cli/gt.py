@@ -24,12 +24,13 @@ import os
 import sys
 from pathlib import Path
 
-import cv2
 import numpy as np
 
-from ..errors import CaptureError
+from ..errors import CaptureError, safe_output_streams
 from ..eval.gt import check_units, find_gt, load_ground_truth
 from ..eval.raycast import load_intrinsics, load_mesh, load_pose, render_depth
+from ..io.guard import check_output_files
+from ..io.images import imwrite
 
 MM_MAX = 65535
 
@@ -55,7 +56,7 @@ def _write_atomic(paths: dict[str, Path], depth_m: np.ndarray, info: dict) -> No
     tmp = {k: p.with_name(f".{p.name}.tmp-{os.getpid()}{p.suffix}") for k, p in paths.items()}
     try:
         np.save(tmp["npy"], depth_m.astype(np.float32))
-        if not cv2.imwrite(str(tmp["png"]), mm) or not cv2.imwrite(str(tmp["mask"]),
+        if not imwrite(tmp["png"], mm) or not imwrite(tmp["mask"],
                                                                     valid.astype(np.uint8) * 255):
             raise OSError("could not write PNG")
         tmp["json"].write_text(json.dumps(info, indent=2) + "\n")
@@ -68,11 +69,12 @@ def _write_atomic(paths: dict[str, Path], depth_m: np.ndarray, info: dict) -> No
 
 def cmd_render(a) -> int:
     paths = output_paths(a.out)
-    if a.out.suffix.lower() != ".png":
-        a.out.mkdir(parents=True, exist_ok=True)
+    check_output_files(paths.values(), [a.mesh, a.pose, a.lens])  # before any work
     existing = [p for p in paths.values() if p.exists()]
     if existing and not a.force:
         raise CaptureError(f"{existing[0]}: exists (pass --force to overwrite)")
+    if a.out.suffix.lower() != ".png":
+        a.out.mkdir(parents=True, exist_ok=True)
     intr = load_intrinsics(a.lens, a.width, a.height, a.pupil_to_sensor_mm)
     pose = load_pose(a.pose)
     mesh = load_mesh(a.mesh, a.mesh_scale)
@@ -98,6 +100,7 @@ def cmd_pose(a) -> int:
     from ..eval.pose import fit_notes, load_correspondences, preview, solve_pose
 
     outs = [a.out] + ([a.out.with_suffix(".png")] if a.image else [])
+    check_output_files(outs, [p for p in (a.points, a.lens, a.init, a.image) if p])
     existing = [p for p in outs if p.exists()]
     if existing and not a.force:
         raise CaptureError(f"{existing[0]}: exists (pass --force to overwrite)")
@@ -122,7 +125,7 @@ def cmd_pose(a) -> int:
     tmp_png = a.out.with_name(f".{a.out.stem}.tmp-{os.getpid()}.png")
     try:
         tmp.write_text(json.dumps(fit.as_json(intr, points, notes), indent=2) + "\n")
-        if picture is not None and not cv2.imwrite(str(tmp_png), picture):
+        if picture is not None and not imwrite(tmp_png, picture):
             raise OSError(f"{tmp_png}: could not write PNG")
         os.replace(tmp, a.out)
         if picture is not None:
@@ -168,6 +171,7 @@ def cmd_check(a) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    safe_output_streams()
     ap = argparse.ArgumentParser(prog="aat-gt", description=__doc__.split("\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
     r = sub.add_parser("render", help="ray-cast a mesh into a depth map from the camera's pose")

@@ -7,8 +7,11 @@
 resolution, aberration-aware with the lens's best-focus map (--lens, --psf). It also writes confidence.npy/png.
 
 Writes depth_mm.png, depth_m.npy, aif.png, std_m.npy, std_mm.png, summary.json and recording.rrd per capture,
-into DIR itself for one capture, DIR/<capture name>/ for several (default DIR: ./aat_out/<capture name>).
-A failing capture is reported on one line and the batch goes on; the exit status is 1 if any failed.
+into DIR itself for one capture, DIR/<capture name>/ for several (default DIR: ./aat_out/<capture name>); captures
+with the same folder name get <name>_2, <name>_3, ... An output folder that is, contains or lies inside an input,
+or is the current folder, is refused before any work; an existing one is replaced only with --force, and only if it
+is an earlier aat-infer output. A failing capture is reported on one line and the batch goes on; the exit status is
+1 if any failed, 2 if the model cannot be used.
 """
 
 from __future__ import annotations
@@ -20,14 +23,15 @@ import time
 from pathlib import Path
 
 from ..capture.focuslist import parse_focus_list
-from ..errors import CaptureError
+from ..errors import CaptureError, safe_output_streams
 from ..focus.runner import FocusMethod
 from ..model import DfFModel
-from ..pipeline import Options, output_dir_for, run_capture
+from ..pipeline import Options, check_output, output_dir_for, output_dirs, run_capture
 
 
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    safe_output_streams()
     ap = argparse.ArgumentParser(prog="aat-infer", description=__doc__.split("\n")[0])
     ap.add_argument("captures", nargs="+", metavar="CAPTURE_DIR")
     ap.add_argument("--model", type=Path, help="aat DfF model (.onnx); required unless --method focus")
@@ -60,6 +64,14 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--method focus uses no --model")
     if args.max_side is not None and args.max_side < 16:
         ap.error("--max-side must be >= 16 px")
+    captures = [Path(c) for c in args.captures]
+    outs = output_dirs(captures, args.out)
+    refused = {}  # before any work: an output folder that is, holds or sits in an input is never touched
+    for i, (c, out) in enumerate(zip(captures, outs)):
+        try:
+            check_output(out, args.force, [*captures, *(p for p in (args.model, args.lens, args.psf) if p)])
+        except CaptureError as e:
+            refused[i] = e
     try:
         focus_m = parse_focus_list(args.focus_m) if args.focus_m is not None else None
         model = (FocusMethod(lens=args.lens, psf=args.psf, max_side=args.max_side, progress=not args.quiet)
@@ -70,14 +82,17 @@ def main(argv: list[str] | None = None) -> int:
     opts = Options(tile=args.tile, align=args.align, strict=args.strict, force=args.force,
                    use_exiftool=not args.no_exiftool, focus_m=focus_m, record=not args.no_recording,
                    quiet=args.quiet)
-    single = len(args.captures) == 1
     failed = 0
-    for i, c in enumerate(args.captures, 1):
-        out = output_dir_for(Path(c), args.out, single)
+    for i, (c, out) in enumerate(zip(captures, outs)):
         t0 = time.perf_counter()
         if not args.quiet:
-            print(f"[{i}/{len(args.captures)}] {c}", file=sys.stderr, flush=True)
+            print(f"[{i + 1}/{len(captures)}] {c}", file=sys.stderr, flush=True)
+        if out.name != output_dir_for(c, args.out, len(captures) == 1).name:
+            print(f"aat-infer: note: another capture in this batch is also named {c.resolve().name!r}: "
+                  f"{c} goes to {out}", file=sys.stderr, flush=True)
         try:
+            if i in refused:
+                raise refused[i]
             summary = run_capture(c, model, out, opts)
         except CaptureError as e:
             failed += 1
@@ -87,13 +102,18 @@ def main(argv: list[str] | None = None) -> int:
             failed += 1
             print(f"aat-infer: FAILED {c}: out of memory (try --tile 256)", file=sys.stderr, flush=True)
             continue
+        except Exception as e:  # noqa: BLE001 (one capture's surprise must not stop the batch)
+            failed += 1
+            msg = str(e).splitlines()[0][:200] if str(e) else ""
+            print(f"aat-infer: FAILED {c}: unexpected {type(e).__name__}: {msg}", file=sys.stderr, flush=True)
+            continue
         for w in summary["warnings"]:
             print(f"aat-infer: warning: {w}", file=sys.stderr)
         lo, hi = summary["depth_m_range"]
         print(f"{c} -> {out}  ({len(summary['focus_m'])} frames, depth {lo:.3g}..{hi:.3g} m, "
               f"{time.perf_counter() - t0:.2f} s)", flush=True)
     if failed:
-        print(f"aat-infer: {failed} of {len(args.captures)} capture(s) failed", file=sys.stderr)
+        print(f"aat-infer: {failed} of {len(captures)} capture(s) failed", file=sys.stderr)
     return 1 if failed else 0
 
 

@@ -104,6 +104,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--grpc-port", type=int, default=9876, help="data (gRPC) port the page connects to")
     ap.add_argument("--screenshot", type=Path, metavar="OUT.png", help="render a picture headless and exit")
     args = ap.parse_args(argv)
+    for flag, port in (("--port", args.port), ("--grpc-port", args.grpc_port)):
+        if not 1 <= port <= 65535:
+            print(f"aat-view: error: {flag} {port} is not a TCP port (1..65535)", file=sys.stderr)
+            return 2
     err = _check_rrd(args.recording)
     if err:
         print(f"aat-view: error: {err}", file=sys.stderr)

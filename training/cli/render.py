@@ -78,6 +78,8 @@ def fit_to_sensor(rgb: np.ndarray, depth: np.ndarray, hw: tuple[int, int]):
 
 
 def run(args) -> Path:
+    from aat_deploy.errors import OutputError
+    from aat_deploy.io.guard import check_output_dir
     from training.camera.virtual import write_capture
     from training.data.rgbd import RGBDError, fill_depth, load_rgbd
     from training.lens.io import LensFileError, load_lens
@@ -86,8 +88,11 @@ def run(args) -> Path:
     from training.render.sources import OnnxPSF, RayTracedPSF
 
     out = Path(args.out)
-    if out.exists() and not args.force:
-        raise SystemExit(f"aat-render: error: {out}: exists (use --force to overwrite)")
+    try:  # before any work: --force replaces the folder, so it must never hold or sit in an input
+        check_output_dir(out, [p for p in (args.rgb, args.depth, args.lens, args.psf) if p], args.force,
+                         marker="virtual_camera.json", tool="aat-render")
+    except OutputError as e:
+        raise SystemExit(f"aat-render: error: {e}") from None
     try:
         lens = load_lens(args.lens)
         rgb, depth = load_rgbd(args.rgb, args.depth, args.depth_scale)

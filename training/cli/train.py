@@ -84,6 +84,20 @@ def apply_overrides(cfg, args: argparse.Namespace):
     return dataclasses.replace(cfg, **changes).validate() if changes else cfg
 
 
+def refuse_inputs_in(out, inputs) -> bool:
+    """True (after a one-line error) if the run folder is, contains or lies inside an input file: its stages
+    would overwrite it (e.g. --init RUN/dff_dfvnet_aat.onnx --out RUN). Checked before any work."""
+    from aat_deploy.errors import OutputError
+    from aat_deploy.io.guard import check_no_overlap
+
+    try:
+        check_no_overlap(out, [p for p in inputs if p])
+    except OutputError as e:
+        print(f"aat-train: error: {e}", file=sys.stderr)
+        return True
+    return False
+
+
 def main_config(args: argparse.Namespace) -> int:
     from training.train.config import ConfigError, load_config
 
@@ -96,6 +110,8 @@ def main_config(args: argparse.Namespace) -> int:
     from training.train.loop import train
 
     out = Path(args.out) if args.out else ROOT / "runs" / cfg.name
+    if refuse_inputs_in(out, [args.config, cfg.init]):
+        return 2
     try:
         res = train(cfg, out, resume=args.resume, progress=not args.no_progress)
     except (FileExistsError, ValueError, FileNotFoundError, InitError) as e:
@@ -128,6 +144,8 @@ def main_lens(args: argparse.Namespace) -> int:
     from training.pipeline.config import ChainConfigError, resolve
     from training.pipeline.runner import ChainError, run_chain
 
+    if refuse_inputs_in(args.out, [args.lens, args.init, args.psf]):
+        return 2
     try:
         cfg = resolve(chain_options(args))
     except ChainConfigError as e:
