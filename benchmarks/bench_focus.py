@@ -19,6 +19,8 @@ map, min RMS spot) and aberration-aware calibrated (plus the offset measured on 
 (RF50 only), run as aat-infer runs them.
 --variants: the measure / estimator / window / filling comparison (thin-lens mapping, RF50 procedural scenes).
 --speed: one 8 x 3 x 640 x 960 stack, best of 5, 2 threads, thin-lens vs aberration-aware (same run).
+--calibration: only print the lens's stored calibration (where the focus measure peaks vs the traced min-RMS best
+focus, measured by scripts/make_focus_map.py on rendered stacks) as a table; no stacks.
 """
 
 from __future__ import annotations
@@ -141,7 +143,7 @@ def run_variants(items) -> list[tuple[str, dict]]:
             rows.append((f"{meas}, {est}, no filling", summarise([score(d, it.depth_m) for (d, _), it in zip(res, items)])))
             print(f"  variant {rows[-1][0]}: MAE {rows[-1][1]['all_mae'][0]:.3f}", file=sys.stderr, flush=True)
         del vols
-    for w in (5.0, 15.0):
+    for w in (w for w in (5.0, 9.0, 15.0) if w != base.window_px):
         cfg = replace(base, window_px=w, fill="none")
         res = classical(items, cfg)
         rows.append((f"{base.measure}, {base.estimator}, window {w:g} px, no filling",
@@ -203,12 +205,27 @@ def speed(items, fmap) -> list[str]:
     return lines
 
 
+def calibration_table(fmap) -> str:
+    """The map's calibration points: field curvature by the traced min-RMS focus and by the measure's peak."""
+    pts = fmap.notes.get("calibration_points") or []
+    lines = ["| field radius | frame focus (m) | traced best focus − frame (D) | focus-measure peak − frame (D) "
+             "| offset (D) |", "|---|---|---|---|---|"]
+    for p in pts:
+        if not np.isfinite(p.get("offset_diopters", float("nan"))):
+            continue
+        traced = p["traced_object_diopters"] - 1 / p["focus_m"]
+        lines.append(f"| {p['r']:.2f} | {p['focus_m']:g} | {traced:+.3f} | {traced + p['offset_diopters']:+.3f} "
+                     f"| {p['offset_diopters']:+.3f} |")
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--lens", choices=sorted(LENSES), required=True)
     ap.add_argument("--n", type=int, default=32)
     ap.add_argument("--variants", action="store_true")
     ap.add_argument("--speed", action="store_true")
+    ap.add_argument("--calibration", action="store_true", help="print the stored calibration only")
     ap.add_argument("--out", default=str(ROOT / "benchmarks/results"))
     a = ap.parse_args(argv)
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
@@ -221,6 +238,13 @@ def main(argv: list[str] | None = None) -> int:
     if fmap is None:
         print(f"no best-focus map {mp}: only the thin-lens mapping (make it with scripts/make_focus_map.py)",
               file=sys.stderr)
+    if a.calibration:
+        if fmap is None:
+            raise SystemExit(f"no best-focus map {mp}")
+        print(f"### {a.lens}: where the focus measure peaks ({fmap.notes.get('calibration', {}).get('measure')}, "
+              f"window {fmap.notes.get('calibration', {}).get('window_px')} px) vs the traced best focus\n")
+        print(calibration_table(fmap))
+        return 0
     sets = load_items(a.lens, a.n)
     result = {"lens": a.lens, "n": a.n, "config": FocusConfig().__dict__, "sets": {}}
     if a.speed:

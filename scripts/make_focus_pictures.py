@@ -56,7 +56,12 @@ def srgb8(img_chw: np.ndarray) -> np.ndarray:
     return np.rint(linear_to_srgb(np.clip(x, 0, 1)) * 255).astype(np.uint8)
 
 
+PANEL_PX = 220  # panel height in the saved picture (small PNGs)
+
+
 def panel(title: str, img_rgb8: np.ndarray) -> np.ndarray:
+    h, w = img_rgb8.shape[:2]
+    img_rgb8 = cv2.resize(img_rgb8, (round(w * PANEL_PX / h), PANEL_PX), interpolation=cv2.INTER_AREA)
     out = np.full((img_rgb8.shape[0] + 22, img_rgb8.shape[1], 3), 255, np.uint8)
     out[22:] = img_rgb8
     cv2.putText(out, title, (4, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
@@ -94,7 +99,7 @@ def main(argv: list[str] | None = None) -> int:
         img = np.concatenate(panels, 1)
         path = a.out / f"focus_real_{name}.png"
         tmp = path.with_name(path.stem + ".tmp.png")
-        cv2.imwrite(str(tmp), img[..., ::-1])
+        cv2.imwrite(str(tmp), img[..., ::-1], [cv2.IMWRITE_PNG_COMPRESSION, 9])
         tmp.replace(path)
         print(f"{name}: {s} frames {stack.shape[3]}x{stack.shape[2]} px, {dt:.2f} s -> {path}")
     return 0

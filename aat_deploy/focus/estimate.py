@@ -44,7 +44,10 @@ class Peak:
 
 def positions_at(x: np.ndarray, k: np.ndarray, rbin: np.ndarray | None) -> np.ndarray:
     """Frame positions at frame index k (H, W): x (S,) or x (S, R) with rbin (H, W)."""
-    return x[k] if x.ndim == 1 else x[k, rbin]
+    if x.ndim == 1:
+        return x[k]
+    s = x.shape[0]
+    return np.take(np.ascontiguousarray(x.T).ravel(), rbin * s + k)  # a flat take: several times faster
 
 
 def _vertex(x0, x1, x2, y0, y1, y2):

@@ -37,7 +37,7 @@ class FocusConfig:
     best-focus map's measured offset (if it has one)."""
 
     measure: str = "mlap2"
-    window_px: float = 9.0
+    window_px: float = 15.0
     estimator: str = "ratio"
     gamma: float | None = None
     aif: str = "weights"
@@ -152,8 +152,8 @@ def depth_from_focus(stack: np.ndarray, focus_m, best_focus: BestFocusMap | None
                        config.fill_downscale)
     depth = (1.0 / np.maximum(d, MIN_DIOPTERS)).astype(np.float32)
     lap("fill")
-    frame_m = 1.0 / np.maximum(x if rbin is None else x[:, rbin], MIN_DIOPTERS)
-    std = spread_m(weights, np.asarray(frame_m, np.float32), depth)
+    frame_m = (1.0 / np.maximum(x, MIN_DIOPTERS)).astype(np.float32)  # per frame (and radius bin), metres
+    std = spread_m(weights, frame_m if rbin is None else np.take(frame_m, rbin, axis=1), depth)
     lap("spread")
     info = {"config": asdict(config), "mapping": mapping, "frames": int(s), "size_px": [int(w), int(h)],
             "focus_m_used": [float(v) for v in f], "placements": placements, "timings_s": timings}

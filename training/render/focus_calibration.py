@@ -30,7 +30,7 @@ from aat_deploy.focus.measures import focus_volume
 class CalibrationConfig:
     """radii: field radii (normalised, on the diagonal); focus_m: frame focus settings (m from the sensor);
     sweep_d / n_sweep: the dense frame sweep around each; crop_px: patch side; n_textures; measure / window_px:
-    the focus measure calibrated (the runtime's default); psf: "trace" (real rays) or a surrogate .onnx path."""
+    the focus measure calibrated (the runtime's default, `aat_deploy.focus.FocusConfig`); psf: "trace" (real rays) or a surrogate .onnx path."""
 
     radii: tuple = (0.0, 0.3, 0.5, 0.65, 0.8, 0.9)
     focus_m: tuple = (0.6, 1.0, 2.0, 5.0)
@@ -40,7 +40,7 @@ class CalibrationConfig:
     margin_px: int = 24
     n_textures: int = 3
     measure: str = "mlap2"
-    window_px: float = 9.0
+    window_px: float = 15.0
     psf: str = "trace"
     seed: int = 0
 
