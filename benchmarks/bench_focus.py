@@ -37,12 +37,14 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from bench_table2 import N_BOOT, paired_ratio  # noqa: E402 (one paired bootstrap for every DfF table)
 
 LENSES = {"rf50": ("lenses/canon_rf50mm_f1.8.json", "models/psf_rf50.onnx"),
           "paper50": ("lenses/paper_50mm_f2.8.json", "models/psf_paper50.onnx")}
 ZONES = ("all", "centre", "outer")
 KEYS = ("mae", "abs_rel", "delta1")
-N_BOOT = 2000
 
 
 def load_items(lens: str, n: int):
@@ -91,15 +93,6 @@ def summarise(per_scene: list[dict]) -> dict:
 
     keys = per_scene[0].keys()
     return {k: list(capture_bootstrap(np.array([s[k] for s in per_scene]), n_boot=N_BOOT, seed=1)) for k in keys}
-
-
-def paired_ratio(a: list[dict], b: list[dict], key: str) -> list[float]:
-    x = np.array([s[key] for s in a])
-    y = np.array([s[key] for s in b])
-    rng = np.random.default_rng(2)
-    idx = rng.integers(0, len(x), size=(N_BOOT, len(x)))
-    reps = x[idx].mean(1) / y[idx].mean(1)
-    return [float(x.mean() / y.mean()), float(np.quantile(reps, 0.025)), float(np.quantile(reps, 0.975))]
 
 
 def fmt(v, d=3) -> str:
