@@ -174,7 +174,8 @@ def from_psf(path: str | Path) -> BestFocusMap:
 
 def for_lens(lens_path: str | Path, compute: bool = True, progress: bool = False) -> tuple[BestFocusMap, str]:
     """The map of a lens file: `best_focus/<stem>.json` next to it (checked against the lens's prescription), else
-    traced now when torch is installed (uncalibrated; minutes), else a one-line error saying how to make it.
+    traced now on a coarse grid when torch is installed (uncalibrated; about half a minute), else a one-line error
+    saying how to make it.
     Returns the map and where it came from."""
     from training.lens.io import load_lens
 
@@ -200,5 +201,10 @@ def for_lens(lens_path: str | Path, compute: bool = True, progress: bool = False
         raise BestFocusError(f"{lens_path}: no best-focus map ({stored} missing) and torch is not installed to "
                              f"trace it; {how}") from None
     from training.optics.field_focus import best_focus_map
+    from training.psf.geometry import focus_table
 
-    return best_focus_map(lens, progress=progress), "traced now (uncalibrated)"
+    # a coarser grid than make_focus_map's (7 radii x 9 focus settings, about a tenth of the time), uncalibrated
+    t = focus_table(lens)
+    m = best_focus_map(lens, radii=np.sqrt(np.linspace(0, 1, 7)),
+                       focus_diopters=np.linspace(t.diopters[0], t.diopters[-1], 9), table=t, progress=progress)
+    return m, f"traced now (uncalibrated, coarse; for the calibrated map run scripts/make_focus_map.py {lens_path})"
