@@ -30,7 +30,7 @@ def main() -> None:
             print(f"{name}: no {ckpt} (train it first)")
             continue
         _, err = export_checkpoint(ckpt, ROOT / "models" / f"{name}.onnx", force=args.force)
-        print(f"{name}: models/{name}.onnx, max |ORT - torch| = {err:.2e}")
+        print(f"{name}: models/{name}.onnx, ORT vs torch {err:.2e} relative")
 
 
 if __name__ == "__main__":

@@ -25,6 +25,7 @@ from aat_deploy.model import DfFModel
 from aat_deploy.pipeline import Options, run_capture
 
 FOCUS = [0.6, 0.8, 1.2, 2.0, 3.0, 4.5]
+F32_EPS = float(np.finfo(np.float32).eps)
 
 
 def _first(batch, column):
@@ -53,14 +54,17 @@ def test_outputs_and_summary(model, dng_capture, tmp_path):
     depth = np.load(out / "depth_m.npy")
     assert depth.dtype == np.float32 and depth.shape == (48, 64)
     mm = cv2.imread(str(out / "depth_mm.png"), cv2.IMREAD_UNCHANGED)
-    assert mm.dtype == np.uint16 and np.abs(mm.astype(float) - depth * 1000).max() <= 0.5 + 1e-3
+    # half a millimetre of rounding, plus float32's own in depth * 1000 (half an ulp of the largest)
+    assert mm.dtype == np.uint16
+    assert np.abs(mm.astype(float) - depth * 1000.0).max() <= 0.5 + 1000 * depth.max() * F32_EPS
     aif = cv2.imread(str(out / "aif.png"), cv2.IMREAD_UNCHANGED)
     assert aif.dtype == np.uint8 and aif.shape == (48, 64, 3)
     assert np.load(out / "std_m.npy").shape == (48, 64)
     # the near half (0.8 m) comes out nearer than the far half (3 m), inside the focus range
     assert depth[:, :28].mean() < 1.2
     assert depth[:, 36:].mean() > 2.0
-    assert FOCUS[0] - 1e-6 <= depth.min() and depth.max() <= FOCUS[-1] + 1e-6
+    slack = 2 * len(FOCUS) * F32_EPS * FOCUS[-1]  # a float32 convex combination of the focus distances
+    assert FOCUS[0] - slack <= depth.min() and depth.max() <= FOCUS[-1] + slack
     on_disk = json.loads((out / "summary.json").read_text())
     assert on_disk["focus_m"] == pytest.approx(FOCUS)
     assert all(f["focus_source"] == "EXIF SubjectDistance" for f in on_disk["frames"])
@@ -129,8 +133,10 @@ def test_tiling_matches_whole_image(model, dng_capture, tmp_path):
     whole = run_capture(dng_capture, model, tmp_path / "a", Options(quiet=True, record=False))
     tiled = run_capture(dng_capture, model, tmp_path / "b", Options(quiet=True, record=False, tile=32))
     a, b = np.load(tmp_path / "a" / "depth_m.npy"), np.load(tmp_path / "b" / "depth_m.npy")
-    # the tiny net sees 7x7 px: away from tile borders the results agree; blending keeps the rest close
-    assert np.median(np.abs(a - b)) < 1e-3 and np.abs(a - b).mean() < 0.1
+    # the tiny net sees 7x7 px: away from tile borders (most pixels) the same sums, up to float32 rounding in
+    # other kernels for other shapes (~1e-6); blending keeps the rest within a few % (0.1 % seen)
+    rel = np.abs(a - b) / a
+    assert np.median(rel) < 1e-5 and rel.mean() < 0.05
     assert whole["tile"] is None and tiled["tile"] == 32
 
 
@@ -155,7 +161,7 @@ def test_align_undoes_breathing():
     before = np.abs(frames[0] - truth)[inner].mean()
     after = np.abs(out[0] - truth)[inner].mean()
     assert after < 0.6 * before
-    assert np.mean([info[0]["matrix"][0][0], info[0]["matrix"][1][1]]) == pytest.approx(1.02, abs=0.01)
+    assert np.mean([info[0]["matrix"][0][0], info[0]["matrix"][1][1]]) == pytest.approx(1.02, rel=0.01)
 
 
 def test_align_switch_in_pipeline(model, dng_capture, tmp_path):

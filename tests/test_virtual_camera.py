@@ -24,7 +24,7 @@ from training.render.sources import OnnxPSF
 def test_mosaic_and_dn():
     rgb = np.stack([np.full((4, 4), v) for v in (0.1, 0.5, 0.9)])
     m = mosaic_rggb(rgb)
-    assert m[0, 0] == 0.1 and m[0, 1] == 0.5 and m[1, 0] == 0.5 and m[1, 1] == 0.9
+    assert m[0, 0] == 0.1 and m[0, 1] == 0.5 and m[1, 0] == 0.5 and m[1, 1] == 0.9  # exact: mosaicking copies
     span = WHITE_LEVEL - BLACK_LEVEL
     assert to_dn(np.array([0.0, 1.0, 2.0, 0.01, -0.01, -1.0])).tolist() == [
         BLACK_LEVEL, WHITE_LEVEL, WHITE_LEVEL, BLACK_LEVEL + round(0.01 * span), BLACK_LEVEL - round(0.01 * span), 0]
@@ -50,7 +50,7 @@ def test_aat_render_writes_a_capture_the_runtime_reads(scene, tmp_path, capsys):
             "--focus-m", "2,1.2", "--out", str(out), "--psf", str(ROOT / "models/psf_rf50.onnx")]
     assert render_main(args) == 0
     cap = read_capture(out)
-    assert sorted(f.focus_m for f in cap.frames) == [1.2, 2.0]
+    assert sorted(f.focus_m for f in cap.frames) == [1.2, 2.0]  # exact: EXIF rationals 6/5, 2/1 -> float
     assert all("SubjectDistance" in f.focus_source for f in cap.frames)
     assert cap.gt_depth_m is not None and cap.gt_aif is not None
     gt = np.load(out / "gt_depth_m.npy")

@@ -100,7 +100,8 @@ def stamp_optics_metadata(path, lens: Lens, best_focus=None) -> dict[str, str]:
 
 def export_psf_onnx(model: PSFModel, lens: Lens, path, extra_metadata: dict | None = None, force: bool = False,
                     check: bool = True) -> dict[str, str]:
-    """Write `model` to ONNX (dynamic batch) with metadata; check onnxruntime against torch (max abs `PARITY_TOL`)."""
+    """Write `model` to ONNX (dynamic batch) with metadata; check onnxruntime against torch (`parity`, relative,
+    at most `PARITY_TOL`)."""
     import onnx
 
     path = Path(path)
@@ -124,19 +125,21 @@ def export_psf_onnx(model: PSFModel, lens: Lens, path, extra_metadata: dict | No
         err = parity(wrapper, tmp)
         if err > PARITY_TOL:
             tmp.unlink()
-            raise RuntimeError(f"onnxruntime differs from torch by {err:.2e} (> {PARITY_TOL:.0e})")
+            raise RuntimeError(f"{path}: onnxruntime differs from torch by {err:.2e} relative (> {PARITY_TOL:.0e})")
     os.replace(tmp, path)
     return md
 
 
-# Kernels are energy fractions (a PSF sums to <= 1). Float32 rounding differences between the two runtimes move a
-# sharp near-focus kernel's resampling by a hair: up to 6e-5 of the energy on the RF50 at 31 um pixels. A broken
-# export is off by orders of magnitude more.
-PARITY_TOL = 1e-4
+# onnxruntime vs torch, relative (see `parity`). Kernels are a softmax over an MLP's logits: float32 rounding (unit
+# roundoff 6e-8) through its layers is ~1e-6 of the logits, times their spread in a sharp near-focus kernel (tens);
+# measured 2e-6 (paper-50 RotPSF) to 6e-5 (RF50 at 31 um pixels) of the energy, the cell size 7e-6. 1e-3 leaves a
+# factor >10 for other CPUs' kernels and is still below what the layered renderer resolves (0.35 % of the exact).
+PARITY_TOL = 1e-3
 
 
 def parity(wrapper: nn.Module, onnx_path, n: int = 2048, seed: int = 0) -> float:
-    """Max abs difference between torch and onnxruntime on random queries over the valid range."""
+    """Largest relative difference between torch and onnxruntime on random queries over the valid range: kernel
+    cells over the largest kernel energy (sum) of the batch, cell sizes over themselves (>= 1)."""
     import onnxruntime as ort
 
     m = wrapper.model
@@ -147,5 +150,6 @@ def parity(wrapper: nn.Module, onnx_path, n: int = 2048, seed: int = 0) -> float
     sess = ort.InferenceSession(str(onnx_path), providers=["CPUExecutionProvider"])
     k_ort, s_ort = sess.run(None, {"query": q})
     with torch.no_grad():
-        k_t, s_t = wrapper(torch.from_numpy(q))
-    return max(float(np.abs(k_ort - k_t.numpy()).max()), float(np.abs(s_ort - s_t.numpy()).max() / 100))
+        k_t, s_t = (t.numpy() for t in wrapper(torch.from_numpy(q)))
+    energy = max(float(k_t.sum((1, 2)).max()), 1e-30)
+    return max(float(np.abs(k_ort - k_t).max()) / energy, float((np.abs(s_ort - s_t) / s_t).max()))
