@@ -98,6 +98,8 @@ class DfFOutput:
 class DfFModel:
     """An aat DfF ONNX model on onnxruntime's CPU provider."""
 
+    kind = "model"  # what the pipeline calls it in messages (the classical method says "method")
+
     def __init__(self, path: str | Path, threads: int | None = None):
         path = Path(path)
         if not path.is_file():
@@ -157,6 +159,14 @@ class DfFModel:
         size_wh = (W, H) px."""
         cam = model_intrinsics(self.meta, str(self.path))
         return cam if size_wh is None or tuple(size_wh) == (cam.width, cam.height) else cam.resized(*size_wh)
+
+    def working_size(self, frame_hw: tuple[int, int]) -> tuple[int, int]:
+        """(W, H) the pipeline brings frames to: the model's sensor, whatever the frames' size."""
+        return self.sensor_px
+
+    def focal_length_px_at(self, size_wh: tuple[int, int]) -> float:
+        """Focal length in pixels at the working size (the model's sensor)."""
+        return self.focal_length_px
 
     @property
     def focal_length_px(self) -> float:

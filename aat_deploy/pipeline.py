@@ -29,10 +29,12 @@ from .io.atomic import atomic_folder
 from .io.guard import check_output_dir
 from .model import DfFModel
 from .normalise import DESCRIPTION as NORMALISATION
-from .outputs import RecordingInputs, write_outputs
+from .outputs import DESCRIPTIONS, RecordingInputs, write_outputs
 from .camera import camera_json
 from .process import depth_from_frames, say
 from .io.images import imread
+# every capture's files (confidence.* only from methods that give one)
+OUTPUT_FILES = tuple(k for k in DESCRIPTIONS if not k.startswith("confidence")) + ("summary.json",)
 FOCAL_TOLERANCE = 0.02  # relative difference of focal length that counts as another lens
 FNUMBER_TOLERANCE = 0.05
 
@@ -46,6 +48,7 @@ class Options:
     strict: bool = False
     force: bool = False
     use_exiftool: bool = True
+    focus_m: list[float] | None = None  # --focus-m: focus distances (m) of the frames in file-name order
     record: bool = True
     quiet: bool = False
     native: bool = False  # depth and all-in-focus at the capture's resolution (aat_deploy.upsample)
@@ -71,14 +74,16 @@ def identity_warnings(capture: Capture, model: DfFModel) -> list[str]:
     for what, values in (("lens", lenses), ("focal length", focals), ("F-number", fnums)):
         if len(values) > 1:
             out.append(f"{where}: frames disagree on the {what}: {sorted(values)}")
+    if model.lens_name is None:  # the classical method without a lens: nothing to compare with
+        return out
     for lens in sorted(lenses):
         if lens != model.lens_name:
             out.append(f"{where}: lens {lens!r} is not the model's lens {model.lens_name!r}")
     for fl in sorted(focals):
-        if abs(fl - model.focal_length_mm) > FOCAL_TOLERANCE * model.focal_length_mm:
+        if model.focal_length_mm and abs(fl - model.focal_length_mm) > FOCAL_TOLERANCE * model.focal_length_mm:
             out.append(f"{where}: focal length {fl:g} mm differs from the model's {model.focal_length_mm:g} mm")
     for fn in sorted(fnums):
-        if abs(fn - model.f_number) > FNUMBER_TOLERANCE * model.f_number:
+        if model.f_number and abs(fn - model.f_number) > FNUMBER_TOLERANCE * model.f_number:
             out.append(f"{where}: F-number {fn:g} differs from the model's F/{model.f_number:g}")
     return out
 
@@ -128,7 +133,8 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
         timings[stage] = round(now - clock, 4)
         clock = now
 
-    cap = read_capture(capture_dir, use_exiftool=opts.use_exiftool)
+    cap = read_capture(capture_dir, use_exiftool=opts.use_exiftool, focus_m=opts.focus_m,
+                       equal_focus_ok=model.kind == "method")  # the focus method places tied frames itself
     warnings = list(cap.warnings)
     ident = identity_warnings(cap, model)
     if ident and opts.strict:
@@ -138,7 +144,7 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
     focus = np.array([f.focus_m for f in frames], np.float32)
     lo, hi = model.stack_range
     if not lo <= len(frames) <= hi:
-        raise CaptureError(f"{capture_dir}: {len(frames)} frames, the model takes {lo}..{hi}")
+        raise CaptureError(f"{capture_dir}: {len(frames)} frames, the {model.kind} takes {lo}..{hi}")
     near, far = model.focus_range_m
     outside = [f"{f.path.name} ({f.focus_m:g} m)" for f in frames if not near * 0.999 <= f.focus_m <= far * 1.001]
     if outside:
@@ -164,7 +170,7 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
     del images
     warnings += res.warnings
     maps, camera, stack = res.maps, res.camera, res.stack
-    w_px, h_px = model.sensor_px
+    w_px, h_px = res.working_size
 
     with atomic_folder(out_dir, opts.force) as tmp:
         gt = _ground_truth(cap, size0, (w_px, h_px), warnings, model.focus_range_m)
@@ -191,6 +197,7 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
             "depth_m_range": [float(np.nanmin(maps.depth_m)), float(np.nanmax(maps.depth_m))],
             "ground_truth": _gt_stats(gt, res.working.depth_m),  # at the model's size, as the GT is
             "camera": camera_json(camera),
+            **({"method_info": res.info} if res.info else {}),
             "color_scales": written["color_scales"],
             "points": written["points"],
             "outputs": {**written["outputs"], "summary.json": "this file"},

@@ -17,7 +17,7 @@ import numpy as np
 from tqdm import tqdm
 
 from .eval.raycast import Intrinsics
-from .geometry import align_stack, fit_to_sensor
+from .geometry import align_stack, equalise_exposure, fit_to_sensor
 from .model import DfFModel
 from .normalise import normalise_scale, normalise_stack
 from .outputs import DepthMaps
@@ -37,6 +37,12 @@ class StackResult:
     geometry: dict
     align_info: list[dict] | None
     warnings: list[str] = field(default_factory=list)
+    info: dict | None = None  # what the method reports about itself (the focus method's settings, placements)
+
+    @property
+    def working_size(self) -> tuple[int, int]:
+        """(W, H) the method worked at."""
+        return self.working.depth_m.shape[1], self.working.depth_m.shape[0]
 
 
 class _TileBar:
@@ -72,7 +78,9 @@ def depth_from_frames(images: list[np.ndarray], focus_m: np.ndarray, model: DfFM
     warnings: list[str] = []
     where = name if where is None else where
     size0 = images[0].shape[:2]
-    w_px, h_px = model.sensor_px
+    w_px, h_px = model.working_size(size0)  # a model's sensor; the focus method's frame size (or --max-side)
+    if getattr(model, "kind", "model") == "method":
+        warnings += model.frame_warnings(size0, where)
     fitted = [fit_to_sensor(im, (w_px, h_px)) for im in images]
     geometry = fitted[0][1]
     # native: keep the decoded frames for the native maps (nothing to do when they are the working size)
@@ -86,6 +94,9 @@ def depth_from_frames(images: list[np.ndarray], focus_m: np.ndarray, model: DfFM
     align_info = None
     if align:
         images, align_info = align_stack(images, ref=len(images) // 2)
+        images, gains = equalise_exposure(images, ref=len(images) // 2)
+        for a, g in zip(align_info, gains):
+            a["exposure_gain"] = g
         names = labels or [f"frame {i}" for i in range(len(images))]
         bad = [names[i] for i, a in enumerate(align_info) if not a["converged"]]
         if bad:
@@ -103,6 +114,7 @@ def depth_from_frames(images: list[np.ndarray], focus_m: np.ndarray, model: DfFM
     say(quiet or tiled, f"{name}: inference, {s} frames of {w}x{h} px")
     bar = _TileBar(f"{name}: inference in tiles of {tile} px") if tiled and not quiet else None
     res = model.infer(stack, focus_m, tile=tile, progress=bar)
+    warnings += getattr(res, "warnings", [])
     lap("infer")
 
     maps = working = DepthMaps(res.depth_m, res.aif, res.std_m, getattr(res, "confidence", None))
@@ -113,10 +125,13 @@ def depth_from_frames(images: list[np.ndarray], focus_m: np.ndarray, model: DfFM
         natives = native_frames(originals, geometry, align_info, scale, (w_px, h_px))
         depth_n, aif_n, std_n = native_maps(res.depth_m, res.std_m, natives, focus_m)
         del natives
-        maps = DepthMaps(depth_n, aif_n, std_n, None)
+        conf = working.confidence
+        if conf is not None:
+            conf = cv2.resize(conf.astype(np.float32), depth_n.shape[::-1], interpolation=cv2.INTER_LINEAR)
+        maps = DepthMaps(depth_n, aif_n, std_n, conf)
         camera = camera.resized(depth_n.shape[1], depth_n.shape[0])
     lap("native")
-    return StackResult(maps, camera, working, stack, geometry, align_info, warnings)
+    return StackResult(maps, camera, working, stack, geometry, align_info, warnings, getattr(res, "info", None))
 
 
 def native_frames(images: list[np.ndarray], geometry: dict, align_info: list[dict] | None, scale: float,

@@ -97,13 +97,24 @@ def run_model(path: Path, items, threads: int) -> tuple[list[dict], np.ndarray, 
     return per, np.nanmean(np.stack(err), 0), dict(model.meta)
 
 
-def classical_methods():
-    """[(label, fn(item) -> (depth, aif))] of the runtime's classical focus method, if it is there."""
-    try:
-        from aat_deploy.focus import depth_from_focus  # noqa: F401 (issue 19's method)
-    except ImportError:
-        return []
-    return []  # filled in when the method lands: thin-lens mapping and the lens's best-focus map
+def classical_methods(lens_path: str):
+    """[(label, fn(item) -> (depth, aif))] of the runtime's classical focus method (aat_deploy.focus, default
+    settings): the thin-lens mapping, and the lens's calibrated best-focus map when
+    `<lens folder>/best_focus/<lens stem>.json` exists (scripts/make_focus_map.py)."""
+    from aat_deploy.focus import depth_from_focus
+    from aat_deploy.focus.bestfocus import load_json, map_path_for_lens
+
+    def run(fmap):
+        def fn(it):
+            r = depth_from_focus(it.stack, it.focus_m, fmap)
+            return r.depth_m, r.aif
+        return fn
+
+    out = [("Classical focus, thin-lens mapping", run(None))]
+    mp = map_path_for_lens(ROOT / lens_path)
+    if mp.is_file():
+        out.append(("Classical focus, aberration-aware", run(load_json(mp))))
+    return out
 
 
 def label_of(meta: dict, path: Path) -> str:
@@ -162,7 +173,7 @@ def main(argv: list[str] | None = None) -> int:
                 rows.append((lab, summarise(per)))
                 print(f"{sname} {protocol}: {lab} ({path.name}) {time.time() - t0:.0f} s", file=sys.stderr)
             if not a.no_classical:
-                for lab, fn in classical_methods():
+                for lab, fn in classical_methods(spec_l["lens"]):
                     per = [score(*fn(it), it.depth_m, it.aif) for it in items]
                     per_model[lab] = per
                     rows.append((lab, summarise(per)))

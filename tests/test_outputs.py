@@ -106,6 +106,13 @@ def test_depth_preview_bar_runs_near_to_far():
     assert (depth_preview(depth, 0.5, 5.0)[0][0, 0] == 128).all()
 
 
+@pytest.mark.parametrize("h, w", [(1, 1), (2, 3), (5, 7), (24, 32), (48, 64), (700, 900)])
+def test_previews_of_any_size(h, w):
+    depth = np.linspace(0.5, 5.0, h * w, dtype=np.float32).reshape(h, w)
+    img, _ = depth_preview(depth, *depth_range(depth))
+    assert img.shape[0] == h and img.shape[1] > w and img.dtype == np.uint8
+
+
 def test_recording_blueprint_and_colormaps(result):
     from rerun.chunk import RrdReader
 

@@ -116,18 +116,23 @@ def _sidecar(folder: Path) -> dict[str, float] | None:
     return out
 
 
-def read_capture(folder: str | Path, use_exiftool: bool = True) -> Capture:
-    """Read and validate a capture folder's frame list and focus distances (pixels are not decoded here)."""
+def read_capture(folder: str | Path, use_exiftool: bool = True, focus_m: list[float] | None = None,
+                 equal_focus_ok: bool = False) -> Capture:
+    """Read and validate a capture folder's frame list and focus distances (pixels are not decoded here).
+
+    focus_m: the frames' focus distances (m, `aat-infer --focus-m`) in file-name order, overriding metadata and
+    capture.json (as many as there are frames). equal_focus_ok: frames with equal focus distances are a warning
+    (the caller places them), not an error."""
     folder = Path(folder)
     if not folder.is_dir():
         raise CaptureError(f"{folder}: not a folder")
     try:
-        return _read_capture(folder, use_exiftool)
+        return _read_capture(folder, use_exiftool, focus_m, equal_focus_ok)
     except OSError as e:  # e.g. a folder that cannot be listed
         raise CaptureError(f"{e.filename or folder}: cannot read ({e.strerror or e})") from None
 
 
-def _read_capture(folder: Path, use_exiftool: bool) -> Capture:
+def _read_capture(folder: Path, use_exiftool: bool, focus_m: list[float] | None, equal_focus_ok: bool) -> Capture:
     sidecar = _sidecar(folder)
     warnings: list[str] = []
     odd = odd_frame_files(folder)
@@ -157,10 +162,16 @@ def _read_capture(folder: Path, use_exiftool: bool) -> Capture:
     if len(files) < 2:
         raise CaptureError(f"{folder}: only one frame ({files[0].name}); a focal stack needs at least two"
                            + (f" (not regular files: {', '.join(odd[:5])})" if odd else ""))
+    if focus_m is not None and len(focus_m) != len(files):
+        raise CaptureError(f"{folder}: --focus-m gives {len(focus_m)} focus distances for {len(files)} frames")
+    if focus_m is not None and sidecar:
+        warnings.append(f"{folder}: --focus-m overrides the focus distances in {SIDECAR}")
     frames = []
-    for p in files:
+    for i, p in enumerate(files):
         meta = read_metadata(p, use_exiftool=use_exiftool)
-        if sidecar:
+        if focus_m is not None:
+            frames.append(Frame(p, float(focus_m[i]), "--focus-m", meta))
+        elif sidecar:
             frames.append(Frame(p, sidecar[names[p]], SIDECAR, meta))
         else:
             frames.append(Frame(p, meta.focus_m, meta.focus_source, meta))
@@ -171,7 +182,7 @@ def _read_capture(folder: Path, use_exiftool: bool) -> Capture:
             asked = "EXIF, maker notes, XMP" + (", exiftool" if use_exiftool and exiftool.available() else "")
             why = "".join(f"; {n}" for n in fr.meta.notes)  # e.g. an encrypted Nikon LensData
             raise CaptureError(f"{fr.path}: no focus distance in its metadata ({asked}{why}); "
-                               f"give it in {folder / SIDECAR}")
+                               f"give it in {folder / SIDECAR} or with aat-infer --focus-m")
         why = focus_problem(fr.focus_m)
         if why is not None:
             raise CaptureError(f"{fr.path}: focus distance {fr.focus_m:g} m ({fr.focus_source}) is not usable "
@@ -179,6 +190,10 @@ def _read_capture(folder: Path, use_exiftool: bool) -> Capture:
     seen: dict[float, Path] = {}
     for fr in frames:
         key = round(fr.focus_m, 6)
+        if key in seen and equal_focus_ok:
+            warnings.append(f"{fr.path}: focus distance {fr.focus_m:g} m equals {seen[key].name}'s "
+                            "(coarse metadata?): placed from the images")
+            continue
         if key in seen:
             raise CaptureError(f"{fr.path}: duplicate focus distance {fr.focus_m:g} m (same as {seen[key].name})")
         seen[key] = fr.path

@@ -23,6 +23,7 @@ import sys
 from pathlib import Path
 
 from ..capture.exif import read_metadata
+from ..capture.focuslist import parse_focus_list
 from ..capture.folder import SIDECAR, _sidecar, focus_problem, frame_files, read_capture
 from ..capture.raw import FRAME_EXTENSIONS, is_raw, raw_size
 from ..errors import CaptureError, safe_output_streams
@@ -115,22 +116,6 @@ def inspect(args) -> int:
     return EXIT_FAILED if failed else EXIT_OK
 
 
-def parse_focus_list(text: str) -> list[float]:
-    """'0.6, 0.8,1.2' -> [0.6, 0.8, 1.2] (metres, each a physical focus distance); ValueError naming the entry."""
-    out = []
-    for i, part in enumerate(text.split(",")):
-        p = part.strip()
-        try:
-            v = float(p)
-        except ValueError:
-            raise ValueError(f"--focus-m: entry {i + 1} ({p[:40]!r}) is not a number") from None
-        why = focus_problem(v)
-        if why is not None:
-            raise ValueError(f"--focus-m: entry {i + 1} ({p[:40]}) is not a focus distance in metres ({why})")
-        out.append(v)
-    return out
-
-
 def _backup_name(path: Path) -> Path:
     bak, k = path.with_name(path.name + ".bak"), 2
     while os.path.lexists(bak):
@@ -144,7 +129,7 @@ def init(args, ap) -> int:
         ap.error(f"{folder}: not a folder")
     try:
         focus = parse_focus_list(args.focus_m) if args.focus_m is not None else None
-    except ValueError as e:
+    except CaptureError as e:  # the parser aat-infer --focus-m uses
         ap.error(str(e))
     path = folder / SIDECAR
     if os.path.lexists(path) and not args.force:

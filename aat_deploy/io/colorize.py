@@ -71,9 +71,10 @@ def _with_bar(img: np.ndarray, colormap: str, labels: list[tuple[float, str]], t
     tw = max(cv2.getTextSize(s, font, fs, th)[0][0] for _, s in labels + [(0.0, title)])
     text_h = cv2.getTextSize("0", font, fs, th)[0][1]
     bar_w, gap = max(8, w // 40), max(4, w // 100)
-    top, bottom = 3 * text_h, h - text_h - max(2, text_h // 2)  # room for the title and the lowest label
+    roomy = h >= 8 * text_h  # else no title, and the bar spans the whole height
+    top, bottom = (3 * text_h, h - text_h - max(2, text_h // 2)) if roomy else (0, h)
     panel = np.full((h, bar_w + 3 * gap + tw, 3), 255, np.uint8)
-    n = max(bottom - top, 2)
+    n = max(1, min(bottom - top, h - top))
     t = np.linspace(1.0, 0.0, n)[:, None].repeat(bar_w, 1)
     panel[top:top + n, gap:gap + bar_w] = _apply(t, np.ones_like(t, bool), colormap)
     ink = (0, 0, 0)
@@ -81,7 +82,8 @@ def _with_bar(img: np.ndarray, colormap: str, labels: list[tuple[float, str]], t
         y = top + round((1.0 - tv) * (n - 1))
         cv2.line(panel, (gap + bar_w, y), (2 * gap + bar_w - 1, y), ink, 1)
         cv2.putText(panel, s, (2 * gap + bar_w, min(h - 1, y + text_h // 2)), font, fs, ink, th, cv2.LINE_AA)
-    cv2.putText(panel, title, (gap, max(text_h + 2, top - text_h)), font, fs, ink, th, cv2.LINE_AA)
+    if roomy:
+        cv2.putText(panel, title, (gap, max(text_h + 2, top - text_h)), font, fs, ink, th, cv2.LINE_AA)
     return np.concatenate([img, panel], 1)
 
 

@@ -68,9 +68,11 @@ def optics_metadata(lens: Lens) -> dict[str, str]:
             EXIT_PUPIL_KEY: json.dumps(float(paraxial_data(lens).exit_pupil_z_mm))}
 
 
-def stamp_optics_metadata(path, lens: Lens) -> dict[str, str]:
+def stamp_optics_metadata(path, lens: Lens, best_focus=None) -> dict[str, str]:
     """Add (or refresh) the `optics_metadata` keys of an exported surrogate without retraining; the lens must be
-    the one it was fitted for (prescription hash). The file is replaced atomically. Returns the keys written."""
+    the one it was fitted for (prescription hash). `best_focus`: also the lens's best-focus map
+    (`aat_deploy.focus.bestfocus.BestFocusMap`, under its METADATA_KEY), which the runtime's aberration-aware
+    classical depth from focus reads. The file is replaced atomically. Returns the keys written."""
     import onnx
 
     path = Path(path)
@@ -79,6 +81,12 @@ def stamp_optics_metadata(path, lens: Lens) -> dict[str, str]:
     if "aat.lens_hash" not in props or props["aat.lens_hash"].value != lens.prescription_hash():
         raise ValueError(f"{path}: not a PSF surrogate of {lens.name!r} (lens hash differs)")
     md = optics_metadata(lens)
+    if best_focus is not None:
+        from aat_deploy.focus.bestfocus import METADATA_KEY
+
+        if best_focus.lens_hash and best_focus.lens_hash != lens.prescription_hash():
+            raise ValueError(f"{path}: the best-focus map is of another lens than {lens.name!r}")
+        md[METADATA_KEY] = json.dumps(best_focus.to_dict())
     for k, v in md.items():
         if k in props:
             props[k].value = v
