@@ -72,6 +72,13 @@ def test_plain_install_runs_the_readme_from_a_clean_copy(tmp_path):
              "--out", "o", "-q", "--no-recording"], elsewhere)
     assert r.returncode == 0, r.stderr[-2000:]
     assert (elsewhere / "o" / "points.ply").is_file()
+    # the classical method with a shipped lens by name: its best-focus map is shipped beside it
+    r = run(["aat-infer", str(clone / "captures" / "sample_rf50"), "--method", "focus", "--lens", "canon_rf50mm_f1.8",
+             "--out", "f", "-q", "--no-recording"], elsewhere)
+    assert r.returncode == 0, r.stderr[-2000:]
+    summary = json.loads((elsewhere / "f" / "summary.json").read_text())
+    assert summary["model"]["mapping"] == "aberration_aware", summary["model"]
+    assert summary["model"]["best_focus_map"].startswith(str(venv / "share" / "aat-dff" / "lenses" / "best_focus"))
     r = run(["aat-lens", "info", "canon_rf50mm_f1.8", "--json"], elsewhere)
     assert r.returncode == 0 and json.loads(r.stdout)["efl_mm"] > 0, r.stderr[-2000:]
     r = run(["aat-infer", str(clone / "captures" / "sample_rf50"), "--model", "no_such_model", "--out", "x"],

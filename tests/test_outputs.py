@@ -232,3 +232,17 @@ def test_native_resolution_outputs(model, tmp_path):
     assert np.load(tmp_path / "out2" / "depth_m.npy").shape == (48, 64) and not s2["native_resolution"]
     lo = np.load(tmp_path / "out2" / "depth_m.npy")
     assert lo.min() * (1 - 1e-5) <= depth.min() and depth.max() <= lo.max() * (1 + 1e-5)
+
+
+def test_focus_method_writes_through_the_same_writer(tmp_path):
+    """The classical method (no model) gets the same files, with its own camera: the assumed focal length (the
+    longer side in px) and the pinhole at the sensor when no lens is given."""
+    from aat_deploy.focus.runner import FocusMethod
+
+    cap = write_dng_capture(tmp_path / "cap", FOCUS)
+    out = tmp_path / "out"
+    s = run_capture(cap, FocusMethod(), out, Options(quiet=True))
+    assert {"points.ply", "camera.json", "depth_m.tif", "depth_color.png", "confidence.npy"} <= set(s["outputs"])
+    cam = json.loads((out / "camera.json").read_text())
+    assert (cam["width"], cam["height"], cam["fx_px"], cam["pupil_to_sensor_mm"]) == (64, 48, 64.0, 0.0)
+    assert any("assumed" in n for n in cam["notes"])
