@@ -6,6 +6,8 @@
 # is rendered once into cache/stacks (scripts/render_training_stacks.py) and shared by the nets of one lens.
 #   OUT=cache/runs/table2 nice -n 10 scripts/train_table2.sh [NAME_AAT NAME_THIN ...]
 # then: python scripts/export_dff_models.py --runs cache/runs/table2 NAME ...   (models/NAME.onnx)
+# A run whose folder is missing (a new machine) starts from its committed checkpoint in checkpoints/table2/NAME/
+# (scripts/snapshot_runs.sh copies the unfinished runs' last.pt and logs there at the end of a session).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export OMP_WAIT_POLICY=PASSIVE OMP_NUM_THREADS=1 PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}"
@@ -26,6 +28,9 @@ for ((i = 0; i < ${#pairs[@]}; i += 2)); do
   pids=()
   for n in "${names[@]}"; do
     if [ -f "$OUT/$n/model.pt" ]; then echo "$n: done"; continue; fi
+    if [ ! -f "$OUT/$n/last.pt" ] && [ -f "checkpoints/table2/$n/last.pt" ]; then
+      mkdir -p "$OUT/$n" && cp checkpoints/table2/"$n"/* "$OUT/$n/" && echo "$n: resumed from checkpoints/table2/$n"
+    fi
     python -m training.cli.train --config "configs/table2/$n.json" --out "$OUT/$n" --resume --no-progress \
       >> "$OUT/$n.log" 2>&1 &
     pids+=($!)
