@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
-from pathlib import Path
+import json
+import os
+import stat
+import sys
+from pathlib import Path, PurePosixPath, PureWindowsPath
 
 
 class CaptureError(ValueError):
@@ -18,7 +22,11 @@ class OutputError(CaptureError):
 
 
 def read_input_bytes(path: Path) -> bytes:
-    """A frame file's bytes; CaptureError naming the file if it cannot be read or is empty."""
+    """A frame file's bytes; CaptureError naming the file if it cannot be read, is empty or is not a regular
+    file (a FIFO is never opened: it would block)."""
+    kind = file_kind(Path(path))
+    if kind is not None:
+        raise CaptureError(f"{path}: {kind}, not a readable file")
     try:
         buf = Path(path).read_bytes()
     except OSError as e:
@@ -26,3 +34,61 @@ def read_input_bytes(path: Path) -> bytes:
     if not buf:
         raise CaptureError(f"{path}: empty file")
     return buf
+
+
+def load_json(path: Path, error: type[CaptureError] = CaptureError):
+    """A user's JSON file (UTF-8) as Python objects; `error` naming the file for anything unreadable, including
+    nesting too deep for the parser and integers too long to convert."""
+    try:
+        return json.loads(Path(path).read_text(encoding="utf-8"))
+    except OSError as e:
+        raise error(f"{path}: cannot read ({e.strerror or e})") from None
+    except UnicodeDecodeError:
+        raise error(f"{path}: not UTF-8 text") from None
+    except RecursionError:
+        raise error(f"{path}: not valid JSON (nested too deeply)") from None
+    except ValueError as e:  # JSONDecodeError, and int() limits on huge numbers
+        raise error(f"{path}: not valid JSON ({str(e).splitlines()[0][:120]})") from None
+
+
+def member_path(folder: Path, name: object) -> Path | None:
+    """folder/name if `name` is a relative path that stays inside `folder` (no absolute path, no "..", no NUL),
+    else None. Decided on the text alone, so nothing outside the folder is read before refusing."""
+    if not isinstance(name, str) or not name or "\0" in name:
+        return None
+    p = PurePosixPath(name.replace("\\", "/"))
+    if p.is_absolute() or ".." in p.parts or PureWindowsPath(name).drive:
+        return None
+    return Path(folder) / p
+
+
+def file_kind(path: Path) -> str | None:
+    """Why `path` is not a readable regular file ("missing", "a dangling symlink", "a folder", "a FIFO",
+    "a device", "a socket"), or None if it is one. Never opens the file (a FIFO would block)."""
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        return "a dangling symlink" if os.path.islink(path) else "missing"
+    except OSError as e:
+        return f"not accessible ({e.strerror or e})"
+    mode = st.st_mode
+    if stat.S_ISREG(mode):
+        return None
+    if stat.S_ISDIR(mode):
+        return "a folder"
+    if stat.S_ISFIFO(mode):
+        return "a FIFO"
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return "a device"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    return "not a regular file"
+
+
+def safe_output_streams() -> None:
+    """Print file names that are not valid UTF-8 (Linux allows any bytes) with escapes instead of failing."""
+    for s in (sys.stdout, sys.stderr):
+        try:
+            s.reconfigure(errors="backslashreplace")
+        except (AttributeError, ValueError):  # replaced streams (pytest capture) may not support it
+            pass

@@ -1,5 +1,5 @@
 """Frame geometry: fit a frame to the model's sensor (centre crop to its aspect, then resize) and optional
-alignment of the frames against focus breathing (affine ECC on a reduced grey image)."""
+alignment of the frames against focus breathing (affine ECC on a reduced grey image) with exposure equalisation."""
 
 from __future__ import annotations
 
@@ -65,3 +65,21 @@ def align_stack(frames: list[np.ndarray], ref: int, max_side: int = 512) -> tupl
         out.append(aligned)
         info.append({"matrix": full.astype(float).round(6).tolist(), "converged": True})
     return out, info
+
+
+def equalise_exposure(frames: list[np.ndarray], ref: int, border: float = 0.1) -> tuple[list[np.ndarray], list[float]]:
+    """Scale every frame (H, W, 3) linear so its mean over the central region (a `border` fraction cut off each side,
+    where alignment leaves no empty margin) matches frames[ref]'s: handheld or auto-exposed frames differ by a gain,
+    which a focus measure would read as sharpness. Defocus keeps the mean, so a gain is all that differs.
+    Returns the frames and each frame's gain."""
+    h, w = frames[ref].shape[:2]
+    y0, y1, x0, x1 = int(h * border), max(int(h * (1 - border)), int(h * border) + 1), int(w * border), \
+        max(int(w * (1 - border)), int(w * border) + 1)
+    target = float(frames[ref][y0:y1, x0:x1].mean())
+    out, gains = [], []
+    for im in frames:
+        m = float(im[y0:y1, x0:x1].mean())
+        g = target / m if m > 0 and target > 0 else 1.0
+        out.append(im if g == 1.0 else (im * np.float32(g)).astype(np.float32))
+        gains.append(round(g, 6))
+    return out, gains

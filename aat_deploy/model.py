@@ -17,7 +17,10 @@ from pathlib import Path
 import numpy as np
 import onnxruntime as ort
 
+from .camera import model_intrinsics
 from .errors import ModelError
+from .shipped import shipped_hint
+from .eval.raycast import Intrinsics
 
 REQUIRED_META = ("aat.kind", "aat.lens_name", "aat.focal_length_mm", "aat.f_number", "aat.sensor_px",
                  "aat.pixel_um", "aat.focus_range_m", "aat.stack_min", "aat.stack_max", "aat.size_multiple")
@@ -34,6 +37,55 @@ def _decode(v: str):
         return v
 
 
+def _bad_meta(path: Path, meta: dict, key: str, want: str) -> ModelError:
+    return ModelError(f"{path}: metadata {key} must be {want}, got {str(meta.get(key))[:60]!r}")
+
+
+def _finite_positive(v) -> float | None:
+    """float(v) if v is a JSON number (not a bool), finite and > 0, else None."""
+    if not isinstance(v, (int, float)) or isinstance(v, bool):
+        return None
+    try:
+        f = float(v)
+    except OverflowError:
+        return None
+    return f if math.isfinite(f) and f > 0 else None
+
+
+def _meta_int(path: Path, meta: dict, key: str, lo: int, hi: int) -> int:
+    v = meta.get(key)
+    if not isinstance(v, int) or isinstance(v, bool) or not lo <= v <= hi:
+        raise _bad_meta(path, meta, key, f"an integer in {lo}..{hi}")
+    return v
+
+
+def _meta_float(path: Path, meta: dict, key: str) -> float:
+    f = _finite_positive(meta.get(key))
+    if f is None:
+        raise _bad_meta(path, meta, key, "a finite number > 0")
+    return f
+
+
+def _meta_pair(path: Path, meta: dict, key: str, integer: bool = False) -> tuple:
+    """Two finite numbers > 0 (integers in 1..65536 if `integer`)."""
+    v = meta.get(key)
+    want = "two integers in 1..65536" if integer else "two finite numbers > 0"
+    if not isinstance(v, list) or len(v) != 2:
+        raise _bad_meta(path, meta, key, want)
+    out = []
+    for x in v:
+        if integer:
+            if not isinstance(x, int) or isinstance(x, bool) or not 1 <= x <= 65536:
+                raise _bad_meta(path, meta, key, want)
+            out.append(x)
+        else:
+            f = _finite_positive(x)
+            if f is None:
+                raise _bad_meta(path, meta, key, want)
+            out.append(f)
+    return tuple(out)
+
+
 @dataclass
 class DfFOutput:
     """depth_m (H, W) metres, aif (3, H, W) normalised linear units, std_m (H, W) metres; all float32."""
@@ -46,10 +98,12 @@ class DfFOutput:
 class DfFModel:
     """An aat DfF ONNX model on onnxruntime's CPU provider."""
 
+    kind = "model"  # what the pipeline calls it in messages (the classical method says "method")
+
     def __init__(self, path: str | Path, threads: int | None = None):
         path = Path(path)
         if not path.is_file():
-            raise ModelError(f"{path}: no such model file")
+            raise ModelError(f"{path}: no such model file{shipped_hint('models')}")
         opts = ort.SessionOptions()
         if threads:
             opts.intra_op_num_threads = int(threads)
@@ -71,24 +125,48 @@ class DfFModel:
         if not {"stack", "focus_m"} <= names_in or not {"depth_m", "aif", "std_m"} <= names_out:
             raise ModelError(f"{path}: inputs {sorted(names_in)} / outputs {sorted(names_out)} do not follow the "
                              "contract (stack, focus_m -> depth_m, aif, std_m)")
-        try:
-            self.size_multiple = int(self.meta["aat.size_multiple"])
-            self.stack_range = (int(self.meta["aat.stack_min"]), int(self.meta["aat.stack_max"]))
-            self.sensor_px = tuple(int(v) for v in self.meta["aat.sensor_px"])  # (W, H)
-            self.focus_range_m = tuple(float(v) for v in self.meta["aat.focus_range_m"])
-            self.focal_length_mm = float(self.meta["aat.focal_length_mm"])
-            self.f_number = float(self.meta["aat.f_number"])
-            self.pixel_um = float(self.meta["aat.pixel_um"])
-            self.lens_name = str(self.meta["aat.lens_name"])
-        except (TypeError, ValueError, KeyError) as e:
-            raise ModelError(f"{path}: malformed metadata ({e})") from None
+        self._validate_meta()
         self.field_aware = "field_xy" in names_in
-        if self.size_multiple < 1 or len(self.sensor_px) != 2:
-            raise ModelError(f"{path}: malformed metadata (size_multiple {self.size_multiple}, sensor_px {self.sensor_px})")
+
+    def _validate_meta(self) -> None:
+        """Types, ranges and finiteness of the metadata the runtime computes with; ModelError naming the key."""
+        m = self.meta
+        self.size_multiple = _meta_int(self.path, m, "aat.size_multiple", 1, 4096)
+        self.stack_range = (_meta_int(self.path, m, "aat.stack_min", 1, 4096),
+                            _meta_int(self.path, m, "aat.stack_max", 1, 4096))
+        if self.stack_range[0] > self.stack_range[1]:
+            raise _bad_meta(self.path, m, "aat.stack_max", f">= aat.stack_min ({self.stack_range[0]})")
+        self.sensor_px = _meta_pair(self.path, m, "aat.sensor_px", integer=True)  # (W, H)
+        self.focus_range_m = _meta_pair(self.path, m, "aat.focus_range_m")
+        if not self.focus_range_m[0] < self.focus_range_m[1]:
+            raise _bad_meta(self.path, m, "aat.focus_range_m", "[near, far] in metres with near < far")
+        if "aat.sensor_mm" in m:
+            _meta_pair(self.path, m, "aat.sensor_mm")
+        self.focal_length_mm = _meta_float(self.path, m, "aat.focal_length_mm")
+        self.f_number = _meta_float(self.path, m, "aat.f_number")
+        self.pixel_um = _meta_float(self.path, m, "aat.pixel_um")
+        name = m["aat.lens_name"]
+        if isinstance(name, (dict, list)) or name is None:
+            raise _bad_meta(self.path, m, "aat.lens_name", "a string")
+        self.lens_name = str(name)
 
     def summary(self) -> dict:
         """Path and the metadata subset worth recording with results."""
         return {"path": str(self.path), **{k: self.meta[k] for k in SUMMARY_META if k in self.meta}}
+
+    def intrinsics(self, size_wh: tuple[int, int] | None = None) -> Intrinsics:
+        """Pinhole intrinsics of the model's sensor (aat_deploy.camera), or of the same field of view sampled on
+        size_wh = (W, H) px."""
+        cam = model_intrinsics(self.meta, str(self.path))
+        return cam if size_wh is None or tuple(size_wh) == (cam.width, cam.height) else cam.resized(*size_wh)
+
+    def working_size(self, frame_hw: tuple[int, int]) -> tuple[int, int]:
+        """(W, H) the pipeline brings frames to: the model's sensor, whatever the frames' size."""
+        return self.sensor_px
+
+    def focal_length_px_at(self, size_wh: tuple[int, int]) -> float:
+        """Focal length in pixels at the working size (the model's sensor)."""
+        return self.focal_length_px
 
     @property
     def focal_length_px(self) -> float:

@@ -16,11 +16,15 @@ DESCRIPTION = "stack / percentile(stack, 99.5) over all frames and channels (lin
 def normalise_stack(stack: np.ndarray) -> np.ndarray:
     """stack (S, 3, H, W) (any layout: one stack) linear RGB, any non-negative scale -> float32 in [0, 1]."""
     x = np.asarray(stack, dtype=np.float32)
+    return np.clip(x / normalise_scale(x), 0.0, 1.0).astype(np.float32)
+
+
+def normalise_scale(stack: np.ndarray) -> np.float32:
+    """The divisor normalise_stack uses (so frames at another size can be brought to the same units)."""
+    x = np.asarray(stack, dtype=np.float32)
     if x.size == 0:
         raise ValueError("normalise_stack: empty stack")
     if not np.isfinite(x).all():
         raise ValueError("normalise_stack: the stack contains NaN or inf")
     p = np.float32(np.percentile(x, PERCENTILE))
-    if not p > 0:
-        p = np.float32(1.0)
-    return np.clip(x / p, 0.0, 1.0).astype(np.float32)
+    return p if p > 0 else np.float32(1.0)

@@ -2,16 +2,16 @@
 
 Stages (each timed in summary.json): metadata (focus distances, identity check), decode (RAW/images to linear
 RGB), geometry (fit to the model's sensor px), align (optional), normalise, infer (onnxruntime, padded,
-tiled if asked), write (files), record (.rrd). Outputs go to a temporary sibling folder renamed into place
-at the end, so a failed run never leaves a half-written output folder.
+tiled if asked), native (--native-res: depth and all-in-focus at the capture's resolution, aat_deploy.upsample),
+write (files, aat_deploy.outputs: the one writer every depth method uses), record (.rrd). The output folder is checked before any work
+(aat_deploy.io.guard) and written to a temporary sibling renamed into place at the end (aat_deploy.io.atomic), so a
+failed run never leaves a half-written output folder.
 """
 
 from __future__ import annotations
 
 import json
 import math
-import os
-import shutil
 import sys
 import time
 from dataclasses import dataclass, field
@@ -19,17 +19,22 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from tqdm import tqdm
 
 from .capture.folder import Capture, read_capture
-from .capture.raw import linear_to_srgb, load_frame
-from .errors import CaptureError, OutputError
-from .geometry import align_stack, fit_to_sensor
+from .capture.raw import load_frame
+from .errors import CaptureError
+from .eval.gt import READ_ERRORS, units_problem
+from .io.atomic import atomic_folder
+from .io.guard import check_output_dir
 from .model import DfFModel
 from .normalise import DESCRIPTION as NORMALISATION
-from .normalise import normalise_stack
-from .recording import write_recording
-
-OUTPUT_FILES = ("depth_mm.png", "depth_m.npy", "aif.png", "std_m.npy", "std_mm.png", "summary.json", "recording.rrd")
+from .outputs import DESCRIPTIONS, RecordingInputs, write_outputs
+from .camera import camera_json
+from .process import depth_from_frames, say
+from .io.images import imread
+# every capture's files (confidence.* only from methods that give one)
+OUTPUT_FILES = tuple(k for k in DESCRIPTIONS if not k.startswith("confidence")) + ("summary.json",)
 FOCAL_TOLERANCE = 0.02  # relative difference of focal length that counts as another lens
 FNUMBER_TOLERANCE = 0.05
 
@@ -43,23 +48,18 @@ class Options:
     strict: bool = False
     force: bool = False
     use_exiftool: bool = True
+    focus_m: list[float] | None = None  # --focus-m: focus distances (m) of the frames in file-name order
     record: bool = True
     quiet: bool = False
+    native: bool = False  # depth and all-in-focus at the capture's resolution (aat_deploy.upsample)
     warnings: list[str] = field(default_factory=list)
 
 
 def _progress(items, desc: str, quiet: bool):
-    """tqdm when it is installed (it is optional), else one plain line per item on stderr."""
+    """A tqdm bar over items on stderr (nothing when quiet)."""
     items = list(items)
     if quiet:
         yield from items
-        return
-    try:
-        from tqdm import tqdm
-    except ImportError:
-        for i, it in enumerate(items):
-            print(f"  {desc} {i + 1}/{len(items)}", file=sys.stderr, flush=True)
-            yield it
         return
     yield from tqdm(items, desc=f"  {desc}", leave=False, file=sys.stderr)
 
@@ -74,28 +74,18 @@ def identity_warnings(capture: Capture, model: DfFModel) -> list[str]:
     for what, values in (("lens", lenses), ("focal length", focals), ("F-number", fnums)):
         if len(values) > 1:
             out.append(f"{where}: frames disagree on the {what}: {sorted(values)}")
+    if model.lens_name is None:  # the classical method without a lens: nothing to compare with
+        return out
     for lens in sorted(lenses):
         if lens != model.lens_name:
             out.append(f"{where}: lens {lens!r} is not the model's lens {model.lens_name!r}")
     for fl in sorted(focals):
-        if abs(fl - model.focal_length_mm) > FOCAL_TOLERANCE * model.focal_length_mm:
+        if model.focal_length_mm and abs(fl - model.focal_length_mm) > FOCAL_TOLERANCE * model.focal_length_mm:
             out.append(f"{where}: focal length {fl:g} mm differs from the model's {model.focal_length_mm:g} mm")
     for fn in sorted(fnums):
-        if abs(fn - model.f_number) > FNUMBER_TOLERANCE * model.f_number:
+        if model.f_number and abs(fn - model.f_number) > FNUMBER_TOLERANCE * model.f_number:
             out.append(f"{where}: F-number {fn:g} differs from the model's F/{model.f_number:g}")
     return out
-
-
-def _write_png(path: Path, img: np.ndarray) -> None:
-    if img.ndim == 3:
-        img = img[..., ::-1]  # RGB → BGR for OpenCV
-    if not cv2.imwrite(str(path), np.ascontiguousarray(img)):
-        raise OutputError(f"{path}: could not write PNG")
-
-
-def _to_mm16(x_m: np.ndarray) -> np.ndarray:
-    mm = np.nan_to_num(x_m * 1000.0, nan=0.0, posinf=65535.0, neginf=0.0)
-    return np.clip(np.rint(mm), 0, 65535).astype(np.uint16)
 
 
 def output_dir_for(capture_dir: Path, out: Path | None, single: bool) -> Path:
@@ -106,19 +96,34 @@ def output_dir_for(capture_dir: Path, out: Path | None, single: bool) -> Path:
     return out if single else out / capture_dir.resolve().name
 
 
-def check_output(out_dir: Path, force: bool) -> None:
-    """Fail early if the output folder exists and --force was not given."""
-    if out_dir.exists() and not force:
-        raise OutputError(f"{out_dir}: output folder exists (pass --force to overwrite)")
-    if out_dir.exists() and not out_dir.is_dir():
-        raise OutputError(f"{out_dir}: exists and is not a folder")
+def output_dirs(captures: list[Path], out: Path | None) -> list[Path]:
+    """output_dir_for each capture of a batch; captures with the same folder name (x/cap, y/cap) get distinct
+    folders in batch order: cap, cap_2, cap_3, ..."""
+    single = len(captures) == 1
+    dirs: list[Path] = []
+    taken: set[str] = set()
+    for c in captures:
+        d = output_dir_for(Path(c), out, single)
+        base, k = d, 2
+        while d.name in taken:
+            d, k = base.with_name(f"{base.name}_{k}"), k + 1
+        taken.add(d.name)
+        dirs.append(d)
+    return dirs
+
+
+def check_output(out_dir: Path, force: bool, inputs: list[Path] = ()) -> None:
+    """Fail before any work if the output folder may not be written (aat_deploy.io.guard): it is, contains or
+    lies inside an input, is the current folder, exists without --force (or, with it, is not an earlier
+    aat-infer output), or its location is not writable."""
+    check_output_dir(out_dir, inputs, force, marker="summary.json", tool="aat-infer")
 
 
 def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, opts: Options) -> dict:
     """Process one capture folder; returns the summary written to out_dir/summary.json."""
     t_all = time.perf_counter()
     capture_dir, out_dir = Path(capture_dir), Path(out_dir)
-    check_output(out_dir, opts.force)
+    check_output(out_dir, opts.force, [capture_dir])
     timings: dict[str, float] = {}
     clock = time.perf_counter()
 
@@ -128,7 +133,8 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
         timings[stage] = round(now - clock, 4)
         clock = now
 
-    cap = read_capture(capture_dir, use_exiftool=opts.use_exiftool)
+    cap = read_capture(capture_dir, use_exiftool=opts.use_exiftool, focus_m=opts.focus_m,
+                       equal_focus_ok=model.kind == "method")  # the focus method places tied frames itself
     warnings = list(cap.warnings)
     ident = identity_warnings(cap, model)
     if ident and opts.strict:
@@ -138,7 +144,7 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
     focus = np.array([f.focus_m for f in frames], np.float32)
     lo, hi = model.stack_range
     if not lo <= len(frames) <= hi:
-        raise CaptureError(f"{capture_dir}: {len(frames)} frames, the model takes {lo}..{hi}")
+        raise CaptureError(f"{capture_dir}: {len(frames)} frames, the {model.kind} takes {lo}..{hi}")
     near, far = model.focus_range_m
     outside = [f"{f.path.name} ({f.focus_m:g} m)" for f in frames if not near * 0.999 <= f.focus_m <= far * 1.001]
     if outside:
@@ -158,53 +164,20 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
         decode_info.append(info)
     lap("decode")
 
-    w_px, h_px = model.sensor_px
-    fitted = [fit_to_sensor(im, (w_px, h_px)) for im in images]
-    geometry = fitted[0][1]
-    images = [im for im, _ in fitted]
-    if abs(size0[1] / size0[0] - w_px / h_px) > 0.01 * (w_px / h_px):
-        warnings.append(f"{capture_dir}: frames are {size0[1]}x{size0[0]} px, the model's sensor is {w_px}x{h_px}: "
-                        "centre-cropped to its aspect ratio")
-    lap("geometry")
-
-    align_info = None
-    if opts.align:
-        images, align_info = align_stack(images, ref=len(images) // 2)
-        bad = [frames[i].path.name for i, a in enumerate(align_info) if not a["converged"]]
-        if bad:
-            warnings.append(f"{capture_dir}: alignment did not converge for {', '.join(bad)} (left unaligned)")
-    lap("align")
-
-    stack = normalise_stack(np.stack([im.transpose(2, 0, 1) for im in images]))
+    res = depth_from_frames(images, focus, model, align=opts.align, tile=opts.tile, native=opts.native,
+                            name=cap.name, where=str(capture_dir), labels=[f.path.name for f in frames],
+                            quiet=opts.quiet, lap=lap)
     del images
-    lap("normalise")
+    warnings += res.warnings
+    maps, camera, stack = res.maps, res.camera, res.stack
+    w_px, h_px = res.working_size
 
-    tiles_bar = None
-    if opts.tile and not opts.quiet:
-        tiles_bar = lambda d, n: print(f"  {cap.name}: tile {d}/{n}", file=sys.stderr, flush=True)
-    res = model.infer(stack, focus, tile=opts.tile, progress=tiles_bar)
-    lap("infer")
-
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out_dir.parent / f".{out_dir.name}.tmp-{os.getpid()}"
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    tmp.mkdir()
-    try:
-        aif8 = np.rint(linear_to_srgb(res.aif.transpose(1, 2, 0)) * 255).astype(np.uint8)
-        _write_png(tmp / "depth_mm.png", _to_mm16(res.depth_m))
-        np.save(tmp / "depth_m.npy", res.depth_m.astype(np.float32))
-        _write_png(tmp / "aif.png", aif8)
-        np.save(tmp / "std_m.npy", res.std_m.astype(np.float32))
-        _write_png(tmp / "std_mm.png", _to_mm16(res.std_m))
-        gt = _ground_truth(cap, size0, (w_px, h_px), warnings)
-        lap("write")
-        if opts.record:
-            frames8 = [np.rint(linear_to_srgb(fr.transpose(1, 2, 0)) * 255).astype(np.uint8) for fr in stack]
-            write_recording(tmp / "recording.rrd", frames_srgb8=frames8, focus_m=focus.tolist(),
-                            depth_m=res.depth_m, aif_srgb8=aif8, std_m=res.std_m, f_px=model.focal_length_px,
-                            gt_depth_m=gt, name=cap.name)
-        lap("record")
+    with atomic_folder(out_dir, opts.force) as tmp:
+        gt = _ground_truth(cap, size0, (w_px, h_px), warnings, model.focus_range_m)
+        rec = RecordingInputs(stack, focus, gt, cap.name) if opts.record else None
+        say(opts.quiet, f"{cap.name}: writing outputs" + (" and the recording" if rec else ""))
+        written = write_outputs(tmp, maps, camera, rec)
+        timings.update(written["timings_s"])
         summary = {
             "capture": str(capture_dir),
             "frames": [{"file": f.path.name, "focus_m": float(f.focus_m), "focus_source": f.focus_source,
@@ -214,25 +187,25 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
             "focus_m": [float(f.focus_m) for f in frames],
             "model": model.summary(),
             "input_size_px": [int(size0[1]), int(size0[0])],
-            "output_size_px": [int(w_px), int(h_px)],
-            "geometry": geometry,
-            "align": align_info,
+            "working_size_px": [int(w_px), int(h_px)],
+            "output_size_px": [int(camera.width), int(camera.height)],
+            "native_resolution": (camera.width, camera.height) != (w_px, h_px),
+            "geometry": res.geometry,
+            "align": res.align_info,
             "normalisation": NORMALISATION,
             "tile": opts.tile,
-            "depth_m_range": [float(np.nanmin(res.depth_m)), float(np.nanmax(res.depth_m))],
-            "ground_truth": _gt_stats(gt, res.depth_m),
-            "outputs": {"depth_mm.png": "uint16 depth in mm (0 = unknown)", "depth_m.npy": "float32 depth in m",
-                        "aif.png": "all-in-focus, 8-bit sRGB", "std_m.npy": "float32 uncertainty in m",
-                        "std_mm.png": "uint16 uncertainty in mm", "recording.rrd": "rerun recording"},
+            "depth_m_range": [float(np.nanmin(maps.depth_m)), float(np.nanmax(maps.depth_m))],
+            "ground_truth": _gt_stats(gt, res.working.depth_m),  # at the model's size, as the GT is
+            "camera": camera_json(camera),
+            **({"method_info": res.info} if res.info else {}),
+            "color_scales": written["color_scales"],
+            "points": written["points"],
+            "outputs": {**written["outputs"], "summary.json": "this file"},
             "timings_s": timings,
             "warnings": warnings,
         }
         summary["timings_s"]["total"] = round(time.perf_counter() - t_all, 4)
         (tmp / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=False, default=_json_default))
-        _replace(tmp, out_dir, opts.force)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return summary
 
 
@@ -242,37 +215,34 @@ def _json_default(v):
     raise TypeError(f"not JSON serialisable: {type(v).__name__}")
 
 
-def _replace(tmp: Path, out_dir: Path, force: bool) -> None:
-    """Move the finished temporary folder into place (replacing an old one only with force)."""
-    old = None
-    if out_dir.exists():
-        if not force:
-            raise OutputError(f"{out_dir}: output folder exists (pass --force to overwrite)")
-        old = out_dir.parent / f".{out_dir.name}.old-{os.getpid()}"
-        os.replace(out_dir, old)
-    os.replace(tmp, out_dir)
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
-
-
-def _ground_truth(cap: Capture, size0: tuple[int, int], size_wh: tuple[int, int], warnings: list[str]):
-    """gt_depth_m.npy (or gt_depth_mm.png) brought to the output geometry (nearest), NaN = unknown; or None."""
+def _ground_truth(cap: Capture, size0: tuple[int, int], size_wh: tuple[int, int], warnings: list[str],
+                  focus_range_m: tuple[float, float]):
+    """gt_depth_m.npy (or gt_depth_mm.png) brought to the output geometry (nearest), NaN = unknown; or None.
+    Ground truth in the wrong units for the model's focus range (as aat-eval checks) is ignored with a warning."""
     gt = None
     try:
         if cap.gt_depth_m is not None:
-            gt = np.load(cap.gt_depth_m).astype(np.float32)
+            gt = np.load(cap.gt_depth_m, allow_pickle=False).astype(np.float32)
         elif cap.gt_depth_mm is not None:
-            mm = cv2.imread(str(cap.gt_depth_mm), cv2.IMREAD_UNCHANGED)
+            mm = imread(cap.gt_depth_mm, cv2.IMREAD_UNCHANGED)
             gt = None if mm is None else mm.astype(np.float32) / 1000.0
-    except (OSError, ValueError) as e:
-        warnings.append(f"{cap.path}: ground truth unreadable ({e}); ignored")
+    except (*READ_ERRORS, TypeError) as e:
+        warnings.append(f"{cap.path}: ground truth unreadable ({str(e).splitlines()[0][:120] if str(e) else type(e).__name__}); ignored")
         return None
     if gt is None:
         return None
     if gt.ndim != 2 or gt.shape != tuple(size0):
         warnings.append(f"{cap.path}: ground truth is {gt.shape}, frames are {tuple(size0)}; ignored")
         return None
-    gt = np.where(gt > 0, gt, np.nan).astype(np.float32)
+    with np.errstate(invalid="ignore"):
+        gt = np.where(np.isfinite(gt) & (gt > 0), gt, np.nan).astype(np.float32)
+    if not np.isfinite(gt).any():
+        return None
+    src = cap.gt_depth_m if cap.gt_depth_m is not None else cap.gt_depth_mm
+    why = units_problem(float(np.nanmedian(gt)), focus_range_m, src, 1.0 if cap.gt_depth_m is not None else 0.001)
+    if why is not None:
+        warnings.append(f"{why}; ground truth ignored")
+        return None
     if (gt.shape[1], gt.shape[0]) != tuple(size_wh):
         tw, th = size_wh
         h, w = gt.shape

@@ -38,11 +38,24 @@ DATABASE_FILES = {
     "SK16": "glass/hikari/SK16.yml",
     "N-BK7": "glass/schott/N-BK7.yml",
     "N-SF2": "glass/schott/N-SF2.yml",
-    # Szczurowski: 3-term Sellmeier (Vd 58.0); the 1-term Sultanova fit gives Vd 53.
-    "PMMA": "organic/(C5H8O2)n - poly(methyl methacrylate)/Szczurowski.yml",
-    "POLYCARB": "organic/(C16H14O3)n - polycarbonate/Sultanova.yml",
-    # The only cyclo-olefin plastic in the database (Zeonex E48R is strictly a COP).
-    "COC": "other/commercial plastics/ZeonexE48R/Sultanova.yml",
+}
+
+# Optical plastics by the names lens files use (DeepLens, Zemax): the Zemax catalogues' Schott-formula
+# coefficients (CD line) and nd/Vd (NM line), as shipped in deeplens-core 2.5.6 (deeplens/material/MISC.AGF,
+# PLASTIC2022.AGF), which is how DeepLens resolves "pmma", "coc", "polycarb" and "okp4". A lens designed in
+# DeepLens gets the indices it was designed with (refractiveindex.info's PMMA/PC/Zeonex fits differ by up to
+# 0.003 in nd: the cellphone lens's EFL moved by 1 %).
+_ZEMAX = "Zemax {} as shipped in deeplens-core 2.5.6 (deeplens/material/{}): Schott formula, NM line nd {} Vd {}"
+ZEMAX_SCHOTT = {
+    "PMMA": ((2.1864582, -2.4475348e-4, 1.4155787e-2, -4.4329781e-4, 7.7664259e-5, -2.9936382e-6),
+             _ZEMAX.format("MISC.AGF", "MISC.AGF", "1.491756", "57.440791") + "; Handbook of Optics Vol. II"),
+    "COC": ((2.28448546, 1.02952211e-2, 3.73493703e-2, -9.28409653e-3, 1.73289808e-3, -1.15203047e-4),
+            _ZEMAX.format("MISC.AGF", "MISC.AGF", "1.533732", "56.227932") + "; Hoechst Celanese spec sheet"),
+    "POLYCARB": ((2.42838566, -3.86116645e-5, 2.87574474e-2, -1.97897366e-4, 1.48358968e-4, 1.38651935e-6),
+                 _ZEMAX.format("MISC.AGF", "MISC.AGF", "1.585470", "29.909185") + "; Handbook of Optics Vol. II"),
+    "OKP4": ((1.6768, 0.55567, 0.49774, -0.1329, 0.01906, -0.001068),
+             _ZEMAX.format("PLASTIC2022.AGF", "PLASTIC2022.AGF", "1.607283", "26.645105")
+             + "; OKP4, Osaka Gas Chemicals"),
 }
 
 # Not in the database (checked by name and by glass code): nd, Vd from a published catalogue.
@@ -52,13 +65,13 @@ NOT_IN_DATABASE = {
     "SSK4": (1.617650, 55.141867, _AGF.format("SCHOTT.AGF", "SCHOTT.AGF") + " of SSK4A (code 618551, 'old')"),
     "SK1": (1.610250, 56.712386, _AGF.format("SCHOTT.AGF", "SCHOTT.AGF") + " of SK1 (code 610567, 'old')"),
     "F15": (1.605651, 37.830856, _AGF.format("SCHOTT.AGF", "SCHOTT.AGF") + " of F15 (code 606378, 'old')"),
-    "OKP4": (1.607283, 26.645105, _AGF.format("PLASTIC2022.AGF", "PLASTIC2022.AGF") + " of OKP4 (Osaka Gas Chemicals)"),
 }
 
 ABOUT = (
     "Optical glass catalog for aat. Lambda in micrometres. "
     "Sellmeier: n^2 = 1 + A + sum_i B[i]*l^2/(l^2 - C[i]) with C in um^2. "
     "nd_vd: 2-term Cauchy n = a + b/l^2 through nd at 587.56 nm with Abbe number vd (see materials.py). "
+    "schott: n^2 = a0 + a1*l^2 + a2/l^2 + a3/l^4 + a4/l^6 + a5/l^8 (Zemax formula 1). "
     "nd, vd of every entry: at d 587.5618, F 486.1327, C 656.2725 nm, vd = (nd-1)/(nF-nC)."
 )
 
@@ -108,6 +121,12 @@ def index(block: dict, lam: float) -> float:
     raise ValueError(f"unsupported {kind}")
 
 
+def schott_index(a: tuple[float, ...], lam: float) -> float:
+    """Zemax formula 1 (Schott) at lam [um]."""
+    l2 = lam * lam
+    return float(np.sqrt(a[0] + a[1] * l2 + a[2] / l2 + a[3] / l2**2 + a[4] / l2**3 + a[5] / l2**4))
+
+
 def wavelength_range(block: dict) -> list[float]:
     if "wavelength_range" in block:
         return [float(x) for x in str(block["wavelength_range"]).split()]
@@ -140,6 +159,10 @@ def main() -> None:
     glasses = {name: entry(root, rel) for name, rel in DATABASE_FILES.items()}
     for name, (nd, vd, source) in NOT_IN_DATABASE.items():
         glasses[name] = {"model": "nd_vd", "nd": nd, "vd": vd, "source": source}
+    for name, (coeffs, source) in ZEMAX_SCHOTT.items():
+        nd, nf, nc = (schott_index(coeffs, lam) for lam in (LAMBDA_D, LAMBDA_F, LAMBDA_C))
+        glasses[name] = {"model": "schott", "coefficients": list(coeffs), "nd": round(nd, 6),
+                         "vd": round((nd - 1) / (nf - nc), 3), "source": source}
 
     version = importlib.metadata.version("optiland")
     catalog = {

@@ -1,8 +1,9 @@
 """Export the trained DfF runs to the ONNX models shipped in models/ (metadata per docs/contracts.md).
 
     python scripts/export_dff_models.py [--runs runs] [--force] [NAME ...]
+    python scripts/export_dff_models.py --runs cache/runs/table2 paper50_dfvnet_aat ...   (scripts/train_table2.sh)
 
-NAME defaults to the four runs of scripts/train_dff_models.sh; each runs/NAME/model.pt -> models/NAME.onnx
+NAME defaults to the four runs of scripts/train_dff_models.sh; each RUNS/NAME/model.pt -> models/NAME.onnx
 with an onnxruntime-vs-torch parity check at three shapes.
 """
 
@@ -29,7 +30,7 @@ def main() -> None:
             print(f"{name}: no {ckpt} (train it first)")
             continue
         _, err = export_checkpoint(ckpt, ROOT / "models" / f"{name}.onnx", force=args.force)
-        print(f"{name}: models/{name}.onnx, max |ORT - torch| = {err:.2e}")
+        print(f"{name}: models/{name}.onnx, ORT vs torch {err:.2e} relative")
 
 
 if __name__ == "__main__":

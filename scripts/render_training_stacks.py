@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import multiprocessing as mp
+import os
 import queue
 import sys
 import time
@@ -51,8 +52,10 @@ def _work(args) -> int:
     from training.train.data import make_dataset
 
     ds = make_dataset(data, simulator, lens, effects)
-    done = 0
+    done, parent = 0, os.getppid()
     for i in range(k, n_items, n):
+        if os.getppid() != parent:
+            return done  # the main process was killed: stop rather than render on as an orphan
         if not ds.is_cached(i):
             ds.load_or_render(i)
             done += 1

@@ -149,3 +149,40 @@ def tiny_model_path(tmp_path_factory, name: str = "tiny_dff.onnx", **meta_over) 
     if not path.exists():
         build_tiny_dff(path, meta_over or None)
     return path
+
+
+def canon_jpeg(upper_raw: int, lower_raw: int, model: str = "Canon PowerShot S95") -> bytes:
+    """A minimal JPEG (SOI, APP1 Exif, EOI; no pixels) whose Canon maker note has ShotInfo (0x0004) with
+    FocusDistanceUpper = upper_raw and FocusDistanceLower = lower_raw (int16u, centimetres), laid out as Canon
+    cameras write it: maker-note IFD offsets relative to the TIFF header. ExifTool reads it."""
+    import struct
+
+    def ifd(entries: list[tuple[int, int, int, bytes]], at: int) -> tuple[bytes, bytes]:
+        """(IFD bytes, out-of-line data) for entries (tag, type, count, value bytes) placed at offset `at`."""
+        data_at = at + 2 + 12 * len(entries) + 4
+        head, data = struct.pack("<H", len(entries)), b""
+        for tag, typ, count, value in entries:
+            if len(value) <= 4:
+                head += struct.pack("<HHI", tag, typ, count) + value.ljust(4, b"\0")
+            else:
+                head += struct.pack("<HHII", tag, typ, count, data_at + len(data))
+                data += value + b"\0" * (len(value) % 2)
+        return head + struct.pack("<I", 0), data
+
+    make, mdl = b"Canon\0", model.encode() + b"\0"
+    shot = [0] * 22
+    shot[0], shot[19], shot[20] = 44, upper_raw, lower_raw
+    shot_b = struct.pack("<22H", *shot)
+    # layout: header | IFD0 (3 entries) + data | Exif IFD (1 entry) + data | maker-note IFD (1 entry) + data
+    ifd0_len = 2 + 12 * 3 + 4 + len(make) + len(mdl) + (len(make) % 2) + (len(mdl) % 2)
+    exif_at = 8 + ifd0_len
+    mn_at = exif_at + 2 + 12 + 4
+    mn, mn_data = ifd([(0x0004, 3, 22, shot_b)], mn_at)
+    makernote = mn + mn_data
+    exif, exif_data = ifd([(0x927C, 7, len(makernote), makernote)], exif_at)
+    assert exif_at + len(exif) == mn_at  # the maker note is the Exif IFD's only out-of-line value
+    ifd0, ifd0_data = ifd([(0x010F, 2, len(make), make), (0x0110, 2, len(mdl), mdl),
+                           (0x8769, 4, 1, struct.pack("<I", exif_at))], 8)
+    tiff = b"II*\0" + struct.pack("<I", 8) + ifd0 + ifd0_data + exif + exif_data
+    app1 = b"Exif\0\0" + tiff
+    return b"\xff\xd8" + b"\xff\xe1" + struct.pack(">H", len(app1) + 2) + app1 + b"\xff\xd9"

@@ -17,7 +17,7 @@ def test_info_json_has_the_documented_keys(capsys):
     d = json.loads(capsys.readouterr().out)
     for k in ("efl_mm", "bfl_mm", "fno", "entrance_pupil_mm", "hfov_deg", "sensor_mm", "pixel_um"):
         assert k in d
-    assert d["efl_mm"] == pytest.approx(49.56, abs=0.05)
+    assert d["efl_mm"] == pytest.approx(49.56, abs=0.05)  # the patent's f = 49.56 mm
     assert d["pixel_um"] == pytest.approx(37.5)
 
 

@@ -12,8 +12,9 @@ import pytest
 from conftest import SHARED
 
 from aat_deploy.capture import exiftool
-from aat_deploy.capture.exif import _diopter_midpoint, _xmp_focus, read_metadata
+from aat_deploy.capture.exif import _xmp_focus, read_metadata
 from aat_deploy.capture.folder import read_capture
+from aat_deploy.capture.makernotes import canon_focus_m
 from aat_deploy.errors import CaptureError
 
 SUMMARY = SHARED / "focus_tags_summary.jsonl"
@@ -121,8 +122,8 @@ def test_identity_fields_from_real_files():
 
 
 def test_canon_midpoint_in_diopters():
-    assert _diopter_midpoint(2.0, 1.0) == pytest.approx(1 / (0.5 * (0.5 + 1.0)))
-    assert _diopter_midpoint(655.35, 5.46) == pytest.approx(10.92)  # upper bound at infinity counts as 0 D
+    assert canon_focus_m(2.0, 1.0) == (pytest.approx(1 / (0.5 * (0.5 + 1.0))), "diopter midpoint")
+    assert canon_focus_m(655.35, 5.46)[0] == pytest.approx(10.92)  # upper bound at infinity counts as 0 D
 
 
 @pytest.mark.parametrize("xmp, expected", [

@@ -25,6 +25,7 @@ from aat_deploy.model import DfFModel
 from aat_deploy.pipeline import Options, run_capture
 
 FOCUS = [0.6, 0.8, 1.2, 2.0, 3.0, 4.5]
+F32_EPS = float(np.finfo(np.float32).eps)
 
 
 def _first(batch, column):
@@ -33,11 +34,6 @@ def _first(batch, column):
     while isinstance(v, list) and len(v) == 1:
         v = v[0]
     return v
-
-
-@pytest.fixture(scope="module")
-def model_path(tmp_path_factory):
-    return tiny_model_path(tmp_path_factory)
 
 
 @pytest.fixture(scope="module")
@@ -54,24 +50,29 @@ def test_outputs_and_summary(model, dng_capture, tmp_path):
     out = tmp_path / "out"
     s = run_capture(dng_capture, model, out, Options(quiet=True))
     assert sorted(p.name for p in out.iterdir()) == sorted(
-        ["aif.png", "depth_m.npy", "depth_mm.png", "recording.rrd", "std_m.npy", "std_mm.png", "summary.json"])
+        ["aif.png", "depth_m.npy", "depth_m.tif", "depth_mm.png", "depth_color.png", "recording.rrd", "std_m.npy",
+         "std_mm.png", "std_color.png", "points.ply", "camera.json", "summary.json"])
     depth = np.load(out / "depth_m.npy")
     assert depth.dtype == np.float32 and depth.shape == (48, 64)
     mm = cv2.imread(str(out / "depth_mm.png"), cv2.IMREAD_UNCHANGED)
-    assert mm.dtype == np.uint16 and np.abs(mm.astype(float) - depth * 1000).max() <= 0.5 + 1e-3
+    # half a millimetre of rounding, plus float32's own in depth * 1000 (half an ulp of the largest)
+    assert mm.dtype == np.uint16
+    assert np.abs(mm.astype(float) - depth * 1000.0).max() <= 0.5 + 1000 * depth.max() * F32_EPS
     aif = cv2.imread(str(out / "aif.png"), cv2.IMREAD_UNCHANGED)
     assert aif.dtype == np.uint8 and aif.shape == (48, 64, 3)
     assert np.load(out / "std_m.npy").shape == (48, 64)
     # the near half (0.8 m) comes out nearer than the far half (3 m), inside the focus range
     assert depth[:, :28].mean() < 1.2
     assert depth[:, 36:].mean() > 2.0
-    assert FOCUS[0] - 1e-6 <= depth.min() and depth.max() <= FOCUS[-1] + 1e-6
+    slack = 2 * len(FOCUS) * F32_EPS * FOCUS[-1]  # a float32 convex combination of the focus distances
+    assert FOCUS[0] - slack <= depth.min() and depth.max() <= FOCUS[-1] + slack
     on_disk = json.loads((out / "summary.json").read_text())
     assert on_disk["focus_m"] == pytest.approx(FOCUS)
     assert all(f["focus_source"] == "EXIF SubjectDistance" for f in on_disk["frames"])
     assert on_disk["model"]["aat.lens_name"] == model.lens_name and on_disk["model"]["path"]
     assert set(on_disk["timings_s"]) >= {"metadata", "decode", "geometry", "normalise", "infer", "write", "record",
                                          "total"}
+    assert sorted(on_disk["outputs"]) == sorted(p.name for p in out.iterdir())
     assert on_disk["warnings"] == [] and s["ground_truth"]["pixels"] == 48 * 64
 
 
@@ -134,8 +135,10 @@ def test_tiling_matches_whole_image(model, dng_capture, tmp_path):
     whole = run_capture(dng_capture, model, tmp_path / "a", Options(quiet=True, record=False))
     tiled = run_capture(dng_capture, model, tmp_path / "b", Options(quiet=True, record=False, tile=32))
     a, b = np.load(tmp_path / "a" / "depth_m.npy"), np.load(tmp_path / "b" / "depth_m.npy")
-    # the tiny net sees 7x7 px: away from tile borders the results agree; blending keeps the rest close
-    assert np.median(np.abs(a - b)) < 1e-3 and np.abs(a - b).mean() < 0.1
+    # the tiny net sees 7x7 px: away from tile borders (most pixels) the same sums, up to float32 rounding in
+    # other kernels for other shapes (~1e-6); blending keeps the rest within a few % (0.1 % seen)
+    rel = np.abs(a - b) / a
+    assert np.median(rel) < 1e-5 and rel.mean() < 0.05
     assert whole["tile"] is None and tiled["tile"] == 32
 
 
@@ -160,7 +163,7 @@ def test_align_undoes_breathing():
     before = np.abs(frames[0] - truth)[inner].mean()
     after = np.abs(out[0] - truth)[inner].mean()
     assert after < 0.6 * before
-    assert np.mean([info[0]["matrix"][0][0], info[0]["matrix"][1][1]]) == pytest.approx(1.02, abs=0.01)
+    assert np.mean([info[0]["matrix"][0][0], info[0]["matrix"][1][1]]) == pytest.approx(1.02, rel=0.01)
 
 
 def test_align_switch_in_pipeline(model, dng_capture, tmp_path):
@@ -286,3 +289,14 @@ def test_cli_scripts_installed(model_path, dng_capture, tmp_path):
     r = subprocess.run([sys.executable, "-m", "aat_deploy.cli.infer", str(dng_capture), "--model",
                         str(tmp_path / "missing.onnx")], check=False, capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "missing.onnx" in r.stderr
+
+
+def test_progress_covers_inference_tiles_and_writing(model, dng_capture, tmp_path, capsys):
+    run_capture(dng_capture, model, tmp_path / "a", Options())
+    err = capsys.readouterr().err
+    assert "decode" in err and f"inference, {len(FOCUS)} frames of 64x48 px" in err and "writing outputs" in err
+    run_capture(dng_capture, model, tmp_path / "b", Options(tile=32))
+    err = capsys.readouterr().err
+    assert "inference in tiles of 32 px" in err and "0/6" in err  # a bar over 2 x 3 tiles of 32 px
+    run_capture(dng_capture, model, tmp_path / "c", Options(tile=32, quiet=True))
+    assert capsys.readouterr().err == ""

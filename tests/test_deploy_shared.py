@@ -70,8 +70,14 @@ def test_phone_stack_with_sidecar(tmp_path, tmp_path_factory):
     cap = _linked(files, tmp_path / "balls")
     (cap / "capture.json").write_text(json.dumps(
         {"frames": [{"file": f.name, "focus_m": v} for f, v in zip(files, values)]}))
+    with pytest.raises(CaptureError, match=r"frames\[0\] \('00.jpg'\) needs focus_m > 0 in metres, at most 1000"):
+        read_capture(cap, use_exiftool=False)  # frame 00's 7.2e6 ("infinity") is not a focus distance
+    files, values = files[1:], values[1:]
+    (cap / "capture.json").write_text(json.dumps(
+        {"frames": [{"file": f.name, "focus_m": v} for f, v in zip(files, values)]}))
     c = read_capture(cap, use_exiftool=False)
-    assert [f.focus_source for f in c.frames] == ["capture.json"] * 10
+    assert [f.focus_source for f in c.frames] == ["capture.json"] * 9
+    assert any("00.jpg" in w and "not listed" in w for w in c.warnings)
     model = DfFModel(tiny_model_path(tmp_path_factory), threads=1)
     s = run_capture(cap, model, tmp_path / "out", Options(quiet=True, record=False, use_exiftool=False))
     assert s["input_size_px"] == [1280, 720]

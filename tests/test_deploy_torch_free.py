@@ -86,3 +86,36 @@ def test_twin_renderer_and_effects_run_without_torch(tmp_path):
     assert r.returncode == 0, r.stderr[-2000:]
     out = json.loads(r.stdout.strip().splitlines()[-1])
     assert out["torch_loaded"] is False and "chromatic" in out["effects"] and "sensor_tilt" in out["effects"]
+
+
+def test_focus_method_runs_without_torch(tmp_path):
+    """`aat-infer --method focus`: thin-lens, with --psf (the map stamped in the surrogate) and with --lens (the map
+    stored next to the lens file) without torch; a lens without a map is a one-line error saying how to make it."""
+    import shutil
+
+    cap = write_dng_capture(tmp_path / "cap", [0.6, 0.8, 1.1, 1.6, 3.0])
+    lens_copy = tmp_path / "lenses" / "rf50_copy.json"
+    lens_copy.parent.mkdir()
+    shutil.copy(ROOT / "lenses/canon_rf50mm_f1.8.json", lens_copy)
+    r = _run(f"""
+        import json, sys
+        from aat_deploy.cli import infer
+        cap = {str(cap)!r}
+        rcs = [infer.main([cap, "--method", "focus", "--out", {str(tmp_path / "o1")!r}, "-q"]),
+               infer.main([cap, "--method", "focus", "--psf", {str(ROOT / "models/psf_rf50.onnx")!r},
+                           "--out", {str(tmp_path / "o2")!r}, "-q"]),
+               infer.main([cap, "--method", "focus", "--lens", {str(ROOT / "lenses/canon_rf50mm_f1.8.json")!r},
+                           "--out", {str(tmp_path / "o3")!r}, "-q"]),
+               infer.main([cap, "--method", "focus", "--lens", {str(lens_copy)!r}, "--out", {str(tmp_path / "o4")!r}])]
+        print(json.dumps({{"rcs": rcs,
+                           "torch_loaded": any(k == "torch" or k.startswith("torch.") for k in sys.modules)}}))
+    """, tmp_path)
+    assert r.returncode == 0, r.stderr[-2000:]
+    out = json.loads(r.stdout.strip().splitlines()[-1])
+    assert out == {"rcs": [0, 0, 0, 2], "torch_loaded": False}
+    err = [ln for ln in r.stderr.splitlines() if ln.startswith("aat-infer: error")]
+    assert len(err) == 1 and "rf50_copy.json" in err[0] and "torch is not installed" in err[0] \
+        and "make_focus_map.py" in err[0]
+    for o in ("o1", "o2", "o3"):
+        assert (tmp_path / o / "depth_m.npy").is_file() and (tmp_path / o / "confidence.npy").is_file()
+    assert json.loads((tmp_path / "o3" / "summary.json").read_text())["model"]["mapping"] == "aberration_aware"

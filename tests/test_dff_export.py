@@ -1,4 +1,5 @@
-"""ONNX export of the DfF nets: exact against torch at three (S, H, W) other than the export shape; metadata."""
+"""ONNX export of the DfF nets: onnxruntime equals torch up to float32 rounding (`PARITY_TOL` of the inputs'
+magnitude) at three (S, H, W) other than the export shape; metadata."""
 
 from __future__ import annotations
 
@@ -10,8 +11,10 @@ import torch
 from conftest import LENSES
 
 from training.lens.io import load_lens
-from training.nets.export import dff_metadata, export_dff_onnx, parity, read_metadata
+from training.nets.export import PARITY_TOL, dff_metadata, export_dff_onnx, parity, read_metadata
 from training.nets.model import build_model
+
+pytestmark = pytest.mark.numerics  # torch vs onnxruntime
 
 CONTRACT_KEYS = ("aat.kind", "aat.net", "aat.size", "aat.simulator", "aat.effects", "aat.lens_name", "aat.lens_hash",
                  "aat.focal_length_mm", "aat.f_number", "aat.sensor_mm", "aat.sensor_px", "aat.pixel_um",
@@ -45,8 +48,8 @@ def test_export_parity_and_metadata(tmp_path, lens, net):
     out = tmp_path / f"{net}.onnx"
     err_export = export_dff_onnx(model, out, md, check_shapes=SHAPES[:1])
     err = parity(model, out, SHAPES)
-    print(f"{net}: ORT vs torch max abs diff {err:.2e} at {SHAPES}")
-    assert err <= 1e-4 and err_export <= 1e-4
+    print(f"{net}: ORT vs torch relative diff {err:.2e} at {SHAPES}")
+    assert err <= PARITY_TOL and err_export <= PARITY_TOL
     got = read_metadata(out)
     for k in CONTRACT_KEYS:
         assert got.get(k), k
@@ -90,9 +93,9 @@ def test_parity_detects_a_different_model(tmp_path, lens):
     export_dff_onnx(model, out, md, check_shapes=[(1, 3, 32, 32)])
     with torch.no_grad():
         model.net.out.bias += 1.0  # a logit shift common to all frames changes nothing: softmax is shift-invariant
-        assert parity(model, out, [(1, 3, 32, 32)]) < 1e-4
+        assert parity(model, out, [(1, 3, 32, 32)]) < PARITY_TOL
         model.net.out.weight.mul_(3.0)
-    assert parity(model, out, [(1, 3, 32, 32)]) > 1e-3
+    assert parity(model, out, [(1, 3, 32, 32)]) > 10 * PARITY_TOL
     assert np.isfinite(parity(model, out, [(1, 2, 64, 32)]))
 
 
@@ -105,7 +108,7 @@ def test_export_trained_checkpoint(tmp_path):
     cfg = _cfg(net="aifnet", steps=2, simulator="aat", effects=["psf"])
     train(cfg, tmp_path / "run", train_set=TwoPlaneStacks(n=4), progress=False)
     md, err = export_checkpoint(tmp_path / "run" / "model.pt", tmp_path / "m.onnx")
-    assert err <= 1e-4
+    assert err <= PARITY_TOL
     got = read_metadata(tmp_path / "m.onnx")
     assert got == md
     assert got["aat.simulator"] == "aat" and got["aat.config_hash"] == cfg.hash() and got["aat.train_steps"] == "2"
@@ -137,6 +140,6 @@ def test_field_aware_export_runs_in_the_runtime(tmp_path, lens, net):
         ref = predict(model, torch.from_numpy(stack)[None], torch.from_numpy(focus)[None], field)["depth_m"][0]
     depth = rt.infer(stack, focus).depth_m
     # float32 through ~40 conv layers, then a softmax-weighted mean of focus distances of a few metres:
-    # relative 1e-4 of the depth is ~20x the rounding seen (as in the parity checks above)
+    # relative 1e-4 of the depth is ~20x the rounding seen (the parity checks above allow 1e-3 of the focus range)
     np.testing.assert_allclose(depth, ref.numpy(), rtol=1e-4, atol=0)
     assert not np.allclose(depth, rt.infer(stack, focus, field_xy=np.zeros((2, 70, 100), np.float32)).depth_m)

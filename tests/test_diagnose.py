@@ -26,7 +26,8 @@ def test_binned_bootstrap_means_and_intervals():
         v[:, 32:] -= 0.3  # bin 1: mean 0
         v[0, 0] = np.nan  # unknown pixels are skipped
     st = binned_bootstrap(vals, idx, 3, n_boot=300)
-    assert st.mean[0] == pytest.approx(0.3, abs=0.01) and st.ci_low[0] > 0.25 and st.ci_high[0] < 0.35
+    # 4,094 draws of sd 0.05: the mean's standard error is 8e-4 (0.3 % of it)
+    assert st.mean[0] == pytest.approx(0.3, rel=0.03) and st.ci_low[0] > 0.25 and st.ci_high[0] < 0.35
     assert st.ci_low[1] < 0 < st.ci_high[1]
     assert st.pixels.tolist() == [2 * 64 * 32 - 2, 2 * 64 * 32, 0] and np.isnan(st.mean[2])
 
@@ -161,7 +162,9 @@ def test_bad_inputs_get_one_line_errors(setup, tmp_path, capsys):
                  "--effects", "noise,lens_flare"]) == 1
     err = capsys.readouterr().err.strip()
     assert "unknown lens_flare" in err and "\n" not in err and not (tmp_path / "o").exists()
-    assert main(["--list-effects"]) == 0
+    with pytest.raises(SystemExit) as e:
+        main(["--list-effects"])
+    assert e.value.code == 0
     listed = capsys.readouterr().out
     for name in ("aberrations", "focus_metadata", "sensor_tilt", "noise", "vignetting"):
         assert name in listed

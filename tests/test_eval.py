@@ -15,7 +15,6 @@ import pytest
 from conftest import ROOT
 from deploy_fixtures import (
     build_tiny_dff,
-    tiny_model_path,
     write_dng_capture,
     write_png_capture,
 )
@@ -27,11 +26,6 @@ from aat_deploy.model import DfFModel
 from aat_deploy.pipeline import Options, run_capture
 
 FOCUS = [0.6, 0.8, 1.2, 2.0, 3.0, 4.5]
-
-
-@pytest.fixture(scope="module")
-def model_path(tmp_path_factory):
-    return tiny_model_path(tmp_path_factory)
 
 
 @pytest.fixture(scope="module")
@@ -94,7 +88,8 @@ def test_known_perturbations_give_hand_computed_metrics(base, model_path, tmp_pa
                                         "aif": None}
     # the error maps hold pred − GT where the GT is valid
     err = np.load(out / "runs" / label / "sub__b" / "error_m.npy")
-    assert np.isnan(err[:, :32]).all() and np.allclose(err[:, 32:], -0.2, atol=1e-4)
+    # float32 GT of up to 4.7 m (in mm, then scaled): rounding ~1e-7 of the depths, not of the 0.2 m error
+    assert np.isnan(err[:, :32]).all() and np.allclose(err[:, 32:], -0.2, rtol=0, atol=1e-5 * p.max())
     # tables and pictures
     with open(out / "metrics.csv") as f:
         lines = list(csv.DictReader(f))
@@ -145,9 +140,10 @@ def test_align_recovers_and_reports_the_fit(base, model_path, tmp_path, mode, gt
     assert _eval([root, "--model", model_path, "--out", out, "--align", mode])[0] == 0
     rep, rows = _rows(out)
     r = rows[("a", model_path.stem)]
+    # float32 GT: the fit recovers the perturbation to ~1e-7 of the depths (the shift, in m, may be 0)
     assert r["align_scale"] == pytest.approx(scale, rel=1e-4)
-    assert r["align_shift"] == pytest.approx(shift, abs=1e-4)
-    assert r["mae"] < 1e-4 and rep["options"]["align"] == mode
+    assert r["align_shift"] == pytest.approx(shift, abs=2e-5 * p.max())
+    assert r["mae"] < 2e-5 * p.max() and rep["options"]["align"] == mode
     assert "scale s" in (out / "metrics.md").read_text()
 
 
@@ -276,5 +272,6 @@ def test_eval_and_gt_render_run_without_torch(base, model_path, tmp_path):
     """, tmp_path)
     assert r.returncode == 0, r.stderr[-2000:]
     assert json.loads(r.stdout.strip().splitlines()[-1]) == {"torch_loaded": False}
-    assert np.allclose(np.load(tmp_path / "gt" / "gt_depth_m.npy"), 2.04, atol=1e-3)
+    # aat-gt's promised accuracy, 1 mm (a length by design; Embree's float32 rounding is ~1e-7 of the depth)
+    assert np.allclose(np.load(tmp_path / "gt" / "gt_depth_m.npy"), 2.04, rtol=0, atol=1e-3)
     assert (tmp_path / "out" / "metrics.md").is_file()

@@ -3,13 +3,12 @@ batch norms into convolutions and renames tensors; the mapping back must reprodu
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 import torch
-from conftest import ROOT
+from conftest import ROOT, assert_close
 
 from training.lens.io import load_lens
-from training.nets.export import dff_metadata, export_dff_onnx
+from training.nets.export import PARITY_TOL, dff_metadata, export_dff_onnx
 from training.nets.init import (
     InitError,
     init_model,
@@ -19,6 +18,13 @@ from training.nets.init import (
 )
 from training.nets.model import build_model
 
+pytestmark = pytest.mark.numerics  # torch vs onnxruntime, folded vs unfolded batch norms
+
+# A folded batch norm computes (x * w') + b' instead of (x - m) / s * w + b: a different float32 rounding at every
+# layer of a ~25-layer chain, ~1e-6 relative each, ~5e-5 at the outputs (7.8e-5 the worst pixel seen on an AMD
+# EPYC; 5e-5 between oneDNN and onnxruntime kernels here). 1e-3 of the outputs' magnitude leaves a factor >10;
+# a wrong weight moves them by > 1e-2.
+FOLD_REL = 1e-3
 
 def test_module_path_from_scope_names():
     assert module_path("/net/encoder/stages.0/stages.0.0/body/body.0/body.0.0/Conv") == "net.encoder.stages.0.0.body.0.0"
@@ -31,7 +37,7 @@ def test_shipped_models_load_exactly(name):
     model = build_model(net, "small")
     info = init_model(model, ROOT / "models" / f"{name}.onnx")
     assert info["kind"] == "onnx" and info["folded_batchnorms"] > 10
-    assert info["max_abs_vs_onnxruntime"] <= 1e-4
+    assert info["rel_diff_vs_onnxruntime"] <= PARITY_TOL
 
 
 def test_wrong_net_is_refused():
@@ -60,20 +66,20 @@ def test_roundtrip_with_trained_statistics_and_recalibration(tmp_path):
     stack = torch.rand(1, 4, 3, 64, 64, generator=g)
     focus = torch.tensor([[0.5, 1.0, 2.0, 5.0]])
     with torch.no_grad():
-        ref = src(stack, focus)[0]
+        ref = src(stack, focus)[0]  # depth in m, 0.5 .. 5
     dst = build_model("dfvnet", "small")
     folded = load_onnx_weights(dst, path)
     with torch.no_grad():
-        np.testing.assert_allclose(dst.eval()(stack, focus)[0].numpy(), ref.numpy(), atol=1e-4)
+        assert_close(dst.eval()(stack, focus)[0], ref, FOLD_REL, what="folded")
     items = [{"stack": torch.rand(4, 3, 32, 32, generator=g), "focus_m": focus[0]} for _ in range(2)]
     assert recalibrate(dst, folded, items) == 2
     bn = folded[0][0]
     assert not torch.allclose(bn.running_var, torch.ones_like(bn.running_var))  # data statistics, not identity
     with torch.no_grad():  # the same function up to float32 rounding ((y - m) / s * s + b + m)
-        np.testing.assert_allclose(dst.eval()(stack, focus)[0].numpy(), ref.numpy(), atol=1e-3)
+        assert_close(dst.eval()(stack, focus)[0], ref, FOLD_REL, what="recalibrated")
     ckpt = tmp_path / "model.pt"
     torch.save({"model": src.state_dict(), "config": {"net": "dfvnet", "size": "small"}}, ckpt)
     again = build_model("dfvnet", "small")
     assert init_model(again, ckpt)["kind"] == "checkpoint"
-    with torch.no_grad():
-        np.testing.assert_allclose(again.eval()(stack, focus)[0].numpy(), ref.numpy(), atol=1e-6)
+    with torch.no_grad():  # the same weights through the same kernels in one process: bit for bit
+        assert torch.equal(again.eval()(stack, focus)[0], ref)

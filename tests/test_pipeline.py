@@ -22,7 +22,7 @@ from aat_deploy.errors import CaptureError
 from aat_deploy.model import DfFModel
 from aat_deploy.pipeline import Options, run_capture
 from training.cli.train import main
-from training.nets.export import read_metadata
+from training.nets.export import PARITY_TOL, read_metadata
 
 EF50 = ROOT / "lenses" / "canon_ef50mm_f1.8.json"
 STAGES = ["lens", "psf", "psf_colour", "train_aat", "train_thin", "export", "evaluate", "report"]
@@ -177,7 +177,7 @@ def test_fine_tune_from_onnx_with_extra_effect_and_given_psf(chain, tmp_path):
     assert set(rec) == {"lens", "psf", "psf_colour", "train_aat", "export", "evaluate", "report"}
     assert rec["psf_colour"]["outputs"] == {}  # no chromatic: nothing to fit
     log = [json.loads(line) for line in (out / "train_aat" / "log.jsonl").read_text().splitlines()]
-    assert log[0]["init"]["kind"] == "onnx" and log[0]["init"]["max_abs_vs_onnxruntime"] <= 1e-4
+    assert log[0]["init"]["kind"] == "onnx" and log[0]["init"]["rel_diff_vs_onnxruntime"] <= PARITY_TOL
     md = read_metadata(out / "dff_dfvnet_aat.onnx")
     assert json.loads(md["aat.effects"]) == ["noise:full_well_e=3000.0"] and md["aat.init"] == "dff_dfvnet_aat.onnx"
     cfg = json.loads((out / "config.json").read_text())
@@ -242,12 +242,13 @@ def test_chromatic_twins_render_without_torch_next_to_their_surrogates(colour, t
     depth = np.full((64, 96), 3.0, np.float32)
     frames = twins.optical(fx.parse("chromatic"), rgb, depth, np.array([0.6]), twins.context())
     assert frames.shape == (1, 3, 64, 96) and np.isfinite(frames).all()
-    assert np.abs(frames[0, 0] - frames[0, 2]).max() > 1e-3
+    assert np.abs(frames[0, 0] - frames[0, 2]).max() > 1e-3 * np.abs(frames).max()
     with pytest.raises(ValueError, match=r"chromatic.*no per-wavelength surrogate psf_610nm.onnx"):
         fx.parse([{"name": "chromatic", "psfs": str(tmp_path)}])  # before anything renders
     frames_dir = twins.optical(fx.parse([{"name": "chromatic", "psfs": str(out)}]), rgb, depth, np.array([0.6]),
                                twins.context())
-    np.testing.assert_array_equal(frames_dir, frames)  # the folder given explicitly: the same surrogates
+    # the folder given explicitly: the same surrogates through the same code in one process, bit for bit
+    np.testing.assert_array_equal(frames_dir, frames)
 
 
 def test_bad_options_are_one_line_errors(chain, tmp_path, capsys):

@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 import torch
 
-from conftest import LENSES
+from conftest import LENSES, assert_close
 from training.lens.io import load_lens
 from training.optics.trace import Rays, trace
 from training.psf.geometry import focus_table, object_points_mm, thin_lens_blur_px
 from training.psf.kernel import KernelSpec, downsample2
-from training.psf.raytrace import _rays_to_pupil, chief_ray_pupil, raytrace_psfs
+from training.psf.raytrace import FLOAT32_NEWTON_TOL_MM, _rays_to_pupil, chief_ray_pupil, raytrace_psfs
 from training.optics.paraxial import paraxial_data
 from training.optics.focus import focus
 
@@ -40,6 +40,7 @@ def test_chief_ray_passes_the_stop_centre():
     assert float(stop_hit.abs().max()) < 1e-8
 
 
+@pytest.mark.numerics
 def test_psf_matches_its_definition():
     """Kernel == bilinear splat (the paper's equation) of independently traced float64 rays."""
     spec = KernelSpec.for_lens(RF50)
@@ -76,9 +77,12 @@ def test_psf_matches_its_definition():
             for rr in (math.floor(r), math.floor(r) + 1):
                 if 0 <= cc < 11 and 0 <= rr < 11:
                     ref[rr, cc] += (1 - abs(c - cc)) * (1 - abs(r - rr)) / n_in
-    assert np.abs(b.kernels[0].numpy() - ref).max() < 2e-5
+    # float32 ray hits vs float64: ~1e-4 of a cell each (2.5e-6 mm seen), so the kernel moves by ~1e-4 of its peak
+    # cell, itself ~0.1 of the energy
+    assert_close(b.kernels[0], ref, 3e-5, scale=ref.sum(), what="kernel vs float64 splat")
     assert b.energy[0] == pytest.approx(ok[1:].sum() / n_in, rel=1e-6)
-    assert np.allclose(b.center_mm[0], -hit[0], atol=1e-4)
+    # the float32 chief-ray solve stops at FLOAT32_NEWTON_TOL_MM (an absolute length by design)
+    assert np.allclose(b.center_mm[0], -hit[0], rtol=0, atol=FLOAT32_NEWTON_TOL_MM)
 
 
 def test_on_axis_in_focus_is_a_point_with_full_energy():
@@ -86,8 +90,8 @@ def test_on_axis_in_focus_is_a_point_with_full_energy():
     k = b.kernels[0]
     # No vignetting on axis. Energy is relative to the paraxial pupil area; the real pupil of a near object is a
     # little larger (pupil aberration), so slightly more than 1 arrives.
-    assert b.energy[0] == pytest.approx(1.0, abs=5e-3)
-    assert float(k.sum()) == pytest.approx(b.energy[0], abs=1e-5)
+    assert b.energy[0] == pytest.approx(1.0, rel=5e-3)
+    assert float(k.sum()) == pytest.approx(b.energy[0], rel=1e-5)  # a float32 sum of the splats
     assert float(k[4:7, 4:7].sum()) > 0.95  # within one pixel of the chief ray
 
 
@@ -119,12 +123,14 @@ def test_point_symmetry_of_a_rotationally_symmetric_lens():
     assert float((a - c).abs().sum()) < 0.08 * float(a.sum())  # equal up to ray noise
 
 
+@pytest.mark.numerics
 def test_oversampled_psf_downsamples_exactly():
     spec = KernelSpec.for_lens(RF50)
     a = raytrace_psfs(RF50, 0.5, 0.5, 1.1, 1.5, spec, n_rays=1024, seed=7)
     f = raytrace_psfs(RF50, 0.5, 0.5, 1.1, 1.5, spec, n_rays=1024, seed=7, oversample=2)
     assert f.kernels.shape[-1] == 23
-    assert torch.allclose(downsample2(f.kernels), a.kernels, atol=2e-6)
+    # the same splats summed in another order, float32: ~log2(n) eps of the energy
+    assert_close(downsample2(f.kernels), a.kernels, 2e-6, scale=a.kernels.sum())
 
 
 def test_large_defocus_is_not_truncated():
@@ -149,9 +155,11 @@ def test_kernels_centred_on_another_wavelength_keep_lateral_colour():
     ref = raytrace_psfs(RF50, x, y, d, f, spec, n_rays=16)
     own = raytrace_psfs(RF50, x, y, d, f, spec, n_rays=8192, wavelength_nm=465.0)
     moved = raytrace_psfs(RF50, x, y, d, f, spec, n_rays=8192, wavelength_nm=465.0, center_wavelength_nm=589.0)
-    np.testing.assert_allclose(moved.center_mm, ref.center_mm, atol=1e-6)
+    # the same float32 chief-ray solve; other batch shapes may route an element through vector or scalar code
+    np.testing.assert_allclose(moved.center_mm, ref.center_mm, rtol=1e-6, atol=0)
     shift_cells = (own.center_mm - ref.center_mm) / RF50.sensor.pixel_mm / own.scale[:, None]
     assert np.abs(shift_cells[1:]).max() > 0.01  # off axis the chief rays part
     np.testing.assert_allclose(_centroid_cells(moved.kernels) - _centroid_cells(own.kernels), shift_cells, atol=2e-3)
     same = raytrace_psfs(RF50, x, y, d, f, spec, n_rays=256, wavelength_nm=465.0, center_wavelength_nm=465.0)
+    # the same rays through the same code: bit for bit
     assert torch.equal(same.kernels, raytrace_psfs(RF50, x, y, d, f, spec, n_rays=256, wavelength_nm=465.0).kernels)

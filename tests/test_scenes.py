@@ -16,7 +16,7 @@ def test_scene_ranges_and_determinism():
     assert rgb.shape == (96, 128, 3) and depth.shape == (96, 128)
     assert rgb.dtype == np.float32 and depth.dtype == np.float32
     assert 0 <= rgb.min() and rgb.max() <= 1
-    assert depth.min() >= 0.6 - 1e-5 and depth.max() <= 8.0 + 1e-4
+    assert depth.min() >= 0.6 * (1 - 1e-5) and depth.max() <= 8.0 * (1 + 1e-5)  # float32 of 1 / diopters
 
 
 def test_scenes_have_depth_variety_and_texture():

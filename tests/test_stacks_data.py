@@ -46,13 +46,14 @@ def _cfg(**kw):
     return StackDataConfig(**{**base, **kw})
 
 
+@pytest.mark.numerics
 def test_items_shapes_order_and_determinism():
     ds = FocalStackDataset(_cfg())
     a, b = ds[1], ds[1]
     assert a["stack"].shape == (4, 3, 48, 64) and a["aif"].shape == (3, 48, 64) and a["depth_m"].shape == (48, 64)
     f = a["focus_m"].numpy()
-    assert np.all(np.diff(f) > 0) and abs(f[0] - 0.5) < 1e-6 and abs(f[-1] - 10.0) < 1e-4
-    assert np.array_equal(a["stack"].numpy(), b["stack"].numpy())
+    assert np.all(np.diff(f) > 0) and f[[0, -1]] == pytest.approx([0.5, 10.0], rel=1e-6)  # float32 of 1 / diopters
+    assert np.array_equal(a["stack"].numpy(), b["stack"].numpy())  # deterministic: the same item, bit for bit
     assert 0 <= float(a["stack"].min()) and float(a["stack"].max()) <= 1.0
     with pytest.raises(IndexError):
         ds[3]
@@ -65,6 +66,7 @@ def test_aat_and_thin_share_scenes_but_not_blur():
     assert float((aat["stack"] - thin["stack"]).abs().mean()) > 1e-3
 
 
+@pytest.mark.numerics
 def test_crops_keep_the_psfs_of_their_field_position():
     ds = FocalStackDataset(_cfg(simulator="aat"))
     seen = []
@@ -91,7 +93,8 @@ def test_crops_keep_the_psfs_of_their_field_position():
     for sim, expect_same in ((FocalStackDataset(_cfg(simulator="thin_lens")).sim, True), (ds.sim, False)):
         a = sim.render_stack(t, d, [1.0], origin=(0, 0)).frames
         b = sim.render_stack(t, d, [1.0], origin=(hs // 2 - 24, ws // 2 - 32)).frames
-        assert (float((a - b).abs().max()) < 1e-5) == expect_same
+        # field-invariant PSFs render the same numbers up to the FFT's float32 rounding (~1e-6 of the frame)
+        assert (float((a - b).abs().max()) < 1e-5 * float(a.abs().max())) == expect_same
 
 
 def test_default_fields_keep_the_cache_key_and_the_scenes():
@@ -114,9 +117,10 @@ def test_photo_textures_random_ranges_and_the_scene_schedule():
         assert np.all(np.diff(f) > 0)
         # the paper's protocol: focus spread over this item's own depth range (perturbed by < 1/4 spacing)
         step = (d.max() - d.min()) / (len(f) - 1)
-        assert f[0] >= d.min() - 0.26 * step - 1e-4 and f[-1] <= d.max() + 0.26 * step + 1e-4
+        slack = 1e-5 * d.max()  # float32 depths and focus distances (from diopters): a few dozen ulps
+        assert f[0] >= d.min() - 0.26 * step - slack and f[-1] <= d.max() + 0.26 * step + slack
         spans.append(d.max() / d.min())
-        assert 0.5 - 1e-4 <= d.min() and d.max() <= 10.0 + 1e-3
+        assert 0.5 * (1 - 2e-4) <= d.min() and d.max() <= 10.0 * (1 + 1e-4)
     assert min(spans) < 8  # some items got a sub-range (the full range spans 20x)
 
 
@@ -136,7 +140,7 @@ def test_random_crops_flips_and_field_coordinates():
         r0, c0 = (int(v) for v in it["origin"])
         x_plain = 2 * (c0 + np.arange(48) + 0.5) / ws - 1
         y_plain = 1 - 2 * (r0 + np.arange(32) + 0.5) / hs
-        fx, fy = it["field_xy"][0, 0].numpy(), it["field_xy"][1, :, 0].numpy()
+        fx, fy = it["field_xy"][0, 0].numpy(), it["field_xy"][1, :, 0].numpy()  # in [-1, 1]: atol is relative
         lr = not np.allclose(fx, x_plain, atol=1e-5)
         ud = not np.allclose(fy, y_plain, atol=1e-5)
         if lr:

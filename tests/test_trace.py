@@ -7,13 +7,20 @@ import math
 import pytest
 import torch
 
-from conftest import LENSES
+from conftest import LENSES, assert_close
 from training.lens.io import load_lens
 from training.lens.schema import Lens, Sensor, Surface
 from training.optics.focus import focus, object_z_mm
 from training.optics.paraxial import paraxial_data, paraxial_image_z_mm
 from training.optics.spot import spot
-from training.optics.trace import Rays, rays_through_pupil, stratified_disk, trace, uniform_disk_grid
+from training.optics.trace import (
+    NEWTON_TOL_MM,
+    Rays,
+    rays_through_pupil,
+    stratified_disk,
+    trace,
+    uniform_disk_grid,
+)
 
 SENSOR = Sensor(36.0, 24.0, 960, 640)
 
@@ -35,8 +42,9 @@ def test_snell_at_a_flat_interface():
     res = trace(lens, _ray([0, 0, -1], [0, math.sin(theta), math.cos(theta)]), 589.3, record=True)
     d_in_glass = (res.hits[1] - res.hits[0])[0]
     sin_t = float(d_in_glass[1] / torch.linalg.vector_norm(d_in_glass))
-    assert sin_t == pytest.approx(math.sin(theta) / n, abs=1e-14)
-    assert float(res.rays.d[0, 1]) == pytest.approx(math.sin(theta), abs=1e-14)  # parallel plate
+    # float64 (eps 2.2e-16) through a dozen operations: a few dozen eps
+    assert sin_t == pytest.approx(math.sin(theta) / n, rel=3e-14)
+    assert float(res.rays.d[0, 1]) == pytest.approx(math.sin(theta), rel=3e-14)  # parallel plate
 
 
 def test_total_internal_reflection_and_clipping_lose_rays():
@@ -60,7 +68,7 @@ def test_ideal_lens_images_every_ray_to_one_point():
     res = trace(lens, rays_through_pupil(lens, pupil, obj), sensor_z_mm=100.0)
     xy = res.rays.o[:, :2]
     assert bool(res.rays.valid.all())
-    assert torch.allclose(xy, torch.tensor([0.0, -10.0], dtype=torch.float64), atol=1e-10)
+    assert_close(xy, torch.tensor([0.0, -10.0], dtype=torch.float64).expand_as(xy), 1e-11)  # float64 rounding
 
 
 def test_sphere_intercept_lies_on_the_surface_and_asphere_converges():
@@ -70,7 +78,8 @@ def test_sphere_intercept_lies_on_the_surface_and_asphere_converges():
     for s, zv, h in zip(lens.surfaces, lens.vertex_z_mm, res.hits):
         r2 = (h[:, 0] ** 2 + h[:, 1] ** 2)[res.rays.valid]
         sag = torch.tensor([s.sag(float(v)) for v in r2[:200]], dtype=torch.float64)
-        assert torch.allclose(h[res.rays.valid][:200, 2] - zv, sag, atol=1e-10)
+        # Newton stops at |dt| < NEWTON_TOL_MM (float64: 1e-12 mm, an absolute length by design)
+        assert torch.allclose(h[res.rays.valid][:200, 2] - zv, sag, rtol=0, atol=100 * NEWTON_TOL_MM[torch.float64])
 
 
 def test_paraxial_limit_of_real_rays_matches_paraxial_focus():
@@ -81,7 +90,8 @@ def test_paraxial_limit_of_real_rays_matches_paraxial_focus():
     d = res.rays.d[0]
     last = res.hits[-1][0]
     z_cross = float(last[2] - last[1] * d[2] / d[1])
-    assert z_cross == pytest.approx(lens.vertex_z_mm[-1] + p.bfl_mm, abs=1e-6)
+    # a ray 1e-4 mm off axis: its spherical aberration and float64 rounding stay far below 2e-8 of the 73 mm
+    assert z_cross == pytest.approx(lens.vertex_z_mm[-1] + p.bfl_mm, rel=2e-8)
 
 
 def test_focus_is_sensor_referenced_and_minimises_rms():
@@ -105,7 +115,7 @@ def test_thin_lens_focus_obeys_the_lens_equation():
         v = focus(thin, dist)
         u = 1000 * dist - v  # object distance from the lens plane
         assert 1 / u + 1 / v == pytest.approx(1 / f, rel=1e-9)
-        assert v == pytest.approx(paraxial_image_z_mm(thin, -u), abs=1e-7)  # FOCUS_TOL_MM
+        assert v == pytest.approx(paraxial_image_z_mm(thin, -u), abs=1e-7)  # FOCUS_TOL_MM: a solver tolerance in mm
     assert spot(thin, 15.0, 2.0).rms_um < 1e-6  # aberration-free everywhere
 
 
@@ -116,6 +126,7 @@ def test_vignetting_increases_off_axis():
     assert off.n_valid < 0.8 * off.n_rays
 
 
+@pytest.mark.numerics
 def test_float32_trace_agrees_with_float64():
     lens = load_lens(LENSES / "canon_rf50mm_f1.8.json")
     pupil = stratified_disk(512, torch.Generator().manual_seed(0))
@@ -124,4 +135,5 @@ def test_float32_trace_agrees_with_float64():
     a, b = trace(lens, r64), trace(lens, r32)
     both = a.rays.valid & b.rays.valid
     assert int((a.rays.valid != b.rays.valid).sum()) <= 2  # rays exactly at a rim may differ
-    assert float((a.rays.o[both] - b.rays.o[both].double()).abs().max()) < 2e-4  # mm
+    # float32 (eps 1.2e-7) through ~20 surfaces: ~20 eps of the lens's 60 mm length (2.7e-7 seen)
+    assert_close(b.rays.o[both], a.rays.o[both], 3e-6, what="float32 hits (mm)")

@@ -155,6 +155,7 @@ def _params(model: torch.nn.Module) -> torch.Tensor:
     return torch.cat([p.detach().flatten() for p in model.state_dict().values() if p.dtype.is_floating_point])
 
 
+@pytest.mark.numerics  # bit for bit: it must hold with torch's deterministic algorithms too
 @pytest.mark.parametrize("net", ["aifnet", "dfvnet"])
 def test_resume_equals_uninterrupted(tmp_path, net):
     from training.train.loop import load_trained, train
@@ -172,7 +173,7 @@ def test_resume_equals_uninterrupted(tmp_path, net):
     ma, _ = load_trained(tmp_path / "a" / "model.pt")
     mb, cfg_b = load_trained(tmp_path / "b" / "model.pt")
     assert cfg_b == cfg
-    assert torch.equal(_params(ma), _params(mb))
+    assert torch.equal(_params(ma), _params(mb))  # the same steps on the same data in one process: bit for bit
     init = _params(__import__("training.nets.model", fromlist=["x"]).build_model(net, "small"))
     assert not torch.allclose(init, _params(ma))
     log = [json.loads(line) for line in (tmp_path / "a" / "log.jsonl").read_text().splitlines()]
@@ -301,3 +302,17 @@ def test_make_dataset_fills_simulator_lens_and_rejects_unknown_keys(monkeypatch)
     assert Path(ds.cfg.lens).is_file()
     with pytest.raises(ValueError, match="n_items"):
         make_dataset({"n_items": 3}, "aat", "lenses/canon_rf50mm_f1.8.json")
+
+
+def test_diopter_loss_is_l1_on_inverse_depth():
+    """loss.depth_space 'diopter': mean |1/pred - 1/gt| over valid pixels (hand-computed)."""
+    from training.train.loss import dff_loss
+
+    pred = torch.tensor([[[1.0, 2.0], [4.0, 5.0]]])
+    gt = torch.tensor([[[0.5, 2.0], [5.0, 0.0]]])  # last pixel invalid
+    batch = {"depth_m": gt, "focus_m": torch.tensor([[0.5, 5.0]])}
+    loss, _ = dff_loss([(pred, None, None)], batch, LossConfig(depth_space="diopter"))
+    expect = (abs(1 / 1.0 - 1 / 0.5) + 0 + abs(1 / 4.0 - 1 / 5.0)) / 3
+    assert abs(float(loss) - expect) < 1e-6
+    loss_m, _ = dff_loss([(pred, None, None)], batch, LossConfig())
+    assert abs(float(loss_m) - (0.5 + 0 + 1.0) / 3) < 1e-6

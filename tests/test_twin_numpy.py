@@ -10,7 +10,7 @@ import json
 import numpy as np
 import pytest
 import torch
-from conftest import ROOT
+from conftest import ROOT, rel_err
 from deploy_fixtures import build_tiny_dff
 from test_deploy_torch_free import _run
 
@@ -29,10 +29,16 @@ LENS = load_lens(ROOT / "lenses/canon_rf50mm_f1.8.json")
 SENSOR = (LENS.sensor.height_px, LENS.sensor.width_px)
 ONNX = OnnxPSF(ROOT / "models/psf_rf50.onnx", LENS, threads=1)
 CFG = LayeredConfig(cell_px=16)
-# Relative agreement (max |difference| / max |value|) of float32 frames. The surrogate's agree to ~3e-7; the
-# thin-lens Gaussian's to ~2e-5: its blur near focus is a difference of nearly equal image distances, which torch
-# computes with fused multiply-adds.
-TOL = 5e-5
+pytestmark = pytest.mark.numerics  # numpy vs torch renderers and sources
+# Relative agreement (max |difference| / max |value|, `conftest.rel_err`) of float32 frames and kernels.
+# With the surrogate both sides get the same onnxruntime kernels and differ only by the renderers' float32 FFTs and
+# sums (~log2(N) eps ~ 1e-6; 5e-7 seen). The thin-lens Gaussian is evaluated in float32 by each side: its blur near
+# focus is a difference of nearly equal image distances (~50 mm, up to ~8 ulps apart: 4e-4 px), so each kernel is
+# within ~1e-4 of its peak of the float64 one (the worst of 400,000 queries near focus: benchmarks/bench_numerics.py)
+# and the two within twice that, as are frames built of them.
+TOL = 1e-5
+THIN_F32 = 2e-4  # a float32 thin-lens kernel vs float64, relative to its peak
+TOL_THIN = 2 * THIN_F32
 
 
 def _scene(h=32, w=64, seed=0):
@@ -41,11 +47,6 @@ def _scene(h=32, w=64, seed=0):
     depth = (1 / rng.uniform(1 / 3.0, 1 / 0.5, (h, w))).astype(np.float32)
     depth[:, : w // 3] = 0.6  # a near slab: a depth edge
     return rgb, depth
-
-
-def _rel(a, b) -> float:
-    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
-    return float(np.abs(a - b).max() / np.abs(a).max())
 
 
 def test_sources_match_torch():
@@ -58,9 +59,15 @@ def test_sources_match_torch():
     kt, st = (t.numpy() for t in thin_t(x, y, d, f))
     kn, sn = thin_n(x, y, d, f)
     assert kn.dtype == np.float32 and kn.shape == kt.shape == (n, 11, 11)
-    # float32 evaluation on both sides; torch fuses multiply-adds, so they agree to float32 rounding of the blur
-    assert (np.abs(kt - kn).max((1, 2)) / kt.max((1, 2))).max() < 1e-4
-    assert np.abs(st / sn - 1).max() < 3e-5
+    # float32 evaluation on both sides, each to float32 rounding of the blur (torch may fuse multiply-adds, and
+    # differently on another CPU): both near the float64 kernels, so near each other
+    q64 = torch.from_numpy(np.stack([x, y, d, f], -1).astype(np.float32).astype(np.float64))  # the same inputs
+    k64, s64 = thin_t.model(q64).numpy(), thin_t.model.scale(q64[:, 2], q64[:, 3]).numpy()
+    peak_rel = lambda a, b: float((np.abs(a - b).max((1, 2)) / b.max((1, 2))).max())  # noqa: E731
+    assert peak_rel(kt, k64) < THIN_F32 and peak_rel(kn, k64) < THIN_F32 and peak_rel(kt, kn) < TOL_THIN
+    # the cell size (blur + margin) / (k - 1) >= 1: the blur's ~4e-4 px are <= 4e-5 of it (6e-6 seen)
+    assert np.abs(st / s64 - 1).max() < 4e-5 and np.abs(sn / s64 - 1).max() < 4e-5
+    # exact: both sides call the same float64 numpy function (training.psf.geometry.thin_lens_blur_px)
     assert thin_n.k == thin_t.k and np.array_equal(thin_n.scale(d, f), thin_t.scale(d, f))
     assert np.array_equal(thin_n.blur_px(d, f), thin_t.blur_px(d, f))
     # the surrogate: the same onnxruntime session underneath, numpy out
@@ -69,7 +76,8 @@ def test_sources_match_torch():
     assert isinstance(kn, np.ndarray) and np.array_equal(kt.numpy(), kn) and np.array_equal(st.numpy(), sn)
     # unit energy, numpy or torch kernels
     un, ut = UnitEnergy(ONNX.numpy)(x, y, d, f)[0], UnitEnergy(ONNX)(x, y, d, f)[0].numpy()
-    assert np.allclose(un.sum((1, 2)), 1, atol=1e-5) and np.abs(un - ut).max() < 1e-6
+    # kernel / its sum, the same division on both sides (numpy and torch sums may add in another order)
+    assert np.allclose(un.sum((1, 2)), 1, rtol=1e-5, atol=0) and rel_err(un, ut) < 1e-6
 
 
 def test_surrogate_carries_the_traced_focus_table():
@@ -102,7 +110,7 @@ def test_layered_matches_torch(source, focus_at, occlusion, origin):
                                  focus_at=focus_at).numpy()
         b = render_layered(rgb, depth, f, sn, field, cfg, focus_at=focus_at)
         assert b.dtype == np.float32 and b.shape == a.shape
-        assert _rel(a, b) < TOL, f
+        assert rel_err(a, b) < (TOL if source == "surrogate" else TOL_THIN), f
 
 
 def _numpy_context(origin):
@@ -132,11 +140,12 @@ def test_effects_match_torch(names):
     b0 = optical_stack(effects, GaussianSource(LENS), rgb, depth, focus, ctx, CFG)
     b = np.stack([fx.post_frame(effects, fr, float(f), ctx, rng) for fr, f in zip(b0, focus)])
     assert b.dtype == np.float32 and b.shape == a.shape
-    assert _rel(a0.numpy(), b0) < TOL
+    tol = TOL if "aberrations" in names else TOL_THIN  # without it both render with their thin-lens Gaussians
+    assert rel_err(a0.numpy(), b0) < tol
     if any(e.name == "noise" for e in effects):
         _same_noise(a, a0.numpy(), b, b0)
     else:
-        assert _rel(a, b) < TOL
+        assert rel_err(a, b) < tol
 
 
 # --- a tiny virtual capture, its twin rendered without torch and with torch ---------------------------------------
@@ -277,9 +286,10 @@ def test_tiny_twin_without_torch_equals_torch(tiny, tmp_path):
         if s.startswith("noise"):
             _same_noise(a, ref.render(cap, aif, [], seed=5), b, got["base"])
         else:
-            assert np.abs(a - b).max() < TOL, (s, float(np.abs(a - b).max()))
-    # the training side's renderer picks numpy by itself for these, the torch simulator for chromatic
+            assert rel_err(a, b) < TOL, (s, rel_err(a, b))
+    # the training side's renderer picks numpy by itself for these, the torch simulator for chromatic: the same
+    # numpy code and onnxruntime session settings as in the subprocess, bit for bit
     auto = TwinRenderer(model, lens, OnnxPSF(tmp / "psf.onnx", lens, threads=1), cell_px=32)
-    assert np.abs(auto.render(cap, aif, [], seed=5) - got["base"]).max() < 1e-6
+    assert np.array_equal(auto.render(cap, aif, [], seed=5), got["base"])
     chroma = auto.render(cap, aif, fx.parse("chromatic:n_rays=32"))
     assert chroma.shape == (5, 3, 64, 96) and np.isfinite(chroma).all() and auto.renders == 2

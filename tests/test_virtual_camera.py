@@ -24,7 +24,7 @@ from training.render.sources import OnnxPSF
 def test_mosaic_and_dn():
     rgb = np.stack([np.full((4, 4), v) for v in (0.1, 0.5, 0.9)])
     m = mosaic_rggb(rgb)
-    assert m[0, 0] == 0.1 and m[0, 1] == 0.5 and m[1, 0] == 0.5 and m[1, 1] == 0.9
+    assert m[0, 0] == 0.1 and m[0, 1] == 0.5 and m[1, 0] == 0.5 and m[1, 1] == 0.9  # exact: mosaicking copies
     span = WHITE_LEVEL - BLACK_LEVEL
     assert to_dn(np.array([0.0, 1.0, 2.0, 0.01, -0.01, -1.0])).tolist() == [
         BLACK_LEVEL, WHITE_LEVEL, WHITE_LEVEL, BLACK_LEVEL + round(0.01 * span), BLACK_LEVEL - round(0.01 * span), 0]
@@ -50,7 +50,7 @@ def test_aat_render_writes_a_capture_the_runtime_reads(scene, tmp_path, capsys):
             "--focus-m", "2,1.2", "--out", str(out), "--psf", str(ROOT / "models/psf_rf50.onnx")]
     assert render_main(args) == 0
     cap = read_capture(out)
-    assert sorted(f.focus_m for f in cap.frames) == [1.2, 2.0]
+    assert sorted(f.focus_m for f in cap.frames) == [1.2, 2.0]  # exact: EXIF rationals 6/5, 2/1 -> float
     assert all("SubjectDistance" in f.focus_source for f in cap.frames)
     assert cap.gt_depth_m is not None and cap.gt_aif is not None
     gt = np.load(out / "gt_depth_m.npy")
@@ -82,7 +82,9 @@ def test_aat_render_writes_a_capture_the_runtime_reads(scene, tmp_path, capsys):
 
 
 def test_list_effects(capsys):
-    assert render_main(["--list-effects"]) == 0
+    with pytest.raises(SystemExit) as e:  # an option like --version: exits before the required arguments
+        render_main(["--list-effects"])
+    assert e.value.code == 0
     out = capsys.readouterr().out
     for name in fx.names():
         assert name in out
@@ -107,8 +109,14 @@ def test_bad_input_is_one_line_and_force_replaces_atomically(scene, tmp_path):
     with pytest.raises(SystemExit, match="exists"):
         render_main(base + ["--lens", lens, "--thin-lens"])
     assert (out / "mine.txt").read_text() == "user data"
+    with pytest.raises(SystemExit, match="not an earlier aat-render output"):  # --force replaces only its own
+        render_main(base + ["--lens", lens, "--thin-lens", "--force"])
+    assert (out / "mine.txt").read_text() == "user data"
+    (out / "mine.txt").unlink()  # an empty folder may be replaced, and then an earlier capture
     assert render_main(base + ["--lens", lens, "--thin-lens", "--force"]) == 0
-    assert not (out / "mine.txt").exists() and len(list(out.glob("*.dng"))) == 1
+    (out / "extra.txt").write_text("made by the last render's owner")
+    assert render_main(base + ["--lens", lens, "--thin-lens", "--force"]) == 0
+    assert not (out / "extra.txt").exists() and len(list(out.glob("*.dng"))) == 1
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # no temporary left behind
 
 

@@ -4,7 +4,7 @@ Focus distance precedence inside a file (the capture folder's `capture.json` sid
 this, see `folder.py`):
 
 1. maker notes (the lens's distance encoder): Canon FocusDistanceUpper/Lower (combined as the midpoint in
-   diopters, an infinite upper bound counting as 0 D), Nikon LensData FocusDistance, Olympus FocusInfo,
+   diopters, an infinite upper bound counting as 0 D; Upper alone when Lower is 0, "not recorded"), Nikon LensData FocusDistance, Olympus FocusInfo,
    Minolta CameraSettings, FLIR CameraInfo FocusDistance, Casio ObjectDistance;
 2. EXIF SubjectDistance (0x9206, in the EXIF IFD or IFD0);
 3. XMP aux:ApproximateFocusDistance (written by DNG converters and by our virtual camera);
@@ -58,20 +58,15 @@ class FrameMeta:
         return d
 
 
-def _diopter_midpoint(upper: float, lower: float) -> float:
-    """Focus distance between Canon's bracket bounds, midway in diopters (upper > 655.345 m = infinity)."""
-    inv_up = 0.0 if upper > 655.345 else 1.0 / upper
-    inv_lo = 0.0 if lower > 655.345 or lower <= 0 else 1.0 / lower
-    mid = 0.5 * (inv_up + inv_lo)
-    return math.inf if mid == 0 else 1.0 / mid
-
-
 def _xmp_focus(xmp: bytes) -> float | None:
     m = re.search(rb"ApproximateFocusDistance(?:=\"|>)\s*([0-9.]+)(?:/([0-9.]+))?", xmp)
     if not m:
         return None
-    num = float(m.group(1))
-    den = float(m.group(2)) if m.group(2) else 1.0
+    try:
+        num = float(m.group(1))
+        den = float(m.group(2)) if m.group(2) else 1.0
+    except ValueError:  # e.g. "1.2.3"
+        return None
     if num == 4294967295:
         return math.inf
     return num / den if den and num > 0 else None
@@ -101,7 +96,11 @@ def read_metadata(path: str | Path, use_exiftool: bool = True) -> FrameMeta:
     path = Path(path)
     buf = read_input_bytes(path)
     meta = FrameMeta(file=str(path))
-    blocks = find_blocks(buf)
+    try:
+        blocks = find_blocks(buf)
+    except (struct.error, IndexError, ValueError, OverflowError):
+        blocks = Blocks(container="damaged")
+        meta.notes.append("damaged container structure; metadata not read")
     meta.container = blocks.container
     maker_tags: dict[str, float] = {}
     maker_name = ""
@@ -109,7 +108,7 @@ def read_metadata(path: str | Path, use_exiftool: bool = True) -> FrameMeta:
     for role, tb, first in blocks.tiffs:
         try:
             sub, maker = _read_tiff(buf, tb, first, role, meta)
-        except (struct.error, IndexError, ValueError):
+        except (struct.error, IndexError, ValueError, OverflowError, RecursionError):
             meta.notes.append(f"damaged {role} metadata block skipped")
             continue
         if sub is not None and subject is None:
@@ -118,7 +117,11 @@ def read_metadata(path: str | Path, use_exiftool: bool = True) -> FrameMeta:
             maker_tags.setdefault(k, v)
         maker_name = maker_name or maker[1]
     if blocks.ciff:
-        c = makernotes.ciff(*blocks.ciff)
+        try:
+            c = makernotes.ciff(*blocks.ciff)
+        except (struct.error, IndexError, ValueError, OverflowError):
+            c = {}
+            meta.notes.append("damaged CRW (CIFF) metadata skipped")
         meta.make = meta.make or c.get("Make")
         meta.model = meta.model or c.get("Model")
         for k in ("FocusDistanceUpper", "FocusDistanceLower"):
@@ -126,7 +129,11 @@ def read_metadata(path: str | Path, use_exiftool: bool = True) -> FrameMeta:
                 maker_tags.setdefault(k, c[k])
         maker_name = maker_name or "Canon CRW ShotInfo"
     if blocks.flir:
-        fl = makernotes.flir(blocks.flir)
+        try:
+            fl = makernotes.flir(blocks.flir)
+        except (struct.error, IndexError, ValueError, OverflowError):
+            fl = {}
+            meta.notes.append("damaged FLIR metadata skipped")
         for k, v in fl.items():
             maker_tags.setdefault(k, v)
         if fl:
@@ -146,8 +153,9 @@ def read_metadata(path: str | Path, use_exiftool: bool = True) -> FrameMeta:
             v = math.inf  # Minolta stores infinity as 0
         meta.focus_m, meta.focus_source = v, f"maker note: {maker_name} FocusDistance"
     elif "FocusDistanceUpper" in maker_tags:
-        meta.focus_m = _diopter_midpoint(maker_tags["FocusDistanceUpper"], maker_tags["FocusDistanceLower"])
-        meta.focus_source = f"maker note: {maker_name} FocusDistanceUpper/Lower (diopter midpoint)"
+        meta.focus_m, how = makernotes.canon_focus_m(maker_tags["FocusDistanceUpper"],
+                                                     maker_tags.get("FocusDistanceLower", 0.0))
+        meta.focus_source = f"maker note: {maker_name} FocusDistanceUpper/Lower ({how})"
     elif "ObjectDistance" in maker_tags:
         meta.focus_m, meta.focus_source = maker_tags["ObjectDistance"], f"maker note: {maker_name} ObjectDistance"
     elif subject is not None:
@@ -165,7 +173,10 @@ def read_metadata(path: str | Path, use_exiftool: bool = True) -> FrameMeta:
         meta.focal_length_mm = meta.focal_length_mm or et.focal_length_mm
         meta.f_number = meta.f_number or et.f_number
     if meta.width is None:
-        meta.width, meta.height = _image_size(buf, blocks)
+        try:
+            meta.width, meta.height = _image_size(buf, blocks)
+        except (struct.error, IndexError):
+            pass
     return meta
 
 

@@ -9,6 +9,8 @@ import subprocess
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from .makernotes import canon_focus_m
+
 # exiftool tag names that hold a focus distance in metres, in the order we trust them
 FOCUS_TAGS = ("FocusDistance", "FocusDistanceUpper", "SubjectDistance", "ObjectDistance", "ApproximateFocusDistance")
 _ASKED = ("FocusDistance", "FocusDistanceUpper", "FocusDistanceLower", "SubjectDistance", "ObjectDistance",
@@ -55,9 +57,9 @@ def read(path: str | Path, timeout_s: float = 30.0) -> ExifToolResult:
         if v is None:
             continue
         if name == "FocusDistanceUpper":
-            lower = out.focus_tags.get("FocusDistanceLower", v)
-            inv = 0.5 * ((0 if v > 655.345 else 1 / v) + (1 / lower if 0 < lower <= 655.345 else 0))
-            v = math.inf if inv == 0 else 1 / inv
+            if v <= 0:
+                continue
+            v, _ = canon_focus_m(v, out.focus_tags.get("FocusDistanceLower", 0.0))
         if v > 0:
             out.focus_m, out.focus_source = v, name
             break

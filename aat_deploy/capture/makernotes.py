@@ -6,7 +6,7 @@ ExifTool tag documentation (Canon, Nikon, Olympus, Minolta, Casio, FLIR tag tabl
 
 | maker | where | value |
 |---|---|---|
-| Canon | ShotInfo (0x0004) [19] upper, [20] lower, int16u; FileInfo (0x0093) [20]/[21]; CameraInfo (0x000d) of the 1D Mk III / 40D at 0x43/0x45 (big-endian int16u) | /100 m; upper > 655.345 = infinity; used only when upper != 0 |
+| Canon | ShotInfo (0x0004) [19] upper, [20] lower, int16u; FileInfo (0x0093) [20]/[21]; CameraInfo (0x000d) of the 1D Mk III / 40D at 0x43/0x45 (big-endian int16u) | /100 m; upper > 655.345 = infinity; used only when upper != 0; lower 0 = not recorded |
 | Canon CRW | ShotInfo as CIFF record 0x102a | as above |
 | Nikon | LensData (0x0098) version 0101 byte 0x09 (v0201-0204 are encrypted: not decoded) | 0.01·10^(raw/40) m |
 | Olympus | FocusInfo (0x2050) tag 0x0305, rational | numerator/1000 m; numerator 0xffffffff = infinity |
@@ -23,6 +23,22 @@ import struct
 from .tiff import Entry, TiffBuffer
 
 INF = math.inf
+
+
+CANON_INFINITY_M = 655.345  # an upper bound above this (655.35 = 0xffff / 100) means infinity
+
+
+def canon_focus_m(upper: float, lower: float) -> tuple[float, str]:
+    """The focus distance (metres) from Canon's FocusDistanceUpper/Lower and how it was made.
+
+    Lower = 0 means "not recorded" (PowerShot compacts write only Upper; ExifTool shows it as 0 m): Upper alone.
+    Otherwise the bracket's midpoint in diopters, an upper bound at infinity counting as 0 D."""
+    inv_up = 0.0 if upper > CANON_INFINITY_M else 1.0 / upper
+    if lower <= 0:
+        return (math.inf if inv_up == 0 else 1.0 / inv_up), "Upper alone, Lower not recorded"
+    inv_lo = 0.0 if lower > CANON_INFINITY_M else 1.0 / lower
+    mid = 0.5 * (inv_up + inv_lo)
+    return (math.inf if mid == 0 else 1.0 / mid), "diopter midpoint"
 
 
 def _canon_pair(upper_raw: int, lower_raw: int) -> dict[str, float]:

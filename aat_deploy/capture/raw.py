@@ -8,6 +8,7 @@ Values are in [0, 1] relative to the file's white level (the stack is normalised
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import cv2
@@ -43,18 +44,19 @@ def is_raw(path: Path) -> bool:
 def raw_size(path: Path) -> tuple[int, int] | None:
     """(width, height) of a RAW file's developed image, or None if LibRaw cannot open it."""
     try:
-        with rawpy.imread(str(path)) as r:
+        with rawpy.imread(io.BytesIO(read_input_bytes(path))) as r:
             s = r.sizes
             w, h = int(s.width), int(s.height)
             return (h, w) if s.flip in (5, 6) else (w, h)
-    except (rawpy.LibRawError, OSError):
+    except (rawpy.LibRawError, OSError, CaptureError):
         return None
 
 
 def load_raw(path: Path) -> tuple[np.ndarray, dict]:
     """Develop a RAW file to linear sRGB-primaries float32 (H, W, 3); info has black/white levels and WB."""
+    buf = read_input_bytes(path)  # LibRaw reads from memory: any file name works, a FIFO is never opened
     try:
-        with rawpy.imread(str(path)) as r:
+        with rawpy.imread(io.BytesIO(buf)) as r:
             info = {"black_level": [int(v) for v in r.black_level_per_channel],
                     "white_level": int(r.white_level),
                     "camera_wb": [float(v) for v in r.camera_whitebalance]}

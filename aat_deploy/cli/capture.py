@@ -1,49 +1,59 @@
-"""aat-capture: look at capture folders or single files before running a model on them.
+"""aat-capture: look at capture folders before running a model on them, write their capture.json, plan a stack.
 
-    aat-capture inspect CAPTURE_DIR_OR_FILES... [--json] [--no-exiftool]
+    aat-capture inspect CAPTURE_DIR_OR_FILE... [--json] [--no-exiftool]
+    aat-capture init CAPTURE_DIR [--focus-m F1,F2,...] [--force] [--no-exiftool]
+    aat-capture plan --near M --far M --frames N
 
-Per frame: the focus distance found (metres from the sensor), where it came from (sidecar, which EXIF or
-maker-note tag, exiftool), camera make/model, lens, focal length, F-number and image size.
+inspect: per frame the focus distance found (metres from the sensor), where it came from (capture.json, which EXIF
+or maker-note tag, exiftool), camera make/model, lens, focal length, F-number and image size; per folder whether
+aat-infer can run it, and if not why. Exit status 1 if a folder cannot be run or a file gives no usable focus
+distance.
+init: write CAPTURE_DIR/capture.json listing the frame files in name order with their focus distances: from
+--focus-m (in that order), else from each file's metadata, else null for you to fill in. An existing capture.json
+is replaced only with --force (the old one is kept as capture.json.bak).
+plan: focus distances for N frames from near to far, evenly spaced in diopters (as the models were trained).
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
+import os
 import sys
 from pathlib import Path
 
 from ..capture.exif import read_metadata
-from ..capture.folder import SIDECAR, _sidecar, frame_files
+from ..capture.focuslist import parse_focus_list
+from ..capture.folder import SIDECAR, _sidecar, focus_problem, frame_files, read_capture
 from ..capture.raw import FRAME_EXTENSIONS, is_raw, raw_size
-from ..errors import CaptureError
+from ..errors import CaptureError, safe_output_streams
+from .common import EXIT_FAILED, EXIT_OK, parser, subparser
 
 
-def _rows(targets: list[str], use_exiftool: bool) -> list[dict]:
+def _frame_rows(target: Path, use_exiftool: bool) -> list[dict]:
+    """Per-frame metadata rows of a folder (its capture.json's files if it has one) or of one file."""
+    if target.is_dir():
+        sidecar = _sidecar(target) or {}
+        files = [target / n for n in sidecar] if sidecar else frame_files(target)  # names confined by _sidecar
+        focus = dict(zip(files, sidecar.values())) if sidecar else {}
+        if not files:
+            raise CaptureError(f"{target}: empty capture folder (no RAW, TIFF, PNG or JPEG frames)")
+    elif target.is_file():
+        if target.suffix.lower() not in FRAME_EXTENSIONS:
+            raise CaptureError(f"{target}: unknown frame type {target.suffix!r} (expected RAW, TIFF, PNG or JPEG)")
+        files, focus = [target], {}
+    else:
+        raise CaptureError(f"{target}: no such file or folder")
     rows = []
-    for t in targets:
-        p = Path(t)
-        if p.is_dir():
-            sidecar = _sidecar(p) or {}
-            files = [p / n for n in sidecar] if sidecar else frame_files(p)
-            if not files:
-                raise CaptureError(f"{p}: empty capture folder (no RAW, TIFF, PNG or JPEG frames)")
-        elif p.is_file():
-            if p.suffix.lower() not in FRAME_EXTENSIONS:
-                raise CaptureError(f"{p}: unknown frame type {p.suffix!r} (expected RAW, TIFF, PNG or JPEG)")
-            files, sidecar = [p], {}
-        else:
-            raise CaptureError(f"{p}: no such file or folder")
-        for f in files:
-            meta = read_metadata(f, use_exiftool=use_exiftool)
-            if f.name in sidecar:
-                meta.focus_m, meta.focus_source = sidecar[f.name], SIDECAR
-            if meta.width is None and is_raw(f):
-                size = raw_size(f)
-                if size:
-                    meta.width, meta.height = size
-            rows.append(meta.as_json())
+    for f in files:
+        meta = read_metadata(f, use_exiftool=use_exiftool)
+        if f in focus:
+            meta.focus_m, meta.focus_source = focus[f], SIDECAR
+        if meta.width is None and is_raw(f):
+            size = raw_size(f)
+            if size:
+                meta.width, meta.height = size
+        rows.append(meta.as_json())
     return rows
 
 
@@ -57,30 +67,167 @@ def _fmt(v, unit: str = "", digits: int = 4) -> str:
     return f"{v}{unit}"
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="aat-capture", description=__doc__.split("\n")[0])
-    sub = ap.add_subparsers(dest="cmd", required=True)
-    ins = sub.add_parser("inspect", help="per-frame focus distance, its source, camera and lens")
-    ins.add_argument("targets", nargs="+", metavar="CAPTURE_DIR_OR_FILE")
-    ins.add_argument("--json", action="store_true", help="print a JSON list of objects")
-    ins.add_argument("--no-exiftool", action="store_true", help="do not fall back to exiftool even if installed")
-    args = ap.parse_args(argv)
-    try:
-        rows = _rows(args.targets, not args.no_exiftool)
-    except CaptureError as e:
-        print(f"aat-capture: error: {e}", file=sys.stderr)
-        return 1
+def _problem(target: Path, rows: list[dict], use_exiftool: bool) -> str | None:
+    """Why aat-infer cannot run this target, or None: a folder through the runtime's own checks
+    (aat_deploy.capture.folder.read_capture), a single file when it gives no usable focus distance."""
+    if target.is_dir():
+        try:
+            read_capture(target, use_exiftool=use_exiftool)
+        except CaptureError as e:
+            return str(e)
+        return None
+    f = rows[0]["focus_m"]
+    f = math.inf if f == "inf" else f
+    if f is None:
+        return f"{target}: no focus distance in its metadata; give it in {SIDECAR} (aat-capture init)"
+    why = focus_problem(f)
+    return None if why is None else f"{target}: focus distance {_fmt(f, ' m')} is not usable ({why})"
+
+
+def inspect(args) -> int:
+    failed, out = 0, []
+    for t in args.targets:
+        target = Path(t)
+        try:
+            rows = _frame_rows(target, not args.no_exiftool)
+        except CaptureError as e:
+            print(f"aat-capture: CANNOT READ: {e}", file=sys.stderr, flush=True)
+            failed += 1
+            continue
+        problem = _problem(target, rows, not args.no_exiftool)
+        failed += problem is not None
+        for r in rows:
+            r["capture"], r["capture_problem"] = str(target), problem
+        out += rows
+        if not args.json and not args.quiet:
+            for r in rows:
+                size = f"{r['width']}x{r['height']}" if r["width"] else "-"
+                print(f"{r['file']}\n  focus {_fmt(r['focus_m'], ' m')}  from {r['focus_source'] or '-'}\n"
+                      f"  camera {r['make'] or '-'} / {r['model'] or '-'}  lens {r['lens'] or '-'}  "
+                      f"f {_fmt(r['focal_length_mm'], ' mm')}  F/{_fmt(r['f_number'])}  size {size}")
+                for n in r["notes"]:
+                    print(f"  note: {n}")
+            if target.is_dir() and problem is None:
+                print(f"{target}: ok, {len(rows)} frames aat-infer can run")
+        if problem is not None:
+            print(f"aat-capture: CANNOT RUN: {problem}", file=sys.stderr, flush=True)
     if args.json:
-        print(json.dumps(rows, indent=2))
-        return 0
-    for r in rows:
-        size = f"{r['width']}x{r['height']}" if r["width"] else "-"
-        print(f"{r['file']}\n  focus {_fmt(r['focus_m'], ' m')}  from {r['focus_source'] or '-'}\n"
-              f"  camera {r['make'] or '-'} / {r['model'] or '-'}  lens {r['lens'] or '-'}  "
-              f"f {_fmt(r['focal_length_mm'], ' mm')}  F/{_fmt(r['f_number'])}  size {size}")
-        for n in r["notes"]:
-            print(f"  note: {n}")
-    return 0
+        print(json.dumps(out, indent=2))
+    return EXIT_FAILED if failed else EXIT_OK
+
+
+def _backup_name(path: Path) -> Path:
+    bak, k = path.with_name(path.name + ".bak"), 2
+    while os.path.lexists(bak):
+        bak, k = path.with_name(f"{path.name}.bak{k}"), k + 1
+    return bak
+
+
+def init(args, ap) -> int:
+    folder = Path(args.folder)
+    if not folder.is_dir():
+        ap.error(f"{folder}: not a folder")
+    try:
+        focus = parse_focus_list(args.focus_m) if args.focus_m is not None else None
+    except CaptureError as e:  # the parser aat-infer --focus-m uses
+        ap.error(str(e))
+    path = folder / SIDECAR
+    if os.path.lexists(path) and not args.force:
+        print(f"aat-capture: FAILED: {path} exists (pass --force to replace it; the old one is kept as "
+              f"{_backup_name(path).name})", file=sys.stderr)
+        return EXIT_FAILED
+    try:
+        files = frame_files(folder)
+    except OSError as e:
+        print(f"aat-capture: FAILED: {folder}: cannot read ({e.strerror or e})", file=sys.stderr)
+        return EXIT_FAILED
+    if not files:
+        print(f"aat-capture: FAILED: {folder}: no RAW, TIFF, PNG or JPEG frames", file=sys.stderr)
+        return EXIT_FAILED
+    if focus is not None and len(focus) != len(files):
+        ap.error(f"--focus-m gives {len(focus)} focus distances, {folder} has {len(files)} frames: "
+                 + ", ".join(p.name for p in files[:8]) + (" ..." if len(files) > 8 else ""))
+    frames, missing = [], []
+    for i, p in enumerate(files):
+        if focus is not None:
+            f, src = focus[i], "--focus-m"
+        else:
+            try:
+                meta = read_metadata(p, use_exiftool=not args.no_exiftool)
+            except CaptureError as e:
+                print(f"aat-capture: warning: {e}", file=sys.stderr)
+                meta = None
+            f = meta.focus_m if meta is not None and meta.focus_m is not None and focus_problem(meta.focus_m) is None \
+                else None
+            src = meta.focus_source if f is not None else None
+        if f is None:
+            missing.append(p.name)
+        frames.append({"file": p.name, "focus_m": f, **({"from": src} if src else {})})
+    text = json.dumps({"frames": frames}, indent=2) + "\n"
+    tmp = folder / f".{SIDECAR}.tmp-{os.getpid()}"
+    try:
+        tmp.write_text(text, encoding="utf-8")
+        if os.path.lexists(path):
+            bak = _backup_name(path)
+            os.replace(path, bak)
+            print(f"{path}: the previous one is kept as {bak.name}", file=sys.stderr)
+        os.replace(tmp, path)
+    except OSError as e:
+        tmp.unlink(missing_ok=True)
+        print(f"aat-capture: FAILED: {path}: cannot write ({e.strerror or e})", file=sys.stderr)
+        return EXIT_FAILED
+    if not args.quiet:
+        print(f"{path}: {len(frames)} frames")
+    if missing:
+        print(f"{path}: fill in focus_m (metres from the sensor) for {len(missing)} frame(s): "
+              + ", ".join(missing[:8]) + (" ..." if len(missing) > 8 else ""), file=sys.stderr)
+    return EXIT_OK
+
+
+def plan_focus_m(near_m: float, far_m: float, frames: int) -> list[float]:
+    """`frames` focus distances (m) from near_m to far_m, evenly spaced in diopters (1/m)."""
+    dn, df = 1.0 / near_m, 1.0 / far_m
+    return [1.0 / (dn + (df - dn) * i / (frames - 1)) for i in range(frames)]
+
+
+def plan(args, ap) -> int:
+    if not (args.near > 0 and args.far > args.near and math.isfinite(args.far)):
+        ap.error("need 0 < --near < --far (metres from the sensor)")
+    if args.frames < 2:
+        ap.error("--frames must be >= 2")
+    fs = plan_focus_m(args.near, args.far, args.frames)
+    step = (1 / args.near - 1 / args.far) / (args.frames - 1)
+    print(f"{args.frames} frames, {step:.4g} diopters apart (focus distances in m from the sensor):")
+    print(",".join(f"{f:.4g}" for f in fs))
+    return EXIT_OK
+
+
+def main(argv: list[str] | None = None) -> int:
+    safe_output_streams()
+    ap = parser("aat-capture", __doc__.split("\n")[0], quiet=False)
+    sub = ap.add_subparsers(dest="cmd", required=True, metavar="{inspect,init,plan}")
+    ins = subparser(sub, "inspect", "per-frame focus distance and its source, camera and lens; whether aat-infer "
+                    "can run each folder")
+    ins.add_argument("targets", nargs="+", metavar="CAPTURE_DIR_OR_FILE")
+    ins.add_argument("--json", action="store_true", help="print a JSON list of per-frame objects (with 'capture' and "
+                     "'capture_problem': null when aat-infer can run it)")
+    ins.add_argument("--no-exiftool", action="store_true", help="do not fall back to exiftool even if installed")
+    ini = subparser(sub, "init", "write CAPTURE_DIR/capture.json listing its frames and their focus distances")
+    ini.add_argument("folder", metavar="CAPTURE_DIR")
+    ini.add_argument("--focus-m", metavar="F1,F2,...", help="focus distances in metres from the sensor, one per frame "
+                     "in file-name order (default: from each file's metadata, null where it has none)")
+    ini.add_argument("--force", action="store_true", help="replace an existing capture.json (kept as .bak)")
+    ini.add_argument("--no-exiftool", action="store_true", help="do not fall back to exiftool even if installed")
+    pl = subparser(sub, "plan", "focus distances for a stack, evenly spaced in diopters")
+    pl.add_argument("--near", type=float, required=True, metavar="M", help="nearest focus distance (m from the sensor)")
+    pl.add_argument("--far", type=float, required=True, metavar="M", help="farthest focus distance (m)")
+    pl.add_argument("--frames", type=int, required=True, metavar="N", help="number of frames")
+    args = ap.parse_args(argv)
+    if args.cmd == "inspect":
+        return inspect(args)
+    if args.cmd == "init":
+        return init(args, ini)
+    return plan(args, pl)
 
 
 if __name__ == "__main__":

@@ -14,13 +14,15 @@ import os
 import sys
 from pathlib import Path
 
+from .common import add_list_option, parser, print_effects
+
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="aat-diagnose", description=__doc__.split("\n\n")[0],
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("root", nargs="?", help="a capture folder with ground truth, or a folder of them")
-    p.add_argument("--model", help="the DfF model (.onnx) to diagnose")
-    p.add_argument("--out", help="report folder (diagnosis.json, report.md, PNGs, diagnosis.rrd)")
+    p = parser("aat-diagnose", __doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_list_option(p, "--list-effects", print_effects, "list the registered effects and exit")
+    p.add_argument("root", metavar="ROOT", help="a capture folder with ground truth, or a folder of them")
+    p.add_argument("--model", required=True, help="the DfF model (.onnx) to diagnose")
+    p.add_argument("--out", required=True, help="report folder (diagnosis.json, report.md, PNGs, diagnosis.rrd)")
     p.add_argument("--lens", help="lens file the model was trained for (default: found in lenses/ by name)")
     p.add_argument("--psf", help="PSF surrogate (.onnx) of that lens (default: found in models/; else ray tracing)")
     p.add_argument("--effects", help="only try these registered effects (comma-separated; default all)")
@@ -31,28 +33,27 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--threads", type=int, default=2, help="onnxruntime threads")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--force", action="store_true", help="replace an existing --out folder")
-    p.add_argument("--list-effects", action="store_true", help="list the registered effects and exit")
-    p.add_argument("-q", "--quiet", action="store_true")
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
     a = build_parser().parse_args(argv)
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-    from training.render import effects as fx
-
-    if a.list_effects:
-        for name, desc in fx.describe().items():
-            print(f"{name:16s} {desc}")
-        return 0
-    if not (a.root and a.model and a.out):
-        print("aat-diagnose: error: ROOT, --model and --out are required (or --list-effects)", file=sys.stderr)
-        return 2
     from aat_deploy.diagnose.session import DiagnoseError, run
+    from aat_deploy.shipped import resolve
+
+    a.model = str(resolve(a.model, "models"))
+    a.lens = str(resolve(a.lens, "lenses")) if a.lens else None
+    a.psf = str(resolve(a.psf, "models")) if a.psf else None
+    from aat_deploy.errors import OutputError
+    from aat_deploy.io.guard import check_output_dir
 
     out = Path(a.out)
-    if out.exists() and not a.force:
-        print(f"aat-diagnose: error: {out} exists (use --force to replace it)", file=sys.stderr)
+    try:  # before any work: the report folder may be replaced, so it must never hold or sit in an input
+        check_output_dir(out, [a.root, a.model, *(p for p in (a.lens, a.psf) if p)], a.force,
+                         marker="diagnosis.json", tool="aat-diagnose", nest_ok=[a.root])
+    except OutputError as e:
+        print(f"aat-diagnose: error: {e}", file=sys.stderr)
         return 2
     try:
         res = run(a.root, a.model, out, lens=a.lens, psf=a.psf, effects=a.effects, retrain_steps=a.retrain_steps,

@@ -10,20 +10,22 @@ the exit status is 1 if any failed, 2 if nothing could be run.
 
 from __future__ import annotations
 
-import argparse
 import os
 import sys
 from pathlib import Path
 
-from ..errors import CaptureError
+from ..errors import CaptureError, safe_output_streams
 from ..eval.report import MD_COLUMNS
 from ..eval.run import EvalOptions, evaluate
 from ..eval.score import ALIGN_MODES
+from ..shipped import resolve
+from .common import parser
 
 
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-    ap = argparse.ArgumentParser(prog="aat-eval", description=__doc__.split("\n")[0])
+    safe_output_streams()
+    ap = parser("aat-eval", __doc__.split("\n")[0])
     ap.add_argument("root", type=Path, metavar="ROOT", help="a capture folder or a folder of capture folders")
     ap.add_argument("--model", type=Path, help="aat DfF model (.onnx)")
     ap.add_argument("--compare", type=Path, nargs="+", default=[], metavar="M.onnx",
@@ -41,11 +43,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-exiftool", action="store_true", help="never fall back to exiftool")
     ap.add_argument("--no-recording", action="store_true", help="skip eval.rrd")
     ap.add_argument("--no-panels", action="store_true", help="skip the per-capture panel PNGs")
-    ap.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     args = ap.parse_args(argv)
     if args.threads is not None and args.threads < 1:
         ap.error("--threads must be >= 1")
     models = ([args.model] if args.model else []) + [m for m in args.compare if m != args.model]
+    models = [resolve(m, "models") for m in models]  # paths, or shipped models' names
     if not models:
         ap.error("give --model M.onnx and/or --compare A.onnx B.onnx ...")
     opts = EvalOptions(align=args.align, align_frames=args.align_frames, focus_range_mask=args.focus_range_mask,

@@ -9,7 +9,7 @@
 render: ray-casts a mesh (PLY/OBJ/..., e.g. a lidar scan) from the camera pose and writes depth in metres from
 the sensor plane: a 16-bit PNG in mm (0 = no surface), a float32 .npy in metres (NaN = no surface), a validity
 mask PNG (255 = valid) and a JSON of how it was rendered. OUT is a .png path, or a folder (a capture folder:
-gt_depth_mm.png, gt_depth_m.npy, gt_mask.png, gt_render.json). Needs the gt extra (pip install "aat[gt]").
+gt_depth_mm.png, gt_depth_m.npy, gt_mask.png, gt_render.json). Needs the gt extra (pip install "aat-dff[gt]").
 pose: the camera pose from a few clicked correspondences (pixel in a frame, the same point on the mesh), solved or
 refined from --init, written as the pose file `render` reads, with each point's reprojection error; with --image,
 a picture of the clicks and where the pose puts them (POSE.png).
@@ -18,18 +18,19 @@ check: reads each capture's ground truth as aat-eval does and prints what it fou
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import sys
 from pathlib import Path
 
-import cv2
 import numpy as np
 
-from ..errors import CaptureError
+from ..errors import CaptureError, safe_output_streams
 from ..eval.gt import check_units, find_gt, load_ground_truth
 from ..eval.raycast import load_intrinsics, load_mesh, load_pose, render_depth
+from ..io.guard import check_output_files
+from ..io.images import imwrite
+from .common import parser, subparser
 
 MM_MAX = 65535
 
@@ -55,7 +56,7 @@ def _write_atomic(paths: dict[str, Path], depth_m: np.ndarray, info: dict) -> No
     tmp = {k: p.with_name(f".{p.name}.tmp-{os.getpid()}{p.suffix}") for k, p in paths.items()}
     try:
         np.save(tmp["npy"], depth_m.astype(np.float32))
-        if not cv2.imwrite(str(tmp["png"]), mm) or not cv2.imwrite(str(tmp["mask"]),
+        if not imwrite(tmp["png"], mm) or not imwrite(tmp["mask"],
                                                                     valid.astype(np.uint8) * 255):
             raise OSError("could not write PNG")
         tmp["json"].write_text(json.dumps(info, indent=2) + "\n")
@@ -68,11 +69,12 @@ def _write_atomic(paths: dict[str, Path], depth_m: np.ndarray, info: dict) -> No
 
 def cmd_render(a) -> int:
     paths = output_paths(a.out)
-    if a.out.suffix.lower() != ".png":
-        a.out.mkdir(parents=True, exist_ok=True)
+    check_output_files(paths.values(), [a.mesh, a.pose, a.lens])  # before any work
     existing = [p for p in paths.values() if p.exists()]
     if existing and not a.force:
         raise CaptureError(f"{existing[0]}: exists (pass --force to overwrite)")
+    if a.out.suffix.lower() != ".png":
+        a.out.mkdir(parents=True, exist_ok=True)
     intr = load_intrinsics(a.lens, a.width, a.height, a.pupil_to_sensor_mm)
     pose = load_pose(a.pose)
     mesh = load_mesh(a.mesh, a.mesh_scale)
@@ -98,6 +100,7 @@ def cmd_pose(a) -> int:
     from ..eval.pose import fit_notes, load_correspondences, preview, solve_pose
 
     outs = [a.out] + ([a.out.with_suffix(".png")] if a.image else [])
+    check_output_files(outs, [p for p in (a.points, a.lens, a.init, a.image) if p])
     existing = [p for p in outs if p.exists()]
     if existing and not a.force:
         raise CaptureError(f"{existing[0]}: exists (pass --force to overwrite)")
@@ -122,7 +125,7 @@ def cmd_pose(a) -> int:
     tmp_png = a.out.with_name(f".{a.out.stem}.tmp-{os.getpid()}.png")
     try:
         tmp.write_text(json.dumps(fit.as_json(intr, points, notes), indent=2) + "\n")
-        if picture is not None and not cv2.imwrite(str(tmp_png), picture):
+        if picture is not None and not imwrite(tmp_png, picture):
             raise OSError(f"{tmp_png}: could not write PNG")
         os.replace(tmp, a.out)
         if picture is not None:
@@ -168,9 +171,10 @@ def cmd_check(a) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-    ap = argparse.ArgumentParser(prog="aat-gt", description=__doc__.split("\n")[0])
-    sub = ap.add_subparsers(dest="cmd", required=True)
-    r = sub.add_parser("render", help="ray-cast a mesh into a depth map from the camera's pose")
+    safe_output_streams()
+    ap = parser("aat-gt", __doc__.split("\n")[0], quiet=False)
+    sub = ap.add_subparsers(dest="cmd", required=True, metavar="{render,pose,check}")
+    r = subparser(sub, "render", "ray-cast a mesh into a depth map from the camera's pose")
     r.add_argument("mesh", type=Path, metavar="MESH")
     r.add_argument("--pose", type=Path, required=True, help="camera pose JSON (docs/contracts.md)")
     r.add_argument("--lens", type=Path, required=True,
@@ -184,8 +188,7 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--max-incidence-deg", type=float, default=None,
                    help="drop hits more oblique than this (ray vs surface normal)")
     r.add_argument("--force", action="store_true", help="overwrite existing outputs")
-    r.add_argument("-q", "--quiet", action="store_true")
-    p = sub.add_parser("pose", help="the camera pose from clicked correspondences (pixel <-> mesh point)")
+    p = subparser(sub, "pose", "the camera pose from clicked correspondences (pixel <-> mesh point)")
     p.add_argument("--points", type=Path, required=True,
                    help='JSON {"points": [{"pixel": [u, v], "world": [x, y, z]}, ...]} or CSV u,v,x,y,z')
     p.add_argument("--lens", type=Path, required=True, help="intrinsics, as for render")
@@ -197,7 +200,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--height", type=int, help="height in px of the image the pixels were clicked in")
     p.add_argument("--mesh-scale", type=float, default=1.0, help="world units of the points to metres")
     p.add_argument("--force", action="store_true", help="overwrite an existing pose file")
-    c = sub.add_parser("check", help="read captures' ground truth as aat-eval does")
+    c = subparser(sub, "check", "read captures' ground truth as aat-eval does")
     c.add_argument("captures", nargs="+", type=Path, metavar="CAPTURE_DIR")
     c.add_argument("--model", type=Path, help="also check the units against this model's focus range")
     a = ap.parse_args(argv)

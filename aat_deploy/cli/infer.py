@@ -1,59 +1,111 @@
 """aat-infer: run an ONNX depth-from-focus model on capture folders.
 
     aat-infer CAPTURE_DIR... --model M.onnx [--out DIR] [--force] [--strict] [--threads N] [--tile N] [--align]
+    aat-infer CAPTURE_DIR... --method focus [--lens LENS | --psf PSF.onnx] [--focus-m 0.6,0.8,...] [--max-side N]
 
-Writes depth_mm.png, depth_m.npy, aif.png, std_m.npy, std_mm.png, summary.json and recording.rrd per capture,
-into DIR itself for one capture, DIR/<capture name>/ for several (default DIR: ./aat_out/<capture name>).
-A failing capture is reported on one line and the batch goes on; the exit status is 1 if any failed.
+--method focus needs no trained model: classical depth from focus (aat_deploy.focus) at the capture's own
+resolution, aberration-aware with the lens's best-focus map (--lens, --psf). It also writes confidence.npy/png.
+
+Writes depth (depth_m.npy/.tif, depth_mm.png, depth_color.png), aif.png, uncertainty (std_m.npy, std_mm.png,
+std_color.png), points.ply, camera.json, summary.json and recording.rrd per capture (docs/contracts.md), into DIR itself for one capture, DIR/<capture name>/ for several (default DIR: ./aat_out/<capture name>); captures
+with the same folder name get <name>_2, <name>_3, ... An output folder that is, contains or lies inside an input,
+or is the current folder, is refused before any work; an existing one is replaced only with --force, and only if it
+is an earlier aat-infer output. A failing capture is reported on one line and the batch goes on; the exit status is
+1 if any failed, 2 if the model cannot be used.
 """
 
 from __future__ import annotations
 
-import argparse
 import os
 import sys
 import time
 from pathlib import Path
 
-from ..errors import CaptureError
+from ..capture.focuslist import parse_focus_list
+from ..errors import CaptureError, safe_output_streams
+from ..focus.runner import FocusMethod
 from ..model import DfFModel
-from ..pipeline import Options, output_dir_for, run_capture
+from ..pipeline import Options, check_output, output_dir_for, output_dirs, run_capture
+from ..shipped import resolve
+from .common import parser
 
 
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-    ap = argparse.ArgumentParser(prog="aat-infer", description=__doc__.split("\n")[0])
-    ap.add_argument("captures", nargs="+", metavar="CAPTURE_DIR")
-    ap.add_argument("--model", required=True, type=Path, help="aat DfF model (.onnx)")
-    ap.add_argument("--out", type=Path, help="output folder (see above)")
-    ap.add_argument("--force", action="store_true", help="replace existing output folders")
+    safe_output_streams()
+    ap = parser("aat-infer", __doc__.split("\n")[0])
+    ap.add_argument("captures", nargs="+", metavar="CAPTURE_DIR", help="capture folder(s): frames + focus distances")
+    ap.add_argument("--model", type=Path, metavar="M.onnx", help="aat DfF model: a .onnx file or a shipped model's "
+                    "name (dff_dfvnet_aat, ...); required unless --method focus")
+    ap.add_argument("--method", choices=("model", "focus"), default="model",
+                    help="model (a trained DfF net, default) or focus (classical focus measures, no model)")
+    ap.add_argument("--lens", type=Path, help="--method focus: lens file, for its best-focus map (aberration-aware)")
+    ap.add_argument("--psf", type=Path, help="--method focus: PSF surrogate carrying the lens's best-focus map")
+    ap.add_argument("--focus-m", metavar="F1,F2,...", help="focus distances (m) of the frames in file-name order, "
+                    "for files without focus metadata (overrides capture.json)")
+    ap.add_argument("--max-side", type=int, metavar="N",
+                    help="--method focus: work at most this many px on the longer side")
+    ap.add_argument("--out", type=Path, metavar="DIR", help="output folder: DIR itself for one capture, "
+                    "DIR/<capture name>/ for several (default ./aat_out/<capture name>/)")
+    ap.add_argument("--force", action="store_true", help="replace existing output folders (earlier aat-infer "
+                    "outputs only)")
     ap.add_argument("--strict", action="store_true", help="camera/lens mismatch with the model is an error")
-    ap.add_argument("--threads", type=int, default=None, help="onnxruntime intra-op threads (default: all cores)")
-    ap.add_argument("--tile", type=int, default=None, help="run in overlapping tiles of N px (bounded memory)")
+    ap.add_argument("--threads", type=int, default=None, metavar="N", help="onnxruntime intra-op threads (default: all cores)")
+    ap.add_argument("--tile", type=int, default=None, metavar="N", help="run in overlapping tiles of N px (bounded memory)")
     ap.add_argument("--align", action="store_true", help="align frames (affine) against focus breathing")
+    ap.add_argument("--native-res", action="store_true",
+                    help="depth and all-in-focus at the capture's own resolution (the model runs at its sensor size; "
+                         "depth upsampled guided by the all-in-focus image)")
     ap.add_argument("--no-exiftool", action="store_true", help="never fall back to exiftool")
     ap.add_argument("--no-recording", action="store_true", help="skip recording.rrd")
-    ap.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
     args = ap.parse_args(argv)
     if args.threads is not None and args.threads < 1:
         ap.error("--threads must be >= 1")
     if args.tile is not None and args.tile < 16:
         ap.error("--tile must be >= 16 px")
+    if args.method == "model" and args.model is None:
+        ap.error("--model is required (or --method focus, which needs no trained model)")
+    if args.method == "model" and (args.lens or args.psf or args.max_side):
+        ap.error("--lens, --psf and --max-side belong to --method focus")
+    if args.method == "focus" and args.model is not None:
+        ap.error("--method focus uses no --model")
+    if args.max_side is not None and args.max_side < 16:
+        ap.error("--max-side must be >= 16 px")
+    if args.model is not None:
+        args.model = resolve(args.model, "models")  # a path, or a shipped model's name
+    if args.lens is not None:
+        args.lens = resolve(args.lens, "lenses")
+    if args.psf is not None:
+        args.psf = resolve(args.psf, "models")
+    captures = [Path(c) for c in args.captures]
+    outs = output_dirs(captures, args.out)
+    refused = {}  # before any work: an output folder that is, holds or sits in an input is never touched
+    for i, (c, out) in enumerate(zip(captures, outs)):
+        try:
+            check_output(out, args.force, [*captures, *(p for p in (args.model, args.lens, args.psf) if p)])
+        except CaptureError as e:
+            refused[i] = e
     try:
-        model = DfFModel(args.model, threads=args.threads)
+        focus_m = parse_focus_list(args.focus_m) if args.focus_m is not None else None
+        model = (FocusMethod(lens=args.lens, psf=args.psf, max_side=args.max_side, progress=not args.quiet)
+                 if args.method == "focus" else DfFModel(args.model, threads=args.threads))
     except CaptureError as e:
         print(f"aat-infer: error: {e}", file=sys.stderr)
         return 2
     opts = Options(tile=args.tile, align=args.align, strict=args.strict, force=args.force,
-                   use_exiftool=not args.no_exiftool, record=not args.no_recording, quiet=args.quiet)
-    single = len(args.captures) == 1
+                   use_exiftool=not args.no_exiftool, focus_m=focus_m, record=not args.no_recording,
+                   quiet=args.quiet, native=args.native_res)
     failed = 0
-    for i, c in enumerate(args.captures, 1):
-        out = output_dir_for(Path(c), args.out, single)
+    for i, (c, out) in enumerate(zip(captures, outs)):
         t0 = time.perf_counter()
         if not args.quiet:
-            print(f"[{i}/{len(args.captures)}] {c}", file=sys.stderr, flush=True)
+            print(f"[{i + 1}/{len(captures)}] {c}", file=sys.stderr, flush=True)
+        if out.name != output_dir_for(c, args.out, len(captures) == 1).name:
+            print(f"aat-infer: note: another capture in this batch is also named {c.resolve().name!r}: "
+                  f"{c} goes to {out}", file=sys.stderr, flush=True)
         try:
+            if i in refused:
+                raise refused[i]
             summary = run_capture(c, model, out, opts)
         except CaptureError as e:
             failed += 1
@@ -63,13 +115,18 @@ def main(argv: list[str] | None = None) -> int:
             failed += 1
             print(f"aat-infer: FAILED {c}: out of memory (try --tile 256)", file=sys.stderr, flush=True)
             continue
+        except Exception as e:  # noqa: BLE001 (one capture's surprise must not stop the batch)
+            failed += 1
+            msg = str(e).splitlines()[0][:200] if str(e) else ""
+            print(f"aat-infer: FAILED {c}: unexpected {type(e).__name__}: {msg}", file=sys.stderr, flush=True)
+            continue
         for w in summary["warnings"]:
             print(f"aat-infer: warning: {w}", file=sys.stderr)
         lo, hi = summary["depth_m_range"]
         print(f"{c} -> {out}  ({len(summary['focus_m'])} frames, depth {lo:.3g}..{hi:.3g} m, "
               f"{time.perf_counter() - t0:.2f} s)", flush=True)
     if failed:
-        print(f"aat-infer: {failed} of {len(args.captures)} capture(s) failed", file=sys.stderr)
+        print(f"aat-infer: {failed} of {len(captures)} capture(s) failed", file=sys.stderr)
     return 1 if failed else 0
 
 

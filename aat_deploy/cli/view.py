@@ -8,7 +8,6 @@ rerun binds all interfaces by default; aat-view always passes --bind 127.0.0.1.
 
 from __future__ import annotations
 
-import argparse
 import os
 import signal
 import socket
@@ -17,6 +16,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from .common import parser
 
 HOST = "127.0.0.1"
 
@@ -98,12 +99,16 @@ def screenshot(rrd: Path, out: Path, window: str = "1280x800", timeout_s: float 
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="aat-view", description=__doc__.split("\n")[0])
+    ap = parser("aat-view", __doc__.split("\n")[0])
     ap.add_argument("recording", type=Path, metavar="RECORDING.rrd")
     ap.add_argument("--port", type=int, default=9090, help="web viewer port (default 9090)")
     ap.add_argument("--grpc-port", type=int, default=9876, help="data (gRPC) port the page connects to")
     ap.add_argument("--screenshot", type=Path, metavar="OUT.png", help="render a picture headless and exit")
     args = ap.parse_args(argv)
+    for flag, port in (("--port", args.port), ("--grpc-port", args.grpc_port)):
+        if not 1 <= port <= 65535:
+            print(f"aat-view: error: {flag} {port} is not a TCP port (1..65535)", file=sys.stderr)
+            return 2
     err = _check_rrd(args.recording)
     if err:
         print(f"aat-view: error: {err}", file=sys.stderr)

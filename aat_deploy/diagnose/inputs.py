@@ -16,6 +16,7 @@ from aat_deploy.geometry import fit_to_sensor
 from aat_deploy.model import DfFModel
 from aat_deploy.eval import batch
 from aat_deploy.eval.gt import check_units, find_gt, load_ground_truth, to_sensor
+from aat_deploy.io.images import imread
 
 
 @dataclass
@@ -59,7 +60,7 @@ def load_capture_data(folder: str | Path, model: DfFModel, use_exiftool: bool = 
     gt = to_sensor(truth.depth_m, (size0[1], size0[0]), geometry["crop_xywh"], (w_px, h_px), src.depth)
     aif = None
     if src.aif is not None:
-        img = cv2.imread(str(src.aif), cv2.IMREAD_UNCHANGED)
+        img = imread(src.aif, cv2.IMREAD_UNCHANGED)
         if img is None:
             raise CaptureError(f"{src.aif}: unreadable all-in-focus image")
         scale = 65535.0 if img.dtype == np.uint16 else 255.0

@@ -20,6 +20,8 @@ from aat_deploy.diagnose import report
 from aat_deploy.diagnose.inputs import find_captures, load_capture_data
 from aat_deploy.diagnose.search import Diagnosis, DiagnoseConfig, diagnose
 from aat_deploy.errors import CaptureError, ModelError
+from aat_deploy.io.atomic import atomic_folder
+from aat_deploy.io.guard import check_no_overlap
 from aat_deploy.model import DfFModel
 from aat_deploy.twin.lookup import find_lens, find_surrogate
 from aat_deploy.twin.renderer import TwinError, TwinRenderer, model_effects
@@ -72,7 +74,7 @@ def run(root, model_path, out: Path, *, lens=None, psf=None, effects=None, retra
         torch_free: bool = False) -> dict:
     say = _say(quiet)
     if retrain_steps and shutil.which("aat-train") is None:
-        raise DiagnoseError("--retrain-steps needs aat-train (pip install -e '.[train]')")
+        raise DiagnoseError("--retrain-steps needs aat-train (pip install 'aat-dff[train]')")
     cfg = cfg or DiagnoseConfig(seed=seed, effects=[s.strip() for s in effects.split(",")] if effects else None)
     unknown = sorted(set(cfg.effects or []) - set(fx.names()))
     if unknown:  # before any model or capture is loaded
@@ -83,6 +85,7 @@ def run(root, model_path, out: Path, *, lens=None, psf=None, effects=None, retra
         src = find_surrogate(lens_obj, psf, threads)
         twins = make_renderer(model, lens_obj, src, torch_free)
         folders = find_captures(root, exclude=[Path(out)])
+        check_no_overlap(out, folders)  # the report never goes into (or replaces) a capture folder
         if not folders:
             raise DiagnoseError(f"{root}: no capture folder with ground truth (see docs/contracts.md)")
         say(f"{len(folders)} capture(s); model simulator: {', '.join(fx.spec(e) for e in twins.base) or 'thin lens'}")
@@ -95,11 +98,7 @@ def run(root, model_path, out: Path, *, lens=None, psf=None, effects=None, retra
                     "effects": [fx.spec(e) for e in twins.base]}
     shrink = res["shrink"]
     out = Path(out)
-    tmp = out.parent / f".{out.name}.tmp"
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    tmp.mkdir(parents=True)
-    try:
+    with atomic_folder(out, force) as tmp:
         if shrink:
             named = [e.training_spec() for e in chain[-1].effects]
             cmd = retrain_command(Path(model_path), lens_file, src.path if src is not None else None,
@@ -122,14 +121,6 @@ def run(root, model_path, out: Path, *, lens=None, psf=None, effects=None, retra
             {"name": r.data.name, "gt_m": r.data.gt_m, "pred_real_m": r.pred_m,
              "pred_twin_m": p0, "pred_twin_best_m": p1, "gap_m": g}
             for r, g, p0, p1 in zip(diag.runs, diag.gap_maps(chain[0]), chain[0].pred, chain[-1].pred)])
-        if out.exists():
-            if not force:
-                raise DiagnoseError(f"{out} exists (use --force)")
-            shutil.rmtree(out)
-        tmp.rename(out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return res
 
 

@@ -16,8 +16,8 @@ any size); each output pixel takes the ground-truth sample under its centre (nea
 
 from __future__ import annotations
 
-import json
 import math
+import tokenize
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -25,7 +25,8 @@ import cv2
 import numpy as np
 
 from ..capture.raw import FRAME_EXTENSIONS
-from ..errors import CaptureError
+from ..errors import CaptureError, file_kind, load_json, member_path
+from ..io.images import imread
 
 GT_JSON = "gt.json"
 DEFAULT_FILES = (("gt_depth_m.npy", 1.0), ("gt_depth_m.pfm", 1.0), ("gt_depth_m.tif", 1.0),
@@ -34,6 +35,9 @@ DEFAULT_MASK = "gt_mask.png"
 UNITS_FACTOR = 10.0  # median depth beyond this factor outside the model's focus range = wrong units
 ASPECT_TOLERANCE = 0.01
 FEW_VALID = 0.05
+# what reading a damaged depth file raises: np.load parses a .npy header with Python's tokenizer (SyntaxError,
+# TokenError) and gives EOFError on an empty file; OpenCV raises cv2.error
+READ_ERRORS = (OSError, ValueError, EOFError, SyntaxError, tokenize.TokenError, cv2.error)
 
 
 class GTError(CaptureError):
@@ -80,19 +84,19 @@ def find_gt(folder: str | Path) -> GTSource | None:
     spec: dict = {}
     jpath = folder / GT_JSON
     if jpath.is_file():
-        try:
-            spec = json.loads(jpath.read_text())
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-            raise GTError(f"{jpath}: not valid JSON ({e})") from None
+        spec = load_json(jpath, GTError)
         if not isinstance(spec, dict) or set(spec) - {"depth", "scale_to_m", "mask", "note"}:
             raise GTError(f'{jpath}: expected {{"depth": FILE, "scale_to_m": S, "mask": FILE}} (all optional), '
                           f"got {spec if not isinstance(spec, dict) else sorted(spec)}")
     depth, scale = None, None
     if "depth" in spec:
         name = spec["depth"]
-        if not isinstance(name, str) or not (folder / name).is_file():
-            raise GTError(f"{jpath}: depth file {name!r} does not exist")
-        depth = folder / name
+        depth = member_path(folder, name)
+        if depth is None:
+            raise GTError(f"{jpath}: depth file {name!r} is not inside the capture folder (relative names only, "
+                          "no '..')")
+        if (kind := file_kind(depth)) is not None:
+            raise GTError(f"{jpath}: depth file {name!r} " + ("does not exist" if kind == "missing" else f"is {kind}"))
         if depth.suffix.lower() in FRAME_EXTENSIONS and not depth.name.startswith("gt_"):
             raise GTError(f"{jpath}: name the depth file gt_*{depth.suffix} so it is not taken for a frame")
         scale = 0.001 if depth.suffix.lower() == ".png" else 1.0
@@ -107,14 +111,21 @@ def find_gt(folder: str | Path) -> GTSource | None:
         return None
     if "scale_to_m" in spec:
         s = spec["scale_to_m"]
-        if not isinstance(s, (int, float)) or isinstance(s, bool) or not math.isfinite(s) or s <= 0:
-            raise GTError(f"{jpath}: scale_to_m must be a positive number, got {s!r}")
+        try:
+            ok = isinstance(s, (int, float)) and not isinstance(s, bool) and math.isfinite(float(s)) and s > 0
+        except OverflowError:
+            ok = False
+        if not ok:
+            raise GTError(f"{jpath}: scale_to_m must be a positive number, got {str(s)[:40]!r}")
         scale = float(s)
     mask = None
     if "mask" in spec:
-        if not isinstance(spec["mask"], str) or not (folder / spec["mask"]).is_file():
-            raise GTError(f"{jpath}: mask file {spec['mask']!r} does not exist")
-        mask = folder / spec["mask"]
+        mask = member_path(folder, spec["mask"])
+        if mask is None:
+            raise GTError(f"{jpath}: mask file {str(spec['mask'])[:80]!r} is not inside the capture folder "
+                          "(relative names only, no '..')")
+        if file_kind(mask) is not None:
+            raise GTError(f"{jpath}: mask file {spec['mask']!r} does not exist or is not a file")
     elif (folder / DEFAULT_MASK).is_file():
         mask = folder / DEFAULT_MASK
     return GTSource(depth, scale, mask, aif)
@@ -127,8 +138,12 @@ def read_pfm(path: Path) -> np.ndarray:
         if kind not in (b"Pf", b"PF"):
             raise GTError(f"{path}: not a PFM file (header {kind[:8]!r})")
         dims = f.readline().split()
+        if len(dims) != 2:
+            raise GTError(f"{path}: not a PFM file (size line {b' '.join(dims)[:20]!r})")
         scale = float(f.readline().strip())
         w, h = int(dims[0]), int(dims[1])
+        if w <= 0 or h <= 0 or not math.isfinite(scale) or scale == 0:
+            raise GTError(f"{path}: not a PFM file (size {w}x{h}, scale {scale})")
         ch = 3 if kind == b"PF" else 1
         data = np.frombuffer(f.read(), dtype="<f4" if scale < 0 else ">f4")
     if data.size != w * h * ch:
@@ -148,17 +163,17 @@ def read_depth_file(path: Path) -> np.ndarray:
         elif suffix == ".pfm":
             arr = read_pfm(path)
         elif suffix in (".tif", ".tiff", ".png"):
-            arr = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+            arr = imread(path, cv2.IMREAD_UNCHANGED)
             if arr is None:
                 raise GTError(f"{path}: not a readable image")
             if suffix == ".png" and arr.dtype != np.uint16:
                 raise GTError(f"{path}: a depth PNG must be 16-bit (millimetres), this one is {arr.dtype}")
         else:
             raise GTError(f"{path}: unknown depth format {suffix!r} (expected .npy, .pfm, .tif, .tiff or .png)")
-    except (OSError, ValueError) as e:
-        if isinstance(e, GTError):
-            raise
-        raise GTError(f"{path}: unreadable ({e})") from None
+    except GTError:
+        raise
+    except READ_ERRORS as e:
+        raise GTError(f"{path}: unreadable ({str(e).splitlines()[0][:120] if str(e) else type(e).__name__})") from None
     arr = np.asarray(arr)
     if arr.ndim == 3 and arr.shape[2] == 1:
         arr = arr[..., 0]
@@ -177,7 +192,7 @@ def load_ground_truth(src: GTSource) -> GroundTruth:
         d = np.where(np.isfinite(d) & (d > 0), d, np.nan).astype(np.float32)
     warnings = []
     if src.mask is not None:
-        m = cv2.imread(str(src.mask), cv2.IMREAD_UNCHANGED)
+        m = imread(src.mask, cv2.IMREAD_UNCHANGED)
         if m is None:
             raise GTError(f"{src.mask}: not a readable mask image")
         if m.ndim == 3:
@@ -196,22 +211,30 @@ def load_ground_truth(src: GTSource) -> GroundTruth:
     return GroundTruth(d, src, warnings)
 
 
-def check_units(gt: GroundTruth, focus_range_m: tuple[float, float]) -> None:
-    """GTError if the median valid depth is more than UNITS_FACTOR outside the model's focus range: the
-    usual cause is a file in other units than stated (millimetres in a metres file, metres in a mm PNG)."""
-    med = float(np.nanmedian(gt.depth_m))
+def units_problem(median_m: float, focus_range_m: tuple[float, float], path: Path | str, scale: float) -> str | None:
+    """Why a ground truth with this median valid depth (metres) is in the wrong units for a model focused over
+    focus_range_m, or None: more than UNITS_FACTOR outside the range is usually millimetres in a metres file or
+    metres in a mm PNG. The message names the file and the scale_to_m to state."""
     near, far = focus_range_m
-    path, scale = gt.source.depth, gt.source.scale_to_m
+    med = median_m
     if med > UNITS_FACTOR * far:
         guess = 1000 if med > 100 * far else 100 if med > 30 * far else 10
         unit = {1000: "millimetres", 100: "centimetres", 10: "decimetres"}[guess]
-        raise GTError(f"{path}: median ground-truth depth {med:.4g} m is {med / far:.0f}x the model's far focus "
-                      f"{far:g} m: wrong units? ({unit} read with scale_to_m {scale:g}; if so state "
-                      f'"scale_to_m": {scale / guess:g} in {GT_JSON})')
+        return (f"{path}: median ground-truth depth {med:.4g} m is {med / far:.0f}x the model's far focus "
+                f"{far:g} m: wrong units? ({unit} read with scale_to_m {scale:g}; if so state "
+                f'"scale_to_m": {scale / guess:g} in {GT_JSON})')
     if med < near / UNITS_FACTOR:
-        raise GTError(f"{path}: median ground-truth depth {med:.4g} m is below a tenth of the model's near focus "
-                      f"{near:g} m: wrong units? (values read with scale_to_m {scale:g}; state the right "
-                      f'"scale_to_m" in {GT_JSON})')
+        return (f"{path}: median ground-truth depth {med:.4g} m is below a tenth of the model's near focus "
+                f"{near:g} m: wrong units? (values read with scale_to_m {scale:g}; state the right "
+                f'"scale_to_m" in {GT_JSON})')
+    return None
+
+
+def check_units(gt: GroundTruth, focus_range_m: tuple[float, float]) -> None:
+    """GTError if the ground truth's median valid depth says wrong units (see units_problem)."""
+    why = units_problem(float(np.nanmedian(gt.depth_m)), focus_range_m, gt.source.depth, gt.source.scale_to_m)
+    if why is not None:
+        raise GTError(why)
 
 
 def sensor_sample_index(n_out: int, crop0: int, crop_len: int, n_frame: int, n_gt: int) -> np.ndarray:

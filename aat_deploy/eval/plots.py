@@ -8,6 +8,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from ..io.images import imwrite
 
 INVALID_RGB = (40, 40, 40)
 
@@ -23,7 +24,7 @@ def colorize(x: np.ndarray, vmin: float, vmax: float, colormap: int = cv2.COLORM
 
 
 def write_rgb_png(path: Path, rgb: np.ndarray) -> None:
-    if not cv2.imwrite(str(path), np.ascontiguousarray(rgb[..., ::-1])):
+    if not imwrite(path, np.ascontiguousarray(rgb[..., ::-1])):
         raise OSError(f"{path}: could not write PNG")
 
 

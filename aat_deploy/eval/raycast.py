@@ -1,5 +1,5 @@
 """Ground-truth depth rendered from a mesh (an iPhone lidar scan, a CAD model): camera intrinsics, the pose file
-and ray casting (trimesh with Embree through embreex, the optional `gt` extra: `pip install "aat[gt]"`).
+and ray casting (trimesh with Embree through embreex, the optional `gt` extra: `pip install "aat-dff[gt]"`).
 
 Camera model: a pinhole whose projection centre is the lens's entrance pupil. Pixel (u, v) (column, row; the
 centre of the top-left pixel is (0, 0), OpenCV's convention) looks along ((u − cx)/fx, (v − cy)/fy, 1) in camera
@@ -224,7 +224,7 @@ def _trimesh():
     try:
         import trimesh
     except ImportError:
-        raise GTRenderError('ray casting needs the gt extra: pip install "aat[gt]" (trimesh, embreex)') from None
+        raise GTRenderError('ray casting needs the gt extra: pip install "aat-dff[gt]" (trimesh, embreex)') from None
     return trimesh
 
 

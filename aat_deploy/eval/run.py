@@ -15,8 +15,6 @@ force):
 
 from __future__ import annotations
 
-import os
-import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,8 +27,10 @@ from ..errors import CaptureError
 from ..geometry import fit_to_sensor
 from ..metrics import MetricAccumulator, valid_mask
 from ..model import DfFModel
-from ..pipeline import Options, check_output
-from ..pipeline import _replace as replace_folder
+from ..io.atomic import atomic_folder
+from ..io.guard import check_no_overlap, check_output_dir
+from ..io.images import imread
+from ..pipeline import Options
 from ..pipeline import run_capture as infer_capture
 from . import plots, report
 from .batch import Progress, capture_name, find_captures, model_labels
@@ -106,7 +106,7 @@ def _score_one(cap: Path, gt: GroundTruth, model: DfFModel, label: str, run_dir:
                             "a different aspect ratio; AiF not scored")
         else:
             ref_fit, _ = fit_to_sensor(ref, model.sensor_px)
-            aif8 = cv2.imread(str(run_dir / "aif.png"), cv2.IMREAD_COLOR)[..., ::-1]
+            aif8 = imread(run_dir / "aif.png", cv2.IMREAD_COLOR)[..., ::-1]
             aif_p, aif_r, gain = aif_pair(aif8, ref_fit)
     row = acc.add(pred_a, gt_s, aif_p, aif_r, focus_m=focus)
     err = np.where(mask, pred_a - np.where(mask, gt_s, 0), np.nan)
@@ -128,27 +128,22 @@ def evaluate(root: str | Path, model_paths: list[str | Path], out_dir: str | Pat
     Raises CaptureError/OutputError for problems of the whole batch (no captures, bad model, existing output);
     a failing capture is reported (opts.messages, report['per_capture'] with status 'failed') and skipped."""
     root, out_dir = Path(root), Path(out_dir)
-    check_output(out_dir, opts.force)
+    # the output may sit under ROOT (it is skipped when searching), never be or hold ROOT, a model or a capture
+    check_output_dir(out_dir, [root, *model_paths], opts.force, marker="metrics.json", tool="aat-eval",
+                     nest_ok=[root])
+    caps, without = find_captures(root, exclude=[out_dir])
+    check_no_overlap(out_dir, caps + without)
     models = [DfFModel(p, threads=threads) for p in model_paths]
     labels = model_labels([Path(p) for p in model_paths])
-    caps, without = find_captures(root, exclude=[out_dir])
     if not caps:
         raise CaptureError(f"{root}: no capture folder with ground truth (gt.json, gt_depth_m.npy/.pfm/.tif, "
                            "gt_depth_mm.png) under it")
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out_dir.parent / f".{out_dir.name}.tmp-{os.getpid()}"
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    (tmp / "maps").mkdir(parents=True)
     t0 = time.perf_counter()
-    try:
+    with atomic_folder(out_dir, opts.force) as tmp:
+        (tmp / "maps").mkdir()
         result = _evaluate_into(tmp, root, caps, without, models, labels, opts)
         result["seconds"] = round(time.perf_counter() - t0, 2)
         report.write_json(tmp / "metrics.json", result)
-        replace_folder(tmp, out_dir, opts.force)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return result
 
 

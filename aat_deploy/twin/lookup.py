@@ -7,12 +7,12 @@ import dataclasses
 from pathlib import Path
 
 from aat_deploy.model import DfFModel
+from aat_deploy.shipped import shipped_dir
 from aat_deploy.twin.renderer import TwinError
 from aat_deploy.twin.sources import OnnxSource
 from training.lens.io import load_lens
 from training.lens.schema import Lens
 
-ROOT = Path(__file__).resolve().parents[2]
 
 
 def find_lens(model: DfFModel, lens_path: str | Path | None) -> tuple[Lens, Path]:
@@ -20,7 +20,8 @@ def find_lens(model: DfFModel, lens_path: str | Path | None) -> tuple[Lens, Path
     lenses/ with the model's aat.lens_name."""
     if lens_path is None:
         name = model.meta.get("aat.lens_name")
-        for p in sorted((ROOT / "lenses").glob("*.json")):
+        lenses = shipped_dir("lenses")
+        for p in sorted(lenses.glob("*.json")) if lenses else []:
             try:
                 cand = load_lens(p)
             except Exception:  # a broken file in lenses/ must not stop the search
@@ -29,7 +30,7 @@ def find_lens(model: DfFModel, lens_path: str | Path | None) -> tuple[Lens, Path
                 lens_path = p
                 break
         else:
-            raise TwinError(f"{model.path}: lens {name!r} not found in {ROOT / 'lenses'}; pass --lens")
+            raise TwinError(f"{model.path}: lens {name!r} not found in the shipped lenses ({lenses}); pass --lens")
     lens = load_lens(lens_path)
     (w_mm, h_mm), (w_px, h_px) = model.meta["aat.sensor_mm"], model.sensor_px
     sensor = dataclasses.replace(lens.sensor, width_mm=float(w_mm), height_mm=float(h_mm),
@@ -42,7 +43,8 @@ def find_surrogate(lens: Lens, psf_path: str | Path | None, threads: int | None 
     models/psf_*.onnx fitted for this lens and sensor, else None."""
     if psf_path is not None:
         return OnnxSource(psf_path, lens, threads)
-    for p in sorted((ROOT / "models").glob("psf_*.onnx")):
+    models = shipped_dir("models")
+    for p in sorted(models.glob("psf_*.onnx")) if models else []:
         try:
             return OnnxSource(p, lens, threads)
         except ValueError:  # made for another lens / pixel pitch

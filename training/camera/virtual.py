@@ -8,13 +8,12 @@ reads simulated captures through the same path as real ones.
 from __future__ import annotations
 
 import json
-import shutil
-import tempfile
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from aat_deploy.io.atomic import atomic_folder
 from training.camera.dng import write_dng
 from training.data.rgbd import linear_to_srgb
 from training.lens.schema import Lens
@@ -62,10 +61,7 @@ def write_capture(out_dir, frames: np.ndarray, focus_reported_m, lens: Lens, gt_
     if c != 3 or h % 2 or w % 2:
         raise ValueError(f"frames must be (S, 3, H, W) with even H, W; got {frames.shape}")
     p = paraxial_data(lens)
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
-    tmp.chmod(0o755)  # mkdtemp makes it private; a capture folder is an ordinary folder
-    try:
+    with atomic_folder(out_dir, force) as tmp:  # written whole or not at all; stale leftovers cleaned
         sidecar = []
         for i, (fr, f) in enumerate(zip(frames, np.asarray(focus_reported_m, dtype=np.float64))):
             if frame_format == "tiff":
@@ -90,14 +86,4 @@ def write_capture(out_dir, frames: np.ndarray, focus_reported_m, lens: Lens, gt_
         (tmp / "virtual_camera.json").write_text(json.dumps(info, indent=2) + "\n")
         for f in tmp.iterdir():
             f.chmod(0o644)
-        old = None
-        if out_dir.exists():  # --force: move the old folder aside, swap, then delete it
-            old = out_dir.with_name(f".{out_dir.name}.old.{tmp.name}")
-            out_dir.rename(old)
-        tmp.rename(out_dir)
-        if old is not None:
-            shutil.rmtree(old, ignore_errors=True)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return out_dir

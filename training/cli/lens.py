@@ -15,6 +15,8 @@ import math
 import sys
 from pathlib import Path
 
+from aat_deploy.cli.common import parser, run_or_hint, subparser
+from aat_deploy.shipped import resolve
 from training.lens.io import LensFileError, load_lens
 from training.lens.materials import UnknownMaterialError
 
@@ -140,16 +142,19 @@ def cmd_layout(a) -> int:
     return 0
 
 
+LENS_HELP = "lens file (our JSON, the paper's JSON, Zemax .zmx, DiffOptics .txt) or a shipped lens's name"
+
+
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="aat-lens", description="Inspect a lens prescription (units: mm; distances "
-                                 "in metres from the sensor plane).")
-    sub = ap.add_subparsers(dest="cmd", required=True)
-    p = sub.add_parser("info", help="surface table and paraxial data")
-    p.add_argument("lens")
+    ap = parser("aat-lens", "Inspect a lens prescription (units: mm; distances in metres from the sensor plane).",
+                quiet=False)
+    sub = ap.add_subparsers(dest="cmd", required=True, metavar="{info,spot,layout}")
+    p = subparser(sub, "info", "surface table and paraxial data")
+    p.add_argument("lens", metavar="LENS", help=LENS_HELP)
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=cmd_info)
-    p = sub.add_parser("spot", help="RMS spot radius (um, about the centroid) and spot diagram")
-    p.add_argument("lens")
+    p = subparser(sub, "spot", "RMS spot radius (um, about the centroid) and spot diagram (needs the train extra)")
+    p.add_argument("lens", metavar="LENS", help=LENS_HELP)
     p.add_argument("--field-deg", type=float, required=True, help="chief-ray field angle in degrees")
     p.add_argument("--focus-m", type=_distance, required=True, help="focus (and object) distance, m from sensor")
     p.add_argument("--defocus-mm", type=float, default=0.0, help="sensor shift from best focus (+ = away)")
@@ -159,17 +164,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--png", default=None, help="write a spot diagram PNG")
     p.add_argument("--force", action="store_true", help="overwrite an existing PNG")
     p.set_defaults(func=cmd_spot)
-    p = sub.add_parser("layout", help="2-D drawing of the lens with ray fans")
-    p.add_argument("lens")
-    p.add_argument("--png", required=True)
-    p.add_argument("--focus-m", type=_distance, default=math.inf)
-    p.add_argument("--force", action="store_true")
+    p = subparser(sub, "layout", "2-D drawing of the lens with ray fans (needs the train extra)")
+    p.add_argument("lens", metavar="LENS", help=LENS_HELP)
+    p.add_argument("--png", required=True, help="the PNG to write")
+    p.add_argument("--focus-m", type=_distance, default=math.inf, help="focus distance, m from the sensor (default inf)")
+    p.add_argument("--force", action="store_true", help="overwrite an existing PNG")
     p.set_defaults(func=cmd_layout)
     return ap
 
 
 def main(argv: list[str] | None = None) -> int:
+    return run_or_hint("aat-lens", _main, argv)
+
+
+def _main(argv: list[str] | None) -> int:
     a = build_parser().parse_args(argv)
+    a.lens = str(resolve(a.lens, "lenses"))  # a path, or a shipped lens's name
     try:
         return a.func(a)
     except (LensFileError, UnknownMaterialError, FileExistsError, ValueError) as e:

@@ -17,7 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[2]
+from aat_deploy.cli.common import parser, run_or_hint, subparser
+from aat_deploy.shipped import resolve, shipped_dir
 
 
 def _floats(text: str) -> list[float]:
@@ -36,7 +37,8 @@ def field_from_angle(lens, angle_deg: float) -> tuple[float, float]:
 
 
 def _default_model(lens) -> Path | None:
-    for p in sorted((ROOT / "models").glob("psf_*.onnx")):
+    models = shipped_dir("models")
+    for p in sorted(models.glob("psf_*.onnx")) if models else []:
         try:
             from aat_deploy.psf import PSFSurrogate
 
@@ -130,7 +132,7 @@ def cmd_export(a) -> int:
     import torch
 
     from training.psf.experiment import PSFExperiment
-    from training.psf.export import export_psf_onnx
+    from training.psf.export import PARITY_TOL, export_psf_onnx
     from training.psf.fit import make_model
 
     exp = PSFExperiment.load(a.config)
@@ -151,41 +153,48 @@ def cmd_export(a) -> int:
         "validation_l1": f"{hist[-1].get('l1', float('nan')):.4e}",
         "command": f"aat-psf fit --config {a.config} && aat-psf export --config {a.config} --out {a.out}",
     })
-    print(f"wrote {a.out} ({md['aat.model']}, lens {md['aat.lens_hash']}); onnxruntime matches torch to 1e-5")
+    print(f"wrote {a.out} ({md['aat.model']}, lens {md['aat.lens_hash']}); onnxruntime matches torch "
+          f"(float32 rounding, within {PARITY_TOL:g} relative)")
     return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="aat-psf", description="Ray-traced PSFs and PSF surrogates.")
-    sub = ap.add_subparsers(dest="cmd", required=True)
-    p = sub.add_parser("show", help="grid of ray-traced, surrogate and Gaussian PSFs")
-    p.add_argument("lens")
-    p.add_argument("--focus-m", type=float, required=True)
-    p.add_argument("--depths-m", type=_floats, required=True)
-    p.add_argument("--fields-deg", type=_floats, required=True)
-    p.add_argument("--png", required=True)
+    ap = parser("aat-psf", "Ray-traced PSFs and PSF surrogates (needs the train extra).", quiet=False)
+    sub = ap.add_subparsers(dest="cmd", required=True, metavar="{show,fit,export}")
+    p = subparser(sub, "show", "grid of ray-traced, surrogate and Gaussian PSFs")
+    p.add_argument("lens", metavar="LENS", help="lens file (.json, .zmx, .txt)")
+    p.add_argument("--focus-m", type=float, required=True, help="focus distance, m from the sensor")
+    p.add_argument("--depths-m", type=_floats, required=True, help="object distances, m from the sensor (comma-separated)")
+    p.add_argument("--fields-deg", type=_floats, required=True, help="field angles in degrees (comma-separated)")
+    p.add_argument("--png", required=True, help="the PNG to write")
     p.add_argument("--model", default=None,
                    help="ONNX surrogate (default: models/psf_*.onnx made for this lens; 'none' = no surrogate)")
-    p.add_argument("--rays", type=int, default=8192)
+    p.add_argument("--rays", type=int, default=8192, help="rays per PSF (default 8192)")
     p.add_argument("--kernel-size", type=int, default=11, help="window size when no surrogate is shown")
-    p.add_argument("--force", action="store_true")
+    p.add_argument("--force", action="store_true", help="overwrite an existing PNG")
     p.set_defaults(func=cmd_show)
-    p = sub.add_parser("fit", help="trace the datasets (cached) and fit the surrogates of a config (resumable)")
-    p.add_argument("--config", required=True)
+    p = subparser(sub, "fit", "trace the datasets (cached) and fit the surrogates of a config (resumable)")
+    p.add_argument("--config", required=True, help="PSF experiment config (configs/psf_*.json)")
     p.add_argument("--only", nargs="*", help="fit names to run (default: all in the config)")
-    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--threads", type=int, default=2, help="torch threads (default 2)")
     p.set_defaults(func=cmd_fit)
-    p = sub.add_parser("export", help="export a fitted surrogate to ONNX with metadata")
-    p.add_argument("--config", required=True)
+    p = subparser(sub, "export", "export a fitted surrogate to ONNX with metadata")
+    p.add_argument("--config", required=True, help="the config the surrogate was fitted with")
     p.add_argument("--fit", default="rot", help="which fit of the config (default: rot)")
-    p.add_argument("--out", required=True)
-    p.add_argument("--force", action="store_true")
+    p.add_argument("--out", required=True, help="the .onnx to write")
+    p.add_argument("--force", action="store_true", help="overwrite an existing file")
     p.set_defaults(func=cmd_export)
     return ap
 
 
 def main(argv: list[str] | None = None) -> int:
+    return run_or_hint("aat-psf", _main, argv)
+
+
+def _main(argv: list[str] | None) -> int:
     a = build_parser().parse_args(argv)
+    if getattr(a, "lens", None):
+        a.lens = str(resolve(a.lens, "lenses"))  # a path, or a shipped lens's name
     try:
         return a.func(a)
     except (ValueError, FileNotFoundError, FileExistsError) as e:

@@ -19,9 +19,9 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import torch
 
-ROOT = Path(__file__).resolve().parents[2]
+from aat_deploy.cli.common import add_list_option, parser, print_effects, run_or_hint
+from aat_deploy.shipped import resolve, shipped_dir
 
 
 def _floats(text: str) -> list[float]:
@@ -35,27 +35,29 @@ def _floats(text: str) -> list[float]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="aat-render", description=__doc__.split("\n\n")[0])
-    p.add_argument("rgb", nargs="?", help="all-in-focus image (8/16-bit sRGB)")
-    p.add_argument("depth", nargs="?", help="depth: .npy metres or 16-bit PNG millimetres (0 = unknown)")
-    p.add_argument("--lens", help="lens file (.json, .zmx)")
-    p.add_argument("--focus-m", type=_floats, help="focus distances, metres from the sensor (comma-separated)")
-    p.add_argument("--out", help="capture folder to write")
+    p = parser("aat-render", __doc__.split("\n\n")[0] + " Needs the train extra.")
+    add_list_option(p, "--list-effects", print_effects, "list the simulator's effects and exit")
+    p.add_argument("rgb", metavar="RGB", help="all-in-focus image (8/16-bit sRGB)")
+    p.add_argument("depth", metavar="DEPTH", help="depth: .npy metres or 16-bit PNG millimetres (0 = unknown)")
+    p.add_argument("--lens", required=True, help="lens file (.json, .zmx)")
+    p.add_argument("--focus-m", type=_floats, required=True,
+                   help="focus distances, metres from the sensor (comma-separated)")
+    p.add_argument("--out", required=True, help="capture folder to write")
     p.add_argument("--psf", help="PSF surrogate .onnx for this lens (default: a matching one in models/, else ray-trace)")
     p.add_argument("--effects", default="", help="extra effects, comma-separated (see --list-effects)")
     p.add_argument("--thin-lens", action="store_true", help="ideal thin lens (Gaussian PSFs) instead of the lens's")
     p.add_argument("--depth-scale", type=float, help="metres per depth unit (default: 1 for .npy, 0.001 for PNG)")
     p.add_argument("--seed", type=int, default=0, help="random seed (noise)")
     p.add_argument("--force", action="store_true", help="overwrite an existing capture folder")
-    p.add_argument("--list-effects", action="store_true", help="list the simulator's effects and exit")
     return p
 
 
 def find_surrogate(lens) -> Path | None:
-    """A PSF surrogate in models/ made for exactly this prescription."""
+    """A shipped PSF surrogate (models/) made for exactly this prescription."""
     import onnx
 
-    for f in sorted((ROOT / "models").glob("*.onnx")):
+    models = shipped_dir("models")
+    for f in sorted(models.glob("*.onnx")) if models else []:
         try:
             meta = {p.key: p.value for p in onnx.load(str(f), load_external_data=False).metadata_props}
         except Exception:
@@ -78,6 +80,10 @@ def fit_to_sensor(rgb: np.ndarray, depth: np.ndarray, hw: tuple[int, int]):
 
 
 def run(args) -> Path:
+    import torch
+
+    from aat_deploy.errors import OutputError
+    from aat_deploy.io.guard import check_output_dir
     from training.camera.virtual import write_capture
     from training.data.rgbd import RGBDError, fill_depth, load_rgbd
     from training.lens.io import LensFileError, load_lens
@@ -86,8 +92,11 @@ def run(args) -> Path:
     from training.render.sources import OnnxPSF, RayTracedPSF
 
     out = Path(args.out)
-    if out.exists() and not args.force:
-        raise SystemExit(f"aat-render: error: {out}: exists (use --force to overwrite)")
+    try:  # before any work: --force replaces the folder, so it must never hold or sit in an input
+        check_output_dir(out, [p for p in (args.rgb, args.depth, args.lens, args.psf) if p], args.force,
+                         marker="virtual_camera.json", tool="aat-render")
+    except OutputError as e:
+        raise SystemExit(f"aat-render: error: {e}") from None
     try:
         lens = load_lens(args.lens)
         rgb, depth = load_rgbd(args.rgb, args.depth, args.depth_scale)
@@ -120,7 +129,7 @@ def run(args) -> Path:
         from tqdm import tqdm
     except ImportError:  # pragma: no cover
         tqdm = None
-    it = tqdm(focus, desc="frames", unit="frame") if tqdm else focus
+    it = tqdm(focus, desc="frames", unit="frame") if tqdm and not args.quiet else focus
     for f in it:
         st = sim.render_stack(img, torch.from_numpy(fill_depth(depth)).float(), [f], rng=rng)
         frames.append(st.frames[0].numpy())
@@ -140,16 +149,13 @@ def run(args) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    if args.list_effects:
-        from training.render import effects as fx
+    return run_or_hint("aat-render", _main, argv)
 
-        for name, desc in fx.describe().items():
-            print(f"{name:16s} {desc}")
-        return 0
-    missing = [n for n in ("rgb", "depth", "lens", "focus_m", "out") if getattr(args, n) is None]
-    if missing:
-        build_parser().error(f"missing: {', '.join('--' + m.replace('_', '-') if m not in ('rgb', 'depth') else m.upper() for m in missing)}")
+
+def _main(argv: list[str] | None) -> int:
+    args = build_parser().parse_args(argv)
+    args.lens = str(resolve(args.lens, "lenses"))  # a path, or a shipped lens's name
+    args.psf = str(resolve(args.psf, "models")) if args.psf else None
     out = run(args)
     print(json.dumps({"capture": str(out)}))
     return 0

@@ -22,6 +22,9 @@ import os
 import sys
 from pathlib import Path
 
+from aat_deploy.cli.common import parser, run_or_hint
+from aat_deploy.shipped import resolve
+
 ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -42,8 +45,8 @@ def _names(text: str) -> list[str]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="aat-train", description="Train depth-from-focus networks (AiFNet / DFVNet): "
-                                "from a training config, or the whole chain from a lens file.")
+    p = parser("aat-train", "Train depth-from-focus networks (AiFNet / DFVNet): from a training config, or the whole "
+               "chain from a lens file. Needs the train extra.", quiet=False)
     mode = p.add_mutually_exclusive_group(required=True)
     mode.add_argument("--config", help="training config JSON (configs/dff_*.json)")
     mode.add_argument("--lens", help="lens file (.json, .zmx, .txt): run the whole lens-to-model chain into --out")
@@ -52,7 +55,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "(--lens runs always continue)")
     p.add_argument("--steps", type=int, help="number of optimizer steps (overrides the config / preset)")
     p.add_argument("--init", help="start from these weights: an exported DfF .onnx or a model.pt / last.pt")
-    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.add_argument("-q", "--quiet", "--no-progress", dest="no_progress", action="store_true",
+                   help="no progress bars: results, warnings and errors only")
     g = p.add_argument_group("lens-to-model chain (--lens)")
     g.add_argument("--sensor-mm", type=_pair(float), metavar="W,H", help="sensor size in mm (default: the lens file's)")
     g.add_argument("--resolution", type=_pair(int), metavar="W,H",
@@ -84,6 +88,20 @@ def apply_overrides(cfg, args: argparse.Namespace):
     return dataclasses.replace(cfg, **changes).validate() if changes else cfg
 
 
+def refuse_inputs_in(out, inputs) -> bool:
+    """True (after a one-line error) if the run folder is, contains or lies inside an input file: its stages
+    would overwrite it (e.g. --init RUN/dff_dfvnet_aat.onnx --out RUN). Checked before any work."""
+    from aat_deploy.errors import OutputError
+    from aat_deploy.io.guard import check_no_overlap
+
+    try:
+        check_no_overlap(out, [p for p in inputs if p])
+    except OutputError as e:
+        print(f"aat-train: error: {e}", file=sys.stderr)
+        return True
+    return False
+
+
 def main_config(args: argparse.Namespace) -> int:
     from training.train.config import ConfigError, load_config
 
@@ -96,6 +114,8 @@ def main_config(args: argparse.Namespace) -> int:
     from training.train.loop import train
 
     out = Path(args.out) if args.out else ROOT / "runs" / cfg.name
+    if refuse_inputs_in(out, [args.config, cfg.init]):
+        return 2
     try:
         res = train(cfg, out, resume=args.resume, progress=not args.no_progress)
     except (FileExistsError, ValueError, FileNotFoundError, InitError) as e:
@@ -128,6 +148,8 @@ def main_lens(args: argparse.Namespace) -> int:
     from training.pipeline.config import ChainConfigError, resolve
     from training.pipeline.runner import ChainError, run_chain
 
+    if refuse_inputs_in(args.out, [args.lens, args.init, args.psf]):
+        return 2
     try:
         cfg = resolve(chain_options(args))
     except ChainConfigError as e:
@@ -146,7 +168,15 @@ def main_lens(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    return run_or_hint("aat-train", _main, argv)
+
+
+def _main(argv: list[str] | None) -> int:
     args = build_parser().parse_args(argv)
+    if args.lens:
+        args.lens = str(resolve(args.lens, "lenses"))  # a path, or a shipped lens's name
+    if args.psf:
+        args.psf = str(resolve(args.psf, "models"))
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     return main_lens(args) if args.lens else main_config(args)
 

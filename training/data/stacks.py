@@ -231,6 +231,7 @@ class FocalStackDataset(Dataset):
                 tmp = f.with_name(f.name + f".{np.random.randint(1 << 30)}.tmp.npz")
                 np.savez(tmp, **{**item, "stack": item["stack"].astype(np.float16)})
                 tmp.replace(f)
+                item["stack"] = item["stack"].astype(np.float16).astype(np.float32)  # as every later read sees it
         else:
             item = self.render(index)
         return item

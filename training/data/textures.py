@@ -66,7 +66,7 @@ def photo_pool(split: str) -> tuple[np.ndarray, ...]:
                 found[n] = im.astype(np.float32) / 255.0
     if not found:
         raise FileNotFoundError("no photographs found for textures: install scikit-image and matplotlib "
-                                "(pip install -e '.[train]')")
+                                "(pip install 'aat-dff[train]')")
     return tuple(found[n] for n in names if n in found)
 
 

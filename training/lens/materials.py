@@ -1,4 +1,5 @@
-"""Refractive-index models: air, "nd/Vd" strings (2-term Cauchy) and named glasses (Sellmeier).
+"""Refractive-index models: air, "nd/Vd" strings (2-term Cauchy) and named glasses (Sellmeier, or the Schott
+formula of Zemax catalogues for the plastics).
 
 All indices are relative to air, as in lens-design programs and glass catalogues, so air is exactly 1.
 Wavelengths are in nanometres at the public interface (the catalogue stores micrometres).
@@ -117,6 +118,22 @@ class Sellmeier(Material):
         return np.sqrt(n2)
 
 
+@dataclass(frozen=True)
+class SchottFormula(Material):
+    """n² = a0 + a1 λ² + a2 λ⁻² + a3 λ⁻⁴ + a4 λ⁻⁶ + a5 λ⁻⁸, λ in µm (Zemax formula 1, "Schott"): the
+    optical plastics of Zemax's MISC and PLASTIC catalogues, as DeepLens resolves "pmma", "coc", "polycarb",
+    "okp4", so lens files written for DeepLens get the indices they were designed with."""
+
+    coefficients: tuple[float, ...] = (1.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    range_um: tuple[float, float] | None = field(default=None, compare=False)
+    source: str = field(default="", compare=False)
+
+    def n(self, wavelength_nm):
+        l2 = (np.asarray(wavelength_nm, dtype=np.float64) / 1000.0) ** 2
+        a0, a1, a2, a3, a4, a5 = self.coefficients
+        return np.sqrt(a0 + a1 * l2 + a2 / l2 + a3 / l2**2 + a4 / l2**3 + a5 / l2**4)
+
+
 @lru_cache(maxsize=1)
 def glass_catalog() -> dict[str, dict]:
     """The shipped glass catalogue (training/lens/data/glasses.json), keyed by upper-case name."""
@@ -136,6 +153,10 @@ def _from_catalog(name: str, entry: dict) -> Material:
             range_um=tuple(rng) if rng else None,
             source=entry.get("source", ""),
         )
+    if model == "schott":
+        rng = entry.get("range_um")
+        return SchottFormula(name=name, coefficients=tuple(float(a) for a in entry["coefficients"]),
+                             range_um=tuple(rng) if rng else None, source=entry.get("source", ""))
     if model == "nd_vd":
         return CauchyNdVd(name=name, nd=float(entry["nd"]), vd=float(entry["vd"]),
                           anchor_nm=D_LINE_NM, f_nm=F_LINE_NM, c_nm=C_LINE_NM)

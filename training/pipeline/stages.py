@@ -295,7 +295,7 @@ def _export_run(ctx: Context) -> list[str]:
             "command": "aat-train --lens (training/pipeline, stage export)",
             "init": Path(ctx.cfg["init"]["path"]).name if ctx.cfg["init"] else "",
             "preset": ctx.cfg["preset"]})
-        ctx.log(f"export: {name} ({md['aat.lens_name']}, {md['aat.simulator']}), max |ORT - torch| = {err:.1e}")
+        ctx.log(f"export: {name} ({md['aat.lens_name']}, {md['aat.simulator']}), ORT vs torch {err:.1e} relative")
         outs.append(name)
     return outs
 

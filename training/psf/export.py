@@ -68,9 +68,11 @@ def optics_metadata(lens: Lens) -> dict[str, str]:
             EXIT_PUPIL_KEY: json.dumps(float(paraxial_data(lens).exit_pupil_z_mm))}
 
 
-def stamp_optics_metadata(path, lens: Lens) -> dict[str, str]:
+def stamp_optics_metadata(path, lens: Lens, best_focus=None) -> dict[str, str]:
     """Add (or refresh) the `optics_metadata` keys of an exported surrogate without retraining; the lens must be
-    the one it was fitted for (prescription hash). The file is replaced atomically. Returns the keys written."""
+    the one it was fitted for (prescription hash). `best_focus`: also the lens's best-focus map
+    (`aat_deploy.focus.bestfocus.BestFocusMap`, under its METADATA_KEY), which the runtime's aberration-aware
+    classical depth from focus reads. The file is replaced atomically. Returns the keys written."""
     import onnx
 
     path = Path(path)
@@ -79,6 +81,12 @@ def stamp_optics_metadata(path, lens: Lens) -> dict[str, str]:
     if "aat.lens_hash" not in props or props["aat.lens_hash"].value != lens.prescription_hash():
         raise ValueError(f"{path}: not a PSF surrogate of {lens.name!r} (lens hash differs)")
     md = optics_metadata(lens)
+    if best_focus is not None:
+        from aat_deploy.focus.bestfocus import METADATA_KEY
+
+        if best_focus.lens_hash and best_focus.lens_hash != lens.prescription_hash():
+            raise ValueError(f"{path}: the best-focus map is of another lens than {lens.name!r}")
+        md[METADATA_KEY] = json.dumps(best_focus.to_dict())
     for k, v in md.items():
         if k in props:
             props[k].value = v
@@ -92,7 +100,8 @@ def stamp_optics_metadata(path, lens: Lens) -> dict[str, str]:
 
 def export_psf_onnx(model: PSFModel, lens: Lens, path, extra_metadata: dict | None = None, force: bool = False,
                     check: bool = True) -> dict[str, str]:
-    """Write `model` to ONNX (dynamic batch) with metadata; check onnxruntime against torch (max abs `PARITY_TOL`)."""
+    """Write `model` to ONNX (dynamic batch) with metadata; check onnxruntime against torch (`parity`, relative,
+    at most `PARITY_TOL`)."""
     import onnx
 
     path = Path(path)
@@ -116,19 +125,21 @@ def export_psf_onnx(model: PSFModel, lens: Lens, path, extra_metadata: dict | No
         err = parity(wrapper, tmp)
         if err > PARITY_TOL:
             tmp.unlink()
-            raise RuntimeError(f"onnxruntime differs from torch by {err:.2e} (> {PARITY_TOL:.0e})")
+            raise RuntimeError(f"{path}: onnxruntime differs from torch by {err:.2e} relative (> {PARITY_TOL:.0e})")
     os.replace(tmp, path)
     return md
 
 
-# Kernels are energy fractions (a PSF sums to <= 1). Float32 rounding differences between the two runtimes move a
-# sharp near-focus kernel's resampling by a hair: up to 6e-5 of the energy on the RF50 at 31 um pixels. A broken
-# export is off by orders of magnitude more.
-PARITY_TOL = 1e-4
+# onnxruntime vs torch, relative (see `parity`). Kernels are a softmax over an MLP's logits: float32 rounding (unit
+# roundoff 6e-8) through its layers is ~1e-6 of the logits, times their spread in a sharp near-focus kernel (tens);
+# measured 2e-6 (paper-50 RotPSF) to 6e-5 (RF50 at 31 um pixels) of the energy, the cell size 7e-6. 1e-3 leaves a
+# factor >10 for other CPUs' kernels and is still below what the layered renderer resolves (0.35 % of the exact).
+PARITY_TOL = 1e-3
 
 
 def parity(wrapper: nn.Module, onnx_path, n: int = 2048, seed: int = 0) -> float:
-    """Max abs difference between torch and onnxruntime on random queries over the valid range."""
+    """Largest relative difference between torch and onnxruntime on random queries over the valid range: kernel
+    cells over the largest kernel energy (sum) of the batch, cell sizes over themselves (>= 1)."""
     import onnxruntime as ort
 
     m = wrapper.model
@@ -139,5 +150,6 @@ def parity(wrapper: nn.Module, onnx_path, n: int = 2048, seed: int = 0) -> float
     sess = ort.InferenceSession(str(onnx_path), providers=["CPUExecutionProvider"])
     k_ort, s_ort = sess.run(None, {"query": q})
     with torch.no_grad():
-        k_t, s_t = wrapper(torch.from_numpy(q))
-    return max(float(np.abs(k_ort - k_t.numpy()).max()), float(np.abs(s_ort - s_t.numpy()).max() / 100))
+        k_t, s_t = (t.numpy() for t in wrapper(torch.from_numpy(q)))
+    energy = max(float(k_t.sum((1, 2)).max()), 1e-30)
+    return max(float(np.abs(k_ort - k_t).max()) / energy, float((np.abs(s_ort - s_t) / s_t).max()))

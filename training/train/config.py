@@ -34,6 +34,7 @@ class LossConfig:
     smooth_edge: float = 150.0
     level_weights: tuple[float, ...] = (1.0,)
     mask_focus_range: bool = False
+    depth_space: str = "m"  # "m": L1 on depth in metres (the paper's); "diopter": L1 on inverse depth (1/m)
 
 
 @dataclass
@@ -82,6 +83,8 @@ class TrainConfig:
             raise ConfigError(f"config {self.name}: stack_range must be [min, max] with 2 <= min <= max")
         if self.field_channels not in FIELD_CHANNELS:
             raise ConfigError(f"config {self.name}: field_channels must be one of {FIELD_CHANNELS}")
+        if self.loss.depth_space not in ("m", "diopter"):
+            raise ConfigError(f"config {self.name}: loss.depth_space must be 'm' or 'diopter'")
         if not self.loss.level_weights or sum(self.loss.level_weights) <= 0:
             raise ConfigError(f"config {self.name}: loss.level_weights must have a positive sum")
         return self
@@ -98,6 +101,8 @@ class TrainConfig:
             d.pop("init")  # configs without an init hash as they did before the field existed
         if not d.get("field_channels"):
             d.pop("field_channels")  # likewise
+        if d["loss"].get("depth_space") == "m":
+            d["loss"].pop("depth_space")  # likewise
         return config_hash(d)
 
 

@@ -13,7 +13,8 @@ from training.train.loop import load_trained
 def export_checkpoint(checkpoint, out, *, force: bool = False, extra: dict | None = None,
                       ) -> tuple[dict[str, str], float]:
     """checkpoint: a run's model.pt (or last.pt). Writes `out` (atomic, no overwrite unless force) and returns
-    (metadata, max abs ORT-vs-torch difference over three shapes). extra: more aat.* metadata keys."""
+    (metadata, the relative ORT-vs-torch difference over three shapes, `training.nets.export.parity`).
+    extra: more aat.* metadata keys."""
     model, cfg = load_trained(Path(checkpoint))
     lens = load_lens(resolve_lens_path(cfg.lens))
     md = dff_metadata(model, lens, simulator=cfg.simulator, effects=list(cfg.effects),

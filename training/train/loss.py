@@ -44,7 +44,12 @@ def dff_loss(levels: list[tuple[Tensor, Tensor | None, Tensor]], batch: dict[str
     mask = depth_mask(gt, batch["focus_m"] if cfg.mask_focus_range else None)
     weights = list(cfg.level_weights)[: len(levels)]
     wsum = sum(weights)
-    l_depth = sum(w * masked_l1(lv[0], gt, mask) for w, lv in zip(weights, levels)) / wsum
+    if cfg.depth_space == "diopter":  # every depth weighted by its focus information (blur is linear in 1/d)
+        inv_gt = 1.0 / torch.where(mask, gt, torch.ones_like(gt))
+        l_depth = sum(w * masked_l1(1.0 / lv[0].clamp_min(1e-3), inv_gt, mask)
+                      for w, lv in zip(weights, levels)) / wsum
+    else:
+        l_depth = sum(w * masked_l1(lv[0], gt, mask) for w, lv in zip(weights, levels)) / wsum
     total = cfg.depth * l_depth
     parts = {"depth_l1": float(masked_l1(levels[0][0].detach(), gt, mask))}
     depth0, aif0, _ = levels[0]

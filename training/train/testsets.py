@@ -115,6 +115,7 @@ def _middlebury(spec: TestSetSpec, ds, cache_dir: str | None) -> TestItem:
         tmp = f.with_name(f.name + ".tmp.npz")
         np.savez(tmp, stack=item.stack.astype(np.float16), focus_m=item.focus_m, depth_m=item.depth_m, aif=item.aif)
         tmp.replace(f)
+        item.stack = item.stack.astype(np.float16).astype(np.float32)  # as every later read sees it
     return item
 
 

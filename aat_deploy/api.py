@@ -1,0 +1,163 @@
+"""Depth from focus in memory: a focal stack and its focus distances in, depth and all-in-focus out.
+
+    from aat_deploy.api import depth_from_focus, read_stack
+
+    stack, focus_m = read_stack("captures/sample_rf50")     # (S, H, W, 3) linear RGB, (S,) metres
+    result = depth_from_focus(stack, focus_m)               # the shipped DFVNet by default
+    result.depth_m, result.aif, result.std_m, result.camera
+    result.save("out/sample")                               # the files aat-infer writes
+
+The same code as `aat-infer` (aat_deploy.process), without the capture folder: frames from anywhere (a camera
+SDK, a simulator, a video) as numpy arrays. Errors are ValueError with one line saying what is wrong.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from .camera import camera_json
+from .capture.folder import focus_problem, read_capture
+from .capture.raw import load_frame, srgb_to_linear
+from .errors import CaptureError
+from .eval.raycast import Intrinsics
+from .io.atomic import atomic_folder
+from .io.guard import check_output_dir
+from .model import DfFModel
+from .outputs import DepthMaps, RecordingInputs, to_srgb8, write_outputs
+from .process import depth_from_frames
+from .shipped import resolve
+
+DEFAULT_MODEL = "dff_dfvnet_aat"
+
+
+@dataclass
+class DepthResult:
+    """depth_m (H, W) float32 metres from the sensor plane; aif (H, W, 3) float32 linear RGB in the stack's
+    normalised units (about [0, 1]); std_m (H, W) float32 metres (uncertainty); camera: the maps' pinhole
+    intrinsics (aat_deploy.camera); focus_m (S,) the focus distances used, near to far; warnings: one line each."""
+
+    depth_m: np.ndarray
+    aif: np.ndarray
+    std_m: np.ndarray
+    camera: Intrinsics
+    focus_m: np.ndarray
+    model: dict
+    warnings: list[str] = field(default_factory=list)
+    frames: np.ndarray | None = field(default=None, repr=False)  # (S, 3, h, w) what the model saw
+
+    @property
+    def aif_srgb8(self) -> np.ndarray:
+        """The all-in-focus image as (H, W, 3) uint8 sRGB."""
+        return to_srgb8(self.aif)
+
+    def save(self, folder: str | Path, *, force: bool = False, recording: bool = True) -> Path:
+        """Write the output files aat-infer writes (docs/contracts.md, "Runtime outputs") into `folder`, whole
+        or not at all; an existing folder is replaced only with force, and only an earlier output."""
+        folder = Path(folder)
+        try:
+            check_output_dir(folder, [], force, marker="summary.json", tool="aat-infer")
+        except CaptureError as e:
+            raise ValueError(str(e)) from None
+        maps = DepthMaps(self.depth_m, self.aif.transpose(2, 0, 1), self.std_m)
+        rec = RecordingInputs(self.frames, self.focus_m) if recording and self.frames is not None else None
+        with atomic_folder(folder, force) as tmp:
+            info = write_outputs(tmp, maps, self.camera, rec)
+            summary = {"source": "aat_deploy.api", "focus_m": [float(f) for f in self.focus_m], "model": self.model,
+                       "output_size_px": [self.camera.width, self.camera.height], "camera": camera_json(self.camera),
+                       "color_scales": info["color_scales"], "points": info["points"],
+                       "outputs": {**info["outputs"], "summary.json": "this file"}, "warnings": self.warnings}
+            (tmp / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=False))
+        return folder
+
+
+@lru_cache(maxsize=4)
+def load_model(model: str | Path = DEFAULT_MODEL, threads: int | None = None) -> DfFModel:
+    """A DfF model by path or shipped name (cached: loading takes a moment)."""
+    try:
+        return DfFModel(resolve(model, "models"), threads=threads)
+    except CaptureError as e:
+        raise ValueError(str(e)) from None
+
+
+def read_stack(folder: str | Path, use_exiftool: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """A capture folder's frames as (S, H, W, 3) float32 linear RGB and their focus distances (S,) in metres,
+    near to far, read as aat-infer reads them (RAW through LibRaw, images decoded from sRGB)."""
+    try:
+        cap = read_capture(folder, use_exiftool=use_exiftool)
+        frames = sorted(cap.frames, key=lambda f: f.focus_m)
+        images = [load_frame(f.path)[0] for f in frames]
+    except CaptureError as e:
+        raise ValueError(str(e)) from None
+    if len({im.shape for im in images}) > 1:
+        raise ValueError(f"{folder}: frames of different sizes")
+    return np.stack(images), np.array([f.focus_m for f in frames], np.float64)
+
+
+def _frames(stack, srgb: bool | None) -> list[np.ndarray]:
+    """(S, H, W, 3) or a sequence of (H, W, 3) -> list of float32 linear RGB frames."""
+    frames = [np.asarray(f) for f in stack]
+    if not frames:
+        raise ValueError("stack: no frames")
+    shape = frames[0].shape
+    if len(shape) != 3 or shape[2] != 3 or min(shape[:2]) < 2:
+        raise ValueError(f"stack: frames must be (H, W, 3) RGB, got {shape}")
+    if any(f.shape != shape for f in frames):
+        raise ValueError(f"stack: frames of different shapes ({shape} and others)")
+    out = []
+    for f in frames:
+        if np.issubdtype(f.dtype, np.integer):  # 8/16-bit images are sRGB-encoded
+            x = srgb_to_linear(f.astype(np.float32) / np.iinfo(f.dtype).max)
+        elif np.issubdtype(f.dtype, np.floating):
+            x = srgb_to_linear(f) if srgb else f.astype(np.float32)
+        else:
+            raise ValueError(f"stack: unsupported dtype {f.dtype}")
+        if not np.isfinite(x).all() or (x < 0).any():
+            raise ValueError("stack: values must be finite and >= 0")
+        out.append(np.ascontiguousarray(x, dtype=np.float32))
+    return out
+
+
+def depth_from_focus(stack, focus_m, model: str | Path | DfFModel = DEFAULT_MODEL, *, srgb: bool | None = None,
+                     align: bool = False, native_res: bool = False, tile: int | None = None,
+                     threads: int | None = None) -> DepthResult:
+    """Depth (m from the sensor), all-in-focus and uncertainty of one focal stack.
+
+    stack: (S, H, W, 3) array (or S arrays (H, W, 3)): float = linear RGB of any non-negative scale (srgb=True:
+    sRGB-encoded in [0, 1]); uint8/uint16 = sRGB-encoded images. focus_m: (S,) focus distance of each frame in
+    metres from the sensor plane, any order (frames are sorted near to far). model: a shipped model's name, a
+    path, or a loaded DfFModel. The frames are centre-cropped to the model's sensor aspect and resized to its
+    size; native_res=True returns maps at the frames' own size (the crop), upsampled guided by the all-in-focus
+    image. align: affine alignment against focus breathing; tile: run in tiles of this many pixels."""
+    frames = _frames(stack, srgb)
+    focus = np.asarray(focus_m, dtype=np.float64).reshape(-1)
+    if len(focus) != len(frames):
+        raise ValueError(f"focus_m: {len(focus)} distances for {len(frames)} frames")
+    for i, f in enumerate(focus):
+        why = focus_problem(float(f))
+        if why is not None:
+            raise ValueError(f"focus_m[{i}] = {f!r}: not a focus distance in metres ({why})")
+    if len(set(np.round(focus, 6))) != len(focus):
+        raise ValueError("focus_m: two frames have the same focus distance")
+    net = model if isinstance(model, DfFModel) else load_model(model, threads)
+    lo, hi = net.stack_range
+    if not lo <= len(frames) <= hi:
+        raise ValueError(f"stack: {len(frames)} frames, the model takes {lo}..{hi}")
+    if tile is not None and (not isinstance(tile, int) or tile < 16):
+        raise ValueError("tile: an integer >= 16 (px) or None")
+    order = np.argsort(focus, kind="stable")
+    frames, focus = [frames[i] for i in order], focus[order].astype(np.float32)
+    try:
+        res = depth_from_frames(frames, focus, net, align=align, tile=tile, native=native_res)
+    except CaptureError as e:
+        raise ValueError(str(e)) from None
+    m = res.maps
+    return DepthResult(m.depth_m, np.ascontiguousarray(m.aif.transpose(1, 2, 0)), m.std_m, res.camera,
+                       focus.astype(np.float64), net.summary(), res.warnings, res.stack)
+
+
+__all__ = ["DepthResult", "depth_from_focus", "load_model", "read_stack"]

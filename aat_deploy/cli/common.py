@@ -1,0 +1,85 @@
+"""What every aat command shares: `--version`, `-q/--quiet`, one exit status convention stated in `--help`, and a
+one-line message instead of a traceback when a command needs the `train` extra (torch) that is not installed."""
+
+from __future__ import annotations
+
+import argparse
+
+from .. import DISTRIBUTION, __version__
+
+EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+EXIT_STATUS = ("exit status: 0 all done; 1 some capture or file failed (one line each, the others still ran); "
+               "2 usage error or nothing could be run")
+
+
+def version_text(prog: str) -> str:
+    return f"{prog} {__version__} ({DISTRIBUTION})"
+
+
+def parser(prog: str, description: str, *, quiet: bool = True, **kw) -> argparse.ArgumentParser:
+    """An ArgumentParser with --version, -q/--quiet (unless quiet=False: commands with subcommands give it to each
+    subcommand, see add_quiet) and the exit status as its epilog."""
+    ap = argparse.ArgumentParser(prog=prog, description=description, epilog=EXIT_STATUS, **kw)
+    ap.add_argument("--version", action="version", version=version_text(prog))
+    if quiet:
+        add_quiet(ap)
+    return ap
+
+
+def add_quiet(ap: argparse.ArgumentParser) -> None:
+    ap.add_argument("-q", "--quiet", action="store_true", help="no progress output: results, warnings and errors only")
+
+
+def subparser(sub, name: str, help: str, **kw) -> argparse.ArgumentParser:
+    """A subcommand parser with -q/--quiet and the exit status epilog."""
+    p = sub.add_parser(name, help=help, description=help, epilog=EXIT_STATUS, **kw)
+    add_quiet(p)
+    return p
+
+
+def install_hint(extra: str = "train") -> str:
+    return f'pip install "{DISTRIBUTION}[{extra}]"'
+
+
+class _ListAction(argparse.Action):
+    """An option like --version: prints a list and exits 0 before the required arguments are checked."""
+
+    def __init__(self, option_strings, dest, lister=None, help=None):
+        super().__init__(option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, nargs=0, help=help)
+        self.lister = lister
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        self.lister()
+        parser.exit(EXIT_OK)
+
+
+def add_list_option(ap: argparse.ArgumentParser, flag: str, lister, help: str) -> None:
+    """`flag` prints with lister() and exits, so positionals and options the command needs stay required."""
+    ap.add_argument(flag, action=_ListAction, lister=lister, help=help)
+
+
+def print_effects() -> None:
+    """The simulator's registered effects, one line each (aat-render and aat-diagnose --list-effects)."""
+    from training.render import effects as fx
+
+    for name, desc in fx.describe().items():
+        print(f"{name:16s} {desc}")
+
+
+TRAIN_MODULES = {"torch", "onnx", "onnxscript", "skimage", "PIL"}  # what the train extra brings
+
+
+def run_or_hint(prog: str, main, argv) -> int:
+    """main(argv), but a missing train-extra module is one line saying how to install it (exit 2), not a
+    traceback."""
+    try:
+        return main(argv)
+    except ModuleNotFoundError as e:
+        root = (e.name or "").split(".")[0]
+        if root not in TRAIN_MODULES:
+            raise
+        import sys
+
+        print(f"{prog}: needs the train extra ({root} is not installed): {install_hint()}  "
+              "(CPU-only torch: README, Install)", file=sys.stderr)
+        return EXIT_USAGE

@@ -1,0 +1,163 @@
+"""Depth from focus without a trained model: `depth_from_focus(stack, focus_m) -> FocusResult`, numpy only.
+
+Steps (each a module of this package): focus measure per frame (`measures`) -> frames with equal reported focus
+placed from the images (`placement`) -> per-pixel peak of the focus curve in diopters with a confidence
+(`estimate`), on the nominal focus distances (thin-lens mapping) or, given a `BestFocusMap`, on the object distance
+each frame has in best focus at the pixel's field radius (aberration-aware mapping, `bestfocus`) -> all-in-focus
+blend and the focus weights' spread (`aif`) -> unconfident pixels filled along the all-in-focus image (`fill`).
+
+Defaults were chosen by measurement (benchmarks/bench_focus.py, BENCHMARKS.md; docs/focus_method.md).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from .aif import AIF_MODES, blend, blend_at, focus_weights, spread_m
+from .bestfocus import BestFocusMap
+from .estimate import ESTIMATORS, estimate_peak
+from .fill import fill_depth
+from .measures import MEASURES, focus_volume
+from .placement import place_equal_focus, tied_groups
+
+MIN_DIOPTERS = 1e-3  # 1 km: estimates past infinity (a far frame's field shift) are clamped here
+FILL_MODES = ("none", "fill")
+
+
+@dataclass(frozen=True)
+class FocusConfig:
+    """measure / window_px: focus measure and its window (px); estimator: peak refinement (gamma: the `ratio`
+    estimator's tail exponent, None = per measure, see `tail_exponent`); aif: blending mode and
+    power; fill: "fill" (edge-aware filling of unconfident pixels) or "none", with the domain transform's spatial
+    sigma (px at full size), range sigma (guide units, sqrt of the normalised AiF) and the confidence at which a
+    pixel keeps its own estimate; radius_bins: resolution of the aberration-aware lookup; calibrated: add the
+    best-focus map's measured offset (if it has one)."""
+
+    measure: str = "mlap2"
+    window_px: float = 15.0
+    estimator: str = "ratio"
+    gamma: float | None = None
+    aif: str = "weights"
+    aif_power: float = 4.0
+    fill: str = "fill"
+    sigma_s_px: float = 40.0
+    sigma_r: float = 0.1
+    c_full: float = 0.5
+    fill_downscale: int = 2
+    radius_bins: int = 256
+    calibrated: bool = True
+
+    @property
+    def tail_exponent(self) -> float:
+        """gamma of the `ratio` estimator: 1 for the squared measures, 0.5 for `sml` (a rectified, unsquared
+        response falls off half as fast in log)."""
+        return self.gamma if self.gamma is not None else (0.5 if self.measure == "sml" else 1.0)
+
+    def __post_init__(self):
+        for name, v, allowed in (("measure", self.measure, MEASURES), ("estimator", self.estimator, ESTIMATORS),
+                                 ("aif", self.aif, AIF_MODES), ("fill", self.fill, FILL_MODES)):
+            if v not in allowed:
+                raise ValueError(f"unknown {name} {v!r} (one of {', '.join(allowed)})")
+        if not self.window_px > 0 or self.radius_bins < 2:
+            raise ValueError("window_px must be > 0 and radius_bins >= 2")
+
+
+@dataclass
+class FocusResult:
+    """depth_m (H, W) metres from the sensor; aif (3, H, W) in the stack's units; std_m (H, W) spread of the focus
+    weights (m); confidence (H, W) in [0, 1]; diopters (H, W) the estimate before filling; focus_m (S,) the
+    frames' focus distances as used (sorted near to far, tied frames placed); order (S,) input index of each;
+    warnings (one line each); info: settings, mapping, placements, timings."""
+
+    depth_m: np.ndarray
+    aif: np.ndarray
+    std_m: np.ndarray
+    confidence: np.ndarray
+    diopters: np.ndarray
+    focus_m: np.ndarray
+    order: np.ndarray
+    warnings: list[str] = field(default_factory=list)
+    info: dict = field(default_factory=dict)
+
+
+def depth_from_focus(stack: np.ndarray, focus_m, best_focus: BestFocusMap | None = None,
+                     config: FocusConfig = FocusConfig(), volume: np.ndarray | None = None) -> FocusResult:
+    """Depth, all-in-focus image and confidence from a focal stack.
+
+    stack: (S, 3, H, W) linear RGB (any scale: the runtime's normalised stacks or raw linear values), S >= 3, any
+    frame order; focus_m: (S,) reported focus distances, metres from the sensor (> 0). best_focus: the lens's
+    map for the aberration-aware mapping (frames spanning its sensor), None = thin-lens mapping.
+    volume: a precomputed focus volume (S, H, W) of `stack` with config's measure (benchmarks reuse it).
+    """
+    t0 = time.perf_counter()
+    timings: dict[str, float] = {}
+
+    def lap(name):
+        nonlocal t0
+        now = time.perf_counter()
+        timings[name] = round(now - t0, 4)
+        t0 = now
+
+    stack = np.asarray(stack, np.float32)
+    f = np.asarray(focus_m, np.float64).ravel()
+    if stack.ndim != 4 or stack.shape[1] != 3 or stack.shape[0] != f.size:
+        raise ValueError(f"stack must be (S, 3, H, W) with S focus distances, got {stack.shape} and {f.size}")
+    if f.size < 3:
+        raise ValueError(f"depth from focus needs at least 3 frames, got {f.size}")
+    if not np.all(np.isfinite(f)) or np.any(f <= 0):
+        raise ValueError(f"focus distances must be finite and > 0 m, got {f.tolist()}")
+    warnings: list[str] = []
+    vol = focus_volume(stack, config.measure, config.window_px) if volume is None else volume
+    lap("measure")
+
+    placements: list[dict] = []
+    if tied_groups(f):
+        f, placements = place_equal_focus(vol, f)
+        desc = ", ".join(f"frame {p['frame']} {p['reported_m']:g} -> {p['placed_m']:.4g} m" for p in placements)
+        warnings.append(f"frames with equal reported focus distances placed from the images: {desc}")
+        if any(p["method"] != "images" for p in placements):
+            warnings.append("some tied frames could not be placed from the images and were spread evenly")
+    order = np.argsort(f, kind="stable")
+    if np.any(order != np.arange(f.size)):  # (copies of the stack cost time: only when the order changes)
+        f, stack, vol = f[order], stack[order], vol[order]
+    lap("placement")
+
+    s, _, h, w = stack.shape
+    if best_focus is None:
+        x, rbin, mapping = (1.0 / f).astype(np.float32), None, "thin_lens"
+    else:
+        x = best_focus.radial_lut(f, config.radius_bins, config.calibrated)
+        r = best_focus.radius_px(h, w)
+        rbin = np.minimum((r * config.radius_bins).astype(np.int32), config.radius_bins - 1)
+        mapping = "aberration_aware"
+        near, far = best_focus.focus_range_m
+        out = [v for v in f if not near * 0.999 <= v <= far * 1.001]
+        if out:
+            warnings.append(f"focus distances {', '.join(f'{v:g}' for v in out)} m lie outside the best-focus "
+                            f"map's {near:g}..{far:g} m: its edge values are used")
+    peak = estimate_peak(vol, x, rbin, config.estimator, gamma=config.tail_exponent)
+    lap("estimate")
+
+    weights = focus_weights(vol, config.aif_power)
+    aif = blend(stack, weights) if config.aif == "weights" else blend_at(stack, peak.frac)
+    lap("aif")
+
+    d = peak.diopters
+    if config.fill == "fill":
+        guide = np.sqrt(np.clip(aif / max(float(np.percentile(aif, 99.5)), 1e-12), 0, 1))
+        d = fill_depth(d, peak.confidence, guide, config.sigma_s_px, config.sigma_r, config.c_full,
+                       config.fill_downscale)
+    depth = (1.0 / np.maximum(d, MIN_DIOPTERS)).astype(np.float32)
+    lap("fill")
+    frame_m = (1.0 / np.maximum(x, MIN_DIOPTERS)).astype(np.float32)  # per frame (and radius bin), metres
+    std = spread_m(weights, frame_m if rbin is None else np.take(frame_m, rbin, axis=1), depth)
+    lap("spread")
+    info = {"config": asdict(config), "mapping": mapping, "frames": int(s), "size_px": [int(w), int(h)],
+            "focus_m_used": [float(v) for v in f], "placements": placements, "timings_s": timings}
+    if best_focus is not None:
+        info["best_focus_map"] = {"lens_name": best_focus.lens_name, "lens_hash": best_focus.lens_hash,
+                                  "calibrated": bool(config.calibrated and best_focus.offset_diopters is not None)}
+    return FocusResult(depth, aif, std, peak.confidence, peak.diopters, f.astype(np.float32), order, warnings, info)

@@ -1,0 +1,128 @@
+"""The classical method behind `aat-infer --method focus`: what `aat_deploy.pipeline.run_capture` needs of a model
+(`DfFModel`'s interface), for `depth_from_focus` at the capture's own resolution.
+
+- working size: the frames' own size, or reduced so the longer side is at most `max_side` px (area averaging);
+- lens: none (thin-lens mapping; camera identity is not checked), or a best-focus map from `--lens LENS` (the
+  map stored next to the lens file, else traced now with torch) or `--psf PSF.onnx` (the map stamped in its
+  metadata): aberration-aware mapping, and the lens's focal length / F-number are compared with the EXIF ones;
+- focal length in pixels for the recording: from the lens (EFL over the sensor's width at the working size),
+  else an assumed horizontal field of view of about 53 degrees (f = the longer side in px), said in the summary.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import CaptureError
+from ..eval.raycast import Intrinsics
+from .bestfocus import BestFocusError, BestFocusMap, for_lens, from_psf
+from .method import FocusConfig, FocusResult, depth_from_focus
+
+MAX_FRAMES = 10_000
+
+
+class FocusMethod:
+    """Duck-types `aat_deploy.model.DfFModel` for the pipeline."""
+
+    kind = "method"
+
+    def __init__(self, config: FocusConfig = FocusConfig(), lens: str | Path | None = None,
+                 psf: str | Path | None = None, max_side: int | None = None, progress: bool = False):
+        if lens is not None and psf is not None:
+            raise CaptureError("give --lens or --psf, not both")
+        self.config, self.max_side = config, max_side
+        self.best_focus: BestFocusMap | None = None
+        self.map_source = None
+        self.lens_name = None
+        self.focal_length_mm = self.f_number = self.sensor_mm = None
+        try:
+            if psf is not None:
+                self.best_focus, self.map_source = from_psf(psf), str(psf)
+            elif lens is not None:
+                self.best_focus, self.map_source = for_lens(lens, progress=progress)
+        except BestFocusError as e:
+            raise CaptureError(str(e)) from None
+        if lens is not None:
+            self._lens_identity(Path(lens))
+        elif psf is not None:
+            self._psf_identity(Path(psf))
+        self.stack_range = (3, MAX_FRAMES)
+        self.focus_range_m = self.best_focus.focus_range_m if self.best_focus else (0.0, float("inf"))
+
+    def _lens_identity(self, path: Path) -> None:
+        from training.lens.io import load_lens
+        from training.optics.paraxial import paraxial_data
+
+        lens = load_lens(path)
+        p = paraxial_data(lens)
+        self.lens_name, self.focal_length_mm, self.f_number = lens.name, p.efl_mm, p.fno
+        self.sensor_mm = (lens.sensor.width_mm, lens.sensor.height_mm)
+
+    def _psf_identity(self, path: Path) -> None:
+        from ..psf import PSFSurrogate
+
+        meta = PSFSurrogate(path, threads=1).meta
+        self.lens_name = meta.get("aat.lens_name")
+        efl, epd = float(meta.get("aat.efl_mm", "nan")), float(meta.get("aat.entrance_pupil_mm", "nan"))
+        self.focal_length_mm = efl if np.isfinite(efl) else None
+        self.f_number = efl / epd if np.isfinite(efl) and np.isfinite(epd) and epd > 0 else None
+        self.sensor_mm = tuple(json.loads(meta["aat.sensor_mm"])) if "aat.sensor_mm" in meta else None
+
+    # -- what the pipeline asks of a model ---------------------------------------------------------------------
+    def working_size(self, frame_hw: tuple[int, int]) -> tuple[int, int]:
+        """(W, H) the frames are processed at: their own size, or scaled so the longer side is `max_side`."""
+        h, w = int(frame_hw[0]), int(frame_hw[1])
+        if self.max_side and max(h, w) > self.max_side:
+            s = self.max_side / max(h, w)
+            return max(1, round(w * s)), max(1, round(h * s))
+        return w, h
+
+    def intrinsics(self, size_wh: tuple[int, int]) -> Intrinsics:
+        """Pinhole intrinsics at the working size (aat_deploy.camera): the focal length from the lens, else the
+        assumed one (focal_length_px_at); the pinhole a focal length in front of the sensor (thin lens at infinity),
+        at the sensor when the focal length in mm is unknown."""
+        w, h = int(size_wh[0]), int(size_wh[1])
+        f = self.focal_length_px_at((w, h))
+        if self.focal_length_mm and self.sensor_mm:
+            return Intrinsics(w, h, f, f, (w - 1) / 2, (h - 1) / 2, float(self.focal_length_mm),
+                              f"--method focus: focal length of {self.lens_name}",
+                              ["pupil_to_sensor_mm unknown: the focal length is used (thin lens focused at infinity)"])
+        return Intrinsics(w, h, f, f, (w - 1) / 2, (h - 1) / 2, 0.0, "--method focus: no lens given",
+                          ["focal length assumed: the longer side in px (about 53 degrees across); give --lens",
+                           "pupil_to_sensor_mm unknown: 0 (the pinhole at the sensor)"])
+
+    def focal_length_px_at(self, size_wh: tuple[int, int]) -> float:
+        if self.focal_length_mm and self.sensor_mm:
+            return float(self.focal_length_mm / (self.sensor_mm[0] / size_wh[0]))
+        return float(max(size_wh))
+
+    def frame_warnings(self, frame_hw: tuple[int, int], where) -> list[str]:
+        """The aberration-aware mapping assumes the frames span the lens's sensor: warn on another aspect."""
+        if self.best_focus is None:
+            return []
+        sw, sh = self.best_focus.sensor_mm
+        h, w = frame_hw
+        if abs(w / h - sw / sh) > 0.01 * (sw / sh):
+            return [f"{where}: frames are {w}x{h} px, the lens's sensor is {sw:g}x{sh:g} mm: field radii assume "
+                    "the frames span the sensor"]
+        return []
+
+    def summary(self) -> dict:
+        return {"method": "focus", "mapping": "aberration_aware" if self.best_focus else "thin_lens",
+                "best_focus_map": self.map_source, "lens_name": self.lens_name,
+                "focal_length_mm": self.focal_length_mm, "f_number": self.f_number, "max_side": self.max_side,
+                "focal_length_px": "from the lens" if self.focal_length_mm and self.sensor_mm else
+                "assumed: the longer side in px (no lens given)",
+                "config": {k: v for k, v in self.config.__dict__.items()}}
+
+    def infer(self, stack: np.ndarray, focus_m: np.ndarray, tile: int | None = None, progress=None) -> FocusResult:
+        """stack (S, 3, H, W) normalised, focus_m (S,) metres; `tile` is not needed (memory is a few stacks)."""
+        try:
+            res = depth_from_focus(stack, focus_m, self.best_focus, self.config)
+        except ValueError as e:
+            raise CaptureError(str(e)) from None
+        # the pipeline's arrays are in the input frame order; depth etc. are per pixel, so nothing to reorder
+        return res

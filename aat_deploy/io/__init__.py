@@ -1,0 +1,2 @@
+"""Writing outputs safely: the output-folder guard every writing command runs first (`guard.py`) and folders
+written whole or not at all (`atomic.py`)."""

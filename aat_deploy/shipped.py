@@ -1,0 +1,74 @@
+"""The models and lenses the project ships, found wherever aat-dff runs from.
+
+In a clone (editable install, or PYTHONPATH) they are the repository's `models/` and `lenses/`. A plain
+`pip install .` copies them as data files of the distribution into `<prefix>/share/aat-dff/{models,lenses}`
+(pyproject.toml, `[tool.setuptools.data-files]`), found through the distribution's file list, so a venv, a
+`--user` install and a system install all work from any folder.
+
+Commands take a shipped file by name: `--model dff_dfvnet_aat` (or `models/dff_dfvnet_aat.onnx` from any folder),
+`aat-lens info canon_rf50mm_f1.8`. A path that exists always wins.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import sys
+from pathlib import Path
+
+from . import DISTRIBUTION
+
+KINDS = {"models": ".onnx", "lenses": ".json"}
+
+
+def _checkout() -> Path | None:
+    """The repository this package runs from, if it runs from one (not an installed copy)."""
+    root = Path(__file__).resolve().parents[1]
+    return root if (root / "pyproject.toml").is_file() and (root / "aat_deploy").is_dir() else None
+
+
+def shipped_dir(kind: str) -> Path | None:
+    """The folder of the shipped `kind` ("models" or "lenses"), or None if this install has none."""
+    if kind not in KINDS:
+        raise ValueError(f"unknown kind {kind!r}")
+    root = _checkout()
+    if root is not None and (root / kind).is_dir():
+        return root / kind
+    try:
+        dist = importlib.metadata.distribution(DISTRIBUTION)
+        files = dist.files or []
+    except importlib.metadata.PackageNotFoundError:
+        files = []
+    for f in files:
+        parts = f.parts
+        for i in range(len(parts) - 2):
+            if parts[i:i + 3] == ("share", DISTRIBUTION, kind):
+                return Path(dist.locate_file(Path(*parts[:i + 3]))).resolve()
+    guess = Path(sys.prefix) / "share" / DISTRIBUTION / kind
+    return guess if guess.is_dir() else None
+
+
+def shipped_names(kind: str) -> list[str]:
+    d = shipped_dir(kind)
+    return sorted(p.stem for p in d.glob(f"*{KINDS[kind]}")) if d else []
+
+
+def resolve(arg: str | Path, kind: str) -> Path:
+    """`arg` if that path exists; else the shipped file it names: a bare name with or without its suffix
+    (`dff_dfvnet_aat`), or `<kind>/<file>` as written in the README (`models/dff_dfvnet_aat.onnx`) from any
+    folder; else `arg` unchanged (the caller reports it missing, with shipped_hint)."""
+    p = Path(arg)
+    if p.exists():
+        return p
+    if len(p.parts) == 1 or (len(p.parts) == 2 and p.parts[0] == kind):
+        d = shipped_dir(kind)
+        if d is not None:
+            for cand in (d / p.name, d / (p.name + KINDS[kind])):
+                if cand.is_file():
+                    return cand
+    return p
+
+
+def shipped_hint(kind: str) -> str:
+    """' (shipped: a, b, ...)' listing what resolve() accepts by name, or ''."""
+    names = shipped_names(kind)
+    return f" (shipped {kind}, usable by name: {', '.join(names)})" if names else ""

@@ -1,0 +1,39 @@
+#!/usr/bin/env bash
+# Issue 20's models (the paper's Table 2 on its own lens and on the RF50): configs/table2/*.json.
+# Each pair (AAT and its thin-lens twin, identical but for the simulator) trains concurrently, one torch thread
+# each (on 2 cores a second thread barely speeds a small net up, a second run doubles throughput). Resumable:
+# rerun after a kill and every run continues from $OUT/<name>/last.pt; finished runs are skipped. Training data
+# is rendered once into cache/stacks (scripts/render_training_stacks.py) and shared by the nets of one lens.
+#   OUT=cache/runs/table2 nice -n 10 scripts/train_table2.sh [NAME_AAT NAME_THIN ...]
+# then: python scripts/export_dff_models.py --runs cache/runs/table2 NAME ...   (models/NAME.onnx)
+# A run whose folder is missing (a new machine) starts from its committed checkpoint in checkpoints/table2/NAME/
+# (scripts/snapshot_runs.sh copies the unfinished runs' last.pt and logs there at the end of a session).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+export OMP_WAIT_POLICY=PASSIVE OMP_NUM_THREADS=1 PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}"
+OUT=${OUT:-cache/runs/table2}
+mkdir -p "$OUT"
+pairs=("$@")
+if [ ${#pairs[@]} -eq 0 ]; then
+  pairs=(paper50_dfvnet_aat paper50_dfvnet_thin paper50_aifnet_aat paper50_aifnet_thin
+         rf50_dfvnet_aat rf50_dfvnet_thin rf50_aifnet_aat rf50_aifnet_thin
+         paper50_dfvnet_aat_field rf50_dfvnet_aat_field paper50_aifnet_aat_field rf50_aifnet_aat_field)
+fi
+for ((i = 0; i < ${#pairs[@]}; i += 2)); do
+  names=("${pairs[i]}")
+  [ $((i + 1)) -lt ${#pairs[@]} ] && names+=("${pairs[i + 1]}")
+  cfgs=()
+  for n in "${names[@]}"; do cfgs+=("configs/table2/$n.json"); done
+  python scripts/render_training_stacks.py "${cfgs[@]}" --workers 2
+  pids=()
+  for n in "${names[@]}"; do
+    if [ -f "$OUT/$n/model.pt" ]; then echo "$n: done"; continue; fi
+    if [ ! -f "$OUT/$n/last.pt" ] && [ -f "checkpoints/table2/$n/last.pt" ]; then
+      mkdir -p "$OUT/$n" && cp checkpoints/table2/"$n"/* "$OUT/$n/" && echo "$n: resumed from checkpoints/table2/$n"
+    fi
+    python -m training.cli.train --config "configs/table2/$n.json" --out "$OUT/$n" --resume --no-progress \
+      >> "$OUT/$n.log" 2>&1 &
+    pids+=($!)
+  done
+  for p in "${pids[@]}"; do wait "$p"; done
+done

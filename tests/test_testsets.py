@@ -1,0 +1,51 @@
+"""Held-out test sets (training/train/testsets.py): cached by content, the two focus protocols, Middlebury."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from conftest import LENSES
+
+from training.train.testsets import TestSetSpec, load_test_set
+
+
+@pytest.fixture(scope="module")
+def small_lens(tmp_path_factory):
+    """The RF50 on a 96 x 64 px sensor (same 36 x 24 mm), so whole-sensor stacks render in a blink."""
+    d = json.loads((LENSES / "canon_rf50mm_f1.8.json").read_text())
+    d["sensor"].update(width_px=96, height_px=64)
+    p = tmp_path_factory.mktemp("lens") / "rf50_small.json"
+    p.write_text(json.dumps(d))
+    return str(p)
+
+
+def _spec(lens, protocol, n=3):
+    return TestSetSpec(lens, None, 5, protocol=protocol, n_procedural=n, simulator="thin_lens")
+
+
+def test_cached_and_identical_on_reload(small_lens, tmp_path):
+    a = load_test_set(_spec(small_lens, "fixed"), str(tmp_path), progress=False)
+    assert list(tmp_path.rglob("*.npz"))  # written once ...
+    b = load_test_set(_spec(small_lens, "fixed", n=2), str(tmp_path), progress=False)  # ... and read back
+    assert len(a["procedural"]) == 3 and len(b["procedural"]) == 2
+    for x, y in zip(a["procedural"][:2] + a["middlebury"], b["procedural"] + b["middlebury"]):
+        assert x.stack.shape == (5, 3, 64, 96) and x.aif.shape == (3, 64, 96) and x.depth_m.shape == (64, 96)
+        np.testing.assert_array_equal(x.stack, y.stack)  # float16 cache on both sides
+        np.testing.assert_array_equal(x.focus_m, y.focus_m)
+
+
+def test_protocols(small_lens, tmp_path):
+    fixed = load_test_set(_spec(small_lens, "fixed"), str(tmp_path), progress=False)
+    paper = load_test_set(_spec(small_lens, "paper"), str(tmp_path), progress=False)
+    inv = np.linspace(1 / 0.5, 1 / 10.0, 5)
+    for it in fixed["procedural"] + fixed["middlebury"]:
+        np.testing.assert_allclose(it.focus_m, 1 / inv, rtol=1e-6)  # the camera-like schedule, scene-blind
+    for it in paper["procedural"] + paper["middlebury"]:
+        d = it.depth_m[it.depth_m > 0]
+        step = (d.max() - d.min()) / 4
+        assert np.all(np.diff(it.focus_m) > 0)
+        assert it.focus_m[0] >= d.min() - 0.26 * step and it.focus_m[-1] <= d.max() + 0.26 * step
+    mb = paper["middlebury"][0].depth_m
+    assert 2.0 < mb[mb > 0].min() and mb.max() < 5.2  # Motorcycle spans 2.1-5.0 m

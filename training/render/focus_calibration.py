@@ -1,0 +1,141 @@
+"""Where the focus measure peaks, relative to the traced best focus: measured on rendered stacks of the lens.
+
+The best-focus map (`training.optics.field_focus`) says which object distance D*(r, F) has its smallest RMS spot
+on the sensor of a frame focused at F, at field radius r. Depth from focus finds instead the frame in which a
+focus measure (a high-pass energy) peaks. Under spherical aberration and astigmatism these differ: the RMS spot
+weighs every ray alike, the measure weighs the sharp core of the PSF. This module measures the difference.
+
+For each (r, F): a textured plane at D*(r, F) (photo textures of the training split), placed on the sensor
+diagonal at radius r, is rendered through the lens (`Simulator` with its PSFs, ray-traced by default) in a dense
+sweep of frames around F (`n_sweep` focus settings over +-`sweep_d` diopters); the runtime's focus measure
+(`aat_deploy.focus.measures`) is averaged over the patch per frame, summed over `n_textures` textures, and its peak
+found by a parabola on log measure around the best frame of the sweep. The frame F_peak where the measure peaks
+should, by the map, have D*(r, F_peak) in focus; the object is at D*(r, F). The offset that makes the map agree
+with the measure is offset = D*(r, F) - D*(r, F_peak) (object diopters; added by `BestFocusMap` when calibrated).
+Points whose D* is beyond infinity (not renderable) are left out; the offset is interpolated over r (held beyond
+the measured range) and over F.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from aat_deploy.focus.bestfocus import BestFocusMap
+from aat_deploy.focus.measures import focus_volume
+
+
+@dataclass(frozen=True)
+class CalibrationConfig:
+    """radii: field radii (normalised, on the diagonal); focus_m: frame focus settings (m from the sensor);
+    sweep_d / n_sweep: the dense frame sweep around each; crop_px: patch side; n_textures; measure / window_px:
+    the focus measure calibrated (the runtime's default, `aat_deploy.focus.FocusConfig`); psf: "trace" (real rays) or a surrogate .onnx path."""
+
+    radii: tuple = (0.0, 0.3, 0.5, 0.65, 0.8, 0.9)
+    focus_m: tuple = (0.6, 1.0, 2.0, 5.0)
+    sweep_d: float = 0.2
+    n_sweep: int = 21
+    crop_px: int = 64
+    margin_px: int = 24
+    n_textures: int = 3
+    measure: str = "mlap2"
+    window_px: float = 15.0
+    psf: str = "trace"
+    seed: int = 0
+
+
+def _simulator(lens, cfg: CalibrationConfig):
+    from training.render import effects as fx
+    from training.render.layered import LayeredConfig
+    from training.render.simulator import Simulator
+    from training.render.sources import OnnxPSF, RayTracedPSF
+
+    src = RayTracedPSF(lens) if cfg.psf == "trace" else OnnxPSF(cfg.psf, lens, threads=1)
+    return Simulator(lens, src, fx.parse(["aberrations"]), LayeredConfig(cell_px=32))
+
+
+def _peak_log(x: np.ndarray, m: np.ndarray) -> float:
+    """Peak of a sampled curve: the vertex of the parabola through log m at the best sample and its neighbours."""
+    k = int(np.argmax(m))
+    if k == 0 or k == len(m) - 1:
+        return float("nan")  # the peak is outside the sweep
+    y = np.log(m[k - 1:k + 2])
+    x0, x1, x2 = x[k - 1:k + 2]
+    den = (x1 - x0) * (y[1] - y[2]) - (x1 - x2) * (y[1] - y[0])
+    num = (x1 - x0) ** 2 * (y[1] - y[2]) - (x1 - x2) ** 2 * (y[1] - y[0])
+    return float(x1 - 0.5 * num / den) if den != 0 else float(x1)
+
+
+def measure_point(lens, fmap: BestFocusMap, r: float, focus_m: float, cfg: CalibrationConfig, sim=None) -> dict:
+    """One (r, F): the traced D*, the sweep's measure curve and the peak; offset in object diopters."""
+    import torch
+
+    from training.data.textures import photo_texture
+
+    sim = sim or _simulator(lens, cfg)
+    d_star = float(fmap.frame_diopters([focus_m], [r], calibrated=False)[0, 0])
+    out = {"r": float(r), "focus_m": float(focus_m), "traced_object_diopters": d_star}
+    if d_star <= 0.02:
+        return {**out, "offset_diopters": float("nan"), "note": "traced best focus beyond 50 m: not rendered"}
+    s = lens.sensor
+    n = cfg.crop_px + 2 * cfg.margin_px
+    col = (1 + r) / 2 * s.width_px - n / 2
+    row = (1 - r) / 2 * s.height_px - n / 2  # y up
+    fd = 1.0 / focus_m + np.linspace(-cfg.sweep_d, cfg.sweep_d, cfg.n_sweep)
+    fd = fd[fd > 0]
+    rng = np.random.default_rng([cfg.seed, int(r * 1000), int(focus_m * 1000)])
+    curve = np.zeros(fd.size)
+    for _ in range(cfg.n_textures):
+        tex = photo_texture(rng, n, n, "train").astype(np.float32)
+        img = torch.from_numpy(np.ascontiguousarray(tex.transpose(2, 0, 1)))
+        depth = torch.full((n, n), 1.0 / d_star)
+        st = sim.render_stack(img, depth, 1.0 / fd, origin=(int(round(row)), int(round(col))))
+        frames = st.frames.numpy()
+        vol = focus_volume(frames / max(float(frames.max()), 1e-12), cfg.measure, cfg.window_px)
+        m = cfg.margin_px
+        curve += vol[:, m:m + cfg.crop_px, m:m + cfg.crop_px].mean((1, 2))
+    f_peak = _peak_log(fd, curve)
+    if not np.isfinite(f_peak):
+        return {**out, "offset_diopters": float("nan"), "note": "measure peak outside the sweep"}
+    d_at_peak = float(fmap.frame_diopters([1.0 / f_peak], [r], calibrated=False)[0, 0])
+    return {**out, "measure_peak_focus_diopters": f_peak, "traced_focus_diopters": 1.0 / focus_m,
+            "peak_minus_traced_focus_diopters": f_peak - 1.0 / focus_m,
+            "offset_diopters": d_star - d_at_peak}
+
+
+def calibrate(lens, fmap: BestFocusMap, cfg: CalibrationConfig = CalibrationConfig(), progress: bool = True
+              ) -> tuple[BestFocusMap, list[dict]]:
+    """The map with `offset_diopters` measured on rendered stacks, and the per-point measurements."""
+    sim = _simulator(lens, cfg)
+    points = []
+    it = [(r, f) for f in cfg.focus_m for r in cfg.radii]
+    if progress:
+        from tqdm import tqdm
+
+        it = tqdm(it, desc="calibrating the focus measure's peak", unit="point")
+    for r, f in it:
+        points.append(measure_point(lens, fmap, r, f, cfg, sim))
+    radii = np.array(cfg.radii, np.float64)
+    fdp = np.sort(1.0 / np.array(cfg.focus_m, np.float64))
+    grid = np.full((radii.size, fdp.size), np.nan)
+    for p in points:
+        i = int(np.argmin(np.abs(radii - p["r"])))
+        j = int(np.argmin(np.abs(fdp - 1.0 / p["focus_m"])))
+        grid[i, j] = p["offset_diopters"]
+    # fill gaps along r (held beyond the measured radii), then along focus; all-NaN columns take neighbours
+    for j in range(fdp.size):
+        ok = np.isfinite(grid[:, j])
+        if ok.any():
+            grid[:, j] = np.interp(radii, radii[ok], grid[ok, j])
+    for i in range(radii.size):
+        ok = np.isfinite(grid[i])
+        grid[i] = np.interp(fdp, fdp[ok], grid[i, ok]) if ok.any() else 0.0
+    # onto the map's own grid (bilinear in r^2 and focus diopters, held beyond)
+    per_f = np.stack([np.interp(fmap.focus_diopters, fdp, row) for row in grid])  # (len(radii), F)
+    offset = np.stack([np.interp(fmap.radius ** 2, radii ** 2, per_f[:, j]) for j in range(per_f.shape[1])], 1)
+    notes = dict(fmap.notes)
+    notes["calibration"] = {"what": "offset_diopters = traced object diopters minus those the map gives the frame "
+                                    "where the focus measure peaks, on rendered stacks (training.render.focus_calibration)",
+                            **{k: (list(v) if isinstance(v, tuple) else v) for k, v in cfg.__dict__.items()}}
+    return replace(fmap, offset_diopters=offset, notes=notes), points
