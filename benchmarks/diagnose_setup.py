@@ -34,6 +34,8 @@ class Variant:
 VARIANTS = {
     "full": Variant("bench_diagnose", (36.0, 24.0), ("aat", "thin_lens")),
     "crop4": Variant("bench_diagnose_crop4", (9.0, 6.0), ("aat",)),
+    # the shipped models at their full 960 x 640 (models/): nothing to set up; bench_diagnose takes the files
+    "shipped": Variant("bench_diagnose_shipped", (36.0, 24.0), ()),
 }
 
 
@@ -54,6 +56,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description="Models for the diagnosis benchmark (bench_diagnose.py).")
     ap.add_argument("--variant", choices=sorted(VARIANTS), default="full")
     var = VARIANTS[ap.parse_args().variant]
+    if not var.simulators:
+        print("nothing to set up: this variant uses the shipped models (bench_diagnose.py takes their files)")
+        return
     OUT = ROOT / "cache" / var.folder
     OUT.mkdir(parents=True, exist_ok=True)
     lens_path = OUT / "rf50_288x192.json"

@@ -111,8 +111,11 @@ def test_withheld_focus_bias_is_named(setup):
                  "--effects", "focus_metadata,noise", "-q"]) == 0
     d = json.loads((out / "diagnosis.json").read_text())
     assert d["gap_significant"] is True and d["where"]
+    assert d["verdict"] in ("explained", "partly_explained") and d["causes"][0] == "focus_metadata"
+    u = d["unexplained_share"]
+    assert u["ci_low"] <= u["share"] <= u["ci_high"] and 0 <= u["shown"] <= 1
     top = d["ranked_effects"][0]
-    assert top["effect"] == "focus_metadata" and top["params"]["bias_d"] > 0  # the sign of the withheld bias
+    assert top["effect"] == "focus_metadata" and _correction_d(d) > 0.15  # the sign and size of the bias (0.25 D)
     for k in ("share_of_gap", "ci_low", "ci_high"):
         assert isinstance(top[k], float)
     assert top["ci_low"] <= top["share_of_gap"] <= top["ci_high"] and top["share_of_gap"] > 0.3
@@ -125,6 +128,13 @@ def test_withheld_focus_bias_is_named(setup):
     assert main([str(sets["bias"]), "--model", str(model), "--lens", RF50, "--out", str(out), "-q"]) == 2
 
 
+def _correction_d(d: dict) -> float:
+    """Mean reported minus corrected focus (diopters) over every capture frame: the fitted bias, whatever family
+    (offset, or a curve when the DNG development bends the estimates) the fit chose."""
+    c = d["focus"]["corrected_focus"]
+    return float(np.mean([1 / np.array(x["reported_m"]) - 1 / np.array(x["corrected_m"]) for x in c]))
+
+
 def test_no_withheld_effect_is_not_blamed(setup):
     from aat_deploy.cli.diagnose import main
 
@@ -134,6 +144,7 @@ def test_no_withheld_effect_is_not_blamed(setup):
                  "--effects", "focus_metadata,noise", "-q"]) == 0
     d = json.loads((out / "diagnosis.json").read_text())
     assert d["gap_significant"] is False and d["ranked_effects"] == [] and d["where"] == []
+    assert d["verdict"] == "no_gap" and d["unexplained_share"] is None and d["causes"] == []
     assert d["image_effects"] == []  # nor does it claim to see one in the images
     assert "Nothing to blame" in (out / "report.md").read_text()
 
@@ -177,7 +188,7 @@ def test_diagnosis_runs_without_torch(setup, tmp_path):
     assert json.loads(r.stdout.strip().splitlines()[-1]) == {"code": 0, "torch": False}
     d = json.loads((out / "diagnosis.json").read_text())
     top = d["ranked_effects"][0]
-    assert top["effect"] == "focus_metadata" and top["params"]["bias_d"] > 0 and top["share_of_gap"] > 0.3
+    assert top["effect"] == "focus_metadata" and _correction_d(d) > 0.15 and top["share_of_gap"] > 0.3
     assert [e["effect"] for e in d["effects_skipped"]] == ["chromatic"] and "torch" in d["effects_skipped"][0]["reason"]
     assert "chromatic" in (out / "report.md").read_text()
 
@@ -235,3 +246,81 @@ def test_brightness_fallback_rule_by_hand():
     assert not named_by_brightness(dict(vign, ci_low=-0.1), 0.05)  # no significant share of the gap
     assert not named_by_brightness(dict(vign, brightness_closeness_ci=[0.01, 0.6]), 0.05)
     assert not named_by_brightness(dict(vign, ci_low=None), 0.05)  # no gap: the image-only search never uses it
+
+
+def test_hidden_cause_is_unexplained_not_blamed(setup):
+    """The focus bias hidden from the search (only noise and breathing may be tried): the gap is real, nothing
+    explains it, and the report says so instead of naming a wrong effect."""
+    from aat_deploy.cli.diagnose import main
+
+    tmp, model, sets = setup
+    out = tmp / "out_hidden"
+    assert main([str(sets["bias"]), "--model", str(model), "--lens", RF50, "--out", str(out),
+                 "--effects", "noise,focus_breathing", "-q"]) == 0
+    d = json.loads((out / "diagnosis.json").read_text())
+    assert d["gap_significant"] is True
+    assert d["verdict"] == "unexplained" and d["causes"] == []
+    u = d["unexplained_share"]
+    assert u["shown"] == pytest.approx(1.0, abs=0.05) and u["ci_low"] > 0.5
+    report = (out / "report.md").read_text()
+    assert "Verdict: unexplained" in report and "no registered effect explains it" in report
+
+
+def test_shares_shown_only_when_meaningful():
+    """share_view on the cases the issue met: a share of 8.75 from an effect whose images moved away is withheld
+    with the reason; shares past 0..1 are clipped with a note; a plain one is shown as is."""
+    from aat_deploy.diagnose.search import share_view
+
+    away = {"share_of_gap": 8.75, "ci_low": 2.0, "ci_high": 15.0, "closeness": -1.18, "image_closeness": -1.18}
+    shown, note = share_view(away)
+    assert shown is None and "moved away" in note and "8.75" in note
+    over = {"share_of_gap": 1.26, "ci_low": 1.1, "ci_high": 1.4, "closeness": 0.6, "image_closeness": 0.5}
+    assert share_view(over) == (1.0, share_view(over)[1]) and "clipped to 1" in share_view(over)[1]
+    under = dict(over, share_of_gap=-0.2, ci_low=-0.3, ci_high=-0.1)
+    assert share_view(under)[0] == 0.0 and "widens" in share_view(under)[1]
+    plain = dict(over, share_of_gap=0.63, ci_low=0.56, ci_high=0.71)
+    assert share_view(plain) == (0.63, None)
+    assert "includes 0" in share_view(dict(plain, ci_low=-0.05))[1]
+    assert share_view({"share_of_gap": None, "closeness": 0.3})[0] is None
+
+
+def test_verdict_by_hand():
+    """no_gap / unexplained / partly_explained / explained from hand-made ranked effects."""
+    from aat_deploy.diagnose.search import DiagnoseConfig, explains_gap, verdict
+
+    cfg = DiagnoseConfig()
+    # the shipped sample: noise named first (share -0.20), then vignetting on its lighting
+    noise = {"share_of_gap": -0.2, "ci_low": -0.3, "ci_high": -0.1, "image_closeness": 0.34}
+    vign = {"share_of_gap": 0.63, "ci_low": 0.56, "ci_high": 0.71, "image_closeness": -0.03,
+            "brightness_closeness": 0.64}
+    away = {"share_of_gap": 0.9, "ci_low": 0.5, "ci_high": 1.2, "image_closeness": -0.4, "brightness_closeness": 0.1}
+    # a focus bias hidden from the search: weak noise stands in for it (the test set's own numbers)
+    stand_in = {"share_of_gap": 0.48, "ci_low": 0.16, "ci_high": 1.12, "image_closeness": 0.107,
+                "brightness_closeness": 0.0}
+    bias = {"share_of_gap": 0.95, "ci_low": 0.8, "ci_high": 1.1, "image_closeness": 0.7}
+    lim = (cfg.min_share, cfg.min_image_explained)
+    assert not explains_gap(noise, *lim) and explains_gap(vign, *lim) and explains_gap(bias, *lim)
+    assert not explains_gap(away, *lim)  # a twin unlike the captures explains nothing
+    assert not explains_gap(stand_in, *lim)
+    assert not explains_gap(dict(bias, share_of_gap=0.05, ci_low=0.01), *lim)  # too small a part
+    assert verdict(False, [vign], None, cfg) == "no_gap"
+    assert verdict(True, [], 1.0, cfg) == "unexplained"
+    assert verdict(True, [noise], 1.2, cfg) == "unexplained"
+    assert verdict(True, [stand_in], 0.52, cfg) == "unexplained"
+    assert verdict(True, [noise, vign], 0.57, cfg) == "partly_explained"
+    assert verdict(True, [bias], 0.05, cfg) == "explained"
+
+
+def test_alternatives_are_the_effects_the_images_cannot_tell_apart():
+    """_pick names the closest effect and lists the others that pass the rule with overlapping intervals."""
+    from aat_deploy.diagnose.search import DiagnoseConfig, Diagnosis
+
+    def e(name, clo, ci, img=None):
+        return ({"effect": name, "closeness": clo, "closeness_ci": ci, "image_closeness": img or clo,
+                 "image_closeness_ci": ci}, name)
+
+    best = [e("lens_tolerance", 0.40, [0.30, 0.50]), e("sensor_tilt", 0.45, [0.35, 0.55]),
+            e("noise", 0.10, [0.06, 0.14]), e("exposure", 0.02, [-0.1, 0.1])]
+    top = Diagnosis._pick(None, best, DiagnoseConfig())
+    assert top[1] == "sensor_tilt" and top[0]["alternatives"] == ["lens_tolerance"]
+    assert Diagnosis._pick(None, [e("exposure", 0.02, [-0.1, 0.1])], DiagnoseConfig()) is None

@@ -162,3 +162,94 @@ def test_raw_pipeline_spreads_one_noise_draw_per_photosite(lens):
     inner = out[0, 2:-2, 2:-2]
     assert inner.var() == pytest.approx(0.5625 * per_site, rel=0.05)
     assert inner.mean() == pytest.approx(0.5, rel=2e-3)  # the mean's standard error is 1.3e-4 of it
+
+
+def test_focus_metadata_scale_and_curve_and_their_inverses(lens):
+    """A distance-scale error (reported = 1.05 x true) and a monotone curve invert exactly; the curve is linear
+    between its knots and keeps its end errors beyond them; text specs carry the knots as a '/' list."""
+    ctx = fx.SimContext(lens, (640, 960))
+    true = np.array([0.5, 1.0, 2.0, 5.0])
+    e = fx.make("focus_metadata", bias_d=0.0, scale=1.05)
+    rep = e.report_focus(true, ctx, np.random.default_rng(0))
+    assert np.allclose(rep, 1.05 * true)
+    assert np.allclose(e.twin_focus(rep, ctx, np.random.default_rng(0)), true)
+    # knots: reported 0.2 D is really 0.25 D, reported 2 D really 2.1 D
+    c = fx.make("focus_metadata", bias_d=0.0, map_d=[0.2, 0.25, 2.0, 2.1])
+    got = 1 / c.twin_focus(1 / np.array([0.1, 0.2, 1.1, 2.0, 3.0]), ctx, np.random.default_rng(0))
+    assert np.allclose(got, [0.15, 0.25, 1.175, 2.1, 3.1])
+    assert np.allclose(c.twin_focus(c.report_focus(true, ctx, None), ctx, np.random.default_rng(0)), true)
+    again = fx.parse(fx.spec(c))[0]
+    assert again.params["map_d"] == [0.2, 0.25, 2.0, 2.1] and fx.spec(c) == "focus_metadata:bias_d=0.0:map_d=0.2/0.25/2/2.1"
+    with pytest.raises(ValueError, match="pairs"):
+        fx.make("focus_metadata", map_d=[0.2, 0.25, 2.0])
+    with pytest.raises(ValueError, match="rise"):
+        fx.make("focus_metadata", map_d=[0.2, 0.25, 0.1, 2.1])
+
+
+def test_sensor_shifts_add_up_through_the_focus_table(lens):
+    """Tilts about the two axes given as two effects are one tilt of the summed shift (the registry adds sensor shifts before the
+    focus-table lookup), and one tilt equals tilted_focus_m."""
+    from training.psf.geometry import paraxial_focus_table
+
+    ctx = fx.SimContext(lens, (640, 960), table=paraxial_focus_table(lens))
+    x, y = np.array([-1.0, 0.0, 0.7]), np.array([0.2, 0.0, -0.9])
+    one = fx.focus_at([fx.make("sensor_tilt", tilt_x_deg=0.4, tilt_y_deg=-0.2)], ctx)(x, y, 2.0)
+    assert np.allclose(one, tilted_focus_m(lens, x, y, 2.0, 0.4, -0.2, ctx.table))
+    two = fx.focus_at([fx.make("sensor_tilt", tilt_x_deg=0.4, tilt_y_deg=0.0),
+                       fx.make("sensor_tilt", tilt_x_deg=0.0, tilt_y_deg=-0.2)], ctx)
+    assert fx.focus_at([], ctx) is None and np.allclose(two(x, y, 2.0), one)
+
+
+def test_breathing_coefficient_scales_the_magnification_change(lens):
+    """coefficient 0 = no breathing, 1 = the lens's model (unchanged default), 2 = twice the change."""
+    from training.psf.geometry import paraxial_focus_table
+    from training.render.effects.focus_breathing import breathing_scale, scale_about_axis
+
+    ctx = fx.SimContext(lens, (64, 96), table=paraxial_focus_table(lens))
+    frame = np.random.default_rng(0).random((3, 64, 96)).astype(np.float32)
+    s = float(breathing_scale(lens, 0.5, ctx.table, ctx.exit_pupil_z_mm))
+    assert s != 1.0
+    assert np.array_equal(fx.make("focus_breathing").warp(frame, 0.5, ctx), scale_about_axis(frame, s, ctx))
+    assert np.array_equal(fx.make("focus_breathing", coefficient=0.0).warp(frame, 0.5, ctx), frame)
+    assert np.allclose(fx.make("focus_breathing", coefficient=2.0).warp(frame, 0.5, ctx),
+                       scale_about_axis(frame, 1 + 2 * (s - 1), ctx))
+
+
+def test_exposure_scales_each_frame_before_the_noise(lens):
+    """Fixed gains multiply frame i by gains[i]; per-capture gains follow ctx.capture; random gains have the
+    asked spread; the training form is the fitted gains' spread."""
+    ctx = fx.SimContext(lens, (8, 12), capture="a")
+    frames = np.ones((3, 3, 8, 12), np.float32)
+    e = fx.make("exposure", gains=[1.0, 1.1, 0.9])
+    out = fx.post_stack([e], frames, np.array([1.0, 2.0, 3.0]), ctx, np.random.default_rng(0))
+    assert np.allclose(out[:, 0, 0, 0], [1.0, 1.1, 0.9])
+    by = fx.make("exposure", by_capture={"a": [0.8, 1.0, 1.25], "b": [1.0, 1.0, 1.0]})
+    assert np.allclose(by.stack(frames, None, ctx, None)[:, 0, 0, 0], [0.8, 1.0, 1.25])
+    g = fx.make("exposure", sigma_log=0.1).frame_gains(20000, ctx, np.random.default_rng(1))
+    assert np.std(np.log(g)) == pytest.approx(0.1, rel=0.03)
+    assert by.training_spec() == f"exposure:sigma_log={np.std(np.log([0.8, 1.0, 1.25, 1.0, 1.0, 1.0])):.4g}"
+    with pytest.raises(ValueError, match="3 gains for a stack of 2"):
+        e.stack(frames[:2], None, ctx, None)
+    assert fx.is_post(e) and fx.parse(fx.spec(e))[0].params["gains"] == [1.0, 1.1, 0.9]
+
+
+def test_misalignment_moves_each_frame(lens):
+    """by_capture warps move frame content by (dx, dy) px (right, down); phase correlation sees the same
+    direction; binning halves the shifts."""
+    import cv2
+
+    ctx = fx.SimContext(lens, (64, 96), capture="c")
+    rng = np.random.default_rng(0)
+    img = cv2.GaussianBlur(rng.random((64, 96)).astype(np.float32), (0, 0), 1.5)
+    frames = np.stack([np.repeat(img[None], 3, 0)] * 2)
+    e = fx.make("misalignment", by_capture={"c": [0.0, 0.0, 1.0, 2.0, -1.0, 1.0]})
+    out = fx.post_stack([e], frames, np.array([1.0, 2.0]), ctx, np.random.default_rng(0))
+    assert np.array_equal(out[0], frames[0])
+    # content moved 2 px right and 1 px up: out[r, c] = frame[r + 1, c - 2] (integer shifts are exact)
+    assert np.allclose(out[1, :, 5:-5, 5:-5], frames[1, :, 6:-4, 3:-7], atol=1e-6)
+    (dx, dy), _ = cv2.phaseCorrelate(np.ascontiguousarray(frames[1, 0]), np.ascontiguousarray(out[1, 0]))
+    assert dx > 1.2 and dy < -0.6  # what the fitter measures: the same direction (biased low on smooth content)
+    assert e.binned(2).params["by_capture"]["c"] == [0.0, 0.0, 1.0, 1.0, -0.5, 1.0]
+    assert "sigma_px=" in e.training_spec() and fx.is_post(e)
+    r = fx.make("misalignment", sigma_px=1.0).frame_warps(5000, ctx, np.random.default_rng(2))
+    assert np.std(r[:, :2]) == pytest.approx(1.0, rel=0.05) and np.all(r[:, 2] == 1.0)

@@ -62,10 +62,11 @@ def main(argv: list[str] | None = None) -> int:
     except DiagnoseError as e:
         print(f"aat-diagnose: error: {e}", file=sys.stderr)
         return 1
-    top = res["ranked_effects"][0]["effect"] if res["ranked_effects"] else None
-    print(f"gap {'significant' if res['gap_significant'] else 'not significant'}"
-          + (f"; named cause: {top} ({res['ranked_effects'][0]['share_of_gap']:.0%} of the gap)" if top else "")
-          + f"; report in {out / 'report.md'}")
+    causes = [e for e in res["ranked_effects"] if e.get("explains_gap")]
+    u = res.get("unexplained_share")
+    print(f"gap {'significant' if res['gap_significant'] else 'not significant'}; {res['verdict'].replace('_', ' ')}"
+          + "".join(f"; {e['effect']} ({e['share_shown']:.0%} of the gap)" for e in causes)
+          + (f"; unexplained {u['shown']:.0%}" if u else "") + f"; report in {out / 'report.md'}")
     return 0
 
 

@@ -98,15 +98,22 @@ def error_pattern(err_m: np.ndarray, index: np.ndarray, n_bins: int) -> tuple[np
         return s / k, k
 
 
+def image_distances(real_stack: np.ndarray, real_curves: np.ndarray, twin_stack: np.ndarray) -> Distances:
+    """The image part of `distances` (error_pattern_m = 0): for the search at reduced resolution, where the model
+    is not run."""
+    d_fm = float(np.mean(np.abs(real_curves - focus_curves(twin_stack))))
+    shifts = region_shifts(real_stack, twin_stack)
+    d_geo = float(np.median(np.hypot(shifts[..., 0], shifts[..., 1])))  # median: robust to flat regions
+    return Distances(d_fm, d_geo, 0.0, brightness_distance(real_stack, twin_stack))
+
+
 def distances(real_stack: np.ndarray, real_curves: np.ndarray, twin_stack: np.ndarray, real_err: np.ndarray,
               twin_err: np.ndarray, pattern_index: np.ndarray, n_pattern: int) -> Distances:
     """real_stack/twin_stack (S, C, H, W) normalised; real_curves = focus_curves(real_stack) (cached);
     real_err/twin_err (H, W) absolute depth error (m), NaN = unknown; pattern_index (H, W) bins."""
-    d_fm = float(np.mean(np.abs(real_curves - focus_curves(twin_stack))))
-    shifts = region_shifts(real_stack, twin_stack)
-    d_geo = float(np.median(np.hypot(shifts[..., 0], shifts[..., 1])))  # median: robust to flat regions
+    img = image_distances(real_stack, real_curves, twin_stack)
     mr, k = error_pattern(real_err, pattern_index, n_pattern)
     mt, _ = error_pattern(twin_err, pattern_index, n_pattern)
     ok = k > 0
-    d_err = float(np.sum(k[ok] * np.abs(mr[ok] - mt[ok])) / max(k[ok].sum(), 1))
-    return Distances(d_fm, d_geo, d_err, brightness_distance(real_stack, twin_stack))
+    img.error_pattern_m = float(np.sum(k[ok] * np.abs(mr[ok] - mt[ok])) / max(k[ok].sum(), 1))
+    return img

@@ -28,6 +28,7 @@ class CaptureData:
     gt_m: np.ndarray  # (H, W) float32 ground-truth depth, m from the sensor; NaN = unknown
     aif_linear: np.ndarray | None = None  # (3, H, W) supplied all-in-focus (gt_aif.png), linear
     warnings: list[str] = field(default_factory=list)
+    files: list[str] = field(default_factory=list)  # frame file names, in the frames' order
 
 
 def find_captures(root: str | Path, exclude: list[Path] = ()) -> list[Path]:
@@ -66,4 +67,5 @@ def load_capture_data(folder: str | Path, model: DfFModel, use_exiftool: bool = 
         rgb = srgb_to_linear(cv2.cvtColor(img, cv2.COLOR_BGR2RGB).astype(np.float32) / scale)
         aif = fit_to_sensor(rgb, (w_px, h_px))[0].transpose(2, 0, 1).astype(np.float32)
     return CaptureData(cap.name, folder, np.stack(images).astype(np.float32),
-                       np.array([f.focus_m for f in frames], np.float64), gt, aif, warnings)
+                       np.array([f.focus_m for f in frames], np.float64), gt, aif, warnings,
+                       [f.path.name for f in frames])

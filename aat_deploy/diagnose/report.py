@@ -46,19 +46,35 @@ def markdown(d: dict) -> str:
         lines.append("")
     lines += ["![gap by field radius and map](gap_where.png)", "", "![gap by depth, defocus, frame, texture](gap_by.png)", "",
               "## 2. Which effect", ""]
+    code = d.get("verdict")
+    if code:
+        lines += [f"**Verdict: {code.replace('_', ' ')}.** {d['verdict_text']}", ""]
+    u = d.get("unexplained_share")
+    if u:
+        lines += [f"Unexplained part of the gap: {_share_txt(u['shown'], u['ci_low'], u['ci_high'])}"
+                  + (f" ({u['note']})" if u.get("note") else "") + ".", ""]
+    notes: list[str] = []
     if d["ranked_effects"]:
         lines += ["| rank | effect | fitted settings | closer to the capture (95 %) | images alone (95 %) | "
-                  "lighting (95 %) | share of gap (95 %) |", "|---|---|---|---|---|---|---|"]
+                  "lighting (95 %) | share of gap (95 %) | explains the gap |", "|---|---|---|---|---|---|---|---|"]
         for i, e in enumerate(d["ranked_effects"], 1):
             img, bri = e.get("image_closeness_ci"), e.get("brightness_closeness_ci")
             img_txt = f"{e['image_closeness']:.2f} ({img[0]:.2f} … {img[1]:.2f})" if img else "—"
             bri_txt = f"{e['brightness_closeness']:.2f} ({bri[0]:.2f} … {bri[1]:.2f})" if bri else "—"
             lines.append(f"| {i} | **{e['effect']}** | {_params(e['params'])} | {e['closeness']:.2f} "
                          f"({e['closeness_ci'][0]:.2f} … {e['closeness_ci'][1]:.2f}) | {img_txt} | {bri_txt} | "
-                         f"{e['share_of_gap']:.2f} ({e['ci_low']:.2f} … {e['ci_high']:.2f}) |")
+                         f"{_share_cell(e, notes)} | {'yes' if e.get('explains_gap') else 'no'} |")
         names = [f"**{e['effect']}**" for e in d["ranked_effects"]]
-        lines += ["", f"Named cause: {names[0]}." if len(names) == 1 else
-                  f"Named causes, in the order found: {', then '.join(names)}."]
+        lines += ["", f"Named: {names[0]}." if len(names) == 1 else
+                  f"Named, in the order found: {', then '.join(names)}."]
+        for e in d["ranked_effects"]:
+            if e.get("alternatives"):
+                lines.append(f"In round {e['round']}, {', '.join(e['alternatives'])} brought the images about as close "
+                             f"as {e['effect']}: these captures cannot tell them apart.")
+        if d.get("causes") is not None:
+            lines.append("Effects that explain part of the gap: "
+                         + (", ".join(f"**{c}**" for c in d["causes"]) or "none") + "; the others are in the "
+                         "captures' images but close no significant part of the gap.")
     elif d["gap_significant"]:
         lines.append("No registered effect brings the twin significantly closer to the captures: the cause is "
                      "something the simulator does not model yet.")
@@ -75,11 +91,17 @@ def markdown(d: dict) -> str:
               "| effect | settings | closer (95 %) | share of gap (95 %) |", "|---|---|---|---|"]
     for e in d["effects_evaluated"]:
         if e["round"] == 1:
-            lines.append(f"| {e['effect']} | {_params(e['params'])} | {e['closeness']:.2f} ({e['closeness_ci'][0]:.2f} … "
-                         f"{e['closeness_ci'][1]:.2f}) | {_fmt(e['share_of_gap'], 2)} ({_fmt(e['ci_low'], 2)} … {_fmt(e['ci_high'], 2)}) |")
+            clo = "—" if e.get("closeness") is None else \
+                f"{e['closeness']:.2f} ({e['closeness_ci'][0]:.2f} … {e['closeness_ci'][1]:.2f})"
+            where = " (1/N resolution)".replace("N", str(d.get("search_factor", "?"))) if e.get("screened_out") and \
+                e.get("closeness") is not None else ""
+            lines.append(f"| {e['effect']} | {_params(e['params']) if e['params'] is not None else 'none fitted'} | "
+                         f"{clo}{where} | {_share_cell(e, notes)} |")
     for e in d.get("effects_skipped", []):
         lines.append(f"| {e['effect']} | not tried: {e['reason']} | | |")
-    lines += ["", "![effects](effects.png)", "", "## 3. How far it shrinks", ""]
+    if notes:
+        lines += [""] + [f"[{i}] {n}" for i, n in enumerate(notes, 1)]
+    lines += ["", "![effects](effects.png)", ""] + focus_section(d) + ["## 3. How far it shrinks", ""]
     s = d.get("shrink")
     if s:
         lines += ["| | gap (m) | MAE on captures (m) |", "|---|---|---|",
@@ -94,6 +116,79 @@ def markdown(d: dict) -> str:
         lines.append("Nothing to retrain for.")
     lines += ["", "Method: docs/diagnosis.md. Recording: `aat-view diagnosis.rrd`.", ""]
     return "\n".join(lines)
+
+
+def focus_section(d: dict) -> list[str]:
+    """The report's focus-metadata section: the error family the images support, its settings with intervals,
+    the families weighed, and the corrected focus distances (with the drop-in capture.json files)."""
+    f = d.get("focus")
+    if not f:
+        return []
+    lines = ["## Focus metadata", ""]
+    status = ("named, and it explains the gap" if f["explains_gap"] else "named" if f["named"] else
+              "not named (the twin with it did not come significantly closer to the captures)")
+    if f["family"] == "none":
+        lines.append("The images support no focus-metadata error: the reported focus distances fit best as they are.")
+    else:
+        ci = "; ".join(f"{k} {v[0]:.4g} … {v[1]:.4g}" for k, v in f.get("params_ci", {}).items())
+        lines.append(f"The images support a **{f['family']}** error of the reported focus "
+                     f"({_params({k: v for k, v in f['params'].items() if k in ('bias_d', 'scale', 'map_d')})}"
+                     f"{'; 95 % interval ' + ci if ci else ''}); `focus_metadata` was {status}.")
+    lines += ["", "| family | parameters | BIC | chosen in bootstrap replicates |", "|---|---|---|---|"]
+    for fam in f["families"]:
+        lines.append(f"| {fam['family']} | {fam['k']} | {fam['bic']:.1f} | {f['support'].get(fam['family'], 0):.0%} |")
+    if f["family"] != "none":
+        lines += ["", "Corrected focus distances (m, 95 % interval); drop-in `capture.json` files are in "
+                  "`corrected_focus/<capture>/` (copy one into its capture folder to use it with `aat-infer`):", "",
+                  "| capture | reported (m) | corrected (m) |", "|---|---|---|"]
+        for c in f["corrected_focus"]:
+            rep = ", ".join(f"{x:.3f}" for x in c["reported_m"])
+            cor = ", ".join(f"{x:.3f} ({lo:.3f} … {hi:.3f})" for x, (lo, hi) in zip(c["corrected_m"], c["ci_m"]))
+            lines.append(f"| {c['capture']} | {rep} | {cor} |")
+    return lines + [""]
+
+
+def write_focus_corrections(out: Path, d: dict) -> list[Path]:
+    """corrected_focus/<capture>/capture.json (the capture folder's sidecar format, docs/contracts.md) for every
+    capture, when the images support a focus-metadata error; the user's folders are never touched."""
+    f = d.get("focus")
+    if not f or f["family"] == "none":
+        return []
+    written = []
+    for c in f["corrected_focus"]:
+        if not c["files"]:
+            continue
+        path = out / "corrected_focus" / c["capture"] / "capture.json"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps({"frames": [{"file": n, "focus_m": round(float(m), 5)}
+                                               for n, m in zip(c["files"], c["corrected_m"])],
+                                    "note": f"focus corrected by aat-diagnose ({f['family']} error of the reported "
+                                            "focus fitted on the images; docs/diagnosis.md)"}, indent=1))
+        written.append(path)
+    return written
+
+
+def _share_txt(v, lo, hi) -> str:
+    return "—" if v is None else f"{v:.2f} ({_fmt(lo, 2)} … {_fmt(hi, 2)})"
+
+
+def _share_cell(e: dict, notes: list[str]) -> str:
+    """A share as shown (clipped or withheld, `search.share_view`) with a numbered note when it was changed."""
+    shown = e.get("share_shown", e.get("share_of_gap"))
+    note = e.get("share_note")
+    if e.get("share_of_gap") is None:
+        if note and e.get("screened_out"):
+            if note not in notes:
+                notes.append(note)
+            return f"— [{notes.index(note) + 1}]"
+        return "—"
+    txt = "withheld" if shown is None else (f"{shown:.2f} ({_fmt(e['ci_low'], 2)} … {_fmt(e['ci_high'], 2)})"
+                                            if shown == e["share_of_gap"] else f"{shown:.2f}")
+    if note:
+        if note not in notes:
+            notes.append(note)
+        txt += f" [{notes.index(note) + 1}]"
+    return txt
 
 
 def _params(p: dict) -> str:
@@ -145,19 +240,26 @@ def figures(d: dict, out: Path) -> None:
     fig.savefig(out / "gap_by.png", dpi=110)
     plt.close(fig)
 
-    ev = [e for e in d["effects_evaluated"] if e["round"] == 1]
+    ev = [e for e in d["effects_evaluated"] if e["round"] == 1 and not e.get("screened_out")]
     fig, ax = plt.subplots(figsize=(7, 3.2))
     if ev:
         x = np.arange(len(ev))
-        for off, key, ci, lab in ((-0.2, "closeness", "closeness_ci", "closer to the capture"),
-                                  (0.2, "share_of_gap", None, "share of the gap")):
-            if ev[0][key] is None:  # no significant gap: no shares
-                continue
-            m = np.array([e[key] for e in ev])
-            lo = np.array([e[ci][0] if ci else e["ci_low"] for e in ev])
-            hi = np.array([e[ci][1] if ci else e["ci_high"] for e in ev])
-            ax.bar(x + off, m, 0.4, label=lab)
-            ax.errorbar(x + off, m, yerr=[m - lo, hi - m], fmt="none", ecolor="k", capsize=2)
+        m = np.array([e["closeness"] for e in ev])
+        ax.bar(x - 0.2, m, 0.4, label="closer to the capture")
+        ax.errorbar(x - 0.2, m, yerr=[m - [e["closeness_ci"][0] for e in ev], [e["closeness_ci"][1] for e in ev] - m],
+                    fmt="none", ecolor="k", capsize=2)
+        if ev[0]["share_of_gap"] is not None:  # no significant gap: no shares
+            # shares as people should read them (search.share_view): clipped to 0..1, withheld (x) when the
+            # effect's images moved away; intervals clipped to 0..1 as well
+            shown = np.array([np.nan if e.get("share_shown", e["share_of_gap"]) is None
+                              else e.get("share_shown", e["share_of_gap"]) for e in ev], float)
+            lo = np.clip([e["ci_low"] for e in ev], 0, 1)
+            hi = np.clip([e["ci_high"] for e in ev], 0, 1)
+            ok = np.isfinite(shown)
+            ax.bar(x[ok] + 0.2, shown[ok], 0.4, label="share of the gap (0..1)")
+            ax.errorbar(x[ok] + 0.2, shown[ok], yerr=[np.maximum(shown[ok] - lo[ok], 0), np.maximum(hi[ok] - shown[ok], 0)],
+                        fmt="none", ecolor="k", capsize=2)
+            ax.plot(x[~ok] + 0.2, np.zeros((~ok).sum()), "kx", label="share withheld (images moved away)")
         ax.set_xticks(x, [e["effect"] for e in ev], rotation=20, fontsize=8)
         ax.axhline(0, color="k", lw=0.5)
         ax.legend(fontsize=8)

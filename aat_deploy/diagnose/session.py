@@ -100,7 +100,7 @@ def run(root, model_path, out: Path, *, lens=None, psf=None, effects=None, retra
     out = Path(out)
     with atomic_folder(out, force) as tmp:
         if shrink:
-            named = [fx.spec(e) for e in chain[-1].effects]
+            named = [e.training_spec() for e in chain[-1].effects]
             cmd = retrain_command(Path(model_path), lens_file, src.path if src is not None else None,
                                   named, retrain_steps or 300, out / "retrain", model.meta["aat.sensor_mm"], model.sensor_px)
             shrink["retrain_command"] = " ".join(cmd)
@@ -113,6 +113,7 @@ def run(root, model_path, out: Path, *, lens=None, psf=None, effects=None, retra
                     raise DiagnoseError(f"{tmp / 'retrain'}: aat-train wrote no dff_*_aat.onnx")
                 shrink.update(score_model(new[0], lens_obj, src, caps, cfg, threads, torch_free))
                 shrink["retrained_model"] = str(out / "retrain" / new[0].name)
+        report.write_focus_corrections(tmp, res)
         report.write_json(tmp / "diagnosis.json", res)
         report.figures(res, tmp)
         (tmp / "report.md").write_text(report.markdown(res))

@@ -11,8 +11,11 @@ surrogate) raise `NeedsTorch`;
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import hashlib
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -43,18 +46,26 @@ def model_effects(model: DfFModel) -> list[fx.Effect]:
 
 
 def optical_stack(effects: list[fx.Effect], thin_source, rgb: np.ndarray, depth_m: np.ndarray, focus_m,
-                  ctx: fx.SimContext, cfg: LayeredConfig = LayeredConfig()) -> np.ndarray:
+                  ctx: fx.SimContext, cfg: LayeredConfig = LayeredConfig(), workers: int = 1) -> np.ndarray:
     """Frames (S, C, H, W) through the lens, before warps and the sensor: what `Simulator.optical` renders, in
     numpy. thin_source: the baseline PSFs the effects wrap (`GaussianSource`); rgb (C, H, W) linear and depth_m
-    (H, W) metres from the sensor (> 0) of the crop at ctx.origin; focus_m (S,) true focus distances (m)."""
+    (H, W) metres from the sensor (> 0) of the crop at ctx.origin; focus_m (S,) true focus distances (m).
+    workers > 1 renders frames in threads (numpy's FFTs and onnxruntime release the GIL; frames are independent,
+    so the result is the same)."""
     src = fx.wrap_source(effects, thin_source, ctx)
     focus_at = fx.focus_at(effects, ctx)
 
     def field_fn(r, c):
         return field_of(r, c, ctx.sensor_hw, ctx.origin)
 
-    return np.stack([render_layered(rgb, depth_m, float(f), src, field_fn, cfg, focus_at=focus_at)
-                     for f in np.ravel(focus_m)])
+    def one(f):
+        return render_layered(rgb, depth_m, float(f), src, field_fn, cfg, focus_at=focus_at)
+
+    focus = np.ravel(focus_m)
+    if workers > 1 and len(focus) > 1:
+        with ThreadPoolExecutor(min(workers, len(focus))) as ex:
+            return np.stack(list(ex.map(one, focus)))
+    return np.stack([one(f) for f in focus])
 
 
 class TwinRenderer:
@@ -66,9 +77,13 @@ class TwinRenderer:
     effects that act only after the optics (noise, focus breathing) and their candidate settings cost no new
     rendering. `renders` counts optical renders (cache misses)."""
 
+    factor = 1  # binning of the sensor (`binned`)
+    uses_torch = False  # renders effects that need torch (the training simulator behind it)
+
     def __init__(self, model: DfFModel, lens: Lens, psf: str | Path | OnnxSource | None = None, cell_px: int = 64,
                  cache_items: int = 256, threads: int | None = 2):
         self.model, self.lens = model, lens
+        self.workers = max(1, int(threads or 1))
         self.lens_source = psf if isinstance(psf, OnnxSource) or psf is None else OnnxSource(psf, lens, threads)
         self.thin_source = GaussianSource(lens)
         self.base = model_effects(model)
@@ -81,6 +96,27 @@ class TwinRenderer:
         self.cache_items = cache_items
         self.renders = 0
 
+    def binned(self, b: int) -> TwinRenderer:
+        """This renderer for the sensor binned b x b (`aat_deploy.twin.binned`): the lens's sensor at 1/b of the
+        pixels, PSF cells b times smaller, anchors as dense on the sensor, every effect through `Effect.binned`.
+        Always the numpy renderer (effects only torch can render are not searched at reduced resolution); its
+        own cache. Renders `binned_capture(cap, b)`."""
+        from aat_deploy.twin.binned import BinnedSource
+
+        if b == 1:
+            return self
+        r = copy.copy(self)
+        r.__class__ = TwinRenderer
+        s = self.lens.sensor
+        r.lens = dataclasses.replace(self.lens, sensor=s.with_resolution(s.width_px // b, s.height_px // b))
+        r.lens_source = BinnedSource(self.lens_source, b) if self.lens_source is not None else None
+        r.thin_source = GaussianSource(r.lens)
+        r.layered = dataclasses.replace(self.layered, cell_px=max(8, self.layered.cell_px // b))
+        r.factor = self.factor * b
+        r.base = [x for x in (e.binned(b) for e in self.base) if x is not None]
+        r._cache, r.renders = {}, 0
+        return r
+
     def fallback_focus_table(self) -> FocusTable | None:
         """The focus table when the surrogate has none (older export, or no surrogate): the paraxial one, which
         misses the lens's spherical aberration, with a warning."""
@@ -89,10 +125,10 @@ class TwinRenderer:
                       "scripts/stamp_psf_optics.py)", stacklevel=3)
         return paraxial_focus_table(self.lens)
 
-    def context(self) -> fx.SimContext:
+    def context(self, capture: str = "") -> fx.SimContext:
         s = self.lens.sensor
         return fx.SimContext(self.lens, (s.height_px, s.width_px), (0, 0), self.lens_source, self._table,
-                             self._exit_pupil)
+                             self._exit_pupil, capture)
 
     def why_torch(self, effects: list[fx.Effect]) -> str | None:
         """Why these effects need the torch simulator, or None when numpy renders them."""
@@ -113,14 +149,24 @@ class TwinRenderer:
         why = self.why_torch(effects)
         if why:
             raise fx.NeedsTorch(why)
-        return optical_stack(effects, self.thin_source, rgb, depth_m, focus_m, ctx, self.layered)
+        return optical_stack(effects, self.thin_source, rgb, depth_m, focus_m, ctx, self.layered, self.workers)
 
     def render(self, cap: CaptureData, aif_linear: np.ndarray, extra: list[fx.Effect], seed: int = 0) -> np.ndarray:
         """Normalised twin stack (S, 3, H, W) for a capture whose metadata says cap.focus_m. aif_linear (3, H, W)
         is scaled to the capture's raw level first (noise depends on the absolute signal)."""
+        return normalise_stack(np.clip(self.linear(cap, aif_linear, extra, seed), 0, None))
+
+    def linear(self, cap: CaptureData, aif_linear: np.ndarray, extra: list[fx.Effect], seed: int = 0,
+               focus_true_m: np.ndarray | None = None) -> np.ndarray:
+        """The twin's frames (S, 3, H, W) in linear RAW units, before the stack normalisation: at the focus the
+        effects' `twin_focus` makes of cap.focus_m, or at focus_true_m (m, any number of frames: focus sweeps;
+        then effects with per-frame settings (`stack` hooks) are the caller's business)."""
+        if self.factor > 1:
+            extra = [x for x in (e.binned(self.factor) for e in extra) if x is not None]
         effects = sorted(self.base + list(extra), key=lambda e: e.order)
-        ctx, rng = self.context(), np.random.default_rng(seed)
-        focus = fx.twin_focus(effects, cap.focus_m, ctx, rng)
+        ctx, rng = self.context(cap.name), np.random.default_rng(seed)
+        focus = fx.twin_focus(effects, cap.focus_m, ctx, rng) if focus_true_m is None else \
+            np.asarray(focus_true_m, np.float64).ravel()
         scale = np.percentile(cap.frames, 99.5) / max(float(np.percentile(aif_linear, 99.5)), 1e-6)
         optical = [e for e in effects if not fx.is_post(e)]
         h = hashlib.sha1()
@@ -136,5 +182,28 @@ class TwinRenderer:
             if len(self._cache) >= self.cache_items:
                 self._cache.pop(next(iter(self._cache)))
             self._cache[key] = frames
-        frames = np.stack([fx.post_frame(effects, fr, float(f), ctx, rng) for fr, f in zip(frames, focus)])
-        return normalise_stack(np.clip(frames, 0, None))
+        return fx.post_stack(effects, frames, focus, ctx, rng)
+
+    def true_focus(self, cap: CaptureData, extra: list[fx.Effect], seed: int = 0) -> np.ndarray:
+        """The focus distances (m) a twin of `cap` with these extra effects assumes (their `twin_focus`)."""
+        effects = sorted(self.base + list(extra), key=lambda e: e.order)
+        return fx.twin_focus(effects, cap.focus_m, self.context(cap.name), np.random.default_rng(seed))
+
+    @staticmethod
+    def has_stack_hook(effect: fx.Effect) -> bool:
+        """Whether the effect acts on the whole stack at once (settings per frame)."""
+        return type(effect).stack is not fx.Effect.stack
+
+    @staticmethod
+    def spec(effect: fx.Effect) -> str:
+        return fx.spec(effect)
+
+    def focus_range_m(self) -> tuple[float, float]:
+        """The focus distances (m) the lens's PSFs are known for (the surrogate's range; else 0.05-100 m)."""
+        src = getattr(self.lens_source, "source", self.lens_source)
+        model = getattr(src, "model", None)
+        return tuple(float(v) for v in model.focus_range_m) if model is not None else (0.05, 100.0)
+
+    def focus_table(self) -> FocusTable:
+        """The lens's focus table the effects use (sensor z vs diopters)."""
+        return self.context().focus_table()

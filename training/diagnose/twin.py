@@ -34,6 +34,8 @@ class TwinRenderer(NumpyTwinRenderer):
     lens_source: `OnnxPSF` (twins torch-free where possible) or `RayTracedPSF` (the lens's PSFs by torch).
     torch_only: render every optical stack with the torch simulator (comparisons, benchmarks)."""
 
+    uses_torch = True
+
     def __init__(self, model: DfFModel, lens: Lens, lens_source, cell_px: int = 64, cache_items: int = 256,
                  torch_only: bool = False):
         super().__init__(model, lens, lens_source.numpy if isinstance(lens_source, OnnxPSF) else None,

@@ -106,7 +106,7 @@ class Simulator:
                             for f in focus])
 
     def post(self, frames: torch.Tensor, focus: np.ndarray, ctx: fx.SimContext, rng: np.random.Generator) -> torch.Tensor:
-        """The effects' geometry (`warp`) then sensor (`sensor`) hooks, frame by frame. The hooks work on numpy
-        (shared with the torch-free twin renderer): one conversion each way per frame."""
-        out = [fx.post_frame(self.effects, fr.numpy(), float(f), ctx, rng) for fr, f in zip(frames, focus)]
+        """The effects' geometry (`warp`), whole-stack (`stack`) then sensor (`sensor`) hooks (`effects.post_stack`).
+        The hooks work on numpy (shared with the torch-free twin renderer): one conversion each way per frame."""
+        out = fx.post_stack(self.effects, [fr.numpy() for fr in frames], focus, ctx, rng)
         return torch.stack([torch.from_numpy(np.ascontiguousarray(fr)) for fr in out])

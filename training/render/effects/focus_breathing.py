@@ -33,12 +33,19 @@ def _bilinear_axis(src: np.ndarray, n: int):
 def scale_about_axis(frame: np.ndarray, scale: float, ctx: SimContext) -> np.ndarray:
     """Magnify frame (C, H, W) by `scale` about the optical axis (the sensor centre), for a crop at ctx.origin:
     out(q) = frame(axis + (q - axis) / scale), bilinear, edges replicated. Separable: rows, then columns."""
+    return warp_about_axis(frame, scale, (0.0, 0.0), ctx)
+
+
+def warp_about_axis(frame: np.ndarray, scale: float, shift_xy: tuple[float, float], ctx: SimContext) -> np.ndarray:
+    """Magnify frame (C, H, W) by `scale` about the optical axis, then move it by shift_xy = (dx right, dy down)
+    pixels: out(q) = frame(axis + (q - axis - shift) / scale), bilinear, edges replicated."""
     _, h, w = frame.shape
     hs, ws = ctx.sensor_hw
     cy, cx = hs / 2 - ctx.origin[0], ws / 2 - ctx.origin[1]  # axis in crop pixel coordinates
+    dx, dy = float(shift_xy[0]), float(shift_xy[1])
     # source position of each output pixel centre (coordinates with pixel centres at +0.5), as an index
-    r0, r1, wr = _bilinear_axis(cy + (np.arange(h) + 0.5 - cy) / scale - 0.5, h)
-    c0, c1, wc = _bilinear_axis(cx + (np.arange(w) + 0.5 - cx) / scale - 0.5, w)
+    r0, r1, wr = _bilinear_axis(cy + (np.arange(h) + 0.5 - cy - dy) / scale - 0.5, h)
+    c0, c1, wc = _bilinear_axis(cx + (np.arange(w) + 0.5 - cx - dx) / scale - 0.5, w)
     wr, wc = wr.astype(frame.dtype)[:, None], wc.astype(frame.dtype)
     rows = frame[:, r0] * (1 - wr) + frame[:, r1] * wr
     return rows[:, :, c0] * (1 - wc) + rows[:, :, c1] * wc
@@ -47,9 +54,13 @@ def scale_about_axis(frame: np.ndarray, scale: float, ctx: SimContext) -> np.nda
 @register
 class FocusBreathing(Effect):
     name = "focus_breathing"
-    description = "image magnification changes with the focus distance (sensor moves; paraxial exit-pupil model)"
+    description = ("image magnification changes with the focus distance (sensor moves; paraxial exit-pupil model); "
+                   "coefficient scales the modelled change (1 = the lens's model; a lens that also moves groups "
+                   "to focus breathes more or less)")
     order = 60
+    defaults = {"coefficient": 1.0}
 
     def warp(self, frame: np.ndarray, focus_m: float, ctx: SimContext) -> np.ndarray:
         s = float(breathing_scale(ctx.lens, focus_m, ctx.focus_table(), ctx.exit_pupil_z_mm))
-        return scale_about_axis(frame, s, ctx)
+        k = float(self.params["coefficient"])
+        return scale_about_axis(frame, s if k == 1.0 else 1.0 + k * (s - 1.0), ctx)

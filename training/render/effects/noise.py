@@ -24,5 +24,11 @@ class Noise(Effect):
     # factor-2 steps: a poorly fitted noise level leaves a focus-curve residual that hides weaker effects
     candidates = [{"full_well_e": e} for e in (300.0, 600.0, 1200.0, 2500.0, 5000.0, 10000.0)]
 
+    def binned(self, factor: int) -> Noise:
+        """The same noise after b x b binning (the block mean): b^2 x the electrons, b x the read noise in
+        quadrature, so the binned pixel's variance is the full-resolution one / b^2."""
+        p = self.params
+        return Noise(full_well_e=float(p["full_well_e"]) * factor ** 2, read_noise_e=float(p["read_noise_e"]) * factor)
+
     def sensor(self, frame: np.ndarray, ctx: SimContext, rng: np.random.Generator) -> np.ndarray:
         return poisson_gaussian(frame, self.params["full_well_e"], self.params["read_noise_e"], rng)

@@ -80,6 +80,11 @@ class RawPipeline(Effect):
         if self.params["demosaic"] not in DEMOSAIC:
             raise ValueError(f"effect 'raw_pipeline': demosaic must be one of {DEMOSAIC}, got {self.params['demosaic']!r}")
 
+    def binned(self, factor: int):
+        """Binning averages the mosaic's interpolation away (each block holds every colour): left out of the
+        diagnosis's reduced-resolution search, an approximation there only."""
+        return self if factor == 1 else None
+
     def sensor(self, frame: np.ndarray, ctx: SimContext, rng: np.random.Generator) -> np.ndarray:
         if frame.shape[0] != 3:
             raise ValueError(f"effect 'raw_pipeline' needs RGB frames (3, H, W), got {frame.shape}")

@@ -1,0 +1,359 @@
+"""Where each frame was really focused, estimated from the images, and the camera's focus-metadata error fitted as
+a curve (pure numpy; docs/diagnosis.md, "Focus errors").
+
+The data (`SweepData`): per capture and region of a grid, the log focus measure of every capture frame, and the
+same measure of the digital twin rendered at a sweep of focus distances (`fitters.focus_sweep`). Frames focused
+at d match the twin's curves at d in every region, up to one level per region: texture the twin renders
+differently (a RAW development, sharpening, an imperfect all-in-focus image) changes a region's focus measure in
+every frame alike, focus does not. So every fit compares the *shape* of each region's curve over the frames: the
+per-region levels are profiled out exactly (the residual's mean over the frames is removed) for every candidate.
+Scenes have many depths, so one focus per frame fits all regions at once; a field-dependent focus (sensor tilt,
+field curvature of a lens off its prescription) shows as regions preferring different distances.
+
+Metadata error models (`FAMILIES`), each mapping the reported focus (diopters) to the true one:
+- `none`: true = reported (0 parameters);
+- `offset`: true = reported - b (a mis-calibrated focus encoder; 1 parameter, `bias_d` = b);
+- `scale`: true distance = reported distance / s (a distance-encoder scale error; 1 parameter);
+- `monotone`: a smooth monotone curve, the parabola through 3 knots (a calibration error that is neither an
+  offset nor a scale; 3 parameters; given to the effect as 9 knots of `map_d`);
+- `quantisation`: each distinct reported value has its own true focus inside its quantisation bin (Nikon's
+  10^(1/40) steps or fixed diopter steps, detected from the reported values; one parameter per value);
+- `per_frame`: each distinct reported value its own true focus within +-MAX_ERROR_D: every frame's effective
+  focus, the model of last resort.
+Each is fitted by least squares on the curves; the family is chosen by BIC with the frames as observations
+(n log(RSS / n) + k log n, n = frames): the regions of one frame share its focus error and the twin's misfit, so
+counting them as independent observations would let every extra parameter look significant. A two-level
+bootstrap (captures, regions) refits and reselects: intervals of the settings and of the corrected focus, and
+the `support` of each family.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from aat_deploy.diagnose.optimise import isotonic, nelder_mead
+
+FIT_GRID = (6, 9)  # rows x cols of the regions focus is fitted on (finer than the report's map: tilt and curvature)
+FAMILIES = ("none", "offset", "scale", "monotone", "quantisation", "per_frame")
+MAX_ERROR_D = 0.4  # largest focus error searched (diopters): beyond it the sweep has no data
+FINE_STEP_D = 0.004  # resolution of the interpolated sweep (diopters)
+NIKON_STEP = 40  # Nikon stores 40 log10(100 d)
+DIOPTER_STEPS = (0.25, 0.2, 0.125, 0.1, 0.05, 0.025, 0.02)  # candidate fixed quantisation steps, coarse first
+
+
+@dataclass
+class SweepData:
+    """grid_d (K,) ascending diopters of the twin's sweep; twin (n, R, K) and capture (n, R, S) log focus
+    measures (channel mean); reported_d, base_d (n, S) the reported focus and the one the current twin assumes
+    (its effects' `twin_focus`), diopters; field_xy (R, 2) normalised field (x right, y up) of region centres.
+    weight (n, R): 0 for regions without texture (their focus measure does not change with focus). Captures
+    with fewer frames are padded: NaN in `capture` (and any reported value) counts nothing."""
+
+    grid_d: np.ndarray
+    twin: np.ndarray
+    capture: np.ndarray
+    reported_d: np.ndarray
+    base_d: np.ndarray
+    field_xy: np.ndarray
+    weight: np.ndarray | None = None
+
+    def __post_init__(self):
+        n, r, _ = self.capture.shape
+        if self.weight is None:
+            self.weight = np.ones((n, r))
+        self.fine_d = np.arange(self.grid_d[0], self.grid_d[-1] + 1e-9, FINE_STEP_D)
+        self.twin_fine = curves_at(self, np.broadcast_to(self.fine_d, (n, r, len(self.fine_d))))  # (n, R, G)
+
+    @property
+    def frames(self) -> np.ndarray:
+        """(n, S) 1 for real frames, 0 for padding."""
+        return np.isfinite(self.capture[:, 0, :]).astype(np.float64)
+
+    @property
+    def n_frames(self) -> float:
+        return float(self.frames.sum())
+
+
+def curves_at(data: SweepData, d: np.ndarray) -> np.ndarray:
+    """The twin's log focus measure at focus d (n, R, M) diopters (clipped to the sweep), Catmull-Rom along the
+    sweep; (n, R, M)."""
+    g, tw = data.grid_d, data.twin
+    k = len(g)
+    u = np.interp(np.clip(d, g[0], g[-1]), g, np.arange(k))
+    i = np.clip(np.floor(u).astype(np.intp), 0, k - 2)
+    t = u - i
+
+    def take(j):
+        return np.take_along_axis(tw, np.clip(j, 0, k - 1).reshape(d.shape[0], d.shape[1], -1), 2).reshape(d.shape)
+
+    p0, p1, p2, p3 = take(i - 1), take(i), take(i + 1), take(i + 2)
+    return p1 + 0.5 * t * (p2 - p0 + t * (2 * p0 - 5 * p1 + 4 * p2 - p3 + t * (3 * (p1 - p2) + p3 - p0)))
+
+
+def profiled_ss(data: SweepData, d: np.ndarray, weight: np.ndarray | None = None) -> np.ndarray:
+    """Sum of squared residuals with the frames focused at d, every region's level profiled out: d is
+    (..., n, S) (every region of a frame alike) or (..., n, R, S) (per region); returns (...). Linear
+    interpolation in the fine sweep (FINE_STEP_D)."""
+    w = data.weight if weight is None else weight
+    n, r, s = data.capture.shape
+    per_region = d.ndim >= 3 and d.shape[-3:] == (n, r, s)
+    lead = d.shape[:-3] if per_region else d.shape[:-2]
+    dd = d if per_region else np.broadcast_to(d[..., None, :], (*lead, n, r, s))
+    g = data.fine_d
+    u = (np.clip(dd, g[0], g[-1]) - g[0]) / FINE_STEP_D
+    i = np.clip(np.floor(u).astype(np.intp), 0, len(g) - 2)
+    t = u - i
+    ni = np.arange(n)[:, None, None]
+    ri = np.arange(r)[None, :, None]
+    tw = data.twin_fine[ni, ri, i] * (1 - t) + data.twin_fine[ni, ri, i + 1] * t  # (..., n, R, S)
+    res = data.capture - tw
+    ok = np.isfinite(res)
+    res = np.where(ok, res, 0.0)
+    cnt = np.maximum(ok.sum(-1, keepdims=True), 1)
+    res = np.where(ok, res - res.sum(-1, keepdims=True) / cnt, 0.0)
+    return np.einsum("nr,...nrs->...", w, res * res)
+
+
+def residual_ss(data: SweepData, d: np.ndarray, weight: np.ndarray | None = None) -> float:
+    """`profiled_ss` of one focus assignment (n, S) or (n, R, S)."""
+    return float(profiled_ss(data, np.asarray(d, np.float64), weight))
+
+
+# --- metadata error families --------------------------------------------------------------------------------
+@dataclass
+class FamilyFit:
+    name: str
+    k: int  # free parameters
+    params: dict  # the focus_metadata effect's settings that reproduce it ({} for none)
+    true_d: np.ndarray  # (n, S) fitted true focus, diopters
+    ss: float
+    bic: float = math.nan
+    detail: dict = field(default_factory=dict)  # quantiser, knots, ...
+
+
+def quantiser(reported_d: np.ndarray) -> tuple[str, float] | None:
+    """The quantisation the reported values sit on: ('nikon', 0) for Nikon's 0.01 * 10^(v/40) m, ('diopter',
+    step) for multiples of a fixed diopter step, else None."""
+    d = np.unique(np.round(np.asarray(reported_d, np.float64).ravel(), 9))
+    v = NIKON_STEP * np.log10(100.0 / d)
+    if np.all(np.abs(v - np.round(v)) < 0.02):
+        return "nikon", 0.0
+    for step in DIOPTER_STEPS:
+        q = d / step
+        if len(d) > 1 and np.all(np.abs(q - np.round(q)) < 0.02):
+            return "diopter", step
+    return None
+
+
+def bin_half_width_d(values_d: np.ndarray, q: tuple[str, float]) -> np.ndarray:
+    """Half the quantisation bin (diopters) around each reported value."""
+    if q[0] == "nikon":
+        return values_d * (10 ** (1 / (2 * NIKON_STEP)) - 10 ** (-1 / (2 * NIKON_STEP))) / 2
+    return np.full_like(values_d, q[1] / 2)
+
+
+def curve(rep_d: np.ndarray, knots_x: np.ndarray, knots_y: np.ndarray) -> np.ndarray:
+    """Piecewise-linear monotone curve through the knots, slope 1 beyond them (as focus_metadata's map_d)."""
+    out = np.interp(rep_d, knots_x, knots_y)
+    out = np.where(rep_d < knots_x[0], knots_y[0] + rep_d - knots_x[0], out)
+    return np.where(rep_d > knots_x[-1], knots_y[-1] + rep_d - knots_x[-1], out)
+
+
+def parabola(rep_d: np.ndarray, knots_x: np.ndarray, knots_y: np.ndarray) -> np.ndarray:
+    """The parabola through 3 knots (Lagrange form), at rep_d."""
+    (x0, x1, x2), (y0, y1, y2) = knots_x, knots_y
+    return (y0 * (rep_d - x1) * (rep_d - x2) / ((x0 - x1) * (x0 - x2))
+            + y1 * (rep_d - x0) * (rep_d - x2) / ((x1 - x0) * (x1 - x2))
+            + y2 * (rep_d - x0) * (rep_d - x1) / ((x2 - x0) * (x2 - x1)))
+
+
+def _knots(x: np.ndarray, y: np.ndarray) -> list[float]:
+    return [float(v) for pair in zip(x, y) for v in pair]
+
+
+def _search(cost: Callable[[np.ndarray], np.ndarray], lo: float, hi: float, coarse: float, fine: float) -> float:
+    """Minimiser of a batched 1-D cost (B,) -> (B,) on [lo, hi]: a coarse grid, then a fine one around its best."""
+    xs = np.arange(lo, hi + 1e-12, coarse) if hi > lo else np.array([lo])
+    x0 = float(xs[int(np.argmin(cost(xs)))])
+    xf = np.arange(max(lo, x0 - coarse), min(hi, x0 + coarse) + 1e-12, fine)
+    return float(xf[int(np.argmin(cost(xf)))]) if len(xf) else x0
+
+
+def _coordinate(data: SweepData, weight: np.ndarray, d: np.ndarray, masks: list[np.ndarray], bounds: list[tuple],
+                sweeps: int = 3) -> np.ndarray:
+    """Per-value foci by coordinate search: d (n, S) with frames in masks[j] set to one common value in
+    bounds[j], each coordinate minimised with the others fixed."""
+    d = d.copy()
+    for _ in range(sweeps):
+        for m, (lo, hi) in zip(masks, bounds):
+            def cost(x, m=m):
+                return profiled_ss(data, np.where(m[None], x[:, None, None], d[None]), weight)
+
+            d[m] = _search(cost, lo, hi, 0.01, 0.001)
+    return d
+
+
+def fit_families(data: SweepData, weight: np.ndarray | None = None, frames: np.ndarray | None = None
+                 ) -> dict[str, FamilyFit]:
+    """Every applicable family fitted on the sweep (weights: regions (n, R); frames (n, S) counts them for BIC)."""
+    w = data.weight if weight is None else weight
+    fr = data.frames if frames is None else frames
+    n_f = max(float(fr.sum()), 2.0)
+    rep = np.asarray(data.reported_d, np.float64)
+
+    def ss(d):
+        return float(profiled_ss(data, d, w))
+
+    fits = {"none": FamilyFit("none", 0, {}, rep.copy(), ss(rep))}
+    b = _search(lambda x: profiled_ss(data, rep[None] - x[:, None, None], w), -MAX_ERROR_D, MAX_ERROR_D, 0.01,
+                0.001)
+    fits["offset"] = FamilyFit("offset", 1, {"bias_d": b, "scale": 1.0}, rep - b, ss(rep - b))
+    u = _search(lambda x: profiled_ss(data, rep[None] * np.exp(x)[:, None, None], w), math.log(0.6),
+                math.log(1 / 0.6), 0.01, 0.001)
+    s = math.exp(u)
+    fits["scale"] = FamilyFit("scale", 1, {"bias_d": 0.0, "scale": s}, rep * s, ss(rep * s))
+    values = np.unique(np.round(rep[fr > 0], 9))
+    masks = [np.isclose(rep, v, atol=1e-9) for v in values]
+    if len(values) >= 3:
+        # a smooth monotone curve: the parabola through 3 knots (its true values at the lowest, middle and highest
+        # reported focus), linear in the knots' values: d = basis . y; coordinate search from the offset fit
+        kx = np.array([values[0], values[len(values) // 2], values[-1]])
+        basis = np.stack([parabola(rep, kx, np.eye(3)[j]) for j in range(3)])
+        ky = kx - b
+        for _ in range(4):
+            for j in range(3):
+                fixed = np.tensordot(np.delete(ky, j), np.delete(basis, j, 0), 1)
+                ky[j] = _search(lambda x, j=j, fixed=fixed: profiled_ss(data, fixed[None] + x[:, None, None]
+                                                                       * basis[j][None], w),
+                                kx[j] - MAX_ERROR_D, kx[j] + MAX_ERROR_D, 0.01, 0.001)
+        d = parabola(rep, kx, ky)
+        xs = np.linspace(values[0], values[-1], 9)
+        ys = parabola(xs, kx, ky)
+        if np.all(np.diff(ys) > 0):  # a curve that turns back is no focus encoder's
+            fits["monotone"] = FamilyFit("monotone", 3, {"bias_d": 0.0, "map_d": _knots(xs, ys)}, d, ss(d),
+                                         detail={"knots_reported_d": kx.tolist(), "knots_true_d": ky.tolist()})
+    q = quantiser(values)
+    start = fits["offset"].true_d
+    if q is not None:
+        half = bin_half_width_d(values, q)
+        d = _coordinate(data, w, np.clip(start, rep - bin_half_width_d(rep, q), rep + bin_half_width_d(rep, q)),
+                        masks, [(v - h, v + h) for v, h in zip(values, half)])
+        tv = isotonic(np.array([d[m][0] for m in masks]))  # bins do not overlap: only rounding breaks the order
+        d = curve(rep, values, tv)
+        fits["quantisation"] = FamilyFit("quantisation", len(values), {"bias_d": 0.0, "map_d": _knots(values, tv)},
+                                         d, ss(d), detail={"quantiser": q[0], "step_d": q[1]})
+    d = _coordinate(data, w, start, masks, [(v - MAX_ERROR_D, v + MAX_ERROR_D) for v in values])
+    tv = isotonic(np.array([d[m][0] for m in masks]))
+    d = curve(rep, values, tv)
+    fits["per_frame"] = FamilyFit("per_frame", len(values), {"bias_d": 0.0, "map_d": _knots(values, tv)}, d, ss(d))
+    for f in fits.values():
+        f.bic = n_f * math.log(max(f.ss, 1e-300) / n_f) + f.k * math.log(n_f)
+    # unbounded per-frame errors must beat errors bounded by the camera's quantisation step clearly (by one
+    # parameter's worth): with the same number of settings, the bounded family is the smaller model
+    if "quantisation" in fits:
+        fits["per_frame"].bic += math.log(n_f)
+    return fits
+
+
+def select(fits: dict[str, FamilyFit]) -> FamilyFit:
+    """The family with the lowest BIC (ties: fewer parameters)."""
+    return min(fits.values(), key=lambda f: (round(f.bic, 9), f.k))
+
+
+@dataclass
+class MetadataFit:
+    """The chosen family and every family's fit; bootstrap intervals: true_d_ci (n, S, 2) of the corrected focus,
+    params_ci {name: [lo, hi]}, support {family: share of replicates choosing it}."""
+
+    best: FamilyFit
+    fits: dict[str, FamilyFit]
+    true_d_ci: np.ndarray
+    params_ci: dict
+    support: dict
+
+    def summary(self) -> dict:
+        b = self.best
+        return {"family": b.name, "params": b.params, "params_ci": self.params_ci, "support": self.support,
+                "frame_focus_d": self.fits["per_frame"].true_d.tolist(),
+                "families": [{"family": f.name, "k": f.k, "ss": f.ss, "bic": f.bic, **f.detail}
+                             for f in self.fits.values()], **b.detail}
+
+
+def _scalar_params(f: FamilyFit) -> dict[str, float]:
+    if f.name == "offset":
+        return {"bias_d": f.params["bias_d"]}
+    if f.name == "scale":
+        return {"scale": f.params["scale"]}
+    return {}
+
+
+def boot_weights(data: SweepData, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """One two-level Poisson bootstrap replicate: region weights (n, R) and frame counts (n, S)."""
+    n, r = data.weight.shape
+    wc = rng.poisson(1.0, size=(n, 1)) if n > 1 else np.ones((n, 1))
+    return data.weight * rng.poisson(1.0, size=(n, r)) * wc, data.frames * wc
+
+
+def fit_metadata(data: SweepData, n_boot: int = 50, seed: int = 0, level: float = 0.95) -> MetadataFit:
+    """Every family fitted on the sweep and chosen by BIC; bootstrap replicates refit and reselect for the
+    intervals of the chosen family's settings and corrected focus, and each family's support."""
+    fits = fit_families(data)
+    best = select(fits)
+    rng = np.random.default_rng(seed)
+    wins = {k: 0 for k in fits}
+    true_reps, par_reps = [], {k: [] for k in _scalar_params(best)}
+    for _ in range(n_boot):
+        w, fr = boot_weights(data, rng)
+        if w.sum() == 0 or fr.sum() < 2:
+            continue
+        rf = fit_families(data, w, fr)
+        wins[select(rf).name] += 1
+        true_reps.append(rf[best.name].true_d)
+        for k, v in _scalar_params(rf[best.name]).items():
+            par_reps[k].append(v)
+    a = (1 - level) / 2
+    tr = np.array(true_reps) if true_reps else best.true_d[None]
+    ci = np.stack([np.quantile(tr, a, 0), np.quantile(tr, 1 - a, 0)], -1)
+    pci = {k: [float(np.quantile(v, a)), float(np.quantile(v, 1 - a))] for k, v in par_reps.items() if v}
+    total = max(sum(wins.values()), 1)
+    return MetadataFit(best, fits, ci, pci, {k: v / total for k, v in wins.items()})
+
+
+# --- field-dependent focus (sensor tilt, lens tolerances) ---------------------------------------------------
+@dataclass
+class ShiftFit:
+    params: np.ndarray
+    ss: float
+    ss_none: float
+    ci: np.ndarray  # (P, 2)
+    bic: float
+    bic_none: float
+
+
+def fit_shift(data: SweepData, focus_of: Callable[[np.ndarray], np.ndarray], x0, step, lower, upper,
+              n_boot: int = 30, seed: int = 0, level: float = 0.95) -> ShiftFit:
+    """Parameters theta of a field-dependent focus change: focus_of(theta) -> (n, R, S) true focus (diopters)
+    of every capture, region and frame. Nelder-Mead from x0, then a bootstrap over captures and regions (each
+    replicate restarted from the fit) for the interval. BIC (frames as observations) against theta = 0."""
+    x0 = np.asarray(x0, np.float64)
+    fit, ss = nelder_mead(lambda t: residual_ss(data, focus_of(t)), x0, step, lower=lower, upper=upper)
+    ss0 = residual_ss(data, focus_of(np.zeros_like(x0)))
+    rng = np.random.default_rng(seed)
+    reps = []
+    for _ in range(n_boot):
+        w, _ = boot_weights(data, rng)
+        if w.sum() == 0:
+            continue
+        t, _ = nelder_mead(lambda t: residual_ss(data, focus_of(t), w), fit, np.asarray(step) / 4,
+                           lower=lower, upper=upper, max_iter=150)
+        reps.append(t)
+    a = (1 - level) / 2
+    reps = np.array(reps) if reps else fit[None]
+    ci = np.stack([np.quantile(reps, a, 0), np.quantile(reps, 1 - a, 0)], -1)
+    m = max(data.n_frames, 2.0)
+    return ShiftFit(fit, ss, ss0, ci, m * math.log(max(ss, 1e-300) / m) + len(x0) * math.log(m),
+                    m * math.log(max(ss0, 1e-300) / m))

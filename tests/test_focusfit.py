@@ -1,0 +1,131 @@
+"""Focus-metadata error families fitted on focus-measure curves (aat_deploy.diagnose.focusfit), on synthetic sweeps
+whose truth is known: each region is a surface at its own depth, its log focus measure a peak at that depth; the
+capture's frames are the same curves at the true focus, plus a level per region (texture the twin renders
+differently) and noise."""
+
+import math
+
+import numpy as np
+import pytest
+
+from aat_deploy.diagnose import focusfit as ff
+from aat_deploy.diagnose.optimise import golden, grid_then_golden, isotonic, nelder_mead
+
+REPORTED_M = np.array([0.5, 0.62, 0.8, 1.05, 1.45, 2.2, 3.9, 9.0])  # a camera's bracket, near to far
+
+
+def peak(depth_d: np.ndarray, focus_d: np.ndarray) -> np.ndarray:
+    """log focus measure of a region at depth_d (R,) seen at focus focus_d (..., M): a peak of width 0.15 D."""
+    x = (focus_d[..., None, :] - depth_d[:, None]) / 0.15
+    return -np.log1p(x * x) * 1.5
+
+
+def sweep(true_d: np.ndarray, reported_d: np.ndarray, n_regions: int = 54, noise: float = 0.03, seed: int = 0,
+          per_region_focus=None) -> ff.SweepData:
+    """true_d, reported_d (n, S) diopters. per_region_focus(true_d) -> (n, R, S) for field-dependent focus."""
+    rng = np.random.default_rng(seed)
+    n, s = true_d.shape
+    grid = np.arange(0.0, 2.6, 0.06)
+    depth = rng.uniform(0.1, 2.2, size=(n, n_regions))
+    twin = np.stack([peak(depth[i], grid) for i in range(n)])  # (n, R, K)
+    d = per_region_focus(true_d) if per_region_focus else np.broadcast_to(true_d[:, None, :], (n, n_regions, s))
+    cap = np.stack([np.stack([peak(depth[i][r:r + 1], d[i, r])[0] for r in range(n_regions)]) for i in range(n)])
+    cap = cap + rng.normal(0, 0.4, size=(n, n_regions, 1)) + rng.normal(0, noise, size=cap.shape)
+    xy = np.stack([np.tile(np.linspace(-0.9, 0.9, 9), 6), np.repeat(np.linspace(0.8, -0.8, 6), 9)], 1)
+    return ff.SweepData(grid, twin, cap, reported_d, reported_d.copy(), xy)
+
+
+def bracket(n: int = 3):
+    t = np.tile(1.0 / REPORTED_M, (n, 1))
+    return t
+
+
+@pytest.mark.parametrize("name,report", [
+    ("none", lambda t: t),
+    ("offset", lambda t: t + 0.08),  # reported = true + 0.08 D: bias_d = 0.08
+    ("scale", lambda t: t / 1.07),  # reported distance = 1.07 x true
+    ("monotone", lambda t: t + 0.12 * np.sin(1.4 * t)),  # an encoder curve: no offset, no scale
+])
+def test_each_family_is_recovered(name, report):
+    true = bracket()
+    rep = report(true)
+    fit = ff.fit_metadata(sweep(true, rep), n_boot=20)
+    assert fit.best.name == name
+    assert np.abs(fit.best.true_d - true).max() < 0.02  # corrected focus within 0.02 D of the truth
+    lo, hi = fit.true_d_ci[..., 0], fit.true_d_ci[..., 1]
+    assert np.mean((lo - 0.01 <= true) & (true <= hi + 0.01)) > 0.9
+    if name == "offset":
+        assert fit.best.params["bias_d"] == pytest.approx(0.08, abs=0.01)
+        assert fit.params_ci["bias_d"][0] <= 0.08 + 0.01 and fit.params_ci["bias_d"][1] >= 0.08 - 0.01
+    if name == "scale":
+        assert fit.best.params["scale"] == pytest.approx(1.07, abs=0.01)
+    assert fit.support[name] > 0.5
+
+
+def test_quantisation_steps_within_their_bins():
+    """Nikon stores 0.01 * 10^(v/40) m: the reported values sit on that grid and the true focus is anywhere in
+    the bin (up to 1.4 % of the distance); the fit finds each frame inside its bin."""
+    true_m = np.array([0.5, 0.62, 0.8, 1.05, 1.45, 2.2, 3.9, 9.0]) * np.array([1.012, 0.99, 1.013, 0.988, 1.014,
+                                                                             0.987, 1.012, 0.99])
+    rep_m = 0.01 * 10 ** (np.round(40 * np.log10(100 * true_m)) / 40)
+    true, rep = np.tile(1 / true_m, (3, 1)), np.tile(1 / rep_m, (3, 1))
+    assert ff.quantiser(rep) == ("nikon", 0.0)
+    fit = ff.fit_metadata(sweep(true, rep, noise=0.01), n_boot=10)
+    assert fit.best.name == "quantisation"
+    assert np.abs(fit.best.true_d - true).max() < 0.012
+    half = ff.bin_half_width_d(rep, ("nikon", 0.0))
+    assert np.all(np.abs(fit.best.true_d - rep) <= half + 1e-9)
+
+
+def test_quantiser_detection_and_bins():
+    assert ff.quantiser(np.array([0.5, 0.75, 1.25, 2.0])) == ("diopter", 0.25)
+    assert ff.quantiser(np.array([0.55, 0.8, 1.15])) == ("diopter", 0.05)
+    assert ff.quantiser(1 / np.array([0.6, 0.6885, 0.8077, 0.9767])) is None  # continuous values
+    # a Nikon bin spans a factor 10^(1/40) in distance: half of it at 1 m is about 0.0288 D
+    assert ff.bin_half_width_d(np.array([1.0]), ("nikon", 0.0))[0] == pytest.approx(
+        (10 ** (1 / 80) - 10 ** (-1 / 80)) / 2, rel=1e-9)
+
+
+def test_a_level_per_region_does_not_move_the_focus():
+    """Regions rendered sharper or blurrier by a constant (a RAW development) leave the fit unchanged: the levels
+    are profiled out exactly."""
+    true = bracket(2)
+    a = sweep(true, true + 0.05, seed=3)
+    b = ff.SweepData(a.grid_d, a.twin, a.capture + np.random.default_rng(9).normal(0, 2, (2, 54, 1)),
+                     a.reported_d, a.base_d, a.field_xy)
+    fa, fb = ff.fit_families(a), ff.fit_families(b)
+    for k in fa:
+        assert fb[k].ss == pytest.approx(fa[k].ss, rel=1e-9, abs=1e-9)
+    assert fb["offset"].params["bias_d"] == pytest.approx(0.05, abs=0.01)
+
+
+def test_field_dependent_focus_is_fitted_per_region():
+    """A tilt-like change of focus across the field (0.1 D per unit of x) is found by fit_shift; none gives a
+    slope near 0 and a BIC no better than no shift."""
+    true = bracket(2)
+
+    def tilted(slope):
+        return lambda t: t[:, None, :] + slope * np.linspace(-0.9, 0.9, 9)[np.arange(54) % 9][None, :, None]
+
+    def focus_of(theta):
+        return tilted(theta[0])(true)
+
+    data = sweep(true, true, per_region_focus=tilted(0.1))
+    fit = ff.fit_shift(data, focus_of, [0.0], [0.05], [-0.5], [0.5], n_boot=10)
+    assert fit.params[0] == pytest.approx(0.1, abs=0.01) and fit.ci[0, 0] <= 0.1 + 0.01 and fit.bic < fit.bic_none
+    flat = ff.fit_shift(sweep(true, true, per_region_focus=tilted(0.0)), focus_of, [0.0], [0.05], [-0.5], [0.5],
+                        n_boot=10)
+    assert abs(flat.params[0]) < 0.01
+
+
+def test_minimisers_by_hand():
+    x, v = golden(lambda t: (t - 0.3) ** 2 + 1, -2, 2, tol=1e-6)
+    assert x == pytest.approx(0.3, abs=1e-5) and v == pytest.approx(1.0)
+    x, _ = grid_then_golden(lambda t: math.cos(3 * t) + 0.1 * t, -3, 3, n=13)  # several minima: the global one
+    assert x == pytest.approx(-math.pi / 3 * 3 + 2 * math.pi / 3, abs=0.05) or math.cos(3 * x) + 0.1 * x < -1.15
+    p, _ = nelder_mead(lambda q: (q[0] - 1) ** 2 + 10 * (q[1] + 2) ** 2, [0, 0], [0.5, 0.5], tol=1e-9)
+    assert p == pytest.approx([1, -2], abs=1e-4)
+    p, _ = nelder_mead(lambda q: (q[0] - 1) ** 2, [0], [0.5], lower=[-1], upper=[0.5])
+    assert p[0] == pytest.approx(0.5)
+    assert isotonic(np.array([1.0, 3.0, 2.0, 4.0])).tolist() == [1.0, 2.5, 2.5, 4.0]
+    assert isotonic(np.array([3.0, 1.0]), np.array([1.0, 3.0])).tolist() == [1.5, 1.5]
