@@ -54,7 +54,7 @@ def main() -> None:
 
     from aat_deploy.psf import PSFSurrogate
     from training.data.scenes import SceneConfig, procedural_scene
-    from training.lens.io import load_lens
+    from aat_deploy.lens.io import load_lens
     from training.render import effects as fx
     from training.render.effects.chromatic import surrogate_name
     from training.render.simulator import Simulator

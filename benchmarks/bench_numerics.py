@@ -35,7 +35,7 @@ def measure() -> dict[str, tuple[float, float]]:
     torch.set_num_threads(1)  # as tests/conftest.py
     if os.environ.get("AAT_TEST_NUMERICS") == "strict":
         torch.use_deterministic_algorithms(True)
-    from training.lens.io import load_lens
+    from aat_deploy.lens.io import load_lens
     from training.nets import export as dff_export
     from training.nets.init import load_onnx_weights
     from training.nets.model import build_model

@@ -78,7 +78,7 @@ def _heldout(out: dict) -> None:
 def _twin(out: dict) -> None:
     from aat_deploy.twin.renderer import optical_stack
     from aat_deploy.twin.sources import GaussianSource, OnnxSource
-    from training.lens.io import load_lens
+    from aat_deploy.lens.io import load_lens
     from training.render import effects as fx
 
     lens = load_lens(ROOT / "lenses/canon_rf50mm_f1.8.json")
@@ -98,7 +98,7 @@ def _blur(out: dict) -> None:
     import torch
 
     from aat_deploy.twin.sources import GaussianSource
-    from training.lens.io import load_lens
+    from aat_deploy.lens.io import load_lens
     from training.psf.geometry import thin_lens_blur_px
     from training.psf.kernel import KernelSpec
     from training.psf.surrogates import GaussianPSF

@@ -67,7 +67,7 @@ def test_twin_renderer_and_effects_run_without_torch(tmp_path):
         warnings.simplefilter("error")  # the shipped surrogate carries its focus table: no paraxial fallback
         from aat_deploy.twin.renderer import optical_stack
         from aat_deploy.twin.sources import GaussianSource, OnnxSource
-        from training.lens.io import load_lens
+        from aat_deploy.lens.io import load_lens
         from training.render import effects as fx
         lens = load_lens({str(ROOT / "lenses/canon_rf50mm_f1.8.json")!r})
         src = OnnxSource({str(ROOT / "models/psf_rf50.onnx")!r}, lens, threads=1)

@@ -10,7 +10,7 @@ import pytest
 import torch
 from conftest import LENSES
 
-from training.lens.io import load_lens
+from aat_deploy.lens.io import load_lens
 from training.nets.export import PARITY_TOL, dff_metadata, export_dff_onnx, parity, read_metadata
 from training.nets.model import build_model
 

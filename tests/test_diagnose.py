@@ -77,7 +77,7 @@ def setup(tmp_path_factory):
     sets rendered with that simulator, with and without a withheld focus-metadata bias."""
     from training.camera.virtual import write_capture
     from training.data.scenes import SceneConfig, procedural_scene
-    from training.lens.io import load_lens
+    from aat_deploy.lens.io import load_lens
     from training.render import effects as fx
     from training.render.layered import LayeredConfig
     from training.render.simulator import Simulator

@@ -11,8 +11,8 @@ from conftest import ROOT
 
 from aat_deploy.focus import FocusConfig, depth_from_focus
 from aat_deploy.focus.bestfocus import for_lens, from_psf, load_json, map_path_for_lens
-from training.lens.io import load_lens
-from training.optics.paraxial import paraxial_data
+from aat_deploy.lens.io import load_lens
+from aat_deploy.optics.paraxial import paraxial_data
 from training.optics.spot import spot
 from training.psf.geometry import focus_table
 

@@ -7,7 +7,7 @@ import pytest
 import torch
 from conftest import ROOT, assert_close
 
-from training.lens.io import load_lens
+from aat_deploy.lens.io import load_lens
 from training.nets.export import PARITY_TOL, dff_metadata, export_dff_onnx
 from training.nets.init import (
     InitError,

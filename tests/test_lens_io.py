@@ -8,9 +8,9 @@ import math
 import pytest
 
 from conftest import LENSES
-from training.lens.io import LensFileError, lens_from_dict, load_lens, save_lens
-from training.lens.materials import CauchyNdVd, UnknownMaterialError, parse_material
-from training.optics.paraxial import paraxial_data
+from aat_deploy.lens.io import LensFileError, lens_from_dict, load_lens, save_lens
+from aat_deploy.lens.materials import CauchyNdVd, UnknownMaterialError, parse_material
+from aat_deploy.optics.paraxial import paraxial_data
 
 SHIPPED = sorted(LENSES.glob("*.json"))
 

@@ -35,10 +35,10 @@ from optiland.optic import Optic  # noqa: E402
 from optiland.physical_apertures import RadialAperture  # noqa: E402
 from optiland.rays import RealRays  # noqa: E402
 
-from training.lens.io import load_lens  # noqa: E402
-from training.lens.materials import CAUCHY_ANCHOR_NM, parse_material  # noqa: E402
-from training.lens.schema import Lens, Sensor, Surface  # noqa: E402
-from training.optics.paraxial import paraxial_data, stop_semi_diameter_for_epd  # noqa: E402
+from aat_deploy.lens.io import load_lens  # noqa: E402
+from aat_deploy.lens.materials import CAUCHY_ANCHOR_NM, parse_material  # noqa: E402
+from aat_deploy.lens.schema import Lens, Sensor, Surface  # noqa: E402
+from aat_deploy.optics.paraxial import paraxial_data, stop_semi_diameter_for_epd  # noqa: E402
 from training.optics.spot import spot  # noqa: E402
 from training.optics.trace import Rays, rays_through_pupil, trace, uniform_disk_grid  # noqa: E402
 

@@ -85,7 +85,7 @@ def test_outputs_metadata_and_report(chain):
     assert rep["sensor_px"] == [96, 64] and rep["image_circle_method"] == "trace" and rep["warnings"] == []
     assert 50 < rep["efl_mm"] < 53 and rep["image_circle_mm"] > rep["sensor_diagonal_mm"]
     assert 0.2 < rep["nearest_focus_m"] < 0.5  # the EF50 cannot focus at 0.2 m: its focus table stops earlier
-    from training.lens.io import load_lens
+    from aat_deploy.lens.io import load_lens
 
     lens = load_lens(out / "lens.json")
     psf_md = read_metadata(out / "psf.onnx")
@@ -106,7 +106,7 @@ def test_outputs_metadata_and_report(chain):
 def test_runtime_accepts_ef50_captures_and_flags_rf50(chain, tmp_path):
     from training.camera.virtual import write_capture
     from training.data.scenes import SceneConfig, procedural_scene
-    from training.lens.io import load_lens
+    from aat_deploy.lens.io import load_lens
     from training.render import effects as fx
     from training.render.simulator import Simulator
     from training.render.sources import OnnxPSF
@@ -229,7 +229,7 @@ def test_chromatic_twins_render_without_torch_next_to_their_surrogates(colour, t
     (three different channels); psfs=trace still needs torch; a folder without them is a one-line error."""
     from aat_deploy.twin.renderer import TwinRenderer
     from aat_deploy.twin.sources import OnnxSource
-    from training.lens.io import load_lens
+    from aat_deploy.lens.io import load_lens
     from training.render import effects as fx
 
     out = colour["out"]

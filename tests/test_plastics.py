@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from conftest import LENSES, SHARED
-from training.lens.io import load_lens
-from training.lens.materials import (
+from aat_deploy.lens.io import load_lens
+from aat_deploy.lens.materials import (
     C_LINE_NM,
     CAUCHY_ANCHOR_NM,
     D_LINE_NM,
@@ -24,7 +24,7 @@ from training.lens.materials import (
     SchottFormula,
     parse_material,
 )
-from training.optics.paraxial import paraxial_data
+from aat_deploy.optics.paraxial import paraxial_data
 
 # Zemax catalogue NM lines (nd, Vd), as shipped in deeplens-core 2.5.6
 ZEMAX_ND_VD = {"PMMA": (1.491756, 57.440791), "COC": (1.533732, 56.227932), "POLYCARB": (1.585470, 29.909185),

@@ -3,7 +3,7 @@
 import dataclasses
 import json
 
-from training.lens.io import load_lens, save_lens
+from aat_deploy.lens.io import load_lens, save_lens
 from training.psf.experiment import PSFExperiment
 
 

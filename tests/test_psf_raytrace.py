@@ -9,12 +9,12 @@ import pytest
 import torch
 
 from conftest import LENSES, assert_close
-from training.lens.io import load_lens
+from aat_deploy.lens.io import load_lens
 from training.optics.trace import Rays, trace
 from training.psf.geometry import focus_table, object_points_mm, thin_lens_blur_px
 from training.psf.kernel import KernelSpec, downsample2
 from training.psf.raytrace import FLOAT32_NEWTON_TOL_MM, _rays_to_pupil, chief_ray_pupil, raytrace_psfs
-from training.optics.paraxial import paraxial_data
+from aat_deploy.optics.paraxial import paraxial_data
 from training.optics.focus import focus
 
 RF50 = load_lens(LENSES / "canon_rf50mm_f1.8.json")

@@ -11,8 +11,8 @@ import pytest
 import torch
 
 from conftest import LENSES, ROOT, assert_close
-from training.lens.io import load_lens
-from training.optics.paraxial import paraxial_data
+from aat_deploy.lens.io import load_lens
+from aat_deploy.optics.paraxial import paraxial_data
 from training.psf.dataset import PSFDataConfig, build_psf_dataset, eval_grid, to_tensors
 from training.psf.fit import FitConfig, fit
 from training.psf.geometry import thin_lens_blur_px

@@ -7,7 +7,7 @@ import pytest
 import torch
 from conftest import ROOT
 
-from training.lens.io import load_lens
+from aat_deploy.lens.io import load_lens
 from training.render import effects as fx
 from training.render.effects.focus_breathing import breathing_scale
 from training.render.effects.noise import poisson_gaussian

@@ -7,7 +7,7 @@ import pytest
 import torch
 from conftest import assert_close
 
-from training.lens.io import load_lens
+from aat_deploy.lens.io import load_lens
 from training.render import effects as fx
 from training.render.effects.focus_metadata import quantise_focus_m
 from training.render.effects.sensor_tilt import tilted_focus_m

@@ -64,7 +64,7 @@ def test_frame_with_thin_lens_gaussian_and_orientation_of_field():
     import numpy as np
     from conftest import LENSES
 
-    from training.lens.io import load_lens
+    from aat_deploy.lens.io import load_lens
     from training.psf.kernel import KernelSpec
     from training.psf.surrogates import GaussianPSF
     from training.render.exact import render_frame_exact

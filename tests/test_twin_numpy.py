@@ -17,8 +17,8 @@ from test_deploy_torch_free import _run
 from aat_deploy.twin.layered import LayeredConfig, render_layered
 from aat_deploy.twin.renderer import optical_stack
 from aat_deploy.twin.sources import GaussianSource, OnnxSource, UnitEnergy
-from training.lens.io import load_lens, save_lens
-from training.optics.paraxial import paraxial_data
+from aat_deploy.lens.io import load_lens, save_lens
+from aat_deploy.optics.paraxial import paraxial_data
 from training.psf.geometry import focus_table
 from training.render import effects as fx
 from training.render.layered import render_layered as render_layered_torch
@@ -256,7 +256,7 @@ def test_tiny_twin_without_torch_equals_torch(tiny, tmp_path):
         from aat_deploy.diagnose.inputs import load_capture_data
         from aat_deploy.model import DfFModel
         from aat_deploy.twin.renderer import TwinRenderer
-        from training.lens.io import load_lens
+        from aat_deploy.lens.io import load_lens
         from training.render import effects as fx
         model = DfFModel({str(model_path)!r}, threads=1)
         twins = TwinRenderer(model, load_lens({str(tmp / "lens.json")!r}), {str(tmp / "psf.onnx")!r}, cell_px=32,

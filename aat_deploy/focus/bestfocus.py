@@ -177,7 +177,7 @@ def for_lens(lens_path: str | Path, compute: bool = True, progress: bool = False
     traced now on a coarse grid when torch is installed (uncalibrated; about half a minute), else a one-line error
     saying how to make it.
     Returns the map and where it came from."""
-    from training.lens.io import load_lens
+    from aat_deploy.lens.io import load_lens
 
     lens_path = Path(lens_path)
     try:

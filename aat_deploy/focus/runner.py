@@ -53,8 +53,8 @@ class FocusMethod:
         self.focus_range_m = self.best_focus.focus_range_m if self.best_focus else (0.0, float("inf"))
 
     def _lens_identity(self, path: Path) -> None:
-        from training.lens.io import load_lens
-        from training.optics.paraxial import paraxial_data
+        from aat_deploy.lens.io import load_lens
+        from aat_deploy.optics.paraxial import paraxial_data
 
         lens = load_lens(path)
         p = paraxial_data(lens)

@@ -5,7 +5,7 @@
 in the storage of `training.psf.kernel` (energy per cell, cells of `scale` pixels, centred on the chief ray),
 plus `source.k`, `source.scale(depth_m, focus_m)` (cell size, pixels) and `source.blur_px(depth_m, focus_m)`
 (thin-lens blur diameter, pixels). x, y: normalised field in [-1, 1] (x right, y up); distances in metres from
-the sensor plane. Both sources take the lens's first-order data from the lens file (`training.lens`, torch-free).
+the sensor plane. Both sources take the lens's first-order data from the lens file (`aat_deploy.lens`, torch-free).
 
 - `OnnxSource`: the exported surrogate (`aat_deploy.psf.PSFSurrogate`); it also carries the lens's real-ray focus
   table and exit pupil in its metadata, which the focus effects need.
@@ -20,8 +20,8 @@ import json
 import numpy as np
 
 from aat_deploy.psf import PSFSurrogate
-from training.lens.schema import Lens
-from training.optics.paraxial import paraxial_data
+from aat_deploy.lens.schema import Lens
+from aat_deploy.optics.paraxial import paraxial_data
 from training.psf.geometry import FocusTable, table_from_arrays, thin_lens_blur_px
 from training.psf.kernel import KernelSpec
 

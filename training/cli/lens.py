@@ -17,8 +17,8 @@ from pathlib import Path
 
 from aat_deploy.cli.common import parser, run_or_hint, subparser
 from aat_deploy.shipped import resolve
-from training.lens.io import LensFileError, load_lens
-from training.lens.materials import UnknownMaterialError
+from aat_deploy.lens.io import LensFileError, load_lens
+from aat_deploy.lens.materials import UnknownMaterialError
 
 
 def _distance(text: str) -> float:
@@ -48,7 +48,7 @@ def _atomic_png(draw, path: Path) -> None:
 
 
 def cmd_info(a) -> int:
-    from training.optics.paraxial import paraxial_data
+    from aat_deploy.optics.paraxial import paraxial_data
 
     lens = load_lens(a.lens)
     p = paraxial_data(lens)

@@ -30,7 +30,7 @@ def _floats(text: str) -> list[float]:
 
 def field_from_angle(lens, angle_deg: float) -> tuple[float, float]:
     """Normalised field (x = y, on the diagonal) whose object direction makes `angle_deg` with the axis."""
-    from training.optics.paraxial import paraxial_data
+    from aat_deploy.optics.paraxial import paraxial_data
 
     r = math.tan(math.radians(angle_deg)) * paraxial_data(lens).efl_mm / lens.sensor.half_diagonal_mm
     return r, r
@@ -56,7 +56,7 @@ def cmd_show(a) -> int:
     import matplotlib.pyplot as plt
     import torch
 
-    from training.lens.io import load_lens
+    from aat_deploy.lens.io import load_lens
     from training.psf.kernel import KernelSpec
     from training.psf.raytrace import raytrace_psfs
     from training.psf.surrogates import GaussianPSF

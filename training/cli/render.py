@@ -86,7 +86,7 @@ def run(args) -> Path:
     from aat_deploy.io.guard import check_output_dir
     from training.camera.virtual import write_capture
     from training.data.rgbd import RGBDError, fill_depth, load_rgbd
-    from training.lens.io import LensFileError, load_lens
+    from aat_deploy.lens.io import LensFileError, load_lens
     from training.render import effects as fx
     from training.render.simulator import Simulator
     from training.render.sources import OnnxPSF, RayTracedPSF

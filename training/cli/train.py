@@ -143,7 +143,7 @@ def main_lens(args: argparse.Namespace) -> int:
     if not args.out:
         print("aat-train: --lens needs --out DIR (the run folder)", file=sys.stderr)
         return 2
-    from training.lens.io import LensFileError
+    from aat_deploy.lens.io import LensFileError
     from training.nets.init import InitError
     from training.pipeline.config import ChainConfigError, resolve
     from training.pipeline.runner import ChainError, run_chain

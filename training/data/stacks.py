@@ -22,7 +22,7 @@ from aat_deploy.normalise import PERCENTILE
 from aat_deploy.twin.fields import pixel_fields
 from training.data.rgbd import fill_depth, load_middlebury_motorcycle
 from training.data.scenes import SceneConfig, procedural_scene
-from training.lens.io import load_lens
+from aat_deploy.lens.io import load_lens
 from training.render import effects as fx
 from training.render.layered import LayeredConfig
 from training.render.schedule import FocusSchedule, scene_range_distances

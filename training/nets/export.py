@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 from aat_deploy.normalise import DESCRIPTION as NORMALISATION
-from training.lens.schema import Lens
+from aat_deploy.lens.schema import Lens
 from training.nets.model import DfFModel
 
 DISTANCES = "metres from the sensor plane along the optical axis"
@@ -51,7 +51,7 @@ def dff_metadata(model: DfFModel, lens: Lens, *, simulator: str, effects: list[s
                  focus_range_m: tuple[float, float], stack_range: tuple[int, int], config_hash: str,
                  extra: dict | None = None) -> dict[str, str]:
     """metadata_props for a DfF model: every key of docs/contracts.md, strings (lists/numbers JSON-encoded)."""
-    from training.optics.paraxial import paraxial_data
+    from aat_deploy.optics.paraxial import paraxial_data
 
     if simulator not in ("aat", "thin_lens"):
         raise ValueError(f"simulator must be 'aat' or 'thin_lens', got {simulator!r}")

@@ -24,9 +24,9 @@ import numpy as np
 import torch
 
 from aat_deploy.focus.bestfocus import BestFocusMap
-from training.lens.schema import Lens
+from aat_deploy.lens.schema import Lens
 from training.optics.focus import best_focus_shift_mm
-from training.optics.paraxial import paraxial_data
+from aat_deploy.optics.paraxial import paraxial_data
 from training.optics.trace import Rays, start_plane_z_mm, stratified_disk, trace
 from training.psf.geometry import FocusTable, focus_table, object_points_mm
 

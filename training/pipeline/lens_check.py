@@ -1,6 +1,6 @@
 """Stage 1 of the chain: read the lens, put the user's sensor behind it, and check that the pair makes sense.
 
-- Paraxial summary (`training.optics.paraxial`): EFL, BFL, F-number, entrance pupil, field of view over the
+- Paraxial summary (`aat_deploy.optics.paraxial`): EFL, BFL, F-number, entrance pupil, field of view over the
   sensor (horizontal, vertical, diagonal; full angles in degrees), pixel pitch.
 - Image circle: the largest image height (mm) at which at least `MIN_RELATIVE_ILLUMINATION` of the on-axis light
   still gets through the lens, found by real-ray tracing a pupil grid at field angles from the axis outwards
@@ -18,9 +18,9 @@ import math
 from dataclasses import replace
 from pathlib import Path
 
-from training.lens.io import load_lens, validate
-from training.lens.schema import Lens, Sensor
-from training.optics.paraxial import _trace, paraxial_data
+from aat_deploy.lens.io import load_lens, validate
+from aat_deploy.lens.schema import Lens, Sensor
+from aat_deploy.optics.paraxial import _trace, paraxial_data
 
 MIN_RELATIVE_ILLUMINATION = 0.1
 MIN_BLUR_PX = 2.0

@@ -94,7 +94,7 @@ def _lens_settings(ctx: Context) -> dict:
 
 
 def _lens_run(ctx: Context) -> list[str]:
-    from training.lens.io import save_lens
+    from aat_deploy.lens.io import save_lens
     from training.pipeline.hashing import write_json_atomic
     from training.pipeline.lens_check import format_report, lens_report, resolve_lens
 
@@ -115,7 +115,7 @@ def _psf_settings(ctx: Context) -> dict:
 
 
 def _psf_run(ctx: Context) -> list[str]:
-    from training.lens.io import load_lens
+    from aat_deploy.lens.io import load_lens
 
     lens = load_lens(ctx.path("lens.json"))
     out = ctx.path("psf.onnx")
@@ -210,7 +210,7 @@ def _colour_settings(ctx: Context) -> dict:
 def _colour_run(ctx: Context) -> list[str]:
     """One RotPSF per wavelength of `chromatic`, traced with the sensor where the design wavelength focuses and
     centred on its chief ray: chromatic then renders as fast as the lens's PSFs (else ~30 s a training stack)."""
-    from training.lens.io import load_lens
+    from aat_deploy.lens.io import load_lens
     from training.render.effects.chromatic import REFERENCE_WAVELENGTH_NM
 
     files = _colour_files(ctx)

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import torch
 
-from training.lens.io import load_lens
-from training.lens.schema import Lens
+from aat_deploy.lens.io import load_lens
+from aat_deploy.lens.schema import Lens
 from training.psf.dataset import DEFAULT_CACHE, PSFDataConfig, build_psf_dataset, to_tensors
 from training.psf.fit import FitConfig, fit, make_model
 from training.psf.kernel import KernelSpec

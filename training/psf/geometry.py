@@ -18,8 +18,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from training.lens.schema import Lens
-from training.optics.paraxial import paraxial_data, paraxial_focus_z_mm
+from aat_deploy.lens.schema import Lens
+from aat_deploy.optics.paraxial import paraxial_data, paraxial_focus_z_mm
 
 # torch (the real-ray focus search, object points as tensors) is imported where it is needed: the focus table,
 # field geometry and thin-lens blur serve the torch-free runtime too (`aat_deploy.twin`).

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from training.lens.schema import Lens
+from aat_deploy.lens.schema import Lens
 from training.psf.geometry import thin_lens_blur_px
 
 

@@ -23,8 +23,8 @@ from functools import lru_cache
 import numpy as np
 import torch
 
-from training.lens.schema import Lens
-from training.optics.paraxial import paraxial_data
+from aat_deploy.lens.schema import Lens
+from aat_deploy.optics.paraxial import paraxial_data
 from training.optics.trace import start_plane_z_mm, stratified_disk, trace_components, uniform_disk_grid
 from training.psf.geometry import FocusTable, focus_table, object_points_mm
 from training.psf.kernel import KernelSpec, splat_bilinear

@@ -16,7 +16,7 @@ from aat_deploy.twin.fields import field_of, pixel_fields  # noqa: F401 (re-expo
 from aat_deploy.twin.sources import LensGeometry as _LensGeometry
 from aat_deploy.twin.sources import OnnxSource
 from aat_deploy.twin.sources import UnitEnergy  # noqa: F401 (re-exported)
-from training.lens.schema import Lens
+from aat_deploy.lens.schema import Lens
 from training.psf.kernel import KernelSpec
 from training.psf.raytrace import DEFAULT_WAVELENGTH_NM, raytrace_psfs
 from training.psf.surrogates import GaussianPSF, PSFModel

@@ -70,7 +70,7 @@ def _dataset(spec: TestSetSpec, cache_dir: str | None):
     from training.train.data import resolve_lens_path
 
     lens_path = resolve_lens_path(spec.lens)
-    from training.lens.io import load_lens
+    from aat_deploy.lens.io import load_lens
 
     sensor = load_lens(lens_path).sensor
     cfg = StackDataConfig(simulator=spec.simulator, lens=lens_path, psf=spec.psf, height=sensor.height_px,

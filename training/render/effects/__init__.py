@@ -30,8 +30,8 @@ from typing import Any
 
 import numpy as np
 
-from training.lens.schema import Lens
-from training.optics.paraxial import paraxial_data
+from aat_deploy.lens.schema import Lens
+from aat_deploy.optics.paraxial import paraxial_data
 
 _REGISTRY: dict[str, type[Effect]] = {}
 _LOADED = False

@@ -136,8 +136,8 @@ class SchottFormula(Material):
 
 @lru_cache(maxsize=1)
 def glass_catalog() -> dict[str, dict]:
-    """The shipped glass catalogue (training/lens/data/glasses.json), keyed by upper-case name."""
-    text = resources.files("training.lens").joinpath("data/glasses.json").read_text(encoding="utf-8")
+    """The shipped glass catalogue (aat_deploy/lens/data/glasses.json), keyed by upper-case name."""
+    text = resources.files("aat_deploy.lens").joinpath("data/glasses.json").read_text(encoding="utf-8")
     return {k.upper(): v for k, v in json.loads(text)["glasses"].items()}
 
 

@@ -12,6 +12,7 @@ import os
 import tempfile
 from pathlib import Path
 
+from ..optics.paraxial import paraxial_data, stop_semi_diameter_for_epd
 from .materials import UnknownMaterialError, parse_material
 from .schema import SURFACE_KINDS, Lens, Sensor, Surface
 
@@ -398,14 +399,10 @@ def load_zmx(path, resolution=DEFAULT_ZMX_RESOLUTION) -> Lens:
     )
     validate(lens, path)
     # Zemax sizes the stop from the system aperture; do the same so F-number matches the file.
-    from training.optics.paraxial import stop_semi_diameter_for_epd  # local: keeps io numpy-only at import
-
     if enpd:
         lens = lens.with_stop_semi_diameter(stop_semi_diameter_for_epd(lens, enpd * scale))
         lens.provenance["aperture"] = f"stop sized for ENPD {enpd * scale} mm"
     elif fnum:
-        from training.optics.paraxial import paraxial_data
-
         efl = paraxial_data(lens).efl_mm
         lens = lens.with_stop_semi_diameter(stop_semi_diameter_for_epd(lens, efl / fnum))
         lens.provenance["aperture"] = f"stop sized for FNUM {fnum}"

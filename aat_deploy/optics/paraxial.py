@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass
 
-from training.lens.schema import Lens
+from aat_deploy.lens.schema import Lens
 
 
 def _trace(lens: Lens, y: float, u: float, wavelength_nm: float, start: int = 0, stop: int | None = None):

@@ -6,7 +6,7 @@ thickness is the nominal distance to the sensor (the focus state stored in the f
 computes the sensor position for any object distance).
 
 Our JSON file format ("aat-lens-v1") is documented in `lenses/README.md` and read/written by
-`training.lens.io`. This module holds only the dataclasses and derived geometry.
+`aat_deploy.lens.io`. This module holds only the dataclasses and derived geometry.
 """
 
 from __future__ import annotations
@@ -141,7 +141,7 @@ class Lens:
         return replace(self, surfaces=tuple(surfs))
 
     def to_dict(self) -> dict:
-        """Plain-data form in our file format (see training.lens.io.save_lens)."""
+        """Plain-data form in our file format (see aat_deploy.lens.io.save_lens)."""
         surfs = []
         for s in self.surfaces:
             d = {
