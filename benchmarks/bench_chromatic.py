@@ -52,7 +52,7 @@ def main() -> None:
     args = ap.parse_args()
     torch.set_num_threads(2)
 
-    from aat_deploy.psf import PSFSurrogate
+    from aat_deploy.psf.surrogate import PSFSurrogate
     from training.data.scenes import SceneConfig, procedural_scene
     from aat_deploy.lens.io import load_lens
     from training.render import effects as fx

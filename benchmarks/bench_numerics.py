@@ -40,7 +40,7 @@ def measure() -> dict[str, tuple[float, float]]:
     from training.nets.init import load_onnx_weights
     from training.nets.model import build_model
     from training.psf import export as psf_export
-    from training.psf.kernel import KernelSpec
+    from aat_deploy.psf.kernel import KernelSpec
     from training.psf.surrogates import RotPSF
     from training.render.sources import thin_lens_source
 

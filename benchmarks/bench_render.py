@@ -42,7 +42,7 @@ def main() -> None:
 
     from training.data.scenes import SceneConfig, procedural_scene
     from aat_deploy.lens.io import load_lens
-    from training.psf.kernel import KernelSpec
+    from aat_deploy.psf.kernel import KernelSpec
     from training.psf.surrogates import PaperMLP
     from training.render.exact import (
         cells_to_pixels,

@@ -99,8 +99,8 @@ def _blur(out: dict) -> None:
 
     from aat_deploy.twin.sources import GaussianSource
     from aat_deploy.lens.io import load_lens
-    from training.psf.geometry import thin_lens_blur_px
-    from training.psf.kernel import KernelSpec
+    from aat_deploy.optics.thin_lens import thin_lens_blur_px
+    from aat_deploy.psf.kernel import KernelSpec
     from training.psf.surrogates import GaussianPSF
 
     lens = load_lens(ROOT / "lenses/canon_rf50mm_f1.8.json")

@@ -11,8 +11,10 @@ import torch
 from conftest import LENSES, assert_close
 from aat_deploy.lens.io import load_lens
 from training.optics.trace import Rays, trace
-from training.psf.geometry import focus_table, object_points_mm, thin_lens_blur_px
-from training.psf.kernel import KernelSpec, downsample2
+from aat_deploy.optics.thin_lens import thin_lens_blur_px
+from training.psf.geometry import focus_table, object_points_mm
+from aat_deploy.psf.kernel import KernelSpec
+from training.psf.splat import downsample2
 from training.psf.raytrace import FLOAT32_NEWTON_TOL_MM, _rays_to_pupil, chief_ray_pupil, raytrace_psfs
 from aat_deploy.optics.paraxial import paraxial_data
 from training.optics.focus import focus

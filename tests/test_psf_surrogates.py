@@ -15,8 +15,8 @@ from aat_deploy.lens.io import load_lens
 from aat_deploy.optics.paraxial import paraxial_data
 from training.psf.dataset import PSFDataConfig, build_psf_dataset, eval_grid, to_tensors
 from training.psf.fit import FitConfig, fit
-from training.psf.geometry import thin_lens_blur_px
-from training.psf.kernel import KernelSpec
+from aat_deploy.optics.thin_lens import thin_lens_blur_px
+from aat_deploy.psf.kernel import KernelSpec
 from training.psf.raytrace import raytrace_psfs
 from training.psf.surrogates import GaussianPSF, GridPSF, PaperMLP, RotPSF, n_params
 
@@ -72,7 +72,7 @@ def test_rotation_of_axis_psfs_reproduces_ray_traced_field_psfs():
     axis = raytrace_psfs(RF50, 0 * ay, ay, d, f, SPEC, n_rays=8192, seed=1, oversample=2).kernels
     direct = raytrace_psfs(RF50, x, y, d, f, SPEC, n_rays=8192, seed=2).kernels
     again = raytrace_psfs(RF50, x, y, d, f, SPEC, n_rays=8192, seed=3).kernels  # noise floor
-    from training.psf.kernel import downsample2
+    from training.psf.splat import downsample2
 
     rotated = downsample2(model.rotate(axis, cos_phi.float(), sin_phi.float()))
     err = (rotated - direct).abs().sum((1, 2)).mean()
@@ -113,7 +113,7 @@ def test_dataset_cache_and_fit_resume(tmp_path):
     model = RotPSF(RF50, SPEC, 0.3, 20)
     ckpt = tmp_path / "rot.pt"
     vq = torch.stack([t["x"][:64], t["y"][:64], t["depth_m"][:64], t["focus_m"][:64]], -1)
-    from training.psf.kernel import downsample2
+    from training.psf.splat import downsample2
 
     val = (vq, downsample2(t["kernels"][:64]))
     h1 = fit(model, t, FitConfig(minutes=0.05, eval_every_s=1.0), ckpt=ckpt, val=val, progress=False).history
@@ -139,7 +139,7 @@ def test_onnx_export_parity_metadata_and_torch_free_query(tmp_path):
         export_psf_onnx(model, RF50, out)
     code = f"""
 import sys, numpy as np
-from aat_deploy.psf import PSFSurrogate
+from aat_deploy.psf.surrogate import PSFSurrogate
 m = PSFSurrogate({str(out)!r})
 rng = np.random.default_rng(0)
 n = 100_000

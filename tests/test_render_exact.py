@@ -65,7 +65,7 @@ def test_frame_with_thin_lens_gaussian_and_orientation_of_field():
     from conftest import LENSES
 
     from aat_deploy.lens.io import load_lens
-    from training.psf.kernel import KernelSpec
+    from aat_deploy.psf.kernel import KernelSpec
     from training.psf.surrogates import GaussianPSF
     from training.render.exact import render_frame_exact
     from training.render.sources import ModelPSF, pixel_fields

@@ -161,7 +161,7 @@ def tiny(tmp_path_factory):
     from training.camera.virtual import write_capture
     from training.data.scenes import SceneConfig, procedural_scene
     from training.psf.export import export_psf_onnx
-    from training.psf.kernel import KernelSpec
+    from aat_deploy.psf.kernel import KernelSpec
     from training.psf.surrogates import RotPSF
 
     tmp = tmp_path_factory.mktemp("twin")
@@ -185,7 +185,7 @@ def tiny(tmp_path_factory):
 def test_export_metadata_and_stamping(tiny, tmp_path):
     import onnx
 
-    from aat_deploy.psf import PSFSurrogate
+    from aat_deploy.psf.surrogate import PSFSurrogate
     from training.psf.export import stamp_optics_metadata
 
     tmp, lens, _ = tiny

@@ -27,6 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..extensions import load as load_extension
+
 FORMAT = "aat-best-focus-map-v1"
 METADATA_KEY = "aat.best_focus_map"
 SUBFOLDER = "best_focus"
@@ -153,7 +155,7 @@ def load_json(path: str | Path) -> BestFocusMap:
 
 def from_psf(path: str | Path) -> BestFocusMap:
     """The map stamped into a PSF surrogate's metadata."""
-    from aat_deploy.psf import PSFSurrogate
+    from aat_deploy.psf.surrogate import PSFSurrogate
 
     try:
         meta = PSFSurrogate(path, threads=1).meta
@@ -174,8 +176,8 @@ def from_psf(path: str | Path) -> BestFocusMap:
 
 def for_lens(lens_path: str | Path, compute: bool = True, progress: bool = False) -> tuple[BestFocusMap, str]:
     """The map of a lens file: `best_focus/<stem>.json` next to it (checked against the lens's prescription), else
-    traced now on a coarse grid when torch is installed (uncalibrated; about half a minute), else a one-line error
-    saying how to make it.
+    traced now on a coarse grid when the train extra is installed (the extension `best_focus_tracer`,
+    `aat_deploy.extensions`; uncalibrated, about half a minute), else a one-line error saying how to make it.
     Returns the map and where it came from."""
     from aat_deploy.lens.io import load_lens
 
@@ -195,16 +197,9 @@ def for_lens(lens_path: str | Path, compute: bool = True, progress: bool = False
            "or pass --psf with the lens's stamped PSF surrogate")
     if not compute:
         raise BestFocusError(f"{lens_path}: no best-focus map ({stored} missing); {how}")
-    try:
-        import torch  # noqa: F401
-    except ImportError:
+    trace = load_extension("best_focus_tracer")
+    if trace is None:
         raise BestFocusError(f"{lens_path}: no best-focus map ({stored} missing) and torch is not installed to "
-                             f"trace it; {how}") from None
-    from training.optics.field_focus import best_focus_map
-    from training.psf.geometry import focus_table
-
-    # a coarser grid than make_focus_map's (7 radii x 9 focus settings, about a tenth of the time), uncalibrated
-    t = focus_table(lens)
-    m = best_focus_map(lens, radii=np.sqrt(np.linspace(0, 1, 7)),
-                       focus_diopters=np.linspace(t.diopters[0], t.diopters[-1], 9), table=t, progress=progress)
+                             f"trace it; {how}")
+    m = trace(lens, progress=progress)  # 7 radii x 9 focus settings, uncalibrated
     return m, f"traced now (uncalibrated, coarse; for the calibrated map run scripts/make_focus_map.py {lens_path})"

@@ -62,7 +62,7 @@ class FocusMethod:
         self.sensor_mm = (lens.sensor.width_mm, lens.sensor.height_mm)
 
     def _psf_identity(self, path: Path) -> None:
-        from ..psf import PSFSurrogate
+        from ..psf.surrogate import PSFSurrogate
 
         meta = PSFSurrogate(path, threads=1).meta
         self.lens_name = meta.get("aat.lens_name")

@@ -25,7 +25,7 @@ from aat_deploy.twin.layered import LayeredConfig, render_layered
 from aat_deploy.twin.sources import GaussianSource, OnnxSource
 from training.data.rgbd import fill_depth
 from aat_deploy.lens.schema import Lens
-from training.psf.geometry import FocusTable, paraxial_focus_table
+from aat_deploy.optics.focus_table import FocusTable, paraxial_focus_table
 from training.render import effects as fx
 
 

@@ -40,7 +40,7 @@ def _default_model(lens) -> Path | None:
     models = shipped_dir("models")
     for p in sorted(models.glob("psf_*.onnx")) if models else []:
         try:
-            from aat_deploy.psf import PSFSurrogate
+            from aat_deploy.psf.surrogate import PSFSurrogate
 
             if PSFSurrogate(p).lens_hash == lens.prescription_hash():
                 return p
@@ -57,7 +57,7 @@ def cmd_show(a) -> int:
     import torch
 
     from aat_deploy.lens.io import load_lens
-    from training.psf.kernel import KernelSpec
+    from aat_deploy.psf.kernel import KernelSpec
     from training.psf.raytrace import raytrace_psfs
     from training.psf.surrogates import GaussianPSF
 
@@ -68,7 +68,7 @@ def cmd_show(a) -> int:
     model_path = None if a.model == "none" else Path(a.model) if a.model else _default_model(lens)
     surrogate = None
     if model_path is not None:
-        from aat_deploy.psf import PSFSurrogate
+        from aat_deploy.psf.surrogate import PSFSurrogate
 
         surrogate = PSFSurrogate(model_path)
         if surrogate.lens_hash != lens.prescription_hash():

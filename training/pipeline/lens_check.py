@@ -121,7 +121,7 @@ def nearest_focus_m(lens: Lens) -> float:
 
 def lens_report(lens: Lens, source: str | Path, focus_range_m: tuple[float, float]) -> dict:
     """Everything stage 1 reports (JSON-ready); `warnings` lists problems in one line each."""
-    from training.psf.geometry import thin_lens_blur_px
+    from aat_deploy.optics.thin_lens import thin_lens_blur_px
 
     p = paraxial_data(lens)
     s = lens.sensor

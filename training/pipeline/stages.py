@@ -121,7 +121,7 @@ def _psf_run(ctx: Context) -> list[str]:
     out = ctx.path("psf.onnx")
     given = ctx.cfg["psf_file"]
     if given:
-        from aat_deploy.psf import PSFSurrogate
+        from aat_deploy.psf.surrogate import PSFSurrogate
 
         sur = PSFSurrogate(given["path"])
         if sur.lens_hash != lens.prescription_hash():

@@ -23,7 +23,7 @@ import torch
 from tqdm import tqdm
 
 from aat_deploy.lens.schema import Lens
-from training.psf.kernel import KernelSpec
+from aat_deploy.psf.kernel import KernelSpec
 from training.psf.raytrace import DEFAULT_WAVELENGTH_NM, raytrace_psfs
 
 DEFAULT_CACHE = Path(os.environ.get("AAT_CACHE", Path(__file__).resolve().parents[2] / "cache"))
@@ -129,7 +129,7 @@ def eval_grid(lens: Lens, n_focus: int = 20, n_depth: int = 40, n_rows: int = 8,
               near_m: float = 0.3, far_m: float = 20.0) -> dict[str, np.ndarray]:
     """The paper's PSF evaluation grid: focus x depth (both even in diopters) x rows x cols field positions
     (cell centres of an n_rows x n_cols grid over the sensor). Flattened, focus-major."""
-    from training.psf.geometry import diopter_grid
+    from aat_deploy.optics.focus_table import diopter_grid
 
     f = diopter_grid(near_m, far_m, n_focus)
     d = diopter_grid(near_m, far_m, n_depth)

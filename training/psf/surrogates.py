@@ -1,5 +1,5 @@
 """PSF models that stand in for ray tracing. All map (x, y, depth_m, focus_m) -> (B, k, k) kernels in the
-representation of `training.psf.kernel` (energy per cell, cell = `scale` pixels, centred on the chief ray).
+representation of `aat_deploy.psf.kernel` (energy per cell, cell = `scale` pixels, centred on the chief ray).
 
 - `GaussianPSF`: the thin-lens baseline. Circle of confusion from EFL, entrance pupil and distances; a Gaussian
   with the disk's second moment (sigma = CoC / 4) plus the splat's tent (1/6 cell^2), energy 1 over the plane
@@ -23,7 +23,8 @@ from torch import nn
 
 from aat_deploy.lens.schema import Lens
 from aat_deploy.optics.paraxial import paraxial_data
-from training.psf.kernel import KernelSpec, downsample2
+from aat_deploy.psf.kernel import KernelSpec
+from training.psf.splat import downsample2
 
 
 class PSFModel(nn.Module):
@@ -169,7 +170,7 @@ class GridPSF(PSFModel):
     @staticmethod
     def axes(near_m: float, far_m: float, nf: int, nd: int, ny: int, nx: int):
         """Grid node values: focus and depth even in diopters (near..far), y and x over [-1, 1]."""
-        from training.psf.geometry import diopter_grid
+        from aat_deploy.optics.focus_table import diopter_grid
 
         return (diopter_grid(near_m, far_m, nf), diopter_grid(near_m, far_m, nd),
                 np.linspace(-1, 1, ny), np.linspace(-1, 1, nx))
