@@ -52,7 +52,7 @@ def run_case(kind: str, path: str) -> dict:
 
             read_capture(p, use_exiftool=False)
         else:
-            from aat_deploy.eval.gt import find_gt, load_ground_truth
+            from aat_deploy.gt.read import find_gt, load_ground_truth
 
             src = find_gt(p)
             if src is not None:

@@ -33,7 +33,7 @@ from aat_deploy.cli import eval as eval_cli
 from aat_deploy.cli import infer as infer_cli
 from aat_deploy.cli import view as view_cli
 from aat_deploy.errors import CaptureError
-from aat_deploy.eval.gt import find_gt, load_ground_truth
+from aat_deploy.gt.read import find_gt, load_ground_truth
 from aat_deploy.model import DfFModel
 
 FOCUS = [0.6, 1.0, 2.0]

@@ -11,7 +11,7 @@ import pytest
 from deploy_fixtures import tiny_model_path
 
 from aat_deploy.cli import gt as gt_cli
-from aat_deploy.eval.gt import (
+from aat_deploy.gt.read import (
     GTError,
     check_units,
     find_gt,

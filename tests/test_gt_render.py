@@ -14,15 +14,8 @@ from conftest import ROOT
 trimesh = pytest.importorskip("trimesh")
 
 from aat_deploy.cli import gt as gt_cli
-from aat_deploy.eval.raycast import (
-    GTRenderError,
-    Intrinsics,
-    intrinsics_from_dict,
-    load_intrinsics,
-    load_pose,
-    pixel_rays,
-    render_depth,
-)
+from aat_deploy.camera import CameraError, Intrinsics, intrinsics_from_dict, load_intrinsics
+from aat_deploy.gt.raycast import GTRenderError, load_pose, pixel_rays, render_depth
 
 PUPIL_MM = 40.0
 # the accuracy aat-gt promises, a length by design (metres); Embree's float32 rounding is ~1e-7 of the depth
@@ -122,7 +115,7 @@ def test_intrinsics_sources(tmp_path):
     half = load_intrinsics(model, 480, 320, pupil_to_sensor_mm=37.0)
     assert half.fx == pytest.approx(i.fx / 2) and half.cx == pytest.approx(239.5)
     assert half.pupil_to_sensor_mm == 37.0 and half.notes == []
-    with pytest.raises(GTRenderError, match="aspect"):
+    with pytest.raises(CameraError, match="aspect"):
         load_intrinsics(model, 480, 480)
     # `aat-lens info --json` output: the entrance pupil with the sensor focused at infinity
     info = {"efl_mm": 49.56, "bfl_mm": 25.67, "entrance_pupil_z_mm": 22.51, "total_track_mm": 33.91,
@@ -136,7 +129,7 @@ def test_intrinsics_sources(tmp_path):
                                  "cy_px": 240.0, "pupil_to_sensor_mm": 5.0}))
     k = load_intrinsics(calib)
     assert (k.fx, k.fy, k.cx, k.cy, k.pupil_to_sensor_mm) == (500.0, 501.0, 320.0, 240.0, 5.0)
-    with pytest.raises(GTRenderError, match="aat-lens info"):
+    with pytest.raises(CameraError, match="aat-lens info"):
         load_intrinsics(ROOT / "lenses" / "canon_rf50mm_f1.8.json")
 
 

@@ -13,7 +13,7 @@ import pytest
 from deploy_fixtures import write_dng_capture
 
 from aat_deploy.camera import points_from_depth
-from aat_deploy.eval.raycast import Intrinsics, load_intrinsics
+from aat_deploy.camera import Intrinsics, load_intrinsics
 from aat_deploy.io.colorize import depth_preview, depth_range
 from aat_deploy.model import DfFModel
 from aat_deploy.outputs import DepthMaps, RecordingInputs, write_outputs

@@ -6,13 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
-from training.data.rgbd import (
-    RGBDError,
-    fill_depth,
-    load_middlebury_motorcycle,
-    load_rgbd,
-    read_depth,
-)
+from aat_deploy.gt.holes import fill_holes
+from training.data.rgbd import RGBDError, load_middlebury_motorcycle, load_rgbd, read_depth
 from training.data.stacks import FocalStackDataset, StackDataConfig
 
 
@@ -37,7 +32,7 @@ def test_middlebury_motorcycle_metric_depth():
     valid = depth > 0
     assert 0.9 < valid.mean() < 1.0
     assert 2.0 < depth[valid].min() < 2.2 and 4.9 < depth[valid].max() < 5.1  # 2.11 .. 5.04 m
-    filled = fill_depth(depth)
+    filled = fill_holes(depth)
     assert (filled > 0).all() and np.array_equal(filled[valid], depth[valid])
 
 

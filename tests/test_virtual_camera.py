@@ -64,11 +64,12 @@ def test_aat_render_writes_a_capture_the_runtime_reads(scene, tmp_path, capsys):
     lens = load_lens(ROOT / "lenses/canon_rf50mm_f1.8.json")
     sim = Simulator(lens, OnnxPSF(ROOT / "models/psf_rf50.onnx", lens), fx.parse(["aberrations"]))
     srgb = cv2.imread(str(scene / "rgb.png"))[..., ::-1].astype(np.float32) / 255
-    from training.cli.render import fit_to_sensor
-    from training.data.rgbd import fill_depth, srgb_to_linear
+    from aat_deploy.capture.raw import srgb_to_linear
+    from aat_deploy.geometry import fit_rgbd_to_sensor
+    from aat_deploy.gt.holes import fill_holes
 
-    rgb, depth = fit_to_sensor(srgb_to_linear(srgb), np.load(scene / "depth.npy"), (640, 960))
-    ref = sim.render_stack(torch.from_numpy(rgb.transpose(2, 0, 1).copy()), torch.from_numpy(fill_depth(depth)),
+    rgb, depth = fit_rgbd_to_sensor(srgb_to_linear(srgb), np.load(scene / "depth.npy"), (640, 960))
+    ref = sim.render_stack(torch.from_numpy(rgb.transpose(2, 0, 1).copy()), torch.from_numpy(fill_holes(depth)),
                            [1.2]).frames[0].numpy()
     near = next(f.path for f in cap.frames if f.focus_m == 1.2)
     got, _ = load_raw(near)

@@ -26,8 +26,9 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import CaptureError, safe_output_streams
-from ..eval.gt import check_units, find_gt, load_ground_truth
-from ..eval.raycast import load_intrinsics, load_mesh, load_pose, render_depth
+from ..gt.read import check_units, find_gt, load_ground_truth
+from ..camera import load_intrinsics
+from ..gt.raycast import load_mesh, load_pose, render_depth
 from ..io.guard import check_output_files
 from ..io.images import imwrite
 from .common import parser, subparser
@@ -97,7 +98,7 @@ def cmd_render(a) -> int:
 
 
 def cmd_pose(a) -> int:
-    from ..eval.pose import fit_notes, load_correspondences, preview, solve_pose
+    from ..gt.pose import fit_notes, load_correspondences, preview, solve_pose
 
     outs = [a.out] + ([a.out.with_suffix(".png")] if a.image else [])
     check_output_files(outs, [p for p in (a.points, a.lens, a.init, a.image) if p])

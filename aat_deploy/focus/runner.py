@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import CaptureError
-from ..eval.raycast import Intrinsics
+from ..camera import Intrinsics
 from .bestfocus import BestFocusError, BestFocusMap, for_lens, from_psf
 from .method import FocusConfig, FocusResult, depth_from_focus
 

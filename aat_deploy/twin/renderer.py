@@ -23,7 +23,7 @@ from aat_deploy.normalise import normalise_stack
 from aat_deploy.twin.fields import field_of
 from aat_deploy.twin.layered import LayeredConfig, render_layered
 from aat_deploy.twin.sources import GaussianSource, OnnxSource
-from training.data.rgbd import fill_depth
+from aat_deploy.gt.holes import fill_holes as fill_depth  # phase 2 of issue 22: call it fill_holes
 from aat_deploy.lens.schema import Lens
 from aat_deploy.optics.focus_table import FocusTable, paraxial_focus_table
 from training.render import effects as fx

@@ -19,8 +19,9 @@ import torch
 from torch.utils.data import Dataset
 
 from aat_deploy.normalise import PERCENTILE
+from aat_deploy.gt.holes import fill_holes
 from aat_deploy.twin.fields import pixel_fields
-from training.data.rgbd import fill_depth, load_middlebury_motorcycle
+from training.data.rgbd import load_middlebury_motorcycle
 from training.data.scenes import SceneConfig, procedural_scene
 from aat_deploy.lens.io import load_lens
 from training.render import effects as fx
@@ -171,7 +172,7 @@ class FocalStackDataset(Dataset):
         r = int(rng.integers(0, rgb.shape[0] - h + 1))
         q = int(rng.integers(0, rgb.shape[1] - w + 1))
         g = gt[r:r + h, q:q + w]
-        return rgb[r:r + h, q:q + w], fill_depth(g), g
+        return rgb[r:r + h, q:q + w], fill_holes(g), g
 
     def _focus(self, rng: np.random.Generator, gt: np.ndarray) -> np.ndarray:
         """Focus distances (m) of one item: the camera-like schedule or the paper's scene-range protocol."""

@@ -47,11 +47,11 @@ def rgbd_item(dataset, rgb: np.ndarray, gt_m: np.ndarray) -> Item:
     dataset's sensor, rendered with its simulator and fixed schedule."""
     import torch
 
-    from training.cli.render import fit_to_sensor
-    from training.data.rgbd import fill_depth
+    from aat_deploy.geometry import fit_rgbd_to_sensor
+    from aat_deploy.gt.holes import fill_holes
 
-    rgb, gt = fit_to_sensor(rgb, gt_m, dataset.sensor_hw)
-    st = dataset.sim.render_stack(torch.from_numpy(rgb.transpose(2, 0, 1).copy()), torch.from_numpy(fill_depth(gt)),
+    rgb, gt = fit_rgbd_to_sensor(rgb, gt_m, dataset.sensor_hw)
+    st = dataset.sim.render_stack(torch.from_numpy(rgb.transpose(2, 0, 1).copy()), torch.from_numpy(fill_holes(gt)),
                                   dataset.schedule.distances())
     return normalise_frames(st.frames.numpy()), st.focus_m.astype(np.float32), gt
 

@@ -91,18 +91,19 @@ def _middlebury(spec: TestSetSpec, ds, cache_dir: str | None) -> TestItem:
             return TestItem("middlebury", z["stack"].astype(np.float32), z["focus_m"], z["depth_m"], z["aif"])
     import torch
 
-    from training.cli.render import fit_to_sensor
-    from training.data.rgbd import fill_depth, load_middlebury_motorcycle
+    from aat_deploy.geometry import fit_rgbd_to_sensor
+    from aat_deploy.gt.holes import fill_holes
+    from training.data.rgbd import load_middlebury_motorcycle
     from training.render.schedule import scene_range_distances
     from training.train.heldout import normalise_frames
 
-    rgb, gt = fit_to_sensor(*load_middlebury_motorcycle(), ds.sensor_hw)
+    rgb, gt = fit_rgbd_to_sensor(*load_middlebury_motorcycle(), ds.sensor_hw)
     if spec.protocol == "paper":
         focus = scene_range_distances(gt, spec.stack_size, np.random.default_rng([spec.seed, 1 << 20]), 0.25)
     else:
         focus = ds.schedule.distances()
     img = torch.from_numpy(rgb.transpose(2, 0, 1).copy()).float()
-    st = ds.sim.render_stack(img, torch.from_numpy(fill_depth(gt)).float(), focus)
+    st = ds.sim.render_stack(img, torch.from_numpy(fill_holes(gt)).float(), focus)
     frames = st.frames.numpy()
     from aat_deploy.normalise import PERCENTILE
 
