@@ -16,10 +16,9 @@ from training.nets.model import (
     predict,
     sort_by_focus,
 )
-from training.nets.normalise import normalise_stack as normalise_torch
 
 F32_EPS = float(np.finfo(np.float32).eps)
-pytestmark = pytest.mark.numerics  # float bounds, sorted vs unsorted, torch vs numpy normalisation
+pytestmark = pytest.mark.numerics  # float bounds, sorted vs unsorted
 
 # Published counts (reference-facts section 4). DFVNet L2's includes ResNet-18's unused 513,000-parameter fc layer.
 PUBLISHED = {"aifnet": 16_533_873, "dfvnet": 16_220_778 - 513_000}
@@ -126,18 +125,25 @@ def test_bad_inputs_are_clear_errors():
 
 
 @pytest.mark.parametrize("shape", [(5, 3, 37, 41), (2, 3, 8, 8), (8, 3, 64, 80)])
-def test_normalise_torch_equals_numpy(shape):
-    from aat_deploy.normalise import normalise_stack as normalise_np
+def test_normalise_by_hand(shape):
+    """The contract's rule computed by hand: the 99.5th percentile interpolated linearly between the two order
+    statistics around rank 0.995 (n - 1), the stack divided by it and clipped; an image in the stack's units (its
+    all-in-focus image) scaled alike."""
+    from aat_deploy.normalise import normalise_scale, normalise_stack, scaled
 
     rng = np.random.default_rng(sum(shape))
     x = (rng.random(shape) ** 3 * rng.uniform(0.1, 1000)).astype(np.float32)
-    a = normalise_np(x)
-    b = normalise_torch(torch.from_numpy(x)).numpy()
-    # bit for bit: both take the same two order statistics, lerp them in float64 and divide (correctly rounded)
-    assert a.dtype == np.float32 and np.array_equal(a, b)
+    s = np.sort(x.ravel().astype(np.float64))
+    pos = 0.995 * (s.size - 1)
+    lo = int(pos)
+    p = s[lo] + (s[min(lo + 1, s.size - 1)] - s[lo]) * (pos - lo)
+    assert float(normalise_scale(x)) == pytest.approx(p, rel=F32_EPS)
+    a = normalise_stack(x)
+    assert a.dtype == np.float32 and np.allclose(a, np.clip(x / p, 0, 1), rtol=2 * F32_EPS, atol=0)
     assert a.max() == 1.0 and (a == 1.0).mean() == pytest.approx(0.005, abs=0.002)
-    batched = normalise_torch(torch.from_numpy(np.stack([x, 2 * x])), batched=True).numpy()
-    assert np.array_equal(batched[0], a) and np.array_equal(batched[1], a)  # x 2 is exact in binary floats
+    assert np.array_equal(normalise_stack(2 * x), a)  # x 2 is exact in binary floats
+    aif = x[0]
+    assert np.array_equal(scaled(aif, normalise_scale(x)), a[0])
 
 
 def test_normalise_edge_cases():

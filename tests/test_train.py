@@ -16,7 +16,7 @@ import torch
 import torch.nn.functional as F
 from torch.utils.data import Dataset
 
-from training.nets.normalise import normalise_stack
+from aat_deploy.normalise import normalise_stack
 from training.train.config import (
     ConfigError,
     LossConfig,
@@ -70,7 +70,7 @@ class TwoPlaneStacks(Dataset):
             left = _blur(tex, 2.5 * abs(1 / float(d[0]) - 1 / float(f)))
             right = _blur(tex, 2.5 * abs(1 / float(d[1]) - 1 / float(f)))
             frames.append(torch.where(torch.arange(w) < split, left, right))
-        stack = normalise_stack(torch.stack(frames))
+        stack = torch.from_numpy(normalise_stack(torch.stack(frames).numpy()))
         depth[0, 0] = 0.0  # one invalid pixel
         return {"stack": stack, "focus_m": focus.float(), "depth_m": depth, "aif": tex.clamp(0, 1)}
 

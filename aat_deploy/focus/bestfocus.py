@@ -21,13 +21,13 @@ surrogate's ONNX metadata under METADATA_KEY (`scripts/stamp_psf_optics.py`). Re
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from ..extensions import load as load_extension
+from ..io.atomic import write_text_atomic
 
 FORMAT = "aat-best-focus-map-v1"
 METADATA_KEY = "aat.best_focus_map"
@@ -132,9 +132,7 @@ class BestFocusMap:
         """Write atomically (temporary file renamed into place)."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        tmp.write_text(json.dumps(self.to_dict(), indent=1))
-        os.replace(tmp, path)
+        write_text_atomic(path, json.dumps(self.to_dict(), indent=1))
         return path
 
 

@@ -8,10 +8,9 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from pathlib import Path
 
+from ..io.atomic import write_text_atomic
 from ..optics.paraxial import paraxial_data, stop_semi_diameter_for_epd
 from .materials import UnknownMaterialError, parse_material
 from .schema import SURFACE_KINDS, Lens, Sensor, Surface
@@ -142,11 +141,7 @@ def save_lens(lens: Lens, path, force: bool = False) -> None:
     path = Path(path)
     if path.exists() and not force:
         raise FileExistsError(f"{path}: exists (use force=True / --force to overwrite)")
-    text = json.dumps(lens.to_dict(), indent=2) + "\n"
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    with os.fdopen(fd, "w", encoding="utf-8") as f:
-        f.write(text)
-    os.replace(tmp, path)
+    write_text_atomic(path, json.dumps(lens.to_dict(), indent=2) + "\n")
 
 
 # ------------------------------------------------------------------------------------------------

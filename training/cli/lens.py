@@ -16,6 +16,7 @@ import sys
 from pathlib import Path
 
 from aat_deploy.cli.common import parser, run_or_hint, subparser
+from aat_deploy.io.atomic import atomic_file
 from aat_deploy.shipped import resolve
 from aat_deploy.lens.io import LensFileError, load_lens
 from aat_deploy.lens.materials import UnknownMaterialError
@@ -42,9 +43,8 @@ def _png_path(p: str | None, force: bool) -> Path | None:
 
 
 def _atomic_png(draw, path: Path) -> None:
-    tmp = path.with_name(path.stem + ".tmp.png")
-    draw(tmp)
-    tmp.replace(path)
+    with atomic_file(path) as tmp:
+        draw(tmp)
 
 
 def cmd_info(a) -> int:

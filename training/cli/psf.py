@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from aat_deploy.cli.common import parser, run_or_hint, subparser
+from aat_deploy.io.atomic import atomic_file
 from aat_deploy.shipped import resolve, shipped_dir
 
 
@@ -103,10 +104,9 @@ def cmd_show(a) -> int:
                     ax.set_ylabel(f"{ang:g}°\n{label}", fontsize=7)
     fig.suptitle(f"{lens.name}: PSFs focused at {a.focus_m:g} m ({k}x{k} cells, {a.rays} rays)", fontsize=9)
     fig.tight_layout()
-    tmp = out.with_name(out.stem + ".tmp.png")
-    fig.savefig(tmp, dpi=110)
+    with atomic_file(out) as tmp:
+        fig.savefig(tmp, dpi=110)
     plt.close(fig)
-    tmp.replace(out)
     print(f"wrote {out}" + ("" if surrogate else " (no surrogate for this lens: ray-traced and Gaussian only)"))
     return 0
 

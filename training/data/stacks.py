@@ -18,8 +18,9 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from aat_deploy.normalise import PERCENTILE
+from aat_deploy.normalise import normalise_scale, scaled
 from aat_deploy.gt.holes import fill_holes
+from aat_deploy.io.atomic import atomic_file
 from aat_deploy.twin.fields import pixel_fields
 from training.data.rgbd import load_middlebury_motorcycle
 from training.data.scenes import SceneConfig, procedural_scene
@@ -197,12 +198,11 @@ class FocalStackDataset(Dataset):
         sl = (slice(m, m + c.height), slice(m, m + c.width))
         frames = st.frames[:, :, sl[0], sl[1]].numpy()
         aif = img[:, sl[0], sl[1]].numpy()
-        p = np.float32(np.percentile(frames, PERCENTILE))
-        p = p if p > 0 else np.float32(1.0)
-        return {"stack": np.clip(frames / p, 0, 1).astype(np.float32),
+        p = normalise_scale(frames)
+        return {"stack": scaled(frames, p),
                 "focus_m": st.focus_reported_m.astype(np.float32),
                 "depth_m": np.ascontiguousarray(gt[sl]).astype(np.float32),
-                "aif": np.clip(aif / p, 0, 1).astype(np.float32),
+                "aif": scaled(aif, p),
                 "origin": np.array(origin, dtype=np.int64)}
 
     def __getitem__(self, index: int) -> dict:
@@ -229,9 +229,8 @@ class FocalStackDataset(Dataset):
             if item is None:
                 item = self.render(index)
                 self.cache.mkdir(parents=True, exist_ok=True)
-                tmp = f.with_name(f.name + f".{np.random.randint(1 << 30)}.tmp.npz")
-                np.savez(tmp, **{**item, "stack": item["stack"].astype(np.float16)})
-                tmp.replace(f)
+                with atomic_file(f) as tmp:  # DDP ranks and loader workers may write the same item at once
+                    np.savez(tmp, **{**item, "stack": item["stack"].astype(np.float16)})
                 item["stack"] = item["stack"].astype(np.float16).astype(np.float32)  # as every later read sees it
         else:
             item = self.render(index)

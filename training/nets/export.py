@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import warnings
 from importlib import metadata as importlib_metadata
 from pathlib import Path
@@ -21,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from aat_deploy.io.atomic import atomic_file
 from aat_deploy.normalise import DESCRIPTION as NORMALISATION
 from aat_deploy.lens.schema import Lens
 from training.nets.model import DfFModel
@@ -148,8 +148,7 @@ def export_dff_onnx(model: DfFModel, path, metadata: dict[str, str], *, force: b
     if model.field_channels:
         axes["field_xy"] = {0: "B", 2: "H", 3: "W"}
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    try:
+    with atomic_file(path) as tmp:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # the legacy exporter's deprecation notice
             torch.onnx.export(model, args, str(tmp), input_names=names,
@@ -163,10 +162,6 @@ def export_dff_onnx(model: DfFModel, path, metadata: dict[str, str], *, force: b
         if err > PARITY_TOL:
             raise RuntimeError(f"{path}: onnxruntime differs from torch by {err:.2e} of the inputs' magnitude "
                                f"(> {PARITY_TOL:g})")
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
     return err
 
 

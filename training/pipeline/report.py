@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from aat_deploy.io.atomic import write_text_atomic
 from training.pipeline.hashing import StageMarkers
 
 METRIC_COLS = (("MAE (m)", "mae"), ("RMSE (m)", "rmse"), ("AbsRel", "abs_rel"), ("δ1", "delta1"),
@@ -85,7 +86,5 @@ def write_report(ctx) -> Path:
              "```", "", "## Stage times", ""] + stage_times(d, names) + [
              "", "## Resolved configuration", "", "```json", json.dumps(ctx.cfg, indent=1), "```", ""]
     out = d / "report.md"
-    tmp = out.with_name("report.md.tmp")
-    tmp.write_text("\n".join(lines))
-    tmp.replace(out)
+    write_text_atomic(out, "\n".join(lines))
     return out

@@ -26,6 +26,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from aat_deploy.io.atomic import atomic_file
+
 TRAIN_SEED, VAL_SEED, EVAL_SEED = 0, 100000, 777777
 
 
@@ -128,8 +130,8 @@ def _psf_run(ctx: Context) -> list[str]:
             raise ValueError(f"--psf {given['path']}: fitted for {sur.meta.get('aat.lens_name')!r} with sensor "
                              f"{sur.meta.get('aat.sensor_mm')} mm at {sur.meta.get('aat.sensor_px')} px (prescription "
                              f"{sur.lens_hash}), not this lens and sensor ({lens.prescription_hash()})")
-        shutil.copyfile(given["path"], out.with_name("psf.onnx.tmp"))
-        out.with_name("psf.onnx.tmp").replace(out)
+        with atomic_file(out) as tmp:
+            shutil.copyfile(given["path"], tmp)
         ctx.log(f"psf: using {given['path']}")
         return ["psf.onnx"]
     fit_surrogate(ctx, lens, out)

@@ -13,7 +13,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import tempfile
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -22,6 +21,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from aat_deploy.io.atomic import atomic_file
 from aat_deploy.lens.schema import Lens
 from aat_deploy.psf.kernel import KernelSpec
 from training.psf.raytrace import DEFAULT_WAVELENGTH_NM, raytrace_psfs
@@ -77,11 +77,8 @@ def sample_inputs(lens: Lens, cfg: PSFDataConfig) -> dict[str, np.ndarray]:
 
 def _atomic_savez(path: Path, **arrays) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz.tmp")
-    os.close(fd)
-    with open(tmp, "wb") as f:
+    with atomic_file(path) as tmp, open(tmp, "wb") as f:
         np.savez(f, **arrays)
-    os.replace(tmp, path)
 
 
 def build_psf_dataset(lens: Lens, cfg: PSFDataConfig, cache_dir: Path | None = None, compiled: bool = True,

@@ -23,6 +23,7 @@ from torch import nn
 
 from aat_deploy.lens.schema import Lens
 from aat_deploy.optics.paraxial import paraxial_data
+from aat_deploy.optics.thin_lens import blur_diameter_px
 from aat_deploy.psf.kernel import KernelSpec
 from training.psf.splat import downsample2
 
@@ -43,13 +44,8 @@ class PSFModel(nn.Module):
         self.d_lo, self.d_hi = 1.0 / far_m, 1.0 / near_m  # diopter range
 
     def blur_px(self, depth_m: torch.Tensor, focus_m: torch.Tensor) -> torch.Tensor:
-        """Thin-lens blur-disk diameter (px); same formula as geometry.thin_lens_blur_px."""
-        f = self.efl_mm
-        D = 1000.0 * focus_m
-        v_f = 2 * D * f / (D + torch.sqrt(torch.clamp(D * D - 4 * D * f, min=0.0)))  # stable root of v^2-Dv+Df
-        u = torch.clamp(1000.0 * depth_m - v_f, min=f * 1.0001)
-        v_o = 1.0 / (1.0 / f - 1.0 / u)
-        return self.epd_mm * torch.abs(v_f - v_o) / v_o / self.pixel_mm
+        """Thin-lens blur-disk diameter (px): `aat_deploy.optics.thin_lens`, in torch ops (exported to ONNX)."""
+        return blur_diameter_px(depth_m, focus_m, self.efl_mm, self.epd_mm, self.pixel_mm)
 
     def scale(self, depth_m: torch.Tensor, focus_m: torch.Tensor) -> torch.Tensor:
         return torch.clamp((self.blur_px(depth_m, focus_m) + self.margin_px) / (self.k - 1), min=1.0)

@@ -95,7 +95,8 @@ def _middlebury(spec: TestSetSpec, ds, cache_dir: str | None) -> TestItem:
     from aat_deploy.gt.holes import fill_holes
     from training.data.rgbd import load_middlebury_motorcycle
     from training.render.schedule import scene_range_distances
-    from training.train.heldout import normalise_frames
+    from aat_deploy.io.atomic import atomic_file
+    from aat_deploy.normalise import normalise_scale, scaled
 
     rgb, gt = fit_rgbd_to_sensor(*load_middlebury_motorcycle(), ds.sensor_hw)
     if spec.protocol == "paper":
@@ -105,17 +106,14 @@ def _middlebury(spec: TestSetSpec, ds, cache_dir: str | None) -> TestItem:
     img = torch.from_numpy(rgb.transpose(2, 0, 1).copy()).float()
     st = ds.sim.render_stack(img, torch.from_numpy(fill_holes(gt)).float(), focus)
     frames = st.frames.numpy()
-    from aat_deploy.normalise import PERCENTILE
-
-    p = np.float32(np.percentile(frames, PERCENTILE))
-    p = p if p > 0 else np.float32(1.0)
-    item = TestItem("middlebury", normalise_frames(frames), st.focus_m.astype(np.float32), gt.astype(np.float32),
-                    np.clip(rgb.transpose(2, 0, 1) / p, 0, 1).astype(np.float32))
+    p = normalise_scale(frames)
+    item = TestItem("middlebury", scaled(frames, p), st.focus_m.astype(np.float32), gt.astype(np.float32),
+                    scaled(rgb.transpose(2, 0, 1), p))
     if f is not None:
         f.parent.mkdir(parents=True, exist_ok=True)
-        tmp = f.with_name(f.name + ".tmp.npz")
-        np.savez(tmp, stack=item.stack.astype(np.float16), focus_m=item.focus_m, depth_m=item.depth_m, aif=item.aif)
-        tmp.replace(f)
+        with atomic_file(f) as tmp:
+            np.savez(tmp, stack=item.stack.astype(np.float16), focus_m=item.focus_m, depth_m=item.depth_m,
+                     aif=item.aif)
         item.stack = item.stack.astype(np.float16).astype(np.float32)  # as every later read sees it
     return item
 
