@@ -37,7 +37,7 @@ def measure() -> dict[str, tuple[float, float]]:
         torch.use_deterministic_algorithms(True)
     from aat_deploy.lens.io import load_lens
     from training.nets import export as dff_export
-    from training.nets.init import load_onnx_weights
+    from training.nets.warm_start import load_onnx_weights
     from training.nets.model import build_model
     from training.psf import export as psf_export
     from aat_deploy.psf.kernel import KernelSpec

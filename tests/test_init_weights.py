@@ -1,4 +1,4 @@
-"""Starting a DfF net from an exported ONNX model or a checkpoint (training/nets/init.py): the exporter folds
+"""Starting a DfF net from an exported ONNX model or a checkpoint (training/nets/warm_start.py): the exporter folds
 batch norms into convolutions and renames tensors; the mapping back must reproduce onnxruntime exactly."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from conftest import ROOT, assert_close
 
 from aat_deploy.lens.io import load_lens
 from training.nets.export import PARITY_TOL, dff_metadata, export_dff_onnx
-from training.nets.init import (
+from training.nets.warm_start import (
     InitError,
     init_model,
     load_onnx_weights,

@@ -269,7 +269,7 @@ def test_bad_options_are_one_line_errors(chain, tmp_path, capsys):
 
 
 def test_image_circle_warning(monkeypatch):
-    import training.pipeline.lens_check as lc
+    import training.chain.lens_check as lc
 
     monkeypatch.setattr(lc, "nearest_focus_m", lambda lens: 0.25)
     big = lc.resolve_lens(EF50, (48.0, 36.0), (96, 72))

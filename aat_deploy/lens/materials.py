@@ -67,16 +67,6 @@ class Air(Material):
 
 
 @dataclass(frozen=True)
-class ConstantIndex(Material):
-    """A non-dispersive medium (used for cross-checks at a single wavelength)."""
-
-    index: float = 1.0
-
-    def n(self, wavelength_nm):
-        return np.ones_like(np.asarray(wavelength_nm, dtype=np.float64)) * self.index
-
-
-@dataclass(frozen=True)
 class CauchyNdVd(Material):
     """2-term Cauchy model from (nd, Vd). Defaults: the paper's convention (nd at 589.3 nm, F/C at 486.1 and
     656.3 nm); catalogue entries given only as nd/Vd use the Fraunhofer d, F, C lines instead."""

@@ -30,21 +30,6 @@ def _trace(lens: Lens, y: float, u: float, wavelength_nm: float, start: int = 0,
     return y, u
 
 
-def _trace_reverse(lens: Lens, y: float, u: float, wavelength_nm: float, start: int):
-    """Trace backwards from just before surface `start` (height y at its vertex, slope u in the medium
-    before it) to object space; returns (y, u) at the first vertex in object space."""
-    n = lens.indices(wavelength_nm)
-    for i in range(start - 1, -1, -1):
-        s = lens.surfaces[i]
-        y = y - s.thickness_mm * u  # back to vertex i (u is the slope after surface i)
-        if s.kind == "ideal":
-            u = u + y / s.focal_length_mm
-        else:
-            phi = (n[i + 1] - n[i]) * s.paraxial_curvature_per_mm
-            u = (n[i + 1] * u + y * phi) / n[i]
-    return y, u
-
-
 @dataclass(frozen=True)
 class ParaxialData:
     efl_mm: float

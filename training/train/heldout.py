@@ -1,5 +1,5 @@
 """Held-out evaluation of exported DfF models (the paper's Table 2 layout): shared by benchmarks/bench_dff.py and
-the lens-to-model chain (`aat-train --lens`, training/pipeline).
+the lens-to-model chain (`aat-train --lens`, training/chain).
 
 Test stacks are whole-sensor renders of scenes never seen in training (procedural scenes from their own seed, or
 a real RGB-D scene scaled to cover the sensor), normalised as the runtime normalises. Models run with

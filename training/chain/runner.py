@@ -16,9 +16,9 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from training.pipeline import config as chain_config
-from training.pipeline.hashing import StageMarkers, dict_sha256, write_json_atomic
-from training.pipeline.stages import Context, Stage, stages
+from training.chain import config as chain_config
+from training.chain.hashing import StageMarkers, dict_sha256, write_json_atomic
+from training.chain.stages import Context, Stage, stages
 
 GLOO_TIMEOUT = datetime.timedelta(hours=12)
 
@@ -51,7 +51,7 @@ def _producers(ctx: Context) -> dict[str, str]:
     """Which stage writes each run-folder file a later stage reads."""
     out = {"lens.json": "lens", "lens_report.json": "lens", "psf.onnx": "psf",
            "metrics.json": "evaluate", "error_vs_radius.png": "evaluate", "error_over_field.png": "evaluate"}
-    from training.pipeline.stages import _colour_files, onnx_name, train_dir
+    from training.chain.stages import _colour_files, onnx_name, train_dir
 
     out.update({f: "psf_colour" for f in _colour_files(ctx)})
     for s in ctx.simulators:

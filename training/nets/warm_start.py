@@ -31,7 +31,7 @@ import torch
 from torch import nn
 
 from training.nets.export import PARITY_TOL
-from training.nets.model import DfFModel, pad_to_multiple, sort_by_focus
+from training.nets.model import DfFNet, pad_to_multiple, sort_by_focus
 
 
 class InitError(ValueError):
@@ -105,7 +105,7 @@ def _next_batchnorm(model: nn.Module, conv_path: str) -> tuple[str, nn.Module]:
     return bn_path, bn
 
 
-def _unused_in_inference(model: DfFModel) -> set[str]:
+def _unused_in_inference(model: DfFNet) -> set[str]:
     """Paths of modules whose parameters do not reach the eval-mode outputs (e.g. DFVNet's coarse
     deep-supervision head): the exported graph does not contain them, so they keep their fresh initialisation."""
     m = model.size_multiple
@@ -117,7 +117,7 @@ def _unused_in_inference(model: DfFModel) -> set[str]:
             and all(p.grad is None for p in mod.parameters(recurse=False))}
 
 
-def load_onnx_weights(model: DfFModel, path) -> list[tuple[nn.Module, torch.Tensor]]:
+def load_onnx_weights(model: DfFNet, path) -> list[tuple[nn.Module, torch.Tensor]]:
     """Copy an exported model's weights into `model` (see module docstring). Returns the folded BatchNorms as
     (module, folded bias) pairs, already set to the exact eval-mode identity-plus-bias."""
     import onnx
@@ -175,7 +175,7 @@ def load_onnx_weights(model: DfFModel, path) -> list[tuple[nn.Module, torch.Tens
 
 
 @torch.no_grad()
-def recalibrate(model: DfFModel, folded: list[tuple[nn.Module, torch.Tensor]], items) -> int:
+def recalibrate(model: DfFNet, folded: list[tuple[nn.Module, torch.Tensor]], items) -> int:
     """Give folded BatchNorms the statistics of their input over `items` (dicts with "stack" (S, 3, H, W) and
     "focus_m" (S,)), keeping the eval-mode function exact. Returns the number of items used."""
     if not folded:
@@ -217,7 +217,7 @@ def recalibrate(model: DfFModel, folded: list[tuple[nn.Module, torch.Tensor]], i
     return n
 
 
-def init_model(model: DfFModel, path, dataset=None, n_items: int = 8) -> dict:
+def init_model(model: DfFNet, path, dataset=None, n_items: int = 8) -> dict:
     """Load `path` (.onnx from training.nets.export, or a model.pt / last.pt checkpoint) into `model`, which must
     be the same net and size. ONNX: folded BatchNorms are recalibrated on the first `n_items` of `dataset`
     (if given) and the result is checked against onnxruntime. Returns a short description (for logs)."""

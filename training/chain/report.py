@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 
 from aat_deploy.io.atomic import write_text_atomic
-from training.pipeline.hashing import StageMarkers
+from training.chain.hashing import StageMarkers
 
 METRIC_COLS = (("MAE (m)", "mae"), ("RMSE (m)", "rmse"), ("AbsRel", "abs_rel"), ("δ1", "delta1"),
                ("MAE centre", "mae_centre"), ("MAE outer", "mae_outer"))
@@ -64,15 +64,12 @@ def stage_times(run_dir: Path, names: list[str]) -> list[str]:
     return out
 
 
-def write_report(ctx) -> Path:
-    """Write ctx.run_dir/report.md (atomic)."""
-    from training.pipeline.stages import onnx_name, stages
-
+def write_report(ctx, models: list[str], names: list[str]) -> Path:
+    """Write ctx.run_dir/report.md (atomic). models: the exported ONNX files (the AAT one first); names: the
+    stages whose wall times it lists."""
     d = ctx.run_dir
     rep = json.loads((d / "lens_report.json").read_text())
     metrics = json.loads((d / "metrics.json").read_text())
-    models = [onnx_name(ctx, s) for s in ctx.simulators]
-    names = [s.name for s in stages(ctx) if s.name != "report"]
     lines = [f"# {ctx.net} for {rep['name']}", "",
              (f"Made by `aat-train --lens` (preset {ctx.cfg['preset']}). Everything below is in this folder; "
              "`config.json` holds the resolved configuration."), "",

@@ -12,7 +12,7 @@
 | report     | all of the above                    | report.md                                                     |
 
 Each stage's settings (a dict, part of DIR/config.json) and the hashes of the files it reads make its input hash
-(training/pipeline/hashing.py). Both trainings use the same data seeds, scenes, crops and focus schedules; only
+(training/chain/hashing.py). Both trainings use the same data seeds, scenes, crops and focus schedules; only
 the simulator differs ("aat": the lens's PSFs through psf.onnx; "thin_lens": Gaussian blur of the same EFL,
 F-number and pixels); the requested effects apply to both. Evaluation scenes (seed 777777) are whole-sensor
 renders with the AAT simulator plus the requested effects: the camera as well as we can simulate it.
@@ -33,7 +33,7 @@ TRAIN_SEED, VAL_SEED, EVAL_SEED = 0, 100000, 777777
 
 @dataclass
 class Context:
-    """A run: its folder, resolved config (training.pipeline.config), process rank / world size, progress bars."""
+    """A run: its folder, resolved config (training.chain.config), process rank / world size, progress bars."""
 
     run_dir: Path
     cfg: dict
@@ -80,14 +80,14 @@ def _uses_psf(simulator: str, effects: list[str]) -> bool:
     # Mirrors training.data.stacks.FocalStackDataset: the lens's PSF source is built for the AAT simulator, for
     # the vignetting effect (relative illumination from the lens) and for chromatic (its per-wavelength
     # surrogates are found next to psf.onnx).
-    from training.pipeline.config import effect_name
+    from training.chain.config import effect_name
 
     return simulator == "aat" or bool({"vignetting", "chromatic"} & {effect_name(e) for e in effects})
 
 
 # -- 1. lens -------------------------------------------------------------------------------------------------------
 def _lens_settings(ctx: Context) -> dict:
-    from training.pipeline.lens_check import MIN_BLUR_PX, MIN_RELATIVE_ILLUMINATION
+    from training.chain.lens_check import MIN_BLUR_PX, MIN_RELATIVE_ILLUMINATION
 
     c = ctx.cfg
     return {"lens_sha256": c["lens"]["sha256"], "sensor_mm": c["sensor_mm"], "resolution": c["resolution"],
@@ -97,8 +97,8 @@ def _lens_settings(ctx: Context) -> dict:
 
 def _lens_run(ctx: Context) -> list[str]:
     from aat_deploy.lens.io import save_lens
-    from training.pipeline.hashing import write_json_atomic
-    from training.pipeline.lens_check import format_report, lens_report, resolve_lens
+    from training.chain.hashing import write_json_atomic
+    from training.chain.lens_check import format_report, lens_report, resolve_lens
 
     c = ctx.cfg
     lens = resolve_lens(c["lens"]["path"], c["sensor_mm"], c["resolution"])
@@ -145,7 +145,7 @@ def fit_surrogate(ctx: Context, lens, out: Path, wavelength_nm: float | None = N
     center_wavelength_nm: centre the kernels on that wavelength's chief ray (per-wavelength surrogates)."""
     import torch
 
-    from training.pipeline.hashing import write_json_atomic
+    from training.chain.hashing import write_json_atomic
     from training.psf.dataset import build_psf_dataset, to_tensors
     from training.psf.experiment import PSFExperiment
     from training.psf.export import export_psf_onnx
@@ -181,7 +181,7 @@ def fit_surrogate(ctx: Context, lens, out: Path, wavelength_nm: float | None = N
     export_psf_onnx(model, lens, out, force=True, extra_metadata={
         "fit": "rot", "wavelength_nm": wavelength, **centre, "training_minutes": f"{st['elapsed'] / 60:.2f}",
         "validation_l1": f"{last.get('l1', float('nan')):.4e}",
-        "command": f"aat-train --lens (training/pipeline, stage {'psf' if center_wavelength_nm is None else 'psf_colour'})"})
+        "command": f"aat-train --lens (training/chain, stage {'psf' if center_wavelength_nm is None else 'psf_colour'})"})
     ctx.log(f"psf: validation l1 {last.get('l1', float('nan')):.3e} per cell; wrote {out.name}")
 
 
@@ -294,7 +294,7 @@ def _export_run(ctx: Context) -> list[str]:
     for sim in ctx.simulators:
         name = onnx_name(ctx, sim)
         md, err = export_checkpoint(ctx.path(train_dir(sim)) / "model.pt", ctx.path(name), force=True, extra={
-            "command": "aat-train --lens (training/pipeline, stage export)",
+            "command": "aat-train --lens (training/chain, stage export)",
             "init": Path(ctx.cfg["init"]["path"]).name if ctx.cfg["init"] else "",
             "preset": ctx.cfg["preset"]})
         ctx.log(f"export: {name} ({md['aat.lens_name']}, {md['aat.simulator']}), ORT vs torch {err:.1e} relative")
@@ -311,7 +311,7 @@ def _eval_settings(ctx: Context) -> dict:
 
 def _eval_run(ctx: Context) -> list[str]:
     from training.data.stacks import FocalStackDataset, StackDataConfig
-    from training.pipeline.hashing import write_json_atomic
+    from training.chain.hashing import write_json_atomic
     from training.train.heldout import (
         evaluate_model,
         plot_error_over_field,
@@ -349,9 +349,10 @@ def _report_reads(ctx: Context) -> list[str]:
 
 
 def _report_run(ctx: Context) -> list[str]:
-    from training.pipeline.report import write_report
+    from training.chain.report import write_report
 
-    write_report(ctx)
+    write_report(ctx, [onnx_name(ctx, s) for s in ctx.simulators],
+                 [s.name for s in stages(ctx) if s.name != "report"])
     return ["report.md"]
 
 

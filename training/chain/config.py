@@ -15,7 +15,7 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from training.pipeline.hashing import file_sha256
+from training.chain.hashing import file_sha256
 
 FORMAT = "aat-train-chain-v1"
 NET_ALIASES = {"dfv": "dfvnet", "dfvnet": "dfvnet", "aif": "aifnet", "aifnet": "aifnet"}
@@ -97,7 +97,7 @@ def resolve(opts: ChainOptions) -> dict:
     init = _file_ref(opts.init, "--init")
     net, size = opts.net, opts.size
     if init is not None:
-        from training.nets.init import InitError, init_kind
+        from training.nets.warm_start import InitError, init_kind
 
         try:
             init_net, init_size = init_kind(init["path"])
