@@ -36,11 +36,11 @@ def measure() -> dict[str, tuple[float, float]]:
     if os.environ.get("AAT_TEST_NUMERICS") == "strict":
         torch.use_deterministic_algorithms(True)
     from aat_deploy.lens.io import load_lens
-    from training.nets import export as dff_export
-    from training.nets.warm_start import load_onnx_weights
-    from training.nets.model import build_model
-    from training.psf import export as psf_export
     from aat_deploy.psf.kernel import KernelSpec
+    from training.nets import export as dff_export
+    from training.nets.model import build_model
+    from training.nets.warm_start import load_onnx_weights
+    from training.psf import export as psf_export
     from training.psf.surrogates import RotPSF
     from training.render.sources import thin_lens_source
 

@@ -40,9 +40,9 @@ def main() -> None:
         figure(lens, Path(args.figures), OnnxPSF(ROOT / "models/psf_rf50.onnx", lens), thin_lens_source(lens))
         return
 
-    from training.data.scenes import SceneConfig, procedural_scene
     from aat_deploy.lens.io import load_lens
     from aat_deploy.psf.kernel import KernelSpec
+    from training.data.scenes import SceneConfig, procedural_scene
     from training.psf.surrogates import PaperMLP
     from training.render.exact import (
         cells_to_pixels,

@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
+from aat_deploy.camera import intrinsics_from_dict
 from aat_deploy.cli import gt as gt_cli
 from aat_deploy.gt.pose import (
     Correspondences,
@@ -18,7 +19,6 @@ from aat_deploy.gt.pose import (
     load_correspondences,
     solve_pose,
 )
-from aat_deploy.camera import intrinsics_from_dict
 from aat_deploy.gt.raycast import GTRenderError, load_pose
 
 INTR = {"width": 1200, "height": 800, "fx_px": 1500.0, "fy_px": 1500.0, "cx_px": 610.0, "cy_px": 395.0,

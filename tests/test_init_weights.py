@@ -9,6 +9,7 @@ from conftest import ROOT, assert_close
 
 from aat_deploy.lens.io import load_lens
 from training.nets.export import PARITY_TOL, dff_metadata, export_dff_onnx
+from training.nets.model import build_model
 from training.nets.warm_start import (
     InitError,
     init_model,
@@ -16,7 +17,6 @@ from training.nets.warm_start import (
     module_path,
     recalibrate,
 )
-from training.nets.model import build_model
 
 pytestmark = pytest.mark.numerics  # torch vs onnxruntime, folded vs unfolded batch norms
 

@@ -10,14 +10,14 @@ import torch
 
 from conftest import LENSES, assert_close
 from aat_deploy.lens.io import load_lens
-from training.optics.trace import Rays, trace
-from aat_deploy.optics.thin_lens import thin_lens_blur_px
-from training.psf.geometry import focus_table, object_points_mm
-from aat_deploy.psf.kernel import KernelSpec
-from training.psf.splat import downsample2
-from training.psf.raytrace import FLOAT32_NEWTON_TOL_MM, _rays_to_pupil, chief_ray_pupil, raytrace_psfs
 from aat_deploy.optics.paraxial import paraxial_data
+from aat_deploy.optics.thin_lens import thin_lens_blur_px
+from aat_deploy.psf.kernel import KernelSpec
 from training.optics.focus import focus
+from training.optics.trace import Rays, trace
+from training.psf.geometry import focus_table, object_points_mm
+from training.psf.raytrace import FLOAT32_NEWTON_TOL_MM, _rays_to_pupil, chief_ray_pupil, raytrace_psfs
+from training.psf.splat import downsample2
 
 RF50 = load_lens(LENSES / "canon_rf50mm_f1.8.json")
 THIN = load_lens(LENSES / "ideal_thin_rf50.json")

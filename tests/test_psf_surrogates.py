@@ -13,10 +13,10 @@ import torch
 from conftest import LENSES, ROOT, assert_close
 from aat_deploy.lens.io import load_lens
 from aat_deploy.optics.paraxial import paraxial_data
-from training.psf.dataset import PSFDataConfig, build_psf_dataset, eval_grid, to_tensors
-from training.psf.fit import FitConfig, fit
 from aat_deploy.optics.thin_lens import thin_lens_blur_px
 from aat_deploy.psf.kernel import KernelSpec
+from training.psf.dataset import PSFDataConfig, build_psf_dataset, eval_grid, to_tensors
+from training.psf.fit import FitConfig, fit
 from training.psf.raytrace import raytrace_psfs
 from training.psf.surrogates import GaussianPSF, GridPSF, PaperMLP, RotPSF, n_params
 

@@ -10,8 +10,8 @@ import torch
 from conftest import LENSES, assert_close
 from aat_deploy.lens.io import load_lens
 from aat_deploy.lens.schema import Lens, Sensor, Surface
-from training.optics.focus import focus, object_z_mm
 from aat_deploy.optics.paraxial import paraxial_data, paraxial_image_z_mm
+from training.optics.focus import focus, object_z_mm
 from training.optics.spot import spot
 from training.optics.trace import (
     NEWTON_TOL_MM,

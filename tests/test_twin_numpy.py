@@ -14,11 +14,11 @@ from conftest import ROOT, rel_err
 from deploy_fixtures import build_tiny_dff
 from test_deploy_torch_free import _run
 
+from aat_deploy.lens.io import load_lens, save_lens
+from aat_deploy.optics.paraxial import paraxial_data
 from aat_deploy.twin.layered import LayeredConfig, render_layered
 from aat_deploy.twin.renderer import optical_stack
 from aat_deploy.twin.sources import GaussianSource, OnnxSource, UnitEnergy
-from aat_deploy.lens.io import load_lens, save_lens
-from aat_deploy.optics.paraxial import paraxial_data
 from training.psf.geometry import focus_table
 from training.render import effects as fx
 from training.render.layered import render_layered as render_layered_torch
@@ -158,10 +158,10 @@ TWIN_EFFECTS = ["", "vignetting", "noise:full_well_e=3000", "sensor_tilt:tilt_x_
 def tiny(tmp_path_factory):
     """The RF50 on a 96x64 sensor with an (untrained, small) RotPSF surrogate exported for it, a classical-DfF
     model 'trained' with the AAT simulator for it, and one virtual capture with ground truth."""
+    from aat_deploy.psf.kernel import KernelSpec
     from training.camera.virtual import write_capture
     from training.data.scenes import SceneConfig, procedural_scene
     from training.psf.export import export_psf_onnx
-    from aat_deploy.psf.kernel import KernelSpec
     from training.psf.surrogates import RotPSF
 
     tmp = tmp_path_factory.mktemp("twin")

@@ -12,10 +12,10 @@ from conftest import ROOT
 
 from aat_deploy.capture.folder import read_capture
 from aat_deploy.capture.raw import load_raw
+from aat_deploy.capture.raw import linear_to_srgb
+from aat_deploy.lens.io import load_lens
 from training.camera.virtual import BLACK_LEVEL, WHITE_LEVEL, mosaic_rggb, to_dn
 from training.cli.render import main as render_main
-from training.data.rgbd import linear_to_srgb
-from aat_deploy.lens.io import load_lens
 from training.render import effects as fx
 from training.render.simulator import Simulator
 from training.render.sources import OnnxPSF

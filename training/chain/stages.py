@@ -310,8 +310,8 @@ def _eval_settings(ctx: Context) -> dict:
 
 
 def _eval_run(ctx: Context) -> list[str]:
-    from training.data.stacks import FocalStackDataset, StackDataConfig
     from training.chain.hashing import write_json_atomic
+    from training.data.stacks import FocalStackDataset, StackDataConfig
     from training.train.heldout import (
         evaluate_model,
         plot_error_over_field,

@@ -17,9 +17,9 @@ from pathlib import Path
 
 from aat_deploy.cli.common import parser, run_or_hint, subparser
 from aat_deploy.io.atomic import atomic_file
-from aat_deploy.shipped import resolve
 from aat_deploy.lens.io import LensFileError, load_lens
 from aat_deploy.lens.materials import UnknownMaterialError
+from aat_deploy.shipped import resolve
 
 
 def _distance(text: str) -> float:

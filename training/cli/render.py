@@ -70,12 +70,12 @@ def run(args) -> Path:
     import torch
 
     from aat_deploy.errors import OutputError
-    from aat_deploy.io.guard import check_output_dir
-    from training.camera.virtual import write_capture
     from aat_deploy.geometry import fit_rgbd_to_sensor
     from aat_deploy.gt.holes import fill_holes
-    from training.data.rgbd import RGBDError, load_rgbd
+    from aat_deploy.io.guard import check_output_dir
     from aat_deploy.lens.io import LensFileError, load_lens
+    from training.camera.virtual import write_capture
+    from training.data.rgbd import RGBDError, load_rgbd
     from training.render import effects as fx
     from training.render.simulator import Simulator
     from training.render.sources import OnnxPSF, RayTracedPSF

@@ -144,9 +144,9 @@ def main_lens(args: argparse.Namespace) -> int:
         print("aat-train: --lens needs --out DIR (the run folder)", file=sys.stderr)
         return 2
     from aat_deploy.lens.io import LensFileError
-    from training.nets.warm_start import InitError
     from training.chain.config import ChainConfigError, resolve
     from training.chain.runner import ChainError, run_chain
+    from training.nets.warm_start import InitError
 
     if refuse_inputs_in(args.out, [args.lens, args.init, args.psf]):
         return 2

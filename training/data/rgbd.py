@@ -12,7 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from aat_deploy.capture.raw import linear_to_srgb, srgb_to_linear  # one definition for both sides
+from aat_deploy.capture.raw import srgb_to_linear
 
 SHARED_MIDDLEBURY = Path(__file__).resolve().parents[3] / "shared" / "data" / "middlebury2014_motorcycle"
 # Calibration of the x4-downsampled Motorcycle images that scikit-image ships (Middlebury calib.txt / 4).

@@ -18,13 +18,13 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from aat_deploy.normalise import normalise_scale, scaled
 from aat_deploy.gt.holes import fill_holes
 from aat_deploy.io.atomic import atomic_file
+from aat_deploy.lens.io import load_lens
+from aat_deploy.normalise import normalise_scale, scaled
 from aat_deploy.twin.fields import pixel_fields
 from training.data.rgbd import load_middlebury_motorcycle
 from training.data.scenes import SceneConfig, procedural_scene
-from aat_deploy.lens.io import load_lens
 from training.render import effects as fx
 from training.render.layered import LayeredConfig
 from training.render.schedule import FocusSchedule, scene_range_distances

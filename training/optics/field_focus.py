@@ -25,10 +25,10 @@ import torch
 
 from aat_deploy.focus.bestfocus import BestFocusMap
 from aat_deploy.lens.schema import Lens
-from training.optics.focus import best_focus_shift_mm
-from aat_deploy.optics.paraxial import paraxial_data
-from training.optics.trace import Rays, start_plane_z_mm, stratified_disk, trace
 from aat_deploy.optics.focus_table import FocusTable
+from aat_deploy.optics.paraxial import paraxial_data
+from training.optics.focus import best_focus_shift_mm
+from training.optics.trace import Rays, start_plane_z_mm, stratified_disk, trace
 from training.psf.geometry import focus_table, object_points_mm
 
 N_RAYS = 2048

@@ -24,11 +24,11 @@ import numpy as np
 import torch
 
 from aat_deploy.lens.schema import Lens
-from aat_deploy.optics.paraxial import paraxial_data
-from training.optics.trace import start_plane_z_mm, stratified_disk, trace_components, uniform_disk_grid
 from aat_deploy.optics.focus_table import FocusTable
-from training.psf.geometry import focus_table, object_points_mm
+from aat_deploy.optics.paraxial import paraxial_data
 from aat_deploy.psf.kernel import KernelSpec
+from training.optics.trace import start_plane_z_mm, stratified_disk, trace_components, uniform_disk_grid
+from training.psf.geometry import focus_table, object_points_mm
 from training.psf.splat import splat_bilinear
 
 DEFAULT_WAVELENGTH_NM = 589.0

@@ -12,12 +12,12 @@ import numpy as np
 import torch
 
 # Backend-neutral pieces live with the torch-free twin renderer and are shared from there.
+from aat_deploy.lens.schema import Lens
+from aat_deploy.psf.kernel import KernelSpec
 from aat_deploy.twin.fields import field_of, pixel_fields  # noqa: F401 (re-exported)
 from aat_deploy.twin.sources import LensGeometry as _LensGeometry
 from aat_deploy.twin.sources import OnnxSource
 from aat_deploy.twin.sources import UnitEnergy  # noqa: F401 (re-exported)
-from aat_deploy.lens.schema import Lens
-from aat_deploy.psf.kernel import KernelSpec
 from training.psf.raytrace import DEFAULT_WAVELENGTH_NM, raytrace_psfs
 from training.psf.surrogates import GaussianPSF, PSFModel
 

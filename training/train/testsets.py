@@ -93,10 +93,10 @@ def _middlebury(spec: TestSetSpec, ds, cache_dir: str | None) -> TestItem:
 
     from aat_deploy.geometry import fit_rgbd_to_sensor
     from aat_deploy.gt.holes import fill_holes
-    from training.data.rgbd import load_middlebury_motorcycle
-    from training.render.schedule import scene_range_distances
     from aat_deploy.io.atomic import atomic_file
     from aat_deploy.normalise import normalise_scale, scaled
+    from training.data.rgbd import load_middlebury_motorcycle
+    from training.render.schedule import scene_range_distances
 
     rgb, gt = fit_rgbd_to_sensor(*load_middlebury_motorcycle(), ds.sensor_hw)
     if spec.protocol == "paper":
