@@ -54,7 +54,7 @@ def measure() -> dict[str, tuple[float, float]]:
     out: dict[str, tuple[float, float]] = {}
     ef50, rf50 = load_lens(ROOT / "lenses/canon_ef50mm_f1.8.json"), load_lens(ROOT / "lenses/canon_rf50mm_f1.8.json")
     with tempfile.TemporaryDirectory() as tmp:
-        # the DFVNet of tests/test_init_weights.py: trained-like batch norms, exported, folded back into torch
+        # the DFVNet of tests/training/nets/test_warm_start.py: trained-like batch norms, exported, folded back into torch
         torch.manual_seed(0)
         src = build_model("dfvnet", "small").eval()
         with torch.no_grad():
@@ -84,7 +84,7 @@ def measure() -> dict[str, tuple[float, float]]:
                                      stack_range=(2, 16), config_hash="bench")
         dff_export.export_dff_onnx(aif, path, md, check_shapes=[(1, 3, 32, 32)])
         out["AiFNet, onnxruntime vs torch (parity)"] = (dff_export.parity(aif, path, shapes), dff_export.PARITY_TOL)
-        # an untrained RotPSF, as tests/test_psf_surrogates.py exports it
+        # an untrained RotPSF, as tests/training/psf/test_surrogates.py exports it
         torch.manual_seed(0)
         rot = RotPSF(rf50, KernelSpec.for_lens(rf50), 0.3, 20)
         path = Path(tmp) / "psf.onnx"

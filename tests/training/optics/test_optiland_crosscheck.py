@@ -45,7 +45,7 @@ from training.optics.trace import Rays, rays_through_pupil, trace, uniform_disk_
 # optiland's numpy backend JIT-compiles some kernels with numba, which emits harmless pedantic warnings.
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning", "ignore::Warning:numba")
 
-LENSES_DIR = Path(__file__).resolve().parents[1] / "lenses"
+LENSES_DIR = Path(__file__).resolve().parents[3] / "lenses"
 D_LINE_NM = 587.5618
 
 # Both sides trace in float64 (rounding ~1e-14 of the lens's size): these bound the optics, not rounding; the

@@ -15,10 +15,11 @@ import pytest
 from conftest import ROOT
 from deploy_fixtures import (
     build_tiny_dff,
+    run_without_torch,
     write_dng_capture,
+    write_pfm,
     write_png_capture,
 )
-from test_eval_gt import write_pfm
 
 from aat_deploy.cli import eval as eval_cli
 from aat_deploy.eval.score import aif_pair, fit_alignment
@@ -255,14 +256,13 @@ def test_shipped_sample_agrees_with_aat_infer(tmp_path):
 def test_eval_and_gt_render_run_without_torch(base, model_path, tmp_path):
     """aat-eval and aat-gt run in an interpreter where `import torch` fails (the runtime never needs it)."""
     pytest.importorskip("trimesh")
-    from test_deploy_torch_free import _run
 
     frames, p = base
     root = tmp_path / "root"
     np.save(_copy_frames(frames, root / "a") / "gt_depth_m.npy", (p + 0.1).astype(np.float32))
     (tmp_path / "plane.obj").write_text("v -9 -9 2\nv 9 -9 2\nv 9 9 2\nv -9 9 2\nf 1 2 3\nf 1 3 4\n")
     (tmp_path / "pose.json").write_text(json.dumps({"R": np.eye(3).tolist(), "t": [0, 0, 0]}))
-    r = _run(f"""
+    r = run_without_torch(f"""
         import json, sys
         from aat_deploy.cli import eval as ev, gt
         assert ev.main([{str(root)!r}, "--model", {str(model_path)!r}, "--out", "out", "--threads", "1", "-q"]) == 0

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import SHARED
+from conftest import LENSES, SHARED
 from deploy_fixtures import canon_jpeg, write_dng_capture, write_png_capture
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -164,7 +164,7 @@ def test_render_gt_and_train_refuse_outputs_over_inputs(tmp_path, capsys):
 
     cv2.imwrite(str(scene / "rgb.png"), np.full((24, 36, 3), 128, np.uint8))
     np.save(scene / "depth.npy", np.full((24, 36), 2.0, np.float32))
-    lens = Path(__file__).resolve().parents[1] / "lenses" / "canon_rf50mm_f1.8.json"
+    lens = LENSES / "canon_rf50mm_f1.8.json"
     before = tree_hash(scene)
     with pytest.raises(SystemExit, match=r"aat-render: error: .*scene: (contains|is) the input"):
         render_cli.main([str(scene / "rgb.png"), str(scene / "depth.npy"), "--lens", str(lens), "--focus-m", "1",

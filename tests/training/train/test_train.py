@@ -1,6 +1,6 @@
 """Training loop: config files, schedule, loss, learning on a tiny synthetic set, exact resume, DDP with gloo,
-evaluation, CLI. The synthetic set lives here (tests only): thin-lens Gaussian blur of random textures at two
-depth planes."""
+evaluation, CLI. The synthetic set (thin-lens Gaussian blur of random textures at two depth planes) is in
+tests/training_fixtures.py."""
 
 from __future__ import annotations
 
@@ -14,9 +14,8 @@ import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
-from torch.utils.data import Dataset
+from training_fixtures import TwoPlaneStacks, train_config
 
-from aat_deploy.normalise import normalise_stack
 from training.train.config import (
     ConfigError,
     LossConfig,
@@ -28,59 +27,7 @@ from training.train.loss import depth_mask, dff_loss, edge_aware_smoothness, mas
 from training.train.sampler import ResumableSampler
 from training.train.schedule import lr_at
 
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _blur(img: torch.Tensor, sigma_px: float) -> torch.Tensor:
-    """Gaussian blur of (3, H, W), reflect borders."""
-    if sigma_px < 0.3:
-        return img
-    r = math.ceil(3 * sigma_px)
-    x = torch.arange(-r, r + 1, dtype=torch.float32)
-    k = torch.exp(-0.5 * (x / sigma_px) ** 2)
-    k = k / k.sum()
-    y = F.pad(img[:, None], (r, r, r, r), mode="reflect")
-    y = F.conv2d(y, k.view(1, 1, 1, -1))
-    return F.conv2d(y, k.view(1, 1, -1, 1))[:, 0]
-
-
-class TwoPlaneStacks(Dataset):
-    """Item i: a random texture, left/right (random split) at two depths in [0.6, 3] m, S frames focused
-    evenly in diopters over [0.5, 4] m, thin-lens blur sigma = 2.5 px per diopter of defocus. Deterministic per i."""
-
-    def __init__(self, n: int = 16, size: int = 32, s: int = 4, seed: int = 0):
-        self.n, self.size, self.s, self.seed = n, size, s, seed
-
-    def __len__(self) -> int:
-        return self.n
-
-    def __getitem__(self, i: int) -> dict:
-        g = torch.Generator().manual_seed(self.seed * 100003 + i)
-        h = w = self.size
-        tex = torch.rand(3, h // 4, w // 4, generator=g)
-        tex = F.interpolate(tex[None], size=(h, w), mode="bilinear", align_corners=False)[0]
-        tex = 0.5 * tex + 0.5 * torch.rand(3, h, w, generator=g)
-        d = 1 / torch.empty(2).uniform_(1 / 3.0, 1 / 0.6, generator=g)
-        split = int(torch.randint(w // 4, 3 * w // 4, (1,), generator=g))
-        depth = torch.full((h, w), float(d[0]))
-        depth[:, split:] = d[1]
-        focus = 1 / torch.linspace(1 / 0.5, 1 / 4.0, self.s)
-        frames = []
-        for f in focus:
-            left = _blur(tex, 2.5 * abs(1 / float(d[0]) - 1 / float(f)))
-            right = _blur(tex, 2.5 * abs(1 / float(d[1]) - 1 / float(f)))
-            frames.append(torch.where(torch.arange(w) < split, left, right))
-        stack = torch.from_numpy(normalise_stack(torch.stack(frames).numpy()))
-        depth[0, 0] = 0.0  # one invalid pixel
-        return {"stack": stack, "focus_m": focus.float(), "depth_m": depth, "aif": tex.clamp(0, 1)}
-
-
-def _cfg(**kw) -> TrainConfig:
-    base = {"name": "t", "net": "aifnet", "size": "small", "simulator": "thin_lens",
-            "lens": "lenses/canon_rf50mm_f1.8.json", "steps": 6, "batch_size": 2, "lr": 2e-3,
-            "checkpoint_every": 2, "log_every": 1, "val_items": 4}
-    base.update(kw)
-    return TrainConfig(**base).validate()
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def test_shipped_configs_load():
@@ -93,7 +40,7 @@ def test_shipped_configs_load():
         config_from_dict({"name": "x", "net": "aifnet", "size": "small", "simulator": "aat", "lens": "l", "lr0": 1})
     with pytest.raises(ConfigError, match="simulator"):
         config_from_dict({"name": "x", "net": "aifnet", "size": "small", "simulator": "gauss", "lens": "l"})
-    c = _cfg()
+    c = train_config()
     assert config_from_dict(json.loads(json.dumps(c.to_dict()))) == c  # checkpoint round trip
 
 
@@ -160,7 +107,7 @@ def _params(model: torch.nn.Module) -> torch.Tensor:
 def test_resume_equals_uninterrupted(tmp_path, net):
     from training.train.loop import load_trained, train
 
-    cfg = _cfg(net=net, loss=LossConfig(level_weights=(2.0, 1.0), aif=0.1, smooth=0.01))
+    cfg = train_config(net=net, loss=LossConfig(level_weights=(2.0, 1.0), aif=0.1, smooth=0.01))
     data = TwoPlaneStacks(n=6)  # 3 batches per epoch: the run crosses an epoch boundary
     full = train(cfg, tmp_path / "a", train_set=data, progress=False)
     assert full.finished and full.step == 6
@@ -185,7 +132,7 @@ def test_training_learns_and_evaluates(tmp_path):
     from training.train.loop import load_trained, train
 
     train_set, val_set = TwoPlaneStacks(n=32, seed=0), TwoPlaneStacks(n=6, seed=1)
-    cfg = _cfg(net="dfvnet", steps=60, batch_size=4, lr=3e-3, checkpoint_every=60, log_every=10, val_items=6)
+    cfg = train_config(net="dfvnet", steps=60, batch_size=4, lr=3e-3, checkpoint_every=60, log_every=10, val_items=6)
     torch.manual_seed(0)
     before, _ = evaluate(__import__("training.nets.model", fromlist=["x"]).build_model("dfvnet", "small"), val_set)
     res = train(cfg, tmp_path / "run", train_set=train_set, val_set=val_set, progress=False)
@@ -224,7 +171,7 @@ def _ddp_worker(rank: int, world: int, port: int, out: str) -> None:
 
     loop.build_model = build_and_keep
     data = TwoPlaneStacks(n=8)
-    cfg = _cfg(net="dfvnet", steps=3, checkpoint_every=10, loss=LossConfig(level_weights=(2.0, 1.0)))
+    cfg = train_config(net="dfvnet", steps=3, checkpoint_every=10, loss=LossConfig(level_weights=(2.0, 1.0)))
     res = loop.train(cfg, Path(out) / "run", train_set=data, progress=False)
     torch.save({"state": {k: v.clone() for k, v in captured["model"].state_dict().items()},
                 "ckpt": load(Path(out) / "run" / "last.pt")["model"], "step": res.step,

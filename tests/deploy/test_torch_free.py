@@ -3,36 +3,13 @@
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
-import textwrap
 
 from conftest import ROOT
-from deploy_fixtures import tiny_model_path, write_dng_capture
-
-BLOCK_TORCH = textwrap.dedent("""
-    import sys
-    class _NoTorch:
-        def find_spec(self, name, path=None, target=None):
-            if name == "torch" or name.startswith("torch."):
-                raise ImportError(f"torch is forbidden in the runtime (import {name})")
-            return None
-    sys.meta_path.insert(0, _NoTorch())
-    sys.modules.pop("torch", None)
-""")
-
-
-def _run(code: str, tmp_path) -> subprocess.CompletedProcess:
-    script = tmp_path / "run.py"
-    script.write_text(BLOCK_TORCH + textwrap.dedent(code))
-    env = dict(os.environ, PYTHONPATH=str(ROOT), OMP_WAIT_POLICY="PASSIVE")
-    return subprocess.run([sys.executable, str(script)], check=False, capture_output=True, text=True, timeout=180,
-                          env=env, cwd=tmp_path)
+from deploy_fixtures import run_without_torch, tiny_model_path, write_dng_capture
 
 
 def test_blocker_works(tmp_path):
-    r = _run("import torch\n", tmp_path)
+    r = run_without_torch("import torch\n", tmp_path)
     assert r.returncode != 0 and "forbidden" in r.stderr
 
 
@@ -40,7 +17,7 @@ def test_runtime_runs_without_torch(tmp_path, tmp_path_factory):
     model = tiny_model_path(tmp_path_factory)
     cap = write_dng_capture(tmp_path / "cap", [0.7, 1.0, 1.6, 3.0])
     out = tmp_path / "out"
-    r = _run(f"""
+    r = run_without_torch(f"""
         import json, pkgutil, importlib, sys
         import aat_deploy
         for m in pkgutil.walk_packages(aat_deploy.__path__, "aat_deploy."):
@@ -61,7 +38,7 @@ def test_twin_renderer_and_effects_run_without_torch(tmp_path):
     """The torch-free twin renderer (`aat_deploy.twin`) and the effects registry it shares with training: every
     effect module imports, every numpy-capable effect renders a crop through the shipped PSF surrogate, and
     `chromatic` (ray tracing) says it needs torch."""
-    r = _run(f"""
+    r = run_without_torch(f"""
         import json, sys, warnings
         import numpy as np
         warnings.simplefilter("error")  # the shipped surrogate carries its focus table: no paraxial fallback
@@ -97,7 +74,7 @@ def test_focus_method_runs_without_torch(tmp_path):
     lens_copy = tmp_path / "lenses" / "rf50_copy.json"
     lens_copy.parent.mkdir()
     shutil.copy(ROOT / "lenses/canon_rf50mm_f1.8.json", lens_copy)
-    r = _run(f"""
+    r = run_without_torch(f"""
         import json, sys
         from aat_deploy.cli import infer
         cap = {str(cap)!r}

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-CATALOG = Path(__file__).resolve().parents[1] / "aat_deploy" / "lens" / "data" / "glasses.json"
+CATALOG = Path(__file__).resolve().parents[3] / "aat_deploy" / "lens" / "data" / "glasses.json"
 LAMBDA_D, LAMBDA_F, LAMBDA_C = 0.5875618, 0.4861327, 0.6562725  # um
 
 # Published catalogue nd / Vd, hard-coded so the test runs without shared/.

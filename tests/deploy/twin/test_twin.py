@@ -11,8 +11,7 @@ import numpy as np
 import pytest
 import torch
 from conftest import ROOT, rel_err
-from deploy_fixtures import build_tiny_dff
-from test_deploy_torch_free import _run
+from deploy_fixtures import build_tiny_dff, run_without_torch
 
 from aat_deploy.lens.io import load_lens, save_lens
 from aat_deploy.optics.paraxial import paraxial_data
@@ -251,7 +250,7 @@ def test_tiny_twin_without_torch_equals_torch(tiny, tmp_path):
     from training.diagnose.twin import TwinRenderer
 
     tmp, lens, model_path = tiny
-    r = _run(f"""
+    r = run_without_torch(f"""
         import sys, numpy as np
         from aat_deploy.diagnose.inputs import load_capture_data
         from aat_deploy.model import DfFModel

@@ -8,7 +8,7 @@ import json
 import cv2
 import numpy as np
 import pytest
-from deploy_fixtures import tiny_model_path
+from deploy_fixtures import tiny_model_path, write_pfm
 
 from aat_deploy.cli import gt as gt_cli
 from aat_deploy.geometry import fit_to_sensor
@@ -22,13 +22,6 @@ from aat_deploy.gt.read import (
 
 RNG = np.random.default_rng(3)
 DEPTH = RNG.uniform(0.7, 4.0, (48, 64)).astype(np.float32)
-
-
-def write_pfm(path, img: np.ndarray) -> None:
-    h, w = img.shape
-    with open(path, "wb") as f:
-        f.write(f"Pf\n{w} {h}\n-1.0\n".encode())
-        f.write(np.ascontiguousarray(img[::-1], dtype="<f4").tobytes())
 
 
 def _load(folder):

@@ -100,12 +100,12 @@ def test_parity_detects_a_different_model(tmp_path, lens):
 
 
 def test_export_trained_checkpoint(tmp_path):
-    from test_train import TwoPlaneStacks, _cfg
+    from training_fixtures import TwoPlaneStacks, train_config
 
     from training.train.export import export_checkpoint
     from training.train.loop import train
 
-    cfg = _cfg(net="aifnet", steps=2, simulator="aat", effects=["psf"])
+    cfg = train_config(net="aifnet", steps=2, simulator="aat", effects=["psf"])
     train(cfg, tmp_path / "run", train_set=TwoPlaneStacks(n=4), progress=False)
     md, err = export_checkpoint(tmp_path / "run" / "model.pt", tmp_path / "m.onnx")
     assert err <= PARITY_TOL

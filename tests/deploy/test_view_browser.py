@@ -28,7 +28,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # the repository
 CHROMIUM = Path("/usr/bin/chromium")  # Debian's chromium package (installed by .ci/run)
 # As root in a container: no sandbox; no GPU (WebGL through SwiftShader); no background traffic, which the
 # closed network would refuse.

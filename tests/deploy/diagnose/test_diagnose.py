@@ -162,7 +162,7 @@ def test_bad_inputs_get_one_line_errors(setup, tmp_path, capsys):
 def test_diagnosis_runs_without_torch(setup, tmp_path):
     """The whole `aat-diagnose` in an interpreter where torch cannot be imported: same answer as with torch, and
     an effect only torch can render (chromatic) is listed as skipped instead of guessed."""
-    from tests.test_deploy_torch_free import _run
+    from deploy_fixtures import run_without_torch as _run
 
     tmp, model, sets = setup
     out = tmp_path / "out"
