@@ -7,8 +7,8 @@ plus `source.k`, `source.scale(depth_m, focus_m)` (cell size, pixels) and `sourc
 (thin-lens blur diameter, pixels). x, y: normalised field in [-1, 1] (x right, y up); distances in metres from
 the sensor plane. Both sources take the lens's first-order data from the lens file (`aat_deploy.lens`, torch-free).
 
-- `OnnxSource`: the exported surrogate (`aat_deploy.psf.surrogate.PSFSurrogate`); it also carries the lens's real-ray focus
-  table and exit pupil in its metadata, which the focus effects need.
+- `OnnxSource`: the exported surrogate (`aat_deploy.psf.surrogate.PSFSurrogate`); it also carries the lens's
+  real-ray focus table and exit pupil in its metadata, which the focus effects need.
 - `GaussianSource`: the thin-lens baseline (numpy twin of `training.psf.surrogates.GaussianPSF`).
 - `UnitEnergy`: kernels normalised to unit energy, for numpy or torch kernels alike (the `aberrations` effect).
 """
@@ -100,7 +100,7 @@ class GaussianSource(LensGeometry):
         self.efl_mm, self.epd_mm, self.pixel_mm = float(p.efl_mm), float(p.entrance_pupil_mm), lens.sensor.pixel_mm
 
     def _blur_px32(self, depth_m: np.ndarray, focus_m: np.ndarray) -> np.ndarray:
-        """Thin-lens blur diameter (px), float32: `training.psf.geometry.thin_lens_blur_px` as GaussianPSF does it."""
+        """Thin-lens blur diameter (px), float32: `aat_deploy.optics.thin_lens` as GaussianPSF does it."""
         f = self.efl_mm
         big_d = np.float32(1000.0) * focus_m
         v_f = 2 * big_d * f / (big_d + np.sqrt(np.maximum(big_d * big_d - 4 * big_d * f, 0.0)))

@@ -66,7 +66,7 @@ def test_sources_match_torch():
     assert peak_rel(kt, k64) < THIN_F32 and peak_rel(kn, k64) < THIN_F32 and peak_rel(kt, kn) < TOL_THIN
     # the cell size (blur + margin) / (k - 1) >= 1: the blur's ~4e-4 px are <= 4e-5 of it (6e-6 seen)
     assert np.abs(st / s64 - 1).max() < 4e-5 and np.abs(sn / s64 - 1).max() < 4e-5
-    # exact: both sides call the same float64 numpy function (training.psf.geometry.thin_lens_blur_px)
+    # exact: both sides call the same float64 numpy function (aat_deploy.optics.thin_lens.thin_lens_blur_px)
     assert thin_n.k == thin_t.k and np.array_equal(thin_n.scale(d, f), thin_t.scale(d, f))
     assert np.array_equal(thin_n.blur_px(d, f), thin_t.blur_px(d, f))
     # the surrogate: the same onnxruntime session underneath, numpy out

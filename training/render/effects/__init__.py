@@ -44,7 +44,7 @@ class NeedsTorch(RuntimeError):
 @dataclass
 class SimContext:
     """What effects may look at: the lens, the full sensor (rows, cols), the crop's top-left pixel, the real
-    lens's PSF source, and the lens's focusing: `table` (sensor z vs diopters, `training.psf.geometry.FocusTable`;
+    lens's PSF source, and the lens's focusing: `table` (sensor z vs diopters, `optics.focus_table.FocusTable`;
     None = real-ray traced from the lens on first use, which needs torch) and the paraxial exit pupil (mm from the
     first vertex; None = computed from the lens). The torch simulator traces; the torch-free twin renderer fills
     both from the PSF surrogate's metadata."""
