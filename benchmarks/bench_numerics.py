@@ -44,17 +44,18 @@ def measure() -> dict[str, tuple[float, float]]:
     from training.psf.surrogates import RotPSF
     from training.render.sources import thin_lens_source
 
-    sys.path.insert(0, str(ROOT / "tests"))
+    for d in ("tests", "tests/training/nets", "tests/deploy/twin"):  # the tolerances the tests state
+        sys.path.insert(0, str(ROOT / d))
     from conftest import rel_err
-    from test_init_weights import FOLD_REL
-    from test_twin_numpy import THIN_F32
+    from test_twin import THIN_F32
+    from test_warm_start import FOLD_REL
 
     from aat_deploy.twin.sources import GaussianSource
 
     out: dict[str, tuple[float, float]] = {}
     ef50, rf50 = load_lens(ROOT / "lenses/canon_ef50mm_f1.8.json"), load_lens(ROOT / "lenses/canon_rf50mm_f1.8.json")
     with tempfile.TemporaryDirectory() as tmp:
-        # the DFVNet of tests/training/nets/test_warm_start.py: trained-like batch norms, exported, folded back into torch
+        # the DFVNet of tests/training/nets/test_warm_start.py: trained-like batch norms, exported, folded into torch
         torch.manual_seed(0)
         src = build_model("dfvnet", "small").eval()
         with torch.no_grad():
