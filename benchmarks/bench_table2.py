@@ -86,6 +86,21 @@ def paired_ratio(a: list[dict], b: list[dict], key: str = "mae") -> list[float]:
     return [est, float(np.quantile(reps, 0.025)), float(np.quantile(reps, 0.975))]
 
 
+def field_figures(maps: dict[str, np.ndarray], path: Path, title: str) -> None:
+    """Mean |error| over the sensor per model (one panel each) and MAE against field radius: the paper's Fig. 9."""
+    from training.train.heldout import ModelResult, plot_error_over_field, plot_error_vs_radius, radius_map
+
+    results = []
+    for lab, emap in maps.items():
+        r = radius_map(*emap.shape)
+        edges = np.linspace(0, 1, 11)
+        prof = np.array([np.nanmean(emap[(r >= lo) & (r < hi if hi < 1 else r <= hi)]) for lo, hi in
+                         zip(edges[:-1], edges[1:])])
+        results.append(ModelResult(lab, {}, emap, edges, prof))
+    plot_error_over_field(results, path.with_name(path.stem + "_field.png"))
+    plot_error_vs_radius(results, path.with_name(path.stem + "_radius.png"), title)
+
+
 def run_model(path: Path, items, threads: int) -> tuple[list[dict], np.ndarray, dict]:
     from aat_deploy.model import DfFModel
 
@@ -159,24 +174,30 @@ def main(argv: list[str] | None = None) -> int:
 
     spec_l = LENSES[a.lens]
     paths = [Path(m) for m in a.models] if a.models else sorted((ROOT / "models").glob(f"{a.lens}_*.onnx"))
-    if not paths:
+    if not paths and a.no_classical:
         raise SystemExit(f"no models for {a.lens}: pass --models")
     for protocol in a.protocol:
         spec = TestSetSpec(spec_l["lens"], spec_l["psf"], spec_l["stack_size"], protocol=protocol, n_procedural=a.n)
         sets = load_test_set(spec, str(ROOT / "cache/heldout"))
         result = {"lens": a.lens, "protocol": protocol, "spec": spec.__dict__, "sets": {}}
         for sname, items in sets.items():
-            rows, per_model = [], {}
+            rows, per_model, maps = [], {}, {}
             for path in paths:
                 t0 = time.time()
                 per, err_map, meta = run_model(path, items, a.threads)
                 lab = label_of(meta, path)
                 per_model[lab] = per
+                maps[lab] = err_map
                 rows.append((lab, summarise(per)))
                 print(f"{sname} {protocol}: {lab} ({path.name}) {time.time() - t0:.0f} s", file=sys.stderr)
             if not a.no_classical:
                 for lab, fn in classical_methods(spec_l["lens"]):
-                    per = [score(*fn(it), it.depth_m, it.aif) for it in items]
+                    per, errs = [], []
+                    for it in items:
+                        depth, aif = fn(it)
+                        per.append(score(depth, it.depth_m, aif, it.aif))
+                        errs.append(np.where(it.depth_m > 0, np.abs(depth - it.depth_m), np.nan))
+                    maps[lab] = np.nanmean(np.stack(errs), 0)
                     per_model[lab] = per
                     rows.append((lab, summarise(per)))
             ratios = {}
@@ -186,6 +207,9 @@ def main(argv: list[str] | None = None) -> int:
                     if twin in per_model:
                         ratios[f"{lab} / {twin}"] = {k: paired_ratio(per_model[lab], per_model[twin], k)
                                                      for k in ("mae", "mae_centre", "mae_outer")}
+            if a.figures and maps:
+                field_figures(maps, Path(a.figures) / f"table2_{a.lens}_{protocol}_{sname}.png",
+                              f"{a.lens}, {protocol} protocol, {sname}: MAE vs field radius")
             result["sets"][sname] = {"n_scenes": len(items), "rows": dict(rows), "ratios": ratios,
                                      "per_scene": per_model}
             print(f"\n### {a.lens}, protocol {protocol}"

@@ -143,7 +143,7 @@ def plot_error_over_field(results: list[ModelResult], path) -> Path:
     im = None
     for ax, r in zip(np.atleast_1d(axes), results):
         im = ax.imshow(r.error_map, cmap="magma", vmin=0, vmax=vmax)
-        ax.set_title(f"{r.label}: mean |error| (m)", fontsize=9)
+        ax.set_title(f"{r.label}\nmean |error| (m)", fontsize=8)
         ax.set_xticks([])
         ax.set_yticks([])
     fig.colorbar(im, ax=axes, shrink=0.8)
