@@ -24,7 +24,7 @@ from .camera import camera_json
 from .capture.folder import focus_problem, read_capture
 from .capture.raw import load_frame, srgb_to_linear
 from .errors import CaptureError
-from .eval.raycast import Intrinsics
+from .camera import Intrinsics
 from .io.atomic import atomic_folder
 from .io.guard import check_output_dir
 from .model import DfFModel

@@ -1,5 +1,5 @@
-"""Frame geometry: fit a frame to the model's sensor (centre crop to its aspect, then resize) and optional
-alignment of the frames against focus breathing (affine ECC on a reduced grey image) with exposure equalisation."""
+"""Frame geometry: fit a frame (and a depth map with it) to the model's sensor (centre crop to its aspect, then
+resize) and optional alignment of the frames against focus breathing (affine ECC on a reduced grey image) with exposure equalisation."""
 
 from __future__ import annotations
 
@@ -28,6 +28,17 @@ def fit_to_sensor(img: np.ndarray, size_wh: tuple[int, int]) -> tuple[np.ndarray
     out = cv2.resize(np.ascontiguousarray(crop), (tw, th), interpolation=interp)
     return out.astype(np.float32, copy=False), {"crop_xywh": [x0, y0, cw, ch], "scale": tw / cw}
 
+
+
+def fit_rgbd_to_sensor(rgb: np.ndarray, depth: np.ndarray, hw: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """An image (H, W, 3) and its depth (H, W) fitted to a sensor of hw = (rows, cols) px as the runtime fits
+    frames (fit_to_sensor), so a rendered capture and a real one are framed alike; depth takes the same crop,
+    resized with nearest neighbour (no invented depths)."""
+    th, tw = hw
+    out, info = fit_to_sensor(rgb, (tw, th))
+    x0, y0, cw, ch = info["crop_xywh"]
+    d = cv2.resize(np.ascontiguousarray(depth[y0:y0 + ch, x0:x0 + cw]), (tw, th), interpolation=cv2.INTER_NEAREST)
+    return out, d
 
 def align_stack(frames: list[np.ndarray], ref: int, max_side: int = 512) -> tuple[list[np.ndarray], list[dict]]:
     """Align every frame (H, W, 3) to frames[ref] with an affine ECC fit (focus breathing is mostly a scale).

@@ -20,7 +20,7 @@ import onnxruntime as ort
 from .camera import model_intrinsics
 from .errors import ModelError
 from .shipped import shipped_hint
-from .eval.raycast import Intrinsics
+from .camera import Intrinsics
 
 REQUIRED_META = ("aat.kind", "aat.lens_name", "aat.focal_length_mm", "aat.f_number", "aat.sensor_px",
                  "aat.pixel_um", "aat.focus_range_m", "aat.stack_min", "aat.stack_max", "aat.size_multiple")

@@ -27,7 +27,7 @@ import numpy as np
 from .camera import CAMERA_FRAME, POINT_FROM_PIXEL, camera_json, points_from_depth
 from .capture.raw import linear_to_srgb
 from .errors import OutputError
-from .eval.raycast import Intrinsics
+from .camera import Intrinsics
 from .io.colorize import depth_preview, depth_range, uncertainty_preview, uncertainty_range
 from .io.images import imwrite
 from .io.ply import write_ply

@@ -24,7 +24,7 @@ from tqdm import tqdm
 from .capture.folder import Capture, read_capture
 from .capture.raw import load_frame
 from .errors import CaptureError
-from .eval.gt import READ_ERRORS, units_problem
+from .gt.read import READ_ERRORS, units_problem
 from .io.atomic import atomic_folder
 from .io.guard import check_output_dir
 from .model import DfFModel

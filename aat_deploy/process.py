@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from .eval.raycast import Intrinsics
+from .camera import Intrinsics
 from .geometry import align_stack, equalise_exposure, fit_to_sensor
 from .model import DfFModel
 from .normalise import normalise_scale, normalise_stack

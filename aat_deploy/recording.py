@@ -23,7 +23,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from .eval.raycast import Intrinsics
+from .camera import Intrinsics
 from .io.colorize import ColorScale
 
 MAX_POINTS = 200_000

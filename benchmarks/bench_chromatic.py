@@ -52,9 +52,9 @@ def main() -> None:
     args = ap.parse_args()
     torch.set_num_threads(2)
 
-    from aat_deploy.psf import PSFSurrogate
+    from aat_deploy.lens.io import load_lens
+    from aat_deploy.psf.surrogate import PSFSurrogate
     from training.data.scenes import SceneConfig, procedural_scene
-    from training.lens.io import load_lens
     from training.render import effects as fx
     from training.render.effects.chromatic import surrogate_name
     from training.render.simulator import Simulator

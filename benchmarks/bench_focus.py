@@ -39,6 +39,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
+from aat_deploy.io.atomic import write_text_atomic  # noqa: E402
 from bench_table2 import N_BOOT, paired_ratio  # noqa: E402 (one paired bootstrap for every DfF table)
 
 LENSES = {"rf50": ("lenses/canon_rf50mm_f1.8.json", "models/psf_rf50.onnx"),
@@ -284,9 +285,7 @@ def main(argv: list[str] | None = None) -> int:
         result["sets"][sname] = {"rows": dict(rows), "ratios": ratios, "per_scene": per}
     out = Path(a.out) / f"focus_{a.lens}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.name + ".tmp")
-    tmp.write_text(json.dumps(result, indent=1, default=float))
-    tmp.replace(out)
+    write_text_atomic(out, json.dumps(result, indent=1, default=float))
     print(f"\nwrote {out}", file=sys.stderr)
     return 0
 

@@ -35,26 +35,27 @@ def measure() -> dict[str, tuple[float, float]]:
     torch.set_num_threads(1)  # as tests/conftest.py
     if os.environ.get("AAT_TEST_NUMERICS") == "strict":
         torch.use_deterministic_algorithms(True)
-    from training.lens.io import load_lens
+    from aat_deploy.lens.io import load_lens
+    from aat_deploy.psf.kernel import KernelSpec
     from training.nets import export as dff_export
-    from training.nets.init import load_onnx_weights
     from training.nets.model import build_model
+    from training.nets.warm_start import load_onnx_weights
     from training.psf import export as psf_export
-    from training.psf.kernel import KernelSpec
     from training.psf.surrogates import RotPSF
     from training.render.sources import thin_lens_source
 
-    sys.path.insert(0, str(ROOT / "tests"))
+    for d in ("tests", "tests/training/nets", "tests/deploy/twin"):  # the tolerances the tests state
+        sys.path.insert(0, str(ROOT / d))
     from conftest import rel_err
-    from test_init_weights import FOLD_REL
-    from test_twin_numpy import THIN_F32
+    from test_twin import THIN_F32
+    from test_warm_start import FOLD_REL
 
     from aat_deploy.twin.sources import GaussianSource
 
     out: dict[str, tuple[float, float]] = {}
     ef50, rf50 = load_lens(ROOT / "lenses/canon_ef50mm_f1.8.json"), load_lens(ROOT / "lenses/canon_rf50mm_f1.8.json")
     with tempfile.TemporaryDirectory() as tmp:
-        # the DFVNet of tests/test_init_weights.py: trained-like batch norms, exported, folded back into torch
+        # the DFVNet of tests/training/nets/test_warm_start.py: trained-like batch norms, exported, folded into torch
         torch.manual_seed(0)
         src = build_model("dfvnet", "small").eval()
         with torch.no_grad():
@@ -84,7 +85,7 @@ def measure() -> dict[str, tuple[float, float]]:
                                      stack_range=(2, 16), config_hash="bench")
         dff_export.export_dff_onnx(aif, path, md, check_shapes=[(1, 3, 32, 32)])
         out["AiFNet, onnxruntime vs torch (parity)"] = (dff_export.parity(aif, path, shapes), dff_export.PARITY_TOL)
-        # an untrained RotPSF, as tests/test_psf_surrogates.py exports it
+        # an untrained RotPSF, as tests/training/psf/test_surrogates.py exports it
         torch.manual_seed(0)
         rot = RotPSF(rf50, KernelSpec.for_lens(rf50), 0.3, 20)
         path = Path(tmp) / "psf.onnx"

@@ -129,7 +129,7 @@ def main() -> None:
         print(f"| {name} | {l1:.3e} | {l2:.3e} | {l1 / l1_gauss:.3f}x | {build_s / 60:.1f} | {params:,} | "
               f"{qt:.2f} | {notes} |")
     # Error by field zone (normalised image radius), the part aberrations change.
-    from training.psf.geometry import field_radius
+    from aat_deploy.optics.field import field_radius
 
     r = field_radius(lens, g["x"], g["y"])
     zones = [("centre r<0.33", r < 0.33), ("middle", (r >= 0.33) & (r < 0.66)), ("outer r>=0.66", r >= 0.66)]

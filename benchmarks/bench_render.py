@@ -33,16 +33,16 @@ def main() -> None:
     args = ap.parse_args()
     torch.set_num_threads(2)
     if args.figure_only:
-        from training.lens.io import load_lens
+        from aat_deploy.lens.io import load_lens
         from training.render.sources import OnnxPSF, thin_lens_source
 
         lens = load_lens(ROOT / "lenses/canon_rf50mm_f1.8.json")
         figure(lens, Path(args.figures), OnnxPSF(ROOT / "models/psf_rf50.onnx", lens), thin_lens_source(lens))
         return
 
+    from aat_deploy.lens.io import load_lens
+    from aat_deploy.psf.kernel import KernelSpec
     from training.data.scenes import SceneConfig, procedural_scene
-    from training.lens.io import load_lens
-    from training.psf.kernel import KernelSpec
     from training.psf.surrogates import PaperMLP
     from training.render.exact import (
         cells_to_pixels,

@@ -31,8 +31,8 @@ def main() -> None:
     args = ap.parse_args()
     h, w = (int(v) for v in args.hw.split("x"))
     torch.set_num_threads(2)
+    from aat_deploy.lens.io import load_lens
     from aat_deploy.model import DfFModel
-    from training.lens.io import load_lens
     from training.nets.export import dff_metadata, export_dff_onnx
     from training.nets.model import build_model, predict
 

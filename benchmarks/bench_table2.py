@@ -30,6 +30,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from aat_deploy.io.atomic import write_text_atomic  # noqa: E402
+
 LENSES = {
     "paper50": {"lens": "lenses/paper_50mm_f2.8.json", "psf": "models/psf_paper50.onnx", "stack_size": 10},
     "rf50": {"lens": "lenses/canon_rf50mm_f1.8.json", "psf": "models/psf_rf50.onnx", "stack_size": 8},
@@ -220,9 +222,7 @@ def main(argv: list[str] | None = None) -> int:
                     print(f"| {k} | {fmt(r['mae'], 3)} | {fmt(r['mae_centre'], 3)} | {fmt(r['mae_outer'], 3)} |")
         out = Path(a.out) / f"table2_{a.lens}_{protocol}.json"
         out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = out.with_name(out.name + ".tmp")
-        tmp.write_text(json.dumps(result, indent=1, default=float))
-        tmp.replace(out)
+        write_text_atomic(out, json.dumps(result, indent=1, default=float))
         print(f"\nwrote {out}", file=sys.stderr)
     return 0
 

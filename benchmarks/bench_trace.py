@@ -23,7 +23,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def worker(threads: int, dtype_name: str, n: int, repeats: int) -> dict:
     import torch
 
-    from training.lens.io import load_lens
+    from aat_deploy.lens.io import load_lens
     from training.optics.focus import focus
     from training.optics.trace import Rays, rays_through_pupil, stratified_disk, trace
 

@@ -37,11 +37,11 @@ def main() -> None:
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
 
+    from aat_deploy.lens.io import load_lens
     from aat_deploy.twin.layered import LayeredConfig
     from aat_deploy.twin.renderer import optical_stack
     from aat_deploy.twin.sources import GaussianSource
     from training.data.scenes import SceneConfig, procedural_scene
-    from training.lens.io import load_lens
     from training.render import effects as fx
     from training.render.simulator import Simulator
     from training.render.sources import OnnxPSF

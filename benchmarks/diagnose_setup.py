@@ -51,7 +51,7 @@ def run(cmd: list[str]) -> None:
 def main() -> None:
     import argparse
 
-    from training.lens.io import load_lens, save_lens
+    from aat_deploy.lens.io import load_lens, save_lens
 
     ap = argparse.ArgumentParser(description="Models for the diagnosis benchmark (bench_diagnose.py).")
     ap.add_argument("--variant", choices=sorted(VARIANTS), default="full")

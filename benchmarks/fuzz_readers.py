@@ -6,7 +6,7 @@ CaptureError), other exceptions (bugs), crashes (the worker process died) and ha
 
 Each case runs in a worker subprocess (restarted after a crash or hang), so a segfault in a decoder is counted, not
 fatal. Seeds: a virtual-camera DNG, a Canon maker-note JPEG and a 16-bit PNG made here, plus the real files in
-../shared/data/raw_exif_makernotes_exiftool when present. tests/test_bad_inputs.py runs the bounded version in CI.
+../shared/data/raw_exif_makernotes_exiftool when present. tests/deploy/test_bad_inputs.py runs the bounded version in CI.
 """
 
 from __future__ import annotations
@@ -52,7 +52,7 @@ def run_case(kind: str, path: str) -> dict:
 
             read_capture(p, use_exiftool=False)
         else:
-            from aat_deploy.eval.gt import find_gt, load_ground_truth
+            from aat_deploy.gt.read import find_gt, load_ground_truth
 
             src = find_gt(p)
             if src is not None:

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Build training/lens/data/glasses.json from the refractiveindex.info database.
+"""Build aat_deploy/lens/data/glasses.json from the refractiveindex.info database.
 
 The database (CC0) ships as YAML files inside the optiland package
 (optiland/database/data-nk); optiland is used only to find that folder, so the
@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-OUT = Path(__file__).resolve().parents[1] / "training" / "lens" / "data" / "glasses.json"
+OUT = Path(__file__).resolve().parents[1] / "aat_deploy" / "lens" / "data" / "glasses.json"
 LAMBDA_D, LAMBDA_F, LAMBDA_C = 0.5875618, 0.4861327, 0.6562725  # Fraunhofer d, F, C lines [um]
 
 # Catalog name -> YAML file under data-nk/. Schott's own data wherever the database has it.

@@ -23,7 +23,7 @@ sys.path.insert(0, str(ROOT))
 
 def make(lens_path: Path, calibrate: bool = True, psf: str = "trace", progress: bool = True):
     """(map, calibration points) for a lens file."""
-    from training.lens.io import load_lens
+    from aat_deploy.lens.io import load_lens
     from training.optics.field_focus import best_focus_map
     from training.render.focus_calibration import CalibrationConfig
     from training.render.focus_calibration import calibrate as run_calibration
@@ -63,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
     for p in points:
         print(json.dumps({k: (round(v, 4) if isinstance(v, float) else v) for k, v in p.items()}))
     if a.stamp:
-        from training.lens.io import load_lens
+        from aat_deploy.lens.io import load_lens
         from training.psf.export import stamp_optics_metadata
 
         md = stamp_optics_metadata(a.stamp, load_lens(a.lens), best_focus=fmap)

@@ -24,6 +24,9 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+
+from aat_deploy.io.atomic import atomic_file  # noqa: E402
+
 SHARED = ROOT.parent / "shared" / "data"
 
 STACKS = {  # name: (folder, frame files near to far, align)
@@ -98,9 +101,8 @@ def main(argv: list[str] | None = None) -> int:
             panels.insert(2, panel("Lytro's all-in-focus", cv2.resize(ref, cmap.shape[1::-1], cv2.INTER_AREA)))
         img = np.concatenate(panels, 1)
         path = a.out / f"focus_real_{name}.png"
-        tmp = path.with_name(path.stem + ".tmp.png")
-        cv2.imwrite(str(tmp), img[..., ::-1], [cv2.IMWRITE_PNG_COMPRESSION, 9])
-        tmp.replace(path)
+        with atomic_file(path) as tmp:
+            cv2.imwrite(str(tmp), img[..., ::-1], [cv2.IMWRITE_PNG_COMPRESSION, 9])
         print(f"{name}: {s} frames {stack.shape[3]}x{stack.shape[2]} px, {dt:.2f} s -> {path}")
     return 0
 

@@ -17,6 +17,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from aat_deploy.api import depth_from_focus, read_stack  # noqa: E402
+from aat_deploy.io.atomic import atomic_file  # noqa: E402
 from aat_deploy.io.colorize import depth_preview  # noqa: E402
 from aat_deploy.outputs import to_srgb8  # noqa: E402
 
@@ -56,10 +57,9 @@ def figure(out: Path, model: str) -> dict:
     fig.suptitle("captures/sample_rf50: 8 RAW frames through the Canon RF50mm F1.8 (virtual camera) -> "
                  "aat-infer --model dff_dfvnet_aat", fontsize=10)
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.stem}.tmp.png")
-    fig.savefig(tmp, bbox_inches="tight", dpi=100)
+    with atomic_file(out) as tmp:
+        fig.savefig(tmp, bbox_inches="tight", dpi=100)
     plt.close(fig)
-    tmp.replace(out)
     return {"out": str(out), "mae_m": mae}
 
 

@@ -23,8 +23,8 @@ def main() -> None:
     ap.add_argument("--out", default=str(ROOT / "captures/sample_rf50"))
     ap.add_argument("--force", action="store_true")
     args = ap.parse_args()
+    from aat_deploy.capture.raw import linear_to_srgb
     from training.cli.render import main as render
-    from training.data.rgbd import linear_to_srgb
     from training.data.scenes import SceneConfig, procedural_scene
     from training.render.schedule import FocusSchedule
 

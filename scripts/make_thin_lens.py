@@ -9,9 +9,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from training.lens.io import load_lens, save_lens
-from training.lens.schema import Lens, Surface
-from training.optics.paraxial import paraxial_data
+from aat_deploy.lens.io import load_lens, save_lens
+from aat_deploy.lens.schema import Lens, Surface
+from aat_deploy.optics.paraxial import paraxial_data
 
 ROOT = Path(__file__).resolve().parents[1]
 

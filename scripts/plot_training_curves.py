@@ -16,6 +16,8 @@ import json
 import sys
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
 
 def read_log(run: Path) -> tuple[list[dict], list[dict]]:
     """(training rows, validation rows) of a run's log.jsonl."""
@@ -62,6 +64,8 @@ def main(argv: list[str] | None = None) -> int:
     import matplotlib.pyplot as plt
     import numpy as np
 
+    from aat_deploy.io.atomic import atomic_file
+
     fig, (ax_t, ax_v) = plt.subplots(1, 2, figsize=(11, 4))
     print("| run | steps | wall time (h) | stacks seen | final val MAE (m) | change over last quarter |")
     print("|---|---|---|---|---|---|")
@@ -95,10 +99,9 @@ def main(argv: list[str] | None = None) -> int:
         ax.legend(fontsize=7)
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.stem + ".tmp.png")
-    fig.savefig(tmp, dpi=110)
+    with atomic_file(out) as tmp:
+        fig.savefig(tmp, dpi=110)
     plt.close(fig)
-    tmp.replace(out)
     print(f"wrote {out}")
     return 0
 

@@ -17,7 +17,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from aat_deploy.focus.bestfocus import load_json, map_path_for_lens  # noqa: E402
-from training.lens.io import load_lens  # noqa: E402
+from aat_deploy.lens.io import load_lens  # noqa: E402
 from training.psf.export import stamp_optics_metadata  # noqa: E402
 
 if __name__ == "__main__":

@@ -1,4 +1,5 @@
-"""Test helpers for the runtime: a tiny contract-following ONNX DfF model and synthetic capture folders.
+"""Test helpers for the runtime: a tiny contract-following ONNX DfF model, synthetic capture folders, a PFM
+writer and an interpreter without torch (`run_without_torch`).
 
 The model is a classical depth-from-focus net with fixed weights (grey → Laplacian → local energy → softmax
 over the stack → the contract's head), so its depth is meaningful on the synthetic stacks: near pixels are
@@ -8,11 +9,16 @@ sharpest in near-focused frames. Built with torch (tests may use torch; the runt
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
+import textwrap
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+ROOT = Path(__file__).resolve().parents[1]  # the repository
 XYZ_TO_SRGB = np.array([[3.2406, -1.5372, -0.4986], [-0.9689, 1.8758, 0.0415], [0.0557, -0.2040, 1.0570]])
 LENS = "Test Lens 50mm f/1.8"
 META = {"aat.kind": "dff", "aat.net": "aifnet", "aat.size": "small", "aat.simulator": "thin_lens",
@@ -186,3 +192,31 @@ def canon_jpeg(upper_raw: int, lower_raw: int, model: str = "Canon PowerShot S95
     tiff = b"II*\0" + struct.pack("<I", 8) + ifd0 + ifd0_data + exif + exif_data
     app1 = b"Exif\0\0" + tiff
     return b"\xff\xd8" + b"\xff\xe1" + struct.pack(">H", len(app1) + 2) + app1 + b"\xff\xd9"
+
+
+def write_pfm(path, img: np.ndarray) -> None:
+    h, w = img.shape
+    with open(path, "wb") as f:
+        f.write(f"Pf\n{w} {h}\n-1.0\n".encode())
+        f.write(np.ascontiguousarray(img[::-1], dtype="<f4").tobytes())
+
+
+BLOCK_TORCH = textwrap.dedent("""
+    import sys
+    class _NoTorch:
+        def find_spec(self, name, path=None, target=None):
+            if name == "torch" or name.startswith("torch."):
+                raise ImportError(f"torch is forbidden in the runtime (import {name})")
+            return None
+    sys.meta_path.insert(0, _NoTorch())
+    sys.modules.pop("torch", None)
+""")
+
+
+def run_without_torch(code: str, tmp_path) -> subprocess.CompletedProcess:
+    """Run `code` in a fresh interpreter where `import torch` raises (the runtime's own code from ROOT)."""
+    script = tmp_path / "run.py"
+    script.write_text(BLOCK_TORCH + textwrap.dedent(code))
+    env = dict(os.environ, PYTHONPATH=str(ROOT), OMP_WAIT_POLICY="PASSIVE")
+    return subprocess.run([sys.executable, str(script)], check=False, capture_output=True, text=True, timeout=180,
+                          env=env, cwd=tmp_path)

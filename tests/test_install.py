@@ -66,6 +66,14 @@ def test_plain_install_runs_the_readme_from_a_clean_copy(tmp_path):
     lines = r.stdout.split()
     assert r.returncode == 0 and lines[0].startswith(site) and lines[1].startswith(site), r.stdout + r.stderr
     assert not (venv / "lib").joinpath("aat_deploy").exists()  # sanity: the package sits in site-packages
+    # the extensions the training side declares come from the installed metadata (no pyproject.toml there)
+    code = ("import json; from aat_deploy import extensions as x; "
+            "print(json.dumps([x.declared(), x.load('best_focus_tracer').__module__]))")
+    r = run([str(py), "-c", code], elsewhere)
+    assert r.returncode == 0, r.stderr[-2000:]
+    declared, module = json.loads(r.stdout)
+    assert declared == {"best_focus_tracer": "training.optics.field_focus:coarse_best_focus_map"}, declared
+    assert module == "training.optics.field_focus"
 
     # from another folder: the model by the README's relative name and by its bare name, a lens by name
     r = run(["aat-infer", str(clone / "captures" / "sample_rf50"), "--model", "models/dff_dfvnet_thin.onnx",

@@ -59,3 +59,21 @@ def test_linked_documents_exist():
             assert (ROOT / link).exists(), link
     for name in ("shooting.md", "contracts.md", "runtime.md", "training.md", "internals.md", "diagnosis.md"):
         assert f"docs/{name}" in README, name
+
+
+def test_layout_table_matches_the_tree():
+    """Every folder of the two packages has its row in the Layout table, every row names a folder that exists, and
+    every file a package row names (`name.py`, `data/glasses.json`, `effects/`) is in that folder."""
+    section = README.split("\n## Layout\n", 1)[1].split("\n## ", 1)[0]
+    rows = re.findall(r"^\| `([^`]+)/` \| (.*) \|$", section, re.M)
+    folders = {f for f, _ in rows}
+    assert all((ROOT / f).is_dir() for f in folders), [f for f in folders if not (ROOT / f).is_dir()]
+    packages = {str(p.parent.relative_to(ROOT)) for pkg in ("aat_deploy", "training")
+                for p in (ROOT / pkg).rglob("__init__.py") if "__pycache__" not in p.parts}
+    packages -= {"training", "training/render/effects"}  # the package root's only file; effects/ is named in its row
+    assert packages <= folders, sorted(packages - folders)
+    for folder, what in rows:
+        if folder.split("/")[0] not in ("aat_deploy", "training"):
+            continue
+        for name in re.findall(r"`([\w/.]+\.(?:py|json)|\w+/)`", what):
+            assert (ROOT / folder / name).exists(), f"README Layout: {folder}/{name} does not exist"

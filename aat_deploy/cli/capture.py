@@ -27,6 +27,7 @@ from ..capture.focuslist import parse_focus_list
 from ..capture.folder import SIDECAR, _sidecar, focus_problem, frame_files, read_capture
 from ..capture.raw import FRAME_EXTENSIONS, is_raw, raw_size
 from ..errors import CaptureError, safe_output_streams
+from ..io.atomic import atomic_file
 from .common import EXIT_FAILED, EXIT_OK, parser, subparser
 
 
@@ -164,16 +165,14 @@ def init(args, ap) -> int:
             missing.append(p.name)
         frames.append({"file": p.name, "focus_m": f, **({"from": src} if src else {})})
     text = json.dumps({"frames": frames}, indent=2) + "\n"
-    tmp = folder / f".{SIDECAR}.tmp-{os.getpid()}"
     try:
-        tmp.write_text(text, encoding="utf-8")
-        if os.path.lexists(path):
-            bak = _backup_name(path)
-            os.replace(path, bak)
-            print(f"{path}: the previous one is kept as {bak.name}", file=sys.stderr)
-        os.replace(tmp, path)
+        with atomic_file(path) as tmp:
+            tmp.write_text(text, encoding="utf-8")
+            if os.path.lexists(path):  # written: keep the old one, then rename the new one into place
+                bak = _backup_name(path)
+                os.replace(path, bak)
+                print(f"{path}: the previous one is kept as {bak.name}", file=sys.stderr)
     except OSError as e:
-        tmp.unlink(missing_ok=True)
         print(f"aat-capture: FAILED: {path}: cannot write ({e.strerror or e})", file=sys.stderr)
         return EXIT_FAILED
     if not args.quiet:

@@ -26,8 +26,10 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import CaptureError, safe_output_streams
-from ..eval.gt import check_units, find_gt, load_ground_truth
-from ..eval.raycast import load_intrinsics, load_mesh, load_pose, render_depth
+from ..gt.read import check_units, find_gt, load_ground_truth
+from ..camera import load_intrinsics
+from ..gt.raycast import load_mesh, load_pose, render_depth
+from ..io.atomic import atomic_files
 from ..io.guard import check_output_files
 from ..io.images import imwrite
 from .common import parser, subparser
@@ -53,18 +55,12 @@ def _write_atomic(paths: dict[str, Path], depth_m: np.ndarray, info: dict) -> No
     too_far = int((mm > MM_MAX).sum())
     mm = np.where(mm > MM_MAX, 0, mm).astype(np.uint16)
     info["beyond_png_range"] = too_far
-    tmp = {k: p.with_name(f".{p.name}.tmp-{os.getpid()}{p.suffix}") for k, p in paths.items()}
-    try:
+    with atomic_files(*paths.values()) as tmps:
+        tmp = dict(zip(paths, tmps))
         np.save(tmp["npy"], depth_m.astype(np.float32))
-        if not imwrite(tmp["png"], mm) or not imwrite(tmp["mask"],
-                                                                    valid.astype(np.uint8) * 255):
+        if not imwrite(tmp["png"], mm) or not imwrite(tmp["mask"], valid.astype(np.uint8) * 255):
             raise OSError("could not write PNG")
         tmp["json"].write_text(json.dumps(info, indent=2) + "\n")
-        for k, final in paths.items():
-            os.replace(tmp[k], final)
-    finally:
-        for p in tmp.values():
-            p.unlink(missing_ok=True)
 
 
 def cmd_render(a) -> int:
@@ -97,7 +93,7 @@ def cmd_render(a) -> int:
 
 
 def cmd_pose(a) -> int:
-    from ..eval.pose import fit_notes, load_correspondences, preview, solve_pose
+    from ..gt.pose import fit_notes, load_correspondences, preview, solve_pose
 
     outs = [a.out] + ([a.out.with_suffix(".png")] if a.image else [])
     check_output_files(outs, [p for p in (a.points, a.lens, a.init, a.image) if p])
@@ -121,18 +117,10 @@ def cmd_pose(a) -> int:
         picture = preview(linear_to_srgb(np.clip(rgb / max(float(np.percentile(rgb, 99.5)), 1e-6), 0, 1)),
                           points, intr, fit)
     a.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = a.out.with_name(f".{a.out.name}.tmp-{os.getpid()}")
-    tmp_png = a.out.with_name(f".{a.out.stem}.tmp-{os.getpid()}.png")
-    try:
-        tmp.write_text(json.dumps(fit.as_json(intr, points, notes), indent=2) + "\n")
-        if picture is not None and not imwrite(tmp_png, picture):
-            raise OSError(f"{tmp_png}: could not write PNG")
-        os.replace(tmp, a.out)
-        if picture is not None:
-            os.replace(tmp_png, outs[1])
-    finally:
-        tmp.unlink(missing_ok=True)
-        tmp_png.unlink(missing_ok=True)
+    with atomic_files(*outs) as tmps:  # the pose, and its picture with --image
+        tmps[0].write_text(json.dumps(fit.as_json(intr, points, notes), indent=2) + "\n")
+        if picture is not None and not imwrite(tmps[1], picture):
+            raise OSError(f"{outs[1]}: could not write PNG")
     for n in notes:  # the intrinsics' pupil notes concern depth, not the pose
         print(f"aat-gt: note: {n}", file=sys.stderr)
     pos = fit.cam_to_world[:3, 3]

@@ -15,7 +15,7 @@ from aat_deploy.errors import CaptureError
 from aat_deploy.geometry import fit_to_sensor
 from aat_deploy.model import DfFModel
 from aat_deploy.eval import batch
-from aat_deploy.eval.gt import check_units, find_gt, load_ground_truth, to_sensor
+from aat_deploy.gt.read import check_units, find_gt, load_ground_truth, to_sensor
 from aat_deploy.io.images import imread
 
 

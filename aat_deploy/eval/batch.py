@@ -9,7 +9,7 @@ from pathlib import Path
 
 from ..capture.raw import FRAME_EXTENSIONS
 from ..errors import CaptureError
-from .gt import has_ground_truth
+from ..gt.read import has_ground_truth
 
 
 class Progress:

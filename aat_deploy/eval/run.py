@@ -34,7 +34,7 @@ from ..pipeline import Options
 from ..pipeline import run_capture as infer_capture
 from . import plots, report
 from .batch import Progress, capture_name, find_captures, model_labels
-from .gt import (
+from ..gt.read import (
     GroundTruth,
     GTError,
     check_units,

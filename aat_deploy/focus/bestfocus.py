@@ -21,11 +21,13 @@ surrogate's ONNX metadata under METADATA_KEY (`scripts/stamp_psf_optics.py`). Re
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from ..extensions import load as load_extension
+from ..io.atomic import write_text_atomic
 
 FORMAT = "aat-best-focus-map-v1"
 METADATA_KEY = "aat.best_focus_map"
@@ -130,9 +132,7 @@ class BestFocusMap:
         """Write atomically (temporary file renamed into place)."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        tmp.write_text(json.dumps(self.to_dict(), indent=1))
-        os.replace(tmp, path)
+        write_text_atomic(path, json.dumps(self.to_dict(), indent=1))
         return path
 
 
@@ -153,7 +153,7 @@ def load_json(path: str | Path) -> BestFocusMap:
 
 def from_psf(path: str | Path) -> BestFocusMap:
     """The map stamped into a PSF surrogate's metadata."""
-    from aat_deploy.psf import PSFSurrogate
+    from aat_deploy.psf.surrogate import PSFSurrogate
 
     try:
         meta = PSFSurrogate(path, threads=1).meta
@@ -174,10 +174,10 @@ def from_psf(path: str | Path) -> BestFocusMap:
 
 def for_lens(lens_path: str | Path, compute: bool = True, progress: bool = False) -> tuple[BestFocusMap, str]:
     """The map of a lens file: `best_focus/<stem>.json` next to it (checked against the lens's prescription), else
-    traced now on a coarse grid when torch is installed (uncalibrated; about half a minute), else a one-line error
-    saying how to make it.
+    traced now on a coarse grid when the train extra is installed (the extension `best_focus_tracer`,
+    `aat_deploy.extensions`; uncalibrated, about half a minute), else a one-line error saying how to make it.
     Returns the map and where it came from."""
-    from training.lens.io import load_lens
+    from aat_deploy.lens.io import load_lens
 
     lens_path = Path(lens_path)
     try:
@@ -195,16 +195,9 @@ def for_lens(lens_path: str | Path, compute: bool = True, progress: bool = False
            "or pass --psf with the lens's stamped PSF surrogate")
     if not compute:
         raise BestFocusError(f"{lens_path}: no best-focus map ({stored} missing); {how}")
-    try:
-        import torch  # noqa: F401
-    except ImportError:
+    trace = load_extension("best_focus_tracer")
+    if trace is None:
         raise BestFocusError(f"{lens_path}: no best-focus map ({stored} missing) and torch is not installed to "
-                             f"trace it; {how}") from None
-    from training.optics.field_focus import best_focus_map
-    from training.psf.geometry import focus_table
-
-    # a coarser grid than make_focus_map's (7 radii x 9 focus settings, about a tenth of the time), uncalibrated
-    t = focus_table(lens)
-    m = best_focus_map(lens, radii=np.sqrt(np.linspace(0, 1, 7)),
-                       focus_diopters=np.linspace(t.diopters[0], t.diopters[-1], 9), table=t, progress=progress)
+                             f"trace it; {how}")
+    m = trace(lens, progress=progress)  # 7 radii x 9 focus settings, uncalibrated
     return m, f"traced now (uncalibrated, coarse; for the calibrated map run scripts/make_focus_map.py {lens_path})"

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import CaptureError
-from ..eval.raycast import Intrinsics
+from ..camera import Intrinsics
 from .bestfocus import BestFocusError, BestFocusMap, for_lens, from_psf
 from .method import FocusConfig, FocusResult, depth_from_focus
 
@@ -53,8 +53,8 @@ class FocusMethod:
         self.focus_range_m = self.best_focus.focus_range_m if self.best_focus else (0.0, float("inf"))
 
     def _lens_identity(self, path: Path) -> None:
-        from training.lens.io import load_lens
-        from training.optics.paraxial import paraxial_data
+        from aat_deploy.lens.io import load_lens
+        from aat_deploy.optics.paraxial import paraxial_data
 
         lens = load_lens(path)
         p = paraxial_data(lens)
@@ -62,7 +62,7 @@ class FocusMethod:
         self.sensor_mm = (lens.sensor.width_mm, lens.sensor.height_mm)
 
     def _psf_identity(self, path: Path) -> None:
-        from ..psf import PSFSurrogate
+        from ..psf.surrogate import PSFSurrogate
 
         meta = PSFSurrogate(path, threads=1).meta
         self.lens_name = meta.get("aat.lens_name")

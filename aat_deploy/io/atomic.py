@@ -1,12 +1,19 @@
-"""Output folders written whole or not at all.
+"""Outputs written whole or not at all: the one place files and folders are written atomically.
 
-A folder is filled under a hidden temporary sibling `.NAME.tmp-PID` and renamed into place; an existing folder
-(replaced only with force) is first moved aside to `.NAME.old-PID`, then deleted. A run killed half-way leaves
-such hidden siblings behind: the next run for the same NAME deletes those whose process is gone.
+Files: `atomic_file(path)` yields a hidden temporary sibling `.NAME.tmp-PID-N.SUFFIX` (the suffix kept, so writers
+that pick the format by extension or add one, as cv2.imwrite, savefig and np.savez do, write the file as asked);
+when the block ends it replaces `path` with one rename, on an exception it is deleted and `path` is left as it
+was. `atomic_files` does the same for files that belong together; `write_text_atomic` / `write_bytes_atomic` for
+text and bytes.
+
+Folders: a folder is filled under a hidden temporary sibling `.NAME.tmp-PID` and renamed into place; an existing
+folder (replaced only with force) is first moved aside to `.NAME.old-PID`, then deleted. A run killed half-way
+leaves such hidden siblings behind: the next run for the same NAME deletes those whose process is gone.
 """
 
 from __future__ import annotations
 
+import itertools
 import os
 import re
 import shutil
@@ -17,6 +24,60 @@ from pathlib import Path
 from ..errors import OutputError
 
 _SIBLING = re.compile(r"^\.(?P<name>.+)\.(?:tmp|old)-(?P<pid>\d+)$")
+_COUNTER = itertools.count()  # temporary files of one process (threads too) never share a name
+
+
+def temp_file(path: str | Path) -> Path:
+    """A hidden temporary sibling of the file `path` that keeps its suffix: `.NAME.tmp-PID-N.SUFFIX`."""
+    path = Path(path)
+    return path.with_name(f".{path.name}.tmp-{os.getpid()}-{next(_COUNTER)}{path.suffix}")
+
+
+@contextmanager
+def atomic_files(*paths: str | Path) -> Iterator[list[Path]]:
+    """Yield a temporary sibling for each of `paths` (temp_file); when the block ends without an exception each
+    replaces its path (in the order given), otherwise they are deleted and the paths are left as they were. A
+    temporary file the block did not write is skipped (optional outputs).
+
+        with atomic_files(depth_png, mask_png) as (tmp_depth, tmp_mask):
+            ...
+    """
+    tmps = [temp_file(p) for p in paths]
+    try:
+        yield tmps
+        for tmp, path in zip(tmps, paths):
+            if os.path.lexists(tmp):
+                os.replace(tmp, path)
+    finally:
+        for tmp in tmps:
+            if os.path.lexists(tmp):
+                tmp.unlink()
+
+
+@contextmanager
+def atomic_file(path: str | Path) -> Iterator[Path]:
+    """Yield a temporary sibling of `path` to write; it replaces `path` when the block ends without an exception
+    (one rename: readers see the old file or the new one, never half of one), else it is deleted.
+
+        with atomic_file(out_png) as tmp:
+            fig.savefig(tmp)
+    """
+    with atomic_files(path) as (tmp,):
+        yield tmp
+
+
+def write_bytes_atomic(path: str | Path, data: bytes, fsync: bool = False) -> None:
+    """Write `data` to `path` atomically; fsync: flush it to the disk before the rename (survives a power cut)."""
+    with atomic_file(path) as tmp, open(tmp, "wb") as f:
+        f.write(data)
+        if fsync:
+            f.flush()
+            os.fsync(f.fileno())
+
+
+def write_text_atomic(path: str | Path, text: str, encoding: str = "utf-8") -> None:
+    """Write `text` to `path` atomically."""
+    write_bytes_atomic(path, text.encode(encoding))
 
 
 def temp_sibling(out_dir: Path, kind: str = "tmp", pid: int | None = None) -> Path:

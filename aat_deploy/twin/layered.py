@@ -190,7 +190,7 @@ def render_layered(image: np.ndarray, depth_m: np.ndarray, focus_m: float, sourc
     all > 0.
 
     source: a PSF source (`aat_deploy.twin.sources`): source(x, y, depth_m, focus_m) -> (kernels (N, k, k) or
-        (N, Ck, k, k) with Ck = C, scale (N,)) as numpy, in the storage of `training.psf.kernel`; source.k;
+        (N, Ck, k, k) with Ck = C, scale (N,)) as numpy, in the storage of `aat_deploy.psf.kernel`; source.k;
         source.scale(depth_m, focus_m) and source.blur_px(depth_m, focus_m) (pixels).
     field_fn(rows, cols) -> normalised field (x, y) of points given in this image's pixel coordinates
         (row, col; pixel centres at +0.5), accounting for the crop's place on the sensor.

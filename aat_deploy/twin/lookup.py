@@ -10,8 +10,8 @@ from aat_deploy.model import DfFModel
 from aat_deploy.shipped import shipped_dir
 from aat_deploy.twin.renderer import TwinError
 from aat_deploy.twin.sources import OnnxSource
-from training.lens.io import load_lens
-from training.lens.schema import Lens
+from aat_deploy.lens.io import load_lens
+from aat_deploy.lens.schema import Lens
 
 
 

@@ -26,9 +26,9 @@ from aat_deploy.normalise import normalise_stack
 from aat_deploy.twin.fields import field_of
 from aat_deploy.twin.layered import LayeredConfig, render_layered
 from aat_deploy.twin.sources import GaussianSource, OnnxSource
-from training.data.rgbd import fill_depth
-from training.lens.schema import Lens
-from training.psf.geometry import FocusTable, paraxial_focus_table
+from aat_deploy.gt.holes import fill_holes as fill_depth  # phase 2 of issue 22: call it fill_holes
+from aat_deploy.lens.schema import Lens
+from aat_deploy.optics.focus_table import FocusTable, paraxial_focus_table
 from training.render import effects as fx
 
 
@@ -71,7 +71,7 @@ def optical_stack(effects: list[fx.Effect], thin_source, rgb: np.ndarray, depth_
 class TwinRenderer:
     """Renders twins of captures for one model: `render(capture, aif_linear, extra_effects)`.
 
-    lens: the lens the model was trained for, with the model's sensor (`training.lens`). psf: the lens's exported
+    lens: the lens the model was trained for, with the model's sensor (`aat_deploy.lens`). psf: the lens's exported
     surrogate (.onnx path or an `OnnxSource`), or None (then only effects that do not need the lens's PSFs render).
     Stacks through the optics are cached (keyed by the scene's content and the optical effects' settings), so
     effects that act only after the optics (noise, focus breathing) and their candidate settings cost no new

@@ -2,13 +2,13 @@
 
     source(x, y, depth_m, focus_m) -> (kernels (N, k, k) float32, scale (N,) float32)
 
-in the storage of `training.psf.kernel` (energy per cell, cells of `scale` pixels, centred on the chief ray),
+in the storage of `aat_deploy.psf.kernel` (energy per cell, cells of `scale` pixels, centred on the chief ray),
 plus `source.k`, `source.scale(depth_m, focus_m)` (cell size, pixels) and `source.blur_px(depth_m, focus_m)`
 (thin-lens blur diameter, pixels). x, y: normalised field in [-1, 1] (x right, y up); distances in metres from
-the sensor plane. Both sources take the lens's first-order data from the lens file (`training.lens`, torch-free).
+the sensor plane. Both sources take the lens's first-order data from the lens file (`aat_deploy.lens`, torch-free).
 
-- `OnnxSource`: the exported surrogate (`aat_deploy.psf.PSFSurrogate`); it also carries the lens's real-ray focus
-  table and exit pupil in its metadata, which the focus effects need.
+- `OnnxSource`: the exported surrogate (`aat_deploy.psf.surrogate.PSFSurrogate`); it also carries the lens's
+  real-ray focus table and exit pupil in its metadata, which the focus effects need.
 - `GaussianSource`: the thin-lens baseline (numpy twin of `training.psf.surrogates.GaussianPSF`).
 - `UnitEnergy`: kernels normalised to unit energy, for numpy or torch kernels alike (the `aberrations` effect).
 """
@@ -19,11 +19,12 @@ import json
 
 import numpy as np
 
-from aat_deploy.psf import PSFSurrogate
-from training.lens.schema import Lens
-from training.optics.paraxial import paraxial_data
-from training.psf.geometry import FocusTable, table_from_arrays, thin_lens_blur_px
-from training.psf.kernel import KernelSpec
+from aat_deploy.psf.surrogate import PSFSurrogate
+from aat_deploy.lens.schema import Lens
+from aat_deploy.optics.paraxial import paraxial_data
+from aat_deploy.optics.focus_table import FocusTable, table_from_arrays
+from aat_deploy.optics.thin_lens import thin_lens_blur_px
+from aat_deploy.psf.kernel import KernelSpec
 
 # Metadata keys of an exported surrogate that carry the lens's focusing (`training.psf.export.metadata`).
 TABLE_KEYS = ("aat.focus_table_diopters", "aat.focus_table_sensor_z_mm")
@@ -99,7 +100,7 @@ class GaussianSource(LensGeometry):
         self.efl_mm, self.epd_mm, self.pixel_mm = float(p.efl_mm), float(p.entrance_pupil_mm), lens.sensor.pixel_mm
 
     def _blur_px32(self, depth_m: np.ndarray, focus_m: np.ndarray) -> np.ndarray:
-        """Thin-lens blur diameter (px), float32: `training.psf.geometry.thin_lens_blur_px` as GaussianPSF does it."""
+        """Thin-lens blur diameter (px), float32: `aat_deploy.optics.thin_lens` as GaussianPSF does it."""
         f = self.efl_mm
         big_d = np.float32(1000.0) * focus_m
         v_f = 2 * big_d * f / (big_d + np.sqrt(np.maximum(big_d * big_d - 4 * big_d * f, 0.0)))

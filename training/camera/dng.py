@@ -13,11 +13,12 @@ import math
 import os
 import re
 import struct
-import tempfile
 from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
+
+from aat_deploy.io.atomic import write_bytes_atomic
 
 BYTE, ASCII, SHORT, LONG, RATIONAL, UNDEFINED, SRATIONAL = 1, 2, 3, 4, 5, 7, 10
 _FMT = {BYTE: "B", SHORT: "H", LONG: "I", UNDEFINED: "B"}
@@ -158,13 +159,4 @@ def write_dng(path: str | os.PathLike, cfa: np.ndarray, *, cfa_pattern: str = "R
     blob = (b"II*\0" + struct.pack("<I", 8) + _ifd(ifd0(exif_at, pixels_at), 8) + _ifd(exif, exif_at) + pixels)
     assert len(blob) == pixels_at + len(pixels)
 
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(blob)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_bytes_atomic(path, blob, fsync=True)

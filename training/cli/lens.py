@@ -16,9 +16,10 @@ import sys
 from pathlib import Path
 
 from aat_deploy.cli.common import parser, run_or_hint, subparser
+from aat_deploy.io.atomic import atomic_file
+from aat_deploy.lens.io import LensFileError, load_lens
+from aat_deploy.lens.materials import UnknownMaterialError
 from aat_deploy.shipped import resolve
-from training.lens.io import LensFileError, load_lens
-from training.lens.materials import UnknownMaterialError
 
 
 def _distance(text: str) -> float:
@@ -42,13 +43,12 @@ def _png_path(p: str | None, force: bool) -> Path | None:
 
 
 def _atomic_png(draw, path: Path) -> None:
-    tmp = path.with_name(path.stem + ".tmp.png")
-    draw(tmp)
-    tmp.replace(path)
+    with atomic_file(path) as tmp:
+        draw(tmp)
 
 
 def cmd_info(a) -> int:
-    from training.optics.paraxial import paraxial_data
+    from aat_deploy.optics.paraxial import paraxial_data
 
     lens = load_lens(a.lens)
     p = paraxial_data(lens)

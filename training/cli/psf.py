@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from aat_deploy.cli.common import parser, run_or_hint, subparser
+from aat_deploy.io.atomic import atomic_file
 from aat_deploy.shipped import resolve, shipped_dir
 
 
@@ -30,7 +31,7 @@ def _floats(text: str) -> list[float]:
 
 def field_from_angle(lens, angle_deg: float) -> tuple[float, float]:
     """Normalised field (x = y, on the diagonal) whose object direction makes `angle_deg` with the axis."""
-    from training.optics.paraxial import paraxial_data
+    from aat_deploy.optics.paraxial import paraxial_data
 
     r = math.tan(math.radians(angle_deg)) * paraxial_data(lens).efl_mm / lens.sensor.half_diagonal_mm
     return r, r
@@ -40,7 +41,7 @@ def _default_model(lens) -> Path | None:
     models = shipped_dir("models")
     for p in sorted(models.glob("psf_*.onnx")) if models else []:
         try:
-            from aat_deploy.psf import PSFSurrogate
+            from aat_deploy.psf.surrogate import PSFSurrogate
 
             if PSFSurrogate(p).lens_hash == lens.prescription_hash():
                 return p
@@ -56,8 +57,8 @@ def cmd_show(a) -> int:
     import matplotlib.pyplot as plt
     import torch
 
-    from training.lens.io import load_lens
-    from training.psf.kernel import KernelSpec
+    from aat_deploy.lens.io import load_lens
+    from aat_deploy.psf.kernel import KernelSpec
     from training.psf.raytrace import raytrace_psfs
     from training.psf.surrogates import GaussianPSF
 
@@ -68,7 +69,7 @@ def cmd_show(a) -> int:
     model_path = None if a.model == "none" else Path(a.model) if a.model else _default_model(lens)
     surrogate = None
     if model_path is not None:
-        from aat_deploy.psf import PSFSurrogate
+        from aat_deploy.psf.surrogate import PSFSurrogate
 
         surrogate = PSFSurrogate(model_path)
         if surrogate.lens_hash != lens.prescription_hash():
@@ -103,10 +104,9 @@ def cmd_show(a) -> int:
                     ax.set_ylabel(f"{ang:g}°\n{label}", fontsize=7)
     fig.suptitle(f"{lens.name}: PSFs focused at {a.focus_m:g} m ({k}x{k} cells, {a.rays} rays)", fontsize=9)
     fig.tight_layout()
-    tmp = out.with_name(out.stem + ".tmp.png")
-    fig.savefig(tmp, dpi=110)
+    with atomic_file(out) as tmp:
+        fig.savefig(tmp, dpi=110)
     plt.close(fig)
-    tmp.replace(out)
     print(f"wrote {out}" + ("" if surrogate else " (no surrogate for this lens: ray-traced and Gaussian only)"))
     return 0
 

@@ -17,7 +17,6 @@ import sys
 import time
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from aat_deploy.cli.common import add_list_option, parser, print_effects, run_or_hint
@@ -67,26 +66,16 @@ def find_surrogate(lens) -> Path | None:
     return None
 
 
-def fit_to_sensor(rgb: np.ndarray, depth: np.ndarray, hw: tuple[int, int]):
-    """The runtime's fit (centre crop to the sensor's aspect, then resize), so a rendered capture and a real
-    one are framed alike; depth takes the same crop, resized with nearest neighbour (no invented depths)."""
-    from aat_deploy.geometry import fit_to_sensor as fit
-
-    th, tw = hw
-    out, info = fit(rgb, (tw, th))
-    x0, y0, cw, ch = info["crop_xywh"]
-    d = cv2.resize(np.ascontiguousarray(depth[y0:y0 + ch, x0:x0 + cw]), (tw, th), interpolation=cv2.INTER_NEAREST)
-    return out, d
-
-
 def run(args) -> Path:
     import torch
 
     from aat_deploy.errors import OutputError
+    from aat_deploy.geometry import fit_rgbd_to_sensor
+    from aat_deploy.gt.holes import fill_holes
     from aat_deploy.io.guard import check_output_dir
+    from aat_deploy.lens.io import LensFileError, load_lens
     from training.camera.virtual import write_capture
-    from training.data.rgbd import RGBDError, fill_depth, load_rgbd
-    from training.lens.io import LensFileError, load_lens
+    from training.data.rgbd import RGBDError, load_rgbd
     from training.render import effects as fx
     from training.render.simulator import Simulator
     from training.render.sources import OnnxPSF, RayTracedPSF
@@ -104,7 +93,7 @@ def run(args) -> Path:
     except (LensFileError, RGBDError, ValueError, OSError) as e:
         raise SystemExit(f"aat-render: error: {e}") from None
     hs, ws = lens.sensor.height_px, lens.sensor.width_px
-    rgb, depth = fit_to_sensor(rgb, depth, (hs, ws))
+    rgb, depth = fit_rgbd_to_sensor(rgb, depth, (hs, ws))
     names = [e.name for e in effects]
     lens_src, psf_used = None, None
     if not args.thin_lens or "vignetting" in names:
@@ -131,7 +120,7 @@ def run(args) -> Path:
         tqdm = None
     it = tqdm(focus, desc="frames", unit="frame") if tqdm and not args.quiet else focus
     for f in it:
-        st = sim.render_stack(img, torch.from_numpy(fill_depth(depth)).float(), [f], rng=rng)
+        st = sim.render_stack(img, torch.from_numpy(fill_holes(depth)).float(), [f], rng=rng)
         frames.append(st.frames[0].numpy())
     info = {"lens": lens.name, "lens_hash": lens.prescription_hash(), "psf": psf_used,
             "effects": sim.effect_names, "focus_m": focus.tolist(), "seed": args.seed,

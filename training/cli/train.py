@@ -9,7 +9,7 @@
 --config: re-running with --resume after a kill continues from the last checkpoint; without --resume an
 existing run directory is refused.
 --lens: lens check, PSF surrogate, AAT and thin-lens training, ONNX export, held-out evaluation and a report, all
-in DIR (training/pipeline). Re-running the same command continues where it stopped and skips finished stages;
+in DIR (training/chain). Re-running the same command continues where it stopped and skips finished stages;
 different settings on an existing DIR are refused unless --force, which reruns only the stages they change.
 """
 
@@ -110,7 +110,7 @@ def main_config(args: argparse.Namespace) -> int:
     except ConfigError as e:
         print(f"aat-train: {e}", file=sys.stderr)
         return 2
-    from training.nets.init import InitError
+    from training.nets.warm_start import InitError
     from training.train.loop import train
 
     out = Path(args.out) if args.out else ROOT / "runs" / cfg.name
@@ -131,7 +131,7 @@ def main_config(args: argparse.Namespace) -> int:
 
 
 def chain_options(args: argparse.Namespace):
-    from training.pipeline.config import ChainOptions
+    from training.chain.config import ChainOptions
 
     return ChainOptions(lens=args.lens, out=args.out, sensor_mm=args.sensor_mm, resolution=args.resolution,
                         net=args.net, size=args.size, focus_range_m=args.focus_range_m, stack=args.stack,
@@ -143,10 +143,10 @@ def main_lens(args: argparse.Namespace) -> int:
     if not args.out:
         print("aat-train: --lens needs --out DIR (the run folder)", file=sys.stderr)
         return 2
-    from training.lens.io import LensFileError
-    from training.nets.init import InitError
-    from training.pipeline.config import ChainConfigError, resolve
-    from training.pipeline.runner import ChainError, run_chain
+    from aat_deploy.lens.io import LensFileError
+    from training.chain.config import ChainConfigError, resolve
+    from training.chain.runner import ChainError, run_chain
+    from training.nets.warm_start import InitError
 
     if refuse_inputs_in(args.out, [args.lens, args.init, args.psf]):
         return 2

@@ -1,8 +1,8 @@
 """Real RGB-D scenes for rendering focal stacks: Middlebury 2014 "Motorcycle" and any image + depth map.
 
 Images come back as linear RGB (H, W, 3) float32 in [0, 1] (8/16-bit sRGB files are decoded), depth as (H, W)
-float32 metres from the sensor with 0 where unknown. `fill_depth` gives a hole-free copy for the renderer
-(the ground truth keeps its zeros).
+float32 metres from the sensor with 0 where unknown. `aat_deploy.gt.holes.fill_holes` gives a hole-free copy for
+the renderer (the ground truth keeps its zeros).
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from aat_deploy.capture.raw import linear_to_srgb, srgb_to_linear  # one definition for both sides
+from aat_deploy.capture.raw import srgb_to_linear
 
 SHARED_MIDDLEBURY = Path(__file__).resolve().parents[3] / "shared" / "data" / "middlebury2014_motorcycle"
 # Calibration of the x4-downsampled Motorcycle images that scikit-image ships (Middlebury calib.txt / 4).
@@ -115,18 +115,3 @@ def load_middlebury_motorcycle(shared_dir: Path | None = None) -> tuple[np.ndarr
                          / 1000.0, 0).astype(np.float32)
     return rgb, depth
 
-
-def fill_depth(depth_m: np.ndarray) -> np.ndarray:
-    """Copy of depth with unknown pixels (0) filled from the nearest known ones, for rendering. Filling takes
-    the *farther* of neighbouring values first, since holes in stereo/lidar GT are mostly occluded background."""
-    d = np.asarray(depth_m, dtype=np.float32).copy()
-    if not (d > 0).any():
-        raise RGBDError("depth has no valid pixel to fill from")
-    kernel = np.ones((3, 3), np.uint8)
-    for _ in range(4096):
-        hole = d <= 0
-        if not hole.any():
-            break
-        grown = cv2.dilate(d, kernel)  # the farthest valid neighbour
-        d = np.where(hole & (grown > 0), grown, d)
-    return d

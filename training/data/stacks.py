@@ -18,11 +18,13 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from aat_deploy.normalise import PERCENTILE
+from aat_deploy.gt.holes import fill_holes
+from aat_deploy.io.atomic import atomic_file
+from aat_deploy.lens.io import load_lens
+from aat_deploy.normalise import normalise_scale, scaled
 from aat_deploy.twin.fields import pixel_fields
-from training.data.rgbd import fill_depth, load_middlebury_motorcycle
+from training.data.rgbd import load_middlebury_motorcycle
 from training.data.scenes import SceneConfig, procedural_scene
-from training.lens.io import load_lens
 from training.render import effects as fx
 from training.render.layered import LayeredConfig
 from training.render.schedule import FocusSchedule, scene_range_distances
@@ -171,7 +173,7 @@ class FocalStackDataset(Dataset):
         r = int(rng.integers(0, rgb.shape[0] - h + 1))
         q = int(rng.integers(0, rgb.shape[1] - w + 1))
         g = gt[r:r + h, q:q + w]
-        return rgb[r:r + h, q:q + w], fill_depth(g), g
+        return rgb[r:r + h, q:q + w], fill_holes(g), g
 
     def _focus(self, rng: np.random.Generator, gt: np.ndarray) -> np.ndarray:
         """Focus distances (m) of one item: the camera-like schedule or the paper's scene-range protocol."""
@@ -196,12 +198,11 @@ class FocalStackDataset(Dataset):
         sl = (slice(m, m + c.height), slice(m, m + c.width))
         frames = st.frames[:, :, sl[0], sl[1]].numpy()
         aif = img[:, sl[0], sl[1]].numpy()
-        p = np.float32(np.percentile(frames, PERCENTILE))
-        p = p if p > 0 else np.float32(1.0)
-        return {"stack": np.clip(frames / p, 0, 1).astype(np.float32),
+        p = normalise_scale(frames)
+        return {"stack": scaled(frames, p),
                 "focus_m": st.focus_reported_m.astype(np.float32),
                 "depth_m": np.ascontiguousarray(gt[sl]).astype(np.float32),
-                "aif": np.clip(aif / p, 0, 1).astype(np.float32),
+                "aif": scaled(aif, p),
                 "origin": np.array(origin, dtype=np.int64)}
 
     def __getitem__(self, index: int) -> dict:
@@ -228,9 +229,8 @@ class FocalStackDataset(Dataset):
             if item is None:
                 item = self.render(index)
                 self.cache.mkdir(parents=True, exist_ok=True)
-                tmp = f.with_name(f.name + f".{np.random.randint(1 << 30)}.tmp.npz")
-                np.savez(tmp, **{**item, "stack": item["stack"].astype(np.float16)})
-                tmp.replace(f)
+                with atomic_file(f) as tmp:  # DDP ranks and loader workers may write the same item at once
+                    np.savez(tmp, **{**item, "stack": item["stack"].astype(np.float16)})
                 item["stack"] = item["stack"].astype(np.float16).astype(np.float32)  # as every later read sees it
         else:
             item = self.render(index)

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import warnings
 from importlib import metadata as importlib_metadata
 from pathlib import Path
@@ -21,9 +20,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from aat_deploy.io.atomic import atomic_file
+from aat_deploy.lens.schema import Lens
 from aat_deploy.normalise import DESCRIPTION as NORMALISATION
-from training.lens.schema import Lens
-from training.nets.model import DfFModel
+from training.nets.model import DfFNet
 
 DISTANCES = "metres from the sensor plane along the optical axis"
 # onnxruntime vs torch, relative to the inputs' magnitude (see `parity`). Float32 (unit roundoff 6e-8) through some
@@ -47,11 +47,11 @@ def package_version() -> str:
         return "unknown"
 
 
-def dff_metadata(model: DfFModel, lens: Lens, *, simulator: str, effects: list[str],
+def dff_metadata(model: DfFNet, lens: Lens, *, simulator: str, effects: list[str],
                  focus_range_m: tuple[float, float], stack_range: tuple[int, int], config_hash: str,
                  extra: dict | None = None) -> dict[str, str]:
     """metadata_props for a DfF model: every key of docs/contracts.md, strings (lists/numbers JSON-encoded)."""
-    from training.optics.paraxial import paraxial_data
+    from aat_deploy.optics.paraxial import paraxial_data
 
     if simulator not in ("aat", "thin_lens"):
         raise ValueError(f"simulator must be 'aat' or 'thin_lens', got {simulator!r}")
@@ -97,14 +97,14 @@ def _example(b: int, s: int, h: int, w: int, seed: int = 0) -> tuple[torch.Tenso
     return stack, focus, field
 
 
-def _feeds(model: DfFModel, stack, focus, field) -> tuple[tuple, dict]:
+def _feeds(model: DfFNet, stack, focus, field) -> tuple[tuple, dict]:
     """Torch arguments and onnxruntime feeds of one example (field only for field-aware models)."""
     if model.field_channels:
         return (stack, focus, field), {"stack": stack.numpy(), "focus_m": focus.numpy(), "field_xy": field.numpy()}
     return (stack, focus), {"stack": stack.numpy(), "focus_m": focus.numpy()}
 
 
-def parity(model: DfFModel, onnx_path, shapes: list[tuple[int, int, int, int]]) -> float:
+def parity(model: DfFNet, onnx_path, shapes: list[tuple[int, int, int, int]]) -> float:
     """Largest relative difference between torch and onnxruntime over all outputs at each (B, S, H, W): max |ORT -
     torch| of depth_m and std_m over the largest focus distance, of aif over the largest stack value (the
     magnitudes those outputs are made from; rounding is relative to them, also where an output is near 0)."""
@@ -127,7 +127,7 @@ def parity(model: DfFModel, onnx_path, shapes: list[tuple[int, int, int, int]]) 
     return worst
 
 
-def export_dff_onnx(model: DfFModel, path, metadata: dict[str, str], *, force: bool = False,
+def export_dff_onnx(model: DfFNet, path, metadata: dict[str, str], *, force: bool = False,
                     check_shapes: list[tuple[int, int, int, int]] | None = None, opset: int = 17) -> float:
     """Write `model` to ONNX at `path` (atomic: temporary file then rename; refuses to overwrite unless force)
     with `metadata` (see dff_metadata). Checks onnxruntime against torch at `check_shapes` (B, S, H, W)
@@ -148,8 +148,7 @@ def export_dff_onnx(model: DfFModel, path, metadata: dict[str, str], *, force: b
     if model.field_channels:
         axes["field_xy"] = {0: "B", 2: "H", 3: "W"}
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    try:
+    with atomic_file(path) as tmp:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # the legacy exporter's deprecation notice
             torch.onnx.export(model, args, str(tmp), input_names=names,
@@ -163,10 +162,6 @@ def export_dff_onnx(model: DfFModel, path, metadata: dict[str, str], *, force: b
         if err > PARITY_TOL:
             raise RuntimeError(f"{path}: onnxruntime differs from torch by {err:.2e} of the inputs' magnitude "
                                f"(> {PARITY_TOL:g})")
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
     return err
 
 

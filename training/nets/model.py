@@ -1,7 +1,7 @@
 """A DfF network plus the shared head, and the wrapper that accepts any stack: sorts frames by focus distance,
 pads H, W (reflect) to the network's multiple and crops back.
 
-`DfFModel.forward` is what ONNX exports: it expects sorted frames and H, W multiples of `size_multiple` (the
+`DfFNet.forward` is what ONNX exports: it expects sorted frames and H, W multiples of `size_multiple` (the
 runtime pads and sorts, see docs/contracts.md). `predict` is the torch-side equivalent of the runtime.
 """
 
@@ -34,7 +34,7 @@ def build_net(net: str, size: str, field_channels: int = 0) -> nn.Module:
     return AiFNet(AIFNET_CONFIGS[size], c) if net == "aifnet" else DFVNet(DFVNET_CONFIGS[size], in_channels=c)
 
 
-class DfFModel(nn.Module):
+class DfFNet(nn.Module):
     """Network + head. forward(stack (B, S, 3, H, W), focus_m (B, S)[, field_xy (B, 2, H, W)]) ->
     (depth_m (B, H, W), aif (B, 3, H, W), std_m (B, H, W)); frames sorted near to far, H, W multiples of
     `size_multiple`. A field-aware model (field_channels 2) also takes each pixel's normalised sensor position
@@ -78,8 +78,8 @@ class DfFModel(nn.Module):
         return depth, aif, std
 
 
-def build_model(net: str, size: str, field_channels: int = 0) -> DfFModel:
-    return DfFModel(build_net(net, size, field_channels), net, size, field_channels)
+def build_model(net: str, size: str, field_channels: int = 0) -> DfFNet:
+    return DfFNet(build_net(net, size, field_channels), net, size, field_channels)
 
 
 def sort_by_focus(stack: Tensor, focus_m: Tensor) -> tuple[Tensor, Tensor]:
@@ -122,7 +122,7 @@ def pad_field(field_xy: Tensor, multiple: int) -> Tensor:
 
 def train_levels(module: nn.Module, stack: Tensor, focus_m: Tensor, size_multiple: int,
                  field_xy: Tensor | None = None) -> list:
-    """Training forward of a DfFModel (or its DistributedDataParallel wrapper) on any batch: frames sorted,
+    """Training forward of a DfFNet (or its DistributedDataParallel wrapper) on any batch: frames sorted,
     H, W padded to `size_multiple` and every level's outputs cropped back. Returns [(depth_m, aif, std_m), ...]."""
     stack, focus_m = sort_by_focus(stack, focus_m)
     padded, (h, w) = pad_to_multiple(stack, size_multiple)
@@ -131,7 +131,7 @@ def train_levels(module: nn.Module, stack: Tensor, focus_m: Tensor, size_multipl
     return [tuple(None if t is None else t[..., :h, :w] for t in lv) for lv in levels]
 
 
-def predict(model: DfFModel, stack: Tensor, focus_m: Tensor, field_xy: Tensor | None = None) -> dict[str, Tensor]:
+def predict(model: DfFNet, stack: Tensor, focus_m: Tensor, field_xy: Tensor | None = None) -> dict[str, Tensor]:
     """Run `model` on any stack: frames sorted by focus (any input order accepted), any H, W (padded and
     cropped back). stack (B, S, 3, H, W) normalised per docs/contracts.md, focus_m (B, S) metres.
     field_xy (B, 2, H, W): each pixel's normalised sensor position, for field-aware models.

@@ -24,11 +24,12 @@ import numpy as np
 import torch
 
 from aat_deploy.focus.bestfocus import BestFocusMap
-from training.lens.schema import Lens
+from aat_deploy.lens.schema import Lens
+from aat_deploy.optics.focus_table import FocusTable
+from aat_deploy.optics.paraxial import paraxial_data
 from training.optics.focus import best_focus_shift_mm
-from training.optics.paraxial import paraxial_data
 from training.optics.trace import Rays, start_plane_z_mm, stratified_disk, trace
-from training.psf.geometry import FocusTable, focus_table, object_points_mm
+from training.psf.geometry import focus_table, object_points_mm
 
 N_RAYS = 2048
 TOL_MM = 1e-5  # image-side: 10 nm, far below the depth of focus
@@ -126,3 +127,12 @@ def best_focus_map(lens: Lens, radii=None, focus_diopters=None, table: FocusTabl
              "made_by": "training.optics.field_focus.best_focus_map"}
     return BestFocusMap(radii, fd, out, (s.width_mm, s.height_mm), lens_name=lens.name,
                         lens_hash=lens.prescription_hash(), notes=notes)
+
+
+def coarse_best_focus_map(lens: Lens, progress: bool = False) -> BestFocusMap:
+    """A quick, uncalibrated map for a lens that has none stored: 7 radii x 9 focus settings (about a tenth of
+    `scripts/make_focus_map.py`'s time). The runtime reaches it as the extension `best_focus_tracer`
+    (`aat_deploy.extensions`) when the train extra is installed."""
+    t = focus_table(lens)
+    return best_focus_map(lens, radii=np.sqrt(np.linspace(0, 1, 7)),
+                          focus_diopters=np.linspace(t.diopters[0], t.diopters[-1], 9), table=t, progress=progress)

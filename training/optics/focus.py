@@ -16,8 +16,8 @@ import math
 
 import torch
 
-from training.lens.schema import Lens
-from training.optics.paraxial import paraxial_image_z_mm
+from aat_deploy.lens.schema import Lens
+from aat_deploy.optics.paraxial import paraxial_image_z_mm
 from training.optics.trace import rays_through_pupil, stratified_disk, trace
 
 FOCUS_TOL_MM = 1e-7

@@ -11,9 +11,9 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from training.lens.schema import Lens  # noqa: E402
+from aat_deploy.lens.schema import Lens  # noqa: E402
+from aat_deploy.optics.paraxial import paraxial_data  # noqa: E402
 from training.optics.focus import focus  # noqa: E402
-from training.optics.paraxial import paraxial_data  # noqa: E402
 from training.optics.spot import Spot, field_rays  # noqa: E402
 from training.optics.trace import trace  # noqa: E402
 

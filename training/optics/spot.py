@@ -13,9 +13,9 @@ from dataclasses import dataclass
 
 import torch
 
-from training.lens.schema import Lens
+from aat_deploy.lens.schema import Lens
+from aat_deploy.optics.paraxial import paraxial_data
 from training.optics.focus import focus, object_z_mm
-from training.optics.paraxial import paraxial_data
 from training.optics.trace import rays_through_pupil, trace, uniform_disk_grid
 
 

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import torch
 
-from training.lens.schema import Lens, Surface
+from aat_deploy.lens.schema import Lens, Surface
 
 NEWTON_MAX_ITERS = 30
 NEWTON_TOL_MM = {torch.float64: 1e-12, torch.float32: 1e-6}
@@ -206,7 +206,7 @@ def rays_through_pupil(
         with chief-ray angle `field_angle_rad` = (angle in x-z plane, angle in y-z plane).
     pupil_radius_mm / pupil_z_mm: default to the paraxial entrance pupil.
     """
-    from training.optics.paraxial import paraxial_data
+    from aat_deploy.optics.paraxial import paraxial_data
 
     if pupil_radius_mm is None or pupil_z_mm is None:
         px = paraxial_data(lens)

@@ -13,7 +13,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import tempfile
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -22,8 +21,9 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from training.lens.schema import Lens
-from training.psf.kernel import KernelSpec
+from aat_deploy.io.atomic import atomic_file
+from aat_deploy.lens.schema import Lens
+from aat_deploy.psf.kernel import KernelSpec
 from training.psf.raytrace import DEFAULT_WAVELENGTH_NM, raytrace_psfs
 
 DEFAULT_CACHE = Path(os.environ.get("AAT_CACHE", Path(__file__).resolve().parents[2] / "cache"))
@@ -77,11 +77,8 @@ def sample_inputs(lens: Lens, cfg: PSFDataConfig) -> dict[str, np.ndarray]:
 
 def _atomic_savez(path: Path, **arrays) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz.tmp")
-    os.close(fd)
-    with open(tmp, "wb") as f:
+    with atomic_file(path) as tmp, open(tmp, "wb") as f:
         np.savez(f, **arrays)
-    os.replace(tmp, path)
 
 
 def build_psf_dataset(lens: Lens, cfg: PSFDataConfig, cache_dir: Path | None = None, compiled: bool = True,
@@ -129,7 +126,7 @@ def eval_grid(lens: Lens, n_focus: int = 20, n_depth: int = 40, n_rows: int = 8,
               near_m: float = 0.3, far_m: float = 20.0) -> dict[str, np.ndarray]:
     """The paper's PSF evaluation grid: focus x depth (both even in diopters) x rows x cols field positions
     (cell centres of an n_rows x n_cols grid over the sensor). Flattened, focus-major."""
-    from training.psf.geometry import diopter_grid
+    from aat_deploy.optics.focus_table import diopter_grid
 
     f = diopter_grid(near_m, far_m, n_focus)
     d = diopter_grid(near_m, far_m, n_depth)

@@ -10,11 +10,11 @@ from pathlib import Path
 
 import torch
 
-from training.lens.io import load_lens
-from training.lens.schema import Lens
+from aat_deploy.lens.io import load_lens
+from aat_deploy.lens.schema import Lens
+from aat_deploy.psf.kernel import KernelSpec
 from training.psf.dataset import DEFAULT_CACHE, PSFDataConfig, build_psf_dataset, to_tensors
 from training.psf.fit import FitConfig, fit, make_model
-from training.psf.kernel import KernelSpec
 from training.psf.surrogates import PSFModel
 
 ROOT = Path(__file__).resolve().parents[2]

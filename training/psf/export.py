@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 import warnings
 from pathlib import Path
 
@@ -11,9 +10,10 @@ import numpy as np
 import torch
 from torch import nn
 
+from aat_deploy.io.atomic import atomic_file
+from aat_deploy.lens.schema import Lens
+from aat_deploy.optics.paraxial import paraxial_data
 from aat_deploy.twin.sources import EXIT_PUPIL_KEY, TABLE_KEYS
-from training.lens.schema import Lens
-from training.optics.paraxial import paraxial_data
 from training.psf.geometry import focus_table
 from training.psf.surrogates import PSFModel
 
@@ -92,9 +92,8 @@ def stamp_optics_metadata(path, lens: Lens, best_focus=None) -> dict[str, str]:
             props[k].value = v
         else:
             m.metadata_props.add(key=k, value=v)
-    tmp = path.with_name(path.name + ".tmp")
-    onnx.save(m, str(tmp))
-    os.replace(tmp, path)
+    with atomic_file(path) as tmp:
+        onnx.save(m, str(tmp))
     return md
 
 
@@ -110,23 +109,22 @@ def export_psf_onnx(model: PSFModel, lens: Lens, path, extra_metadata: dict | No
     model = model.eval().float()
     wrapper = _Wrapper(model)
     q = torch.tensor([[0.1, 0.2, 1.0, 1.5], [0.9, -0.8, 0.4, 5.0]], dtype=torch.float32)
-    tmp = path.with_name(path.name + ".tmp")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # the legacy exporter's deprecation notice
-        torch.onnx.export(wrapper, (q,), str(tmp), input_names=["query"], output_names=["kernels", "scale"],
-                          dynamic_axes={"query": {0: "batch"}, "kernels": {0: "batch"}, "scale": {0: "batch"}},
-                          opset_version=17, dynamo=False)
-    m = onnx.load(str(tmp))
-    md = metadata(model, lens, extra_metadata)
-    for k, v in md.items():
-        m.metadata_props.add(key=k, value=v)
-    onnx.save(m, str(tmp))
-    if check:
-        err = parity(wrapper, tmp)
-        if err > PARITY_TOL:
-            tmp.unlink()
-            raise RuntimeError(f"{path}: onnxruntime differs from torch by {err:.2e} relative (> {PARITY_TOL:.0e})")
-    os.replace(tmp, path)
+    with atomic_file(path) as tmp:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the legacy exporter's deprecation notice
+            torch.onnx.export(wrapper, (q,), str(tmp), input_names=["query"], output_names=["kernels", "scale"],
+                              dynamic_axes={"query": {0: "batch"}, "kernels": {0: "batch"}, "scale": {0: "batch"}},
+                              opset_version=17, dynamo=False)
+        m = onnx.load(str(tmp))
+        md = metadata(model, lens, extra_metadata)
+        for k, v in md.items():
+            m.metadata_props.add(key=k, value=v)
+        onnx.save(m, str(tmp))
+        if check:
+            err = parity(wrapper, tmp)
+            if err > PARITY_TOL:
+                raise RuntimeError(f"{path}: onnxruntime differs from torch by {err:.2e} relative "
+                                   f"(> {PARITY_TOL:.0e})")
     return md
 
 

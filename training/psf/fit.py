@@ -8,7 +8,6 @@ where an uninterrupted one would. A held-out set is scored every `eval_every_s` 
 from __future__ import annotations
 
 import math
-import os
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -16,6 +15,7 @@ from pathlib import Path
 import torch
 from tqdm import tqdm
 
+from aat_deploy.io.atomic import atomic_file
 from training.psf.surrogates import PaperMLP, PSFModel, RotPSF
 
 
@@ -92,10 +92,9 @@ def fit(model: PSFModel, data: dict[str, torch.Tensor], cfg: FitConfig, ckpt: Pa
         if ckpt is None:
             return
         Path(ckpt).parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(str(ckpt) + ".tmp")
-        torch.save({"model": model.state_dict(), "opt": opt.state_dict(), "elapsed": elapsed, "step": step,
-                    "history": cfg.history, "config": asdict(cfg)}, tmp)
-        os.replace(tmp, ckpt)
+        with atomic_file(ckpt) as tmp:
+            torch.save({"model": model.state_dict(), "opt": opt.state_dict(), "elapsed": elapsed, "step": step,
+                        "history": cfg.history, "config": asdict(cfg)}, tmp)
 
     while elapsed < budget:
         for g in opt.param_groups:  # cosine over wall-clock time

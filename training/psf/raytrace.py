@@ -23,11 +23,13 @@ from functools import lru_cache
 import numpy as np
 import torch
 
-from training.lens.schema import Lens
-from training.optics.paraxial import paraxial_data
+from aat_deploy.lens.schema import Lens
+from aat_deploy.optics.focus_table import FocusTable
+from aat_deploy.optics.paraxial import paraxial_data
+from aat_deploy.psf.kernel import KernelSpec
 from training.optics.trace import start_plane_z_mm, stratified_disk, trace_components, uniform_disk_grid
-from training.psf.geometry import FocusTable, focus_table, object_points_mm
-from training.psf.kernel import KernelSpec, splat_bilinear
+from training.psf.geometry import focus_table, object_points_mm
+from training.psf.splat import splat_bilinear
 
 DEFAULT_WAVELENGTH_NM = 589.0
 FLOAT32_NEWTON_TOL_MM = 1e-4  # 0.1 um: far below a pixel, above float32 rounding at lens scale

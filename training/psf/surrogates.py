@@ -1,5 +1,5 @@
 """PSF models that stand in for ray tracing. All map (x, y, depth_m, focus_m) -> (B, k, k) kernels in the
-representation of `training.psf.kernel` (energy per cell, cell = `scale` pixels, centred on the chief ray).
+representation of `aat_deploy.psf.kernel` (energy per cell, cell = `scale` pixels, centred on the chief ray).
 
 - `GaussianPSF`: the thin-lens baseline. Circle of confusion from EFL, entrance pupil and distances; a Gaussian
   with the disk's second moment (sigma = CoC / 4) plus the splat's tent (1/6 cell^2), energy 1 over the plane
@@ -21,9 +21,11 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from training.lens.schema import Lens
-from training.optics.paraxial import paraxial_data
-from training.psf.kernel import KernelSpec, downsample2
+from aat_deploy.lens.schema import Lens
+from aat_deploy.optics.paraxial import paraxial_data
+from aat_deploy.optics.thin_lens import blur_diameter_px
+from aat_deploy.psf.kernel import KernelSpec
+from training.psf.splat import downsample2
 
 
 class PSFModel(nn.Module):
@@ -42,13 +44,8 @@ class PSFModel(nn.Module):
         self.d_lo, self.d_hi = 1.0 / far_m, 1.0 / near_m  # diopter range
 
     def blur_px(self, depth_m: torch.Tensor, focus_m: torch.Tensor) -> torch.Tensor:
-        """Thin-lens blur-disk diameter (px); same formula as geometry.thin_lens_blur_px."""
-        f = self.efl_mm
-        D = 1000.0 * focus_m
-        v_f = 2 * D * f / (D + torch.sqrt(torch.clamp(D * D - 4 * D * f, min=0.0)))  # stable root of v^2-Dv+Df
-        u = torch.clamp(1000.0 * depth_m - v_f, min=f * 1.0001)
-        v_o = 1.0 / (1.0 / f - 1.0 / u)
-        return self.epd_mm * torch.abs(v_f - v_o) / v_o / self.pixel_mm
+        """Thin-lens blur-disk diameter (px): `aat_deploy.optics.thin_lens`, in torch ops (exported to ONNX)."""
+        return blur_diameter_px(depth_m, focus_m, self.efl_mm, self.epd_mm, self.pixel_mm)
 
     def scale(self, depth_m: torch.Tensor, focus_m: torch.Tensor) -> torch.Tensor:
         return torch.clamp((self.blur_px(depth_m, focus_m) + self.margin_px) / (self.k - 1), min=1.0)
@@ -169,7 +166,7 @@ class GridPSF(PSFModel):
     @staticmethod
     def axes(near_m: float, far_m: float, nf: int, nd: int, ny: int, nx: int):
         """Grid node values: focus and depth even in diopters (near..far), y and x over [-1, 1]."""
-        from training.psf.geometry import diopter_grid
+        from aat_deploy.optics.focus_table import diopter_grid
 
         return (diopter_grid(near_m, far_m, nf), diopter_grid(near_m, far_m, nd),
                 np.linspace(-1, 1, ny), np.linspace(-1, 1, nx))

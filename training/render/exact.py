@@ -3,7 +3,7 @@
     out(q) = sum_p I(p) P_p(q - p)
 
 P_p is the PSF of the scene point seen at pixel p (its field position and depth), resampled from the PSF storage
-(k x k cells of s pixels, `training.psf.kernel`) to pixels. This is what a lens does: the blur belongs to the
+(k x k cells of s pixels, `aat_deploy.psf.kernel`) to pixels. This is what a lens does: the blur belongs to the
 emitting point, and the kernel is not flipped (the reference implementation's gather with the receiving pixel's
 kernel computes a correlation, which mirrors asymmetric off-axis blur). Slow and memory-hungry by design: it is
 the yardstick the fast renderer is measured against.

@@ -118,7 +118,7 @@ def render_layered(image: torch.Tensor, depth_m: torch.Tensor, focus_m: float, s
     """One focal-stack frame. image (C, H, W) linear; depth_m (H, W) metres from the sensor, all > 0.
 
     source: a PSF source (`training.render.sources`): source(x, y, depth_m, focus_m) -> (kernels (N, k, k) or
-        (N, Ck, k, k) with Ck = C, scale (N,)) in the storage of `training.psf.kernel`; source.k;
+        (N, Ck, k, k) with Ck = C, scale (N,)) in the storage of `aat_deploy.psf.kernel`; source.k;
         source.scale(depth_m, focus_m) and source.blur_px(depth_m, focus_m) as numpy.
     field_fn(rows, cols) -> normalised field (x, y) of points given in this image's pixel coordinates
         (row, col; pixel centres at +0.5), accounting for the crop's place on the sensor.

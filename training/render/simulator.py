@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from training.lens.io import load_lens
-from training.lens.schema import Lens
+from aat_deploy.lens.io import load_lens
+from aat_deploy.lens.schema import Lens
 from training.render import effects as fx
 from training.render.layered import LayeredConfig, render_layered
 from training.render.sources import OnnxPSF, RayTracedPSF, field_of, thin_lens_source

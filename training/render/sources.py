@@ -1,7 +1,7 @@
 """Where a renderer gets its PSFs: the ray tracer, a surrogate network, or the thin-lens Gaussian.
 
 Every source maps arrays (x, y, depth_m, focus_m) to (kernels (N, k, k), scale (N,)) in the common storage of
-`training.psf.kernel`, so renderers never care which one they use, and tells its window size `k`, cell size
+`aat_deploy.psf.kernel`, so renderers never care which one they use, and tells its window size `k`, cell size
 `scale(depth_m, focus_m)` and thin-lens blur `blur_px(depth_m, focus_m)` (numpy, pixels). Same focal length,
 F-number and sensor in all three: the only difference is the aberrations.
 """
@@ -12,12 +12,12 @@ import numpy as np
 import torch
 
 # Backend-neutral pieces live with the torch-free twin renderer and are shared from there.
+from aat_deploy.lens.schema import Lens
+from aat_deploy.psf.kernel import KernelSpec
 from aat_deploy.twin.fields import field_of, pixel_fields  # noqa: F401 (re-exported)
 from aat_deploy.twin.sources import LensGeometry as _LensGeometry
 from aat_deploy.twin.sources import OnnxSource
 from aat_deploy.twin.sources import UnitEnergy  # noqa: F401 (re-exported)
-from training.lens.schema import Lens
-from training.psf.kernel import KernelSpec
 from training.psf.raytrace import DEFAULT_WAVELENGTH_NM, raytrace_psfs
 from training.psf.surrogates import GaussianPSF, PSFModel
 
@@ -58,7 +58,7 @@ def thin_lens_source(lens: Lens, spec: KernelSpec | None = None, near_m: float =
 
 
 class OnnxPSF(_LensGeometry):
-    """An exported surrogate (`aat_deploy.psf.PSFSurrogate`, onnxruntime): the same PSFs the runtime renders
+    """An exported surrogate (`aat_deploy.psf.surrogate.PSFSurrogate`, onnxruntime): the same PSFs the runtime renders
     digital twins with, as torch tensors. Depths outside the model's range are clamped to it (beyond ~100 m
     blur no longer changes). The lens must be the one the surrogate was fitted for (checked by prescription hash).
     `.numpy` is the torch-free source underneath (`aat_deploy.twin.sources.OnnxSource`)."""

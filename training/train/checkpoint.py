@@ -3,17 +3,16 @@ one; `last.pt` holds everything to resume, `model.pt` the final weights and conf
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import torch
 
+from aat_deploy.io.atomic import atomic_file
+
 
 def save_atomic(obj: dict, path: Path) -> None:
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
+    with atomic_file(path) as tmp:
+        torch.save(obj, tmp)
 
 
 def load(path: Path) -> dict:

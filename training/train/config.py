@@ -64,7 +64,7 @@ class TrainConfig:
     val_every: int = 0  # 0 = only at the end
     val_items: int = 16
     field_channels: int = 0  # 2: the nets also see each pixel's normalised sensor position (training.nets.model)
-    init: str | None = None  # weights to start from: an exported DfF .onnx or a model.pt/last.pt (training.nets.init)
+    init: str | None = None  # weights to start from: an exported DfF .onnx or a model.pt/last.pt (training.nets.warm_start)
 
     def validate(self) -> TrainConfig:
         if self.net not in NETS:

@@ -8,11 +8,11 @@ import torch
 from torch.utils.data import Dataset
 
 from aat_deploy.metrics import MetricAccumulator
-from training.nets.model import DfFModel, predict
+from training.nets.model import DfFNet, predict
 
 
 @torch.no_grad()
-def evaluate(model: DfFModel, dataset: Dataset, max_items: int | None = None, focus_range_mask: bool = False,
+def evaluate(model: DfFNet, dataset: Dataset, max_items: int | None = None, focus_range_mask: bool = False,
              ) -> tuple[dict[str, float], np.ndarray]:
     """Run `model` (via predict: sorted, padded, cropped) over up to `max_items` items, one at a time.
     Returns (metrics averaged over images, error map (H, W) mean |depth - gt| in metres)."""

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from training.lens.io import load_lens
+from aat_deploy.lens.io import load_lens
 from training.nets.export import dff_metadata, export_dff_onnx
 from training.train.data import resolve_lens_path
 from training.train.loop import load_trained

@@ -1,5 +1,5 @@
 """Held-out evaluation of exported DfF models (the paper's Table 2 layout): shared by benchmarks/bench_dff.py and
-the lens-to-model chain (`aat-train --lens`, training/pipeline).
+the lens-to-model chain (`aat-train --lens`, training/chain).
 
 Test stacks are whole-sensor renders of scenes never seen in training (procedural scenes from their own seed, or
 a real RGB-D scene scaled to cover the sensor), normalised as the runtime normalises. Models run with
@@ -15,20 +15,15 @@ from pathlib import Path
 
 import numpy as np
 
+from aat_deploy.io.atomic import atomic_file
+from aat_deploy.normalise import normalise_stack
+
 COLS = ("mae", "mse", "rmse", "abs_rel", "sq_rel", "delta1", "delta2", "delta3")
 HEADER = ("| model | MAE | MSE | RMSE | AbsRel | SqRel | δ1 | δ2 | δ3 | MAE centre | MAE outer |\n"
           "|---|---|---|---|---|---|---|---|---|---|---|")
 
 # One test item: (stack (S, 3, H, W) normalised, focus_m (S,), ground-truth depth (H, W) metres, 0 = unknown).
 Item = tuple[np.ndarray, np.ndarray, np.ndarray]
-
-
-def normalise_frames(frames: np.ndarray) -> np.ndarray:
-    """Linear frames -> the contract's normalisation (divide by the stack's 99.5th percentile, clip to [0, 1])."""
-    from aat_deploy.normalise import PERCENTILE
-
-    p = np.float32(np.percentile(frames, PERCENTILE))
-    return np.clip(frames / (p if p > 0 else 1.0), 0, 1).astype(np.float32)
 
 
 def procedural_items(dataset, n: int, progress: bool = True) -> list[Item]:
@@ -47,13 +42,13 @@ def rgbd_item(dataset, rgb: np.ndarray, gt_m: np.ndarray) -> Item:
     dataset's sensor, rendered with its simulator and fixed schedule."""
     import torch
 
-    from training.cli.render import fit_to_sensor
-    from training.data.rgbd import fill_depth
+    from aat_deploy.geometry import fit_rgbd_to_sensor
+    from aat_deploy.gt.holes import fill_holes
 
-    rgb, gt = fit_to_sensor(rgb, gt_m, dataset.sensor_hw)
-    st = dataset.sim.render_stack(torch.from_numpy(rgb.transpose(2, 0, 1).copy()), torch.from_numpy(fill_depth(gt)),
+    rgb, gt = fit_rgbd_to_sensor(rgb, gt_m, dataset.sensor_hw)
+    st = dataset.sim.render_stack(torch.from_numpy(rgb.transpose(2, 0, 1).copy()), torch.from_numpy(fill_holes(gt)),
                                   dataset.schedule.distances())
-    return normalise_frames(st.frames.numpy()), st.focus_m.astype(np.float32), gt
+    return normalise_stack(st.frames.numpy()), st.focus_m.astype(np.float32), gt
 
 
 def radius_map(h: int, w: int) -> np.ndarray:
@@ -176,10 +171,9 @@ def plot_error_vs_radius(results: list[ModelResult], path, title: str = "") -> P
 def _save(fig, plt, path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.stem + ".tmp.png")
-    fig.savefig(tmp, dpi=110)
+    with atomic_file(path) as tmp:
+        fig.savefig(tmp, dpi=110)
     plt.close(fig)
-    tmp.replace(path)
     return path
 
 

@@ -2,7 +2,7 @@
 difference between aberration-aware and thin-lens runs).
 
 Adam, cosine learning rate over the configured number of optimizer steps, gradient clipping, optional start from
-trained weights (`init`: an exported .onnx or a checkpoint, training.nets.init), checkpoints every
+trained weights (`init`: an exported .onnx or a checkpoint, training.nets.warm_start), checkpoints every
 `checkpoint_every` steps (atomic) and resume from `last.pt`: the sampler order depends only on (seed, epoch) and
 an epoch can start part-way, so kill + rerun with resume continues exactly where it stopped.
 
@@ -129,7 +129,7 @@ def _train(cfg, out_dir: Path, train_set, val_set, resume, stop_at_step, progres
         wall_before = float(state.get("wall_s", 0.0))
         torch.set_rng_state(state["torch_rng"])
     elif cfg.init:
-        from training.nets.init import init_model
+        from training.nets.warm_start import init_model
         from training.train.data import resolve_lens_path
 
         info = init_model(model, resolve_lens_path(cfg.init), train_set)
@@ -217,7 +217,7 @@ def _train(cfg, out_dir: Path, train_set, val_set, resume, stop_at_step, progres
 
 
 def load_trained(path) -> tuple[torch.nn.Module, TrainConfig]:
-    """A DfFModel (eval mode) and its config from model.pt or last.pt."""
+    """A DfFNet (eval mode) and its config from model.pt or last.pt."""
     from training.train.config import config_from_dict
 
     state = load(path)

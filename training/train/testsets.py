@@ -70,7 +70,7 @@ def _dataset(spec: TestSetSpec, cache_dir: str | None):
     from training.train.data import resolve_lens_path
 
     lens_path = resolve_lens_path(spec.lens)
-    from training.lens.io import load_lens
+    from aat_deploy.lens.io import load_lens
 
     sensor = load_lens(lens_path).sensor
     cfg = StackDataConfig(simulator=spec.simulator, lens=lens_path, psf=spec.psf, height=sensor.height_px,
@@ -91,30 +91,29 @@ def _middlebury(spec: TestSetSpec, ds, cache_dir: str | None) -> TestItem:
             return TestItem("middlebury", z["stack"].astype(np.float32), z["focus_m"], z["depth_m"], z["aif"])
     import torch
 
-    from training.cli.render import fit_to_sensor
-    from training.data.rgbd import fill_depth, load_middlebury_motorcycle
+    from aat_deploy.geometry import fit_rgbd_to_sensor
+    from aat_deploy.gt.holes import fill_holes
+    from aat_deploy.io.atomic import atomic_file
+    from aat_deploy.normalise import normalise_scale, scaled
+    from training.data.rgbd import load_middlebury_motorcycle
     from training.render.schedule import scene_range_distances
-    from training.train.heldout import normalise_frames
 
-    rgb, gt = fit_to_sensor(*load_middlebury_motorcycle(), ds.sensor_hw)
+    rgb, gt = fit_rgbd_to_sensor(*load_middlebury_motorcycle(), ds.sensor_hw)
     if spec.protocol == "paper":
         focus = scene_range_distances(gt, spec.stack_size, np.random.default_rng([spec.seed, 1 << 20]), 0.25)
     else:
         focus = ds.schedule.distances()
     img = torch.from_numpy(rgb.transpose(2, 0, 1).copy()).float()
-    st = ds.sim.render_stack(img, torch.from_numpy(fill_depth(gt)).float(), focus)
+    st = ds.sim.render_stack(img, torch.from_numpy(fill_holes(gt)).float(), focus)
     frames = st.frames.numpy()
-    from aat_deploy.normalise import PERCENTILE
-
-    p = np.float32(np.percentile(frames, PERCENTILE))
-    p = p if p > 0 else np.float32(1.0)
-    item = TestItem("middlebury", normalise_frames(frames), st.focus_m.astype(np.float32), gt.astype(np.float32),
-                    np.clip(rgb.transpose(2, 0, 1) / p, 0, 1).astype(np.float32))
+    p = normalise_scale(frames)
+    item = TestItem("middlebury", scaled(frames, p), st.focus_m.astype(np.float32), gt.astype(np.float32),
+                    scaled(rgb.transpose(2, 0, 1), p))
     if f is not None:
         f.parent.mkdir(parents=True, exist_ok=True)
-        tmp = f.with_name(f.name + ".tmp.npz")
-        np.savez(tmp, stack=item.stack.astype(np.float16), focus_m=item.focus_m, depth_m=item.depth_m, aif=item.aif)
-        tmp.replace(f)
+        with atomic_file(f) as tmp:
+            np.savez(tmp, stack=item.stack.astype(np.float16), focus_m=item.focus_m, depth_m=item.depth_m,
+                     aif=item.aif)
         item.stack = item.stack.astype(np.float16).astype(np.float32)  # as every later read sees it
     return item
 

@@ -39,8 +39,8 @@ from typing import Any
 
 import numpy as np
 
-from training.lens.schema import Lens
-from training.optics.paraxial import paraxial_data
+from aat_deploy.lens.schema import Lens
+from aat_deploy.optics.paraxial import paraxial_data
 
 _REGISTRY: dict[str, type[Effect]] = {}
 _LOADED = False
@@ -53,7 +53,7 @@ class NeedsTorch(RuntimeError):
 @dataclass
 class SimContext:
     """What effects may look at: the lens, the full sensor (rows, cols), the crop's top-left pixel, the real
-    lens's PSF source, and the lens's focusing: `table` (sensor z vs diopters, `training.psf.geometry.FocusTable`;
+    lens's PSF source, and the lens's focusing: `table` (sensor z vs diopters, `optics.focus_table.FocusTable`;
     None = real-ray traced from the lens on first use, which needs torch) and the paraxial exit pupil (mm from the
     first vertex; None = computed from the lens). The torch simulator traces; the torch-free twin renderer fills
     both from the PSF surrogate's metadata. `capture` names the capture a digital twin is rendered for."""

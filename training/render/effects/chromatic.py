@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from aat_deploy.twin.sources import UnitEnergy
-from training.psf.geometry import thin_lens_blur_px
-from training.psf.kernel import KernelSpec
+from aat_deploy.optics.thin_lens import thin_lens_blur_px
+from aat_deploy.psf.kernel import KernelSpec
 from training.render.effects import Effect, SimContext, register
 
 # The ray tracer and torch are imported where the kernels are made: the registry must import without torch.

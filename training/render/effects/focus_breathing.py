@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from training.optics.paraxial import paraxial_data
-from training.psf.geometry import FocusTable, focus_table
+from aat_deploy.optics.paraxial import paraxial_data
+from aat_deploy.optics.focus_table import FocusTable
+from training.psf.geometry import focus_table
 from training.render.effects import Effect, SimContext, register
 
 

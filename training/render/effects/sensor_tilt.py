@@ -7,7 +7,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from training.psf.geometry import FocusTable, focus_table
+from aat_deploy.optics.focus_table import FocusTable
+from training.psf.geometry import focus_table
 from training.render.effects import Effect, SimContext, register
 
 

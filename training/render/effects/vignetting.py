@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from aat_deploy.twin.sources import normalise_energy
-from training.psf.geometry import field_to_tan
+from aat_deploy.optics.field import field_to_tan
 from training.render.effects import Effect, SimContext, register
 
 

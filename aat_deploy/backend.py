@@ -1,0 +1,24 @@
+"""The array namespace of a computation: numpy, or torch when the inputs are torch tensors.
+
+One formula serves the torch-free runtime and the training side (optiland keeps its maths backend-neutral the
+same way): a function asks `namespace(*arrays)` for `xp` and uses the functions numpy and torch share
+(`xp.sqrt`, `xp.abs`, `xp.clip`, `xp.exp`, ...). torch is never imported here: a torch tensor can only reach this
+code from a process that has imported torch already, so it is taken from `sys.modules`.
+"""
+
+from __future__ import annotations
+
+import sys
+from types import ModuleType
+
+import numpy as np
+
+
+def is_torch(x) -> bool:
+    """True for a torch tensor (without importing torch)."""
+    return type(x).__module__.split(".")[0] == "torch"
+
+
+def namespace(*arrays) -> ModuleType:
+    """`torch` if any argument is a torch tensor, else `numpy`."""
+    return sys.modules["torch"] if any(is_torch(a) for a in arrays) else np

@@ -1,0 +1,29 @@
+"""Field positions: where on the sensor an image point is, and which object direction it names.
+
+Field coordinates (x, y) in [-1, 1] are normalised positions on the upright image (x right, y up; +-1 = the
+sensor edges). They name an object-space **direction** seen from the entrance pupil:
+    tan(theta_x) = x * W/2 / EFL,  tan(theta_y) = y * H/2 / EFL
+so that an ideal lens focused at infinity images it exactly at (x * W/2, y * H/2). A PSF's object point is on that
+ray at a depth in metres from the sensor plane (`training.psf.geometry.object_points_mm`). A real lens lands the
+point elsewhere by its distortion and focus breathing; PSFs are centred on the real chief ray's hit
+(`training.psf.raytrace`), and the landing offset is a separate, optional geometric effect.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from aat_deploy.lens.schema import Lens
+from aat_deploy.optics.paraxial import paraxial_data
+
+
+def field_to_tan(lens: Lens, x, y):
+    """tan(theta) of the object direction for normalised field (x, y): arrays broadcast together."""
+    efl = paraxial_data(lens).efl_mm
+    return (np.asarray(x) * lens.sensor.width_mm / 2 / efl, np.asarray(y) * lens.sensor.height_mm / 2 / efl)
+
+
+def field_radius(lens: Lens, x, y):
+    """Normalised image radius in [0, 1] (1 = the sensor corner) of field (x, y)."""
+    w, h = lens.sensor.width_mm, lens.sensor.height_mm
+    return np.hypot(np.asarray(x) * w / 2, np.asarray(y) * h / 2) / lens.sensor.half_diagonal_mm

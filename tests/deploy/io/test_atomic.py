@@ -1,0 +1,79 @@
+"""The one atomic-write helper (aat_deploy.io.atomic) for files: whole or nothing, temporaries that keep the
+suffix, unique per process and thread, normal permissions."""
+
+from __future__ import annotations
+
+import os
+import stat
+import threading
+
+import numpy as np
+import pytest
+
+from aat_deploy.io.atomic import atomic_file, atomic_files, temp_file, write_bytes_atomic, write_text_atomic
+
+
+def _umask() -> int:
+    m = os.umask(0)
+    os.umask(m)
+    return m
+
+
+def test_write_replaces_whole_and_leaves_nothing_behind(tmp_path):
+    p = tmp_path / "a.json"
+    write_text_atomic(p, "old\n")
+    write_text_atomic(p, "new\n")
+    write_bytes_atomic(tmp_path / "b.bin", b"\x00\x01", fsync=True)
+    assert p.read_text() == "new\n" and (tmp_path / "b.bin").read_bytes() == b"\x00\x01"
+    assert sorted(q.name for q in tmp_path.iterdir()) == ["a.json", "b.bin"]
+    assert stat.S_IMODE(p.stat().st_mode) == 0o666 & ~_umask()  # as open() makes it (mkstemp would be 0600)
+
+
+def test_failure_keeps_the_old_file(tmp_path):
+    p = tmp_path / "model.onnx"
+    p.write_text("old")
+    with pytest.raises(RuntimeError, match="parity"):
+        with atomic_file(p) as tmp:
+            tmp.write_text("half")
+            raise RuntimeError("parity check failed")
+    assert p.read_text() == "old" and [q.name for q in tmp_path.iterdir()] == ["model.onnx"]
+
+
+def test_temporaries_keep_the_suffix_for_writers_that_add_one(tmp_path):
+    """np.savez appends .npz to a name without it: the temporary ends in the target's suffix."""
+    f = tmp_path / "000001.npz"
+    with atomic_file(f) as tmp:
+        assert tmp.suffix == ".npz" and tmp.name.startswith(".000001.npz.tmp-") and tmp.parent == tmp_path
+        np.savez(tmp, x=np.arange(3))
+    with np.load(f) as z:
+        assert z["x"].tolist() == [0, 1, 2]
+    assert [q.name for q in tmp_path.iterdir()] == ["000001.npz"]
+
+
+def test_several_files_all_or_none_and_optional_ones(tmp_path):
+    a, b, c = tmp_path / "gt.npy", tmp_path / "gt.png", tmp_path / "gt.json"
+    with pytest.raises(OSError):
+        with atomic_files(a, b) as (ta, tb):
+            np.save(ta, np.zeros(2))
+            raise OSError("could not write PNG")
+    assert list(tmp_path.iterdir()) == []
+    with atomic_files(a, c) as (ta, tc):  # c not written (an optional output): skipped
+        np.save(ta, np.ones(2))
+    assert [q.name for q in tmp_path.iterdir()] == ["gt.npy"]
+
+
+def test_names_unique_across_threads(tmp_path):
+    p = tmp_path / "item.npz"
+    names = [temp_file(p) for _ in range(100)]
+    assert len(set(names)) == 100
+
+    def write(i):
+        write_text_atomic(p, f"{i}\n" * 1000)
+
+    threads = [threading.Thread(target=write, args=(i,)) for i in range(8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    lines = set(p.read_text().splitlines())
+    assert len(lines) == 1 and [q.name for q in tmp_path.iterdir()] == ["item.npz"]  # one writer's file, whole

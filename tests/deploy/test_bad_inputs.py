@@ -1,0 +1,597 @@
+"""Bad input never loses a user's files and never stops a batch (issue 18).
+
+The matrix: each case runs a command on a bad input next to a good capture and checks the exit code, exactly one
+error line naming the file, that the batch went on, and that the inputs and earlier outputs are byte-identical
+afterwards (the trees are hashed before and after). Then property-based tests (hypothesis) for the readers users
+feed: mutated DNG/TIFF headers, capture.json, gt.json and maker-note blocks, where any exception other than the
+project's own error types is a bug. `benchmarks/fuzz_readers.py` runs the long sweep (BENCHMARKS.md).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import shutil
+import struct
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import LENSES, SHARED
+from deploy_fixtures import canon_jpeg, write_dng_capture, write_png_capture
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from aat_deploy.capture import exiftool
+from aat_deploy.capture.exif import read_metadata
+from aat_deploy.capture.folder import read_capture
+from aat_deploy.cli import eval as eval_cli
+from aat_deploy.cli import infer as infer_cli
+from aat_deploy.cli import view as view_cli
+from aat_deploy.errors import CaptureError
+from aat_deploy.gt.read import find_gt, load_ground_truth
+from aat_deploy.model import DfFModel
+
+FOCUS = [0.6, 1.0, 2.0]
+FUZZ = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+
+
+# -- helpers ---------------------------------------------------------------------------------------------------
+def tree_hash(*roots: Path) -> dict[str, str]:
+    """Every entry under the roots: file bytes (sha256), symlink targets, folders and special files by kind."""
+    out: dict[str, str] = {}
+    for root in roots:
+        for cur, dirs, files in os.walk(root):
+            for name in dirs + files:
+                p = Path(cur) / name
+                if p.is_symlink():
+                    out[str(p)] = "link:" + os.readlink(p)
+                elif p.is_file():
+                    out[str(p)] = hashlib.sha256(p.read_bytes()).hexdigest()
+                else:
+                    out[str(p)] = "dir" if p.is_dir() else "special"
+        out[str(root)] = "root"
+    return out
+
+
+def infer(args, capsys) -> tuple[int, list[str], str]:
+    """aat-infer in this process: (exit code, stderr lines that report a failure or error, stdout)."""
+    rc = infer_cli.main([str(a) for a in args] + ["--threads", "1", "-q", "--no-recording"])
+    cap = capsys.readouterr()
+    bad = [ln for ln in cap.err.splitlines() if any(w in ln for w in ("FAILED", "error", "failed"))]
+    assert "Traceback" not in cap.err
+    return rc, bad, cap.out
+
+
+@pytest.fixture
+def good(tmp_path):
+    """A good capture (batch partner) and an earlier output that must survive every case untouched."""
+    cap = write_dng_capture(tmp_path / "good", FOCUS)
+    earlier = tmp_path / "earlier"
+    earlier.mkdir()
+    (earlier / "summary.json").write_text('{"earlier": true}')
+    return cap, earlier
+
+
+def with_meta(src: Path, dst: Path, **over) -> Path:
+    """A copy of an ONNX model with some aat.* metadata replaced (values JSON-encoded unless str)."""
+    import onnx
+
+    m = onnx.load(str(src))
+    props = {p.key: p.value for p in m.metadata_props}
+    props.update({k.replace("__", "."): v if isinstance(v, str) else json.dumps(v) for k, v in over.items()})
+    del m.metadata_props[:]
+    for k, v in props.items():
+        p = m.metadata_props.add()
+        p.key, p.value = k, v
+    onnx.save(m, str(dst))
+    return dst
+
+
+def dead_pid() -> int:
+    p = subprocess.Popen([sys.executable, "-c", "pass"])
+    p.wait()
+    return p.pid
+
+
+# -- 1, 3: output folders that are, contain or lie inside an input, or the current folder -----------------------
+@pytest.mark.parametrize("case", ["is_capture", "contains_capture", "inside_capture", "symlink_to_capture",
+                                  "contains_model", "cwd"])
+def test_output_overlapping_an_input_is_refused_before_any_work(case, model_path, good, tmp_path, capsys,
+                                                                 monkeypatch):
+    cap, earlier = good
+    bad = write_dng_capture(tmp_path / "parent" / "cap", FOCUS)
+    model = model_path
+    force = ["--force"]
+    if case == "is_capture":
+        out = bad
+    elif case == "contains_capture":
+        out = tmp_path / "parent"
+    elif case == "inside_capture":
+        out, force = bad / "results", []
+    elif case == "symlink_to_capture":
+        out = tmp_path / "link"
+        out.symlink_to(bad, target_is_directory=True)
+    elif case == "contains_model":
+        model = shutil.copy(model_path, tmp_path / "parent" / "m.onnx")
+        out = tmp_path / "parent"
+    else:  # --out . from inside an earlier output (EBUSY traceback before)
+        out = Path(".")
+        monkeypatch.chdir(earlier)
+    before = tree_hash(tmp_path / "parent", cap, earlier)
+    calls = []
+    import aat_deploy.pipeline as pipeline
+
+    real = pipeline.load_frame
+    monkeypatch.setattr(pipeline, "load_frame", lambda p: calls.append(Path(p)) or real(p))
+    rc, bad_lines, _ = infer([bad, "--model", model, "--out", out, *force], capsys)
+    assert rc == 1
+    assert len(bad_lines) == 2 and "1 of 1" in bad_lines[1]  # one line for the capture, then the count
+    assert str(out) in bad_lines[0] and any(w in bad_lines[0] for w in ("input", "current folder"))
+    assert not calls  # refused before decoding anything
+    assert tree_hash(tmp_path / "parent", cap, earlier) == before
+
+
+def test_eval_and_diagnose_refuse_an_output_over_their_inputs(model_path, good, tmp_path, capsys):
+    cap, earlier = good
+    root = tmp_path / "root"
+    shutil.copytree(cap, root / "a")
+    before = tree_hash(root, cap, earlier)
+    for out in (root, root / "a", root / "a" / "eval"):
+        rc = eval_cli.main([str(root), "--model", str(model_path), "--out", str(out), "--force", "-q"])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert rc == 2 and len(err) == 1 and str(out) in err[0], err
+    from aat_deploy.cli import diagnose as diagnose_cli
+
+    rc = diagnose_cli.main([str(root), "--model", str(model_path), "--out", str(root), "--force", "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "contains the input" not in err[0] and "is the input" in err[0], err
+    assert tree_hash(root, cap, earlier) == before
+
+
+def test_render_gt_and_train_refuse_outputs_over_inputs(tmp_path, capsys):
+    from aat_deploy.cli import gt as gt_cli
+    from training.cli import render as render_cli
+    from training.cli import train as train_cli
+
+    scene = tmp_path / "scene"
+    scene.mkdir()
+    import cv2
+
+    cv2.imwrite(str(scene / "rgb.png"), np.full((24, 36, 3), 128, np.uint8))
+    np.save(scene / "depth.npy", np.full((24, 36), 2.0, np.float32))
+    lens = LENSES / "canon_rf50mm_f1.8.json"
+    before = tree_hash(scene)
+    with pytest.raises(SystemExit, match=r"aat-render: error: .*scene: (contains|is) the input"):
+        render_cli.main([str(scene / "rgb.png"), str(scene / "depth.npy"), "--lens", str(lens), "--focus-m", "1",
+                         "--out", str(scene), "--force"])
+    # aat-gt render: the pose file named like the JSON it writes beside gt_depth_mm.png
+    (scene / "gt_depth_m.json").write_text(json.dumps({"R": np.eye(3).tolist(), "t": [0, 0, 0]}))
+    (scene / "mesh.ply").write_text("ply\nformat ascii 1.0\nend_header\n")
+    before = tree_hash(scene)
+    rc = gt_cli.main(["render", str(scene / "mesh.ply"), "--pose", str(scene / "gt_depth_m.json"), "--lens",
+                      str(lens), "--out", str(scene / "gt_depth_mm.png"), "--force", "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "gt_depth_m.json: is the input" in err[0], err
+    # aat-train: a run folder holding its own --init/--psf/--lens would overwrite it
+    rc = train_cli.main(["--lens", str(scene / "lens.json"), "--out", str(scene)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "contains the input" in err[0], err
+    assert tree_hash(scene) == before
+
+
+def test_force_replaces_only_an_earlier_output(model_path, good, tmp_path, capsys):
+    cap, earlier = good
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "thesis.tex").write_text("years of work")
+    before = tree_hash(mine, cap)
+    rc, bad, _ = infer([cap, "--model", model_path, "--out", mine, "--force"], capsys)
+    assert rc == 1 and len(bad) == 2 and "not an earlier aat-infer output" in bad[0]
+    assert tree_hash(mine, cap) == before
+    rc, bad, _ = infer([cap, "--model", model_path, "--out", earlier, "--force"], capsys)
+    assert rc == 0 and not bad and json.loads((earlier / "summary.json").read_text())["capture"] == str(cap)
+
+
+# -- 2: two captures with the same folder name -------------------------------------------------------------------
+def test_same_folder_name_gets_distinct_outputs(model_path, tmp_path, capsys):
+    a = write_dng_capture(tmp_path / "x" / "cap", FOCUS)
+    b = write_png_capture(tmp_path / "y" / "cap", FOCUS)
+    before = tree_hash(tmp_path / "x", tmp_path / "y")
+    rc, bad, out = infer([a, b, "--model", model_path, "--out", tmp_path / "o", "--force"], capsys)
+    assert rc == 0 and not bad
+    s1 = json.loads((tmp_path / "o" / "cap" / "summary.json").read_text())
+    s2 = json.loads((tmp_path / "o" / "cap_2" / "summary.json").read_text())
+    assert (s1["capture"], s2["capture"]) == (str(a), str(b))  # the first result was not replaced
+    assert f"{b} -> {tmp_path / 'o' / 'cap_2'}" in out  # the summary names where each went
+    assert tree_hash(tmp_path / "x", tmp_path / "y") == before
+
+
+# -- 4, 5, 7: one line per failing capture, the batch goes on ------------------------------------------------------
+def _bad_capture(case: str, d: Path) -> str:
+    """Make a bad capture folder in d; returns the text the one error line must contain."""
+    if case == "sidecar_outside":  # capture.json names files outside the folder: refused before reading them
+        write_png_capture(d, FOCUS)
+        (d.parent / "secret.png").write_bytes((d / "img_0.png").read_bytes())
+        (d / "capture.json").write_text(json.dumps({"frames": [
+            {"file": "../secret.png", "focus_m": 0.6}, {"file": str(d / "img_1.png"), "focus_m": 1.0}]}))
+        return "capture.json: frames[0] file '../secret.png' is not inside the capture folder"
+    if case == "sidecar_absolute":
+        write_png_capture(d, FOCUS)
+        (d / "capture.json").write_text(json.dumps({"frames": [
+            {"file": str((d / "img_0.png").resolve()), "focus_m": 0.6}, {"file": "img_1.png", "focus_m": 1.0}]}))
+        return "is not inside the capture folder"
+    if case == "deep_json":  # RecursionError before
+        write_png_capture(d, FOCUS)
+        (d / "capture.json").write_text('{"frames": ' + "[" * 100_000 + "]" * 100_000 + "}")
+        return "capture.json: not valid JSON (nested too deeply)"
+    if case == "huge_focus":
+        write_png_capture(d, FOCUS)
+        (d / "capture.json").write_text(json.dumps({"frames": [
+            {"file": "img_0.png", "focus_m": 4e9}, {"file": "img_1.png", "focus_m": 1.0}]}))
+        return "capture.json: frames[0] ('img_0.png') needs focus_m > 0 in metres, at most 1000"
+    if case == "exif_focus_beyond_1km":
+        write_dng_capture(d, [0.6, 1.0, 5000.0])
+        return "frame_02.dng: focus distance 5000 m (EXIF SubjectDistance) is not usable (beyond 1000 m"
+    if case == "sidecar_fifo":
+        write_png_capture(d, FOCUS)
+        os.mkfifo(d / "img_9.png")
+        (d / "capture.json").write_text(json.dumps({"frames": [
+            {"file": "img_0.png", "focus_m": 0.6}, {"file": "img_9.png", "focus_m": 1.0}]}))
+        return "lists img_9.png, which is a FIFO"
+    if case == "only_odd_frames":  # one real frame, the rest dangling/FIFO/device/folder: named in the error
+        write_dng_capture(d, [0.6])
+        (d / "a.dng").symlink_to(d / "nowhere.dng")
+        os.mkfifo(d / "b.dng")
+        (d / "c.dng").symlink_to("/dev/null")
+        (d / "d.dng").mkdir()
+        return "a.dng (a dangling symlink), b.dng (a FIFO), c.dng (a device), d.dng (a folder)"
+    raise AssertionError(case)
+
+
+@pytest.mark.parametrize("case", ["sidecar_outside", "sidecar_absolute", "deep_json", "huge_focus",
+                                  "exif_focus_beyond_1km", "sidecar_fifo", "only_odd_frames"])
+def test_bad_capture_is_one_line_and_the_batch_goes_on(case, model_path, good, tmp_path, capsys, monkeypatch):
+    cap, earlier = good
+    bad = tmp_path / "bad"
+    expect = _bad_capture(case, bad)
+    read = []
+    import aat_deploy.capture.folder as folder
+
+    real = folder.read_metadata
+    monkeypatch.setattr(folder, "read_metadata", lambda p, **k: read.append(Path(p)) or real(p, **k))
+    before = tree_hash(bad, cap, earlier)
+    rc, lines, out = infer([bad, cap, "--model", model_path, "--out", tmp_path / "o"], capsys)
+    assert rc == 1
+    assert len(lines) == 2 and f"FAILED {bad}" in lines[0] and expect in lines[0], lines
+    assert "1 of 2" in lines[1]
+    assert (tmp_path / "o" / "good" / "summary.json").is_file() and f"{cap} ->" in out  # the batch went on
+    assert all(p.resolve().is_relative_to(bad.resolve()) or p.resolve().is_relative_to(cap.resolve())
+               for p in read)  # nothing outside a capture folder was read
+    assert tree_hash(bad, cap, earlier) == before
+
+
+@pytest.mark.parametrize("case", ["subfolder_frames", "non_utf8_frame_name", "non_utf8_capture_name",
+                                  "odd_entries_next_to_frames"])
+def test_unusual_but_valid_captures_run(case, model_path, good, tmp_path, capsys):
+    """KeyError (capture.json naming raw/frame_00.dng) and UnicodeEncodeError (a non-UTF-8 byte in a name)
+    stopped the batch before; these captures are fine and run. Entries named like frames that are not files are
+    reported in a warning, not silently dropped."""
+    cap, earlier = good
+    name = os.fsdecode(b"caf\xe9") if case == "non_utf8_capture_name" else "bad"
+    bad = write_dng_capture(tmp_path / "made", FOCUS).rename(tmp_path / name)
+    if case == "subfolder_frames":
+        (bad / "raw").mkdir()
+        for i in range(3):
+            (bad / f"frame_{i:02d}.dng").rename(bad / "raw" / f"frame_{i:02d}.dng")
+        (bad / "capture.json").write_text(json.dumps({"frames": [
+            {"file": f"raw/frame_{i:02d}.dng", "focus_m": f} for i, f in enumerate(FOCUS)]}))
+    elif case == "non_utf8_frame_name":
+        (bad / "frame_00.dng").rename(bad / os.fsdecode(b"fr\xffme_00.dng"))
+    elif case == "odd_entries_next_to_frames":
+        (bad / "x.dng").symlink_to(bad / "gone.dng")
+        os.mkfifo(bad / "y.dng")
+    before = tree_hash(bad, cap, earlier)
+    rc = infer_cli.main([str(bad), str(cap), "--model", str(model_path), "--out", str(tmp_path / "o"),
+                         "--threads", "1", "-q"])  # with the recording: rerun gets the names too
+    err = capsys.readouterr().err
+    assert rc == 0 and "FAILED" not in err and "Traceback" not in err, err
+    assert (tmp_path / "o" / name / "summary.json").is_file()
+    rrd = (tmp_path / "o" / name / "recording.rrd").read_bytes()
+    assert rrd[:4] == b"RRF2" and len(rrd) > 10_000
+    if case == "odd_entries_next_to_frames":
+        warn = [ln for ln in err.splitlines() if "not regular files" in ln]
+        assert len(warn) == 1 and "x.dng (a dangling symlink), y.dng (a FIFO)" in warn[0]
+    assert tree_hash(bad, cap, earlier) == before
+
+
+def test_unexpected_exception_is_one_line_with_its_type(model_path, good, tmp_path, capsys, monkeypatch):
+    """The per-capture boundary: an exception that is not the project's own (a bug not found yet) becomes one
+    line naming the capture and the exception type, and the batch goes on."""
+    cap, earlier = good
+    bad = write_dng_capture(tmp_path / "bad", FOCUS)
+    import aat_deploy.pipeline as pipeline
+
+    real = pipeline.read_capture
+
+    def boom(folder, **kw):
+        if Path(folder).name == "bad":
+            raise ZeroDivisionError("float division by zero")
+        return real(folder, **kw)
+
+    monkeypatch.setattr(pipeline, "read_capture", boom)
+    rc, lines, out = infer([bad, cap, "--model", model_path, "--out", tmp_path / "o"], capsys)
+    assert rc == 1 and len(lines) == 2
+    assert f"FAILED {bad}: unexpected ZeroDivisionError: float division by zero" in lines[0]
+    assert (tmp_path / "o" / "good" / "summary.json").is_file()
+
+
+def test_unwritable_output_fails_before_decoding(model_path, good, tmp_path, capsys, monkeypatch):
+    """PermissionError/NotADirectoryError came after decoding and inference and stopped the batch."""
+    cap, earlier = good
+    blocker = tmp_path / "file"
+    blocker.write_text("a file where a folder should be")
+    calls = []
+    import aat_deploy.pipeline as pipeline
+
+    real = pipeline.load_frame
+    monkeypatch.setattr(pipeline, "load_frame", lambda p: calls.append(Path(p)) or real(p))
+    outs = [blocker / "out"]
+    if os.geteuid() != 0:  # root writes into a read-only folder anyway
+        ro = tmp_path / "ro"
+        ro.mkdir(mode=0o555)
+        outs.append(ro / "out")
+    for out in outs:
+        rc, lines, _ = infer([cap, "--model", model_path, "--out", out], capsys)
+        assert rc == 1 and len(lines) == 2 and str(out) in lines[0] and ("not writable" in lines[0]
+                                                                         or "cannot be created" in lines[0])
+        assert not calls
+    assert blocker.read_text() == "a file where a folder should be"
+
+
+@pytest.mark.parametrize("key, value", [("aat.pixel_um", 0), ("aat.sensor_px", [0, 48]), ("aat.sensor_px", [-64, 48]),
+                                        ("aat.focus_range_m", [float("nan"), 5.0]), ("aat.focus_range_m", [5.0, 0.5]),
+                                        ("aat.focal_length_mm", "abc"), ("aat.size_multiple", True),
+                                        ("aat.stack_min", 5.5), ("aat.sensor_mm", [36, -24])])
+def test_bad_model_metadata_is_one_line_naming_the_key(key, value, model_path, good, tmp_path, capsys):
+    cap, earlier = good
+    bad = with_meta(model_path, tmp_path / "bad.onnx", **{key.replace(".", "__"): value})
+    before = tree_hash(cap, earlier)
+    rc = infer_cli.main([str(cap), "--model", str(bad), "--out", str(tmp_path / "o"), "--threads", "1", "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "bad.onnx" in err[0] and key in err[0], err
+    assert not (tmp_path / "o").exists() and tree_hash(cap, earlier) == before
+
+
+# -- 8: ground truth in the wrong units ----------------------------------------------------------------------------
+def test_infer_checks_ground_truth_units(model_path, tmp_path, capsys):
+    cap = write_dng_capture(tmp_path / "mm", FOCUS)
+    np.save(cap / "gt_depth_m.npy", np.load(cap / "gt_depth_m.npy") * 1000)  # millimetres saved as metres
+    rc, lines, _ = infer([cap, "--model", model_path, "--out", tmp_path / "o"], capsys)
+    s = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert rc == 0 and s["ground_truth"] is None  # was "MAE 3133 m"
+    assert any("gt_depth_m.npy" in w and "wrong units" in w and "millimetres" in w for w in s["warnings"])
+
+
+def test_damaged_npy_header_is_a_clean_error(model_path, tmp_path, capsys):
+    """Found by benchmarks/fuzz_readers.py: np.load parses a .npy header with Python's tokenizer, and an
+    unbalanced bracket raised tokenize.TokenError (not a ValueError) out of aat-eval's reader and aat-infer."""
+    cap = write_dng_capture(tmp_path / "cap", FOCUS)
+    raw = bytearray((cap / "gt_depth_m.npy").read_bytes())
+    raw[raw.index(b"), }")] = ord(" ")  # the shape tuple loses its closing bracket
+    (cap / "gt_depth_m.npy").write_bytes(bytes(raw))
+    with pytest.raises(CaptureError, match=r"gt_depth_m.npy: unreadable"):
+        load_ground_truth(find_gt(cap))
+    rc, lines, _ = infer([cap, "--model", model_path, "--out", tmp_path / "o"], capsys)
+    s = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert rc == 0 and any("ground truth unreadable" in w for w in s["warnings"])
+
+
+# -- 9: ports and stale temporary folders --------------------------------------------------------------------------
+@pytest.mark.parametrize("flag, port", [("--port", 0), ("--port", 70000), ("--grpc-port", -1)])
+def test_view_port_out_of_range(flag, port, tmp_path, capsys):
+    rrd = tmp_path / "r.rrd"
+    rrd.write_bytes(b"RRF2" + b"\0" * 64)
+    assert view_cli.main([str(rrd), flag, str(port)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and flag in err[0] and "1..65535" in err[0]
+
+
+def test_stale_partial_folders_of_dead_runs_are_cleaned(model_path, good, tmp_path, capsys):
+    cap, earlier = good
+    out = tmp_path / "o"
+    dead, alive = dead_pid(), os.getppid()
+    stale = [tmp_path / f".o.tmp-{dead}", tmp_path / f".o.old-{dead}"]
+    keep = [tmp_path / f".o.tmp-{alive}", tmp_path / f".other.tmp-{dead}"]  # running, or another output's
+    for d in stale + keep:
+        d.mkdir()
+        (d / "depth_m.npy").write_bytes(b"partial")
+    rc, lines, _ = infer([cap, "--model", model_path, "--out", out], capsys)
+    assert rc == 0 and not lines
+    assert not any(d.exists() for d in stale) and all(d.exists() for d in keep)
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".o.")) == [keep[0].name]
+
+
+# -- 10: Canon compacts record FocusDistanceLower = 0 --------------------------------------------------------------
+@pytest.mark.parametrize("upper, lower, expected", [(216, 0, 2.16), (200, 100, 4 / 3), (65535, 546, 10.92),
+                                                    (65535, 0, math.inf)])
+def test_canon_lower_zero_means_not_recorded(upper, lower, expected, tmp_path):
+    f = tmp_path / "IMG_0001.JPG"
+    f.write_bytes(canon_jpeg(upper, lower))
+    meta = read_metadata(f, use_exiftool=False)
+    assert meta.focus_tags == {"FocusDistanceUpper": upper / 100, "FocusDistanceLower": lower / 100}
+    assert meta.focus_m == pytest.approx(expected)
+    assert ("Lower not recorded" in meta.focus_source) == (lower == 0)
+    if not exiftool.available():
+        pytest.skip("exiftool not installed (Debian package libimage-exiftool-perl): its answer not compared")
+    et = json.loads(subprocess.run(["exiftool", "-j", "-n", "-FocusDistanceUpper", "-FocusDistanceLower", str(f)],
+                                   capture_output=True, text=True, check=True).stdout)[0]
+    assert (et["FocusDistanceUpper"], et["FocusDistanceLower"]) == (upper / 100, lower / 100)  # ExifTool's reading
+    assert exiftool.read(f).focus_m == pytest.approx(expected)  # the exiftool fallback combines them the same way
+
+
+@pytest.mark.parametrize("name", ["Canon.jpg", "Canon1DmkIII.jpg"])
+def test_canon_sample_with_lower_zeroed_matches_exiftool(name, tmp_path):
+    """Real Canon files (../shared/data) with every stored FocusDistanceLower set to 0 (ShotInfo [20], FileInfo
+    [21], the 1D Mk III's CameraInfo 0x45): ExifTool reads 0 and the runtime uses Upper alone (before, the
+    diopter midpoint with infinity: twice the distance)."""
+    src = SHARED / "raw_exif_makernotes_exiftool" / name
+    if not src.is_file():
+        pytest.skip(f"{src} not present (no ../shared/data)")
+    if not exiftool.available():
+        pytest.skip("exiftool not installed (Debian package libimage-exiftool-perl)")
+    from aat_deploy.capture.containers import find_blocks
+
+    buf = bytearray(src.read_bytes())
+    _, tb, first = find_blocks(bytes(buf)).tiffs[0]
+    exif = tb.ifd(int(tb.number(tb.ifd(first), 0x8769)))
+    note = tb.ifd(exif[0x927C].data_offset, absolute=True)
+    for tag, index in ((0x0004, 20), (0x0093, 21)):  # int16u arrays, little-endian in these files
+        if tag in note and len(note[tag].data) > 2 * index:
+            struct.pack_into("<H", buf, note[tag].data_offset + 2 * index, 0)
+    if 0x000D in note and "1D Mark III" in (tb.text(tb.ifd(first), 0x0110) or ""):
+        struct.pack_into(">H", buf, note[0x000D].data_offset + 0x45, 0)
+    f = tmp_path / name
+    f.write_bytes(bytes(buf))
+    et = json.loads(subprocess.run(["exiftool", "-j", "-n", "-FocusDistanceUpper", "-FocusDistanceLower", str(f)],
+                                   capture_output=True, text=True, check=True).stdout)[0]
+    assert et["FocusDistanceLower"] == 0
+    meta = read_metadata(f, use_exiftool=False)
+    assert meta.focus_tags == {"FocusDistanceUpper": et["FocusDistanceUpper"], "FocusDistanceLower": 0}
+    upper = et["FocusDistanceUpper"]
+    assert meta.focus_m == (math.inf if upper > 655.345 else pytest.approx(upper))
+
+
+# -- property-based: the readers users feed -------------------------------------------------------------------------
+def _mutate(buf: bytes, edits: list[tuple[int, int]], cut: int | None) -> bytes:
+    b = bytearray(buf)
+    for pos, val in edits:
+        if b:
+            b[pos % len(b)] = val
+    return bytes(b[:cut] if cut is not None else b)
+
+
+EDITS = st.lists(st.tuples(st.integers(0, 1 << 20), st.integers(0, 255)), max_size=12)
+HEAD_EDITS = st.lists(st.tuples(st.integers(0, 511), st.integers(0, 255)), min_size=1, max_size=8)
+
+
+@pytest.fixture(scope="module")
+def seeds(tmp_path_factory):
+    """Files to mutate: a virtual-camera DNG, a Canon maker-note JPEG, a 16-bit PNG frame."""
+    d = tmp_path_factory.mktemp("seeds")
+    cap = write_dng_capture(d / "dng", [0.7, 1.4], h=24, w=32, gt=False)
+    png = write_png_capture(d / "png", [0.7, 1.4], h=24, w=32)
+    return {"dng": (cap / "frame_00.dng").read_bytes(), "jpg": canon_jpeg(216, 0),
+            "png": (png / "img_0.png").read_bytes()}
+
+
+@FUZZ
+@given(kind=st.sampled_from(["dng", "jpg", "png"]), edits=st.one_of(EDITS, HEAD_EDITS),
+       cut=st.one_of(st.none(), st.integers(0, 4096)))
+def test_fuzz_frame_metadata_and_pixels(seeds, tmp_path, kind, edits, cut):
+    """Mutated DNG/TIFF headers, JPEG maker notes and PNGs: read_metadata and load_frame give a result or a
+    CaptureError, nothing else."""
+    from aat_deploy.capture.raw import load_frame
+
+    f = tmp_path / f"f.{kind}"
+    f.write_bytes(_mutate(seeds[kind], edits, cut))
+    for read in (lambda: read_metadata(f, use_exiftool=False), lambda: load_frame(f)):
+        try:
+            read()
+        except CaptureError as e:
+            assert "\n" not in str(e) and str(f) in str(e)
+
+
+MAKERS = ["Canon", "NIKON CORPORATION", "OLYMPUS IMAGING CORP.", "KONICA MINOLTA", "CASIO COMPUTER CO.,LTD."]
+
+
+@FUZZ
+@given(make=st.sampled_from(MAKERS), note=st.binary(max_size=300), prefix=st.sampled_from(
+    [b"", b"Nikon\0\x02\x10\0\0", b"Nikon\0\x01\0", b"OLYMPUS\0II\x03\0", b"OLYMP\0\x01\0", b"QVC\0\0\0"]))
+def test_fuzz_maker_note_blocks(tmp_path, make, note, prefix):
+    """Arbitrary maker-note blocks behind each maker's header: metadata or a note, never an exception."""
+    jpg = bytearray(canon_jpeg(216, 0))
+    mn_at = jpg.index(struct.pack("<H", 0x927C))  # the Exif IFD's MakerNote entry: point it at our bytes
+    block = prefix + note
+    tiff_at = jpg.index(b"II*\0")
+    struct.pack_into("<I", jpg, mn_at + 4, len(block))
+    struct.pack_into("<I", jpg, mn_at + 8, len(jpg) - 2 - tiff_at)  # appended before EOI
+    body = bytes(jpg[:-2]).replace(b"Canon\0", make.encode()[:5] + b"\0", 1) + block + b"\xff\xd9"
+    body = body[:4] + struct.pack(">H", len(body) - 6) + body[6:]  # APP1 length
+    f = tmp_path / "mn.jpg"
+    f.write_bytes(body)
+    meta = read_metadata(f, use_exiftool=False)
+    assert meta.focus_m is None or isinstance(meta.focus_m, float)
+
+
+JSONISH = st.recursive(st.none() | st.booleans() | st.floats() | st.integers() | st.text(max_size=12),
+                       lambda c: st.lists(c, max_size=4) | st.dictionaries(st.text(max_size=8), c, max_size=4),
+                       max_leaves=12)
+FRAME_ENTRY = st.fixed_dictionaries({}, optional={
+    "file": st.sampled_from(["img_0.png", "img_1.png", "../img_0.png", "/etc/hostname", "raw/x.png", "", "a\0b",
+                             "img_0.png/", "C:\\x.png", "nope.png"]) | JSONISH,
+    "focus_m": st.sampled_from([0.6, 1.0, 0, -1, 1e308, float("nan"), float("inf"), 4e9, 10 ** 400, True, "1"])
+    | JSONISH})
+SIDECAR = st.one_of(JSONISH, st.fixed_dictionaries({"frames": st.lists(FRAME_ENTRY, max_size=4) | JSONISH}))
+
+
+@FUZZ
+@given(doc=SIDECAR, raw=st.one_of(st.none(), st.binary(max_size=64)))
+def test_fuzz_capture_json(seeds, tmp_path_factory, doc, raw):
+    d = tmp_path_factory.mktemp("cj")
+    for i in range(2):
+        (d / f"img_{i}.png").write_bytes(seeds["png"])
+    text = raw if raw is not None else json.dumps(doc, allow_nan=True).encode()
+    (d / "capture.json").write_bytes(text)
+    try:
+        cap = read_capture(d, use_exiftool=False)
+    except CaptureError as e:
+        assert "\n" not in str(e) and str(d) in str(e)
+    else:
+        assert all(0 < f.focus_m <= 1000 and f.path.resolve().is_relative_to(d.resolve()) for f in cap.frames)
+
+
+GT_DOC = st.one_of(JSONISH, st.fixed_dictionaries({}, optional={
+    "depth": st.sampled_from(["gt_depth_m.npy", "gt_d.pfm", "../gt_depth_m.npy", "/etc/hostname", "gt_x.png",
+                              "frame.png", "nope.npy"]) | JSONISH,
+    "scale_to_m": st.sampled_from([1, 0.001, 0, -1, float("nan"), 10 ** 400, "1"]) | JSONISH,
+    "mask": st.sampled_from(["gt_mask.png", "../m.png", "nope.png"]) | JSONISH}))
+DEPTH_BYTES = st.binary(max_size=200)
+
+
+@FUZZ
+@given(doc=GT_DOC, depth=st.one_of(st.none(), DEPTH_BYTES), pfm=st.binary(max_size=80))
+def test_fuzz_gt_json(tmp_path_factory, doc, depth, pfm):
+    d = tmp_path_factory.mktemp("gt")
+    arr = np.full((6, 8), 1.5, np.float32)
+    np.save(d / "gt_depth_m.npy", arr)
+    if depth is not None:
+        (d / "gt_depth_m.npy").write_bytes(depth)
+    (d / "gt_d.pfm").write_bytes(b"Pf\n8 6\n-1\n" + pfm)
+    (d / "gt.json").write_text(json.dumps(doc, allow_nan=True))
+    try:
+        src = find_gt(d)
+        if src is not None:
+            gt = load_ground_truth(src)
+            assert np.isfinite(gt.depth_m).any()
+    except CaptureError as e:
+        assert "\n" not in str(e) and str(d) in str(e)
+
+
+def test_model_metadata_fuzz(model_path, tmp_path):
+    """Every REQUIRED key given a hostile value: a ModelError naming the key, or a model with sane numbers."""
+    values = [0, -1, 1e308, float("nan"), "x", True, None, [], [1], [1, 2, 3], {"a": 1}, [0, 0], [1e9, 1e9], 10 ** 30]
+    keys = ["aat.size_multiple", "aat.stack_min", "aat.stack_max", "aat.sensor_px", "aat.focus_range_m",
+            "aat.focal_length_mm", "aat.f_number", "aat.pixel_um", "aat.lens_name", "aat.sensor_mm"]
+    for i, (k, v) in enumerate((k, v) for k in keys for v in values):
+        p = with_meta(model_path, tmp_path / f"m{i}.onnx", **{k.replace(".", "__"): v})
+        try:
+            m = DfFModel(p, threads=1)
+        except CaptureError as e:
+            assert k in str(e) and "\n" not in str(e)
+        else:
+            assert m.focal_length_px > 0 and all(x > 0 for x in m.sensor_px) and m.size_multiple >= 1

@@ -1,0 +1,128 @@
+"""The runtime is the ground floor: `aat_deploy` never imports `training` (nor torch), nothing imports in a cycle
+and no library module imports a command-line module (scripts/import_graph.py reads the imports), and every
+`aat_deploy` module imports in an interpreter where `training` and `torch` cannot be imported.
+
+Issue 22, phase 2 (after the diagnosis work of issue 23 lands) moves diagnosis into one room and the effects
+registry into the runtime; until then the arrows and modules below are the known remaining ones. Each list must
+match exactly, so that an arrow added or removed shows here."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+import shutil
+import subprocess
+import sys
+import textwrap
+
+from conftest import LENSES, ROOT
+
+# (importing module, imported module): the effects registry and the torch twins still live in training (phase 2)
+KNOWN_ARROWS = {
+    ("aat_deploy.cli.common", "training.render.effects"),  # --list-effects (lazy)
+    ("aat_deploy.diagnose.search", "training.render.effects"),
+    ("aat_deploy.diagnose.session", "training.render.effects"),
+    ("aat_deploy.diagnose.session", "training.diagnose.twin"),  # torch twins and retraining (lazy)
+    ("aat_deploy.twin.renderer", "training.render.effects"),
+}
+# the modules that therefore fail to import without training (their importers too)
+KNOWN_FAILING = {"aat_deploy.diagnose.search", "aat_deploy.diagnose.session", "aat_deploy.twin.lookup",
+                 "aat_deploy.twin.renderer"}
+
+BLOCK = textwrap.dedent("""
+    import sys
+    class _Block:
+        def find_spec(self, name, path=None, target=None):
+            if name.split(".")[0] in ("torch", "training"):
+                raise ImportError(f"blocked in the runtime: {name}")
+            return None
+    sys.meta_path.insert(0, _Block())
+""")
+
+
+def _import_graph():
+    """scripts/import_graph.py as a module."""
+    if "import_graph" not in sys.modules:
+        spec = importlib.util.spec_from_file_location("import_graph", ROOT / "scripts" / "import_graph.py")
+        mod = importlib.util.module_from_spec(spec)
+        sys.modules["import_graph"] = mod  # its dataclass looks its module up
+        spec.loader.exec_module(mod)
+    return sys.modules["import_graph"]
+
+
+def test_import_graph_has_no_cycle_no_cli_import_and_only_the_known_arrows():
+    r = _import_graph().report(ROOT)
+    assert r["cycles"] == []
+    assert [(e.src, e.dst) for e in r["library_to_cli"]] == []
+    assert {(e.src, e.dst) for e in r["deploy_to_training"]} == KNOWN_ARROWS
+    assert r["modules"] > 100 and len(r["training_to_deploy"]) > 50  # the reader sees the tree
+
+
+def test_import_graph_finds_what_it_is_meant_to(tmp_path):
+    """The reader on a made-up tree: a lazy arrow, a cycle through a relative `from . import mod`, a library module
+    importing a CLI module (which closes a second cycle through the lazy arrow)."""
+    files = {
+        "aat_deploy/__init__.py": "", "aat_deploy/a.py": "def f():\n    from training.b import g\n",
+        "aat_deploy/c.py": "from . import d\n", "aat_deploy/d.py": "from aat_deploy import c\n",
+        "training/__init__.py": "", "training/b.py": "from training.cli import run\n",
+        "training/cli/__init__.py": "", "training/cli/run.py": "import aat_deploy.a\n",
+    }
+    for name, text in files.items():
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_text(text)
+    r = _import_graph().report(tmp_path)
+    assert [(e.src, e.dst, e.lazy) for e in r["deploy_to_training"]] == [("aat_deploy.a", "training.b", True)]
+    assert r["cycles"] == [["aat_deploy.a", "training.b", "training.cli.run"], ["aat_deploy.c", "aat_deploy.d"]]
+    assert [(e.src, e.dst) for e in r["library_to_cli"]] == [("training.b", "training.cli.run")]
+
+
+def test_every_runtime_module_imports_without_training_and_torch(tmp_path):
+    """With `training` and `torch` unimportable every aat_deploy module imports but the known ones; the
+    torch-optional path (tracing a best-focus map for a lens that has none) says in one line what is missing."""
+    lens_copy = tmp_path / "lenses" / "rf50_copy.json"
+    lens_copy.parent.mkdir()
+    shutil.copy(LENSES / "canon_rf50mm_f1.8.json", lens_copy)
+    code = BLOCK + textwrap.dedent(f"""
+        import importlib, json, pkgutil, sys
+        import aat_deploy
+        failed = {{}}
+        for m in pkgutil.walk_packages(aat_deploy.__path__, "aat_deploy."):
+            try:
+                importlib.import_module(m.name)
+            except ImportError as e:
+                failed[m.name] = str(e)
+        from aat_deploy import extensions
+        from aat_deploy.focus.bestfocus import BestFocusError, for_lens
+        try:
+            for_lens({str(lens_copy)!r})
+            err = None
+        except BestFocusError as e:
+            err = str(e)
+        print(json.dumps({{"failed": failed, "tracer": repr(extensions.load("best_focus_tracer")),
+                           "declared": extensions.declared(), "error": err,
+                           "loaded": sorted(k for k in sys.modules if k.split(".")[0] in ("torch", "training"))}}))
+    """)
+    env = dict(os.environ, PYTHONPATH=str(ROOT), OMP_WAIT_POLICY="PASSIVE")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env,
+                       cwd=tmp_path)
+    assert r.returncode == 0, r.stderr[-2000:]
+    out = json.loads(r.stdout.strip().splitlines()[-1])
+    assert set(out["failed"]) == KNOWN_FAILING, out["failed"]
+    assert all("blocked in the runtime: training" in v for v in out["failed"].values()), out["failed"]
+    assert out["loaded"] == []
+    assert out["declared"] == {"best_focus_tracer": "training.optics.field_focus:coarse_best_focus_map"}
+    assert out["tracer"] == "None"
+    err = out["error"]
+    assert err and "\n" not in err and "rf50_copy.json" in err and "torch is not installed" in err
+
+
+def test_declared_extension_loads_with_the_train_extra():
+    import pytest
+
+    pytest.importorskip("torch")
+    from aat_deploy import extensions
+    from training.optics.field_focus import coarse_best_focus_map
+
+    assert extensions.load("best_focus_tracer") is coarse_best_focus_map
+    assert extensions.load("no_such_extension") is None

@@ -1,0 +1,265 @@
+"""Training loop: config files, schedule, loss, learning on a tiny synthetic set, exact resume, DDP with gloo,
+evaluation, CLI. The synthetic set (thin-lens Gaussian blur of random textures at two depth planes) is in
+tests/training_fixtures.py."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import socket
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import torch.nn.functional as F
+from training_fixtures import TwoPlaneStacks, train_config
+
+from training.train.config import (
+    ConfigError,
+    LossConfig,
+    TrainConfig,
+    config_from_dict,
+    load_config,
+)
+from training.train.loss import depth_mask, dff_loss, edge_aware_smoothness, masked_l1
+from training.train.sampler import ResumableSampler
+from training.train.schedule import lr_at
+
+ROOT = Path(__file__).resolve().parents[3]
+
+
+def test_shipped_configs_load():
+    paths = sorted((ROOT / "configs").glob("dff_*.json"))
+    assert paths
+    for p in paths:
+        cfg = load_config(p)
+        assert (ROOT / cfg.lens).exists(), p
+    with pytest.raises(ConfigError, match="unknown config keys"):
+        config_from_dict({"name": "x", "net": "aifnet", "size": "small", "simulator": "aat", "lens": "l", "lr0": 1})
+    with pytest.raises(ConfigError, match="simulator"):
+        config_from_dict({"name": "x", "net": "aifnet", "size": "small", "simulator": "gauss", "lens": "l"})
+    c = train_config()
+    assert config_from_dict(json.loads(json.dumps(c.to_dict()))) == c  # checkpoint round trip
+
+
+def test_cosine_schedule_spans_exactly_the_steps():
+    assert lr_at(0, 101, 1.0) == pytest.approx(1.0)
+    assert lr_at(50, 101, 1.0) == pytest.approx(0.5)
+    assert lr_at(100, 101, 1.0) == pytest.approx(0.0, abs=1e-12)
+    assert lr_at(100, 101, 1.0, lr_min=0.1) == pytest.approx(0.1)
+    assert lr_at(0, 100, 1.0, warmup_steps=4) == pytest.approx(0.25)
+    assert lr_at(4, 100, 1.0, warmup_steps=4) == pytest.approx(1.0)
+
+
+def test_loss_hand_computed():
+    gt = torch.tensor([[[1.0, 2.0], [0.0, 4.0]]])
+    pred = torch.tensor([[[1.5, 2.0], [9.0, 3.0]]], requires_grad=True)
+    m = depth_mask(gt)
+    assert masked_l1(pred, gt, m).item() == pytest.approx((0.5 + 0 + 1) / 3)
+    focus = torch.tensor([[1.0, 3.0]])
+    assert depth_mask(gt, focus).sum() == 2  # 4 m outside [1, 3]
+    aif = torch.zeros(1, 3, 2, 2)
+    cfg = LossConfig(level_weights=(3.0, 1.0))
+    coarse = pred.detach() + 1.0  # errors 1.5, 1, 0 -> mean 2.5 / 3
+    total, parts = dff_loss([(pred, aif, None), (coarse, None, None)], {"depth_m": gt, "focus_m": focus}, cfg)
+    assert total.item() == pytest.approx((3 * 1.5 / 3 + 1 * 2.5 / 3) / 4)
+    assert parts["depth_l1"] == pytest.approx(0.5)
+    total.backward()
+    assert pred.grad[0, 1, 0] == 0  # invalid pixel gets no gradient
+    empty = dff_loss([(pred, aif, None)], {"depth_m": torch.zeros(1, 2, 2), "focus_m": focus}, LossConfig())[0]
+    assert empty.item() == 0.0
+    with pytest.raises(ValueError, match="aif"):
+        dff_loss([(pred, aif, None)], {"depth_m": gt, "focus_m": focus}, LossConfig(aif=1.0))
+
+
+def test_smoothness_zero_for_flat_depth_and_edge_aware():
+    img = torch.zeros(1, 3, 4, 4)
+    flat = edge_aware_smoothness(torch.ones(1, 4, 4), img, eps=0.0)
+    assert flat.item() == 0.0
+    step_depth = torch.zeros(1, 4, 4)
+    step_depth[:, :, 2:] = 1.0
+    no_edge = edge_aware_smoothness(step_depth, img, eps=0.0)
+    img_edge = img.clone()
+    img_edge[..., 2:] = 1.0
+    with_edge = edge_aware_smoothness(step_depth, img_edge, eps=0.0)
+    assert no_edge.item() == pytest.approx(4 / 12) and with_edge.item() < 1e-6
+
+
+def test_sampler_shards_and_resumes():
+    a = list(ResumableSampler(10, 0, 2, seed=1))
+    b = list(ResumableSampler(10, 1, 2, seed=1))
+    assert len(a) == len(b) == 5 and not set(a) & set(b)
+    s = ResumableSampler(10, 0, 2, seed=1)
+    s.set_epoch(0, 3)
+    assert list(s) == a[3:]
+    s.set_epoch(1)
+    assert list(s) != a
+
+
+def _params(model: torch.nn.Module) -> torch.Tensor:
+    return torch.cat([p.detach().flatten() for p in model.state_dict().values() if p.dtype.is_floating_point])
+
+
+@pytest.mark.numerics  # bit for bit: it must hold with torch's deterministic algorithms too
+@pytest.mark.parametrize("net", ["aifnet", "dfvnet"])
+def test_resume_equals_uninterrupted(tmp_path, net):
+    from training.train.loop import load_trained, train
+
+    cfg = train_config(net=net, loss=LossConfig(level_weights=(2.0, 1.0), aif=0.1, smooth=0.01))
+    data = TwoPlaneStacks(n=6)  # 3 batches per epoch: the run crosses an epoch boundary
+    full = train(cfg, tmp_path / "a", train_set=data, progress=False)
+    assert full.finished and full.step == 6
+    part = train(cfg, tmp_path / "b", train_set=data, stop_at_step=4, progress=False)
+    assert not part.finished and part.step == 4 and not (tmp_path / "b" / "model.pt").exists()
+    with pytest.raises(FileExistsError, match="--resume"):
+        train(cfg, tmp_path / "b", train_set=data, progress=False)
+    rest = train(cfg, tmp_path / "b", train_set=data, resume=True, progress=False)
+    assert rest.finished and rest.step == 6
+    ma, _ = load_trained(tmp_path / "a" / "model.pt")
+    mb, cfg_b = load_trained(tmp_path / "b" / "model.pt")
+    assert cfg_b == cfg
+    assert torch.equal(_params(ma), _params(mb))  # the same steps on the same data in one process: bit for bit
+    init = _params(__import__("training.nets.model", fromlist=["x"]).build_model(net, "small"))
+    assert not torch.allclose(init, _params(ma))
+    log = [json.loads(line) for line in (tmp_path / "a" / "log.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in log] == [1, 2, 3, 4, 5, 6] and log[-1]["lr"] < log[0]["lr"]
+
+
+def test_training_learns_and_evaluates(tmp_path):
+    from training.train.evaluate import evaluate
+    from training.train.loop import load_trained, train
+
+    train_set, val_set = TwoPlaneStacks(n=32, seed=0), TwoPlaneStacks(n=6, seed=1)
+    cfg = train_config(net="dfvnet", steps=60, batch_size=4, lr=3e-3, checkpoint_every=60, log_every=10, val_items=6)
+    torch.manual_seed(0)
+    before, _ = evaluate(__import__("training.nets.model", fromlist=["x"]).build_model("dfvnet", "small"), val_set)
+    res = train(cfg, tmp_path / "run", train_set=train_set, val_set=val_set, progress=False)
+    after = res.val_metrics
+    print(f"val MAE before {before['mae']:.3f} m, after {after['mae']:.3f} m; {res.seconds_per_step:.3f} s/step")
+    assert after["mae"] < 0.7 * before["mae"]
+    assert set(after) >= {"mae", "rmse", "abs_rel", "delta1", "psnr", "ssim", "n_images"}
+    emap = np.load(tmp_path / "run" / "val_error_map_m.npy")
+    assert emap.shape == (32, 32) and np.isnan(emap[0, 0]) and np.nanmean(emap) == pytest.approx(
+        np.nanmean(emap), rel=1e-6)
+    model, _ = load_trained(tmp_path / "run" / "model.pt")
+    again, _ = evaluate(model, val_set)
+    assert again["mae"] == pytest.approx(after["mae"], rel=1e-5)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _ddp_worker(rank: int, world: int, port: int, out: str) -> None:
+    """Train 3 steps in a 2-process gloo group (the env torchrun sets); save this replica's final state."""
+    os.environ.update({"MASTER_ADDR": "127.0.0.1", "MASTER_PORT": str(port), "RANK": str(rank),
+                       "WORLD_SIZE": str(world), "LOCAL_RANK": str(rank)})
+    torch.set_num_threads(1)
+    from training.train import loop
+    from training.train.checkpoint import load
+
+    captured = {}
+    real_build = loop.build_model
+
+    def build_and_keep(net, size, field_channels=0):
+        captured["model"] = real_build(net, size, field_channels)
+        return captured["model"]
+
+    loop.build_model = build_and_keep
+    data = TwoPlaneStacks(n=8)
+    cfg = train_config(net="dfvnet", steps=3, checkpoint_every=10, loss=LossConfig(level_weights=(2.0, 1.0)))
+    res = loop.train(cfg, Path(out) / "run", train_set=data, progress=False)
+    torch.save({"state": {k: v.clone() for k, v in captured["model"].state_dict().items()},
+                "ckpt": load(Path(out) / "run" / "last.pt")["model"], "step": res.step,
+                "items": list(ResumableSampler(len(data), rank, world, cfg.seed))},
+               Path(out) / f"rank{rank}.pt")
+
+
+def test_ddp_two_processes_keep_replicas_identical(tmp_path):
+    import torch.multiprocessing as mp
+
+    from training.nets.model import build_model
+
+    mp.spawn(_ddp_worker, args=(2, _free_port(), str(tmp_path)), nprocs=2, join=True)
+    r0 = torch.load(tmp_path / "rank0.pt", weights_only=False)
+    r1 = torch.load(tmp_path / "rank1.pt", weights_only=False)
+    assert r0["step"] == r1["step"] == 3
+    assert not set(r0["items"]) & set(r1["items"])  # each replica saw different data ...
+    for k in r0["state"]:
+        assert torch.equal(r0["state"][k], r1["state"][k]), k  # ... yet parameters and buffers are identical
+        assert torch.equal(r0["state"][k], r0["ckpt"][k]), k
+    torch.manual_seed(0)
+    init = build_model("dfvnet", "small").state_dict()
+    assert any(not torch.equal(init[k], r0["state"][k]) for k in init)  # and it trained
+
+
+def test_cli_trains_resumes_and_refuses(tmp_path, monkeypatch, capsys):
+    import training.train.data as data_mod
+    from training.cli.train import main
+
+    monkeypatch.setattr(data_mod, "make_dataset", lambda data, simulator, lens, effects=None:
+                        TwoPlaneStacks(n=data["n_items"], seed=data["seed"]))
+    out = tmp_path / "run"
+    args = ["--config", str(ROOT / "configs" / "dff_ci.json"), "--out", str(out), "--no-progress"]
+    assert main(args + ["--steps", "2"]) == 0
+    assert "finished at step 2/2" in capsys.readouterr().out
+    assert (out / "model.pt").exists() and (out / "val_metrics.json").exists()
+    assert main(args + ["--steps", "3"]) == 1
+    assert "--resume" in capsys.readouterr().err
+    assert main(args + ["--steps", "3", "--resume"]) == 0
+    assert "finished at step 3/3" in capsys.readouterr().out
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"name": "x"}')
+    assert main(["--config", str(bad)]) == 2
+    assert "missing config keys" in capsys.readouterr().err
+
+
+def test_make_dataset_fills_simulator_lens_and_rejects_unknown_keys(monkeypatch):
+    """The adapter against a stand-in for training.data.stacks (the real module's interface)."""
+    import dataclasses
+    import sys
+    import types
+
+    from training.train.data import make_dataset
+
+    @dataclasses.dataclass(frozen=True)
+    class StackConfig:
+        height: int = 32
+        simulator: str = "aat"
+        lens: str = ""
+        effects: tuple = ()
+
+    class FocalStackDataset:
+        def __init__(self, cfg: StackConfig):
+            self.cfg = cfg
+
+    fake = types.ModuleType("training.data.stacks")
+    fake.FocalStackDataset, fake.StackConfig = FocalStackDataset, StackConfig
+    FocalStackDataset.__init__.__annotations__["cfg"] = StackConfig
+    monkeypatch.setitem(sys.modules, "training.data.stacks", fake)
+    import training.data
+
+    monkeypatch.setattr(training.data, "stacks", fake, raising=False)
+    ds = make_dataset({"height": 64}, "thin_lens", "lenses/canon_rf50mm_f1.8.json", ["noise"])
+    assert ds.cfg.height == 64 and ds.cfg.simulator == "thin_lens" and ds.cfg.effects == ("noise",)
+    assert Path(ds.cfg.lens).is_file()
+    with pytest.raises(ValueError, match="n_items"):
+        make_dataset({"n_items": 3}, "aat", "lenses/canon_rf50mm_f1.8.json")
+
+
+def test_diopter_loss_is_l1_on_inverse_depth():
+    """loss.depth_space 'diopter': mean |1/pred - 1/gt| over valid pixels (hand-computed)."""
+    from training.train.loss import dff_loss
+
+    pred = torch.tensor([[[1.0, 2.0], [4.0, 5.0]]])
+    gt = torch.tensor([[[0.5, 2.0], [5.0, 0.0]]])  # last pixel invalid
+    batch = {"depth_m": gt, "focus_m": torch.tensor([[0.5, 5.0]])}
+    loss, _ = dff_loss([(pred, None, None)], batch, LossConfig(depth_space="diopter"))
+    expect = (abs(1 / 1.0 - 1 / 0.5) + 0 + abs(1 / 4.0 - 1 / 5.0)) / 3
+    assert abs(float(loss) - expect) < 1e-6
+    loss_m, _ = dff_loss([(pred, None, None)], batch, LossConfig())
+    assert abs(float(loss_m) - (0.5 + 0 + 1.0) / 3) < 1e-6
