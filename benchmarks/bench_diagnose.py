@@ -302,7 +302,7 @@ def tolerance_table(lens_path: Path, psf_path: Path) -> None:
     from models/ when one there fits the lens, else traced."""
     import shutil
 
-    from training.lens.io import load_lens
+    from aat_deploy.lens.io import load_lens
     from training.render.effects.lens_tolerance import table_name
 
     name = table_name(load_lens(lens_path))

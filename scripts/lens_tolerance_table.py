@@ -29,7 +29,7 @@ def main(argv: list[str] | None = None) -> int:
     if not (a.psf or a.out):
         print("lens_tolerance_table: error: give --psf or --out", file=sys.stderr)
         return 2
-    from training.lens.io import load_lens
+    from aat_deploy.lens.io import load_lens
     from training.optics.tolerance import sensitivity_table
     from training.render.effects.lens_tolerance import table_name
 

@@ -22,7 +22,7 @@ import math
 import numpy as np
 import torch
 
-from training.lens.schema import Lens
+from aat_deploy.lens.schema import Lens
 from training.optics.focus import best_focus_shift_mm, focus
 from training.optics.trace import _intersect, _refract, rays_through_pupil, uniform_disk_grid
 from training.psf.geometry import object_points_mm

@@ -189,7 +189,7 @@ def test_focus_metadata_scale_and_curve_and_their_inverses(lens):
 def test_sensor_shifts_add_up_through_the_focus_table(lens):
     """Tilts about the two axes given as two effects are one tilt of the summed shift (the registry adds sensor shifts before the
     focus-table lookup), and one tilt equals tilted_focus_m."""
-    from training.psf.geometry import paraxial_focus_table
+    from aat_deploy.optics.focus_table import paraxial_focus_table
 
     ctx = fx.SimContext(lens, (640, 960), table=paraxial_focus_table(lens))
     x, y = np.array([-1.0, 0.0, 0.7]), np.array([0.2, 0.0, -0.9])
@@ -202,7 +202,7 @@ def test_sensor_shifts_add_up_through_the_focus_table(lens):
 
 def test_breathing_coefficient_scales_the_magnification_change(lens):
     """coefficient 0 = no breathing, 1 = the lens's model (unchanged default), 2 = twice the change."""
-    from training.psf.geometry import paraxial_focus_table
+    from aat_deploy.optics.focus_table import paraxial_focus_table
     from training.render.effects.focus_breathing import breathing_scale, scale_about_axis
 
     ctx = fx.SimContext(lens, (64, 96), table=paraxial_focus_table(lens))

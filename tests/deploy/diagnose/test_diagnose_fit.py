@@ -20,7 +20,7 @@ FOCUS_M = 1.0 / np.linspace(1.7, 0.2, 7)
 
 @pytest.fixture(scope="module")
 def world(tmp_path_factory):
-    from training.lens.io import load_lens
+    from aat_deploy.lens.io import load_lens
 
     tmp = tmp_path_factory.mktemp("fit")
     lens = load_lens(RF50)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 
-from training.lens.io import load_lens
+from aat_deploy.lens.io import load_lens
 from training.optics.tolerance import (best_focus_z_mm, focal_surface_change_mm, sensitivity_table,
                                        trace_decentred)
 from training.optics.trace import Rays, rays_through_pupil, trace, uniform_disk_grid
@@ -55,7 +55,7 @@ def test_decentred_element_matches_optiland(lens):
     from optiland.materials import IdealMaterial
     from optiland.optic import Optic
     from optiland.physical_apertures import RadialAperture
-    from tests.test_optiland_crosscheck import _optiland_trace
+    from tests.training.optics.test_optiland_crosscheck import _optiland_trace
 
     w = lens.design_wavelength_nm
     n = lens.indices(w)
