@@ -97,10 +97,12 @@ def scene(seed: int, h: int, w: int):
     return np.ascontiguousarray(rgb.transpose(2, 0, 1)), depth  # (3, H, W) linear, (H, W) m
 
 
-def make_set(folder: Path, lens, psf_src, base: list[str], withheld: list, scene_seeds: list[int], seed: int) -> None:
+def make_set(folder: Path, lens, psf_src, base: list[str], withheld: list, scene_seeds: list[int], seed: int,
+             key: str = "") -> None:
     """Render one capture set (one folder per scene) with the model's effects plus the withheld ones. A withheld
     `raw_pipeline` is the real thing: DNG frames (Bayer mosaic) that the runtime develops with LibRaw; otherwise
-    frames are float TIFFs, exactly as rendered."""
+    frames are float TIFFs, exactly as rendered. The folder's set.json records the draws: a folder made by another
+    plan (other arguments) is refused rather than mixed with this set's scenes."""
     from training.camera.virtual import write_capture
     from training.render import effects as fx
     from training.render.schedule import FocusSchedule
@@ -109,6 +111,17 @@ def make_set(folder: Path, lens, psf_src, base: list[str], withheld: list, scene
 
     raw = any(w.split(":")[0] == "raw_pipeline" for w in withheld)
     rendered = [w for w in withheld if w.split(":")[0] != "raw_pipeline"]
+    record = {"model": key, "base": base, "withheld": withheld, "scenes": scene_seeds, "seed": seed}
+    stamp = folder / "set.json"
+    scenes = {p.name for p in folder.iterdir() if p.is_dir()} if folder.exists() else set()
+    # a folder from before the stamp holds this set if its scenes are this set's (seeded by the set's seed)
+    same = (json.loads(stamp.read_text()) == record if stamp.exists()
+            else scenes <= {f"scene{s}" for s in scene_seeds})
+    if not same:
+        raise SystemExit(f"{folder}: holds another set than this plan draws (other --effects, --captures, "
+                         f"--sets-per-effect or --seed?); move it away or use the arguments it was made with")
+    folder.mkdir(parents=True, exist_ok=True)
+    stamp.write_text(json.dumps(record))
     sim = Simulator(lens, OnnxPSF.from_source(psf_src), fx.parse(base + rendered))
     focus = FocusSchedule(*FOCUS).distances()
     h, w = lens.sensor.height_px, lens.sensor.width_px
@@ -129,6 +142,11 @@ def main() -> None:
     ap.add_argument("--retrain-steps", type=int, default=0)
     ap.add_argument("--retrain", choices=["all", "first"], default="first",
                     help="with --retrain-steps: retrain on every set, or on the first set of each withheld kind")
+    ap.add_argument("--retrain-max", type=int, help="with --retrain-steps: at most this many retrainings in all "
+                    "(results already in --out count), the first sets in the benchmark's order")
+    ap.add_argument("--torch-free", action="store_true", help="diagnose with the torch-free twins, as a "
+                    "runtime-only install does (effects it cannot render, e.g. chromatic without per-wavelength "
+                    "surrogates, are skipped: a set withholding one is scored as hidden)")
     ap.add_argument("--rounds", type=int, default=2, help="greedy rounds for sets with one withheld effect "
                     "(the two-effect set always gets 3)")
     ap.add_argument("--effects", help="only these withheld effects (comma-separated)")
@@ -190,31 +208,47 @@ def main() -> None:
     done = {r["set"]: r for r in map(json.loads, out.read_text().splitlines())} if out.exists() else {}
     rows, t0 = list(done.values()), time.time()
     retrained: set[str] = {kind_of(r) for r in rows if "remaining" in r}
+    n_retrained = sum("remaining" in r for r in rows)
+
+    def wants_retrain(row: dict, res: dict) -> bool:
+        return bool(args.retrain_steps and res["shrink"] and row["withheld"] and not row["hidden"]
+                    and (args.retrain == "all" or kind_of(row) not in retrained)
+                    and (args.retrain_max is None or n_retrained < args.retrain_max))
+
     for i, key, withheld, hidden, set_seed, scene_seeds in drawn_sets(plan, order, rng, args.captures, width):
-        if i in done:
+        folder = setup / SETS / f"set{i:02d}"
+        if i in done and not ("remaining" not in done[i] and (folder / "diagnosis.json").exists()
+                              and wants_retrain(done[i], json.loads((folder / "diagnosis.json").read_text()))):
             continue
         if key not in ctx:
-            ctx[key] = load_model(models[key], lens_path, psf_path)
+            ctx[key] = load_model(models[key], lens_path, psf_path, args.torch_free)
         m, lens, src, twins = ctx[key]
         base = [fx.spec(e) for e in twins.base]
-        folder = setup / SETS / f"set{i:02d}"
-        make_set(folder, lens, src, base, withheld, scene_seeds, set_seed)
+        tr = time.time()
+        make_set(folder, lens, src, base, withheld, scene_seeds, set_seed, key)
         caps = [load_capture_data(p, m) for p in sorted(folder.iterdir()) if p.is_dir()]
-        truth = [w.split(":")[0] for w in withheld]
-        # a hidden set's diagnosis does not know the withheld effect: it may only say "unexplained"
-        effects = [n for n in fx.names() if n not in truth] if hidden else None
-        cfg = DiagnoseConfig(max_effects=3 if len(withheld) > 1 else args.rounds, n_boot=300, effects=effects)
-        ts = time.time()
-        res, _, _ = diagnose(m, twins, caps, cfg)
-        # the whole answer (every effect's fits and distances), to study other ranking rules without re-rendering
-        (folder / "diagnosis.json").write_text(json.dumps(res, indent=1, default=float))
-        row = score(i, key, withheld, hidden, res)
-        row["seconds"] = round(time.time() - ts, 1)
-        if args.retrain_steps and res["shrink"] and truth and not hidden and \
-                (args.retrain == "all" or kind_of(row) not in retrained):
-            row.update(retrain(m, lens_path, psf_path, res, caps, folder, args.retrain_steps))
+        if i in done:  # diagnosed by an earlier run without (or beyond the cap of) retraining: retrain now
+            row, res = dict(done[i]), json.loads((folder / "diagnosis.json").read_text())
+        else:
+            truth = [w.split(":")[0] for w in withheld]
+            # a hidden set's diagnosis does not know the withheld effect: it may only say "unexplained"
+            effects = [n for n in fx.names() if n not in truth] if hidden else None
+            cfg = DiagnoseConfig(max_effects=3 if len(withheld) > 1 else args.rounds, n_boot=300, effects=effects)
+            ts = time.time()
+            res, _, _ = diagnose(m, twins, caps, cfg)
+            # the whole answer (every effect's fits and distances), to study other ranking rules without
+            # re-rendering
+            (folder / "diagnosis.json").write_text(json.dumps(res, indent=1, default=float))
+            row = score(i, key, withheld, hidden, res)
+            row["seconds"], row["render_seconds"] = round(time.time() - ts, 1), round(ts - tr, 1)
+            row["torch_free"] = bool(args.torch_free)
+        if wants_retrain(row, res):
+            tt = time.time()
+            row.update(retrain(m, lens_path, psf_path, res, caps, folder, args.retrain_steps, args.torch_free))
+            row["retrain_seconds"] = round(time.time() - tt, 1)
             retrained.add(kind_of(row))
-        rows.append(row)
+            n_retrained += 1
+        rows = [r for r in rows if r["set"] != i] + [row]
         print(json.dumps(row), flush=True)
         with out.open("a") as f:
             f.write(json.dumps(row) + "\n")
@@ -252,7 +286,9 @@ def make_plan(names: list[str], per_effect: int, extras: bool, hidden: bool) -> 
 def kind_of(row: dict) -> str:
     """A set's kind in the table: the withheld effects (with the focus-error shape), hidden or not."""
     k = " + ".join(row.get("labels") or [w.split(":")[0] for w in row["withheld"]]) or "(none)"
-    return f"{k} (hidden)" if row.get("hidden") else k
+    if row.get("hidden"):
+        return f"{k} (skipped by the twins)" if row.get("hidden_by") == "skipped" else f"{k} (hidden)"
+    return k
 
 
 def score(i: int, key: str, withheld: list[str], hidden: bool, res: dict) -> dict:
@@ -265,6 +301,10 @@ def score(i: int, key: str, withheld: list[str], hidden: bool, res: dict) -> dic
     causes = res.get("causes", [])
     shares = [round(e["share_of_gap"], 3) for e in res["ranked_effects"]]
     truth = [w.split(":")[0] for w in withheld]
+    skipped = [e["effect"] for e in res.get("effects_skipped", [])]
+    # a withheld effect the twins could not render (torch-free: chromatic) is hidden from the diagnosis as well
+    hidden_by = "plan" if hidden else "skipped" if truth and set(truth) <= set(skipped) else None
+    hidden = hidden_by is not None
     if not truth:
         ok = not res["gap_significant"] and not named
     elif hidden:
@@ -274,7 +314,8 @@ def score(i: int, key: str, withheld: list[str], hidden: bool, res: dict) -> dic
     else:
         ok = set(named[:2]) == set(truth) and shares[0] >= shares[1]
     u = res.get("unexplained_share") or {}
-    return {"set": int(i), "model": key, "withheld": withheld, "hidden": hidden, "labels": labels(withheld),
+    return {"set": int(i), "model": key, "withheld": withheld, "hidden": hidden, "hidden_by": hidden_by,
+            "labels": labels(withheld), "skipped": skipped,
             "named": named, "seen": seen, "causes": causes, "shares": shares, "verdict": res.get("verdict"),
             "unexplained_share": u.get("share"), "gap_significant": res["gap_significant"],
             "gap_m": res["gap"]["gap_m"], "gap_ci_m": [res["gap"]["ci_low"], res["gap"]["ci_high"]],
@@ -331,8 +372,9 @@ def drawn_sets(plan: list, order, rng: np.random.Generator, captures: int, width
         yield int(i), key, withheld, hidden, set_seed, scene_seeds
 
 
-def load_model(model_path: Path, lens_path: Path, psf_path: Path):
-    """(model, lens, PSF surrogate source, twin renderer) as the diagnosis uses them."""
+def load_model(model_path: Path, lens_path: Path, psf_path: Path, torch_free: bool = False):
+    """(model, lens, PSF surrogate source, twin renderer) as the diagnosis uses them (torch_free: as a runtime-only
+    install does)."""
     from aat_deploy.diagnose.session import make_renderer
     from aat_deploy.model import DfFModel
     from aat_deploy.twin.lookup import find_lens, find_surrogate
@@ -340,7 +382,7 @@ def load_model(model_path: Path, lens_path: Path, psf_path: Path):
     m = DfFModel(model_path, threads=2)
     lens, _ = find_lens(m, lens_path)
     src = find_surrogate(lens, psf_path)
-    return m, lens, src, make_renderer(m, lens, src)
+    return m, lens, src, make_renderer(m, lens, src, torch_free)
 
 
 def verify_sets(plan, order, rng, captures: int, setup: Path, lens_path: Path, psf_path: Path, models: dict,
@@ -372,7 +414,8 @@ def verify_sets(plan, order, rng, captures: int, setup: Path, lens_path: Path, p
     print(f"\nlargest difference: {worst:.3g} ({time.time() - t0:.0f} s)")
 
 
-def retrain(m, lens_path: Path, psf_path: Path, res: dict, caps, folder: Path, steps: int) -> dict:
+def retrain(m, lens_path: Path, psf_path: Path, res: dict, caps, folder: Path, steps: int,
+            torch_free: bool = False) -> dict:
     from aat_deploy.diagnose.search import DiagnoseConfig
     from aat_deploy.diagnose.session import retrain_command, score_model
     from aat_deploy.twin.lookup import find_lens, find_surrogate
@@ -389,7 +432,7 @@ def retrain(m, lens_path: Path, psf_path: Path, res: dict, caps, folder: Path, s
         subprocess.run(cmd, check=True, cwd=ROOT)
     new = sorted(out.glob("dff_*_aat.onnx"))[0]
     lens, _ = find_lens(m, lens_path)
-    after = score_model(new, lens, find_surrogate(lens, psf_path), caps, DiagnoseConfig(), 2)
+    after = score_model(new, lens, find_surrogate(lens, psf_path), caps, DiagnoseConfig(), 2, torch_free)
     return {"gap_after_m": after["gap_after_m"], "remaining": after["gap_after_m"] / res["gap"]["gap_m"]}
 
 
