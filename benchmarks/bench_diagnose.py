@@ -18,13 +18,25 @@ RF50's surrogate), or any model files given with --model-aat / --model-thin / --
     python benchmarks/bench_diagnose.py --variant crop4 --effects chromatic
     python benchmarks/bench_diagnose.py --variant shipped [--model-aat M.onnx --model-thin T.onnx] --hidden
 
+The v3 run at the shipped scale (BENCHMARKS.md): every effect once, every focus-error shape, the hidden sets, one
+capture per set, torch-free twins as a runtime-only install has them; then (the same command again) the
+retraining of the first 8 sets, in the run's order, with a named cause:
+
+    python benchmarks/bench_diagnose.py --variant shipped --torch-free --hidden --sets-per-effect 1 --captures 1 \
+        --rounds 1 --effects aberrations,chromatic,exposure,focus_breathing,focus_metadata,lens_tolerance,\
+    misalignment,noise,raw_pipeline,sensor_tilt,vignetting --out benchmarks/results/diagnose_v3_shipped.jsonl \
+        [--retrain-steps 150 --retrain-max 8]
+
 v3 plan (this version): the effects real cameras add (exposure, misalignment, lens_tolerance), focus-metadata
 errors of every shape the diagnosis fits (offset, distance scale, diopter quantisation, a monotone curve: one set
 each per `--sets-per-effect` pair), and with --hidden one set per effect in HIDDEN whose withheld effect is also
 hidden from the diagnosis's registry: the right answer there is "unexplained" (verdict), never a wrong name.
+With --torch-free, a withheld effect the twins cannot render (chromatic without per-wavelength surrogates) is
+skipped by the diagnosis, and its set is scored as a hidden one.
 
 Results are appended to --out as JSON lines, one per set, and sets already there are skipped, so a stopped run
-continues where it stopped (delete the file to start again). Capture sets are rendered once and kept;
+continues where it stopped (delete the file to start again); with --retrain-steps, sets diagnosed by an earlier run
+are retrained then (up to --retrain-max in all). Capture sets are rendered once and kept;
 `--verify-sets` (with the run's own arguments) re-renders each set's first scene with the current code and
 compares the frames.
 """
