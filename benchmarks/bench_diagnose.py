@@ -496,6 +496,11 @@ def table(rows: list[dict], seconds: float) -> None:
         print(f"target 2 (hidden sets not blamed on a wrong effect, >= 80 %): {sum(r['correct'] for r in hid)}/"
               f"{len(hid)} ({sum(r['correct'] for r in hs)}/{len(hs)} of those with a significant gap; verdict "
               f"unexplained in {sum(r.get('verdict') == 'unexplained' for r in hs)})")
+    for key, what in (("render_seconds", "rendering a set"), ("seconds", "diagnosing a set"),
+                      ("retrain_seconds", "retraining and re-measuring")):
+        t = [r[key] for r in rows if r.get(key) is not None]
+        if t:
+            print(f"{what}: {np.mean(t):.0f} s on average ({min(t):.0f}-{max(t):.0f} s, {len(t)} sets)")
     rem = [r["remaining"] for r in rows if r.get("remaining") is not None]
     if rem:
         # a gap that changes sign is not closed: |after| / before, so -0.9 (the twin now 0.9 gaps worse than the
