@@ -303,7 +303,7 @@ def tolerance_table(lens_path: Path, psf_path: Path) -> None:
     import shutil
 
     from aat_deploy.lens.io import load_lens
-    from training.render.effects.lens_tolerance import table_name
+    from aat_deploy.optics.tolerance_table import table_name
 
     name = table_name(load_lens(lens_path))
     target = psf_path.parent / name

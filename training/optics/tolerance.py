@@ -26,7 +26,7 @@ from aat_deploy.lens.schema import Lens
 from training.optics.focus import best_focus_shift_mm, focus
 from training.optics.trace import _intersect, _refract, rays_through_pupil, uniform_disk_grid
 from training.psf.geometry import object_points_mm
-from training.render.effects.lens_tolerance import air_gaps, elements, optics_key
+from aat_deploy.optics.tolerance_table import air_gaps, elements, optics_key
 
 TABLE_FORMAT = "aat-tolerance-v1"
 

@@ -165,7 +165,7 @@ def test_lens_tolerance_is_fitted_through_the_table(world):
     focal-surface change at the frame's edges is the rendered one's within 30 %."""
     from aat_deploy.diagnose import fitters as F
     from training.render import effects as fx
-    from training.render.effects.lens_tolerance import table_name
+    from aat_deploy.optics.tolerance_table import table_name
 
     table = str(ROOT / "models" / table_name(world[1]))
 
