@@ -42,7 +42,7 @@ def main() -> None:
     from aat_deploy.twin.renderer import optical_stack
     from aat_deploy.twin.sources import GaussianSource
     from training.data.scenes import SceneConfig, procedural_scene
-    from training.render import effects as fx
+    from aat_deploy.render import effects as fx
     from training.render.simulator import Simulator
     from training.render.sources import OnnxPSF
 

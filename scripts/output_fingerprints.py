@@ -79,7 +79,7 @@ def _twin(out: dict) -> None:
     from aat_deploy.lens.io import load_lens
     from aat_deploy.twin.renderer import optical_stack
     from aat_deploy.twin.sources import GaussianSource, OnnxSource
-    from training.render import effects as fx
+    from aat_deploy.render import effects as fx
 
     lens = load_lens(ROOT / "lenses/canon_rf50mm_f1.8.json")
     src = OnnxSource(ROOT / "models/psf_rf50.onnx", lens, threads=1)

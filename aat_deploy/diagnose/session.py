@@ -27,7 +27,7 @@ from aat_deploy.twin.lookup import find_lens, find_surrogate
 from aat_deploy.twin.renderer import TwinError, TwinRenderer, model_effects
 from aat_deploy.twin.sources import OnnxSource
 from aat_deploy.lens.schema import Lens
-from training.render import effects as fx
+from aat_deploy.render import effects as fx
 
 
 class DiagnoseError(RuntimeError):

@@ -1,5 +1,5 @@
 """Digital twins without torch: a capture's scene rendered through the exported PSF surrogate (ONNX) with the
-same layered renderer and the same effects registry (`training.render.effects`) as the training simulator.
+same layered renderer and the same effects registry (`aat_deploy.render.effects`) as the training simulator.
 
 - `fields.py`: normalised field positions of pixels;
 - `layered.py`: the fast layered renderer (numpy port of `training.render.layered`);

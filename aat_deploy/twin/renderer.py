@@ -3,7 +3,7 @@ model's training simulator would, at the capture's reported focus distances, opt
 
 The simulator is rebuilt from the model's metadata (`aat.simulator`: `aat` = the lens's PSFs, i.e. the
 `aberrations` effect, or `thin_lens`; plus `aat.effects`), with the effects registry shared with training
-(`training.render.effects`), the exported PSF surrogate and the numpy layered renderer. Effects that only the
+(`aat_deploy.render.effects`), the exported PSF surrogate and the numpy layered renderer. Effects that only the
 torch simulator can render (`chromatic` without per-wavelength surrogates; the lens's PSFs when there is no
 surrogate) raise `NeedsTorch`;
 `training.diagnose.twin.TwinRenderer` renders those with torch; `aat_deploy.diagnose.session.make_renderer` picks one.
@@ -29,7 +29,7 @@ from aat_deploy.twin.sources import GaussianSource, OnnxSource
 from aat_deploy.gt.holes import fill_holes as fill_depth  # phase 2 of issue 22: call it fill_holes
 from aat_deploy.lens.schema import Lens
 from aat_deploy.optics.focus_table import FocusTable, paraxial_focus_table
-from training.render import effects as fx
+from aat_deploy.render import effects as fx
 
 
 class TwinError(ValueError):

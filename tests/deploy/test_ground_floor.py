@@ -20,15 +20,10 @@ from conftest import LENSES, ROOT
 
 # (importing module, imported module): the effects registry and the torch twins still live in training (phase 2)
 KNOWN_ARROWS = {
-    ("aat_deploy.cli.common", "training.render.effects"),  # --list-effects (lazy)
-    ("aat_deploy.diagnose.search", "training.render.effects"),
-    ("aat_deploy.diagnose.session", "training.render.effects"),
     ("aat_deploy.diagnose.session", "training.diagnose.twin"),  # torch twins and retraining (lazy)
-    ("aat_deploy.twin.renderer", "training.render.effects"),
 }
 # the modules that therefore fail to import without training (their importers too)
-KNOWN_FAILING = {"aat_deploy.diagnose.search", "aat_deploy.diagnose.session", "aat_deploy.twin.lookup",
-                 "aat_deploy.twin.renderer"}
+KNOWN_FAILING: set = set()
 
 BLOCK = textwrap.dedent("""
     import sys
@@ -111,7 +106,10 @@ def test_every_runtime_module_imports_without_training_and_torch(tmp_path):
     assert set(out["failed"]) == KNOWN_FAILING, out["failed"]
     assert all("blocked in the runtime: training" in v for v in out["failed"].values()), out["failed"]
     assert out["loaded"] == []
-    assert out["declared"] == {"best_focus_tracer": "training.optics.field_focus:coarse_best_focus_map"}
+    assert out["declared"] == {"best_focus_tracer": "training.optics.field_focus:coarse_best_focus_map",
+                               "real_ray_focus_table": "training.psf.geometry:focus_table",
+                               "chromatic_tracer": "training.render.chromatic_trace:ThreeWavelengths",
+                               "tolerance_tracer": "training.optics.tolerance:traced_perturbation"}
     assert out["tracer"] == "None"
     err = out["error"]
     assert err and "\n" not in err and "rf50_copy.json" in err and "torch is not installed" in err
@@ -125,4 +123,5 @@ def test_declared_extension_loads_with_the_train_extra():
     from training.optics.field_focus import coarse_best_focus_map
 
     assert extensions.load("best_focus_tracer") is coarse_best_focus_map
+    assert all(extensions.load(name) is not None for name in extensions.declared())  # every declaration resolves
     assert extensions.load("no_such_extension") is None

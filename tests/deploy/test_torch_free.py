@@ -45,7 +45,7 @@ def test_twin_renderer_and_effects_run_without_torch(tmp_path):
         from aat_deploy.twin.renderer import optical_stack
         from aat_deploy.twin.sources import GaussianSource, OnnxSource
         from aat_deploy.lens.io import load_lens
-        from training.render import effects as fx
+        from aat_deploy.render import effects as fx
         lens = load_lens({str(ROOT / "lenses/canon_rf50mm_f1.8.json")!r})
         src = OnnxSource({str(ROOT / "models/psf_rf50.onnx")!r}, lens, threads=1)
         ctx = fx.SimContext(lens, (640, 960), (0, 0), src, src.focus_table(), src.exit_pupil_z_mm())

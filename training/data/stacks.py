@@ -25,7 +25,7 @@ from aat_deploy.normalise import normalise_scale, scaled
 from aat_deploy.twin.fields import pixel_fields
 from training.data.rgbd import load_middlebury_motorcycle
 from training.data.scenes import SceneConfig, procedural_scene
-from training.render import effects as fx
+from aat_deploy.render import effects as fx
 from training.render.layered import LayeredConfig
 from training.render.schedule import FocusSchedule, scene_range_distances
 from training.render.simulator import Simulator

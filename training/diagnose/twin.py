@@ -17,7 +17,7 @@ from aat_deploy.model import DfFModel
 from aat_deploy.twin.renderer import TwinRenderer as NumpyTwinRenderer
 from aat_deploy.twin.sources import OnnxSource
 from aat_deploy.lens.schema import Lens
-from training.render import effects as fx
+from aat_deploy.render import effects as fx
 from training.render.simulator import Simulator
 from training.render.sources import OnnxPSF, RayTracedPSF
 

@@ -15,7 +15,7 @@ import torch
 
 from aat_deploy.lens.io import load_lens
 from aat_deploy.lens.schema import Lens
-from training.render import effects as fx
+from aat_deploy.render import effects as fx
 from training.render.layered import LayeredConfig, render_layered
 from training.render.sources import OnnxPSF, RayTracedPSF, field_of, thin_lens_source
 

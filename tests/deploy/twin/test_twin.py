@@ -19,7 +19,7 @@ from aat_deploy.twin.layered import LayeredConfig, render_layered
 from aat_deploy.twin.renderer import optical_stack
 from aat_deploy.twin.sources import GaussianSource, OnnxSource, UnitEnergy
 from training.psf.geometry import focus_table
-from training.render import effects as fx
+from aat_deploy.render import effects as fx
 from training.render.layered import render_layered as render_layered_torch
 from training.render.simulator import Simulator
 from training.render.sources import OnnxPSF, field_of, thin_lens_source
@@ -87,7 +87,7 @@ def test_surrogate_carries_the_traced_focus_table():
 
 
 def _tilt(x, y, f):
-    from training.render.effects.sensor_tilt import tilted_focus_m
+    from aat_deploy.render.effects.sensor_tilt import tilted_focus_m
 
     return tilted_focus_m(LENS, x, y, f, 2.0, -1.0)
 
@@ -158,7 +158,7 @@ def tiny(tmp_path_factory):
     """The RF50 on a 96x64 sensor with an (untrained, small) RotPSF surrogate exported for it, a classical-DfF
     model 'trained' with the AAT simulator for it, and one virtual capture with ground truth."""
     from aat_deploy.psf.kernel import KernelSpec
-    from training.camera.virtual import write_capture
+    from aat_deploy.capture.virtual import write_capture
     from training.data.scenes import SceneConfig, procedural_scene
     from training.psf.export import export_psf_onnx
     from training.psf.surrogates import RotPSF
@@ -256,7 +256,7 @@ def test_tiny_twin_without_torch_equals_torch(tiny, tmp_path):
         from aat_deploy.model import DfFModel
         from aat_deploy.twin.renderer import TwinRenderer
         from aat_deploy.lens.io import load_lens
-        from training.render import effects as fx
+        from aat_deploy.render import effects as fx
         model = DfFModel({str(model_path)!r}, threads=1)
         twins = TwinRenderer(model, load_lens({str(tmp / "lens.json")!r}), {str(tmp / "psf.onnx")!r}, cell_px=32,
                              threads=1)

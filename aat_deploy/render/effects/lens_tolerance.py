@@ -2,7 +2,7 @@
 shorter (`gap`: the surface before it, `gap_mm`), or one element decentred (`element`: its index among the lens's
 glass groups, a cemented group moving as one; `decentre_x_mm`, `decentre_y_mm` in lens coordinates).
 
-Traced through the real prescription (`training.optics.tolerance`), the perturbation moves the lens's best-focus
+Traced through the real prescription (`training.optics.tolerance`, torch), the perturbation moves the lens's best-focus
 surface: a gap changes the field curvature, a decentre tilts the focal surface and makes it asymmetric. The
 effect renders that change as a per-field sensor shift (the camera focuses on the centre, so the axis term is
 removed), with the nominal lens's PSFs at the shifted focus: the change of field curvature, not the change of
@@ -23,9 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-from training.render.effects import Effect, SimContext, register
+from aat_deploy.render.effects import Effect, SimContext, register, torch_extension
 
-_TABLES: dict = {}  # (path, mtime) -> table; (optics key, perturbation) -> traced map
+_TABLES: dict = {}  # (path, mtime) -> table
 
 
 def air_gaps(lens) -> list[int]:
@@ -192,17 +192,7 @@ class LensTolerance(Effect):
 
 
 def _traced(lens, kind: str, idx: int, axis: str, amount: float):
-    """The perturbation's map traced with torch (no table): on the table's default grid, cached per lens."""
-    from training.optics.tolerance import focal_surface_change_mm  # torch
-
-    unit = 0.05
-    key = (optics_key(lens), kind, idx, axis)
-    if key not in _TABLES:
-        xs, ys, foci = np.linspace(-1, 1, 7), np.linspace(-1, 1, 5), (0.5, 1.5, 20.0)
-        grid = np.stack(np.meshgrid(xs, ys, indexing="xy"), -1).reshape(-1, 2)
-        kw = {"gap": idx, "gap_mm": unit} if kind == "gap" else \
-            {"element": idx, "decentre_mm": (unit, 0.0) if axis == "x" else (0.0, unit)}
-        dz = np.array([focal_surface_change_mm(lens, grid, f, **kw).reshape(5, 7) for f in foci])
-        _TABLES[key] = (dz, [1.0 / f for f in foci], xs.tolist(), ys.tolist())
-    dz, d, fx, fy = _TABLES[key]
-    return amount / unit, dz, d, fx, fy
+    """The perturbation's map traced by the training package (no table; `training.optics.tolerance`, the
+    declared extension `tolerance_tracer`: torch): (amount / unit, dz per unit, diopters, field x, field y)."""
+    tracer = torch_extension("tolerance_tracer", f"effect 'lens_tolerance' without a table ({kind} {idx}{axis})")
+    return tracer(lens, kind, idx, axis, amount)

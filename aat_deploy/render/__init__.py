@@ -1,0 +1,1 @@
+"""Rendering focal stacks without torch: the simulator's effects registry (`effects/`)."""
