@@ -335,7 +335,7 @@ def load_model(model_path: Path, lens_path: Path, psf_path: Path):
     """(model, lens, PSF surrogate source, twin renderer) as the diagnosis uses them."""
     from aat_deploy.diagnose.session import make_renderer
     from aat_deploy.model import DfFModel
-    from aat_deploy.twin.lookup import find_lens, find_surrogate
+    from aat_deploy.diagnose.lookup import find_lens, find_surrogate
 
     m = DfFModel(model_path, threads=2)
     lens, _ = find_lens(m, lens_path)
@@ -375,7 +375,7 @@ def verify_sets(plan, order, rng, captures: int, setup: Path, lens_path: Path, p
 def retrain(m, lens_path: Path, psf_path: Path, res: dict, caps, folder: Path, steps: int) -> dict:
     from aat_deploy.diagnose.search import DiagnoseConfig
     from aat_deploy.diagnose.session import retrain_command, score_model
-    from aat_deploy.twin.lookup import find_lens, find_surrogate
+    from aat_deploy.diagnose.lookup import find_lens, find_surrogate
 
     out = folder.parent / f"{folder.name}_retrain"
     cmd = retrain_command(m.path, lens_path, psf_path, res["shrink"]["effects"], steps, out,

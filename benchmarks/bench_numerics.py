@@ -50,7 +50,7 @@ def measure() -> dict[str, tuple[float, float]]:
     from test_twin import THIN_F32
     from test_warm_start import FOLD_REL
 
-    from aat_deploy.twin.sources import GaussianSource
+    from aat_deploy.render.sources import GaussianSource
 
     out: dict[str, tuple[float, float]] = {}
     ef50, rf50 = load_lens(ROOT / "lenses/canon_ef50mm_f1.8.json"), load_lens(ROOT / "lenses/canon_rf50mm_f1.8.json")

@@ -38,9 +38,9 @@ def main() -> None:
     torch.set_num_threads(args.threads)
 
     from aat_deploy.lens.io import load_lens
-    from aat_deploy.twin.layered import LayeredConfig
-    from aat_deploy.twin.renderer import optical_stack
-    from aat_deploy.twin.sources import GaussianSource
+    from aat_deploy.render.layered import LayeredConfig
+    from aat_deploy.diagnose.twin import optical_stack
+    from aat_deploy.render.sources import GaussianSource
     from training.data.scenes import SceneConfig, procedural_scene
     from aat_deploy.render import effects as fx
     from training.render.simulator import Simulator

@@ -42,8 +42,8 @@ def test_twin_renderer_and_effects_run_without_torch(tmp_path):
         import json, sys, warnings
         import numpy as np
         warnings.simplefilter("error")  # the shipped surrogate carries its focus table: no paraxial fallback
-        from aat_deploy.twin.renderer import optical_stack
-        from aat_deploy.twin.sources import GaussianSource, OnnxSource
+        from aat_deploy.diagnose.twin import optical_stack
+        from aat_deploy.render.sources import GaussianSource, OnnxSource
         from aat_deploy.lens.io import load_lens
         from aat_deploy.render import effects as fx
         lens = load_lens({str(ROOT / "lenses/canon_rf50mm_f1.8.json")!r})

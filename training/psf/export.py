@@ -13,7 +13,7 @@ from torch import nn
 from aat_deploy.io.atomic import atomic_file
 from aat_deploy.lens.schema import Lens
 from aat_deploy.optics.paraxial import paraxial_data
-from aat_deploy.twin.sources import EXIT_PUPIL_KEY, TABLE_KEYS
+from aat_deploy.render.sources import EXIT_PUPIL_KEY, TABLE_KEYS
 from training.psf.geometry import focus_table
 from training.psf.surrogates import PSFModel
 

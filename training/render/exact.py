@@ -14,7 +14,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from aat_deploy.twin.layered import pixel_kernel_size  # noqa: F401 (one definition for both renderers)
+from aat_deploy.render.layered import pixel_kernel_size  # noqa: F401 (one definition for both renderers)
 
 
 def cells_to_pixels(kernels: torch.Tensor, scale: torch.Tensor, size: int) -> torch.Tensor:

@@ -27,7 +27,7 @@ import torch
 import torch.nn.functional as F
 
 # The configuration, layer placement and FFT sizes are shared with the numpy port (torch-free twins).
-from aat_deploy.twin.layered import LayeredConfig, fast_len, layer_diopters
+from aat_deploy.render.layered import LayeredConfig, fast_len, layer_diopters
 from training.render.exact import cells_to_pixels, pixel_kernel_size
 
 __all__ = ["LayeredConfig", "layer_diopters", "render_layered"]

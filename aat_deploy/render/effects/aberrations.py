@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from aat_deploy.twin.sources import UnitEnergy
+from aat_deploy.render.sources import UnitEnergy
 from aat_deploy.render.effects import Effect, SimContext, register
 
 

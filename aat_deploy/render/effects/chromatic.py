@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aat_deploy.twin.sources import UnitEnergy
+from aat_deploy.render.sources import UnitEnergy
 from aat_deploy.optics.thin_lens import thin_lens_blur_px
 from aat_deploy.backend import as_tensor
 from aat_deploy.render.effects import Effect, SimContext, register, torch_extension
@@ -90,7 +90,7 @@ class _Surrogates:
     _cache: dict = {}  # (path, mtime, lens hash) -> OnnxSource: each file's session is loaded once per process
 
     def __init__(self, paths: list[Path], ctx: SimContext, wrapped):
-        from aat_deploy.twin.sources import OnnxSource
+        from aat_deploy.render.sources import OnnxSource
 
         self.lens = ctx.lens
         self.sources = []

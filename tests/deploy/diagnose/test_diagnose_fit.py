@@ -1,5 +1,5 @@
 """The diagnosis's fitted settings on rendered captures whose truth is known (aat_deploy.diagnose.fitters), the
-reduced-resolution twins they search with (aat_deploy.twin.binned), and the corrected focus a user gets.
+reduced-resolution twins they search with (aat_deploy.diagnose.binned), and the corrected focus a user gets.
 
 Captures: 2 procedural scenes through a thin-lens simulator of the RF50 on a 192 x 128 sensor, frames as float
 TIFFs (no RAW development), with one effect the twin lacks."""
@@ -37,7 +37,7 @@ def render_set(world, name: str, effects, n: int = 2, focus_m=FOCUS_M):
     from aat_deploy.diagnose.inputs import load_capture_data
     from aat_deploy.diagnose.session import make_renderer
     from aat_deploy.model import DfFModel
-    from aat_deploy.twin.lookup import find_lens
+    from aat_deploy.diagnose.lookup import find_lens
     from aat_deploy.capture.virtual import write_capture
     from training.data.scenes import SceneConfig, procedural_scene
     from training.render.layered import LayeredConfig
@@ -189,8 +189,8 @@ def test_lens_tolerance_is_fitted_through_the_table(world):
 def test_binned_twin_is_the_binned_full_twin(world):
     """A twin rendered on the 2x2-binned sensor is close to the full-resolution twin binned (pixels), and its
     PSF source keeps the kernels' energy with cells half as wide."""
-    from aat_deploy.twin.binned import BinnedSource, bin_depth, bin_frames, binned_capture
-    from aat_deploy.twin.sources import GaussianSource
+    from aat_deploy.diagnose.binned import BinnedSource, bin_depth, bin_frames, binned_capture
+    from aat_deploy.render.sources import GaussianSource
 
     caps, twins = render_set(world, "clean", [])
     c = caps[0]

@@ -228,8 +228,8 @@ def test_chromatic_twins_render_without_torch_next_to_their_surrogates(colour, t
     """With psf_<w>nm.onnx next to the lens's surrogate the torch-free twin renderer renders `chromatic`
     (three different channels); psfs=trace still needs torch; a folder without them is a one-line error."""
     from aat_deploy.lens.io import load_lens
-    from aat_deploy.twin.renderer import TwinRenderer
-    from aat_deploy.twin.sources import OnnxSource
+    from aat_deploy.diagnose.twin import TwinRenderer
+    from aat_deploy.render.sources import OnnxSource
     from aat_deploy.render import effects as fx
 
     out = colour["out"]

@@ -3,10 +3,10 @@ model's training simulator would, at the capture's reported focus distances, opt
 
 The simulator is rebuilt from the model's metadata (`aat.simulator`: `aat` = the lens's PSFs, i.e. the
 `aberrations` effect, or `thin_lens`; plus `aat.effects`), with the effects registry shared with training
-(`aat_deploy.render.effects`), the exported PSF surrogate and the numpy layered renderer. Effects that only the
-torch simulator can render (`chromatic` without per-wavelength surrogates; the lens's PSFs when there is no
-surrogate) raise `NeedsTorch`;
-`training.diagnose.twin.TwinRenderer` renders those with torch; `aat_deploy.diagnose.session.make_renderer` picks one.
+(`aat_deploy.render.effects`), the exported PSF surrogate and the layered renderer (`aat_deploy.render`). Effects
+that only the torch simulator can render (`chromatic` without per-wavelength surrogates; the lens's PSFs when there
+is no surrogate) raise `NeedsTorch`; `training.render.torch_twin.TorchTwinRenderer` (the declared extension
+`torch_twin_renderer`) renders those with torch; `aat_deploy.diagnose.session.make_renderer` picks one.
 """
 
 from __future__ import annotations
@@ -23,10 +23,10 @@ import numpy as np
 from aat_deploy.diagnose.inputs import CaptureData
 from aat_deploy.model import DfFModel
 from aat_deploy.normalise import normalise_stack
-from aat_deploy.twin.fields import field_of
-from aat_deploy.twin.layered import LayeredConfig, render_layered
-from aat_deploy.twin.sources import GaussianSource, OnnxSource
-from aat_deploy.gt.holes import fill_holes as fill_depth  # phase 2 of issue 22: call it fill_holes
+from aat_deploy.render.fields import field_of
+from aat_deploy.render.layered import LayeredConfig, render_layered
+from aat_deploy.render.sources import GaussianSource, OnnxSource
+from aat_deploy.gt.holes import fill_holes
 from aat_deploy.lens.schema import Lens
 from aat_deploy.optics.focus_table import FocusTable, paraxial_focus_table
 from aat_deploy.render import effects as fx
@@ -97,11 +97,11 @@ class TwinRenderer:
         self.renders = 0
 
     def binned(self, b: int) -> TwinRenderer:
-        """This renderer for the sensor binned b x b (`aat_deploy.twin.binned`): the lens's sensor at 1/b of the
+        """This renderer for the sensor binned b x b (`aat_deploy.diagnose.binned`): the lens's sensor at 1/b of the
         pixels, PSF cells b times smaller, anchors as dense on the sensor, every effect through `Effect.binned`.
         Always the numpy renderer (effects only torch can render are not searched at reduced resolution); its
         own cache. Renders `binned_capture(cap, b)`."""
-        from aat_deploy.twin.binned import BinnedSource
+        from aat_deploy.diagnose.binned import BinnedSource
 
         if b == 1:
             return self
@@ -177,7 +177,7 @@ class TwinRenderer:
         if frames is None:
             gt = np.where(np.isfinite(cap.gt_m), cap.gt_m, 0).astype(np.float32)
             rgb = np.ascontiguousarray(aif_linear * scale, dtype=np.float32)
-            frames = self.optical(optical, rgb, fill_depth(gt), focus, ctx)
+            frames = self.optical(optical, rgb, fill_holes(gt), focus, ctx)
             self.renders += 1
             if len(self._cache) >= self.cache_items:
                 self._cache.pop(next(iter(self._cache)))

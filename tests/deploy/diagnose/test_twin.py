@@ -15,9 +15,9 @@ from deploy_fixtures import build_tiny_dff, run_without_torch
 
 from aat_deploy.lens.io import load_lens, save_lens
 from aat_deploy.optics.paraxial import paraxial_data
-from aat_deploy.twin.layered import LayeredConfig, render_layered
-from aat_deploy.twin.renderer import optical_stack
-from aat_deploy.twin.sources import GaussianSource, OnnxSource, UnitEnergy
+from aat_deploy.render.layered import LayeredConfig, render_layered
+from aat_deploy.diagnose.twin import optical_stack
+from aat_deploy.render.sources import GaussianSource, OnnxSource, UnitEnergy
 from training.psf.geometry import focus_table
 from aat_deploy.render import effects as fx
 from training.render.layered import render_layered as render_layered_torch
@@ -212,7 +212,7 @@ def test_paraxial_fallback_warns(tiny, tmp_path):
     import onnx
 
     from aat_deploy.model import DfFModel
-    from aat_deploy.twin.renderer import TwinRenderer
+    from aat_deploy.diagnose.twin import TwinRenderer
 
     tmp, lens, model = tiny
     m = onnx.load(str(tmp / "psf.onnx"))
@@ -229,7 +229,7 @@ def test_paraxial_fallback_warns(tiny, tmp_path):
 
 def test_what_needs_torch(tiny):
     from aat_deploy.model import DfFModel
-    from aat_deploy.twin.renderer import TwinRenderer
+    from aat_deploy.diagnose.twin import TwinRenderer
 
     tmp, lens, model = tiny
     twins = TwinRenderer(DfFModel(model), lens, tmp / "psf.onnx", cell_px=32, threads=1)
@@ -247,14 +247,14 @@ def test_what_needs_torch(tiny):
 def test_tiny_twin_without_torch_equals_torch(tiny, tmp_path):
     from aat_deploy.diagnose.inputs import load_capture_data
     from aat_deploy.model import DfFModel
-    from training.diagnose.twin import TwinRenderer
+    from training.render.torch_twin import TorchTwinRenderer
 
     tmp, lens, model_path = tiny
     r = run_without_torch(f"""
         import sys, numpy as np
         from aat_deploy.diagnose.inputs import load_capture_data
         from aat_deploy.model import DfFModel
-        from aat_deploy.twin.renderer import TwinRenderer
+        from aat_deploy.diagnose.twin import TwinRenderer
         from aat_deploy.lens.io import load_lens
         from aat_deploy.render import effects as fx
         model = DfFModel({str(model_path)!r}, threads=1)
@@ -278,7 +278,7 @@ def test_tiny_twin_without_torch_equals_torch(tiny, tmp_path):
     model = DfFModel(model_path, threads=1)
     cap = load_capture_data(tmp / "cap", model)
     aif = np.load(tmp / "aif.npy")
-    ref = TwinRenderer(model, lens, OnnxPSF(tmp / "psf.onnx", lens, threads=1), cell_px=32, torch_only=True)
+    ref = TorchTwinRenderer(model, lens, OnnxPSF(tmp / "psf.onnx", lens, threads=1), cell_px=32, torch_only=True)
     for s in TWIN_EFFECTS:
         a, b = ref.render(cap, aif, fx.parse(s), seed=5), got[s or "base"]
         assert a.shape == b.shape == (5, 3, 64, 96)
@@ -288,7 +288,7 @@ def test_tiny_twin_without_torch_equals_torch(tiny, tmp_path):
             assert rel_err(a, b) < TOL, (s, rel_err(a, b))
     # the training side's renderer picks numpy by itself for these, the torch simulator for chromatic: the same
     # numpy code and onnxruntime session settings as in the subprocess, bit for bit
-    auto = TwinRenderer(model, lens, OnnxPSF(tmp / "psf.onnx", lens, threads=1), cell_px=32)
+    auto = TorchTwinRenderer(model, lens, OnnxPSF(tmp / "psf.onnx", lens, threads=1), cell_px=32)
     assert np.array_equal(auto.render(cap, aif, [], seed=5), got["base"])
     chroma = auto.render(cap, aif, fx.parse("chromatic:n_rays=32"))
     assert chroma.shape == (5, 3, 64, 96) and np.isfinite(chroma).all() and auto.renders == 2

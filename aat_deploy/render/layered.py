@@ -189,7 +189,7 @@ def render_layered(image: np.ndarray, depth_m: np.ndarray, focus_m: float, sourc
     """One focal-stack frame. image (C, H, W) linear (float32 or float64); depth_m (H, W) metres from the sensor,
     all > 0.
 
-    source: a PSF source (`aat_deploy.twin.sources`): source(x, y, depth_m, focus_m) -> (kernels (N, k, k) or
+    source: a PSF source (`aat_deploy.render.sources`): source(x, y, depth_m, focus_m) -> (kernels (N, k, k) or
         (N, Ck, k, k) with Ck = C, scale (N,)) as numpy, in the storage of `aat_deploy.psf.kernel`; source.k;
         source.scale(depth_m, focus_m) and source.blur_px(depth_m, focus_m) (pixels).
     field_fn(rows, cols) -> normalised field (x, y) of points given in this image's pixel coordinates
