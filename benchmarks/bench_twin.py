@@ -39,7 +39,7 @@ def main() -> None:
 
     from aat_deploy.lens.io import load_lens
     from aat_deploy.render.layered import LayeredConfig
-    from aat_deploy.diagnose.twin import optical_stack
+    from aat_deploy.render.optical import optical_stack
     from aat_deploy.render.sources import GaussianSource
     from training.data.scenes import SceneConfig, procedural_scene
     from aat_deploy.render import effects as fx

@@ -77,7 +77,7 @@ def _heldout(out: dict) -> None:
 
 def _twin(out: dict) -> None:
     from aat_deploy.lens.io import load_lens
-    from aat_deploy.diagnose.twin import optical_stack
+    from aat_deploy.render.optical import optical_stack
     from aat_deploy.render.sources import GaussianSource, OnnxSource
     from aat_deploy.render import effects as fx
 

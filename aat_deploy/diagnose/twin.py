@@ -15,7 +15,6 @@ import copy
 import dataclasses
 import hashlib
 import warnings
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -23,8 +22,8 @@ import numpy as np
 from aat_deploy.diagnose.inputs import CaptureData
 from aat_deploy.model import DfFModel
 from aat_deploy.normalise import normalise_stack
-from aat_deploy.render.fields import field_of
-from aat_deploy.render.layered import LayeredConfig, render_layered
+from aat_deploy.render.layered import LayeredConfig
+from aat_deploy.render.optical import optical_stack
 from aat_deploy.render.sources import GaussianSource, OnnxSource
 from aat_deploy.gt.holes import fill_holes
 from aat_deploy.lens.schema import Lens
@@ -43,29 +42,6 @@ def model_effects(model: DfFModel) -> list[fx.Effect]:
         raise TwinError(f"{model.path}: metadata aat.simulator is {sim!r}; cannot rebuild its simulator")
     extra = model.meta.get("aat.effects") or []
     return fx.parse((["aberrations"] if sim == "aat" else []) + list(extra))
-
-
-def optical_stack(effects: list[fx.Effect], thin_source, rgb: np.ndarray, depth_m: np.ndarray, focus_m,
-                  ctx: fx.SimContext, cfg: LayeredConfig = LayeredConfig(), workers: int = 1) -> np.ndarray:
-    """Frames (S, C, H, W) through the lens, before warps and the sensor: what `Simulator.optical` renders, in
-    numpy. thin_source: the baseline PSFs the effects wrap (`GaussianSource`); rgb (C, H, W) linear and depth_m
-    (H, W) metres from the sensor (> 0) of the crop at ctx.origin; focus_m (S,) true focus distances (m).
-    workers > 1 renders frames in threads (numpy's FFTs and onnxruntime release the GIL; frames are independent,
-    so the result is the same)."""
-    src = fx.wrap_source(effects, thin_source, ctx)
-    focus_at = fx.focus_at(effects, ctx)
-
-    def field_fn(r, c):
-        return field_of(r, c, ctx.sensor_hw, ctx.origin)
-
-    def one(f):
-        return render_layered(rgb, depth_m, float(f), src, field_fn, cfg, focus_at=focus_at)
-
-    focus = np.ravel(focus_m)
-    if workers > 1 and len(focus) > 1:
-        with ThreadPoolExecutor(min(workers, len(focus))) as ex:
-            return np.stack(list(ex.map(one, focus)))
-    return np.stack([one(f) for f in focus])
 
 
 class TwinRenderer:

@@ -42,7 +42,7 @@ def test_twin_renderer_and_effects_run_without_torch(tmp_path):
         import json, sys, warnings
         import numpy as np
         warnings.simplefilter("error")  # the shipped surrogate carries its focus table: no paraxial fallback
-        from aat_deploy.diagnose.twin import optical_stack
+        from aat_deploy.render.optical import optical_stack
         from aat_deploy.render.sources import GaussianSource, OnnxSource
         from aat_deploy.lens.io import load_lens
         from aat_deploy.render import effects as fx

@@ -16,7 +16,7 @@ from deploy_fixtures import build_tiny_dff, run_without_torch
 from aat_deploy.lens.io import load_lens, save_lens
 from aat_deploy.optics.paraxial import paraxial_data
 from aat_deploy.render.layered import LayeredConfig, render_layered
-from aat_deploy.diagnose.twin import optical_stack
+from aat_deploy.render.optical import optical_stack
 from aat_deploy.render.sources import GaussianSource, OnnxSource, UnitEnergy
 from training.psf.geometry import focus_table
 from aat_deploy.render import effects as fx
