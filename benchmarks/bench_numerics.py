@@ -44,7 +44,7 @@ def measure() -> dict[str, tuple[float, float]]:
     from training.psf.surrogates import RotPSF
     from training.render.sources import thin_lens_source
 
-    for d in ("tests", "tests/training/nets", "tests/deploy/twin"):  # the tolerances the tests state
+    for d in ("tests", "tests/training/nets", "tests/deploy/diagnose"):  # the tolerances the tests state
         sys.path.insert(0, str(ROOT / d))
     from conftest import rel_err
     from test_twin import THIN_F32

@@ -35,7 +35,7 @@ def test_runtime_runs_without_torch(tmp_path, tmp_path_factory):
 
 
 def test_twin_renderer_and_effects_run_without_torch(tmp_path):
-    """The torch-free twin renderer (`aat_deploy.twin`) and the effects registry it shares with training: every
+    """The torch-free twin renderer (`aat_deploy.diagnose.twin`, `aat_deploy.render`) and the effects registry it shares with training: every
     effect module imports, every numpy-capable effect renders a crop through the shipped PSF surrogate, and
     `chromatic` (ray tracing) says it needs torch."""
     r = run_without_torch(f"""

@@ -60,7 +60,7 @@ def metadata(model: PSFModel, lens: Lens, extra: dict | None = None) -> dict[str
 
 
 def optics_metadata(lens: Lens) -> dict[str, str]:
-    """The lens's focusing, for renderers without the ray tracer (`aat_deploy.twin`): the real-ray focus table of
+    """The lens's focusing, for renderers without the ray tracer (`aat_deploy.diagnose.twin`): the real-ray focus table of
     `training.psf.geometry.focus_table(lens)` (diopters ascending, sensor z in mm from the first vertex) and the
     paraxial exit pupil (mm from the first vertex), as JSON."""
     t = focus_table(lens)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-# Backend-neutral pieces live with the torch-free twin renderer and are shared from there.
+# Backend-neutral pieces live with the runtime's renderer (aat_deploy.render) and are shared from there.
 from aat_deploy.lens.schema import Lens
 from aat_deploy.psf.kernel import KernelSpec
 from aat_deploy.render.fields import field_of, pixel_fields  # noqa: F401 (re-exported)

@@ -1,4 +1,4 @@
-"""Torch-free twins (`aat_deploy.twin`) against the torch simulator: PSF sources, the layered renderer, every
+"""Torch-free twins (`aat_deploy.diagnose.twin`) against the torch simulator: PSF sources, the layered renderer, every
 numpy-capable effect, the surrogate's focus metadata, and a twin of a tiny virtual capture rendered in an
 interpreter where torch cannot be imported."""
 
