@@ -22,3 +22,9 @@ def is_torch(x) -> bool:
 def namespace(*arrays) -> ModuleType:
     """`torch` if any argument is a torch tensor, else `numpy`."""
     return sys.modules["torch"] if any(is_torch(a) for a in arrays) else np
+
+
+def as_tensor(a: np.ndarray):
+    """The numpy array as a torch tensor sharing its memory (torch.from_numpy); only called where torch tensors
+    are already about, so torch is taken from `sys.modules`."""
+    return sys.modules["torch"].from_numpy(a)

@@ -17,7 +17,7 @@ from aat_deploy.diagnose.inputs import load_capture_data
 from aat_deploy.diagnose.search import DiagnoseConfig, diagnose
 from aat_deploy.diagnose.session import make_renderer
 from aat_deploy.model import DfFModel
-from aat_deploy.twin.lookup import find_lens, find_surrogate
+from aat_deploy.diagnose.lookup import find_lens, find_surrogate
 
 SETUP = Path(__file__).resolve().parents[1] / "cache" / "bench_diagnose"
 

@@ -30,7 +30,7 @@ from aat_deploy.diagnose.compare import distances, focus_curves, image_distances
 from aat_deploy.diagnose.inputs import CaptureData
 from aat_deploy.model import DfFModel
 from aat_deploy.normalise import normalise_stack
-from training.render import effects as fx
+from aat_deploy.render import effects as fx
 
 
 @dataclass

@@ -3,10 +3,10 @@ model's training simulator would, at the capture's reported focus distances, opt
 
 The simulator is rebuilt from the model's metadata (`aat.simulator`: `aat` = the lens's PSFs, i.e. the
 `aberrations` effect, or `thin_lens`; plus `aat.effects`), with the effects registry shared with training
-(`training.render.effects`), the exported PSF surrogate and the numpy layered renderer. Effects that only the
-torch simulator can render (`chromatic` without per-wavelength surrogates; the lens's PSFs when there is no
-surrogate) raise `NeedsTorch`;
-`training.diagnose.twin.TwinRenderer` renders those with torch; `aat_deploy.diagnose.session.make_renderer` picks one.
+(`aat_deploy.render.effects`), the exported PSF surrogate and the layered renderer (`aat_deploy.render`). Effects
+that only the torch simulator can render (`chromatic` without per-wavelength surrogates; the lens's PSFs when there
+is no surrogate) raise `NeedsTorch`; `training.render.torch_twin.TorchTwinRenderer` (the declared extension
+`torch_twin_renderer`) renders those with torch; `aat_deploy.diagnose.session.make_renderer` picks one.
 """
 
 from __future__ import annotations
@@ -15,7 +15,6 @@ import copy
 import dataclasses
 import hashlib
 import warnings
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -23,13 +22,13 @@ import numpy as np
 from aat_deploy.diagnose.inputs import CaptureData
 from aat_deploy.model import DfFModel
 from aat_deploy.normalise import normalise_stack
-from aat_deploy.twin.fields import field_of
-from aat_deploy.twin.layered import LayeredConfig, render_layered
-from aat_deploy.twin.sources import GaussianSource, OnnxSource
-from aat_deploy.gt.holes import fill_holes as fill_depth  # phase 2 of issue 22: call it fill_holes
+from aat_deploy.render.layered import LayeredConfig
+from aat_deploy.render.optical import optical_stack
+from aat_deploy.render.sources import GaussianSource, OnnxSource
+from aat_deploy.gt.holes import fill_holes
 from aat_deploy.lens.schema import Lens
 from aat_deploy.optics.focus_table import FocusTable, paraxial_focus_table
-from training.render import effects as fx
+from aat_deploy.render import effects as fx
 
 
 class TwinError(ValueError):
@@ -43,29 +42,6 @@ def model_effects(model: DfFModel) -> list[fx.Effect]:
         raise TwinError(f"{model.path}: metadata aat.simulator is {sim!r}; cannot rebuild its simulator")
     extra = model.meta.get("aat.effects") or []
     return fx.parse((["aberrations"] if sim == "aat" else []) + list(extra))
-
-
-def optical_stack(effects: list[fx.Effect], thin_source, rgb: np.ndarray, depth_m: np.ndarray, focus_m,
-                  ctx: fx.SimContext, cfg: LayeredConfig = LayeredConfig(), workers: int = 1) -> np.ndarray:
-    """Frames (S, C, H, W) through the lens, before warps and the sensor: what `Simulator.optical` renders, in
-    numpy. thin_source: the baseline PSFs the effects wrap (`GaussianSource`); rgb (C, H, W) linear and depth_m
-    (H, W) metres from the sensor (> 0) of the crop at ctx.origin; focus_m (S,) true focus distances (m).
-    workers > 1 renders frames in threads (numpy's FFTs and onnxruntime release the GIL; frames are independent,
-    so the result is the same)."""
-    src = fx.wrap_source(effects, thin_source, ctx)
-    focus_at = fx.focus_at(effects, ctx)
-
-    def field_fn(r, c):
-        return field_of(r, c, ctx.sensor_hw, ctx.origin)
-
-    def one(f):
-        return render_layered(rgb, depth_m, float(f), src, field_fn, cfg, focus_at=focus_at)
-
-    focus = np.ravel(focus_m)
-    if workers > 1 and len(focus) > 1:
-        with ThreadPoolExecutor(min(workers, len(focus))) as ex:
-            return np.stack(list(ex.map(one, focus)))
-    return np.stack([one(f) for f in focus])
 
 
 class TwinRenderer:
@@ -97,11 +73,11 @@ class TwinRenderer:
         self.renders = 0
 
     def binned(self, b: int) -> TwinRenderer:
-        """This renderer for the sensor binned b x b (`aat_deploy.twin.binned`): the lens's sensor at 1/b of the
+        """This renderer for the sensor binned b x b (`aat_deploy.diagnose.binned`): the lens's sensor at 1/b of the
         pixels, PSF cells b times smaller, anchors as dense on the sensor, every effect through `Effect.binned`.
         Always the numpy renderer (effects only torch can render are not searched at reduced resolution); its
         own cache. Renders `binned_capture(cap, b)`."""
-        from aat_deploy.twin.binned import BinnedSource
+        from aat_deploy.diagnose.binned import BinnedSource
 
         if b == 1:
             return self
@@ -177,7 +153,7 @@ class TwinRenderer:
         if frames is None:
             gt = np.where(np.isfinite(cap.gt_m), cap.gt_m, 0).astype(np.float32)
             rgb = np.ascontiguousarray(aif_linear * scale, dtype=np.float32)
-            frames = self.optical(optical, rgb, fill_depth(gt), focus, ctx)
+            frames = self.optical(optical, rgb, fill_holes(gt), focus, ctx)
             self.renders += 1
             if len(self._cache) >= self.cache_items:
                 self._cache.pop(next(iter(self._cache)))

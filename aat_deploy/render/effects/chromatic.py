@@ -13,12 +13,17 @@ from pathlib import Path
 
 import numpy as np
 
-from aat_deploy.twin.sources import UnitEnergy
+from aat_deploy.render.sources import UnitEnergy
 from aat_deploy.optics.thin_lens import thin_lens_blur_px
-from aat_deploy.psf.kernel import KernelSpec
-from training.render.effects import Effect, SimContext, register
+from aat_deploy.backend import as_tensor
+from aat_deploy.render.effects import Effect, SimContext, register, torch_extension
 
-# The ray tracer and torch are imported where the kernels are made: the registry must import without torch.
+
+
+def _three_wavelengths(ctx: SimContext, wavelengths_nm: list[float], n_rays: int, compiled: bool, k: int):
+    """The ray-traced per-wavelength source (`training.render.chromatic_trace`, a declared extension: torch)."""
+    tracer = torch_extension("chromatic_tracer", "effect 'chromatic' without per-wavelength surrogates (ray tracing)")
+    return tracer(ctx, wavelengths_nm, n_rays, compiled, k)
 
 REFERENCE_WAVELENGTH_NM = 589.0  # the kernels' centre: the design-wavelength surrogate's chief ray
 
@@ -73,8 +78,8 @@ class Chromatic(Effect):
     def wrap_source(self, source, ctx: SimContext):
         folder = self._folder(ctx)
         if folder is None:
-            return UnitEnergy(_ThreeWavelengths(ctx, self.wavelengths(), int(self.params["n_rays"]),
-                                                bool(self.params["compiled"]), k=source.k))
+            return UnitEnergy(_three_wavelengths(ctx, self.wavelengths(), int(self.params["n_rays"]),
+                                                 bool(self.params["compiled"]), k=source.k))
         return UnitEnergy(_Surrogates([folder / surrogate_name(w) for w in self.wavelengths()], ctx, source))
 
 
@@ -85,7 +90,7 @@ class _Surrogates:
     _cache: dict = {}  # (path, mtime, lens hash) -> OnnxSource: each file's session is loaded once per process
 
     def __init__(self, paths: list[Path], ctx: SimContext, wrapped):
-        from aat_deploy.twin.sources import OnnxSource
+        from aat_deploy.render.sources import OnnxSource
 
         self.lens = ctx.lens
         self.sources = []
@@ -117,55 +122,5 @@ class _Surrogates:
         outs = [s(x, y, depth_m, focus_m) for s in self.sources]
         kernels, scale = np.stack([k for k, _ in outs], 1), outs[0][1]
         if self.torch:
-            import torch
-
-            return torch.from_numpy(kernels), torch.from_numpy(scale)
+            return as_tensor(kernels), as_tensor(scale)
         return kernels, scale
-
-
-class _ThreeWavelengths:
-    """Source of (N, 3, k, k) kernels (R, G, B), all centred on the design wavelength's chief ray, ray-traced."""
-
-    def __init__(self, ctx: SimContext, wavelengths_nm: list[float], n_rays: int, compiled: bool, k: int):
-        self.lens, self.wavelengths, self.n_rays, self.compiled = ctx.lens, wavelengths_nm, n_rays, compiled
-        self.spec = KernelSpec.for_lens(ctx.lens, size=k)
-        self.table = ctx.focus_table()  # design wavelength: where the camera puts the sensor
-        self.k = k
-
-    def scale(self, depth_m, focus_m):
-        return self.spec.scale(self.lens, depth_m, focus_m)
-
-    def blur_px(self, depth_m, focus_m):
-        return thin_lens_blur_px(self.lens, depth_m, focus_m)
-
-    def __call__(self, x, y, depth_m, focus_m):
-        import torch
-
-        from training.psf.raytrace import raytrace_psfs
-
-        ref = raytrace_psfs(self.lens, x, y, depth_m, focus_m, self.spec, n_rays=16, table=self.table,
-                            wavelength_nm=REFERENCE_WAVELENGTH_NM)
-        out = []
-        for w in self.wavelengths:
-            b = raytrace_psfs(self.lens, x, y, depth_m, focus_m, self.spec, n_rays=self.n_rays, wavelength_nm=w,
-                              table=self.table, compiled=self.compiled)
-            # Lateral colour: move the kernel by its chief ray's offset from the design wavelength's.
-            shift_cells = (b.center_mm - ref.center_mm) / self.lens.sensor.pixel_mm / b.scale[:, None]
-            out.append(_shift(b.kernels, torch.from_numpy(shift_cells).float()))
-        return torch.stack(out, 1), torch.from_numpy(np.asarray(ref.scale, dtype=np.float32))
-
-
-def _shift(kernels, shift_xy_cells):
-    """Move (N, k, k) kernels by (dx right, dy up) cells, bilinear."""
-    import torch
-    import torch.nn.functional as F
-
-    n, k, _ = kernels.shape
-    g = torch.arange(k, dtype=torch.float32)
-    cols = (g[None, :] - shift_xy_cells[:, :1])  # sample source column c - dx
-    rows = (g[None, :] + shift_xy_cells[:, 1:])  # up is -row
-    gx = (2 * cols + 1) / k - 1
-    gy = (2 * rows + 1) / k - 1
-    grid = torch.stack([gx[:, None, :].expand(n, k, k), gy[:, :, None].expand(n, k, k)], -1)
-    return F.grid_sample(kernels[:, None].float(), grid, mode="bilinear", padding_mode="zeros",
-                         align_corners=False)[:, 0]

@@ -1,9 +1,11 @@
-"""Digital twins: a capture's scene (ground-truth depth + an all-in-focus image) rendered by the simulator a
-model was trained with, at the capture's reported focus distances, optionally with extra effects.
+"""The torch simulator behind the runtime's digital twins: `aat-diagnose` renders twins torch-free
+(`aat_deploy.diagnose.twin.TwinRenderer`: the exported PSF surrogate and the numpy layered renderer) whenever
+every effect involved allows it; this subclass renders the rest with the training simulator: `chromatic` (ray
+traced at three wavelengths when no per-wavelength surrogates sit next to the lens's) and the lens's PSFs when no
+surrogate was found (ray tracing).
 
-Twins are rendered torch-free (`aat_deploy.twin`, the exported PSF surrogate and the numpy layered renderer)
-whenever every effect involved allows it; the torch simulator takes over for the rest: `chromatic` (ray-traced
-at three wavelengths when no per-wavelength surrogates sit next to the lens's) and the lens's PSFs when no surrogate was found (ray tracing).
+The runtime never imports this module: it reaches `torch_twin_renderer` through the extension of that name
+declared in pyproject.toml (`aat_deploy.extensions`).
 """
 
 from __future__ import annotations
@@ -13,23 +15,24 @@ import dataclasses
 import numpy as np
 import torch
 
-from aat_deploy.model import DfFModel
-from aat_deploy.twin.renderer import TwinRenderer as NumpyTwinRenderer
-from aat_deploy.twin.sources import OnnxSource
+from aat_deploy.diagnose.twin import TwinRenderer
 from aat_deploy.lens.schema import Lens
-from training.render import effects as fx
+from aat_deploy.model import DfFModel
+from aat_deploy.render import effects as fx
+from aat_deploy.render.sources import OnnxSource
 from training.render.simulator import Simulator
 from training.render.sources import OnnxPSF, RayTracedPSF
+
 
 def torch_source(lens: Lens, surrogate: OnnxSource | None):
     """The lens's PSF source for the torch simulator: the surrogate on onnxruntime, else ray tracing (slow)."""
     return OnnxPSF.from_source(surrogate) if surrogate is not None else RayTracedPSF(lens)
 
 
-class TwinRenderer(NumpyTwinRenderer):
-    """`aat_deploy.twin.TwinRenderer` (same interface and cache) with the torch simulator behind it: optical
-    stacks whose effects numpy cannot render (`why_torch`) are rendered by `training.render.simulator`. The
-    post-optics hooks (noise, focus breathing) are numpy for both.
+class TorchTwinRenderer(TwinRenderer):
+    """`aat_deploy.diagnose.twin.TwinRenderer` (same interface and cache) with the torch simulator behind it:
+    optical stacks whose effects numpy cannot render (`why_torch`) are rendered by `training.render.simulator`.
+    The post-optics hooks (noise, focus breathing) are numpy for both.
 
     lens_source: `OnnxPSF` (twins torch-free where possible) or `RayTracedPSF` (the lens's PSFs by torch).
     torch_only: render every optical stack with the torch simulator (comparisons, benchmarks)."""
@@ -48,8 +51,14 @@ class TwinRenderer(NumpyTwinRenderer):
     def simulator(self, effects: list[fx.Effect]) -> Simulator:
         return Simulator(self.lens, self.torch_source, effects, self.layered)
 
-    def optical(self, effects, rgb: np.ndarray, depth_m: np.ndarray, focus_m: np.ndarray, ctx: fx.SimContext) -> np.ndarray:
+    def optical(self, effects, rgb: np.ndarray, depth_m: np.ndarray, focus_m: np.ndarray,
+                ctx: fx.SimContext) -> np.ndarray:
         if not self.torch_only and self.why_torch(effects) is None:
             return super().optical(effects, rgb, depth_m, focus_m, ctx)
         ctx = dataclasses.replace(ctx, lens_source=self.torch_source)
         return self.simulator(effects).optical(torch.from_numpy(rgb), torch.from_numpy(depth_m), focus_m, ctx).numpy()
+
+
+def torch_twin_renderer(model: DfFModel, lens: Lens, surrogate: OnnxSource | None) -> TorchTwinRenderer:
+    """The extension `torch_twin_renderer`: twins of `model`'s captures with the torch simulator behind them."""
+    return TorchTwinRenderer(model, lens, torch_source(lens, surrogate))

@@ -16,8 +16,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from training.camera.virtual import SENSOR_DNG, mosaic_rggb, to_dn
-from training.render.effects import Effect, SimContext, register
+from aat_deploy.capture.virtual import SENSOR_DNG, mosaic_rggb, to_dn
+from aat_deploy.render.effects import Effect, SimContext, register
 
 DEMOSAIC = ("libraw", "bilinear")
 
@@ -56,7 +56,7 @@ def develop_libraw(mosaic_linear: np.ndarray) -> np.ndarray:
     from pathlib import Path
 
     from aat_deploy.capture.raw import load_raw
-    from training.camera.dng import write_dng
+    from aat_deploy.capture.dng import write_dng
 
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "frame.dng"

@@ -17,9 +17,12 @@ effect is adding one file. An effect changes the simulation through any of these
 - `twin_focus(focus_reported_m, ctx, rng)`: the inverse, for a digital twin that knows only what the metadata says.
 
 One implementation serves both renderers: the torch simulator (`training.render.simulator`) and the torch-free
-twin renderer (`aat_deploy.twin`). So the registry and the effect modules import torch only inside code that
-needs it; frames given to `warp`/`sensor` are numpy (C, H, W) arrays; PSF wrappers take numpy or torch kernels,
-whichever their source returns. An effect that can only be rendered with torch says why in `needs_torch`.
+twin renderer (`aat_deploy.diagnose.twin`). The registry and the effects are torch-free: frames given to
+`warp`/`sensor` are numpy (C, H, W) arrays; PSF wrappers take numpy or torch kernels, whichever their source
+returns. What only torch can compute (ray-traced PSFs at three wavelengths, the real-ray focus table, a perturbed
+lens's focal surface) comes from the training package through its declared extensions (`torch_extension`,
+`aat_deploy.extensions`), never by importing it; an effect that can only be rendered with torch says why in
+`needs_torch`.
 
 The sim-to-real diagnosis switches these on and off one at a time (`names()` lists them); it does not know an
 effect's settings, so it fits them on the images (`aat_deploy.diagnose.fitters`) or, for effects without a
@@ -39,6 +42,7 @@ from typing import Any
 
 import numpy as np
 
+from aat_deploy import extensions
 from aat_deploy.lens.schema import Lens
 from aat_deploy.optics.paraxial import paraxial_data
 
@@ -47,7 +51,21 @@ _LOADED = False
 
 
 class NeedsTorch(RuntimeError):
-    """Raised by the torch-free renderer for effects (or PSFs) that only the training simulator can render."""
+    """Raised for effects (or PSFs) that only the training simulator can render, when it is not installed."""
+
+
+def torch_extension(name: str, what: str):
+    """The training package's extension `name` (`aat_deploy.extensions`: declared in pyproject.toml, loaded
+    without the runtime importing `training`), or NeedsTorch saying that `what` needs it."""
+    obj = extensions.load(name)
+    if obj is None:
+        raise NeedsTorch(f"{what} needs the training package (torch), which is not installed")
+    return obj
+
+
+def traced_focus_table(lens: Lens):
+    """The lens's real-ray focus table (`FocusTable`), traced by the training package (torch)."""
+    return torch_extension("real_ray_focus_table", f"tracing the focus table of lens {lens.name!r}")(lens)
 
 
 @dataclass
@@ -73,9 +91,7 @@ class SimContext:
     def focus_table(self):
         """The lens's focus table (`FocusTable`), traced once if none was given."""
         if self.table is None:
-            from training.psf.geometry import focus_table
-
-            self.table = focus_table(self.lens)
+            self.table = traced_focus_table(self.lens)
         return self.table
 
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import rawpy
 
-from training.camera.dng import write_dng
+from aat_deploy.capture.dng import write_dng
 
 # XYZ(D65) -> linear sRGB: a "camera" whose RGB is sRGB, so LibRaw's camera -> sRGB matrix must come out ~identity.
 XYZ_TO_SRGB = np.array([[3.2406, -1.5372, -0.4986], [-0.9689, 1.8758, 0.0415], [0.0557, -0.2040, 1.0570]])

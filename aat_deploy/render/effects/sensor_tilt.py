@@ -8,8 +8,7 @@ from collections.abc import Callable
 import numpy as np
 
 from aat_deploy.optics.focus_table import FocusTable
-from training.psf.geometry import focus_table
-from training.render.effects import Effect, SimContext, register
+from aat_deploy.render.effects import Effect, SimContext, register, traced_focus_table
 
 
 def tilt_shift_mm(lens, x, y, tilt_x_deg: float, tilt_y_deg: float) -> np.ndarray:
@@ -27,7 +26,7 @@ def tilted_focus_m(lens, x, y, focus_m: float, tilt_x_deg: float, tilt_y_deg: fl
     towards the sensor-side, +z) and tilt_y_deg about its horizontal axis (the top edge moves +z).
     The sensor plane's local axial shift dz = x_mm tan(tilt_x) + y_mm tan(tilt_y) is turned into a focus distance
     with the lens's real-ray focus table (sensor position vs focus distance; default: traced)."""
-    table = focus_table(lens) if table is None else table
+    table = traced_focus_table(lens) if table is None else table
     z = float(table(focus_m)) + tilt_shift_mm(lens, x, y, tilt_x_deg, tilt_y_deg)
     z = np.clip(z, table.sensor_z_mm[0], table.sensor_z_mm[-1])  # table is ascending in z with diopters
     return 1.0 / np.interp(z, table.sensor_z_mm, table.diopters)

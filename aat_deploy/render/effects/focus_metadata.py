@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from training.render.effects import Effect, SimContext, register
+from aat_deploy.render.effects import Effect, SimContext, register
 
 QUANTISERS = ("none", "nikon", "diopter")
 # Reports and twin foci stop at 100 m (the far end of focus tables): a bias can push a far focus past infinity,

@@ -8,8 +8,8 @@ from pathlib import Path
 
 from aat_deploy.model import DfFModel
 from aat_deploy.shipped import shipped_dir
-from aat_deploy.twin.renderer import TwinError
-from aat_deploy.twin.sources import OnnxSource
+from aat_deploy.diagnose.twin import TwinError
+from aat_deploy.render.sources import OnnxSource
 from aat_deploy.lens.io import load_lens
 from aat_deploy.lens.schema import Lens
 

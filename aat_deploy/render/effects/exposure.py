@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from training.render.effects import Effect, SimContext, register
+from aat_deploy.render.effects import Effect, SimContext, register
 
 
 @register

@@ -6,8 +6,7 @@ import numpy as np
 
 from aat_deploy.optics.paraxial import paraxial_data
 from aat_deploy.optics.focus_table import FocusTable
-from training.psf.geometry import focus_table
-from training.render.effects import Effect, SimContext, register
+from aat_deploy.render.effects import Effect, SimContext, register, traced_focus_table
 
 
 def breathing_scale(lens, focus_m, table: FocusTable | None = None, exit_pupil_z_mm: float | None = None) -> np.ndarray:
@@ -16,7 +15,7 @@ def breathing_scale(lens, focus_m, table: FocusTable | None = None, exit_pupil_z
     angles, so image heights grow with the exit-pupil-to-sensor distance. table: the lens's focus table
     (default: traced); exit_pupil_z_mm: mm from the first vertex (default: paraxial from the lens)."""
     xp = paraxial_data(lens).exit_pupil_z_mm if exit_pupil_z_mm is None else exit_pupil_z_mm
-    table = focus_table(lens) if table is None else table
+    table = traced_focus_table(lens) if table is None else table
     z = np.asarray(table(np.asarray(focus_m, dtype=np.float64)))
     z_inf = float(table.sensor_z_mm[0])  # the table's farthest focus (100 m): infinity to 0.01 D
     return (z - xp) / (z_inf - xp)

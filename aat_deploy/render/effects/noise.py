@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from training.render.effects import Effect, SimContext, register
+from aat_deploy.render.effects import Effect, SimContext, register
 
 
 def poisson_gaussian(x: np.ndarray, full_well_e: float, read_noise_e: float, rng: np.random.Generator) -> np.ndarray:

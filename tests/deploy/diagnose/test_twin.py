@@ -1,4 +1,4 @@
-"""Torch-free twins (`aat_deploy.twin`) against the torch simulator: PSF sources, the layered renderer, every
+"""Torch-free twins (`aat_deploy.diagnose.twin`) against the torch simulator: PSF sources, the layered renderer, every
 numpy-capable effect, the surrogate's focus metadata, and a twin of a tiny virtual capture rendered in an
 interpreter where torch cannot be imported."""
 
@@ -15,11 +15,11 @@ from deploy_fixtures import build_tiny_dff, run_without_torch
 
 from aat_deploy.lens.io import load_lens, save_lens
 from aat_deploy.optics.paraxial import paraxial_data
-from aat_deploy.twin.layered import LayeredConfig, render_layered
-from aat_deploy.twin.renderer import optical_stack
-from aat_deploy.twin.sources import GaussianSource, OnnxSource, UnitEnergy
+from aat_deploy.render.layered import LayeredConfig, render_layered
+from aat_deploy.render.optical import optical_stack
+from aat_deploy.render.sources import GaussianSource, OnnxSource, UnitEnergy
 from training.psf.geometry import focus_table
-from training.render import effects as fx
+from aat_deploy.render import effects as fx
 from training.render.layered import render_layered as render_layered_torch
 from training.render.simulator import Simulator
 from training.render.sources import OnnxPSF, field_of, thin_lens_source
@@ -87,7 +87,7 @@ def test_surrogate_carries_the_traced_focus_table():
 
 
 def _tilt(x, y, f):
-    from training.render.effects.sensor_tilt import tilted_focus_m
+    from aat_deploy.render.effects.sensor_tilt import tilted_focus_m
 
     return tilted_focus_m(LENS, x, y, f, 2.0, -1.0)
 
@@ -158,7 +158,7 @@ def tiny(tmp_path_factory):
     """The RF50 on a 96x64 sensor with an (untrained, small) RotPSF surrogate exported for it, a classical-DfF
     model 'trained' with the AAT simulator for it, and one virtual capture with ground truth."""
     from aat_deploy.psf.kernel import KernelSpec
-    from training.camera.virtual import write_capture
+    from aat_deploy.capture.virtual import write_capture
     from training.data.scenes import SceneConfig, procedural_scene
     from training.psf.export import export_psf_onnx
     from training.psf.surrogates import RotPSF
@@ -212,7 +212,7 @@ def test_paraxial_fallback_warns(tiny, tmp_path):
     import onnx
 
     from aat_deploy.model import DfFModel
-    from aat_deploy.twin.renderer import TwinRenderer
+    from aat_deploy.diagnose.twin import TwinRenderer
 
     tmp, lens, model = tiny
     m = onnx.load(str(tmp / "psf.onnx"))
@@ -229,7 +229,7 @@ def test_paraxial_fallback_warns(tiny, tmp_path):
 
 def test_what_needs_torch(tiny):
     from aat_deploy.model import DfFModel
-    from aat_deploy.twin.renderer import TwinRenderer
+    from aat_deploy.diagnose.twin import TwinRenderer
 
     tmp, lens, model = tiny
     twins = TwinRenderer(DfFModel(model), lens, tmp / "psf.onnx", cell_px=32, threads=1)
@@ -247,16 +247,16 @@ def test_what_needs_torch(tiny):
 def test_tiny_twin_without_torch_equals_torch(tiny, tmp_path):
     from aat_deploy.diagnose.inputs import load_capture_data
     from aat_deploy.model import DfFModel
-    from training.diagnose.twin import TwinRenderer
+    from training.render.torch_twin import TorchTwinRenderer
 
     tmp, lens, model_path = tiny
     r = run_without_torch(f"""
         import sys, numpy as np
         from aat_deploy.diagnose.inputs import load_capture_data
         from aat_deploy.model import DfFModel
-        from aat_deploy.twin.renderer import TwinRenderer
+        from aat_deploy.diagnose.twin import TwinRenderer
         from aat_deploy.lens.io import load_lens
-        from training.render import effects as fx
+        from aat_deploy.render import effects as fx
         model = DfFModel({str(model_path)!r}, threads=1)
         twins = TwinRenderer(model, load_lens({str(tmp / "lens.json")!r}), {str(tmp / "psf.onnx")!r}, cell_px=32,
                              threads=1)
@@ -278,7 +278,7 @@ def test_tiny_twin_without_torch_equals_torch(tiny, tmp_path):
     model = DfFModel(model_path, threads=1)
     cap = load_capture_data(tmp / "cap", model)
     aif = np.load(tmp / "aif.npy")
-    ref = TwinRenderer(model, lens, OnnxPSF(tmp / "psf.onnx", lens, threads=1), cell_px=32, torch_only=True)
+    ref = TorchTwinRenderer(model, lens, OnnxPSF(tmp / "psf.onnx", lens, threads=1), cell_px=32, torch_only=True)
     for s in TWIN_EFFECTS:
         a, b = ref.render(cap, aif, fx.parse(s), seed=5), got[s or "base"]
         assert a.shape == b.shape == (5, 3, 64, 96)
@@ -288,7 +288,7 @@ def test_tiny_twin_without_torch_equals_torch(tiny, tmp_path):
             assert rel_err(a, b) < TOL, (s, rel_err(a, b))
     # the training side's renderer picks numpy by itself for these, the torch simulator for chromatic: the same
     # numpy code and onnxruntime session settings as in the subprocess, bit for bit
-    auto = TwinRenderer(model, lens, OnnxPSF(tmp / "psf.onnx", lens, threads=1), cell_px=32)
+    auto = TorchTwinRenderer(model, lens, OnnxPSF(tmp / "psf.onnx", lens, threads=1), cell_px=32)
     assert np.array_equal(auto.render(cap, aif, [], seed=5), got["base"])
     chroma = auto.render(cap, aif, fx.parse("chromatic:n_rays=32"))
     assert chroma.shape == (5, 3, 64, 96) and np.isfinite(chroma).all() and auto.renders == 2

@@ -14,9 +14,9 @@ from aat_deploy.capture.folder import read_capture
 from aat_deploy.capture.raw import load_raw
 from aat_deploy.capture.raw import linear_to_srgb
 from aat_deploy.lens.io import load_lens
-from training.camera.virtual import BLACK_LEVEL, WHITE_LEVEL, mosaic_rggb, to_dn
+from aat_deploy.capture.virtual import BLACK_LEVEL, WHITE_LEVEL, mosaic_rggb, to_dn
 from training.cli.render import main as render_main
-from training.render import effects as fx
+from aat_deploy.render import effects as fx
 from training.render.simulator import Simulator
 from training.render.sources import OnnxPSF
 
@@ -123,7 +123,7 @@ def test_bad_input_is_one_line_and_force_replaces_atomically(scene, tmp_path):
 
 def test_tiff_frames_skip_the_raw_pipeline(tmp_path):
     """frame_format="tiff": float32 linear frames exactly as rendered, focus distances from capture.json."""
-    from training.camera.virtual import write_capture
+    from aat_deploy.capture.virtual import write_capture
 
     lens = load_lens(ROOT / "lenses" / "canon_rf50mm_f1.8.json")
     frames = np.random.default_rng(0).random((3, 3, 8, 12)).astype(np.float32)

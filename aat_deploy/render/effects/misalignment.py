@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from training.render.effects import Effect, SimContext, register
-from training.render.effects.focus_breathing import warp_about_axis
+from aat_deploy.render.effects import Effect, SimContext, register
+from aat_deploy.render.effects.focus_breathing import warp_about_axis
 
 
 @register

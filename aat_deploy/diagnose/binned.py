@@ -62,7 +62,7 @@ def subpixel_matrix(k: int, scale: float) -> np.ndarray:
 
 
 class BinnedSource:
-    """A PSF source of the full sensor (`aat_deploy.twin.sources` interface) for a sensor binned b x b: kernel
+    """A PSF source of the full sensor (`aat_deploy.render.sources` interface) for a sensor binned b x b: kernel
     cells of scale / b pixels, never below 1 (finer cells are resampled onto 1-pixel cells). Works on numpy
     sources; the thin-lens Gaussian is rebuilt for the binned lens instead (it knows its pixels)."""
 
