@@ -9,7 +9,7 @@ the sensor plane. Both sources take the lens's first-order data from the lens fi
 
 - `OnnxSource`: the exported surrogate (`aat_deploy.psf.surrogate.PSFSurrogate`); it also carries the lens's
   real-ray focus table and exit pupil in its metadata, which the focus effects need.
-- `GaussianSource`: the thin-lens baseline (numpy twin of `training.psf.surrogates.GaussianPSF`).
+- `GaussianSource`: the thin-lens baseline (`gaussian_kernels`, the formula `training.psf.surrogates.GaussianPSF` exports).
 - `UnitEnergy`: kernels normalised to unit energy, for numpy or torch kernels alike (the `aberrations` effect).
 """
 
@@ -23,7 +23,7 @@ from aat_deploy.psf.surrogate import PSFSurrogate
 from aat_deploy.lens.schema import Lens
 from aat_deploy.optics.paraxial import paraxial_data
 from aat_deploy.optics.focus_table import FocusTable, table_from_arrays
-from aat_deploy.optics.thin_lens import thin_lens_blur_px
+from aat_deploy.optics.thin_lens import blur_diameter_px, gaussian_kernels, thin_lens_blur_px
 from aat_deploy.psf.kernel import KernelSpec
 
 # Metadata keys of an exported surrogate that carry the lens's focusing (`training.psf.export.metadata`).
@@ -88,37 +88,20 @@ class OnnxSource(LensGeometry):
 
 
 class GaussianSource(LensGeometry):
-    """The thin-lens baseline: a Gaussian with the blur disk's second moment (sigma = blur / 4) plus the splat's
-    tent (1/6 cell^2), normalised over the whole cell lattice (tails outside the window are lost). Field-invariant;
-    the same EFL, entrance pupil and pixels as the lens. A numpy port of `training.psf.surrogates.GaussianPSF`
-    evaluated like it, in float32 (near focus the blur is a small difference of image distances, so float32 and
-    float64 kernels differ by ~1e-4 of their peak; the port keeps the training simulator's numbers)."""
+    """The thin-lens baseline (`aat_deploy.optics.thin_lens.gaussian_kernels`, the formula the training side's
+    `GaussianPSF` exports), evaluated in float32 as that surrogate is: near focus the blur is a small difference of
+    image distances, so float32 and float64 kernels differ by ~1e-4 of their peak; float32 keeps the training
+    simulator's numbers. Field-invariant; the same EFL, entrance pupil and pixels as the lens."""
 
     def __init__(self, lens: Lens, spec: KernelSpec | None = None):
         self.lens, self.spec = lens, spec or KernelSpec.for_lens(lens)
         p = paraxial_data(lens)
         self.efl_mm, self.epd_mm, self.pixel_mm = float(p.efl_mm), float(p.entrance_pupil_mm), lens.sensor.pixel_mm
 
-    def _blur_px32(self, depth_m: np.ndarray, focus_m: np.ndarray) -> np.ndarray:
-        """Thin-lens blur diameter (px), float32: `aat_deploy.optics.thin_lens` as GaussianPSF does it."""
-        f = self.efl_mm
-        big_d = np.float32(1000.0) * focus_m
-        v_f = 2 * big_d * f / (big_d + np.sqrt(np.maximum(big_d * big_d - 4 * big_d * f, 0.0)))
-        u = np.maximum(np.float32(1000.0) * depth_m - v_f, f * 1.0001)
-        v_o = 1.0 / (1.0 / f - 1.0 / u)
-        return self.epd_mm * np.abs(v_f - v_o) / v_o / self.pixel_mm
-
     def __call__(self, x, y, depth_m, focus_m) -> tuple[np.ndarray, np.ndarray]:
         _, _, d, f = (np.asarray(a, dtype=np.float32).ravel() for a in np.broadcast_arrays(x, y, depth_m, focus_m))
-        k = self.spec.size
-        b = self._blur_px32(d, f)
-        s = np.maximum((b + self.spec.margin_px) / (k - 1), 1.0)
-        sigma2 = (b / 4.0 / s) ** 2 + 1.0 / 6.0  # cells^2
-        wide = np.arange(-k - 40, k + 41, dtype=np.float32)
-        norm = np.exp(-(wide[None, :] ** 2) / (2 * sigma2[:, None])).sum(1, keepdims=True)
-        g = np.arange(k, dtype=np.float32) - k // 2
-        e = np.exp(-(g[None, :] ** 2) / (2 * sigma2[:, None])) / norm
-        return e[:, :, None] * e[:, None, :], s
+        b = blur_diameter_px(d, f, self.efl_mm, self.epd_mm, self.pixel_mm)
+        return gaussian_kernels(b, self.spec.size, self.spec.margin_px)
 
 
 class UnitEnergy:
