@@ -22,3 +22,16 @@ def is_torch(x) -> bool:
 def namespace(*arrays) -> ModuleType:
     """`torch` if any argument is a torch tensor, else `numpy`."""
     return sys.modules["torch"] if any(is_torch(a) for a in arrays) else np
+
+
+def as_tensor(a: np.ndarray):
+    """The numpy array as a torch tensor sharing its memory (torch.from_numpy); only called where torch tensors
+    are already about, so torch is taken from `sys.modules`."""
+    return sys.modules["torch"].from_numpy(a)
+
+
+def arange_like(start: int, stop: int, like):
+    """start, start + 1, ..., stop - 1 in `like`'s namespace, precision (and device, for torch)."""
+    if is_torch(like):
+        return sys.modules["torch"].arange(start, stop, dtype=like.dtype, device=like.device)
+    return np.arange(start, stop, dtype=like.dtype)

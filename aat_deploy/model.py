@@ -208,7 +208,7 @@ class DfFModel:
             raise ModelError(f"{self.path}: the model takes {lo}..{hi} frames, the capture has {s}")
         h, w = stack.shape[2:]
         if self.field_aware and field_xy is None:
-            from .twin.fields import pixel_fields
+            from .render.fields import pixel_fields
 
             field_xy = np.stack(pixel_fields(h, w, (h, w))).astype(np.float32)
         if not tile or (h <= tile and w <= tile):

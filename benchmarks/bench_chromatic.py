@@ -55,8 +55,8 @@ def main() -> None:
     from aat_deploy.lens.io import load_lens
     from aat_deploy.psf.surrogate import PSFSurrogate
     from training.data.scenes import SceneConfig, procedural_scene
-    from training.render import effects as fx
-    from training.render.effects.chromatic import surrogate_name
+    from aat_deploy.render import effects as fx
+    from aat_deploy.render.effects.chromatic import surrogate_name
     from training.render.simulator import Simulator
     from training.render.sources import OnnxPSF, UnitEnergy, thin_lens_source
 

@@ -115,8 +115,8 @@ def make_set(folder: Path, lens, psf_src, base: list[str], withheld: list, scene
     `raw_pipeline` is the real thing: DNG frames (Bayer mosaic) that the runtime develops with LibRaw; otherwise
     frames are float TIFFs, exactly as rendered. The folder's set.json records the draws: a folder made by another
     plan (other arguments) is refused rather than mixed with this set's scenes."""
-    from training.camera.virtual import write_capture
-    from training.render import effects as fx
+    from aat_deploy.capture.virtual import write_capture
+    from aat_deploy.render import effects as fx
     from training.render.schedule import FocusSchedule
     from training.render.simulator import Simulator
     from training.render.sources import OnnxPSF
@@ -198,7 +198,7 @@ def main() -> None:
     torch.set_num_threads(2)
     from aat_deploy.diagnose.inputs import load_capture_data
     from aat_deploy.diagnose.search import DiagnoseConfig, diagnose
-    from training.render import effects as fx
+    from aat_deploy.render import effects as fx
 
     lens_path, psf_path, models = variant_files(args, setup)
     rng = np.random.default_rng(args.seed)
@@ -362,7 +362,7 @@ def tolerance_table(lens_path: Path, psf_path: Path) -> None:
     import shutil
 
     from aat_deploy.lens.io import load_lens
-    from training.render.effects.lens_tolerance import table_name
+    from aat_deploy.render.effects.lens_tolerance import table_name
 
     name = table_name(load_lens(lens_path))
     target = psf_path.parent / name
@@ -378,7 +378,7 @@ def tolerance_table(lens_path: Path, psf_path: Path) -> None:
 def drawn_sets(plan: list, order, rng: np.random.Generator, captures: int, width_px: int = 288):
     """Per set, in the benchmark's order: (index, model key, withheld effect specs, hidden, set seed, scene seeds).
     Every set's draws are made whether or not it is run, so a resumed run (or --verify-sets) sees the same draws."""
-    from training.render import effects as fx
+    from aat_deploy.render import effects as fx
 
     for i in order:
         key, withheld_names, hidden = plan[i]
@@ -395,7 +395,7 @@ def load_model(model_path: Path, lens_path: Path, psf_path: Path, torch_free: bo
     install does)."""
     from aat_deploy.diagnose.session import make_renderer
     from aat_deploy.model import DfFModel
-    from aat_deploy.twin.lookup import find_lens, find_surrogate
+    from aat_deploy.diagnose.lookup import find_lens, find_surrogate
 
     m = DfFModel(model_path, threads=2)
     lens, _ = find_lens(m, lens_path)
@@ -410,7 +410,7 @@ def verify_sets(plan, order, rng, captures: int, setup: Path, lens_path: Path, p
     import tempfile
 
     from aat_deploy.diagnose.inputs import load_capture_data
-    from training.render import effects as fx
+    from aat_deploy.render import effects as fx
 
     ctx, worst, t0 = {}, 0.0, time.time()
     print("| set | withheld | scene | frames | max abs diff |\n|---|---|---|---|---|")
@@ -436,7 +436,7 @@ def retrain(m, lens_path: Path, psf_path: Path, res: dict, caps, folder: Path, s
             torch_free: bool = False) -> dict:
     from aat_deploy.diagnose.search import DiagnoseConfig
     from aat_deploy.diagnose.session import retrain_command, score_model
-    from aat_deploy.twin.lookup import find_lens, find_surrogate
+    from aat_deploy.diagnose.lookup import find_lens, find_surrogate
 
     out = folder.parent / f"{folder.name}_retrain"
     cmd = retrain_command(m.path, lens_path, psf_path, res["shrink"]["effects"], steps, out,

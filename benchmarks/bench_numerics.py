@@ -44,13 +44,13 @@ def measure() -> dict[str, tuple[float, float]]:
     from training.psf.surrogates import RotPSF
     from training.render.sources import thin_lens_source
 
-    for d in ("tests", "tests/training/nets", "tests/deploy/twin"):  # the tolerances the tests state
+    for d in ("tests", "tests/training/nets", "tests/deploy/diagnose"):  # the tolerances the tests state
         sys.path.insert(0, str(ROOT / d))
     from conftest import rel_err
     from test_twin import THIN_F32
     from test_warm_start import FOLD_REL
 
-    from aat_deploy.twin.sources import GaussianSource
+    from aat_deploy.render.sources import GaussianSource
 
     out: dict[str, tuple[float, float]] = {}
     ef50, rf50 = load_lens(ROOT / "lenses/canon_ef50mm_f1.8.json"), load_lens(ROOT / "lenses/canon_rf50mm_f1.8.json")

@@ -118,7 +118,7 @@ def figure(lens, out_dir: Path, lens_src, thin_src) -> None:
     import matplotlib.pyplot as plt
 
     from training.data.scenes import SceneConfig, procedural_scene
-    from training.render import effects as fx
+    from aat_deploy.render import effects as fx
     from training.render.layered import LayeredConfig
     from training.render.simulator import Simulator
 

@@ -1,4 +1,4 @@
-"""Digital-twin rendering: the torch-free renderer (`aat_deploy.twin`, numpy) against the training simulator (torch).
+"""Digital-twin rendering: the torch-free renderer (`aat_deploy.diagnose.twin`, numpy) against the training simulator (torch).
 
     OMP_WAIT_POLICY=PASSIVE python benchmarks/bench_twin.py [--threads 1] [--repeat 1] [--quick]
 
@@ -38,11 +38,11 @@ def main() -> None:
     torch.set_num_threads(args.threads)
 
     from aat_deploy.lens.io import load_lens
-    from aat_deploy.twin.layered import LayeredConfig
-    from aat_deploy.twin.renderer import optical_stack
-    from aat_deploy.twin.sources import GaussianSource
+    from aat_deploy.render.layered import LayeredConfig
+    from aat_deploy.render.optical import optical_stack
+    from aat_deploy.render.sources import GaussianSource
     from training.data.scenes import SceneConfig, procedural_scene
-    from training.render import effects as fx
+    from aat_deploy.render import effects as fx
     from training.render.simulator import Simulator
     from training.render.sources import OnnxPSF
 
@@ -80,7 +80,7 @@ def main() -> None:
 
     print(f"\n### Twin rendering, torch vs numpy ({h} x {w} RF50 corner crop, {n} frames 0.5-8 m, "
           f"surrogate PSFs, {args.threads} thread(s))\n")
-    print("| simulator | torch (training) | numpy (aat_deploy.twin) | numpy / torch | max rel. diff. |")
+    print("| simulator | torch (training) | numpy (aat_deploy.diagnose.twin) | numpy / torch | max rel. diff. |")
     print("|---|---|---|---|---|")
     for name, tt, tn, diff in rows:
         print(f"| {name} | {tt:.2f} s | {tn:.2f} s | {tn / tt:.2f} | {diff:.1e} |")

@@ -4,6 +4,8 @@
     python benchmarks/diagnose_one_set.py cache/bench_diagnose/sets_v2/set21 [--model aat|thin] [--rounds 3]
     python benchmarks/diagnose_one_set.py cache/bench_diagnose/sets_v2/set21 --stored   # the benchmark's own answer
     python benchmarks/diagnose_one_set.py cache/bench_diagnose_shipped/sets_v3/set20 --stored   # v3: verdicts too
+    python benchmarks/diagnose_one_set.py cache/bench_diagnose_shipped/sets_v3/set03 --variant shipped --torch-free \
+        --rounds 1   # diagnose a v3 set again with the current code
 
 --stored prints the `diagnosis.json` that `bench_diagnose.py` left in the set's folder instead of diagnosing again.
 """
@@ -18,9 +20,19 @@ from aat_deploy.diagnose.inputs import load_capture_data
 from aat_deploy.diagnose.search import DiagnoseConfig, diagnose
 from aat_deploy.diagnose.session import make_renderer
 from aat_deploy.model import DfFModel
-from aat_deploy.twin.lookup import find_lens, find_surrogate
+from aat_deploy.diagnose.lookup import find_lens, find_surrogate
 
-SETUP = Path(__file__).resolve().parents[1] / "cache" / "bench_diagnose"
+ROOT = Path(__file__).resolve().parents[1]
+SETUP = ROOT / "cache" / "bench_diagnose"
+
+
+def model_files(variant: str, key: str) -> tuple[Path, Path, Path]:
+    """(model, lens, PSF surrogate) of a benchmark variant (bench_diagnose.variant_files)."""
+    if variant == "shipped":
+        return (ROOT / "models" / f"dff_dfvnet_{key}.onnx", ROOT / "lenses" / "canon_rf50mm_f1.8.json",
+                ROOT / "models" / "psf_rf50.onnx")
+    setup = SETUP if variant == "full" else ROOT / "cache" / f"bench_diagnose_{variant}"
+    return setup / f"diag_dfv_{key}.onnx", setup / "rf50_288x192.json", setup / "psf.onnx"
 
 
 def main() -> None:
@@ -30,13 +42,16 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--effects", help="only these effects (comma-separated)")
     ap.add_argument("--stored", action="store_true", help="print the benchmark's stored diagnosis.json")
+    ap.add_argument("--variant", choices=["full", "crop4", "shipped"], default="full", help="the set's models")
+    ap.add_argument("--torch-free", action="store_true", help="torch-free twins (bench_diagnose --torch-free)")
     a = ap.parse_args()
     if a.stored:
         show(json.loads((Path(a.folder) / "diagnosis.json").read_text()))
         return
-    m = DfFModel(SETUP / f"diag_dfv_{a.model}.onnx", threads=2)
-    lens, _ = find_lens(m, SETUP / "rf50_288x192.json")
-    twins = make_renderer(m, lens, find_surrogate(lens, SETUP / "psf.onnx"))
+    model, lens_path, psf = model_files(a.variant, a.model)
+    m = DfFModel(model, threads=2)
+    lens, _ = find_lens(m, lens_path)
+    twins = make_renderer(m, lens, find_surrogate(lens, psf), a.torch_free)
     caps = [load_capture_data(p, m) for p in sorted(Path(a.folder).iterdir()) if p.is_dir()]
     cfg = DiagnoseConfig(n_boot=300, max_effects=a.rounds, effects=a.effects.split(",") if a.effects else None)
     res, _, _ = diagnose(m, twins, caps, cfg)

@@ -22,8 +22,8 @@ from aat_deploy.diagnose.inputs import load_capture_data
 from aat_deploy.diagnose.session import make_renderer
 from aat_deploy.model import DfFModel
 from aat_deploy.normalise import normalise_stack
-from aat_deploy.twin.lookup import find_lens, find_surrogate
-from training.render import effects as fx
+from aat_deploy.diagnose.lookup import find_lens, find_surrogate
+from aat_deploy.render import effects as fx
 
 
 def main() -> None:

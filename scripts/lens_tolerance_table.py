@@ -31,7 +31,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     from aat_deploy.lens.io import load_lens
     from training.optics.tolerance import sensitivity_table
-    from training.render.effects.lens_tolerance import table_name
+    from aat_deploy.render.effects.lens_tolerance import table_name
 
     try:
         lens = load_lens(a.lens)

@@ -1,5 +1,5 @@
 """Stamp a lens's focus table, exit pupil and best-focus map into an exported PSF surrogate's metadata (no
-retraining), so that torch-free twins (`aat_deploy.twin`) render sensor tilt and focus breathing with the real-ray
+retraining), so that torch-free twins (`aat_deploy.diagnose.twin`) render sensor tilt and focus breathing with the real-ray
 focus table, and `aat-infer --method focus --psf PSF.onnx` maps frames aberration-aware:
 
     python scripts/stamp_psf_optics.py PSF.onnx LENS.json     # e.g. models/psf_rf50.onnx lenses/canon_rf50mm_f1.8.json

@@ -8,6 +8,7 @@
 # then: python scripts/export_dff_models.py --runs cache/runs/table2 NAME ...   (models/NAME.onnx)
 # A run whose folder is missing (a new machine) starts from its committed checkpoint in checkpoints/table2/NAME/
 # (scripts/snapshot_runs.sh copies the unfinished runs' last.pt and logs there at the end of a session).
+# A run already shipped as models/NAME.onnx (and not in progress in $OUT) is skipped, with its data rendering.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export OMP_WAIT_POLICY=PASSIVE OMP_NUM_THREADS=1 PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}"
@@ -15,19 +16,26 @@ OUT=${OUT:-cache/runs/table2}
 mkdir -p "$OUT"
 pairs=("$@")
 if [ ${#pairs[@]} -eq 0 ]; then
+  # two runs at a time; the paper lens's field-aware DFVNet early (its AAT DFVNet trades centre for field:
+  # BENCHMARKS, "The paper's Table 2 on its own lens")
   pairs=(paper50_dfvnet_aat paper50_dfvnet_thin paper50_aifnet_aat paper50_aifnet_thin
-         rf50_dfvnet_aat rf50_dfvnet_thin rf50_aifnet_aat rf50_aifnet_thin
-         paper50_dfvnet_aat_field rf50_dfvnet_aat_field paper50_aifnet_aat_field rf50_aifnet_aat_field)
+         paper50_dfvnet_aat_field rf50_dfvnet_aat rf50_dfvnet_thin rf50_dfvnet_aat_field
+         rf50_aifnet_aat rf50_aifnet_thin paper50_aifnet_aat_field rf50_aifnet_aat_field)
 fi
 for ((i = 0; i < ${#pairs[@]}; i += 2)); do
   names=("${pairs[i]}")
   [ $((i + 1)) -lt ${#pairs[@]} ] && names+=("${pairs[i + 1]}")
-  cfgs=()
-  for n in "${names[@]}"; do cfgs+=("configs/table2/$n.json"); done
-  python scripts/render_training_stacks.py "${cfgs[@]}" --workers 2
-  pids=()
+  todo=() cfgs=()
   for n in "${names[@]}"; do
     if [ -f "$OUT/$n/model.pt" ]; then echo "$n: done"; continue; fi
+    # shipped and not being trained here: a new machine does not train it again
+    if [ -f "models/$n.onnx" ] && [ ! -f "$OUT/$n/last.pt" ]; then echo "$n: shipped as models/$n.onnx"; continue; fi
+    todo+=("$n") cfgs+=("configs/table2/$n.json")
+  done
+  [ ${#todo[@]} -eq 0 ] && continue
+  python scripts/render_training_stacks.py "${cfgs[@]}" --workers 2
+  pids=()
+  for n in "${todo[@]}"; do
     if [ ! -f "$OUT/$n/last.pt" ] && [ -f "checkpoints/table2/$n/last.pt" ]; then
       mkdir -p "$OUT/$n" && cp checkpoints/table2/"$n"/* "$OUT/$n/" && echo "$n: resumed from checkpoints/table2/$n"
     fi

@@ -113,7 +113,7 @@ def write_dng_capture(folder: Path, focus_m: list[float], *, h: int = 48, w: int
                       focal_length_mm: float = 50.0, f_number: float = 1.8, gt: bool = True,
                       names: list[str] | None = None) -> Path:
     """A capture folder of DNG frames (EXIF SubjectDistance + XMP focus) written by the virtual camera's writer."""
-    from training.camera.dng import write_dng
+    from aat_deploy.capture.dng import write_dng
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)

@@ -13,6 +13,7 @@ import re
 import shutil
 import subprocess
 import sys
+import tomllib
 
 import pytest
 
@@ -72,7 +73,9 @@ def test_plain_install_runs_the_readme_from_a_clean_copy(tmp_path):
     r = run([str(py), "-c", code], elsewhere)
     assert r.returncode == 0, r.stderr[-2000:]
     declared, module = json.loads(r.stdout)
-    assert declared == {"best_focus_tracer": "training.optics.field_focus:coarse_best_focus_map"}, declared
+    with open(clone / "pyproject.toml", "rb") as f:  # every extension pyproject.toml declares, as installed
+        expected = tomllib.load(f)["project"]["entry-points"]["aat_deploy.extensions"]
+    assert declared == expected and "torch_twin_renderer" in declared, declared
     assert module == "training.optics.field_focus"
 
     # from another folder: the model by the README's relative name and by its bare name, a lens by name

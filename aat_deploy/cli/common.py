@@ -60,7 +60,7 @@ def add_list_option(ap: argparse.ArgumentParser, flag: str, lister, help: str) -
 
 def print_effects() -> None:
     """The simulator's registered effects, one line each (aat-render and aat-diagnose --list-effects)."""
-    from training.render import effects as fx
+    from aat_deploy.render import effects as fx
 
     for name, desc in fx.describe().items():
         print(f"{name:16s} {desc}")

@@ -1,4 +1,7 @@
-"""Sim-to-real gap diagnosis, the torch-free half: capture inputs at the model's geometry, per-pixel covariates
-and bins, bootstrap confidence intervals, image statistics that compare a capture with its digital twin, and
-the report, the search over effects (`search.py`) and the command's run (`session.py`). Twins are rendered by
-`aat_deploy.twin` (torch-free), with the training simulator behind it for torch-only effects when installed."""
+"""Sim-to-real gap diagnosis (`aat-diagnose`), all of it, torch-free: capture inputs at the model's geometry
+(`inputs.py`), digital twins of captures (`twin.py`: `TwinRenderer`; the lens and surrogate a model needs,
+`lookup.py`; twins at reduced resolution, `binned.py`), per-pixel covariates and bins, bootstrap confidence
+intervals, image statistics that compare a capture with its twin, the fits of effects' settings (`fitters.py`,
+`focusfit.py`, `optimise.py`), the search over effects (`search.py`), the report and the command's run
+(`session.py`). When the training package is installed, the torch simulator renders the effects numpy cannot
+(`training.render.torch_twin`, the declared extension `torch_twin_renderer`)."""

@@ -30,7 +30,7 @@ from aat_deploy.diagnose.compare import distances, focus_curves, image_distances
 from aat_deploy.diagnose.inputs import CaptureData
 from aat_deploy.model import DfFModel
 from aat_deploy.normalise import normalise_stack
-from training.render import effects as fx
+from aat_deploy.render import effects as fx
 
 
 @dataclass
@@ -319,18 +319,10 @@ class Diagnosis:
                                                   f"1/{self.factor} resolution"})
                         continue
                     proposals = [params]
-                try:
-                    fits = []
-                    for params in proposals:
-                        eff = fx.make(name, **params)
-                        self.progress(f"round {rnd + 1}: {effect_label(eff)}")
-                        fits.append(self.score_twin(cur.effects + [eff]))
-                except fx.NeedsTorch as e:
-                    self.skipped.append({"effect": name, "reason": str(e)})
-                    self.progress(f"skipped {name}: {e}")
+                fit = self._best_of(name, proposals, cur, rnd)
+                if fit is None:
                     remaining.remove(name)
                     continue
-                fit = min(fits, key=self._image_distance)
                 entry = self._entry(name, rnd + 1, cur, fit, gap0, image_only)
                 entry["fit"] = report
                 best.append((entry, fit))
@@ -343,6 +335,21 @@ class Diagnosis:
             remaining.remove(top[0]["effect"])
         return ranked, chain, evaluated
 
+    def _best_of(self, name: str, settings: list[dict], cur: Scored, rnd: int) -> Scored | None:
+        """The twin (current chain + effect `name` at each of `settings`, full resolution) whose images come
+        closest to the capture's; None, with the reason kept in `skipped`, when the effect needs torch."""
+        fits = []
+        try:
+            for params in settings:
+                eff = fx.make(name, **params)
+                self.progress(f"round {rnd + 1}: {effect_label(eff)}")
+                fits.append(self.score_twin(cur.effects + [eff]))
+        except fx.NeedsTorch as e:
+            self.skipped.append({"effect": name, "reason": str(e)})
+            self.progress(f"skipped {name}: {e}")
+            return None
+        return min(fits, key=self._image_distance)
+
     def _which_grid(self, base: Scored, candidates: list[str], image_only: bool = False):
         """The greedy search over every effect's candidate settings, each rendered at full resolution."""
         cfg = self.cfg
@@ -353,18 +360,10 @@ class Diagnosis:
             cur = chain[-1]
             best = []
             for name in list(remaining):
-                fits = []
-                try:
-                    for params in fx.make(name).candidates:
-                        eff = fx.make(name, **params)
-                        self.progress(f"round {rnd + 1}: {effect_label(eff)}")
-                        fits.append(self.score_twin(cur.effects + [eff]))
-                except fx.NeedsTorch as e:
-                    self.skipped.append({"effect": name, "reason": str(e)})
-                    self.progress(f"skipped {name}: {e}")
+                fit = self._best_of(name, fx.make(name).candidates, cur, rnd)
+                if fit is None:
                     remaining.remove(name)
                     continue
-                fit = min(fits, key=self._image_distance)
                 entry = self._entry(name, rnd + 1, cur, fit, gap0, image_only)
                 best.append((entry, fit))
                 evaluated.append(entry)

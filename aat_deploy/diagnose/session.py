@@ -1,11 +1,11 @@
 """One `aat-diagnose` run: inputs, the diagnosis, the optional retraining, and the report folder (written to a
 temporary folder and renamed, so an interrupted run leaves nothing half-written).
 
-Torch-free: twins are rendered by `aat_deploy.twin` with the exported PSF surrogate. When the training package
-(torch) is installed, the effects numpy cannot render (`chromatic` without per-wavelength surrogates; the lens's
-PSFs without a surrogate) are
-rendered by the training simulator; without it they are skipped and listed in the report. Retraining runs
-`aat-train` (the `train` extra)."""
+Torch-free: twins are rendered by `aat_deploy.diagnose.twin` with the exported PSF surrogate. When the training
+package (torch) is installed, the effects numpy cannot render (`chromatic` without per-wavelength surrogates; the
+lens's PSFs without a surrogate) are rendered by the training simulator, reached through the declared extension
+`torch_twin_renderer` (`aat_deploy.extensions`); without it they are skipped and listed in the report. Retraining
+runs `aat-train` (the `train` extra)."""
 
 from __future__ import annotations
 
@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from aat_deploy import extensions
 from aat_deploy.diagnose import report
 from aat_deploy.diagnose.inputs import find_captures, load_capture_data
 from aat_deploy.diagnose.search import Diagnosis, DiagnoseConfig, diagnose
@@ -23,11 +24,11 @@ from aat_deploy.errors import CaptureError, ModelError
 from aat_deploy.io.atomic import atomic_folder
 from aat_deploy.io.guard import check_no_overlap
 from aat_deploy.model import DfFModel
-from aat_deploy.twin.lookup import find_lens, find_surrogate
-from aat_deploy.twin.renderer import TwinError, TwinRenderer, model_effects
-from aat_deploy.twin.sources import OnnxSource
+from aat_deploy.diagnose.lookup import find_lens, find_surrogate
+from aat_deploy.diagnose.twin import TwinError, TwinRenderer, model_effects
+from aat_deploy.render.sources import OnnxSource
 from aat_deploy.lens.schema import Lens
-from training.render import effects as fx
+from aat_deploy.render import effects as fx
 
 
 class DiagnoseError(RuntimeError):
@@ -42,12 +43,9 @@ def make_renderer(model: DfFModel, lens: Lens, surrogate: OnnxSource | None, tor
     """The twin renderer: torch-free, with the training simulator behind it for torch-only effects when torch is
     installed (and `torch_free` is not asked for)."""
     if not torch_free:
-        try:
-            from training.diagnose.twin import TwinRenderer as TorchBacked, torch_source
-        except ImportError:  # no torch (runtime-only install): stay torch-free
-            pass
-        else:
-            return TorchBacked(model, lens, torch_source(lens, surrogate))
+        torch_backed = extensions.load("torch_twin_renderer")  # None without torch: stay torch-free
+        if torch_backed is not None:
+            return torch_backed(model, lens, surrogate)
     if surrogate is None and any(e.uses_lens_psfs for e in model_effects(model)):
         raise TwinError(f"{model.path}: no PSF surrogate for lens {lens.name!r} at this sensor (pass --psf); "
                         "ray tracing the lens's PSFs needs the training package (torch)")

@@ -2,14 +2,14 @@
 
 The one definition of the formula for numpy (the runtime, PSF window sizes, the twins' Gaussian baseline) and
 torch (the training side's Gaussian surrogate, exported to ONNX): `blur_diameter_px` computes in the inputs'
-namespace and precision (`aat_deploy.backend`).
+namespace and precision (`aat_deploy.backend`), and so does the thin-lens baseline's kernel, `gaussian_kernels`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from aat_deploy.backend import namespace
+from aat_deploy.backend import arange_like, namespace
 from aat_deploy.lens.schema import Lens
 from aat_deploy.optics.paraxial import paraxial_data
 
@@ -36,3 +36,21 @@ def thin_lens_blur_px(lens: Lens, depth_m, focus_m) -> np.ndarray:
     p = paraxial_data(lens)
     return blur_diameter_px(np.asarray(depth_m, dtype=np.float64), np.asarray(focus_m, dtype=np.float64),
                             p.efl_mm, p.entrance_pupil_mm, lens.sensor.pixel_mm)
+
+
+def gaussian_kernels(blur_px, size: int, margin_px: float):
+    """The thin-lens baseline's PSF kernels: a separable Gaussian with the blur disk's second moment
+    (sigma = blur / 4) plus the splat's tent (1/6 cell^2), on scale-adaptive cells (`KernelSpec.scale`: a cell is
+    s = max((blur + margin_px) / (size - 1), 1) pixels), normalised over the whole cell lattice, not the window:
+    what falls outside the window is lost, as for every other PSF source; nothing is renormalised.
+
+    blur_px: (B,) blur-disk diameters in pixels (numpy or torch, any precision; the result has it).
+    Returns kernels (B, size, size) and the cell size s (B,) in pixels. Field-invariant by construction."""
+    xp = namespace(blur_px)
+    s = xp.clip((blur_px + margin_px) / (size - 1), 1.0, None)
+    sigma2 = (blur_px / 4.0 / s) ** 2 + 1.0 / 6.0  # cells^2
+    wide = arange_like(-size - 40, size + 41, blur_px)
+    norm = xp.exp(-(wide[None, :] ** 2) / (2 * sigma2[:, None])).sum(1)[:, None]
+    g = arange_like(0, size, blur_px) - size // 2
+    e = xp.exp(-(g[None, :] ** 2) / (2 * sigma2[:, None])) / norm
+    return e[:, :, None] * e[:, None, :], s

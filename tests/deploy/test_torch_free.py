@@ -35,17 +35,17 @@ def test_runtime_runs_without_torch(tmp_path, tmp_path_factory):
 
 
 def test_twin_renderer_and_effects_run_without_torch(tmp_path):
-    """The torch-free twin renderer (`aat_deploy.twin`) and the effects registry it shares with training: every
+    """The torch-free twin renderer (`aat_deploy.diagnose.twin`, `aat_deploy.render`) and the effects registry it shares with training: every
     effect module imports, every numpy-capable effect renders a crop through the shipped PSF surrogate, and
     `chromatic` (ray tracing) says it needs torch."""
     r = run_without_torch(f"""
         import json, sys, warnings
         import numpy as np
         warnings.simplefilter("error")  # the shipped surrogate carries its focus table: no paraxial fallback
-        from aat_deploy.twin.renderer import optical_stack
-        from aat_deploy.twin.sources import GaussianSource, OnnxSource
+        from aat_deploy.render.optical import optical_stack
+        from aat_deploy.render.sources import GaussianSource, OnnxSource
         from aat_deploy.lens.io import load_lens
-        from training.render import effects as fx
+        from aat_deploy.render import effects as fx
         lens = load_lens({str(ROOT / "lenses/canon_rf50mm_f1.8.json")!r})
         src = OnnxSource({str(ROOT / "models/psf_rf50.onnx")!r}, lens, threads=1)
         ctx = fx.SimContext(lens, (640, 960), (0, 0), src, src.focus_table(), src.exit_pupil_z_mm())

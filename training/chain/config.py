@@ -2,7 +2,7 @@
 
 Command-line options + a preset (tiny | small | paper) resolve to one plain dict: the lens file and the sensor,
 the net, focus range, stack size, effects (names or 'name:key=value' settings, as
-`training.render.effects.parse` reads them), init weights, and per stage its settings (PSF dataset and fit budget,
+`aat_deploy.render.effects.parse` reads them), init weights, and per stage its settings (PSF dataset and fit budget,
 training, evaluation). Files given by path (lens, --init, --psf) are recorded with their SHA-256 so that a
 changed file is a changed input. Units: mm for sensor sizes, pixels for resolutions and crops, metres from the
 sensor plane for distances, minutes for the PSF fit's wall-clock budget.
@@ -89,7 +89,7 @@ def _file_ref(path: str | None, what: str) -> dict | None:
 def resolve(opts: ChainOptions) -> dict:
     """The resolved config dict (JSON-ready). Checks option values; the lens itself is read by the lens stage."""
     from training.nets.model import SIZES
-    from training.render import effects as fx
+    from aat_deploy.render import effects as fx
 
     if opts.preset not in PRESETS:
         raise ChainConfigError(f"--preset must be one of {sorted(PRESETS)}, got {opts.preset!r}")

@@ -188,7 +188,7 @@ def fit_surrogate(ctx: Context, lens, out: Path, wavelength_nm: float | None = N
 # -- 2b. psf_colour -----------------------------------------------------------------------------------------------
 def _chromatic(ctx: Context):
     """The run's `chromatic` effect, or None."""
-    from training.render import effects as fx
+    from aat_deploy.render import effects as fx
 
     return next((e for e in fx.parse(ctx.cfg["effects"]) if e.name == "chromatic"), None)
 
@@ -196,7 +196,7 @@ def _chromatic(ctx: Context):
 def _colour_files(ctx: Context) -> list[str]:
     """The per-wavelength surrogates stage psf_colour writes (none without chromatic, or when the effect is told
     where its surrogates are or to trace)."""
-    from training.render.effects.chromatic import surrogate_name
+    from aat_deploy.render.effects.chromatic import surrogate_name
 
     e = _chromatic(ctx)
     if e is None or e.params["psfs"] != "auto":
@@ -213,7 +213,7 @@ def _colour_run(ctx: Context) -> list[str]:
     """One RotPSF per wavelength of `chromatic`, traced with the sensor where the design wavelength focuses and
     centred on its chief ray: chromatic then renders as fast as the lens's PSFs (else ~30 s a training stack)."""
     from aat_deploy.lens.io import load_lens
-    from training.render.effects.chromatic import REFERENCE_WAVELENGTH_NM
+    from aat_deploy.render.effects.chromatic import REFERENCE_WAVELENGTH_NM
 
     files = _colour_files(ctx)
     if not files:

@@ -74,9 +74,9 @@ def run(args) -> Path:
     from aat_deploy.gt.holes import fill_holes
     from aat_deploy.io.guard import check_output_dir
     from aat_deploy.lens.io import LensFileError, load_lens
-    from training.camera.virtual import write_capture
+    from aat_deploy.capture.virtual import write_capture
     from training.data.rgbd import RGBDError, load_rgbd
-    from training.render import effects as fx
+    from aat_deploy.render import effects as fx
     from training.render.simulator import Simulator
     from training.render.sources import OnnxPSF, RayTracedPSF
 

@@ -6,7 +6,7 @@ best-focus surface: field curvature (a gap) and an asymmetric, tilted focal surf
 (mm along the axis, + away from the lens) against the nominal lens's, with the camera focused on axis (the axis
 term removed: autofocus puts the sensor where the centre is sharp). `sensitivity_table` tabulates it per unit
 perturbation for every air gap and element, for the torch-free `lens_tolerance` effect
-(`training/render/effects/lens_tolerance.py`), which reads it from `tolerance_<key>.json` next to the lens's PSF
+(`aat_deploy/render/effects/lens_tolerance.py`), which reads it from `tolerance_<key>.json` next to the lens's PSF
 surrogate (`scripts/lens_tolerance_table.py`).
 
 Best focus of a field point: the plane of minimum RMS spot about the centroid (the circle of least confusion),
@@ -26,7 +26,7 @@ from aat_deploy.lens.schema import Lens
 from training.optics.focus import best_focus_shift_mm, focus
 from training.optics.trace import _intersect, _refract, rays_through_pupil, uniform_disk_grid
 from training.psf.geometry import object_points_mm
-from training.render.effects.lens_tolerance import air_gaps, elements, optics_key
+from aat_deploy.render.effects.lens_tolerance import air_gaps, elements, optics_key
 
 TABLE_FORMAT = "aat-tolerance-v1"
 
@@ -120,3 +120,23 @@ def sensitivity_table(lens: Lens, unit_mm: float = 0.05, focus_m=(0.5, 1.5, 20.0
     return {"format": TABLE_FORMAT, "lens": lens.name, "optics_key": optics_key(lens), "unit_mm": unit_mm,
             "diopters": [1.0 / f for f in focus_m], "field_x": xs.tolist(), "field_y": ys.tolist(),
             "perturbations": perts}
+
+
+_TRACED: dict = {}  # (optics key, kind, index, axis) -> traced map per unit
+
+
+def traced_perturbation(lens: Lens, kind: str, idx: int, axis: str, amount: float):
+    """The `lens_tolerance` effect's map of one perturbation when it has no table (the extension
+    `tolerance_tracer`): traced on the table's default grid per unit_mm = 0.05, cached per lens. Returns
+    (amount / unit, dz (F, ny, nx) mm per unit, diopters, field x, field y)."""
+    unit = 0.05
+    key = (optics_key(lens), kind, idx, axis)
+    if key not in _TRACED:
+        xs, ys, foci = np.linspace(-1, 1, 7), np.linspace(-1, 1, 5), (0.5, 1.5, 20.0)
+        grid = np.stack(np.meshgrid(xs, ys, indexing="xy"), -1).reshape(-1, 2)
+        kw = {"gap": idx, "gap_mm": unit} if kind == "gap" else \
+            {"element": idx, "decentre_mm": (unit, 0.0) if axis == "x" else (0.0, unit)}
+        dz = np.array([focal_surface_change_mm(lens, grid, f, **kw).reshape(5, 7) for f in foci])
+        _TRACED[key] = (dz, [1.0 / f for f in foci], xs.tolist(), ys.tolist())
+    dz, d, fx, fy = _TRACED[key]
+    return amount / unit, dz, d, fx, fy

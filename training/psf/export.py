@@ -13,7 +13,7 @@ from torch import nn
 from aat_deploy.io.atomic import atomic_file
 from aat_deploy.lens.schema import Lens
 from aat_deploy.optics.paraxial import paraxial_data
-from aat_deploy.twin.sources import EXIT_PUPIL_KEY, TABLE_KEYS
+from aat_deploy.render.sources import EXIT_PUPIL_KEY, TABLE_KEYS
 from training.psf.geometry import focus_table
 from training.psf.surrogates import PSFModel
 
@@ -60,7 +60,7 @@ def metadata(model: PSFModel, lens: Lens, extra: dict | None = None) -> dict[str
 
 
 def optics_metadata(lens: Lens) -> dict[str, str]:
-    """The lens's focusing, for renderers without the ray tracer (`aat_deploy.twin`): the real-ray focus table of
+    """The lens's focusing, for renderers without the ray tracer (`aat_deploy.diagnose.twin`): the real-ray focus table of
     `training.psf.geometry.focus_table(lens)` (diopters ascending, sensor z in mm from the first vertex) and the
     paraxial exit pupil (mm from the first vertex), as JSON."""
     t = focus_table(lens)

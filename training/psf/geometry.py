@@ -4,8 +4,8 @@ Field coordinates and the object directions they name: `aat_deploy.optics.field`
 torch-free sources (paraxial, a surrogate's metadata): `aat_deploy.optics.focus_table`. Depths and focus distances
 are sampled and encoded in diopters (1/m), never linearly in metres.
 
-torch (the real-ray focus search, object points as tensors) is imported where it is needed, so that the effects
-registry, which imports `focus_table`, stays importable without torch.
+The runtime reaches `focus_table` through the declared extension `real_ray_focus_table` (`aat_deploy.extensions`),
+so this module imports torch outright: where torch is missing, the extension is reported missing.
 """
 
 from __future__ import annotations
@@ -13,17 +13,17 @@ from __future__ import annotations
 from functools import lru_cache
 
 import numpy as np
+import torch
 
 from aat_deploy.lens.schema import Lens
 from aat_deploy.optics.field import field_to_tan
 from aat_deploy.optics.focus_table import FocusTable, diopter_grid
 from aat_deploy.optics.paraxial import paraxial_data
+from training.optics.focus import focus
 
 
 @lru_cache(maxsize=16)
 def _focus_table(lens: Lens, near_m: float, far_m: float, n: int, wavelength_nm: float) -> FocusTable:
-    from training.optics.focus import focus  # real rays: torch
-
     dist = diopter_grid(near_m, far_m, n)[::-1]  # far first = ascending diopters
     zs: list[float] = []
     for d in dist:
@@ -58,6 +58,4 @@ def object_points_mm(lens: Lens, x, y, depth_m, sensor_z_mm) -> torch.Tensor:
     z_ep = paraxial_data(lens).entrance_pupil_z_mm
     dist = z_ep - zo  # along the axis from the object plane to the entrance pupil
     pts = np.stack(np.broadcast_arrays(tx * dist, ty * dist, zo), -1).reshape(-1, 3)
-    import torch
-
     return torch.from_numpy(np.ascontiguousarray(pts, dtype=np.float64))

@@ -23,7 +23,7 @@ from torch import nn
 
 from aat_deploy.lens.schema import Lens
 from aat_deploy.optics.paraxial import paraxial_data
-from aat_deploy.optics.thin_lens import blur_diameter_px
+from aat_deploy.optics.thin_lens import blur_diameter_px, gaussian_kernels
 from aat_deploy.psf.kernel import KernelSpec
 from training.psf.splat import downsample2
 
@@ -56,17 +56,10 @@ class PSFModel(nn.Module):
 
 
 class GaussianPSF(PSFModel):
+    """The thin-lens baseline (`aat_deploy.optics.thin_lens.gaussian_kernels`, in torch ops: exported to ONNX)."""
+
     def forward(self, q: torch.Tensor) -> torch.Tensor:
-        depth, focus = q[:, 2], q[:, 3]
-        s = self.scale(depth, focus)
-        sigma2 = (self.blur_px(depth, focus) / 4.0 / s) ** 2 + 1.0 / 6.0  # cells^2
-        # Separable Gaussian, normalised over the whole cell lattice (not the window): what falls outside the
-        # window is lost, as for every other method; nothing is renormalised.
-        wide = torch.arange(-self.k - 40, self.k + 41, dtype=q.dtype, device=q.device)
-        norm = torch.exp(-(wide[None, :] ** 2) / (2 * sigma2[:, None])).sum(1, keepdim=True)
-        g = torch.arange(self.k, dtype=q.dtype, device=q.device) - self.k // 2
-        e = torch.exp(-(g[None, :] ** 2) / (2 * sigma2[:, None])) / norm
-        return e[:, :, None] * e[:, None, :]
+        return gaussian_kernels(self.blur_px(q[:, 2], q[:, 3]), self.k, self.margin_px)[0]
 
 
 def _mlp(n_in: int, width: int, depth: int, n_out: int, act) -> nn.Sequential:

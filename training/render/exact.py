@@ -14,24 +14,9 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from aat_deploy.twin.layered import pixel_kernel_size  # noqa: F401 (one definition for both renderers)
-
-
-def cells_to_pixels(kernels: torch.Tensor, scale: torch.Tensor, size: int) -> torch.Tensor:
-    """Resample (N, k, k) cell kernels with cell size `scale` (N,) pixels to (N, size, size) pixel kernels.
-
-    Each cell's energy is spread over pixels with the tent of half-width `scale` around the cell centre (the
-    inverse of the bilinear splat that made it) and renormalised per cell, so energy is conserved exactly and
-    scale = 1 returns the kernel unchanged (centred in the larger window).
-    """
-    n, k, _ = kernels.shape
-    dt = kernels.dtype
-    j = torch.arange(size, dtype=dt) - size // 2  # pixel offsets
-    i = torch.arange(k, dtype=dt) - k // 2  # cell offsets
-    s = scale.to(dt).view(n, 1, 1)
-    a = torch.clamp(1 - (j.view(1, -1, 1) - i.view(1, 1, -1) * s).abs() / s, min=0)  # (N, size, k)
-    a = a / a.sum(1, keepdim=True).clamp_min(1e-12)
-    return torch.einsum("npi,nij,nqj->npq", a, kernels, a)
+# One kernel resampling for every renderer: the layered renderer's, over torch arrays (its torch backend).
+from aat_deploy.render.layered import cells_to_pixels, pixel_kernel_size  # noqa: F401 (re-exported)
+from training.render.layered import TORCH
 
 
 def render_exact(image: torch.Tensor, kernels: torch.Tensor, rows_per_chunk: int = 32) -> torch.Tensor:
@@ -71,6 +56,6 @@ def render_frame_exact(image: torch.Tensor, depth_m: torch.Tensor, focus_m: floa
     x, y = pixel_fields(h, w, sensor_hw, origin)
     kernels, scale = psf_source(x.ravel(), y.ravel(), depth_m.reshape(-1).numpy(), focus_m)
     size = pixel_kernel_size(kernels.shape[-1], float(scale.max()))
-    px = torch.cat([cells_to_pixels(kernels[i:i + 4096].double(), scale[i:i + 4096], size)
+    px = torch.cat([cells_to_pixels(kernels[i:i + 4096].double(), scale[i:i + 4096], size, TORCH)
                     for i in range(0, kernels.shape[0], 4096)])
     return render_exact(image.double(), px).to(image.dtype)

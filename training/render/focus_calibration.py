@@ -46,7 +46,7 @@ class CalibrationConfig:
 
 
 def _simulator(lens, cfg: CalibrationConfig):
-    from training.render import effects as fx
+    from aat_deploy.render import effects as fx
     from training.render.layered import LayeredConfig
     from training.render.simulator import Simulator
     from training.render.sources import OnnxPSF, RayTracedPSF

@@ -15,9 +15,10 @@ import torch
 
 from aat_deploy.lens.io import load_lens
 from aat_deploy.lens.schema import Lens
-from training.render import effects as fx
-from training.render.layered import LayeredConfig, render_layered
-from training.render.sources import OnnxPSF, RayTracedPSF, field_of, thin_lens_source
+from aat_deploy.render import effects as fx
+from aat_deploy.render.optical import optical_stack
+from training.render.layered import LayeredConfig
+from training.render.sources import OnnxPSF, RayTracedPSF, thin_lens_source
 
 
 @dataclass
@@ -95,15 +96,7 @@ class Simulator:
 
     def optical(self, rgb, depth_m, focus: np.ndarray, ctx: fx.SimContext) -> torch.Tensor:
         """Frames (S, C, H, W) through the lens: PSFs and per-field focus, before warps and the sensor."""
-        src = self.source(ctx)
-        focus_at = fx.focus_at(self.effects, ctx)
-        hs, ws = ctx.sensor_hw
-
-        def field_fn(r, c):
-            return field_of(r, c, (hs, ws), ctx.origin)
-
-        return torch.stack([render_layered(rgb, depth_m, float(f), src, field_fn, self.layered, focus_at=focus_at)
-                            for f in focus])
+        return optical_stack(self.effects, self.thin_source, rgb, depth_m, focus, ctx, self.layered)
 
     def post(self, frames: torch.Tensor, focus: np.ndarray, ctx: fx.SimContext, rng: np.random.Generator) -> torch.Tensor:
         """The effects' geometry (`warp`), whole-stack (`stack`) then sensor (`sensor`) hooks (`effects.post_stack`).

@@ -11,13 +11,13 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-# Backend-neutral pieces live with the torch-free twin renderer and are shared from there.
+# Backend-neutral pieces live with the runtime's renderer (aat_deploy.render) and are shared from there.
 from aat_deploy.lens.schema import Lens
 from aat_deploy.psf.kernel import KernelSpec
-from aat_deploy.twin.fields import field_of, pixel_fields  # noqa: F401 (re-exported)
-from aat_deploy.twin.sources import LensGeometry as _LensGeometry
-from aat_deploy.twin.sources import OnnxSource
-from aat_deploy.twin.sources import UnitEnergy  # noqa: F401 (re-exported)
+from aat_deploy.render.fields import field_of, pixel_fields  # noqa: F401 (re-exported)
+from aat_deploy.render.sources import LensGeometry as _LensGeometry
+from aat_deploy.render.sources import OnnxSource
+from aat_deploy.render.sources import UnitEnergy  # noqa: F401 (re-exported)
 from training.psf.raytrace import DEFAULT_WAVELENGTH_NM, raytrace_psfs
 from training.psf.surrogates import GaussianPSF, PSFModel
 
@@ -61,7 +61,7 @@ class OnnxPSF(_LensGeometry):
     """An exported surrogate (`aat_deploy.psf.surrogate.PSFSurrogate`, onnxruntime): the same PSFs the runtime renders
     digital twins with, as torch tensors. Depths outside the model's range are clamped to it (beyond ~100 m
     blur no longer changes). The lens must be the one the surrogate was fitted for (checked by prescription hash).
-    `.numpy` is the torch-free source underneath (`aat_deploy.twin.sources.OnnxSource`)."""
+    `.numpy` is the torch-free source underneath (`aat_deploy.render.sources.OnnxSource`)."""
 
     def __init__(self, path, lens: Lens, threads: int | None = None):
         self._wrap(OnnxSource(path, lens, threads=threads))

@@ -75,10 +75,10 @@ def test_focus_curves_and_shifts():
 def setup(tmp_path_factory):
     """A classical-DfF model 'trained' for the RF50 on a 192x128 sensor with the thin-lens simulator, and capture
     sets rendered with that simulator, with and without a withheld focus-metadata bias."""
-    from training.camera.virtual import write_capture
+    from aat_deploy.capture.virtual import write_capture
     from training.data.scenes import SceneConfig, procedural_scene
     from aat_deploy.lens.io import load_lens
-    from training.render import effects as fx
+    from aat_deploy.render import effects as fx
     from training.render.layered import LayeredConfig
     from training.render.simulator import Simulator
     from training.render.sources import thin_lens_source

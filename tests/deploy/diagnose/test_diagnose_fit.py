@@ -1,5 +1,5 @@
 """The diagnosis's fitted settings on rendered captures whose truth is known (aat_deploy.diagnose.fitters), the
-reduced-resolution twins they search with (aat_deploy.twin.binned), and the corrected focus a user gets.
+reduced-resolution twins they search with (aat_deploy.diagnose.binned), and the corrected focus a user gets.
 
 Captures: 2 procedural scenes through a thin-lens simulator of the RF50 on a 192 x 128 sensor, frames as float
 TIFFs (no RAW development), with one effect the twin lacks."""
@@ -37,8 +37,8 @@ def render_set(world, name: str, effects, n: int = 2, focus_m=FOCUS_M):
     from aat_deploy.diagnose.inputs import load_capture_data
     from aat_deploy.diagnose.session import make_renderer
     from aat_deploy.model import DfFModel
-    from aat_deploy.twin.lookup import find_lens
-    from training.camera.virtual import write_capture
+    from aat_deploy.diagnose.lookup import find_lens
+    from aat_deploy.capture.virtual import write_capture
     from training.data.scenes import SceneConfig, procedural_scene
     from training.render.layered import LayeredConfig
     from training.render.simulator import Simulator
@@ -65,7 +65,7 @@ def render_set(world, name: str, effects, n: int = 2, focus_m=FOCUS_M):
 
 def state_for(caps, twins, chain=(), n_boot=20):
     from aat_deploy.diagnose import fitters as F
-    from training.render import effects as fx
+    from aat_deploy.render import effects as fx
 
     full = [F.fit_curves(twins.render(c, c.aif_linear, list(chain), seed=i), 1) for i, c in enumerate(caps)]
     return F.FitState(twins, caps, [c.aif_linear for c in caps], list(chain), fx.make, factor=1, n_boot=n_boot,
@@ -77,7 +77,7 @@ def test_distance_scale_error_is_fitted_as_a_scale(world):
     """Reported distance = 1.08 x true (the issue's encoder error): the fit names the scale family, its value, and
     corrects every frame's focus to within 0.03 D."""
     from aat_deploy.diagnose import fitters as F
-    from training.render import effects as fx
+    from aat_deploy.render import effects as fx
 
     caps, twins = render_set(world, "scale", [fx.make("focus_metadata", bias_d=0.0, scale=1.08)])
     assert np.allclose(caps[0].focus_m, 1.08 * FOCUS_M)
@@ -103,7 +103,7 @@ def test_sensor_tilt_is_fitted_continuously(world):
     """A 1.3 deg tilt about the vertical axis (not one of the old candidates 0.5 / 1.0): the fit finds its axis,
     sign and size."""
     from aat_deploy.diagnose import fitters as F
-    from training.render import effects as fx
+    from aat_deploy.render import effects as fx
 
     caps, twins = render_set(world, "tilt", [fx.make("sensor_tilt", tilt_x_deg=1.3, tilt_y_deg=0.0)])
     r = F.fit_sensor_tilt(state_for(caps, twins))
@@ -118,7 +118,7 @@ def test_noise_and_breathing_are_fitted_continuously(world):
     """Full well 700 e- (between the old candidates): fitted within a factor 1.6; focus breathing as rendered:
     coefficient near 1; a clean set: no noise, no breathing."""
     from aat_deploy.diagnose import fitters as F
-    from training.render import effects as fx
+    from aat_deploy.render import effects as fx
 
     caps, twins = render_set(world, "noise", [fx.make("noise", full_well_e=700.0)])
     r = F.fit_noise(state_for(caps, twins))
@@ -137,7 +137,7 @@ def test_exposure_and_misalignment_are_fitted_per_capture(world):
     """Per-frame gains (up to 12 %) and shifts (up to 2 px), different in every capture: every capture's gains
     within 2 % and its shifts within 0.4 px of the ones rendered."""
     from aat_deploy.diagnose import fitters as F
-    from training.render import effects as fx
+    from aat_deploy.render import effects as fx
 
     gains = {"scene0": [1.0, 1.09, 0.93, 1.05, 0.97, 1.12, 0.9], "scene1": [0.95, 1.0, 1.1, 0.92, 1.04, 1.0, 1.08]}
     caps, twins = render_set(world, "exposure", lambda s: [fx.make("exposure", gains=gains[f"scene{s}"])])
@@ -164,8 +164,8 @@ def test_lens_tolerance_is_fitted_through_the_table(world):
     """The cemented doublet decentred 0.4 mm along x (the shipped RF50 table): the fit finds a perturbation whose
     focal-surface change at the frame's edges is the rendered one's within 30 %."""
     from aat_deploy.diagnose import fitters as F
-    from training.render import effects as fx
-    from training.render.effects.lens_tolerance import table_name
+    from aat_deploy.render import effects as fx
+    from aat_deploy.render.effects.lens_tolerance import table_name
 
     table = str(ROOT / "models" / table_name(world[1]))
 
@@ -189,8 +189,8 @@ def test_lens_tolerance_is_fitted_through_the_table(world):
 def test_binned_twin_is_the_binned_full_twin(world):
     """A twin rendered on the 2x2-binned sensor is close to the full-resolution twin binned (pixels), and its
     PSF source keeps the kernels' energy with cells half as wide."""
-    from aat_deploy.twin.binned import BinnedSource, bin_depth, bin_frames, binned_capture
-    from aat_deploy.twin.sources import GaussianSource
+    from aat_deploy.diagnose.binned import BinnedSource, bin_depth, bin_frames, binned_capture
+    from aat_deploy.render.sources import GaussianSource
 
     caps, twins = render_set(world, "clean", [])
     c = caps[0]
@@ -218,7 +218,7 @@ def test_diagnosis_writes_corrected_capture_json(world, tmp_path):
     reader accepts and that bring the focus within 0.03 D of the truth."""
     from aat_deploy.capture.folder import read_capture
     from aat_deploy.cli.diagnose import main
-    from training.render import effects as fx
+    from aat_deploy.render import effects as fx
 
     render_set(world, "scale", [fx.make("focus_metadata", bias_d=0.0, scale=1.08)])  # as the first test
     tmp, _, model = world

@@ -105,9 +105,9 @@ def test_outputs_metadata_and_report(chain):
 
 def test_runtime_accepts_ef50_captures_and_flags_rf50(chain, tmp_path):
     from aat_deploy.lens.io import load_lens
-    from training.camera.virtual import write_capture
+    from aat_deploy.capture.virtual import write_capture
     from training.data.scenes import SceneConfig, procedural_scene
-    from training.render import effects as fx
+    from aat_deploy.render import effects as fx
     from training.render.simulator import Simulator
     from training.render.sources import OnnxPSF
 
@@ -189,7 +189,7 @@ def test_fine_tune_from_onnx_with_extra_effect_and_given_psf(chain, tmp_path):
 def colour(chain, tmp_path_factory):
     """Fine-tuning with --effects chromatic, with the ray tracer made to fail: colour must come from the
     per-wavelength surrogates that stage psf_colour fits."""
-    from training.render.effects import chromatic
+    from aat_deploy.render.effects import chromatic
 
     out = tmp_path_factory.mktemp("colour") / "ft"
     src = chain["out"]
@@ -200,7 +200,7 @@ def colour(chain, tmp_path_factory):
         raise AssertionError("chromatic traced its PSFs although per-wavelength surrogates exist")
 
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(chromatic, "_ThreeWavelengths", no_tracing)
+        mp.setattr(chromatic, "_three_wavelengths", no_tracing)
         assert main(args) == 0
         first = _records(out)
         assert main(args) == 0
@@ -210,7 +210,7 @@ def colour(chain, tmp_path_factory):
 def test_chromatic_fits_per_wavelength_surrogates_and_trains_with_them(chain, colour):
     """Stage psf_colour: one surrogate per wavelength (sensor where the design wavelength focuses, kernels
     centred on its chief ray); training and evaluation render with them; a rerun refits nothing."""
-    from training.render.effects import chromatic
+    from aat_deploy.render.effects import chromatic
 
     out, rec = colour["out"], colour["first"]
     files = [chromatic.surrogate_name(w) for w in (610, 540, 465)]
@@ -228,9 +228,9 @@ def test_chromatic_twins_render_without_torch_next_to_their_surrogates(colour, t
     """With psf_<w>nm.onnx next to the lens's surrogate the torch-free twin renderer renders `chromatic`
     (three different channels); psfs=trace still needs torch; a folder without them is a one-line error."""
     from aat_deploy.lens.io import load_lens
-    from aat_deploy.twin.renderer import TwinRenderer
-    from aat_deploy.twin.sources import OnnxSource
-    from training.render import effects as fx
+    from aat_deploy.diagnose.twin import TwinRenderer
+    from aat_deploy.render.sources import OnnxSource
+    from aat_deploy.render import effects as fx
 
     out = colour["out"]
     lens = load_lens(out / "lens.json")

@@ -62,7 +62,7 @@ def _plane_stack(depth_m: float, focus_m: np.ndarray, origin: tuple[int, int], n
     import torch
 
     from training.data.textures import photo_texture
-    from training.render import effects as fx
+    from aat_deploy.render import effects as fx
     from training.render.layered import LayeredConfig
     from training.render.simulator import Simulator
     from training.render.sources import OnnxPSF

@@ -15,8 +15,8 @@ from aat_deploy.lens.io import load_lens
 from training.optics.tolerance import (best_focus_z_mm, focal_surface_change_mm, sensitivity_table,
                                        trace_decentred)
 from training.optics.trace import Rays, rays_through_pupil, trace, uniform_disk_grid
-from training.render import effects as fx
-from training.render.effects.lens_tolerance import air_gaps, elements, optics_key, table_name
+from aat_deploy.render import effects as fx
+from aat_deploy.render.effects.lens_tolerance import air_gaps, elements, optics_key, table_name
 
 RF50 = "lenses/canon_rf50mm_f1.8.json"
 

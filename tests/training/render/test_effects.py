@@ -8,9 +8,9 @@ import torch
 from conftest import ROOT
 
 from aat_deploy.lens.io import load_lens
-from training.render import effects as fx
-from training.render.effects.focus_breathing import breathing_scale
-from training.render.effects.noise import poisson_gaussian
+from aat_deploy.render import effects as fx
+from aat_deploy.render.effects.focus_breathing import breathing_scale
+from aat_deploy.render.effects.noise import poisson_gaussian
 from training.render.layered import LayeredConfig
 from training.render.simulator import Simulator
 from training.render.sources import OnnxPSF

@@ -8,9 +8,9 @@ import torch
 from conftest import assert_close
 
 from aat_deploy.lens.io import load_lens
-from training.render import effects as fx
-from training.render.effects.focus_metadata import quantise_focus_m
-from training.render.effects.sensor_tilt import tilted_focus_m
+from aat_deploy.render import effects as fx
+from aat_deploy.render.effects.focus_metadata import quantise_focus_m
+from aat_deploy.render.effects.sensor_tilt import tilted_focus_m
 from training.render.layered import LayeredConfig
 from training.render.simulator import Simulator
 from training.render.sources import thin_lens_source
@@ -103,7 +103,7 @@ def test_tilt_changes_the_rendered_stack_and_post_effects_reuse_the_optics(lens)
 
 @pytest.mark.numerics
 def test_raw_pipeline_demosaic_by_hand(lens):
-    from training.render.effects.raw_pipeline import demosaic_bilinear
+    from aat_deploy.render.effects.raw_pipeline import demosaic_bilinear
 
     # bilinear interpolation reproduces flat colours everywhere and linear ramps away from the border
     flat = np.broadcast_to(np.array([0.2, 0.5, 0.7], np.float32)[:, None, None], (3, 8, 10)).copy()
@@ -116,7 +116,7 @@ def test_raw_pipeline_demosaic_by_hand(lens):
     out = e.sensor(ramp, ctx, np.random.default_rng(0))
     assert_close(out[:, 1:-1, 1:-1], ramp[:, 1:-1, 1:-1], 4e-6, what="ramp")  # a few float32 ulps
     # measured photosites are kept: R at (even, even), B at (odd, odd)
-    from training.camera.virtual import mosaic_rggb
+    from aat_deploy.capture.virtual import mosaic_rggb
     rnd = np.random.default_rng(1).random((3, 6, 6)).astype(np.float32)
     dm = demosaic_bilinear(mosaic_rggb(rnd))
     assert np.array_equal(dm[0, 0::2, 0::2], rnd[0, 0::2, 0::2]) and np.array_equal(dm[2, 1::2, 1::2], rnd[2, 1::2, 1::2])
@@ -130,7 +130,7 @@ def test_raw_pipeline_libraw_is_the_runtimes_development(lens, tmp_path):
     """The default development is the runtime's: a frame through the effect equals the same frame written by the
     virtual camera as a DNG and read back by aat_deploy (LibRaw), pixel for pixel; odd sizes and crops work."""
     from aat_deploy.capture.raw import load_raw
-    from training.camera.virtual import write_capture
+    from aat_deploy.capture.virtual import write_capture
 
     rng = np.random.default_rng(2)
     frame = cv2.GaussianBlur(rng.random((40, 60, 3)).astype(np.float32), (0, 0), 1.5).transpose(2, 0, 1) * 0.8
@@ -203,7 +203,7 @@ def test_sensor_shifts_add_up_through_the_focus_table(lens):
 def test_breathing_coefficient_scales_the_magnification_change(lens):
     """coefficient 0 = no breathing, 1 = the lens's model (unchanged default), 2 = twice the change."""
     from aat_deploy.optics.focus_table import paraxial_focus_table
-    from training.render.effects.focus_breathing import breathing_scale, scale_about_axis
+    from aat_deploy.render.effects.focus_breathing import breathing_scale, scale_about_axis
 
     ctx = fx.SimContext(lens, (64, 96), table=paraxial_focus_table(lens))
     frame = np.random.default_rng(0).random((3, 64, 96)).astype(np.float32)

@@ -116,3 +116,29 @@ def test_occlusion_mode_hides_background_behind_foreground():
     # Focused on the near object: the blurred background must not bleed over the sharp occluder.
     assert float(occl[0, :, 26:31].mean()) < 0.5 * float(plain[0, :, 26:31].mean())
     assert float(occl[0, :, 40:].mean()) > 0.9 * float(plain[0, :, 40:].mean())
+
+
+def test_torch_backend_spells_the_same_operations_as_numpy():
+    """One algorithm, two backends (`aat_deploy.render.layered`): each operation torch spells differently gives
+    numpy's result (float rounding apart), including the fold path of overlap-add (> 64 active cells) and the
+    pooling, upsampling and resampling the coarse layers use."""
+    from aat_deploy.render.layered import NUMPY, cells_to_pixels
+    from training.render.layered import TORCH
+
+    rng = np.random.default_rng(3)
+    ny, nx, cc, r = 9, 10, 8, 3
+    idx = np.argwhere(rng.random((ny, nx)) < 0.9)  # about 80 active cells
+    assert len(idx) > 64
+    blocks = rng.random((len(idx), 2, cc + 2 * r, cc + 2 * r))
+    a = NUMPY.overlap_add(blocks, idx, ny, nx, cc, r)
+    b = TORCH.overlap_add(torch.from_numpy(blocks), torch.from_numpy(idx), ny, nx, cc, r).numpy()
+    np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-12)
+    img = rng.random((3, 12, 16))
+    for op, args in (("box_mean", (4,)), ("upsample", (3,)), ("pad_edge", (5,)), ("pad_end", (2, 3))):
+        np.testing.assert_allclose(getattr(TORCH, op)(torch.from_numpy(img), *args).numpy(),
+                                   getattr(NUMPY, op)(img, *args), rtol=1e-12, atol=1e-14, err_msg=op)
+    np.testing.assert_array_equal(TORCH.box_max(torch.from_numpy(img[0]), 4).numpy(), NUMPY.box_max(img[0], 4))
+    k = rng.random((5, 7, 7))
+    scale = np.array([1.0, 1.5, 2.0, 3.0, 4.5])
+    np.testing.assert_allclose(cells_to_pixels(torch.from_numpy(k), torch.from_numpy(scale), 33).numpy(),
+                               cells_to_pixels(k, scale, 33), rtol=1e-12, atol=1e-15)
