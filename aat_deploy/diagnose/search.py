@@ -271,69 +271,64 @@ class Diagnosis:
         reduced resolution (`fitters`; effects without a fitter: their candidates, the closest kept), screened
         there, and only effects whose images come closer (or whose lighting does) are rendered and scored at
         full resolution; the naming rule is the grid search's."""
+        return self._greedy(base, candidates, image_only, self._round_fit)
+
+    def _round_fit(self, cur: Scored, rnd: int, remaining: list[str], gap0, evaluated: list,
+                   image_only: bool) -> list:
+        """One round of the fitted search: (entry, scored twin) of every effect scored at full resolution."""
         cfg = self.cfg
-        gap0 = self.gap_maps(base)
-        chain, ranked, remaining, evaluated = [base], [], list(candidates), []
-        for rnd in range(cfg.max_effects):
-            cur = chain[-1]
-            state = self.fit_state(cur)
-            cur_b = [image_distances(r, c, b) for r, c, b in zip(state.real_b, state.real_curves_b, state.base_b)]
-            best = []
-            for name in list(remaining):
-                why = fx.make(name).torch_reason(self.twins.context())
-                if why and not getattr(self.twins, "uses_torch", False):
-                    self.skipped.append({"effect": name, "reason": f"effect {name!r} needs the training package "
-                                                                    f"(torch): {why}"})
-                    self.progress(f"skipped {name}: {why}")
+        state = self.fit_state(cur)
+        cur_b = [image_distances(r, c, b) for r, c, b in zip(state.real_b, state.real_curves_b, state.base_b)]
+        best = []
+        for name in list(remaining):
+            why = fx.make(name).torch_reason(self.twins.context())
+            if why and not getattr(self.twins, "uses_torch", False):
+                self.skipped.append({"effect": name, "reason": f"effect {name!r} needs the training package "
+                                                                f"(torch): {why}"})
+                self.progress(f"skipped {name}: {why}")
+                remaining.remove(name)
+                continue
+            self.progress(f"round {rnd + 1}: fitting {name}")
+            report: dict = {}
+            if name in fitters.FITTERS:
+                try:
+                    fitted = fitters.FITTERS[name](state)
+                except fx.NeedsTorch as e:
+                    self.skipped.append({"effect": name, "reason": str(e)})
                     remaining.remove(name)
                     continue
-                self.progress(f"round {rnd + 1}: fitting {name}")
-                report: dict = {}
-                if name in fitters.FITTERS:
-                    try:
-                        fitted = fitters.FITTERS[name](state)
-                    except fx.NeedsTorch as e:
-                        self.skipped.append({"effect": name, "reason": str(e)})
-                        remaining.remove(name)
-                        continue
-                    report = fitted.report
-                    proposals = [fitted.params] if fitted.params is not None else []
-                else:
-                    proposals = list(fx.make(name).candidates)
-                if not proposals:  # the fit found nothing: no twin to score
-                    evaluated.append({"effect": name, "params": None, "round": rnd + 1, "closeness": None,
-                                      "share_of_gap": None, "ci_low": None, "ci_high": None, "screened_out": True,
-                                      "fit": report, "note": "the fit found no setting the images support"})
+                report = fitted.report
+                proposals = [fitted.params] if fitted.params is not None else []
+            else:
+                proposals = list(fx.make(name).candidates)
+            if not proposals:  # the fit found nothing: no twin to score
+                evaluated.append({"effect": name, "params": None, "round": rnd + 1, "closeness": None,
+                                  "share_of_gap": None, "ci_low": None, "ci_high": None, "screened_out": True,
+                                  "fit": report, "note": "the fit found no setting the images support"})
+                continue
+            screen = self._screen(state, cur_b, name, proposals)
+            if screen is not None:
+                params, img, bri = screen
+                if not (img.mean() > 0 or bri.mean() >= cfg.min_score):
+                    sc = capture_bootstrap(img, n_boot=cfg.n_boot, seed=cfg.seed)
+                    evaluated.append({"effect": name, "params": fx.make(name, **params).params, "round": rnd + 1,
+                                      "closeness": sc[0], "closeness_ci": [sc[1], sc[2]],
+                                      "image_closeness": sc[0], "image_closeness_ci": [sc[1], sc[2]],
+                                      "brightness_closeness": float(bri.mean()), "share_of_gap": None,
+                                      "ci_low": None, "ci_high": None, "screened_out": True, "fit": report,
+                                      "note": f"not scored at full resolution: its images did not come closer at "
+                                              f"1/{self.factor} resolution"})
                     continue
-                screen = self._screen(state, cur_b, name, proposals)
-                if screen is not None:
-                    params, img, bri = screen
-                    if not (img.mean() > 0 or bri.mean() >= cfg.min_score):
-                        sc = capture_bootstrap(img, n_boot=cfg.n_boot, seed=cfg.seed)
-                        evaluated.append({"effect": name, "params": fx.make(name, **params).params, "round": rnd + 1,
-                                          "closeness": sc[0], "closeness_ci": [sc[1], sc[2]],
-                                          "image_closeness": sc[0], "image_closeness_ci": [sc[1], sc[2]],
-                                          "brightness_closeness": float(bri.mean()), "share_of_gap": None,
-                                          "ci_low": None, "ci_high": None, "screened_out": True, "fit": report,
-                                          "note": f"not scored at full resolution: its images did not come closer at "
-                                                  f"1/{self.factor} resolution"})
-                        continue
-                    proposals = [params]
-                fit = self._best_of(name, proposals, cur, rnd)
-                if fit is None:
-                    remaining.remove(name)
-                    continue
-                entry = self._entry(name, rnd + 1, cur, fit, gap0, image_only)
-                entry["fit"] = report
-                best.append((entry, fit))
-                evaluated.append(entry)
-            top = self._pick(best, cfg)
-            if top is None:
-                break
-            ranked.append(top[0])
-            chain.append(top[1])
-            remaining.remove(top[0]["effect"])
-        return ranked, chain, evaluated
+                proposals = [params]
+            fit = self._best_of(name, proposals, cur, rnd)
+            if fit is None:
+                remaining.remove(name)
+                continue
+            entry = self._entry(name, rnd + 1, cur, fit, gap0, image_only)
+            entry["fit"] = report
+            best.append((entry, fit))
+            evaluated.append(entry)
+        return best
 
     def _best_of(self, name: str, settings: list[dict], cur: Scored, rnd: int) -> Scored | None:
         """The twin (current chain + effect `name` at each of `settings`, full resolution) whose images come
@@ -352,29 +347,35 @@ class Diagnosis:
 
     def _which_grid(self, base: Scored, candidates: list[str], image_only: bool = False):
         """The greedy search over every effect's candidate settings, each rendered at full resolution."""
-        cfg = self.cfg
+        return self._greedy(base, candidates, image_only, self._round_grid)
+
+    def _round_grid(self, cur: Scored, rnd: int, remaining: list[str], gap0, evaluated: list,
+                    image_only: bool) -> list:
+        best = []
+        for name in list(remaining):
+            fit = self._best_of(name, fx.make(name).candidates, cur, rnd)
+            if fit is None:
+                remaining.remove(name)
+                continue
+            entry = self._entry(name, rnd + 1, cur, fit, gap0, image_only)
+            best.append((entry, fit))
+            evaluated.append(entry)
+        return best
+
+    def _greedy(self, base: Scored, candidates: list[str], image_only: bool, round_fn):
+        """Rounds of `round_fn` (which scores the remaining effects on the current chain and drops those it must
+        skip); each round's best significant effect (`_pick`) joins the chain, until none does or max_effects."""
         gap0 = self.gap_maps(base)
-        chain, ranked, remaining = [base], [], list(candidates)
-        evaluated = []
-        for rnd in range(cfg.max_effects):
-            cur = chain[-1]
-            best = []
-            for name in list(remaining):
-                fit = self._best_of(name, fx.make(name).candidates, cur, rnd)
-                if fit is None:
-                    remaining.remove(name)
-                    continue
-                entry = self._entry(name, rnd + 1, cur, fit, gap0, image_only)
-                best.append((entry, fit))
-                evaluated.append(entry)
-            top = self._pick(best, cfg)
+        chain, ranked, remaining, evaluated = [base], [], list(candidates), []
+        for rnd in range(self.cfg.max_effects):
+            best = round_fn(chain[-1], rnd, remaining, gap0, evaluated, image_only)
+            top = self._pick(best, self.cfg)
             if top is None:
                 break
             ranked.append(top[0])
             chain.append(top[1])
             remaining.remove(top[0]["effect"])
         return ranked, chain, evaluated
-
 
 def is_named(entry: dict, min_score: float) -> bool:
     """Whether the round's best effect is named: its twin comes closer to the captures, significantly (interval
