@@ -3,7 +3,7 @@ lens, tested on held-out stacks rendered through that lens (training/train/tests
 
     OMP_WAIT_POLICY=PASSIVE python benchmarks/bench_table2.py --lens paper50 --protocol paper fixed [--n 32]
     OMP_WAIT_POLICY=PASSIVE python benchmarks/bench_table2.py --lens rf50 --protocol fixed
-    ... [--models A.onnx B.onnx ...] [--no-classical] [--out benchmarks/results]
+    ... [--models A.onnx B.onnx ...] [--no-classical] [--tile 192] [--out benchmarks/results]
 
 Models default to `models/<lens>_{dfvnet,aifnet}_{aat,thin}[_field].onnx` that exist. They run with onnxruntime
 exactly as `aat-infer` runs them (aat_deploy.model.DfFModel; a field-aware model gets each pixel's sensor position).
@@ -101,13 +101,13 @@ def field_figures(maps: dict[str, np.ndarray], path: Path, title: str) -> None:
     plot_error_vs_radius(results, path.with_name(path.stem + "_radius.png"), title)
 
 
-def run_model(path: Path, items, threads: int) -> tuple[list[dict], np.ndarray, dict]:
+def run_model(path: Path, items, threads: int, tile: int | None = None) -> tuple[list[dict], np.ndarray, dict]:
     from aat_deploy.model import DfFModel
 
     model = DfFModel(path, threads=threads)
     per, err = [], []
     for it in items:
-        out = model.infer(it.stack, it.focus_m)
+        out = model.infer(it.stack, it.focus_m, tile=tile)
         per.append(score(out.depth_m, it.depth_m, out.aif, it.aif))
         valid = it.depth_m > 0
         err.append(np.where(valid, np.abs(out.depth_m - it.depth_m), np.nan))
@@ -167,6 +167,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--models", nargs="*", help="ONNX models (default: models/<lens>_*.onnx)")
     ap.add_argument("--no-classical", action="store_true")
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--tile", type=int, default=0,
+                    help="run the nets in tiles of this side (px, as `aat-infer --tile`); 0 = whole image")
     ap.add_argument("--out", default=str(ROOT / "benchmarks/results"))
     ap.add_argument("--figures", default=str(ROOT / "benchmarks/figures"))
     a = ap.parse_args(argv)
@@ -179,12 +181,12 @@ def main(argv: list[str] | None = None) -> int:
     for protocol in a.protocol:
         spec = TestSetSpec(spec_l["lens"], spec_l["psf"], spec_l["stack_size"], protocol=protocol, n_procedural=a.n)
         sets = load_test_set(spec, str(ROOT / "cache/heldout"))
-        result = {"lens": a.lens, "protocol": protocol, "spec": spec.__dict__, "sets": {}}
+        result = {"lens": a.lens, "protocol": protocol, "spec": spec.__dict__, "tile_px": a.tile, "sets": {}}
         for sname, items in sets.items():
             rows, per_model, maps = [], {}, {}
             for path in paths:
                 t0 = time.time()
-                per, err_map, meta = run_model(path, items, a.threads)
+                per, err_map, meta = run_model(path, items, a.threads, a.tile or None)
                 lab = label_of(meta, path)
                 per_model[lab] = per
                 maps[lab] = err_map
@@ -208,7 +210,8 @@ def main(argv: list[str] | None = None) -> int:
                         ratios[f"{lab} / {twin}"] = {k: paired_ratio(per_model[lab], per_model[twin], k)
                                                      for k in ("mae", "mae_centre", "mae_outer")}
             if a.figures and maps:
-                field_figures(maps, Path(a.figures) / f"table2_{a.lens}_{protocol}_{sname}.png",
+                field_figures(maps, Path(a.figures) / f"table2_{a.lens}_{protocol}{f'_tile{a.tile}' if a.tile else ''}"
+                                    f"_{sname}.png",
                               f"{a.lens}, {protocol} protocol, {sname}: MAE vs field radius")
             result["sets"][sname] = {"n_scenes": len(items), "rows": dict(rows), "ratios": ratios,
                                      "per_scene": per_model}
@@ -220,7 +223,7 @@ def main(argv: list[str] | None = None) -> int:
                 print("\n| ratio (AAT / thin, paired over scenes) | MAE | MAE centre | MAE outer |\n|---|---|---|---|")
                 for k, r in ratios.items():
                     print(f"| {k} | {fmt(r['mae'], 3)} | {fmt(r['mae_centre'], 3)} | {fmt(r['mae_outer'], 3)} |")
-        out = Path(a.out) / f"table2_{a.lens}_{protocol}.json"
+        out = Path(a.out) / f"table2_{a.lens}_{protocol}{f'_tile{a.tile}' if a.tile else ''}.json"
         out.parent.mkdir(parents=True, exist_ok=True)
         write_text_atomic(out, json.dumps(result, indent=1, default=float))
         print(f"\nwrote {out}", file=sys.stderr)
