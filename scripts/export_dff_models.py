@@ -10,9 +10,11 @@ with an onnxruntime-vs-torch parity check at three shapes.
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # `training` is the repository's, not an installed package
 NAMES = ["dff_dfvnet_aat", "dff_dfvnet_thin", "dff_aifnet_aat", "dff_aifnet_thin"]
 
 
