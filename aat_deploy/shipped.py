@@ -5,7 +5,7 @@ In a clone (editable install, or PYTHONPATH) they are the repository's `models/`
 (pyproject.toml, `[tool.setuptools.data-files]`), found through the distribution's file list, so a venv, a
 `--user` install and a system install all work from any folder.
 
-Commands take a shipped file by name: `--model dff_dfvnet_aat` (or `models/dff_dfvnet_aat.onnx` from any folder),
+Commands take a shipped file by name: `--model rf50_dfvnet_aat` (or `models/rf50_dfvnet_aat.onnx` from any folder),
 `aat-lens info canon_rf50mm_f1.8`. A path that exists always wins.
 """
 

@@ -36,7 +36,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = parser("aat-infer", __doc__.split("\n")[0])
     ap.add_argument("captures", nargs="+", metavar="CAPTURE_DIR", help="capture folder(s): frames + focus distances")
     ap.add_argument("--model", type=Path, metavar="M.onnx", help="aat DfF model: a .onnx file or a shipped model's "
-                    "name (dff_dfvnet_aat, ...); required unless --method focus")
+                    "name (rf50_dfvnet_aat, ...); required unless --method focus")
     ap.add_argument("--method", choices=("model", "focus"), default="model",
                     help="model (a trained DfF net, default) or focus (classical focus measures, no model)")
     ap.add_argument("--lens", type=Path, help="--method focus: lens file, for its best-focus map (aberration-aware)")
