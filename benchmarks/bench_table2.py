@@ -4,6 +4,7 @@ lens, tested on held-out stacks rendered through that lens (training/train/tests
     OMP_WAIT_POLICY=PASSIVE python benchmarks/bench_table2.py --lens paper50 --protocol paper fixed [--n 32]
     OMP_WAIT_POLICY=PASSIVE python benchmarks/bench_table2.py --lens rf50 --protocol fixed
     ... [--models A.onnx B.onnx ...] [--no-classical] [--tile 192] [--out benchmarks/results]
+    ... --effects noise,vignetting,raw_pipeline     (capture effects on the test stacks; the nets never saw them)
 
 Models default to `models/<lens>_{dfvnet,aifnet}_{aat,thin}[_field].onnx` that exist. They run with onnxruntime
 exactly as `aat-infer` runs them (aat_deploy.model.DfFModel; a field-aware model gets each pixel's sensor position).
@@ -14,7 +15,8 @@ Metrics per image, then the mean over images (aat_deploy.metrics), depth in metr
 ground truth; MAE in the centre (normalised field radius < 0.33) and the outer field (> 0.66); all-in-focus PSNR
 and SSIM (normalised units, data range 1). 95 % intervals: bootstrap over scenes (procedural set; Middlebury is
 one scene, no interval). "ratio" rows: mean MAE of the AAT model / mean MAE of its thin-lens twin, with a paired
-bootstrap interval over scenes; the same for each AAT model against the aberration-aware classical method. Results
+bootstrap interval over scenes; the same for each AAT model against the aberration-aware classical method, and for
+a field-aware model against the same net without field channels. Results
 as JSON in --out, tables printed (markdown) for BENCHMARKS.md.
 """
 
@@ -171,6 +173,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--tile", type=int, default=0,
                     help="run the nets in tiles of this side (px, as `aat-infer --tile`); 0 = whole image")
+    ap.add_argument("--effects", default="",
+                    help="capture effects rendered on top of the test stacks (comma-separated, as aat-render "
+                         "--effects), e.g. noise,vignetting,raw_pipeline; results get a _fx-<names> suffix")
     ap.add_argument("--out", default=str(ROOT / "benchmarks/results"))
     ap.add_argument("--figures", default=str(ROOT / "benchmarks/figures"))
     a = ap.parse_args(argv)
@@ -180,10 +185,15 @@ def main(argv: list[str] | None = None) -> int:
     paths = [Path(m) for m in a.models] if a.models else sorted((ROOT / "models").glob(f"{a.lens}_*.onnx"))
     if not paths and a.no_classical:
         raise SystemExit(f"no models for {a.lens}: pass --models")
+    effects = tuple(e.strip() for e in a.effects.split(",") if e.strip())
+    suffix = (f"_tile{a.tile}" if a.tile else "") + ("_fx-" + "-".join(e.split(":")[0] for e in effects)
+                                                     if effects else "")
     for protocol in a.protocol:
-        spec = TestSetSpec(spec_l["lens"], spec_l["psf"], spec_l["stack_size"], protocol=protocol, n_procedural=a.n)
+        spec = TestSetSpec(spec_l["lens"], spec_l["psf"], spec_l["stack_size"], protocol=protocol, n_procedural=a.n,
+                           effects=effects)
         sets = load_test_set(spec, str(ROOT / "cache/heldout"))
-        result = {"lens": a.lens, "protocol": protocol, "spec": spec.__dict__, "tile_px": a.tile, "sets": {}}
+        result = {"lens": a.lens, "protocol": protocol, "spec": spec.__dict__, "tile_px": a.tile,
+                  "effects": list(effects), "sets": {}}
         for sname, items in sets.items():
             rows, per_model, maps = [], {}, {}
             for path in paths:
@@ -207,18 +217,21 @@ def main(argv: list[str] | None = None) -> int:
             ratios = {}
             for lab in per_model:
                 if lab.startswith("AAT "):
-                    # its thin-lens twin, and the classical baseline on the same stacks (the "<= 0.7 x" target)
-                    for ref in ("Baseline " + lab[4:].replace(" + field", ""), CLASSICAL_AA):
+                    # its thin-lens twin, the classical baseline on the same stacks (the "<= 0.7 x" target) and,
+                    # for a field-aware net, the same net without field channels (the ablation)
+                    refs = ["Baseline " + lab[4:].replace(" + field", ""), CLASSICAL_AA]
+                    if lab.endswith(" + field"):
+                        refs.append(lab[:-len(" + field")])
+                    for ref in refs:
                         if ref in per_model:
                             ratios[f"{lab} / {ref}"] = {k: paired_ratio(per_model[lab], per_model[ref], k)
                                                         for k in ("mae", "mae_centre", "mae_outer")}
             if a.figures and maps:
-                field_figures(maps, Path(a.figures) / f"table2_{a.lens}_{protocol}{f'_tile{a.tile}' if a.tile else ''}"
-                                    f"_{sname}.png",
+                field_figures(maps, Path(a.figures) / f"table2_{a.lens}_{protocol}{suffix}_{sname}.png",
                               f"{a.lens}, {protocol} protocol, {sname}: MAE vs field radius")
             result["sets"][sname] = {"n_scenes": len(items), "rows": dict(rows), "ratios": ratios,
                                      "per_scene": per_model}
-            print(f"\n### {a.lens}, protocol {protocol}"
+            print(f"\n### {a.lens}, protocol {protocol}{', effects ' + ','.join(effects) if effects else ''}"
                   f"{' (focus from each scene’s ground-truth range)' if protocol == 'paper' else ''}: "
                   f"{sname}, {len(items)} stack{'s' if len(items) > 1 else ''}\n")
             print(table(rows))
@@ -226,7 +239,7 @@ def main(argv: list[str] | None = None) -> int:
                 print("\n| ratio (paired over scenes) | MAE | MAE centre | MAE outer |\n|---|---|---|---|")
                 for k, r in ratios.items():
                     print(f"| {k} | {fmt(r['mae'], 3)} | {fmt(r['mae_centre'], 3)} | {fmt(r['mae_outer'], 3)} |")
-        out = Path(a.out) / f"table2_{a.lens}_{protocol}{f'_tile{a.tile}' if a.tile else ''}.json"
+        out = Path(a.out) / f"table2_{a.lens}_{protocol}{suffix}.json"
         out.parent.mkdir(parents=True, exist_ok=True)
         write_text_atomic(out, json.dumps(result, indent=1, default=float))
         print(f"\nwrote {out}", file=sys.stderr)

@@ -2,7 +2,9 @@
 
 A test set is whole-sensor stacks rendered through one lens with its PSFs (the `aat` simulator): procedural
 scenes from their own seed, textured with the held-out photographs (training.data.textures, "test" split) and
-random depth ranges, plus the real Middlebury 2014 Motorcycle scene scaled to cover the sensor. Two focus
+random depth ranges, plus the real Middlebury 2014 Motorcycle scene scaled to cover the sensor; optionally with
+capture effects on top (`effects`: sensor noise, vignetting, RAW development...), to test the nets on stacks that
+look like a camera's rather than the simulator's. Two focus
 protocols:
 - "fixed": the camera-like schedule, `stack_size` distances even in diopters over [focus_near_m, focus_far_m],
   never looking at the scene;
@@ -41,6 +43,7 @@ class TestSetSpec:
     middlebury: bool = True
     simulator: str = "aat"
     cell_px: int = 64
+    effects: tuple = ()  # capture effects on top of the simulator (aat_deploy.render.effects names, 'name:k=v')
 
     def __post_init__(self):
         if self.protocol not in PROTOCOLS:
@@ -50,6 +53,10 @@ class TestSetSpec:
         """Hash of what defines the Middlebury item (the procedural items are cached by their dataset's key)."""
         d = asdict(self)
         d.pop("n_procedural")
+        if not self.effects:
+            d.pop("effects")  # sets without effects hash (and stay cached) as before the field existed
+        else:
+            d["effects"] = list(self.effects)
         return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:12]
 
 
@@ -79,7 +86,7 @@ def _dataset(spec: TestSetSpec, cache_dir: str | None):
                           photo_fraction=spec.photo_fraction, photo_split="test",
                           schedule="scene" if spec.protocol == "paper" else "fixed", scene_perturb=0.25,
                           n_items=max(1, spec.n_procedural), seed=spec.seed, margin_px=0, cell_px=spec.cell_px,
-                          cache_dir=cache_dir)
+                          effects=tuple(spec.effects), cache_dir=cache_dir)
     return FocalStackDataset(cfg)
 
 
@@ -104,7 +111,9 @@ def _middlebury(spec: TestSetSpec, ds, cache_dir: str | None) -> TestItem:
     else:
         focus = ds.schedule.distances()
     img = torch.from_numpy(rgb.transpose(2, 0, 1).copy()).float()
-    st = ds.sim.render_stack(img, torch.from_numpy(fill_holes(gt)).float(), focus)
+    # seeded: effects that draw (noise) render the same stack every time
+    st = ds.sim.render_stack(img, torch.from_numpy(fill_holes(gt)).float(), focus,
+                             rng=np.random.default_rng([spec.seed, 1 << 21]))
     frames = st.frames.numpy()
     p = normalise_scale(frames)
     item = TestItem("middlebury", scaled(frames, p), st.focus_m.astype(np.float32), gt.astype(np.float32),

@@ -49,3 +49,24 @@ def test_protocols(small_lens, tmp_path):
         assert it.focus_m[0] >= d.min() - 0.26 * step and it.focus_m[-1] <= d.max() + 0.26 * step
     mb = paper["middlebury"][0].depth_m
     assert 2.0 < mb[mb > 0].min() and mb.max() < 5.2  # Motorcycle spans 2.1-5.0 m
+
+
+def test_effects_render_seeded_and_apart(small_lens, tmp_path):
+    """Capture effects on a test set: a different cache entry, the same stack on every render (seeded noise,
+    Middlebury too), and not the effect-free stack."""
+    clean = load_test_set(_spec(small_lens, "fixed", n=1), str(tmp_path), progress=False)
+    noisy_spec = TestSetSpec(small_lens, None, 5, n_procedural=1, simulator="thin_lens", effects=("noise",))
+    a = load_test_set(noisy_spec, str(tmp_path / "a"), progress=False)
+    b = load_test_set(noisy_spec, str(tmp_path / "b"), progress=False)  # rendered afresh elsewhere
+    assert noisy_spec.key() != _spec(small_lens, "fixed", n=1).key()
+    for s in ("procedural", "middlebury"):
+        np.testing.assert_array_equal(a[s][0].stack, b[s][0].stack)
+        assert np.abs(a[s][0].stack - clean[s][0].stack).mean() > 1e-3
+        np.testing.assert_array_equal(a[s][0].depth_m, clean[s][0].depth_m)
+
+
+def test_key_without_effects_is_unchanged():
+    """Adding the `effects` field must not invalidate the test sets already rendered (hash of the RF50 set before
+    the field existed)."""
+    spec = TestSetSpec("lenses/canon_rf50mm_f1.8.json", "models/psf_rf50.onnx", 8)
+    assert spec.key() == "23d99424ccfa"
