@@ -32,7 +32,7 @@ from .outputs import DepthMaps, RecordingInputs, to_srgb8, write_outputs
 from .process import depth_from_frames
 from .shipped import resolve
 
-DEFAULT_MODEL = "rf50_dfvnet_aat"
+DEFAULT_MODEL = "rf50_dfvnet_aat_field"
 
 
 @dataclass

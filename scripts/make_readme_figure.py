@@ -2,7 +2,7 @@
 """The README's picture: the shipped sample's focal stack, then its all-in-focus image and depth from the shipped
 DFVNet, next to the ground truth the virtual camera rendered it from.
 
-    python scripts/make_readme_figure.py [--out docs/sample.png] [--model rf50_dfvnet_aat]
+    python scripts/make_readme_figure.py [--out docs/sample.png] [--model rf50_dfvnet_aat_field]
 """
 
 from __future__ import annotations
@@ -55,7 +55,7 @@ def figure(out: Path, model: str) -> dict:
         ax.set_title(title, fontsize=10)
         ax.axis("off")
     fig.suptitle("captures/sample_rf50: 8 RAW frames through the Canon RF50mm F1.8 (virtual camera) -> "
-                 "aat-infer --model rf50_dfvnet_aat", fontsize=10)
+                 "aat-infer --model rf50_dfvnet_aat_field", fontsize=10)
     out.parent.mkdir(parents=True, exist_ok=True)
     with atomic_file(out) as tmp:
         fig.savefig(tmp, bbox_inches="tight", dpi=100)
@@ -66,7 +66,7 @@ def figure(out: Path, model: str) -> dict:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "sample.png")
-    ap.add_argument("--model", default="rf50_dfvnet_aat")
+    ap.add_argument("--model", default="rf50_dfvnet_aat_field")
     a = ap.parse_args()
     info = figure(a.out, a.model)
     print(f"wrote {info['out']} (depth MAE against the ground truth {info['mae_m']:.3f} m)")
