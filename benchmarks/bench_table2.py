@@ -16,7 +16,8 @@ ground truth; MAE in the centre (normalised field radius < 0.33) and the outer f
 and SSIM (normalised units, data range 1). 95 % intervals: bootstrap over scenes (procedural set; Middlebury is
 one scene, no interval). "ratio" rows: mean MAE of the AAT model / mean MAE of its thin-lens twin, with a paired
 bootstrap interval over scenes; the same for each AAT model against the aberration-aware classical method, and for
-a field-aware model against the same net without field channels. Results
+a field-aware or AiF-loss model against the same net without; beside each, the paired difference of AiF PSNR
+(dB, the paper's Table 3 comparison). Results
 as JSON in --out, tables printed (markdown) for BENCHMARKS.md.
 """
 
@@ -43,6 +44,8 @@ KEYS = ("mae", "mse", "rmse", "abs_rel", "sq_rel", "delta1", "delta2", "delta3",
         "psnr", "ssim")
 N_BOOT = 2000
 CLASSICAL_AA = "Classical focus, aberration-aware"
+AIF_LOSS = " + AiF loss"  # label suffix of the nets fine-tuned with an all-in-focus term (configs/table2/*_aif.json)
+ABLATIONS = (" + field", AIF_LOSS)
 
 
 def score(depth_m: np.ndarray, gt_m: np.ndarray, aif: np.ndarray | None, aif_ref: np.ndarray | None) -> dict:
@@ -87,6 +90,21 @@ def paired_ratio(a: list[dict], b: list[dict], key: str = "mae") -> list[float]:
     rng = np.random.default_rng(2)
     idx = rng.integers(0, len(x), size=(N_BOOT, len(x)))
     reps = x[idx].mean(1) / y[idx].mean(1)
+    return [est, float(np.quantile(reps, 0.025)), float(np.quantile(reps, 0.975))]
+
+
+def paired_diff(a: list[dict], b: list[dict], key: str = "psnr") -> list[float]:
+    """mean(a[key] - b[key]) over the scenes where both are finite, with a paired bootstrap interval (the AiF
+    PSNR comparison of the paper's Table 3, in dB)."""
+    d = np.array([x[key] - y[key] for x, y in zip(a, b)], np.float64)
+    d = d[np.isfinite(d)]
+    if d.size == 0:
+        return [float("nan")] * 3
+    est = float(d.mean())
+    if d.size < 2:
+        return [est, float("nan"), float("nan")]
+    rng = np.random.default_rng(3)
+    reps = d[rng.integers(0, d.size, size=(N_BOOT, d.size))].mean(1)
     return [est, float(np.quantile(reps, 0.025)), float(np.quantile(reps, 0.975))]
 
 
@@ -141,7 +159,8 @@ def classical_methods(lens_path: str):
 def label_of(meta: dict, path: Path) -> str:
     net = {"dfvnet": "DFVNet", "aifnet": "AiFNet"}.get(str(meta.get("aat.net")), path.stem)
     sim = "AAT" if meta.get("aat.simulator") == "aat" else "Baseline"
-    return f"{sim} {net}" + (" + field" if meta.get("aat.field_channels") else "")
+    return (f"{sim} {net}" + (" + field" if int(meta.get("aat.field_channels") or 0) else "")
+            + (AIF_LOSS if str(meta.get("aat.config_name", "")).endswith("_aif") else ""))
 
 
 def fmt(v: list[float], digits: int = 4) -> str:
@@ -219,13 +238,13 @@ def main(argv: list[str] | None = None) -> int:
                 if lab.startswith("AAT "):
                     # its thin-lens twin, the classical baseline on the same stacks (the "<= 0.7 x" target) and,
                     # for a field-aware net, the same net without field channels (the ablation)
-                    refs = ["Baseline " + lab[4:].replace(" + field", ""), CLASSICAL_AA]
-                    if lab.endswith(" + field"):
-                        refs.append(lab[:-len(" + field")])
+                    twin = "Baseline " + lab[4:].replace(" + field", "")
+                    refs = [twin, CLASSICAL_AA] + [lab[:-len(x)] for x in ABLATIONS if lab.endswith(x)]
                     for ref in refs:
                         if ref in per_model:
                             ratios[f"{lab} / {ref}"] = {k: paired_ratio(per_model[lab], per_model[ref], k)
                                                         for k in ("mae", "mae_centre", "mae_outer")}
+                            ratios[f"{lab} / {ref}"]["psnr_diff_db"] = paired_diff(per_model[lab], per_model[ref])
             if a.figures and maps:
                 field_figures(maps, Path(a.figures) / f"table2_{a.lens}_{protocol}{suffix}_{sname}.png",
                               f"{a.lens}, {protocol} protocol, {sname}: MAE vs field radius")
@@ -236,9 +255,11 @@ def main(argv: list[str] | None = None) -> int:
                   f"{sname}, {len(items)} stack{'s' if len(items) > 1 else ''}\n")
             print(table(rows))
             if ratios:
-                print("\n| ratio (paired over scenes) | MAE | MAE centre | MAE outer |\n|---|---|---|---|")
+                print("\n| ratio (paired over scenes) | MAE | MAE centre | MAE outer | AiF PSNR difference (dB) |"
+                      "\n|---|---|---|---|---|")
                 for k, r in ratios.items():
-                    print(f"| {k} | {fmt(r['mae'], 3)} | {fmt(r['mae_centre'], 3)} | {fmt(r['mae_outer'], 3)} |")
+                    print(f"| {k} | {fmt(r['mae'], 3)} | {fmt(r['mae_centre'], 3)} | {fmt(r['mae_outer'], 3)} | "
+                          f"{fmt(r['psnr_diff_db'], 2)} |")
         out = Path(a.out) / f"table2_{a.lens}_{protocol}{suffix}.json"
         out.parent.mkdir(parents=True, exist_ok=True)
         write_text_atomic(out, json.dumps(result, indent=1, default=float))

@@ -47,3 +47,24 @@ def test_summarise_ignores_missing_aif_and_brackets_the_mean(bench):
     m, lo, hi = out["mae"]
     assert m == pytest.approx(3.0) and 1.0 <= lo < m < hi <= 5.0
     assert all(np.isnan(out["psnr"]))
+
+
+def test_paired_diff_of_a_constant_offset_has_no_spread(bench):
+    a = [{"psnr": v + 0.5} for v in (20.0, 25.0, 30.0)]
+    b = [{"psnr": v} for v in (20.0, 25.0, 30.0)]
+    assert bench.paired_diff(a, b) == pytest.approx([0.5, 0.5, 0.5])
+
+
+def test_paired_diff_skips_scenes_without_aif_and_brackets_the_mean(bench):
+    a = [{"psnr": x} for x in (21.0, 22.0, float("nan"), 30.0)]
+    b = [{"psnr": x} for x in (20.0, 20.0, 25.0, 27.0)]
+    est, lo, hi = bench.paired_diff(a, b)  # differences 1, 2, 3 (the NaN scene left out)
+    assert est == pytest.approx(2.0) and 1.0 <= lo < est < hi <= 3.0
+    assert np.isnan(bench.paired_diff(a[:1], b[:1])[1])  # one scene: no interval
+
+
+def test_labels(bench):
+    meta = {"aat.net": "aifnet", "aat.simulator": "aat", "aat.config_name": "paper50_aifnet_aat_aif"}
+    assert bench.label_of(meta, Path("x.onnx")) == "AAT AiFNet + AiF loss"
+    meta = {"aat.net": "dfvnet", "aat.simulator": "thin_lens", "aat.field_channels": "0"}
+    assert bench.label_of(meta, Path("x.onnx")) == "Baseline DFVNet"
