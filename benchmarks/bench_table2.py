@@ -205,6 +205,11 @@ def main(argv: list[str] | None = None) -> int:
     if not paths and a.no_classical:
         raise SystemExit(f"no models for {a.lens}: pass --models")
     effects = tuple(e.strip() for e in a.effects.split(",") if e.strip())
+    try:  # a misspelt effect: one line before anything is rendered
+        from aat_deploy.render import effects as fx
+        fx.parse(list(effects))
+    except ValueError as e:
+        raise SystemExit(f"bench_table2.py: --effects: {e}")
     suffix = (f"_tile{a.tile}" if a.tile else "") + ("_fx-" + "-".join(e.split(":")[0] for e in effects)
                                                      if effects else "")
     for protocol in a.protocol:
