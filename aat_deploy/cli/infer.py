@@ -2,6 +2,7 @@
 
     aat-infer CAPTURE_DIR... --model M.onnx [--out DIR] [--force] [--strict] [--threads N] [--tile N] [--align]
     aat-infer CAPTURE_DIR... --method focus [--lens LENS | --psf PSF.onnx] [--focus-m 0.6,0.8,...] [--max-side N]
+                             [--prefilter-px SIGMA]
 
 --method focus needs no trained model: classical depth from focus (aat_deploy.focus) at the capture's own
 resolution, aberration-aware with the lens's best-focus map (--lens, --psf). It also writes confidence.npy/png.
@@ -23,6 +24,7 @@ from pathlib import Path
 
 from ..capture.focuslist import parse_focus_list
 from ..errors import CaptureError, safe_output_streams
+from ..focus.method import FocusConfig
 from ..focus.runner import FocusMethod
 from ..model import DfFModel
 from ..pipeline import Options, check_output, output_dir_for, output_dirs, run_capture
@@ -45,6 +47,10 @@ def main(argv: list[str] | None = None) -> int:
                     "for files without focus metadata (overrides capture.json)")
     ap.add_argument("--max-side", type=int, metavar="N",
                     help="--method focus: work at most this many px on the longer side")
+    ap.add_argument("--prefilter-px", type=float, metavar="SIGMA",
+                    help="--method focus: Gaussian blur of each frame before the focus measure, standard deviation "
+                         f"in px at the working size (default {FocusConfig.prefilter_px:g}, chosen on validation "
+                         "stacks; more for noisy high-ISO frames, 0 = none)")
     ap.add_argument("--out", type=Path, metavar="DIR", help="output folder: DIR itself for one capture, "
                     "DIR/<capture name>/ for several (default ./aat_out/<capture name>/)")
     ap.add_argument("--force", action="store_true", help="replace existing output folders (earlier aat-infer "
@@ -65,10 +71,12 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--tile must be >= 16 px")
     if args.method == "model" and args.model is None:
         ap.error("--model is required (or --method focus, which needs no trained model)")
-    if args.method == "model" and (args.lens or args.psf or args.max_side):
-        ap.error("--lens, --psf and --max-side belong to --method focus")
+    if args.method == "model" and (args.lens or args.psf or args.max_side or args.prefilter_px is not None):
+        ap.error("--lens, --psf, --max-side and --prefilter-px belong to --method focus")
     if args.method == "focus" and args.model is not None:
         ap.error("--method focus uses no --model")
+    if args.prefilter_px is not None and not 0 <= args.prefilter_px <= 50:
+        ap.error("--prefilter-px must be between 0 and 50 px")
     if args.max_side is not None and args.max_side < 16:
         ap.error("--max-side must be >= 16 px")
     if args.model is not None:
@@ -87,7 +95,8 @@ def main(argv: list[str] | None = None) -> int:
             refused[i] = e
     try:
         focus_m = parse_focus_list(args.focus_m) if args.focus_m is not None else None
-        model = (FocusMethod(lens=args.lens, psf=args.psf, max_side=args.max_side, progress=not args.quiet)
+        config = FocusConfig() if args.prefilter_px is None else FocusConfig(prefilter_px=args.prefilter_px)
+        model = (FocusMethod(config, lens=args.lens, psf=args.psf, max_side=args.max_side, progress=not args.quiet)
                  if args.method == "focus" else DfFModel(args.model, threads=args.threads))
     except CaptureError as e:
         print(f"aat-infer: error: {e}", file=sys.stderr)

@@ -14,6 +14,9 @@ has that pixel in focus. The measures here are the ones the literature ranks hig
   level sees only blur (far from every frame's focus).
 
 Windows are Gaussian with standard deviation `window_px / 4` (a window of about `window_px` pixels).
+`prefilter_px` > 0 blurs each grey frame first (Gaussian, that standard deviation in px): the measures are
+high-pass, so without it sensor noise (whose spectrum is flat up to the pixel pitch) dominates them wherever the
+frames are out of focus, and the per-pixel argmax picks noise.
 """
 
 from __future__ import annotations
@@ -74,14 +77,23 @@ def tenengrad(g: np.ndarray, window_px: float = 9, step: int = 1) -> np.ndarray:
 _SINGLE = {"lape": lape, "sml": sml, "mlap2": mlap2, "tenengrad": tenengrad}
 
 
+def prefilter(g: np.ndarray, sigma_px: float) -> np.ndarray:
+    """Gaussian blur of each grey frame (S, H, W) with standard deviation sigma_px (px); 0 returns g."""
+    if not sigma_px:
+        return g
+    if sigma_px < 0:
+        raise ValueError(f"prefilter_px must be >= 0, got {sigma_px}")
+    return np.stack([cv2.GaussianBlur(f, (0, 0), float(sigma_px), borderType=cv2.BORDER_REFLECT) for f in g])
+
+
 def focus_volume(stack: np.ndarray, measure: str = "mlap2", window_px: float = 9, step: int = 1,
-                 levels: int = 3) -> np.ndarray:
+                 levels: int = 3, prefilter_px: float = 0.0) -> np.ndarray:
     """Focus measure of every frame: stack (S, 3, H, W) or grey (S, H, W) -> (S, H, W) float32 >= 0.
 
     `levels` is used by `multiscale` only (pyramid levels 0..levels-1)."""
     if measure not in MEASURES:
         raise ValueError(f"unknown focus measure {measure!r} (one of {', '.join(MEASURES)})")
-    g = grey(stack)
+    g = prefilter(grey(stack), prefilter_px)
     if measure in _SINGLE:
         fn = _SINGLE[measure]
         return np.stack([fn(f, window_px, step) for f in g])

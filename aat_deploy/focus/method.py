@@ -29,7 +29,8 @@ FILL_MODES = ("none", "fill")
 
 @dataclass(frozen=True)
 class FocusConfig:
-    """measure / window_px: focus measure and its window (px); estimator: peak refinement (gamma: the `ratio`
+    """measure / window_px: focus measure and its window (px); prefilter_px: Gaussian blur of each grey frame
+    before the measure (standard deviation, px; 0 = none), against sensor noise; estimator: peak refinement (gamma: the `ratio`
     estimator's tail exponent, None = per measure, see `tail_exponent`); aif: blending mode and
     power; fill: "fill" (edge-aware filling of unconfident pixels) or "none", with the domain transform's spatial
     sigma (px at full size), range sigma (guide units, sqrt of the normalised AiF) and the confidence at which a
@@ -38,6 +39,7 @@ class FocusConfig:
 
     measure: str = "mlap2"
     window_px: float = 15.0
+    prefilter_px: float = 0.0
     estimator: str = "ratio"
     gamma: float | None = None
     aif: str = "weights"
@@ -61,8 +63,8 @@ class FocusConfig:
                                  ("aif", self.aif, AIF_MODES), ("fill", self.fill, FILL_MODES)):
             if v not in allowed:
                 raise ValueError(f"unknown {name} {v!r} (one of {', '.join(allowed)})")
-        if not self.window_px > 0 or self.radius_bins < 2:
-            raise ValueError("window_px must be > 0 and radius_bins >= 2")
+        if not self.window_px > 0 or self.radius_bins < 2 or not self.prefilter_px >= 0:
+            raise ValueError("window_px must be > 0, prefilter_px >= 0 and radius_bins >= 2")
 
 
 @dataclass
@@ -110,7 +112,8 @@ def depth_from_focus(stack: np.ndarray, focus_m, best_focus: BestFocusMap | None
     if not np.all(np.isfinite(f)) or np.any(f <= 0):
         raise ValueError(f"focus distances must be finite and > 0 m, got {f.tolist()}")
     warnings: list[str] = []
-    vol = focus_volume(stack, config.measure, config.window_px) if volume is None else volume
+    vol = (focus_volume(stack, config.measure, config.window_px, prefilter_px=config.prefilter_px)
+           if volume is None else volume)
     lap("measure")
 
     placements: list[dict] = []

@@ -22,6 +22,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from aat_deploy.focus import FocusConfig
 from aat_deploy.focus.bestfocus import BestFocusMap
 from aat_deploy.focus.measures import focus_volume
 
@@ -29,8 +30,8 @@ from aat_deploy.focus.measures import focus_volume
 @dataclass(frozen=True)
 class CalibrationConfig:
     """radii: field radii (normalised, on the diagonal); focus_m: frame focus settings (m from the sensor);
-    sweep_d / n_sweep: the dense frame sweep around each; crop_px: patch side; n_textures; measure / window_px:
-    the focus measure calibrated (the runtime's default, `aat_deploy.focus.FocusConfig`); psf: "trace" (real rays) or a surrogate .onnx path."""
+    sweep_d / n_sweep: the dense frame sweep around each; crop_px: patch side; n_textures; measure / window_px /
+    prefilter_px: the focus measure calibrated (the runtime's defaults, `aat_deploy.focus.FocusConfig`); psf: "trace" (real rays) or a surrogate .onnx path."""
 
     radii: tuple = (0.0, 0.3, 0.5, 0.65, 0.8, 0.9)
     focus_m: tuple = (0.6, 1.0, 2.0, 5.0)
@@ -39,8 +40,9 @@ class CalibrationConfig:
     crop_px: int = 64
     margin_px: int = 24
     n_textures: int = 3
-    measure: str = "mlap2"
-    window_px: float = 15.0
+    measure: str = FocusConfig.measure
+    window_px: float = FocusConfig.window_px
+    prefilter_px: float = FocusConfig.prefilter_px
     psf: str = "trace"
     seed: int = 0
 
@@ -92,7 +94,8 @@ def measure_point(lens, fmap: BestFocusMap, r: float, focus_m: float, cfg: Calib
         depth = torch.full((n, n), 1.0 / d_star)
         st = sim.render_stack(img, depth, 1.0 / fd, origin=(int(round(row)), int(round(col))))
         frames = st.frames.numpy()
-        vol = focus_volume(frames / max(float(frames.max()), 1e-12), cfg.measure, cfg.window_px)
+        vol = focus_volume(frames / max(float(frames.max()), 1e-12), cfg.measure, cfg.window_px,
+                           prefilter_px=cfg.prefilter_px)
         m = cfg.margin_px
         curve += vol[:, m:m + cfg.crop_px, m:m + cfg.crop_px].mean((1, 2))
     f_peak = _peak_log(fd, curve)

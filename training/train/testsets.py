@@ -44,15 +44,20 @@ class TestSetSpec:
     simulator: str = "aat"
     cell_px: int = 64
     effects: tuple = ()  # capture effects on top of the simulator (aat_deploy.render.effects names, 'name:k=v')
+    photo_split: str = "test"  # "train": validation sets (with their own seed) for choosing settings, never tests
 
     def __post_init__(self):
         if self.protocol not in PROTOCOLS:
             raise ValueError(f"protocol must be one of {PROTOCOLS}, got {self.protocol!r}")
+        if self.photo_split not in ("train", "test"):
+            raise ValueError(f"photo_split must be 'train' or 'test', got {self.photo_split!r}")
 
     def key(self) -> str:
         """Hash of what defines the Middlebury item (the procedural items are cached by their dataset's key)."""
         d = asdict(self)
         d.pop("n_procedural")
+        if self.photo_split == "test":
+            d.pop("photo_split")  # test sets hash (and stay cached) as before the field existed
         if not self.effects:
             d.pop("effects")  # sets without effects hash (and stay cached) as before the field existed
         else:
@@ -83,7 +88,7 @@ def _dataset(spec: TestSetSpec, cache_dir: str | None):
     cfg = StackDataConfig(simulator=spec.simulator, lens=lens_path, psf=spec.psf, height=sensor.height_px,
                           width=sensor.width_px, stack_size=spec.stack_size, focus_near_m=spec.focus_near_m,
                           focus_far_m=spec.focus_far_m, scene_range=spec.scene_range,
-                          photo_fraction=spec.photo_fraction, photo_split="test",
+                          photo_fraction=spec.photo_fraction, photo_split=spec.photo_split,
                           schedule="scene" if spec.protocol == "paper" else "fixed", scene_perturb=0.25,
                           n_items=max(1, spec.n_procedural), seed=spec.seed, margin_px=0, cell_px=spec.cell_px,
                           effects=tuple(spec.effects), cache_dir=cache_dir)
@@ -134,7 +139,7 @@ def load_test_set(spec: TestSetSpec, cache_dir: str | None = "cache/heldout", pr
 
     ds = _dataset(spec, cache_dir)
     out: dict[str, list[TestItem]] = {"procedural": []}
-    for i in tqdm(range(spec.n_procedural), desc=f"test set {spec.protocol}", disable=not progress, unit="stack"):
+    for i in tqdm(range(spec.n_procedural), desc=f"{'validation' if spec.photo_split == 'train' else 'test'} set {spec.protocol}", disable=not progress, unit="stack"):
         it = ds.load_or_render(i)
         out["procedural"].append(TestItem(f"procedural_{i:03d}", it["stack"].astype(np.float32), it["focus_m"],
                                           it["depth_m"], it["aif"]))

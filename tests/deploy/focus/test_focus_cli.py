@@ -88,6 +88,18 @@ def test_max_side_reduces_the_working_size(tmp_path):
     assert json.loads((out / "summary.json").read_text())["output_size_px"] == [32, 24]
 
 
+def test_prefilter_px_reaches_the_method_and_its_record(tmp_path):
+    cap = write_dng_capture(tmp_path / "cap", FOCUS)
+    runs = {}
+    for sigma in ("0", "2.5"):
+        out = tmp_path / f"o{sigma}"
+        assert main([str(cap), "--method", "focus", "--prefilter-px", sigma, "--out", str(out), "-q"]) == 0
+        s = json.loads((out / "summary.json").read_text())
+        assert s["method_info"]["config"]["prefilter_px"] == float(sigma)
+        runs[sigma] = np.load(out / "confidence.npy")
+    assert not np.array_equal(runs["0"], runs["2.5"])  # it changed what the measure saw
+
+
 def test_focus_method_with_the_lens_psf(tmp_path):
     """--psf: the map stamped in the shipped surrogate (aberration-aware), the lens's focal length in the recording."""
     cap = write_dng_capture(tmp_path / "cap", FOCUS, lens="Canon RF50mm F1.8 STM (US 2021/0263286 A1, Example 1)")
@@ -105,7 +117,9 @@ def test_cli_misuse_is_one_line(tmp_path, capsys):
     for argv, msg in (([str(cap)], "--model is required"),
                       ([str(cap), "--method", "focus", "--model", "m.onnx"], "uses no --model"),
                       ([str(cap), "--model", "m.onnx", "--lens", "x.json"], "belong to --method focus"),
-                      ([str(cap), "--method", "focus", "--max-side", "4"], "--max-side")):
+                      ([str(cap), "--method", "focus", "--max-side", "4"], "--max-side"),
+                      ([str(cap), "--model", "m.onnx", "--prefilter-px", "1"], "belong to --method focus"),
+                      ([str(cap), "--method", "focus", "--prefilter-px", "-1"], "--prefilter-px")):
         with pytest.raises(SystemExit) as e:
             main(argv)
         assert e.value.code == 2 and msg in capsys.readouterr().err

@@ -70,3 +70,18 @@ def test_key_without_effects_is_unchanged():
     the field existed)."""
     spec = TestSetSpec("lenses/canon_rf50mm_f1.8.json", "models/psf_rf50.onnx", 8)
     assert spec.key() == "23d99424ccfa"
+
+
+def test_validation_split_is_apart_from_the_test_set(small_lens, tmp_path):
+    """photo_split="train" (the validation sets settings are chosen on): its own cache entry and other scenes;
+    the test set's key is unchanged by the field; an unknown split is refused."""
+    test = _spec(small_lens, "fixed", n=1)
+    val = TestSetSpec(small_lens, None, 5, n_procedural=1, simulator="thin_lens", photo_split="train", seed=1)
+    assert val.key() != test.key()
+    a = load_test_set(test, str(tmp_path), progress=False)["procedural"][0]
+    b = load_test_set(val, str(tmp_path), progress=False)["procedural"][0]
+    assert np.abs(a.aif - b.aif).mean() > 1e-3
+    assert TestSetSpec("lenses/canon_rf50mm_f1.8.json", "models/psf_rf50.onnx", 8, photo_split="test").key() \
+        == "23d99424ccfa"
+    with pytest.raises(ValueError, match="photo_split"):
+        TestSetSpec(small_lens, None, 5, photo_split="val")
