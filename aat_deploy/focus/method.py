@@ -39,7 +39,7 @@ class FocusConfig:
 
     measure: str = "mlap2"
     window_px: float = 15.0
-    prefilter_px: float = 0.0
+    prefilter_px: float = 1.0  # chosen on validation stacks, clean and noisy (benchmarks/select_focus_prefilter.py)
     estimator: str = "ratio"
     gamma: float | None = None
     aif: str = "weights"

@@ -105,10 +105,13 @@ class _CropMap:
 @pytest.mark.parametrize("depth_m", [1.6, 2.5])
 @pytest.mark.parametrize("where", ["centre", "corner"])
 def test_rendered_plane_depth_recovered_centre_and_corner(where, depth_m):
-    """A photo-textured plane, 12 frames over 1.2-8 m (0.059 D apart), median over a 96 px patch: at the centre both
-    mappings are within 0.01 D; in the top-left corner (field radius about 0.8) the aberration-aware one is within
-    0.012 D and the thin-lens one is off by more than 0.015 D (measured 0.02 at 2.5 m, 0.04 at 1.6 m; aware
-    -0.009 and +0.009): the RF50's field curvature."""
+    """A photo-textured plane, 12 frames over 1.2-8 m (0.064 D apart), median over a 96 px patch, default settings:
+    at the centre both mappings are within 0.015 D (measured -0.012 / -0.013 at 1.6 m, +0.011 / +0.010 at 2.5 m: the
+    1 px pre-filter rounds the focus curve's peak, which the `ratio` estimator's power-law model places about a
+    fifth of a frame off; without it 0.003, but the pre-filter halves the error under noise, chosen on validation
+    stacks by benchmarks/select_focus_noise.py); in the top-left corner (field radius about 0.8) the
+    aberration-aware one is within 0.012 D and the thin-lens one is off by more than 0.015 D and twice as much
+    (measured thin 0.047 at 1.6 m and 0.077 at 2.5 m, aware 0.001 and -0.010): the RF50's field curvature."""
     focus = 1.0 / np.linspace(1 / 1.2, 1 / 8.0, 12)
     origin = (256, 416) if where == "centre" else (8, 12)
     frames = _plane_stack(depth_m, focus, origin)
@@ -117,7 +120,7 @@ def test_rendered_plane_depth_recovered_centre_and_corner(where, depth_m):
     thin = np.median(1 / _depth_on_sensor(frames, focus, None, origin).depth_m[inner]) - 1 / depth_m
     aware = np.median(1 / _depth_on_sensor(frames, focus, fmap, origin).depth_m[inner]) - 1 / depth_m
     if where == "centre":
-        assert abs(aware) < 0.01 and abs(thin) < 0.01, (thin, aware)
+        assert abs(aware) < 0.015 and abs(thin) < 0.015, (thin, aware)
     else:
         assert abs(aware) < 0.012 and abs(thin) > 0.015 and abs(aware) < 0.5 * abs(thin), (thin, aware)
 
