@@ -122,7 +122,8 @@ def classical(items, cfg, fmap=None, volumes=None) -> list[tuple]:
 
 
 def run_variants(items) -> list[tuple[str, dict]]:
-    """Measure x estimator (no filling), window, filling and AiF blending: thin-lens mapping."""
+    """Measure x estimator (no filling), window, pre-filter, filling and AiF blending: thin-lens mapping; every row
+    with the default pre-filter but the one that drops it."""
     from aat_deploy.focus import FocusConfig
     from aat_deploy.focus.measures import MEASURES, focus_volume
     from aat_deploy.metrics import psnr
@@ -130,7 +131,7 @@ def run_variants(items) -> list[tuple[str, dict]]:
     rows = []
     base = FocusConfig()
     for meas in MEASURES:
-        vols = [focus_volume(it.stack, meas, base.window_px) for it in items]
+        vols = [focus_volume(it.stack, meas, base.window_px, prefilter_px=base.prefilter_px) for it in items]
         for est in ("argmax", "parabola", "gauss", "ratio"):
             cfg = replace(base, measure=meas, estimator=est, fill="none")
             res = classical(items, cfg, volumes=vols)
@@ -141,6 +142,10 @@ def run_variants(items) -> list[tuple[str, dict]]:
         cfg = replace(base, window_px=w, fill="none")
         res = classical(items, cfg)
         rows.append((f"{base.measure}, {base.estimator}, window {w:g} px, no filling",
+                     summarise([score(d, it.depth_m) for (d, _), it in zip(res, items)])))
+    if base.prefilter_px:
+        res = classical(items, replace(base, prefilter_px=0.0, fill="none"))
+        rows.append((f"{base.measure}, {base.estimator}, no pre-filter, no filling",
                      summarise([score(d, it.depth_m) for (d, _), it in zip(res, items)])))
     for fill in ("fill",):
         res = classical(items, replace(base, fill=fill))
@@ -235,8 +240,9 @@ def main(argv: list[str] | None = None) -> int:
     if a.calibration:
         if fmap is None:
             raise SystemExit(f"no best-focus map {mp}")
-        print(f"### {a.lens}: where the focus measure peaks ({fmap.notes.get('calibration', {}).get('measure')}, "
-              f"window {fmap.notes.get('calibration', {}).get('window_px')} px) vs the traced best focus\n")
+        cal = fmap.notes.get("calibration", {})
+        print(f"### {a.lens}: where the focus measure peaks ({cal.get('measure')}, window {cal.get('window_px')} px, "
+              f"pre-filter {cal.get('prefilter_px', 0)} px) vs the traced best focus\n")
         print(calibration_table(fmap))
         return 0
     sets = load_items(a.lens, a.n)
