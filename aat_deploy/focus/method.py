@@ -30,8 +30,8 @@ FILL_MODES = ("none", "fill")
 @dataclass(frozen=True)
 class FocusConfig:
     """measure / window_px: focus measure and its window (px); prefilter_px: Gaussian blur of each grey frame
-    before the measure (standard deviation, px; 0 = none), against sensor noise; estimator: peak refinement (gamma: the `ratio`
-    estimator's tail exponent, None = per measure, see `tail_exponent`); aif: blending mode and
+    before the measure (standard deviation, px; 0 = none), against sensor noise; estimator: peak refinement
+    (gamma: the `ratio` estimator's tail exponent, None = per measure, see `tail_exponent`); aif: blending mode and
     power; fill: "fill" (edge-aware filling of unconfident pixels) or "none", with the domain transform's spatial
     sigma (px at full size), range sigma (guide units, sqrt of the normalised AiF) and the confidence at which a
     pixel keeps its own estimate; radius_bins: resolution of the aberration-aware lookup; calibrated: add the
@@ -39,7 +39,7 @@ class FocusConfig:
 
     measure: str = "mlap2"
     window_px: float = 15.0
-    prefilter_px: float = 1.0  # chosen on validation stacks, clean and noisy (benchmarks/select_focus_prefilter.py)
+    prefilter_px: float = 1.0  # chosen on validation stacks, clean and noisy (benchmarks/select_focus_noise.py)
     estimator: str = "ratio"
     gamma: float | None = None
     aif: str = "weights"
