@@ -8,7 +8,7 @@ fixed-schedule held-out set (training/train/testsets.py, the ones bench_table2 s
 pre-filter, a wider window, a different measure, and Gaussian pre-filters of each frame (`FocusConfig.prefilter_px`,
 sigma in px) before the focus measure. Prints the mean MAE (m) over the stacks. The variants are looked at on test
 scenes, so this probe chooses nothing: it says where the weakness lies. The runtime's pre-filter was chosen on
-validation stacks by benchmarks/select_focus_prefilter.py.
+validation stacks by benchmarks/select_focus_noise.py.
 """
 
 from __future__ import annotations

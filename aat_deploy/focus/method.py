@@ -85,6 +85,23 @@ class FocusResult:
     info: dict = field(default_factory=dict)
 
 
+def calibration_mismatch(best_focus: BestFocusMap, config: FocusConfig) -> str:
+    """Where `config`'s measure settings differ from those the map's calibration was measured with ("" if none, or
+    if the map does not say). The calibration is where that measure peaks: another measure peaks elsewhere."""
+    cal = best_focus.notes.get("calibration") if isinstance(best_focus.notes, dict) else None
+    if not isinstance(cal, dict) or "measure" not in cal:
+        return ""
+    made = {"measure": cal.get("measure"), "window_px": cal.get("window_px"),
+            "prefilter_px": cal.get("prefilter_px", 0.0)}  # maps made before the pre-filter existed: none
+    diffs = []
+    for k, v in made.items():
+        now = getattr(config, k)
+        same = v == now if k == "measure" else isinstance(v, (int, float)) and abs(float(v) - float(now)) < 1e-9
+        if not same:
+            diffs.append(f"{k} {v} in the map, {now} here")
+    return "; ".join(diffs)
+
+
 def depth_from_focus(stack: np.ndarray, focus_m, best_focus: BestFocusMap | None = None,
                      config: FocusConfig = FocusConfig(), volume: np.ndarray | None = None) -> FocusResult:
     """Depth, all-in-focus image and confidence from a focal stack.
@@ -136,6 +153,11 @@ def depth_from_focus(stack: np.ndarray, focus_m, best_focus: BestFocusMap | None
         r = best_focus.radius_px(h, w)
         rbin = np.minimum((r * config.radius_bins).astype(np.int32), config.radius_bins - 1)
         mapping = "aberration_aware"
+        if config.calibrated and best_focus.offset_diopters is not None:
+            mismatch = calibration_mismatch(best_focus, config)
+            if mismatch:
+                warnings.append(f"the best-focus map was calibrated with another focus measure ({mismatch}): its "
+                                "offsets may not fit these settings (remake it with scripts/make_focus_map.py)")
         near, far = best_focus.focus_range_m
         out = [v for v in f if not near * 0.999 <= v <= far * 1.001]
         if out:

@@ -49,8 +49,10 @@ class TestSetSpec:
     def __post_init__(self):
         if self.protocol not in PROTOCOLS:
             raise ValueError(f"protocol must be one of {PROTOCOLS}, got {self.protocol!r}")
-        if self.photo_split not in ("train", "test"):
-            raise ValueError(f"photo_split must be 'train' or 'test', got {self.photo_split!r}")
+        from training.data.textures import SPLITS
+
+        if self.photo_split not in SPLITS:
+            raise ValueError(f"photo_split must be one of {SPLITS}, got {self.photo_split!r}")
 
     def key(self) -> str:
         """Hash of what defines the Middlebury item (the procedural items are cached by their dataset's key)."""
@@ -139,7 +141,8 @@ def load_test_set(spec: TestSetSpec, cache_dir: str | None = "cache/heldout", pr
 
     ds = _dataset(spec, cache_dir)
     out: dict[str, list[TestItem]] = {"procedural": []}
-    for i in tqdm(range(spec.n_procedural), desc=f"{'validation' if spec.photo_split == 'train' else 'test'} set {spec.protocol}", disable=not progress, unit="stack"):
+    kind = "validation" if spec.photo_split == "train" else "test"
+    for i in tqdm(range(spec.n_procedural), desc=f"{kind} set {spec.protocol}", disable=not progress, unit="stack"):
         it = ds.load_or_render(i)
         out["procedural"].append(TestItem(f"procedural_{i:03d}", it["stack"].astype(np.float32), it["focus_m"],
                                           it["depth_m"], it["aif"]))

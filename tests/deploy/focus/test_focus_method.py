@@ -204,6 +204,32 @@ def test_best_focus_map_round_trip_and_interpolation(tmp_path):
         load_json(tmp_path / "bad.json")
 
 
+def test_a_map_calibrated_for_other_measure_settings_is_named_in_a_warning():
+    """The map's calibration belongs to the measure it was made with: other settings get a one-line warning,
+    matching ones (and maps that do not say, or calibrated=False) none."""
+    from dataclasses import replace
+
+    from aat_deploy.focus.method import calibration_mismatch
+
+    r, f = np.array([0.0, 1.0]), np.array([0.1, 2.0])
+    m = BestFocusMap(r, f, np.tile(f, (2, 1)), (36.0, 24.0), offset_diopters=np.zeros((2, 2)),
+                     notes={"calibration": {"measure": "mlap2", "window_px": 15.0, "prefilter_px": 1.0}})
+    cfg = FocusConfig(measure="mlap2", window_px=15.0, prefilter_px=1.0)
+    assert calibration_mismatch(m, cfg) == ""
+    assert calibration_mismatch(m, replace(cfg, prefilter_px=2.0)) == "prefilter_px 1.0 in the map, 2.0 here"
+    old = replace(m, notes={"calibration": {"measure": "mlap2", "window_px": 15.0}})  # made before the pre-filter
+    assert "prefilter_px 0.0 in the map, 1.0 here" in calibration_mismatch(old, cfg)
+    assert calibration_mismatch(replace(m, notes={}), replace(cfg, measure="sml")) == ""
+    focus = 1.0 / np.linspace(1.6, 0.2, 5)
+    stack, _ = _synthetic_stack(np.full((24, 32), 1.0, np.float32), focus)
+    warned = depth_from_focus(stack, focus, m, replace(cfg, window_px=9.0)).warnings
+    assert sum("calibrated with another focus measure" in w and "window_px 15.0 in the map, 9.0 here" in w
+               for w in warned) == 1
+    assert not any("calibrated with another" in w for w in depth_from_focus(stack, focus, m, cfg).warnings)
+    assert not any("calibrated with another" in w
+                   for w in depth_from_focus(stack, focus, m, replace(cfg, window_px=9.0, calibrated=False)).warnings)
+
+
 def test_radius_px_is_the_normalised_sensor_radius():
     m = BestFocusMap(np.array([0.0, 1.0]), np.array([0.1, 1.0]), np.zeros((2, 2)) + [0.1, 1.0], (36.0, 24.0))
     r = m.radius_px(640, 960)
