@@ -62,7 +62,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--lenses", default="rf50,paper50")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/focus_noise_selection.json")
     a = ap.parse_args(argv)
-    sigmas = sorted({float(s) for s in a.sigmas.split(",")} | {0.0})
+    try:
+        sigmas = sorted({float(s) for s in a.sigmas.split(",")} | {0.0})
+    except ValueError:
+        ap.error(f"--sigmas must be numbers separated by commas, got {a.sigmas!r}")
+    if not all(0 <= s <= 50 for s in sigmas):
+        ap.error(f"--sigmas must lie between 0 and 50 px, got {a.sigmas!r}")
+    unknown = set(a.lenses.split(",")) - set(LENSES)
+    if unknown:
+        ap.error(f"--lenses: unknown {', '.join(sorted(unknown))} (one of {', '.join(sorted(LENSES))})")
     variants = [(e, s) for e in ESTIMATORS for s in sigmas]
     from tqdm import tqdm
 
