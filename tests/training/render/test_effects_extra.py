@@ -253,3 +253,23 @@ def test_misalignment_moves_each_frame(lens):
     assert "sigma_px=" in e.training_spec() and fx.is_post(e)
     r = fx.make("misalignment", sigma_px=1.0).frame_warps(5000, ctx, np.random.default_rng(2))
     assert np.std(r[:, :2]) == pytest.approx(1.0, rel=0.05) and np.all(r[:, 2] == 1.0)
+
+
+def test_phone_jpeg_reaches_the_training_simulator_after_the_noise(lens):
+    """The torch simulator applies phone_jpeg through the shared post hooks, after the sensor's noise: its frames
+    equal the noise-only simulator's (same draws) developed by the effect by hand."""
+    from aat_deploy.render.effects.phone_jpeg import develop
+
+    rng = np.random.default_rng(0)
+    rgb = torch.from_numpy(cv2.GaussianBlur(rng.random((64, 96, 3), dtype=np.float32), (0, 0), 1.5).transpose(2, 0, 1).copy())
+    depth = torch.full((64, 96), 2.0)
+    small = lens.__class__(**{**lens.__dict__, "sensor": lens.sensor.__class__(36.0, 24.0, 96, 64)})
+    cfg = LayeredConfig(cell_px=32)
+    phone = fx.make("phone_jpeg", quality=85.0)
+    noisy = Simulator(small, None, [fx.make("noise")], cfg, thin_lens_source(small))
+    both = Simulator(small, None, fx.parse(["phone_jpeg:quality=85", "noise"]), cfg, thin_lens_source(small))
+    a = both.render_stack(rgb, depth, [1.5, 3.0], rng=np.random.default_rng(5)).frames
+    n = noisy.render_stack(rgb, depth, [1.5, 3.0], rng=np.random.default_rng(5)).frames
+    ref = np.stack([develop(fr.numpy(), phone.params, (64, 96)) for fr in n])
+    assert a.dtype == n.dtype and np.array_equal(a.numpy(), ref)
+    assert float((a - n).abs().mean()) > 0.01  # the phone changed the frames
