@@ -36,12 +36,13 @@ import cv2
 import numpy as np
 
 from aat_deploy.capture.raw import linear_to_srgb, srgb_to_linear
+from aat_deploy.focus.measures import LUMA  # Rec. 709 luminance of linear RGB
 from aat_deploy.render.effects import Effect, SimContext, register
 
 MID_GREY = 0.18  # the tone mapping's fixed point (linear)
 MAX_GAIN = 8.0  # tone-mapping gains within 1/8 .. 8
 SUBSAMPLING = {"420": cv2.IMWRITE_JPEG_SAMPLING_FACTOR_420, "444": cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444}
-LUMA_709 = np.array([0.2126, 0.7152, 0.0722], np.float32)  # linear luminance (tone mapping)
+
 # JFIF YCbCr (BT.601 full range) on encoded values, as JPEG itself converts
 _RGB2YCC = np.array([[0.299, 0.587, 0.114], [-0.168736, -0.331264, 0.5], [0.5, -0.418688, -0.081312]], np.float32)
 _YCC2RGB = np.linalg.inv(_RGB2YCC).astype(np.float32)
@@ -69,7 +70,7 @@ def local_tone(linear: np.ndarray, strength: float, sigma_px: float) -> np.ndarr
     of the luminance (sigma_px); gains within 1/MAX_GAIN .. MAX_GAIN."""
     if strength <= 0:
         return linear
-    lum = np.einsum("chw,c->hw", linear, LUMA_709) if linear.shape[0] == 3 else linear[0]
+    lum = np.einsum("chw,c->hw", linear, LUMA) if linear.shape[0] == 3 else linear[0]
     log_b = gaussian(np.log(np.maximum(lum, 1e-4)).astype(np.float32), sigma_px)
     gain = np.clip(np.exp(-strength * (log_b - np.log(MID_GREY))), 1 / MAX_GAIN, MAX_GAIN)
     return np.clip(linear * gain[None].astype(np.float32), 0.0, 1.0)
