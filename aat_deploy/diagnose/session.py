@@ -43,7 +43,7 @@ def make_renderer(model: DfFModel, lens: Lens, surrogate: OnnxSource | None, tor
     """The twin renderer: torch-free, with the training simulator behind it for torch-only effects when torch is
     installed (and `torch_free` is not asked for)."""
     if not torch_free:
-        torch_backed = extensions.load("torch_twin_renderer")  # None without torch: stay torch-free
+        torch_backed = extensions.load("torch_twin_renderer", optional=True)  # None without torch: stay torch-free
         if torch_backed is not None:
             return torch_backed(model, lens, surrogate)
     if surrogate is None and any(e.uses_lens_psfs for e in model_effects(model)):

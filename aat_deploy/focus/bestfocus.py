@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..extensions import ExtensionUnavailable
 from ..extensions import load as load_extension
 from ..io.atomic import write_text_atomic
 
@@ -195,9 +196,10 @@ def for_lens(lens_path: str | Path, compute: bool = True, progress: bool = False
            "or pass --psf with the lens's stamped PSF surrogate")
     if not compute:
         raise BestFocusError(f"{lens_path}: no best-focus map ({stored} missing); {how}")
-    trace = load_extension("best_focus_tracer")
-    if trace is None:
+    try:
+        trace = load_extension("best_focus_tracer")
+    except ExtensionUnavailable as e:
         raise BestFocusError(f"{lens_path}: no best-focus map ({stored} missing) and torch is not installed to "
-                             f"trace it; {how}")
+                             f"trace it ({e}); {how}") from None
     m = trace(lens, progress=progress)  # 7 radii x 9 focus settings, uncalibrated
     return m, f"traced now (uncalibrated, coarse; for the calibrated map run scripts/make_focus_map.py {lens_path})"

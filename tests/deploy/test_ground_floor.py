@@ -84,7 +84,13 @@ def test_every_runtime_module_imports_without_training_and_torch(tmp_path):
             err = None
         except BestFocusError as e:
             err = str(e)
-        print(json.dumps({{"failed": failed, "tracer": repr(extensions.load("best_focus_tracer")),
+        try:
+            extensions.load("best_focus_tracer")
+            unavailable = None
+        except extensions.ExtensionUnavailable as e:
+            unavailable = str(e)
+        print(json.dumps({{"failed": failed, "tracer": repr(extensions.load("best_focus_tracer", optional=True)),
+                           "unavailable": unavailable,
                            "declared": extensions.declared(), "error": err,
                            "loaded": sorted(k for k in sys.modules if k.split(".")[0] in ("torch", "training"))}}))
     """)
@@ -100,7 +106,10 @@ def test_every_runtime_module_imports_without_training_and_torch(tmp_path):
                                "chromatic_tracer": "training.render.chromatic_trace:ThreeWavelengths",
                                "tolerance_tracer": "training.optics.tolerance:traced_perturbation",
                                "torch_twin_renderer": "training.render.torch_twin:torch_twin_renderer"}
-    assert out["tracer"] == "None"
+    assert out["tracer"] == "None"  # optional: the caller has a torch-free fallback
+    # without `optional` a declared extension that cannot load is one line saying why, not a None that fails later
+    assert out["unavailable"] == ("extension 'best_focus_tracer' (training.optics.field_focus:coarse_best_focus_map) "
+                                  "needs torch: pip install 'aat-dff[train]'")
     err = out["error"]
     assert err and "\n" not in err and "rf50_copy.json" in err and "torch is not installed" in err
 
@@ -114,4 +123,7 @@ def test_declared_extension_loads_with_the_train_extra():
 
     assert extensions.load("best_focus_tracer") is coarse_best_focus_map
     assert all(extensions.load(name) is not None for name in extensions.declared())  # every declaration resolves
-    assert extensions.load("no_such_extension") is None
+    assert extensions.load("no_such_extension", optional=True) is None
+    with pytest.raises(extensions.ExtensionUnavailable, match=r"^extension 'no_such_extension' is not declared "
+                                                               r"by this install \(declared: best_focus_tracer, "):
+        extensions.load("no_such_extension")

@@ -130,7 +130,9 @@ def test_inspect_json_and_text(recording, capsys):
 
 def _vulkan_cpu_driver() -> bool:
     """Mesa's lavapipe (Debian mesa-vulkan-drivers, installed by .ci/run): Vulkan without a GPU."""
-    return any(Path(d).glob("lvp_icd*.json") for d in ("/usr/share/vulkan/icd.d", "/etc/vulkan/icd.d"))
+    # a glob is a generator, always truthy: ask whether it yields a file
+    return any(next(Path(d).glob("lvp_icd*.json"), None) is not None
+               for d in ("/usr/share/vulkan/icd.d", "/etc/vulkan/icd.d"))
 
 
 def test_screenshot_writes_a_picture(recording, tmp_path, capsys):

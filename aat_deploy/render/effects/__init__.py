@@ -56,11 +56,11 @@ class NeedsTorch(RuntimeError):
 
 def torch_extension(name: str, what: str):
     """The training package's extension `name` (`aat_deploy.extensions`: declared in pyproject.toml, loaded
-    without the runtime importing `training`), or NeedsTorch saying that `what` needs it."""
-    obj = extensions.load(name)
-    if obj is None:
-        raise NeedsTorch(f"{what} needs the training package (torch), which is not installed")
-    return obj
+    without the runtime importing `training`), or NeedsTorch saying that `what` needs it and why it is unavailable."""
+    try:
+        return extensions.load(name)
+    except extensions.ExtensionUnavailable as e:
+        raise NeedsTorch(f"{what} needs the training package (torch): {e}") from None
 
 
 def traced_focus_table(lens: Lens):
