@@ -60,12 +60,12 @@ class DepthResult:
         or not at all; an existing folder is replaced only with force, and only an earlier output."""
         folder = Path(folder)
         try:
-            check_output_dir(folder, [], force, marker="summary.json", tool="aat-infer")
+            check_output_dir(folder, [], force, tool="aat-infer")
         except CaptureError as e:
             raise ValueError(str(e)) from None
         maps = DepthMaps(self.depth_m, self.aif.transpose(2, 0, 1), self.std_m)
         rec = RecordingInputs(self.frames, self.focus_m) if recording and self.frames is not None else None
-        with atomic_folder(folder, force) as tmp:
+        with atomic_folder(folder, force, "aat-infer") as tmp:
             info = write_outputs(tmp, maps, self.camera, rec)
             summary = {"source": "aat_deploy.api", "focus_m": [float(f) for f in self.focus_m], "model": self.model,
                        "output_size_px": [self.camera.width, self.camera.height], "camera": camera_json(self.camera),

@@ -116,7 +116,7 @@ def check_output(out_dir: Path, force: bool, inputs: list[Path] = ()) -> None:
     """Fail before any work if the output folder may not be written (aat_deploy.io.guard): it is, contains or
     lies inside an input, is the current folder, exists without --force (or, with it, is not an earlier
     aat-infer output), or its location is not writable."""
-    check_output_dir(out_dir, inputs, force, marker="summary.json", tool="aat-infer")
+    check_output_dir(out_dir, inputs, force, tool="aat-infer")
 
 
 def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, opts: Options) -> dict:
@@ -172,7 +172,7 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
     maps, camera, stack = res.maps, res.camera, res.stack
     w_px, h_px = res.working_size
 
-    with atomic_folder(out_dir, opts.force) as tmp:
+    with atomic_folder(out_dir, opts.force, "aat-infer") as tmp:
         gt = _ground_truth(cap, size0, (w_px, h_px), warnings, model.focus_range_m)
         rec = RecordingInputs(stack, focus, gt, cap.name) if opts.record else None
         say(opts.quiet, f"{cap.name}: writing outputs" + (" and the recording" if rec else ""))

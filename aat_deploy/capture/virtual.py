@@ -46,11 +46,13 @@ def to_dn(linear: np.ndarray) -> np.ndarray:
 
 
 def write_capture(out_dir, frames: np.ndarray, focus_reported_m, lens: Lens, gt_depth_m: np.ndarray | None,
-                  aif_linear: np.ndarray | None, info: dict, force: bool = False, frame_format: str = "dng") -> Path:
+                  aif_linear: np.ndarray | None, info: dict, force: bool = False, frame_format: str = "dng",
+                  tool: str = "aat-render") -> Path:
     """Write a capture folder atomically. frames (S, 3, H, W) linear (1.0 = white level), H and W even;
     focus_reported_m (S,) what the EXIF says; gt_depth_m (H, W) metres (0 = unknown); aif_linear (3, H, W).
     frame_format: "dng" (a RAW as a camera writes it: Bayer mosaic, 14-bit, EXIF focus) or "tiff" (float32 linear
-    RGB with the focus distances in capture.json: the frames exactly as rendered, with no RAW pipeline)."""
+    RGB with the focus distances in capture.json: the frames exactly as rendered, with no RAW pipeline). With force an
+    existing folder is replaced only if it is an earlier output of `tool` (aat_deploy.io.marker)."""
     if frame_format not in ("dng", "tiff"):
         raise ValueError(f"frame_format must be 'dng' or 'tiff', got {frame_format!r}")
     out_dir = Path(out_dir)
@@ -61,7 +63,7 @@ def write_capture(out_dir, frames: np.ndarray, focus_reported_m, lens: Lens, gt_
     if c != 3 or h % 2 or w % 2:
         raise ValueError(f"frames must be (S, 3, H, W) with even H, W; got {frames.shape}")
     p = paraxial_data(lens)
-    with atomic_folder(out_dir, force) as tmp:  # written whole or not at all; stale leftovers cleaned
+    with atomic_folder(out_dir, force, tool) as tmp:  # written whole or not at all; stale leftovers cleaned
         sidecar = []
         for i, (fr, f) in enumerate(zip(frames, np.asarray(focus_reported_m, dtype=np.float64))):
             if frame_format == "tiff":

@@ -51,7 +51,7 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(a.out)
     try:  # before any work: the report folder may be replaced, so it must never hold or sit in an input
         check_output_dir(out, [a.root, a.model, *(p for p in (a.lens, a.psf) if p)], a.force,
-                         marker="diagnosis.json", tool="aat-diagnose", nest_ok=[a.root])
+                         tool="aat-diagnose", nest_ok=[a.root])
     except OutputError as e:
         print(f"aat-diagnose: error: {e}", file=sys.stderr)
         return 2

@@ -96,7 +96,7 @@ def run(root, model_path, out: Path, *, lens=None, psf=None, effects=None, retra
                     "effects": [fx.spec(e) for e in twins.base]}
     shrink = res["shrink"]
     out = Path(out)
-    with atomic_folder(out, force) as tmp:
+    with atomic_folder(out, force, "aat-diagnose") as tmp:
         if shrink:
             named = [e.training_spec() for e in chain[-1].effects]
             cmd = retrain_command(Path(model_path), lens_file, src.path if src is not None else None,

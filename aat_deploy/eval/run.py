@@ -129,7 +129,7 @@ def evaluate(root: str | Path, model_paths: list[str | Path], out_dir: str | Pat
     a failing capture is reported (opts.messages, report['per_capture'] with status 'failed') and skipped."""
     root, out_dir = Path(root), Path(out_dir)
     # the output may sit under ROOT (it is skipped when searching), never be or hold ROOT, a model or a capture
-    check_output_dir(out_dir, [root, *model_paths], opts.force, marker="metrics.json", tool="aat-eval",
+    check_output_dir(out_dir, [root, *model_paths], opts.force, tool="aat-eval",
                      nest_ok=[root])
     caps, without = find_captures(root, exclude=[out_dir])
     check_no_overlap(out_dir, caps + without)
@@ -139,7 +139,7 @@ def evaluate(root: str | Path, model_paths: list[str | Path], out_dir: str | Pat
         raise CaptureError(f"{root}: no capture folder with ground truth (gt.json, gt_depth_m.npy/.pfm/.tif, "
                            "gt_depth_mm.png) under it")
     t0 = time.perf_counter()
-    with atomic_folder(out_dir, opts.force) as tmp:
+    with atomic_folder(out_dir, opts.force, "aat-eval") as tmp:
         (tmp / "maps").mkdir()
         result = _evaluate_into(tmp, root, caps, without, models, labels, opts)
         result["seconds"] = round(time.perf_counter() - t0, 2)

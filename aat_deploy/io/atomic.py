@@ -6,9 +6,12 @@ when the block ends it replaces `path` with one rename, on an exception it is de
 was. `atomic_files` does the same for files that belong together; `write_text_atomic` / `write_bytes_atomic` for
 text and bytes.
 
-Folders: a folder is filled under a hidden temporary sibling `.NAME.tmp-PID` and renamed into place; an existing
-folder (replaced only with force) is first moved aside to `.NAME.old-PID`, then deleted. A run killed half-way
-leaves such hidden siblings behind: the next run for the same NAME deletes those whose process is gone.
+Folders: a folder is filled under a hidden temporary sibling `.NAME.tmp-PID` and renamed into place, carrying
+the marker of its tool and its content list (aat_deploy.io.marker); an existing folder (replaced only with force, and
+only when its marker proves it is an earlier output of the same tool with nothing else in it) is first moved aside to
+`.NAME.old-PID`, checked again, then deleted. A run interrupted by SIGINT/SIGTERM deletes its temporary folder; one
+killed outright leaves it behind, and the next run writing into the same parent folder deletes the marked hidden
+siblings whose process is gone (never a folder without our marker).
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from ..errors import OutputError
+from . import marker
 
 _SIBLING = re.compile(r"^\.(?P<name>.+)\.(?:tmp|old)-(?P<pid>\d+)$")
 _COUNTER = itertools.count()  # temporary files of one process (threads too) never share a name
@@ -102,8 +106,9 @@ def pid_alive(pid: int) -> bool:
 
 
 def clean_stale(out_dir: Path) -> list[Path]:
-    """Delete the `.NAME.tmp-PID` / `.NAME.old-PID` folders next to out_dir left by processes that are gone
-    (only for out_dir's NAME; symlinks and files are never touched). Returns what was deleted."""
+    """Delete the hidden `.X.tmp-PID` / `.X.old-PID` folders beside out_dir whose process is gone and that carry our
+    marker (a temporary folder of a killed run; an earlier output moved aside, only if it still holds nothing but
+    what its tool wrote). Symlinks, files and unmarked folders are never touched. Returns what was deleted."""
     out_dir = Path(out_dir)
     parent = out_dir.parent
     removed: list[Path] = []
@@ -113,22 +118,29 @@ def clean_stale(out_dir: Path) -> list[Path]:
         return removed
     for p in entries:
         m = _SIBLING.match(p.name)
-        if (m and m["name"] == out_dir.name and int(m["pid"]) != os.getpid() and not pid_alive(int(m["pid"]))
-                and p.is_dir() and not p.is_symlink()):
-            shutil.rmtree(p, ignore_errors=True)
-            removed.append(p)
+        if not m or int(m["pid"]) == os.getpid() or pid_alive(int(m["pid"])) or not marker.is_ours(p):
+            continue
+        if ".old-" in p.name and marker.replace_problem(p, marker.read(p)["tool"]) is not None:
+            continue
+        shutil.rmtree(p, ignore_errors=True)
+        removed.append(p)
     return removed
 
 
-def replace_folder(tmp: Path, out_dir: Path, force: bool) -> None:
-    """Move the finished folder `tmp` to out_dir; an existing out_dir is replaced only with force (moved aside,
-    swapped, then deleted; put back if the swap fails)."""
+def replace_folder(tmp: Path, out_dir: Path, force: bool, tool: str) -> None:
+    """Move the finished folder `tmp` to out_dir; an existing out_dir is replaced only with force and only if it is
+    an earlier output of `tool` holding nothing else (marker.replace_problem, checked again once it is moved aside,
+    so nothing added while this run worked is lost): moved aside, swapped, then deleted; put back on any failure."""
     old = None
     if os.path.lexists(out_dir):
         if not force:
             raise OutputError(f"{out_dir}: output folder exists (pass --force to overwrite)")
         old = temp_sibling(out_dir, "old")
         os.replace(out_dir, old)
+        why = None if old.is_symlink() else marker.replace_problem(old, tool)
+        if why is not None:
+            os.replace(old, out_dir)
+            raise OutputError(f"{out_dir}: {why}; not replaced even with --force: choose another output folder")
     try:
         os.replace(tmp, out_dir)
     except BaseException:
@@ -143,23 +155,27 @@ def replace_folder(tmp: Path, out_dir: Path, force: bool) -> None:
 
 
 @contextmanager
-def atomic_folder(out_dir: str | Path, force: bool) -> Iterator[Path]:
-    """Yield an empty temporary folder beside out_dir; when the block ends without an exception it becomes
-    out_dir (see replace_folder), otherwise it is deleted and out_dir is left as it was.
+def atomic_folder(out_dir: str | Path, force: bool, tool: str) -> Iterator[Path]:
+    """Yield an empty temporary folder beside out_dir (marked as `tool`'s unfinished output); when the block ends
+    without an exception the marker gets the content list and the folder becomes out_dir (see replace_folder),
+    otherwise (including SIGINT/SIGTERM, which the commands raise as exceptions) it is deleted and out_dir is left
+    as it was.
 
-        with atomic_folder(out, force) as tmp:
+        with atomic_folder(out, force, "aat-infer") as tmp:
             (tmp / "a.json").write_text(...)
     """
     out_dir = Path(out_dir)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     clean_stale(out_dir)
     tmp = temp_sibling(out_dir)
-    if tmp.is_dir() and not tmp.is_symlink():  # left by an earlier call in this very process
+    if tmp.is_dir() and not tmp.is_symlink() and marker.is_ours(tmp):  # left by an earlier call in this process
         shutil.rmtree(tmp)
     tmp.mkdir()
     try:
+        marker.write(tmp, tool, complete=False)
         yield tmp
-        replace_folder(tmp, out_dir, force)
+        marker.write(tmp, tool, complete=True)
+        replace_folder(tmp, out_dir, force, tool)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

@@ -2,7 +2,8 @@
 
 An output folder may be replaced as a whole (`--force`), so it must never be, contain or lie inside an input
 (paths resolved, symlinks followed), never be the current folder or one of its parents, and, when it exists,
-only be replaced if it is an earlier output of the same tool (it holds the tool's marker file) or empty.
+only be replaced if it is empty or provably an earlier output of the same tool: its marker (aat_deploy.io.marker)
+names the tool and lists every entry in it. A mount point is never replaced (it cannot be renamed).
 Its location must be writable. Each refusal is one OutputError line naming the folder and the reason.
 """
 
@@ -14,6 +15,7 @@ from collections.abc import Iterable
 from pathlib import Path
 
 from ..errors import OutputError
+from . import marker
 
 
 def resolved(path: str | Path) -> Path:
@@ -63,11 +65,11 @@ def check_writable(out: str | Path) -> None:
         raise OutputError(f"{out}: not writable ({parent}: {e.strerror or e})") from None
 
 
-def check_output_dir(out: str | Path, inputs: Iterable[str | Path], force: bool, *, marker: str | None = None,
-                     tool: str = "aat", nest_ok: Iterable[str | Path] = ()) -> None:
+def check_output_dir(out: str | Path, inputs: Iterable[str | Path], force: bool, *, tool: str,
+                     nest_ok: Iterable[str | Path] = ()) -> None:
     """Everything a command checks before it starts work on an output folder it will write (and, with force,
-    replace): no overlap with the inputs, not the current folder, exists only with force (and then only an
-    earlier output holding `marker`, or an empty folder), writable location."""
+    replace): no overlap with the inputs, not the current folder, exists only with force (and then only an empty
+    folder or an earlier output of `tool` with nothing else in it, not a mount point), writable location."""
     out = Path(out)
     check_no_overlap(out, inputs, nest_ok)
     check_not_cwd(out)
@@ -76,14 +78,11 @@ def check_output_dir(out: str | Path, inputs: Iterable[str | Path], force: bool,
             raise OutputError(f"{out}: exists and is not a folder")
         if not force:
             raise OutputError(f"{out}: output folder exists (pass --force to overwrite)")
-        if marker is not None:
-            try:
-                empty = not any(out.iterdir())
-            except OSError as e:
-                raise OutputError(f"{out}: cannot be read ({e.strerror or e})") from None
-            if not empty and not (out / marker).is_file():
-                raise OutputError(f"{out}: exists and is not an earlier {tool} output (no {marker}); not replaced "
-                                  "even with --force: choose another output folder")
+        if os.path.ismount(out):
+            raise OutputError(f"{out}: is a mount point, which cannot be replaced; choose a folder inside it")
+        why = marker.replace_problem(out, tool)
+        if why is not None:
+            raise OutputError(f"{out}: {why}; not replaced even with --force: choose another output folder")
     check_writable(out)
 
 

@@ -34,6 +34,7 @@ from aat_deploy.cli import infer as infer_cli
 from aat_deploy.cli import view as view_cli
 from aat_deploy.errors import CaptureError
 from aat_deploy.gt.read import find_gt, load_ground_truth
+from aat_deploy.io import marker
 from aat_deploy.model import DfFModel
 
 FOCUS = [0.6, 1.0, 2.0]
@@ -74,6 +75,7 @@ def good(tmp_path):
     earlier = tmp_path / "earlier"
     earlier.mkdir()
     (earlier / "summary.json").write_text('{"earlier": true}')
+    marker.write(earlier, "aat-infer", complete=True)  # as a finished aat-infer run leaves it
     return cap, earlier
 
 
@@ -195,6 +197,81 @@ def test_force_replaces_only_an_earlier_output(model_path, good, tmp_path, capsy
     assert tree_hash(mine, cap) == before
     rc, bad, _ = infer([cap, "--model", model_path, "--out", earlier, "--force"], capsys)
     assert rc == 0 and not bad and json.loads((earlier / "summary.json").read_text())["capture"] == str(cap)
+
+
+# -- issue 31, 1: --force deleted any folder holding a file named like a tool's marker ---------------------------
+def _users_folder(d: Path, name: str) -> Path:
+    """The issue's case: a folder with a file named like an output (summary.json ...), the user's thesis and a
+    subfolder of work."""
+    d.mkdir()
+    (d / name).write_text("{}")
+    (d / "thesis.txt").write_text("x")
+    (d / "chapters").mkdir()
+    (d / "chapters" / "one.tex").write_text("years of work")
+    return d
+
+
+def test_force_never_replaces_a_folder_that_merely_holds_an_output_name(model_path, good, tmp_path, capsys):
+    """Before: aat-infer/aat-eval/aat-diagnose --force and DepthResult.save(force=True) deleted such a folder
+    whole (its summary.json/metrics.json/diagnosis.json was taken as proof that it was theirs)."""
+    from aat_deploy.api import depth_from_focus
+    from aat_deploy.cli import diagnose as diagnose_cli
+
+    cap, earlier = good
+    folders = {k: _users_folder(tmp_path / k, n) for k, n in (("infer", "summary.json"), ("eval", "metrics.json"),
+                                                              ("diagnose", "diagnosis.json"), ("api", "summary.json"))}
+    before = tree_hash(*folders.values(), cap)
+    rc, bad, _ = infer([cap, "--model", model_path, "--out", folders["infer"], "--force"], capsys)
+    assert rc == 1 and len(bad) == 2 and "is not an earlier aat-infer output (no .aat-output.json)" in bad[0], bad
+    rc = eval_cli.main([str(cap), "--model", str(model_path), "--out", str(folders["eval"]), "--force", "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "not an earlier aat-eval output" in err[0], err
+    rc = diagnose_cli.main([str(cap), "--model", str(model_path), "--out", str(folders["diagnose"]), "--force",
+                            "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "not an earlier aat-diagnose output" in err[0], err
+    from deploy_fixtures import render_stack, synthetic_scene
+
+    tex, depth = synthetic_scene()
+    res = depth_from_focus(render_stack(tex, depth, FOCUS), FOCUS, DfFModel(model_path, threads=1))
+    with pytest.raises(ValueError, match="not an earlier aat-infer output"):
+        res.save(folders["api"], force=True)
+    assert tree_hash(*folders.values(), cap) == before
+
+
+def test_force_replaces_an_earlier_output_only_while_it_holds_nothing_else(model_path, good, tmp_path, capsys):
+    """An earlier output's marker lists what its run wrote: a file added or changed since keeps the folder, an
+    output of another tool is refused, and the check is repeated when the old folder is swapped out (a file added
+    while the run worked is not lost)."""
+    from aat_deploy.errors import OutputError
+    from aat_deploy.io.atomic import atomic_folder
+
+    cap, earlier = good
+    out = tmp_path / "o"
+    assert infer([cap, "--model", model_path, "--out", out], capsys)[0] == 0
+    assert infer([cap, "--model", model_path, "--out", out, "--force"], capsys)[0] == 0  # its own: replaced
+    (out / "notes").mkdir()
+    (out / "notes" / "n.txt").write_text("mine")
+    rc, bad, _ = infer([cap, "--model", model_path, "--out", out, "--force"], capsys)
+    assert rc == 1 and "holds 'notes' and 1 more, which aat-infer did not write" in bad[0], bad
+    shutil.rmtree(out / "notes")
+    (out / "camera.json").write_text('{"edited": "by the user"}')
+    rc, bad, _ = infer([cap, "--model", model_path, "--out", out, "--force"], capsys)
+    assert rc == 1 and "'camera.json' changed since aat-infer wrote it" in bad[0], bad
+    assert json.loads((out / "camera.json").read_text()) == {"edited": "by the user"}
+    rc = eval_cli.main([str(cap), "--model", str(model_path), "--out", str(earlier), "--force", "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and "is an output of aat-infer, not of aat-eval" in err[0], err
+    # a file added to the old output while this run worked: found when it is swapped out, the old folder put back
+    late = tmp_path / "late"
+    with atomic_folder(late, False, "aat-infer") as tmp:
+        (tmp / "a.npy").write_bytes(b"1")
+    with pytest.raises(OutputError, match="holds 'added.txt', which aat-infer did not write"):
+        with atomic_folder(late, True, "aat-infer") as tmp:
+            (tmp / "a.npy").write_bytes(b"2")
+            (late / "added.txt").write_text("written meanwhile")
+    assert (late / "added.txt").read_text() == "written meanwhile" and (late / "a.npy").read_bytes() == b"1"
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".late.")]
 
 
 # -- 2: two captures with the same folder name -------------------------------------------------------------------
@@ -402,18 +479,22 @@ def test_view_port_out_of_range(flag, port, tmp_path, capsys):
 
 
 def test_stale_partial_folders_of_dead_runs_are_cleaned(model_path, good, tmp_path, capsys):
+    """Marked temporaries of dead processes are swept, whatever output they were for (issue 31: before, only a
+    rerun to the same name removed them); a running process's, and any folder without our marker, are kept."""
     cap, earlier = good
     out = tmp_path / "o"
     dead, alive = dead_pid(), os.getppid()
-    stale = [tmp_path / f".o.tmp-{dead}", tmp_path / f".o.old-{dead}"]
-    keep = [tmp_path / f".o.tmp-{alive}", tmp_path / f".other.tmp-{dead}"]  # running, or another output's
+    stale = [tmp_path / f".o.tmp-{dead}", tmp_path / f".o.old-{dead}", tmp_path / f".other.tmp-{dead}"]
+    keep = [tmp_path / f".o.tmp-{alive}", tmp_path / f".users.tmp-{dead}"]  # running; not ours (no marker)
     for d in stale + keep:
         d.mkdir()
         (d / "depth_m.npy").write_bytes(b"partial")
+        if d != keep[1]:
+            marker.write(d, "aat-infer", complete=".old-" in d.name)
     rc, lines, _ = infer([cap, "--model", model_path, "--out", out], capsys)
     assert rc == 0 and not lines
     assert not any(d.exists() for d in stale) and all(d.exists() for d in keep)
-    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".o.")) == [keep[0].name]
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == sorted(d.name for d in keep)
 
 
 # -- 10: Canon compacts record FocusDistanceLower = 0 --------------------------------------------------------------

@@ -21,6 +21,7 @@ from aat_deploy.capture.folder import read_capture
 from aat_deploy.cli import infer as infer_cli
 from aat_deploy.errors import CaptureError, ModelError, OutputError
 from aat_deploy.geometry import align_stack
+from aat_deploy.io.marker import MARKER
 from aat_deploy.model import DfFModel
 from aat_deploy.pipeline import Options, run_capture
 
@@ -50,7 +51,7 @@ def test_outputs_and_summary(model, dng_capture, tmp_path):
     out = tmp_path / "out"
     s = run_capture(dng_capture, model, out, Options(quiet=True))
     assert sorted(p.name for p in out.iterdir()) == sorted(
-        ["aif.png", "depth_m.npy", "depth_m.tif", "depth_mm.png", "depth_color.png", "recording.rrd", "std_m.npy",
+        [MARKER, "aif.png", "depth_m.npy", "depth_m.tif", "depth_mm.png", "depth_color.png", "recording.rrd", "std_m.npy",
          "std_mm.png", "std_color.png", "points.ply", "camera.json", "summary.json"])
     depth = np.load(out / "depth_m.npy")
     assert depth.dtype == np.float32 and depth.shape == (48, 64)
@@ -72,7 +73,7 @@ def test_outputs_and_summary(model, dng_capture, tmp_path):
     assert on_disk["model"]["aat.lens_name"] == model.lens_name and on_disk["model"]["path"]
     assert set(on_disk["timings_s"]) >= {"metadata", "decode", "geometry", "normalise", "infer", "write", "record",
                                          "total"}
-    assert sorted(on_disk["outputs"]) == sorted(p.name for p in out.iterdir())
+    assert sorted(on_disk["outputs"]) == sorted(p.name for p in out.iterdir() if p.name != MARKER)
     assert on_disk["warnings"] == [] and s["ground_truth"]["pixels"] == 48 * 64
 
 
@@ -174,11 +175,13 @@ def test_align_switch_in_pipeline(model, dng_capture, tmp_path):
 def test_existing_output_needs_force(model, dng_capture, tmp_path):
     out = tmp_path / "out"
     run_capture(dng_capture, model, out, Options(quiet=True, record=False))
-    (out / "marker").write_text("old")
     with pytest.raises(OutputError, match="exists"):
         run_capture(dng_capture, model, out, Options(quiet=True, record=False))
-    run_capture(dng_capture, model, out, Options(quiet=True, record=False, force=True))
-    assert not (out / "marker").exists()
+    run_capture(dng_capture, model, out, Options(quiet=True, record=False, force=True))  # its own earlier output
+    (out / "notes.txt").write_text("the user's")
+    with pytest.raises(OutputError, match="holds 'notes.txt', which aat-infer did not write"):
+        run_capture(dng_capture, model, out, Options(quiet=True, record=False, force=True))
+    assert (out / "notes.txt").read_text() == "the user's"
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temporary folders left
 
 

@@ -83,7 +83,7 @@ def run(args) -> Path:
     out = Path(args.out)
     try:  # before any work: --force replaces the folder, so it must never hold or sit in an input
         check_output_dir(out, [p for p in (args.rgb, args.depth, args.lens, args.psf) if p], args.force,
-                         marker="virtual_camera.json", tool="aat-render")
+                         tool="aat-render")
     except OutputError as e:
         raise SystemExit(f"aat-render: error: {e}") from None
     try:

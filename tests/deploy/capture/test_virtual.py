@@ -115,9 +115,11 @@ def test_bad_input_is_one_line_and_force_replaces_atomically(scene, tmp_path):
     assert (out / "mine.txt").read_text() == "user data"
     (out / "mine.txt").unlink()  # an empty folder may be replaced, and then an earlier capture
     assert render_main(base + ["--lens", lens, "--thin-lens", "--force"]) == 0
-    (out / "extra.txt").write_text("made by the last render's owner")
-    assert render_main(base + ["--lens", lens, "--thin-lens", "--force"]) == 0
-    assert not (out / "extra.txt").exists() and len(list(out.glob("*.dng"))) == 1
+    assert render_main(base + ["--lens", lens, "--thin-lens", "--force"]) == 0  # an earlier aat-render output
+    (out / "extra.txt").write_text("added to the last render by its owner")
+    with pytest.raises(SystemExit, match="holds 'extra.txt', which aat-render did not write"):
+        render_main(base + ["--lens", lens, "--thin-lens", "--force"])  # issue 31: never lost with --force
+    assert (out / "extra.txt").exists() and len(list(out.glob("*.dng"))) == 1
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # no temporary left behind
 
 
