@@ -1,8 +1,9 @@
 """Run the chain in one folder: refuse a folder made with other settings (unless force), skip up-to-date stages,
 resume or restart the others, and coordinate torchrun processes.
 
-Under torchrun (WORLD_SIZE > 1) the gloo process group is created here (with a long timeout: the PSF fit may take
-longer than gloo's default 30 minutes while the other processes wait). Rank 0 decides every stage and runs the
+Under torchrun (WORLD_SIZE > 1) the process group is created here (NCCL on GPUs, gloo on CPUs:
+training.devices.distributed), with a long timeout: the PSF fit may take longer than the default while the other
+processes wait. Rank 0 decides every stage and runs the
 non-distributed ones; the training stages run on every process (the loop shards the data and writes files from
 rank 0 only); decisions and failures are broadcast so all processes agree. With several machines the run folder
 must be on a shared filesystem.
@@ -20,7 +21,7 @@ from training.chain import config as chain_config
 from training.chain.hashing import StageMarkers, dict_sha256, write_json_atomic
 from training.chain.stages import Context, Stage, stages
 
-GLOO_TIMEOUT = datetime.timedelta(hours=12)
+DIST_TIMEOUT = datetime.timedelta(hours=12)
 
 
 class ChainError(RuntimeError):
@@ -83,38 +84,25 @@ def check_config(run_dir: Path, cfg: dict, force: bool) -> list[str]:
     return diff
 
 
-def _setup_distributed() -> tuple[int, int, bool]:
-    import os
-
-    world = int(os.environ.get("WORLD_SIZE", "1"))
-    if world <= 1:
-        return 0, 1, False
-    import torch.distributed as dist
-
-    created = False
-    if not dist.is_initialized():
-        dist.init_process_group("gloo", timeout=GLOO_TIMEOUT)
-        created = True
-    return dist.get_rank(), dist.get_world_size(), created
-
-
 def _share(obj, world: int):
-    """rank 0's `obj` on every process."""
+    """rank 0's `obj` on every process (torch imported only when there are several)."""
     if world == 1:
         return obj
-    import torch.distributed as dist
+    from training.devices.distributed import share
 
-    box = [obj]
-    dist.broadcast_object_list(box, src=0)
-    return box[0]
+    return share(obj, world)
 
 
 def run_chain(cfg: dict, run_dir, *, force: bool = False, progress: bool = True, log=print,
-              stop_after: str | None = None) -> ChainResult:
+              stop_after: str | None = None, device: str = "auto", amp: str | None = None) -> ChainResult:
     """Run (or continue) the chain for the resolved config `cfg` in `run_dir`. stop_after: a stage name to stop
-    after (tests, benchmarks). Raises ChainError / the stage's exception on failure."""
+    after (tests, benchmarks). device, amp: where torch runs (training.devices). Raises ChainError / the stage's
+    exception on failure."""
+    from training.devices.distributed import init_distributed
+    from training.devices.select import resolve_device
+
     run_dir = Path(run_dir).resolve()
-    rank, world, created = _setup_distributed()
+    rank, world, created = init_distributed(resolve_device(device), DIST_TIMEOUT)
     say = log if rank == 0 else (lambda *_: None)
     try:
         status = None
@@ -130,7 +118,7 @@ def run_chain(cfg: dict, run_dir, *, force: bool = False, progress: bool = True,
         status = _share(status, world)
         if status:
             raise ChainError(status)
-        ctx = Context(run_dir, cfg, rank, world, progress, say)
+        ctx = Context(run_dir, cfg, rank, world, progress, say, device, amp)
         return _run_stages(ctx, stop_after)
     finally:
         if created:

@@ -33,7 +33,8 @@ TRAIN_SEED, VAL_SEED, EVAL_SEED = 0, 100000, 777777
 
 @dataclass
 class Context:
-    """A run: its folder, resolved config (training.chain.config), process rank / world size, progress bars."""
+    """A run: its folder, resolved config (training.chain.config), process rank / world size, progress bars, and
+    where torch runs (device, amp: not settings of the run, so a folder may continue on other hardware)."""
 
     run_dir: Path
     cfg: dict
@@ -41,6 +42,8 @@ class Context:
     world: int = 1
     progress: bool = True
     log: Callable[[str], None] = print
+    device: str = "auto"
+    amp: str | None = None
 
     def path(self, rel: str) -> Path:
         return self.run_dir / rel
@@ -277,7 +280,7 @@ def _train_run(simulator: str) -> Callable[[Context], list[str]]:
 
         cfg = train_config(ctx, simulator)
         out = ctx.path(train_dir(simulator))
-        res = train(cfg, out, resume=True, progress=ctx.progress)
+        res = train(cfg, out, resume=True, progress=ctx.progress, device=ctx.device, amp=ctx.amp)
         if not res.finished:
             raise RuntimeError(f"{out}: training stopped at step {res.step}/{cfg.steps}")
         spd = f", {res.seconds_per_step:.3f} s/step" if res.seconds_per_step else ""

@@ -1,10 +1,15 @@
 """`aat-train`: train a DfF network from a config file, or run the whole chain from a lens file.
 
     aat-train --config configs/dff_aifnet_aat.json [--out runs/NAME] [--resume] [--steps N] [--init M.onnx]
+              [--device auto|cpu|cuda[:N]|mps] [--amp [bf16|fp16]]
     aat-train --lens LENS.json|.zmx --sensor-mm W,H --resolution W,H --out DIR [--net dfv|aif] [--size small|full]
               [--focus-range-m NEAR,FAR] [--stack N] [--effects a,b] [--init M.onnx|ckpt.pt] [--psf PSF.onnx]
               [--preset tiny|small|paper] [--steps N] [--lr LR] [--no-baseline] [--force]
     torchrun --nproc_per_node=2 --no-python aat-train ...      (or: torchrun ... -m training.cli.train ...)
+
+--device: where torch runs (auto: a GPU if there is one); under torchrun each process takes the GPU of its
+LOCAL_RANK and the processes talk over NCCL (gloo on CPUs). --amp: bf16 / fp16 autocast for the nets.
+docs/training.md, "On GPUs and clusters", has the commands for one GPU, many GPUs and SLURM.
 
 --config: re-running with --resume after a kill continues from the last checkpoint; without --resume an
 existing run directory is refused.
@@ -24,6 +29,7 @@ from pathlib import Path
 
 from aat_deploy.cli.common import parser, run_or_hint
 from aat_deploy.shipped import resolve
+from training.devices.options import add_amp_argument, add_device_argument
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -55,6 +61,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "(--lens runs always continue)")
     p.add_argument("--steps", type=int, help="number of optimizer steps (overrides the config / preset)")
     p.add_argument("--init", help="start from these weights: an exported DfF .onnx or a model.pt / last.pt")
+    add_device_argument(p)
+    add_amp_argument(p)
     p.add_argument("-q", "--quiet", "--no-progress", dest="no_progress", action="store_true",
                    help="no progress bars: results, warnings and errors only")
     g = p.add_argument_group("lens-to-model chain (--lens)")
@@ -117,7 +125,7 @@ def main_config(args: argparse.Namespace) -> int:
     if refuse_inputs_in(out, [args.config, cfg.init]):
         return 2
     try:
-        res = train(cfg, out, resume=args.resume, progress=not args.no_progress)
+        res = train(cfg, out, resume=args.resume, progress=not args.no_progress, device=args.device, amp=args.amp)
     except (FileExistsError, ValueError, FileNotFoundError, InitError) as e:
         print(f"aat-train: {e}", file=sys.stderr)
         return 1
@@ -156,7 +164,8 @@ def main_lens(args: argparse.Namespace) -> int:
         print(f"aat-train: {e}", file=sys.stderr)
         return 2
     try:
-        res = run_chain(cfg, args.out, force=args.force, progress=not args.no_progress)
+        res = run_chain(cfg, args.out, force=args.force, progress=not args.no_progress, device=args.device,
+                        amp=args.amp)
     except (ChainError, LensFileError, InitError, FileNotFoundError, ValueError) as e:
         print(f"aat-train: {str(e).splitlines()[0]}", file=sys.stderr)
         return 1
@@ -173,6 +182,13 @@ def main(argv: list[str] | None = None) -> int:
 
 def _main(argv: list[str] | None) -> int:
     args = build_parser().parse_args(argv)
+    from training.devices.select import DeviceError, resolve_device
+
+    try:
+        resolve_device(args.device)  # a missing GPU is a usage error, before any work
+    except DeviceError as e:
+        print(f"aat-train: error: {e}", file=sys.stderr)
+        return 2
     if args.lens:
         args.lens = str(resolve(args.lens, "lenses"))  # a path, or a shipped lens's name
     if args.psf:

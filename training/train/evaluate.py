@@ -14,8 +14,9 @@ from training.nets.model import DfFNet, predict
 @torch.no_grad()
 def evaluate(model: DfFNet, dataset: Dataset, max_items: int | None = None, focus_range_mask: bool = False,
              ) -> tuple[dict[str, float], np.ndarray]:
-    """Run `model` (via predict: sorted, padded, cropped) over up to `max_items` items, one at a time.
-    Returns (metrics averaged over images, error map (H, W) mean |depth - gt| in metres)."""
+    """Run `model` (via predict: sorted, padded, cropped; float32, on the model's device) over up to `max_items`
+    items, one at a time. Returns (metrics averaged over images, error map (H, W) mean |depth - gt| in metres)."""
+    dev = next(model.parameters()).device
     was_training = model.training
     model.eval()
     acc = MetricAccumulator(focus_range_mask=focus_range_mask)
@@ -23,10 +24,11 @@ def evaluate(model: DfFNet, dataset: Dataset, max_items: int | None = None, focu
     try:
         for i in range(n):
             item = dataset[i]
-            field = item["field_xy"][None].float() if model.field_channels and "field_xy" in item else None
-            out = predict(model, item["stack"][None].float(), item["focus_m"][None].float(), field)
+            field = item["field_xy"][None].float().to(dev) if model.field_channels and "field_xy" in item else None
+            out = predict(model, item["stack"][None].float().to(dev), item["focus_m"][None].float().to(dev), field)
             aif_ref = item.get("aif")
-            acc.add(out["depth_m"][0].numpy(), np.asarray(item["depth_m"]), out["aif"][0].clamp(0, 1).numpy(),
+            acc.add(out["depth_m"][0].cpu().numpy(), np.asarray(item["depth_m"]),
+                    out["aif"][0].clamp(0, 1).cpu().numpy(),
                     None if aif_ref is None else np.asarray(aif_ref), focus_m=np.asarray(item["focus_m"]))
     finally:
         model.train(was_training)

@@ -6,15 +6,21 @@ trained weights (`init`: an exported .onnx or a checkpoint, training.nets.warm_s
 `checkpoint_every` steps (atomic) and resume from `last.pt`: the sampler order depends only on (seed, epoch) and
 an epoch can start part-way, so kill + rerun with resume continues exactly where it stopped.
 
-Distributed data parallel: under `torchrun --nproc_per_node=N` (env WORLD_SIZE > 1) the gloo process group is
-initialised here; each process reads its own shard, gradients are averaged, batch-norm buffers broadcast from
-rank 0; only rank 0 logs, validates and writes files.
+Devices (`device`: auto | cpu | cuda[:N] | mps, training.devices.select): the net, the optimizer state and every
+batch live on the run's device; the data is made on the CPU by the dataset (loader workers) and copied over
+(pinned memory on CUDA). Checkpoints hold CPU tensors and load on any device, so a run may resume on other
+hardware. Mixed precision (`amp`: bf16 | fp16 | auto, training.devices.precision) autocasts the nets only.
+
+Distributed data parallel: under `torchrun --nproc_per_node=N` (env WORLD_SIZE > 1) the process group is
+initialised here, NCCL on GPUs and gloo on CPUs (training.devices.distributed); each process reads its own shard
+(ResumableSampler), gradients are averaged, so the effective batch is batch_size x processes; on GPUs batch norm
+is synchronised across processes (SyncBatchNorm, which torch has for GPUs only), on CPUs its running statistics
+are broadcast from rank 0 at each checkpoint. Only rank 0 logs, validates and writes files.
 """
 
 from __future__ import annotations
 
 import json
-import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,8 +32,11 @@ from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader, Dataset
 from tqdm import tqdm
 
+from training.devices.distributed import barrier, broadcast_buffers, init_distributed
+from training.devices.precision import amp_dtype, amp_name, autocast, grad_scaler
+from training.devices.select import pin_memory, resolve_device, to_device
 from training.nets.model import build_model, train_levels
-from training.train.checkpoint import load, save_atomic
+from training.train.checkpoint import load, save_atomic, to_cpu
 from training.train.config import TrainConfig
 from training.train.evaluate import evaluate
 from training.train.loss import dff_loss
@@ -42,30 +51,6 @@ class TrainResult:
     last_loss: float | None
     seconds_per_step: float | None
     val_metrics: dict = field(default_factory=dict)
-
-
-def setup_distributed() -> tuple[int, int, bool]:
-    """(rank, world size, whether this call created the process group). WORLD_SIZE > 1 -> gloo."""
-    world = int(os.environ.get("WORLD_SIZE", "1"))
-    created = False
-    if world > 1 and not dist.is_initialized():
-        dist.init_process_group("gloo")
-        created = True
-    if dist.is_initialized():
-        return dist.get_rank(), dist.get_world_size(), created
-    return 0, 1, created
-
-
-def _sync_buffers(model: torch.nn.Module, world: int) -> None:
-    """Batch-norm running statistics from rank 0 to every replica (DDP syncs them only before each forward)."""
-    if world > 1:
-        for b in model.buffers():
-            dist.broadcast(b, 0)
-
-
-def _barrier(world: int) -> None:
-    if world > 1:
-        dist.barrier()
 
 
 def _log(out_dir: Path, row: dict) -> None:
@@ -94,19 +79,24 @@ def _validate_and_log(model, val_set, cfg: TrainConfig, out_dir: Path, step: int
 
 
 def train(cfg: TrainConfig, out_dir, *, train_set: Dataset | None = None, val_set: Dataset | None = None,
-          resume: bool = False, stop_at_step: int | None = None, progress: bool = True) -> TrainResult:
+          resume: bool = False, stop_at_step: int | None = None, progress: bool = True,
+          device: str | torch.device = "auto", amp: str | None = None, sync_bn: bool | None = None) -> TrainResult:
     """Train `cfg` into `out_dir` (config.json, log.jsonl, last.pt, model.pt, val_*). Datasets default to
     training.data.stacks built from cfg.data / cfg.val_data. stop_at_step: end this run early (as if killed
-    after that step's checkpoint). An existing last.pt needs resume=True."""
-    rank, world, created = setup_distributed()
+    after that step's checkpoint). An existing last.pt needs resume=True. device: auto | cpu | cuda[:N] | mps;
+    amp: off | auto | bf16 | fp16; sync_bn: SyncBatchNorm across processes (default: on GPUs under torchrun)."""
+    dev = resolve_device(device)
+    rank, world, created = init_distributed(dev)
     try:
-        return _train(cfg, Path(out_dir), train_set, val_set, resume, stop_at_step, progress, rank, world)
+        return _train(cfg, Path(out_dir), train_set, val_set, resume, stop_at_step, progress, rank, world, dev,
+                      amp_dtype(amp, dev), dev.type == "cuda" and world > 1 if sync_bn is None else sync_bn)
     finally:
         if created:
             dist.destroy_process_group()
 
 
-def _train(cfg, out_dir: Path, train_set, val_set, resume, stop_at_step, progress, rank, world) -> TrainResult:
+def _train(cfg, out_dir: Path, train_set, val_set, resume, stop_at_step, progress, rank, world, device, amp,
+           sync_bn) -> TrainResult:
     cfg.validate()
     ckpt_path = out_dir / "last.pt"
     if ckpt_path.exists() and not resume:
@@ -114,8 +104,7 @@ def _train(cfg, out_dir: Path, train_set, val_set, resume, stop_at_step, progres
     train_set, val_set = _make_sets(cfg, train_set, val_set)
     torch.manual_seed(cfg.seed)
     model = build_model(cfg.net, cfg.size, cfg.field_channels)
-    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    step, wall_before = 0, 0.0
+    step, wall_before, seen_before, sessions, state = 0, 0.0, 0, [], None
     t_start = time.perf_counter()
     if resume and ckpt_path.exists():
         state = load(ckpt_path)
@@ -124,24 +113,43 @@ def _train(cfg, out_dir: Path, train_set, val_set, resume, stop_at_step, progres
             if old.get(k, 0) != getattr(cfg, k):
                 raise ValueError(f"{ckpt_path}: checkpoint has {k}={old.get(k, 0)!r}, config has {getattr(cfg, k)!r}")
         model.load_state_dict(state["model"])
-        opt.load_state_dict(state["optimizer"])
         step = int(state["step"])
         wall_before = float(state.get("wall_s", 0.0))
+        seen_before = int(state.get("stacks_seen", step * cfg.batch_size * world))
+        sessions = list(state.get("sessions", []))
         torch.set_rng_state(state["torch_rng"])
     elif cfg.init:
         from training.nets.warm_start import init_model
         from training.train.data import resolve_lens_path
 
-        info = init_model(model, resolve_lens_path(cfg.init), train_set)
+        info = init_model(model, resolve_lens_path(cfg.init), train_set)  # on the CPU, before the move
         if rank == 0:
             out_dir.mkdir(parents=True, exist_ok=True)
             _log(out_dir, {"step": 0, "init": info})
+    if sync_bn and world > 1:
+        model = torch.nn.SyncBatchNorm.convert_sync_batchnorm(model)  # same parameter and buffer names
+    model.to(device)
+    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    scaler = grad_scaler(device, amp)
+    if state is not None:
+        opt.load_state_dict(state["optimizer"])  # moves the moments to the parameters' device
+        if scaler.is_enabled() and state.get("grad_scaler"):
+            scaler.load_state_dict(state["grad_scaler"])
     if rank == 0:
         out_dir.mkdir(parents=True, exist_ok=True)
         (out_dir / "config.json").write_text(json.dumps(cfg.to_dict(), indent=1))
-    _barrier(world)
-    ddp = DistributedDataParallel(model) if world > 1 else model
+    barrier(world)
+    step0 = step
+    sessions.append({"from_step": step, "device": str(device), "amp": amp_name(amp), "processes": world,
+                     "sync_bn": bool(sync_bn and world > 1)})
+    if world > 1:
+        ddp = DistributedDataParallel(model, device_ids=[device.index] if device.type == "cuda" else None)
+    else:
+        ddp = model
     model.train()
+
+    def seen() -> int:
+        return seen_before + (step - step0) * cfg.batch_size * world
 
     sampler = ResumableSampler(len(train_set), rank, world, cfg.seed)
     per_epoch = sampler.per_rank // cfg.batch_size
@@ -150,12 +158,13 @@ def _train(cfg, out_dir: Path, train_set, val_set, resume, stop_at_step, progres
     end = cfg.steps if stop_at_step is None else min(cfg.steps, stop_at_step)
 
     def checkpoint() -> None:
-        _sync_buffers(model, world)
+        broadcast_buffers(model, world)
         if rank == 0:
-            save_atomic({"model": model.state_dict(), "optimizer": opt.state_dict(), "step": step,
-                         "wall_s": wall_before + time.perf_counter() - t_start,
+            save_atomic({"model": to_cpu(model.state_dict()), "optimizer": to_cpu(opt.state_dict()), "step": step,
+                         "wall_s": wall_before + time.perf_counter() - t_start, "stacks_seen": seen(),
+                         "sessions": sessions, "grad_scaler": scaler.state_dict() if scaler.is_enabled() else None,
                          "config": cfg.to_dict(), "torch_rng": torch.get_rng_state()}, ckpt_path)
-        _barrier(world)
+        barrier(world)
 
     bar = tqdm(total=cfg.steps, initial=step, disable=not progress or rank != 0, desc=cfg.name, unit="step")
     last_loss, t_steps, n_timed = None, 0.0, 0
@@ -163,20 +172,26 @@ def _train(cfg, out_dir: Path, train_set, val_set, resume, stop_at_step, progres
         epoch, offset = divmod(step, per_epoch)
         sampler.set_epoch(epoch, offset * cfg.batch_size)
         loader = DataLoader(train_set, batch_size=cfg.batch_size, sampler=sampler, drop_last=True,
-                            num_workers=cfg.num_workers)
+                            num_workers=cfg.num_workers, pin_memory=pin_memory(device))
         for batch in loader:
             t0 = time.perf_counter()
+            batch = to_device(batch, device)
             lr = lr_at(step, cfg.steps, cfg.lr, cfg.lr_min, cfg.warmup_steps)
             for g in opt.param_groups:
                 g["lr"] = lr
             field = batch["field_xy"].float() if cfg.field_channels else None
-            levels = train_levels(ddp, batch["stack"].float(), batch["focus_m"].float(), model.size_multiple, field)
+            with autocast(device, amp):  # the nets only: the loss below is float32
+                levels = train_levels(ddp, batch["stack"].float(), batch["focus_m"].float(), model.size_multiple,
+                                      field)
+            levels = [tuple(None if t is None else t.float() for t in lv) for lv in levels]
             loss, parts = dff_loss(levels, batch, cfg.loss)
             opt.zero_grad(set_to_none=True)
-            loss.backward()
+            scaler.scale(loss).backward()
             if cfg.grad_clip > 0:
+                scaler.unscale_(opt)
                 parts["grad_norm"] = float(torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip))
-            opt.step()
+            scaler.step(opt)  # float16: skipped when the gradients overflowed (then the scale shrinks)
+            scaler.update()
             step += 1
             t_steps += time.perf_counter() - t0
             n_timed += 1
@@ -185,43 +200,43 @@ def _train(cfg, out_dir: Path, train_set, val_set, resume, stop_at_step, progres
             bar.set_postfix(loss=f"{last_loss:.4f}", lr=f"{lr:.2e}")
             if rank == 0 and (step % cfg.log_every == 0 or step == end):
                 _log(out_dir, {"step": step, "lr": lr, **parts, "s_per_step": t_steps / n_timed,
-                               "stacks_seen": step * cfg.batch_size * world,
+                               "stacks_seen": seen(),
                                "wall_s": round(wall_before + time.perf_counter() - t_start, 1)})
             if step % cfg.checkpoint_every == 0 or step == end:
                 checkpoint()
             if val_set is not None and cfg.val_every and step % cfg.val_every == 0 and step < cfg.steps:
                 if rank == 0:
                     _validate_and_log(model, val_set, cfg, out_dir, step, final=False)
-                _barrier(world)
+                barrier(world)
             if step >= end:
                 break
     bar.close()
-    _sync_buffers(model, world)
+    broadcast_buffers(model, world)
     finished = step >= cfg.steps
     val_metrics: dict = {}
     if finished:
         if rank == 0:
-            save_atomic({"model": model.state_dict(), "config": cfg.to_dict(), "config_hash": cfg.hash(),
+            save_atomic({"model": to_cpu(model.state_dict()), "config": cfg.to_dict(), "config_hash": cfg.hash(),
                          "step": step}, out_dir / "model.pt")
             if val_set is not None:
                 val_metrics = _validate_and_log(model, val_set, cfg, out_dir, step, final=True)
-            seen = step * cfg.batch_size * world
-            summary = {"steps": step, "batch_size": cfg.batch_size, "processes": world, "stacks_seen": seen,
-                       "distinct_stacks": min(seen, len(train_set)), "dataset_items": len(train_set),
+            summary = {"steps": step, "batch_size": cfg.batch_size, "processes": world, "stacks_seen": seen(),
+                       "effective_batch": cfg.batch_size * world, "sessions": sessions,
+                       "distinct_stacks": min(seen(), len(train_set)), "dataset_items": len(train_set),
                        "dataset_cache": str(getattr(train_set, "cache", None)),
                        "wall_s": round(wall_before + time.perf_counter() - t_start, 1),
                        "s_per_step_last_session": t_steps / n_timed if n_timed else None}
             (out_dir / "train_summary.json").write_text(json.dumps(summary, indent=1))
-        _barrier(world)
+        barrier(world)
     return TrainResult(step, finished, last_loss, t_steps / n_timed if n_timed else None, val_metrics)
 
 
-def load_trained(path) -> tuple[torch.nn.Module, TrainConfig]:
-    """A DfFNet (eval mode) and its config from model.pt or last.pt."""
+def load_trained(path, device: str | torch.device = "cpu") -> tuple[torch.nn.Module, TrainConfig]:
+    """A DfFNet (eval mode, on `device`) and its config from model.pt or last.pt, whatever device trained it."""
     from training.train.config import config_from_dict
 
     state = load(path)
     cfg = config_from_dict(dict(state["config"]), str(path))
     model = build_model(cfg.net, cfg.size, cfg.field_channels)
     model.load_state_dict(state["model"])
-    return model.eval(), cfg
+    return model.to(resolve_device(device)).eval(), cfg
