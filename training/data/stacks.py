@@ -19,10 +19,10 @@ import torch
 from torch.utils.data import Dataset
 
 from aat_deploy.gt.holes import fill_holes
-from aat_deploy.io.atomic import atomic_file
 from aat_deploy.lens.io import load_lens
 from aat_deploy.normalise import normalise_scale, scaled
 from aat_deploy.render.fields import pixel_fields
+from training.data.cache import item_path, save_item
 from training.data.rgbd import load_middlebury_motorcycle
 from training.data.scenes import SceneConfig, procedural_scene
 from aat_deploy.render import effects as fx
@@ -212,13 +212,13 @@ class FocalStackDataset(Dataset):
         return {k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in item.items()}
 
     def is_cached(self, index: int) -> bool:
-        return self.cache is not None and (self.cache / f"{index:06d}.npz").is_file()
+        return self.cache is not None and item_path(self.cache, index).is_file()
 
     def load_or_render(self, index: int) -> dict:
         """Item `index` as numpy arrays, whole (not cropped): from the cache, else rendered (and cached)."""
         item = None
         if self.cache is not None:
-            f = self.cache / f"{index:06d}.npz"
+            f = item_path(self.cache, index)
             if f.is_file():
                 try:
                     with np.load(f) as z:
@@ -229,8 +229,9 @@ class FocalStackDataset(Dataset):
             if item is None:
                 item = self.render(index)
                 self.cache.mkdir(parents=True, exist_ok=True)
-                with atomic_file(f) as tmp:  # DDP ranks and loader workers may write the same item at once
-                    np.savez(tmp, **{**item, "stack": item["stack"].astype(np.float16)})
+                # atomic: DDP ranks and loader workers may write the same item at once; byte-deterministic, so
+                # shards rendered anywhere make the same files (training.data.cache)
+                save_item(f, {**item, "stack": item["stack"].astype(np.float16)})
                 item["stack"] = item["stack"].astype(np.float16).astype(np.float32)  # as every later read sees it
         else:
             item = self.render(index)

@@ -1,0 +1,95 @@
+"""The on-disk cache of rendered training items (training.data.stacks): one file per item, a record per shard of
+the work, and a manifest once every item is there.
+
+A cache folder (`cache_dir/<key>/`, key = `StackDataConfig.key()`, a hash of everything that defines the items):
+
+    000000.npz, 000001.npz, ...   item i: the arrays of `FocalStackDataset.render` (the stack stored as float16)
+    shards/<i>-of-<n>.json        what shard i of n did: its items, how many it rendered, when, in how long
+    manifest.json                 once all items 0 .. n_items - 1 exist: the data config that defines them, the item
+                                  count and the SHA-256 of every item file
+
+Item files are byte-deterministic (an uncompressed zip with fixed timestamps, as np.savez lays it out otherwise),
+and an item depends only on (config, index), so a cache filled by n shards in any order, on any number of
+machines, equals file for file the cache one process fills; the manifest, which holds no times, is identical too.
+Writes are atomic (a temporary file, then a rename): processes that write the same item at once cannot tear it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from aat_deploy.io.atomic import atomic_file, write_text_atomic
+from training.devices.shard import Shard
+
+MANIFEST_FORMAT = "aat-stack-cache-v1"
+_ZIP_TIME = (1980, 1, 1, 0, 0, 0)  # the earliest a zip can hold: no wall-clock time in the bytes
+
+
+def item_path(cache: Path, index: int) -> Path:
+    return Path(cache) / f"{index:06d}.npz"
+
+
+def save_item(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    """Write `arrays` as an .npz (np.load reads it) whose bytes depend only on the arrays, atomically."""
+    with atomic_file(Path(path)) as tmp, zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED) as z:
+        for name in sorted(arrays):
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=_ZIP_TIME)
+            info.external_attr = 0o644 << 16
+            with z.open(info, "w", force_zip64=True) as f:
+                np.lib.format.write_array(f, np.asanyarray(arrays[name]), allow_pickle=False)
+
+
+def missing_items(cache: Path, n_items: int) -> list[int]:
+    return [i for i in range(n_items) if not item_path(cache, i).is_file()]
+
+
+def write_shard_record(cache: Path, shard: Shard, n_items: int, rendered: int, seconds: float) -> Path:
+    """shards/<i>-of-<n>.json: this shard's share, how many items it rendered now and before (a resumed shard
+    adds a session) and whether all its items exist."""
+    path = Path(cache) / "shards" / f"{shard.index}-of-{shard.count}.json"
+    old = json.loads(path.read_text()) if path.is_file() else {}
+    mine = shard.items(n_items)
+    rec = {"shard": shard.name, "n_items": n_items, "items": len(mine),
+           "held": sum(item_path(cache, i).is_file() for i in mine),
+           "sessions": old.get("sessions", []) + [{"rendered": rendered, "seconds": round(seconds, 1),
+                                                   "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}]}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(path, json.dumps(rec, indent=1) + "\n")
+    return path
+
+
+def sha256_file(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def write_manifest(cache: Path, data_config: dict, n_items: int) -> Path | None:
+    """manifest.json when items 0 .. n_items - 1 all exist (None otherwise): the data config that defines them
+    (`StackDataConfig` without cache_dir), the count and each item file's SHA-256. Several processes may write
+    it at once: they write the same bytes."""
+    cache = Path(cache)
+    if missing_items(cache, n_items):
+        return None
+    man = {"format": MANIFEST_FORMAT, "key": cache.name, "n_items": n_items,
+           "data": {k: v for k, v in data_config.items() if k not in ("cache_dir", "n_items")},
+           "items": {item_path(cache, i).name: sha256_file(item_path(cache, i)) for i in range(n_items)}}
+    path = cache / "manifest.json"
+    write_text_atomic(path, json.dumps(man, indent=1, sort_keys=True) + "\n")
+    return path
+
+
+def verify_manifest(cache: Path) -> list[str]:
+    """Item files that are missing or differ from manifest.json's hashes (empty: the cache is as recorded)."""
+    cache = Path(cache)
+    man = json.loads((cache / "manifest.json").read_text())
+    return [name for name, h in man["items"].items()
+            if not (cache / name).is_file() or sha256_file(cache / name) != h]
