@@ -1,7 +1,10 @@
 """Frame pixels to linear RGB float32 (H, W, 3).
 
 - Camera RAW (anything LibRaw opens) through rawpy: black/white levels from the file, camera white
-  balance, default demosaic, linear gamma (1, 1), no auto-brightening, 16-bit, sRGB primaries.
+  balance, default demosaic, linear gamma (1, 1), no auto-brightening, 16-bit, sRGB primaries. Every frame is
+  scaled by the file's white level, never by its own brightest pixel (LibRaw's default `adjust_maximum_thr`
+  would, for frames whose maximum exceeds 0.75 of white, and so put a stack's frames on different scales by
+  their content: up to 1.29 x between the shipped sample's frames, issue 32).
 - 8/16-bit TIFF, PNG, JPEG through OpenCV, decoded from sRGB to linear; float TIFFs are taken as linear.
 Values are in [0, 1] relative to the file's white level (the stack is normalised later anyway).
 """
@@ -61,7 +64,7 @@ def load_raw(path: Path) -> tuple[np.ndarray, dict]:
                     "white_level": int(r.white_level),
                     "camera_wb": [float(v) for v in r.camera_whitebalance]}
             rgb = r.postprocess(use_camera_wb=True, gamma=(1, 1), no_auto_bright=True, output_bps=16,
-                                output_color=rawpy.ColorSpace.sRGB)
+                                adjust_maximum_thr=0.0, output_color=rawpy.ColorSpace.sRGB)
     except rawpy.LibRawFileUnsupportedError:
         raise CaptureError(f"{path}: not a RAW format LibRaw can decode (unsupported or not an image)") from None
     except (rawpy.LibRawIOError, rawpy.LibRawDataError) as e:

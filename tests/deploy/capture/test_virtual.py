@@ -138,3 +138,24 @@ def test_tiff_frames_skip_the_raw_pipeline(tmp_path):
     assert np.array_equal(load_frame(out / "frame_02.tif")[0].transpose(2, 0, 1), frames[2])
     with pytest.raises(ValueError, match="frame_format"):
         write_capture(tmp_path / "x", frames, [0.5, 1.0, 2.5], lens, None, None, {}, frame_format="png")
+
+
+@pytest.mark.parametrize("peak", [0.5, 0.8, 0.95, 1.0])
+def test_frames_develop_on_one_scale_whatever_their_brightest_pixel(tmp_path, peak):
+    """LibRaw by default rescales a RAW whose brightest pixel exceeds 0.75 of the white level to that pixel
+    (`adjust_maximum_thr`): frames of one stack then come out on different scales, by their content (the shipped
+    sample's near frames 1.29 x too bright, which the diagnosis read as an exposure change and a focus error,
+    issue 32). The runtime develops every frame against the file's white level."""
+    from aat_deploy.capture.dng import write_dng
+    from aat_deploy.capture.virtual import SENSOR_DNG
+
+    yy, xx = np.mgrid[0:64, 0:96]
+    lin = np.stack([0.2 + 0.1 * np.sin(xx / 5.0)] * 3).astype(np.float32)
+    lin[:, 30:34, 40:44] = peak  # the frame's brightest spot
+    path = tmp_path / "f.dng"
+    write_dng(path, to_dn(mosaic_rggb(lin)), **SENSOR_DNG, subject_distance_m=1.0, focal_length_mm=50.0,
+              f_number=2.0, make="aat", model="test", lens_model="test")
+    got, _ = load_raw(path)
+    inner = (slice(8, -8), slice(8, 28))  # away from the spot and the borders
+    r = float(got[inner].mean() / lin.transpose(1, 2, 0)[inner].mean())
+    assert abs(r - 1) < 0.01, r
