@@ -84,18 +84,26 @@ def load_model(model: str | Path = DEFAULT_MODEL, threads: int | None = None) ->
         raise ValueError(str(e)) from None
 
 
-def read_stack(folder: str | Path, use_exiftool: bool = True) -> tuple[np.ndarray, np.ndarray]:
+def read_stack(folder: str | Path, use_exiftool: bool = True, *, max_megapixels: float | None = None,
+               allow_outside_links: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """A capture folder's frames as (S, H, W, 3) float32 linear RGB and their focus distances (S,) in metres,
-    near to far, read as aat-infer reads them (RAW through LibRaw, images decoded from sRGB)."""
+    near to far, read as aat-infer reads them (RAW through LibRaw, images decoded from sRGB; the kind of each file
+    from its content). max_megapixels: the pixel limit per frame (default $AAT_MAX_MEGAPIXELS or 200): a header
+    claiming more is refused before decoding. allow_outside_links: follow symlinks leading out of the folder.
+    Errors (including running out of memory) are a ValueError with one line naming the file or folder."""
     try:
-        cap = read_capture(folder, use_exiftool=use_exiftool)
+        cap = read_capture(folder, use_exiftool=use_exiftool, max_megapixels=max_megapixels,
+                           allow_outside_links=allow_outside_links)
         frames = sorted(cap.frames, key=lambda f: f.focus_m)
-        images = [load_frame(f.path)[0] for f in frames]
+        images = [load_frame(f.path, max_megapixels)[0] for f in frames]
+        if len({im.shape for im in images}) > 1:
+            raise CaptureError(f"{folder}: frames of different sizes")
+        return np.stack(images), np.array([f.focus_m for f in frames], np.float64)
     except CaptureError as e:
         raise ValueError(str(e)) from None
-    if len({im.shape for im in images}) > 1:
-        raise ValueError(f"{folder}: frames of different sizes")
-    return np.stack(images), np.array([f.focus_m for f in frames], np.float64)
+    except MemoryError:
+        raise ValueError(f"{folder}: out of memory reading its frames (lower max_megapixels, or read fewer or "
+                         "smaller frames)") from None
 
 
 def _frames(stack, srgb: bool | None) -> list[np.ndarray]:

@@ -62,6 +62,27 @@ def member_path(folder: Path, name: object) -> Path | None:
     return Path(folder) / p
 
 
+OUTSIDE_LINKS_FLAG = "--allow-outside-links"
+
+
+def outside_target(folder: Path, path: Path) -> str | None:
+    """Where `path` really leads (symlinks resolved) if that is outside `folder`, else None."""
+    real, base = os.path.realpath(path), os.path.realpath(folder)
+    return None if real == base or real.startswith(base.rstrip(os.sep) + os.sep) else real
+
+
+def check_inside(folder: Path, path: Path, allow_outside: bool = False, error: type[CaptureError] = CaptureError,
+                 ) -> None:
+    """`error` naming `path` if a symlink (of it or of a folder on its way) leads out of `folder`, unless allowed:
+    a capture folder's files must be its own (`ln -s /etc/shadow cap/frame_07.dng` is never parsed)."""
+    if allow_outside:
+        return
+    real = outside_target(folder, path)
+    if real is not None:
+        raise error(f"{path}: a link out of the folder (to {real}); not followed "
+                    f"(pass {OUTSIDE_LINKS_FLAG} to use it)")
+
+
 def file_kind(path: Path) -> str | None:
     """Why `path` is not a readable regular file ("missing", "a dangling symlink", "a folder", "a FIFO",
     "a device", "a socket"), or None if it is one. Never opens the file (a FIFO would block)."""

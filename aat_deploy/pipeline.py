@@ -24,7 +24,7 @@ from tqdm import tqdm
 from .capture.folder import Capture, read_capture
 from .capture.raw import load_frame
 from .errors import CaptureError
-from .gt.read import READ_ERRORS, units_problem
+from .gt.read import read_depth_file, units_problem
 from .io.atomic import atomic_folder
 from .io.guard import check_output_dir
 from .model import DfFModel
@@ -32,7 +32,6 @@ from .normalise import DESCRIPTION as NORMALISATION
 from .outputs import DESCRIPTIONS, RecordingInputs, write_outputs
 from .camera import camera_json
 from .process import depth_from_frames, say
-from .io.images import imread
 # every capture's files (confidence.* only from methods that give one)
 OUTPUT_FILES = tuple(k for k in DESCRIPTIONS if not k.startswith("confidence")) + ("summary.json",)
 FOCAL_TOLERANCE = 0.02  # relative difference of focal length that counts as another lens
@@ -52,6 +51,8 @@ class Options:
     record: bool = True
     quiet: bool = False
     native: bool = False  # depth and all-in-focus at the capture's resolution (aat_deploy.upsample)
+    max_megapixels: float | None = None  # the pixel limit of frame headers (None: $AAT_MAX_MEGAPIXELS or 200)
+    allow_outside_links: bool = False  # follow symlinks leading out of the capture folder
     warnings: list[str] = field(default_factory=list)
 
 
@@ -134,7 +135,8 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
         clock = now
 
     cap = read_capture(capture_dir, use_exiftool=opts.use_exiftool, focus_m=opts.focus_m,
-                       equal_focus_ok=model.kind == "method")  # the focus method places tied frames itself
+                       equal_focus_ok=model.kind == "method",  # the focus method places tied frames itself
+                       max_megapixels=opts.max_megapixels, allow_outside_links=opts.allow_outside_links)
     warnings = list(cap.warnings)
     ident = identity_warnings(cap, model)
     if ident and opts.strict:
@@ -154,7 +156,7 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
 
     images, decode_info, size0 = [], [], None
     for f in _progress(frames, f"{cap.name}: decode", opts.quiet):
-        img, info = load_frame(f.path)
+        img, info = load_frame(f.path, opts.max_megapixels)
         if size0 is None:
             size0 = img.shape[:2]
         elif img.shape[:2] != size0:
@@ -219,17 +221,13 @@ def _ground_truth(cap: Capture, size0: tuple[int, int], size_wh: tuple[int, int]
                   focus_range_m: tuple[float, float]):
     """gt_depth_m.npy (or gt_depth_mm.png) brought to the output geometry (nearest), NaN = unknown; or None.
     Ground truth in the wrong units for the model's focus range (as aat-eval checks) is ignored with a warning."""
-    gt = None
-    try:
-        if cap.gt_depth_m is not None:
-            gt = np.load(cap.gt_depth_m, allow_pickle=False).astype(np.float32)
-        elif cap.gt_depth_mm is not None:
-            mm = imread(cap.gt_depth_mm, cv2.IMREAD_UNCHANGED)
-            gt = None if mm is None else mm.astype(np.float32) / 1000.0
-    except (*READ_ERRORS, TypeError) as e:
-        warnings.append(f"{cap.path}: ground truth unreadable ({str(e).splitlines()[0][:120] if str(e) else type(e).__name__}); ignored")
+    src = cap.gt_depth_m if cap.gt_depth_m is not None else cap.gt_depth_mm
+    if src is None:
         return None
-    if gt is None:
+    try:  # the one depth-file reader (aat-eval's): header sizes checked before anything is allocated
+        gt = read_depth_file(src).astype(np.float32) * (1.0 if cap.gt_depth_m is not None else 0.001)
+    except CaptureError as e:
+        warnings.append(f"{cap.path}: ground truth unreadable ({e}); ignored")
         return None
     if gt.ndim != 2 or gt.shape != tuple(size0):
         warnings.append(f"{cap.path}: ground truth is {gt.shape}, frames are {tuple(size0)}; ignored")
@@ -238,7 +236,6 @@ def _ground_truth(cap: Capture, size0: tuple[int, int], size_wh: tuple[int, int]
         gt = np.where(np.isfinite(gt) & (gt > 0), gt, np.nan).astype(np.float32)
     if not np.isfinite(gt).any():
         return None
-    src = cap.gt_depth_m if cap.gt_depth_m is not None else cap.gt_depth_mm
     why = units_problem(float(np.nanmedian(gt)), focus_range_m, src, 1.0 if cap.gt_depth_m is not None else 0.001)
     if why is not None:
         warnings.append(f"{why}; ground truth ignored")

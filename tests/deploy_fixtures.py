@@ -149,6 +149,55 @@ def write_png_capture(folder: Path, focus_m: list[float], *, h: int = 48, w: int
     return folder
 
 
+def write_jpeg_capture(folder: Path, focus_m: list[float], *, h: int = 48, w: int = 64,
+                       names: list[str] | None = None) -> Path:
+    """A capture folder of 8-bit sRGB JPEG frames (quality 95; names default img_I.jpg, any name may be given, e.g.
+    a JPEG misnamed .png) with a capture.json sidecar giving the focus distances."""
+    from aat_deploy.capture.raw import linear_to_srgb
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    tex, depth = synthetic_scene(h, w)
+    frames = []
+    for i, (f, img) in enumerate(zip(focus_m, render_stack(tex, depth, focus_m))):
+        name = names[i] if names else f"img_{i}.jpg"
+        enc = np.rint(linear_to_srgb(img)[..., ::-1] * 255).astype(np.uint8)
+        (folder / name).write_bytes(cv2.imencode(".jpg", enc, [cv2.IMWRITE_JPEG_QUALITY, 95])[1].tobytes())
+        frames.append({"file": name, "focus_m": f})
+    (folder / "capture.json").write_text(json.dumps({"frames": frames}))
+    return folder
+
+
+def claim_size(buf: bytes, w: int, h: int) -> bytes:
+    """A JPEG, PNG or TIFF whose header claims w x h pixels, the data left as it was (a decompression bomb: a few
+    hundred bytes that a decoder trusting its header would allocate gigabytes for)."""
+    import struct
+    import zlib
+
+    b = bytearray(buf)
+    if b[:2] == b"\xff\xd8":
+        i = 2
+        while b[i + 1] not in (0xC0, 0xC1, 0xC2):
+            i += 2 + struct.unpack(">H", b[i + 2:i + 4])[0]
+        struct.pack_into(">HH", b, i + 5, h, w)
+    elif b[:4] == b"\x89PNG":
+        struct.pack_into(">II", b, 16, w, h)
+        struct.pack_into(">I", b, 29, zlib.crc32(bytes(b[12:29])))
+    elif b[:4] in (b"II*\0", b"MM\0*"):
+        e = "<" if b[:2] == b"II" else ">"
+        (first,) = struct.unpack(e + "I", b[4:8])
+        (n,) = struct.unpack(e + "H", b[first:first + 2])
+        for k in range(n):
+            at = first + 2 + 12 * k
+            tag, typ = struct.unpack(e + "HH", b[at:at + 4])
+            if tag in (256, 257):
+                v = w if tag == 256 else h
+                struct.pack_into(e + ("HH" if typ == 3 else "I"), b, at + 8, *((v, 0) if typ == 3 else (v,)))
+    else:
+        raise ValueError("not a JPEG, PNG or TIFF")
+    return bytes(b)
+
+
 def tiny_model_path(tmp_path_factory, name: str = "tiny_dff.onnx", **meta_over) -> Path:
     """Build the tiny model once per test session (per distinct name) and return its path."""
     path = tmp_path_factory.getbasetemp() / name

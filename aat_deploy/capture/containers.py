@@ -127,28 +127,67 @@ def _png(buf: bytes, out: Blocks) -> None:
         i += 12 + length
 
 
+def container_of(buf: bytes) -> str:
+    """The container a file's first bytes announce (its magic bytes; the name is never used): "jpeg", "png",
+    "tiff" (TIFF and the TIFF-based RAWs: DNG, CR2, NEF, ARW, ORF, RW2, PEF ...), "bigtiff", "cr3", "crw", "mrw",
+    "raf", "x3f", one of the image formats aat does not read ("heif", "webp", "gif", "bmp", "jpeg2000", "jpegxl"),
+    or "unknown"."""
+    if buf[:3] == b"\xff\xd8\xff":
+        return "jpeg"
+    if buf[:8] == b"\x89PNG\r\n\x1a\n":
+        return "png"
+    if buf[:2] in (b"II", b"MM") and buf[6:14] == b"HEAPCCDR":
+        return "crw"
+    if buf[:4] in (b"II*\0", b"MM\0*", b"IIRO", b"IIRS", b"MMOR", b"IIU\0"):
+        return "tiff"
+    if buf[:4] in (b"II+\0", b"MM\0+"):
+        return "bigtiff"
+    if buf[4:12] == b"ftypcrx ":
+        return "cr3"
+    if buf[4:8] == b"ftyp" and buf[8:12] in (b"heic", b"heix", b"mif1", b"msf1", b"hevc", b"avif"):
+        return "heif"
+    if buf[:4] == b"\0MRM":
+        return "mrw"
+    if buf[:16] == b"FUJIFILMCCD-RAW ":
+        return "raf"
+    if buf[:4] == b"FOVb":
+        return "x3f"
+    if buf[:4] == b"RIFF" and buf[8:12] == b"WEBP":
+        return "webp"
+    if buf[:6] in (b"GIF87a", b"GIF89a"):
+        return "gif"
+    if buf[:2] == b"BM" and len(buf) >= 26:
+        return "bmp"
+    if buf[:12] == b"\0\0\0\x0cjP  \r\n\x87\n" or buf[:4] == b"\xff\x4f\xff\x51":
+        return "jpeg2000"
+    if buf[:2] == b"\xff\x0a" or buf[:12] == b"\0\0\0\x0cJXL \r\n\x87\n":
+        return "jpegxl"
+    return "unknown"
+
+
 def find_blocks(buf: bytes) -> Blocks:
     """Locate the metadata blocks in a whole file's bytes (unknown formats give empty Blocks)."""
     out = Blocks()
-    if buf[:2] == b"\xff\xd8":
+    kind = container_of(buf)
+    if kind == "jpeg" or buf[:2] == b"\xff\xd8":
         out.container = "jpeg"
         _jpeg(buf, 0, out)
-    elif buf[:2] in (b"II", b"MM") and buf[6:14] == b"HEAPCCDR":
+    elif kind == "crw":
         out.container = "crw"
         (hlen,) = struct.unpack("<I" if buf[:2] == b"II" else ">I", buf[2:6])
         out.ciff = (buf, hlen, len(buf) - hlen)
-    elif buf[4:12] == b"ftypcrx ":
+    elif kind == "cr3":
         out.container = "cr3"
         _cr3(buf, out)
-    elif buf[:4] == b"\0MRM":
+    elif kind == "mrw":
         out.container = "mrw"
         _mrw(buf, out)
-    elif buf[:16] == b"FUJIFILMCCD-RAW ":
+    elif kind == "raf":
         out.container = "raf"
         (jpeg_at,) = struct.unpack(">I", buf[84:88])
         if buf[jpeg_at:jpeg_at + 2] == b"\xff\xd8":
             _jpeg(buf, jpeg_at, out)
-    elif buf[:8] == b"\x89PNG\r\n\x1a\n":
+    elif kind == "png":
         out.container = "png"
         _png(buf, out)
     else:

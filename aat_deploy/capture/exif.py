@@ -24,6 +24,7 @@ from pathlib import Path
 from ..errors import CaptureError, read_input_bytes
 from . import exiftool, makernotes
 from .containers import Blocks, find_blocks
+from .imagefile import claimed_size
 from .tiff import TiffBuffer
 
 EXIF_POINTER, MAKER_NOTE, SUBJECT_DISTANCE = 0x8769, 0x927C, 0x9206
@@ -72,29 +73,10 @@ def _xmp_focus(xmp: bytes) -> float | None:
     return num / den if den and num > 0 else None
 
 
-def _image_size(buf: bytes, blocks: Blocks) -> tuple[int | None, int | None]:
-    """Pixel size from the container (JPEG SOF, PNG IHDR) without decoding pixels; RAW sizes come later."""
-    if blocks.container == "jpeg":
-        i = 2
-        while i + 9 < len(buf) and buf[i] == 0xFF:
-            marker = buf[i + 1]
-            (length,) = struct.unpack(">H", buf[i + 2:i + 4])
-            if marker in (0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF):
-                h, w = struct.unpack(">HH", buf[i + 5:i + 9])
-                return w, h
-            if marker == 0xDA:
-                break
-            i += 2 + length
-    if blocks.container == "png" and len(buf) >= 24:
-        w, h = struct.unpack(">II", buf[16:24])
-        return w, h
-    return None, None
-
-
-def read_metadata(path: str | Path, use_exiftool: bool = True) -> FrameMeta:
-    """Read one file's metadata (raises CaptureError for unreadable files)."""
+def read_metadata(path: str | Path, use_exiftool: bool = True, buf: bytes | None = None) -> FrameMeta:
+    """Read one file's metadata (raises CaptureError for unreadable files); buf: its bytes, if already read."""
     path = Path(path)
-    buf = read_input_bytes(path)
+    buf = read_input_bytes(path) if buf is None else buf
     meta = FrameMeta(file=str(path))
     try:
         blocks = find_blocks(buf)
@@ -172,11 +154,8 @@ def read_metadata(path: str | Path, use_exiftool: bool = True) -> FrameMeta:
         meta.lens = meta.lens or et.lens
         meta.focal_length_mm = meta.focal_length_mm or et.focal_length_mm
         meta.f_number = meta.f_number or et.f_number
-    if meta.width is None:
-        try:
-            meta.width, meta.height = _image_size(buf, blocks)
-        except (struct.error, IndexError):
-            pass
+    if meta.width is None and blocks.container in ("jpeg", "png"):
+        meta.width, meta.height = claimed_size(buf, blocks.container) or (None, None)
     return meta
 
 

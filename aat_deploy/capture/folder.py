@@ -15,10 +15,10 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..errors import CaptureError, file_kind, load_json, member_path
+from ..errors import CaptureError, check_inside, file_kind, load_json, member_path, read_input_bytes
 from . import exiftool
 from .exif import FrameMeta, read_metadata
-from .raw import FRAME_EXTENSIONS
+from .imagefile import FRAME_EXTENSIONS, frame_header
 
 SIDECAR = "capture.json"
 GT_NAMES = ("gt_depth_m.npy", "gt_depth_mm.png", "gt_aif.png")
@@ -85,11 +85,12 @@ def focus_problem(focus_m: object) -> str | None:
     return None
 
 
-def _sidecar(folder: Path) -> dict[str, float] | None:
+def _sidecar(folder: Path, allow_outside_links: bool = False) -> dict[str, float] | None:
     """capture.json's frames as {name as written: focus_m}; names are confined to the folder."""
     path = folder / SIDECAR
     if not os.path.lexists(path):
         return None
+    check_inside(folder, path, allow_outside_links)
     kind = file_kind(path)
     if kind is not None:
         raise CaptureError(f"{path}: {kind}, not a readable file")
@@ -117,23 +118,40 @@ def _sidecar(folder: Path) -> dict[str, float] | None:
 
 
 def read_capture(folder: str | Path, use_exiftool: bool = True, focus_m: list[float] | None = None,
-                 equal_focus_ok: bool = False) -> Capture:
-    """Read and validate a capture folder's frame list and focus distances (pixels are not decoded here).
+                 equal_focus_ok: bool = False, max_megapixels: float | None = None,
+                 allow_outside_links: bool = False) -> Capture:
+    """Read and validate a capture folder's frame list and focus distances (pixels are not decoded here, but each
+    frame's kind and size are read from its header: unknown content or a size beyond the pixel limit is refused).
 
     focus_m: the frames' focus distances (m, `aat-infer --focus-m`) in file-name order, overriding metadata and
     capture.json (as many as there are frames). equal_focus_ok: frames with equal focus distances are a warning
-    (the caller places them), not an error."""
+    (the caller places them), not an error. max_megapixels: the pixel limit (aat_deploy.capture.imagefile).
+    allow_outside_links: follow symlinks that lead out of the folder (refused by default, before anything is read
+    through them). The same file listed twice (a hard link or symlink) is refused."""
     folder = Path(folder)
     if not folder.is_dir():
         raise CaptureError(f"{folder}: not a folder")
     try:
-        return _read_capture(folder, use_exiftool, focus_m, equal_focus_ok)
+        return _read_capture(folder, use_exiftool, focus_m, equal_focus_ok, max_megapixels, allow_outside_links)
     except OSError as e:  # e.g. a folder that cannot be listed
         raise CaptureError(f"{e.filename or folder}: cannot read ({e.strerror or e})") from None
 
 
-def _read_capture(folder: Path, use_exiftool: bool, focus_m: list[float] | None, equal_focus_ok: bool) -> Capture:
-    sidecar = _sidecar(folder)
+def _same_files(files: list[Path]) -> None:
+    """CaptureError if two frame files are one file on disk (a hard link, or a symlink inside the folder)."""
+    seen: dict[tuple[int, int], Path] = {}
+    for p in files:
+        st = os.stat(p)
+        key = (st.st_dev, st.st_ino)
+        if key in seen:
+            raise CaptureError(f"{p}: the same file as {seen[key].name} (a link); a focal stack needs a distinct "
+                               "frame per focus distance")
+        seen[key] = p
+
+
+def _read_capture(folder: Path, use_exiftool: bool, focus_m: list[float] | None, equal_focus_ok: bool,
+                  max_megapixels: float | None, allow_outside_links: bool) -> Capture:
+    sidecar = _sidecar(folder, allow_outside_links)
     warnings: list[str] = []
     odd = odd_frame_files(folder)
     if sidecar:
@@ -166,9 +184,15 @@ def _read_capture(folder: Path, use_exiftool: bool, focus_m: list[float] | None,
         raise CaptureError(f"{folder}: --focus-m gives {len(focus_m)} focus distances for {len(files)} frames")
     if focus_m is not None and sidecar:
         warnings.append(f"{folder}: --focus-m overrides the focus distances in {SIDECAR}")
+    for p in files:  # before anything is read through them
+        check_inside(folder, p, allow_outside_links)
+    _same_files(files)
     frames = []
     for i, p in enumerate(files):
-        meta = read_metadata(p, use_exiftool=use_exiftool)
+        buf = read_input_bytes(p)
+        frame_header(p, buf, max_megapixels)  # unknown content, or a size beyond the pixel limit: refused here
+        meta = read_metadata(p, use_exiftool=use_exiftool, buf=buf)
+        del buf
         if focus_m is not None:
             frames.append(Frame(p, float(focus_m[i]), "--focus-m", meta))
         elif sidecar:
@@ -200,5 +224,6 @@ def _read_capture(folder: Path, use_exiftool: bool, focus_m: list[float] | None,
     cap = Capture(folder, frames, warnings=warnings)
     for name, attr in zip(GT_NAMES, ("gt_depth_m", "gt_depth_mm", "gt_aif")):
         if (folder / name).is_file():
+            check_inside(folder, folder / name, allow_outside_links)
             setattr(cap, attr, folder / name)
     return cap

@@ -25,35 +25,37 @@ from pathlib import Path
 from ..capture.exif import read_metadata
 from ..capture.focuslist import parse_focus_list
 from ..capture.folder import SIDECAR, _sidecar, focus_problem, frame_files, read_capture
-from ..capture.raw import FRAME_EXTENSIONS, is_raw, raw_size
-from ..errors import CaptureError, safe_output_streams
+from ..capture.imagefile import frame_header
+from ..errors import CaptureError, check_inside, read_input_bytes, safe_output_streams
 from ..io.atomic import atomic_file
-from .common import EXIT_FAILED, EXIT_OK, parser, subparser
+from .common import EXIT_FAILED, EXIT_OK, add_reader_options, check_reader_options, parser, subparser
 
 
-def _frame_rows(target: Path, use_exiftool: bool) -> list[dict]:
-    """Per-frame metadata rows of a folder (its capture.json's files if it has one) or of one file."""
+def _frame_rows(target: Path, args) -> list[dict]:
+    """Per-frame metadata rows of a folder (its capture.json's files if it has one) or of one file. Each file's
+    kind and size come from its header, as aat-infer reads them: unknown content, a size beyond the pixel limit or
+    a link out of the folder is a CaptureError naming the file."""
     if target.is_dir():
-        sidecar = _sidecar(target) or {}
+        sidecar = _sidecar(target, args.allow_outside_links) or {}
         files = [target / n for n in sidecar] if sidecar else frame_files(target)  # names confined by _sidecar
         focus = dict(zip(files, sidecar.values())) if sidecar else {}
         if not files:
             raise CaptureError(f"{target}: empty capture folder (no RAW, TIFF, PNG or JPEG frames)")
+        for f in files:
+            check_inside(target, f, args.allow_outside_links)
     elif target.is_file():
-        if target.suffix.lower() not in FRAME_EXTENSIONS:
-            raise CaptureError(f"{target}: unknown frame type {target.suffix!r} (expected RAW, TIFF, PNG or JPEG)")
         files, focus = [target], {}
     else:
         raise CaptureError(f"{target}: no such file or folder")
     rows = []
     for f in files:
-        meta = read_metadata(f, use_exiftool=use_exiftool)
+        buf = read_input_bytes(f)
+        _, size = frame_header(f, buf, args.max_megapixels)
+        meta = read_metadata(f, use_exiftool=not args.no_exiftool, buf=buf)
         if f in focus:
             meta.focus_m, meta.focus_source = focus[f], SIDECAR
-        if meta.width is None and is_raw(f):
-            size = raw_size(f)
-            if size:
-                meta.width, meta.height = size
+        if meta.width is None and size:
+            meta.width, meta.height = size
         rows.append(meta.as_json())
     return rows
 
@@ -68,12 +70,13 @@ def _fmt(v, unit: str = "", digits: int = 4) -> str:
     return f"{v}{unit}"
 
 
-def _problem(target: Path, rows: list[dict], use_exiftool: bool) -> str | None:
+def _problem(target: Path, rows: list[dict], args) -> str | None:
     """Why aat-infer cannot run this target, or None: a folder through the runtime's own checks
     (aat_deploy.capture.folder.read_capture), a single file when it gives no usable focus distance."""
     if target.is_dir():
         try:
-            read_capture(target, use_exiftool=use_exiftool)
+            read_capture(target, use_exiftool=not args.no_exiftool, max_megapixels=args.max_megapixels,
+                         allow_outside_links=args.allow_outside_links)
         except CaptureError as e:
             return str(e)
         return None
@@ -90,12 +93,12 @@ def inspect(args) -> int:
     for t in args.targets:
         target = Path(t)
         try:
-            rows = _frame_rows(target, not args.no_exiftool)
+            rows = _frame_rows(target, args)
         except CaptureError as e:
             print(f"aat-capture: CANNOT READ: {e}", file=sys.stderr, flush=True)
             failed += 1
             continue
-        problem = _problem(target, rows, not args.no_exiftool)
+        problem = _problem(target, rows, args)
         failed += problem is not None
         for r in rows:
             r["capture"], r["capture_problem"] = str(target), problem
@@ -211,6 +214,7 @@ def main(argv: list[str] | None = None) -> int:
     ins.add_argument("--json", action="store_true", help="print a JSON list of per-frame objects (with 'capture' and "
                      "'capture_problem': null when aat-infer can run it)")
     ins.add_argument("--no-exiftool", action="store_true", help="do not fall back to exiftool even if installed")
+    add_reader_options(ins)
     ini = subparser(sub, "init", "write CAPTURE_DIR/capture.json listing its frames and their focus distances")
     ini.add_argument("folder", metavar="CAPTURE_DIR")
     ini.add_argument("--focus-m", metavar="F1,F2,...", help="focus distances in metres from the sensor, one per frame "
@@ -223,6 +227,7 @@ def main(argv: list[str] | None = None) -> int:
     pl.add_argument("--frames", type=int, required=True, metavar="N", help="number of frames")
     args = ap.parse_args(argv)
     if args.cmd == "inspect":
+        check_reader_options(ins, args)
         return inspect(args)
     if args.cmd == "init":
         return init(args, ini)

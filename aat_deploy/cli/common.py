@@ -37,6 +37,27 @@ def subparser(sub, name: str, help: str, **kw) -> argparse.ArgumentParser:
     return p
 
 
+def add_reader_options(ap: argparse.ArgumentParser) -> None:
+    """The options of commands that read capture folders: the pixel limit and following links out of a folder."""
+    from ..capture.imagefile import DEFAULT_MAX_MEGAPIXELS, ENV_MAX_MEGAPIXELS
+    from ..errors import OUTSIDE_LINKS_FLAG
+
+    ap.add_argument("--max-megapixels", type=float, default=None, metavar="MP",
+                    help="refuse frames whose header claims more pixels than this, before decoding (default "
+                         f"${ENV_MAX_MEGAPIXELS} or {DEFAULT_MAX_MEGAPIXELS:g}: a damaged or hostile header can claim "
+                         "gigapixels)")
+    ap.add_argument(OUTSIDE_LINKS_FLAG, action="store_true",
+                    help="follow symlinks that lead out of a capture folder (refused by default)")
+
+
+def check_reader_options(ap: argparse.ArgumentParser, args) -> None:
+    """ap.error for a --max-megapixels that is not a positive number."""
+    import math
+
+    if args.max_megapixels is not None and not (args.max_megapixels > 0 and math.isfinite(args.max_megapixels)):
+        ap.error("--max-megapixels must be a positive number")
+
+
 def install_hint(extra: str = "train") -> str:
     return f'pip install "{DISTRIBUTION}[{extra}]"'
 

@@ -19,7 +19,7 @@ from ..eval.report import MD_COLUMNS
 from ..eval.run import EvalOptions, evaluate
 from ..eval.score import ALIGN_MODES
 from ..shipped import resolve
-from .common import parser
+from .common import add_reader_options, check_reader_options, parser
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -43,7 +43,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-exiftool", action="store_true", help="never fall back to exiftool")
     ap.add_argument("--no-recording", action="store_true", help="skip eval.rrd")
     ap.add_argument("--no-panels", action="store_true", help="skip the per-capture panel PNGs")
+    add_reader_options(ap)
     args = ap.parse_args(argv)
+    check_reader_options(ap, args)
     if args.threads is not None and args.threads < 1:
         ap.error("--threads must be >= 1")
     models = ([args.model] if args.model else []) + [m for m in args.compare if m != args.model]
@@ -52,7 +54,8 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("give --model M.onnx and/or --compare A.onnx B.onnx ...")
     opts = EvalOptions(align=args.align, align_frames=args.align_frames, focus_range_mask=args.focus_range_mask,
                        force=args.force, use_exiftool=not args.no_exiftool, record=not args.no_recording,
-                       panels=not args.no_panels, quiet=args.quiet)
+                       panels=not args.no_panels, quiet=args.quiet, max_megapixels=args.max_megapixels,
+                       allow_outside_links=args.allow_outside_links)
     try:
         rep = evaluate(args.root, models, args.out, opts, threads=args.threads)
     except CaptureError as e:

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import CaptureError, safe_output_streams
-from ..gt.read import check_units, find_gt, load_ground_truth
+from ..gt.read import check_aspect, check_units, find_gt, load_ground_truth
 from ..camera import load_intrinsics
 from ..gt.raycast import load_mesh, load_pose, render_depth
 from ..io.atomic import atomic_files
@@ -130,11 +130,17 @@ def cmd_pose(a) -> int:
 
 
 def cmd_check(a) -> int:
+    """Each capture's ground truth read and checked as aat-eval does: readable, valid pixels, the frames' aspect
+    ratio (the first frame is decoded, as aat-eval decodes it), units against --model's focus range."""
+    from ..capture.folder import frame_files
+    from ..capture.raw import load_frame
+
     focus_range = None
     if a.model:
         from ..model import DfFModel
+        from ..shipped import resolve
 
-        focus_range = DfFModel(a.model, threads=1).focus_range_m
+        focus_range = DfFModel(resolve(a.model, "models"), threads=1).focus_range_m  # a path or a shipped name
     bad = 0
     for c in a.captures:
         try:
@@ -144,16 +150,29 @@ def cmd_check(a) -> int:
             gt = load_ground_truth(src)
             if focus_range:
                 check_units(gt, focus_range)
+            frames = frame_files(c)
+            img = load_frame(frames[0])[0] if frames else None
+            if img is not None:
+                check_aspect(gt.depth_m.shape, (img.shape[1], img.shape[0]), src.depth)
         except CaptureError as e:
             bad += 1
             print(f"aat-gt: error: {e}", file=sys.stderr)
             continue
-        for w in gt.warnings:
+        except MemoryError:
+            bad += 1
+            print(f"aat-gt: error: {c}: out of memory reading its ground truth or frames", file=sys.stderr)
+            continue
+        except OSError as e:  # a folder that cannot be listed
+            bad += 1
+            print(f"aat-gt: error: {e.filename or c}: cannot read ({e.strerror or e})", file=sys.stderr)
+            continue
+        for w in gt.warnings + ([] if frames else [f"{c}: no frames beside it; its aspect ratio is not checked"]):
             print(f"aat-gt: warning: {w}", file=sys.stderr)
         h, w = gt.depth_m.shape
         print(f"{src.depth}: {w}x{h} px, scale_to_m {src.scale_to_m:g}, "
               f"{100 * gt.valid_fraction:.1f} % valid{', mask ' + src.mask.name if src.mask else ''}, depth "
-              f"{np.nanmin(gt.depth_m):.3f}..{np.nanmax(gt.depth_m):.3f} m (median {np.nanmedian(gt.depth_m):.3f})")
+              f"{np.nanmin(gt.depth_m):.3f}..{np.nanmax(gt.depth_m):.3f} m (median {np.nanmedian(gt.depth_m):.3f})"
+              + (f", frames {img.shape[1]}x{img.shape[0]} px" if img is not None else ""))
     return 1 if bad else 0
 
 

@@ -29,7 +29,7 @@ from ..focus.runner import FocusMethod
 from ..model import DfFModel
 from ..pipeline import Options, check_output, output_dir_for, output_dirs, run_capture
 from ..shipped import resolve
-from .common import parser
+from .common import add_reader_options, check_reader_options, parser
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -64,7 +64,9 @@ def main(argv: list[str] | None = None) -> int:
                          "depth upsampled guided by the all-in-focus image)")
     ap.add_argument("--no-exiftool", action="store_true", help="never fall back to exiftool")
     ap.add_argument("--no-recording", action="store_true", help="skip recording.rrd")
+    add_reader_options(ap)
     args = ap.parse_args(argv)
+    check_reader_options(ap, args)
     if args.threads is not None and args.threads < 1:
         ap.error("--threads must be >= 1")
     if args.tile is not None and args.tile < 16:
@@ -103,7 +105,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     opts = Options(tile=args.tile, align=args.align, strict=args.strict, force=args.force,
                    use_exiftool=not args.no_exiftool, focus_m=focus_m, record=not args.no_recording,
-                   quiet=args.quiet, native=args.native_res)
+                   quiet=args.quiet, native=args.native_res, max_megapixels=args.max_megapixels,
+                   allow_outside_links=args.allow_outside_links)
     failed = 0
     for i, (c, out) in enumerate(zip(captures, outs)):
         t0 = time.perf_counter()

@@ -6,17 +6,15 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from aat_deploy.capture.folder import read_capture
-from aat_deploy.capture.raw import load_frame, srgb_to_linear
+from aat_deploy.capture.raw import load_frame
 from aat_deploy.errors import CaptureError
 from aat_deploy.geometry import fit_to_sensor
 from aat_deploy.model import DfFModel
 from aat_deploy.eval import batch
 from aat_deploy.gt.read import check_units, find_gt, load_ground_truth, to_sensor
-from aat_deploy.io.images import imread
 
 
 @dataclass
@@ -60,11 +58,7 @@ def load_capture_data(folder: str | Path, model: DfFModel, use_exiftool: bool = 
     gt = to_sensor(truth.depth_m, (size0[1], size0[0]), geometry["crop_xywh"], (w_px, h_px), src.depth)
     aif = None
     if src.aif is not None:
-        img = imread(src.aif, cv2.IMREAD_UNCHANGED)
-        if img is None:
-            raise CaptureError(f"{src.aif}: unreadable all-in-focus image")
-        scale = 65535.0 if img.dtype == np.uint16 else 255.0
-        rgb = srgb_to_linear(cv2.cvtColor(img, cv2.COLOR_BGR2RGB).astype(np.float32) / scale)
+        rgb, _ = load_frame(src.aif)  # the frame reader: kind from content, pixel limit, sRGB to linear
         aif = fit_to_sensor(rgb, (w_px, h_px))[0].transpose(2, 0, 1).astype(np.float32)
     return CaptureData(cap.name, folder, np.stack(images).astype(np.float32),
                        np.array([f.focus_m for f in frames], np.float64), gt, aif, warnings,

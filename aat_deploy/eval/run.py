@@ -66,6 +66,8 @@ class EvalOptions:
     record: bool = True
     panels: bool = True
     quiet: bool = False
+    max_megapixels: float | None = None  # the pixel limit of frame and ground-truth headers
+    allow_outside_links: bool = False
     messages: list[str] = field(default_factory=list)
 
 
@@ -82,7 +84,9 @@ def _score_one(cap: Path, gt: GroundTruth, model: DfFModel, label: str, run_dir:
     """Run one model on one capture and score it. CaptureError (incl. GTError) on failure."""
     check_units(gt, model.focus_range_m)
     summary = infer_capture(cap, model, run_dir, Options(align=opts.align_frames, quiet=True, record=False,
-                                                         use_exiftool=opts.use_exiftool))
+                                                         use_exiftool=opts.use_exiftool,
+                                                         max_megapixels=opts.max_megapixels,
+                                                         allow_outside_links=opts.allow_outside_links))
     pred = np.load(run_dir / "depth_m.npy").astype(np.float64)
     frame_wh = tuple(summary["input_size_px"])
     crop = tuple(summary["geometry"]["crop_xywh"])
@@ -99,7 +103,7 @@ def _score_one(cap: Path, gt: GroundTruth, model: DfFModel, label: str, run_dir:
     gain = None
     warnings = [w for w in summary["warnings"] if ": ground truth " not in w]  # the pipeline's own GT check
     if gt.source.aif is not None:
-        ref, _ = load_frame(gt.source.aif)
+        ref, _ = load_frame(gt.source.aif, opts.max_megapixels)
         rh, rw = ref.shape[:2]
         if abs((rw / rh) / (frame_wh[0] / frame_wh[1]) - 1) > 0.01:
             warnings.append(f"{gt.source.aif}: {rw}x{rh} px, the frames are {frame_wh[0]}x{frame_wh[1]}: "
@@ -177,13 +181,16 @@ def _evaluate_into(tmp: Path, root: Path, caps: list[Path], without: list[Path],
             info = {"name": name, "path": str(cap)}
             cap_info.append(info)
             try:
-                src = find_gt(cap)
+                src = find_gt(cap, opts.allow_outside_links)
                 info["gt"] = src.describe()
-                gt = load_ground_truth(src)
+                gt = load_ground_truth(src, opts.max_megapixels)
                 info["gt_valid_fraction"] = gt.valid_fraction
-            except CaptureError as e:
+            except Exception as e:  # noqa: BLE001 (a capture's ground truth never stops the batch)
+                msg = str(e) if isinstance(e, CaptureError) else (
+                    "out of memory reading its ground truth" if isinstance(e, MemoryError)
+                    else f"unexpected {type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}")
                 for lb in labels:
-                    fail(name, lb, str(e))
+                    fail(name, lb, msg)
                     bar.step(f"{name} ({lb})")
                 continue
             scored: dict[str, _Scored] = {}

@@ -24,9 +24,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..capture.raw import FRAME_EXTENSIONS
-from ..errors import CaptureError, file_kind, load_json, member_path
-from ..io.images import imread
+from ..capture.containers import container_of
+from ..capture.imagefile import FRAME_EXTENSIONS, check_pixels, claimed_size
+from ..errors import CaptureError, check_inside, file_kind, load_json, member_path, read_input_bytes
 
 GT_JSON = "gt.json"
 DEFAULT_FILES = (("gt_depth_m.npy", 1.0), ("gt_depth_m.pfm", 1.0), ("gt_depth_m.tif", 1.0),
@@ -76,14 +76,25 @@ def has_ground_truth(folder: Path) -> bool:
     return (folder / GT_JSON).is_file() or any((folder / n).is_file() for n, _ in DEFAULT_FILES)
 
 
-def find_gt(folder: str | Path) -> GTSource | None:
-    """The capture folder's ground-truth files (see the module doc), or None. GTError for a bad gt.json."""
+def find_gt(folder: str | Path, allow_outside_links: bool = False) -> GTSource | None:
+    """The capture folder's ground-truth files (see the module doc), or None. GTError for a bad gt.json, or for a
+    ground-truth file that is a link leading out of the folder (unless allow_outside_links)."""
     folder = Path(folder)
+    src = _find_gt(folder)
+    if src is not None:
+        for p in (src.depth, src.mask, src.aif):
+            if p is not None:
+                check_inside(folder, p, allow_outside_links, GTError)
+    return src
+
+
+def _find_gt(folder: Path) -> GTSource | None:
     aif = folder / "gt_aif.png"
     aif = aif if aif.is_file() else None
     spec: dict = {}
     jpath = folder / GT_JSON
     if jpath.is_file():
+        check_inside(folder, jpath, False, GTError)
         spec = load_json(jpath, GTError)
         if not isinstance(spec, dict) or set(spec) - {"depth", "scale_to_m", "mask", "note"}:
             raise GTError(f'{jpath}: expected {{"depth": FILE, "scale_to_m": S, "mask": FILE}} (all optional), '
@@ -154,18 +165,53 @@ def read_pfm(path: Path) -> np.ndarray:
     return np.ascontiguousarray(img, dtype=np.float32)
 
 
-def read_depth_file(path: Path) -> np.ndarray:
-    """Raw values (H, W) float64 of a depth file (.npy, .pfm, .tif/.tiff, .png). GTError naming it otherwise."""
+def _npy_checked(path: Path, limit: float | None) -> np.ndarray:
+    """np.load after its header's shape is checked against the pixel limit and the file's length (a header can
+    claim 200000 x 200000 and make numpy allocate that before reading a byte)."""
+    with open(path, "rb") as f:
+        version = np.lib.format.read_magic(f)
+        read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+        shape, _, dtype = read_header(f)
+        data_at = f.tell()
+    if len(shape) >= 2:
+        check_pixels(path, (int(np.prod(shape[1:], dtype=np.float64)), int(shape[0])), limit, GTError)
+    n = int(np.prod(shape, dtype=np.float64))
+    if not dtype.hasobject and path.stat().st_size < data_at + n * dtype.itemsize:
+        raise GTError(f"{path}: truncated .npy (its header claims {' x '.join(map(str, shape))} {dtype} values)")
+    return np.load(path, allow_pickle=False)
+
+
+def _image_checked(path: Path, limit: float | None) -> np.ndarray:
+    """A PNG or TIFF depth/mask image (any bit depth, unchanged), its header size checked before decoding."""
+    try:
+        buf = read_input_bytes(path)
+    except CaptureError as e:
+        raise GTError(str(e)) from None
+    c = container_of(buf)
+    kind = {"png": "png", "tiff": "tiff", "bigtiff": "tiff"}.get(c)
+    if kind is None:
+        raise GTError(f"{path}: not a PNG or TIFF image (content: {c})")
+    size = claimed_size(buf, kind)
+    if size is None:
+        raise GTError(f"{path}: damaged {kind.upper()} header (no image size in it)")
+    check_pixels(path, size, limit, GTError)
+    arr = cv2.imdecode(np.frombuffer(buf, np.uint8), cv2.IMREAD_UNCHANGED)
+    if arr is None:
+        raise GTError(f"{path}: not a readable image")
+    return arr
+
+
+def read_depth_file(path: Path, max_megapixels: float | None = None) -> np.ndarray:
+    """Raw values (H, W) float64 of a depth file (.npy, .pfm, .tif/.tiff, .png). GTError naming it otherwise,
+    including a header claiming more pixels than the limit (aat_deploy.capture.imagefile), before decoding."""
     suffix = path.suffix.lower()
     try:
         if suffix == ".npy":
-            arr = np.load(path, allow_pickle=False)
+            arr = _npy_checked(path, max_megapixels)
         elif suffix == ".pfm":
             arr = read_pfm(path)
         elif suffix in (".tif", ".tiff", ".png"):
-            arr = imread(path, cv2.IMREAD_UNCHANGED)
-            if arr is None:
-                raise GTError(f"{path}: not a readable image")
+            arr = _image_checked(path, max_megapixels)
             if suffix == ".png" and arr.dtype != np.uint16:
                 raise GTError(f"{path}: a depth PNG must be 16-bit (millimetres), this one is {arr.dtype}")
         else:
@@ -184,17 +230,16 @@ def read_depth_file(path: Path) -> np.ndarray:
     return arr.astype(np.float64)
 
 
-def load_ground_truth(src: GTSource) -> GroundTruth:
-    """Read the depth (× scale_to_m) and mask; invalid pixels become NaN. GTError if nothing is valid."""
-    raw = read_depth_file(src.depth)
+def load_ground_truth(src: GTSource, max_megapixels: float | None = None) -> GroundTruth:
+    """Read the depth (× scale_to_m) and mask; invalid pixels become NaN. GTError if nothing is valid, or for a
+    header claiming more pixels than the limit (aat_deploy.capture.imagefile)."""
+    raw = read_depth_file(src.depth, max_megapixels)
     with np.errstate(invalid="ignore"):
         d = raw * src.scale_to_m
         d = np.where(np.isfinite(d) & (d > 0), d, np.nan).astype(np.float32)
     warnings = []
     if src.mask is not None:
-        m = imread(src.mask, cv2.IMREAD_UNCHANGED)
-        if m is None:
-            raise GTError(f"{src.mask}: not a readable mask image")
+        m = _image_checked(src.mask, max_megapixels)
         if m.ndim == 3:
             m = m.max(axis=2)
         if m.shape != d.shape:
@@ -247,6 +292,16 @@ def sensor_sample_index(n_out: int, crop0: int, crop_len: int, n_frame: int, n_g
     return np.clip(idx, 0, n_gt - 1)
 
 
+def check_aspect(gt_hw: tuple[int, int], frame_wh: tuple[int, int], path: Path | str = "ground truth") -> None:
+    """GTError (naming `path`) unless a ground truth of (H, W) covers frames of frame_wh = (W, H) px: the same
+    aspect ratio within ASPECT_TOLERANCE (any size)."""
+    fw, fh = frame_wh
+    gh, gw = gt_hw
+    if abs((gw / gh) / (fw / fh) - 1) > ASPECT_TOLERANCE:
+        raise GTError(f"{path}: ground truth is {gw}x{gh} px, the frames are {fw}x{fh} px: a different aspect "
+                      "ratio (it must cover the frames' field of view)")
+
+
 def to_sensor(gt: np.ndarray, frame_wh: tuple[int, int], crop_xywh: tuple[int, int, int, int],
               out_wh: tuple[int, int], path: Path | str = "ground truth") -> np.ndarray:
     """Bring a ground-truth map (Hg, Wg) covering the frames' field of view to the model's sensor (h, w).
@@ -254,11 +309,9 @@ def to_sensor(gt: np.ndarray, frame_wh: tuple[int, int], crop_xywh: tuple[int, i
     frame_wh: (W, H) of the frames; crop_xywh: the frames' centre crop (frame pixels, from fit_to_sensor);
     out_wh: (w, h) = aat.sensor_px. Nearest sampling: no value is ever blended with a neighbour.
     GTError (naming `path`) if the ground truth's aspect ratio is not the frames'."""
+    check_aspect(gt.shape[:2], frame_wh, path)
     fw, fh = frame_wh
     gh, gw = gt.shape[:2]
-    if abs((gw / gh) / (fw / fh) - 1) > ASPECT_TOLERANCE:
-        raise GTError(f"{path}: ground truth is {gw}x{gh} px, the frames are {fw}x{fh} px: a different aspect "
-                      "ratio (it must cover the frames' field of view)")
     x0, y0, cw, ch = crop_xywh
     ow, oh = out_wh
     cols = sensor_sample_index(ow, x0, cw, fw, gw)

@@ -19,10 +19,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from conftest import LENSES, SHARED
-from deploy_fixtures import canon_jpeg, write_dng_capture, write_png_capture
+from deploy_fixtures import canon_jpeg, claim_size, write_dng_capture, write_jpeg_capture, write_png_capture
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -272,6 +273,265 @@ def test_force_replaces_an_earlier_output_only_while_it_holds_nothing_else(model
             (late / "added.txt").write_text("written meanwhile")
     assert (late / "added.txt").read_text() == "written meanwhile" and (late / "a.npy").read_bytes() == b"1"
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".late.")]
+
+
+# -- issue 31, 2 and 3: decompression bombs in frames and ground truth ---------------------------------------------
+@pytest.mark.parametrize("fmt", ["jpeg", "png", "tiff"])
+@pytest.mark.parametrize("method", ["model", "focus"])
+def test_a_header_claiming_20000_x_20000_px_is_refused_before_decoding(fmt, method, model_path, good, tmp_path,
+                                                                         capsys, monkeypatch):
+    """Before: a 700-byte JPEG claiming 20000 x 20000 px drove aat-infer to 23.5 GB until the kernel killed it;
+    a 20000 x 20000 PNG failed with "out of memory (try --tile 256)", no file named. Now one line naming the file
+    and the size, before any decoder sees it, and the batch goes on."""
+    cap, earlier = good
+    bad = write_png_capture(tmp_path / "bad", FOCUS)
+    if fmt == "jpeg":
+        bad = write_jpeg_capture(tmp_path / "badj", FOCUS, names=["img_0.png", "img_1.png", "img_2.png"])
+    name = "img_1.png" if fmt != "tiff" else "img_1.tif"
+    raw = (bad / "img_1.png").read_bytes()
+    if fmt == "tiff":
+        raw = cv2.imencode(".tif", cv2.imdecode(np.frombuffer(raw, np.uint8), cv2.IMREAD_UNCHANGED))[1].tobytes()
+        (bad / "img_1.png").unlink()
+        doc = json.loads((bad / "capture.json").read_text())
+        doc["frames"][1]["file"] = name
+        (bad / "capture.json").write_text(json.dumps(doc))
+    (bad / name).write_bytes(claim_size(raw, 20000, 20000))
+    assert (bad / name).stat().st_size < 40_000
+    decoded = []
+    import aat_deploy.capture.raw as raw_mod
+
+    real_decode = cv2.imdecode
+    monkeypatch.setattr(raw_mod.cv2, "imdecode", lambda b, f: decoded.append(len(b)) or real_decode(b, f))
+    before = tree_hash(bad, cap, earlier)
+    args = ["--model", model_path] if method == "model" else ["--method", "focus"]
+    rc, lines, out = infer([bad, cap, *args, "--out", tmp_path / "o"], capsys)
+    assert rc == 1 and len(lines) == 2, lines
+    assert f"{bad / name}: its header claims 20000 x 20000 px (400 MP), beyond the limit of 200 MP" in lines[0]
+    assert "--max-megapixels" in lines[0] and "AAT_MAX_MEGAPIXELS" in lines[0]
+    assert f"{cap} ->" in out and "1 of 2" in lines[1]  # the batch went on
+    assert not decoded or all(n != (bad / name).stat().st_size for n in decoded)  # never handed to a decoder
+    assert tree_hash(bad, cap, earlier) == before
+
+
+def test_pixel_limit_is_a_setting_said_the_same_by_inspect_and_read_stack(good, tmp_path, capsys, monkeypatch):
+    """The limit is documented and can be lowered or raised: --max-megapixels, AAT_MAX_MEGAPIXELS, max_megapixels=;
+    aat-capture inspect says the same line; read_stack raises the project's error (a ValueError), not MemoryError."""
+    from aat_deploy.api import read_stack
+    from aat_deploy.cli import capture as capture_cli
+
+    cap, earlier = good
+    bomb = write_jpeg_capture(tmp_path / "bomb", FOCUS)
+    (bomb / "img_2.jpg").write_bytes(claim_size((bomb / "img_2.jpg").read_bytes(), 20000, 20000))
+    assert capture_cli.main(["inspect", str(bomb)]) == 1
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(err) == 1 and f"{bomb / 'img_2.jpg'}: its header claims 20000 x 20000 px" in err[0], err
+    with pytest.raises(ValueError, match=r"img_2.jpg: its header claims 20000 x 20000 px \(400 MP\)") as e:
+        read_stack(bomb)
+    assert not isinstance(e.value, MemoryError)
+    # the 64 x 48 px frames of the good capture (0.003 MP) against a lowered limit: flag, environment, API
+    rc, lines, _ = infer([cap, "--model", "rf50_dfvnet_aat", "--max-megapixels", "0.001", "--out", tmp_path / "o"],
+                         capsys)
+    assert rc == 1 and "64 x 48 px (0 MP), beyond the limit of 0.001 MP" in lines[0], lines
+    monkeypatch.setenv("AAT_MAX_MEGAPIXELS", "0.001")
+    assert capture_cli.main(["inspect", str(cap)]) == 1
+    assert "beyond the limit of 0.001 MP" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="beyond the limit of 0.001 MP"):
+        read_stack(cap)
+    assert read_stack(cap, max_megapixels=1)[0].shape == (3, 48, 64, 3)  # the argument wins over the environment
+    monkeypatch.setenv("AAT_MAX_MEGAPIXELS", "500")
+    assert capture_cli.main(["inspect", str(bomb)]) == 0  # raised: the header's 400 MP is allowed (not decoded)
+    capsys.readouterr()
+    with pytest.raises(SystemExit):
+        infer_cli.main([str(cap), "--model", "x", "--max-megapixels", "-1"])
+    assert "--max-megapixels must be a positive number" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("what", ["npy", "png"])
+def test_ground_truth_header_bomb_is_one_line_and_the_eval_batch_goes_on(what, model_path, good, tmp_path, capsys):
+    """Before: a ground-truth file whose header claims 200000 x 200000 stopped aat-eval's whole batch with a
+    traceback and no output, and aat-gt check printed the same traceback."""
+    from aat_deploy.cli import gt as gt_cli
+
+    cap, earlier = good
+    root = tmp_path / "root"
+    shutil.copytree(cap, root / "a_bad")
+    shutil.copytree(cap, root / "b_good")
+    bad = root / "a_bad"
+    if what == "npy":
+        header = "{'descr': '<f4', 'fortran_order': False, 'shape': (200000, 200000), }"
+        header += " " * (117 - len(header)) + "\n"
+        (bad / "gt_depth_m.npy").write_bytes(b"\x93NUMPY\x01\x00" + struct.pack("<H", len(header)) + header.encode()
+                                             + b"\0" * 64)
+        target = bad / "gt_depth_m.npy"
+    else:
+        (bad / "gt_depth_m.npy").unlink()
+        target = bad / "gt_depth_mm.png"
+        target.write_bytes(claim_size(target.read_bytes(), 200000, 200000))
+    before = tree_hash(root)
+    rc = eval_cli.main([str(root), "--model", str(model_path), "--out", str(tmp_path / "e"), "-q", "--threads", "1",
+                        "--no-recording"])
+    err = capsys.readouterr().err
+    fails = [ln for ln in err.splitlines() if "FAILED" in ln]
+    assert rc == 1 and "Traceback" not in err and len(fails) == 1, err
+    assert "a_bad" in fails[0] and f"{target}: its header claims 200000 x 200000 px" in fails[0]
+    rep = json.loads((tmp_path / "e" / "metrics.json").read_text())
+    assert [r["capture"] for r in rep["per_capture"] if r["status"] == "ok"] == ["b_good"]  # the batch went on
+    assert gt_cli.main(["check", str(bad), str(root / "b_good")]) == 1
+    out = capsys.readouterr()
+    assert "Traceback" not in out.err
+    errs = [ln for ln in out.err.splitlines() if ln.startswith("aat-gt: error")]
+    assert len(errs) == 1 and f"{target}: its header claims 200000 x 200000 px" in errs[0]
+    assert "b_good" in out.out
+    assert tree_hash(root) == before
+
+
+# -- issue 31, 7: symlinks out of the capture folder ----------------------------------------------------------------
+@pytest.mark.parametrize("link", ["frame", "sidecar", "ground_truth", "frame_in_sidecar"])
+def test_links_out_of_the_capture_are_not_followed(link, model_path, good, tmp_path, capsys, monkeypatch):
+    """Before: `ln -s /etc/shadow cap/frame_07.dng` was followed and parsed by the EXIF reader, exiftool and LibRaw,
+    and an image reached that way ended up in aif.png and the recording. Now refused before anything is read
+    through the link, unless --allow-outside-links."""
+    cap, earlier = good
+    outside = write_dng_capture(tmp_path / "elsewhere", [0.6, 1.0, 2.0, 3.0])
+    bad = write_dng_capture(tmp_path / "bad", FOCUS)
+    if link == "frame":
+        (bad / "frame_07.dng").symlink_to(outside / "frame_03.dng")
+        named = bad / "frame_07.dng"
+    elif link == "sidecar":
+        (outside / "capture.json").write_text(json.dumps({"frames": [
+            {"file": f"frame_{i:02d}.dng", "focus_m": f} for i, f in enumerate(FOCUS)]}))
+        (bad / "capture.json").symlink_to(outside / "capture.json")
+        named = bad / "capture.json"
+    elif link == "ground_truth":
+        (bad / "gt_depth_m.npy").unlink()
+        (bad / "gt_depth_m.npy").symlink_to(outside / "gt_depth_m.npy")
+        named = bad / "gt_depth_m.npy"
+    else:
+        (bad / "sub").symlink_to(outside, target_is_directory=True)  # a folder link on the way
+        (bad / "capture.json").write_text(json.dumps({"frames": [
+            {"file": "frame_00.dng", "focus_m": 0.6}, {"file": "sub/frame_03.dng", "focus_m": 3.0}]}))
+        named = bad / "sub" / "frame_03.dng"
+    read = []
+    import aat_deploy.capture.folder as folder
+    import aat_deploy.capture.raw as raw_mod
+
+    real_meta, real_frame = folder.read_metadata, folder.read_input_bytes
+    monkeypatch.setattr(folder, "read_metadata", lambda p, **k: read.append(Path(p)) or real_meta(p, **k))
+    monkeypatch.setattr(folder, "read_input_bytes", lambda p: read.append(Path(p)) or real_frame(p))
+    monkeypatch.setattr(raw_mod, "read_input_bytes", lambda p: read.append(Path(p)) or real_frame(p))
+    before = tree_hash(bad, outside, cap, earlier)
+    rc, lines, out = infer([bad, cap, "--model", model_path, "--out", tmp_path / "o"], capsys)
+    assert rc == 1 and len(lines) == 2, lines
+    assert f"{named}: a link out of the folder (to {os.path.realpath(named)}); not followed" in lines[0]
+    assert "--allow-outside-links" in lines[0] and f"{cap} ->" in out
+    assert not any(p.resolve().is_relative_to(outside.resolve()) for p in read)  # nothing read through the link
+    rc, lines, out = infer([bad, "--model", model_path, "--out", tmp_path / "o2", "--allow-outside-links"], capsys)
+    assert rc == 0 and not lines  # the user's explicit choice
+    assert tree_hash(bad, outside, cap, earlier) == before
+
+
+# -- issue 31, 6: the same frame twice; a cut JPEG with an end marker appended ------------------------------------------
+@pytest.mark.parametrize("how", ["hardlink", "symlink"])
+def test_the_same_frame_listed_twice_through_a_link_is_refused(how, model_path, good, tmp_path, capsys):
+    cap, earlier = good
+    bad = write_png_capture(tmp_path / "bad", FOCUS)
+    (bad / "img_2.png").unlink()
+    if how == "hardlink":
+        os.link(bad / "img_0.png", bad / "img_2.png")
+    else:
+        (bad / "img_2.png").symlink_to("img_0.png")
+    rc, lines, out = infer([bad, cap, "--model", model_path, "--out", tmp_path / "o"], capsys)
+    assert rc == 1 and len(lines) == 2 and f"{bad / 'img_2.png'}: the same file as img_0.png (a link)" in lines[0]
+    assert f"{cap} ->" in out
+
+
+def test_a_jpeg_cut_short_with_an_end_marker_appended_is_refused(model_path, good, tmp_path, capsys):
+    """Before: a JPEG cut to a third with FF D9 appended passed the end-marker check and was used grey-padded. The
+    decoder is now asked whether the data ran out (libjpeg-turbo's warnings, strict)."""
+    cap, earlier = good
+    bad = write_jpeg_capture(tmp_path / "bad", FOCUS, h=240, w=320)
+    whole = (bad / "img_1.jpg").read_bytes()
+    (bad / "img_1.jpg").write_bytes(whole[:len(whole) // 3] + b"\xff\xd9")
+    rc, lines, out = infer([bad, cap, "--model", model_path, "--out", tmp_path / "o"], capsys)
+    assert rc == 1 and len(lines) == 2, lines
+    assert f"{bad / 'img_1.jpg'}: damaged or truncated JPEG (Corrupt JPEG data: premature end of data segment)" \
+        in lines[0]
+    # bytes a camera left before the end marker lose nothing: a warning libjpeg gives, not refused
+    from aat_deploy.capture.raw import load_frame
+
+    (tmp_path / "junk.jpg").write_bytes(whole[:-2] + b"\0\0\0\xff\xd9")
+    (tmp_path / "whole.jpg").write_bytes(whole)
+    assert np.array_equal(load_frame(tmp_path / "junk.jpg")[0], load_frame(tmp_path / "whole.jpg")[0])
+
+
+# -- issue 34, 3: image files read by content, not by name -----------------------------------------------------------
+def test_a_stack_of_jpeg_files_named_png_runs_like_the_same_stack_named_jpg(model_path, tmp_path, capsys):
+    """Before: "truncated image file" (the format was taken from the name)."""
+    named_png = write_jpeg_capture(tmp_path / "misnamed", FOCUS, names=["a.png", "b.png", "c.png"])
+    named_jpg = write_jpeg_capture(tmp_path / "named", FOCUS, names=["a.jpg", "b.jpg", "c.jpg"])
+    assert (named_png / "a.png").read_bytes() == (named_jpg / "a.jpg").read_bytes()
+    rc, lines, out = infer([named_png, named_jpg, "--model", model_path, "--out", tmp_path / "o"], capsys)
+    assert rc == 0 and not lines, lines
+    a, b = (np.load(tmp_path / "o" / n / "depth_m.npy") for n in ("misnamed", "named"))
+    assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("case", ["png_named_jpg", "dng_named_tif", "tiff_named_dng", "dng_named_jpeg"])
+def test_frames_are_decoded_by_their_content_whatever_their_name(case, tmp_path):
+    from aat_deploy.capture.raw import load_frame
+
+    png = write_png_capture(tmp_path / "p", FOCUS)
+    dng = write_dng_capture(tmp_path / "d", FOCUS)
+    src = {"png_named_jpg": png / "img_1.png", "dng_named_tif": dng / "frame_01.dng",
+           "dng_named_jpeg": dng / "frame_01.dng"}.get(case)
+    if case == "tiff_named_dng":  # a plain 16-bit TIFF named like a RAW: LibRaw declines it, OpenCV reads it
+        src = tmp_path / "plain.tif"
+        src.write_bytes(cv2.imencode(".tif", cv2.imread(str(png / "img_1.png"), cv2.IMREAD_UNCHANGED))[1].tobytes())
+    name = {"png_named_jpg": "x.jpg", "dng_named_tif": "x.tif", "tiff_named_dng": "x.dng", "dng_named_jpeg": "x.jpeg"}
+    misnamed = tmp_path / name[case]
+    misnamed.write_bytes(src.read_bytes())
+    got, info = load_frame(misnamed)
+    want, want_info = load_frame(src)
+    assert np.array_equal(got, want) and info == want_info
+
+
+@pytest.mark.parametrize("content, expect", [
+    (b"<!DOCTYPE html><html>not an image</html>", "unknown content, not a JPEG, PNG, TIFF or camera RAW file "
+                                                  "(starts with 3c 21 44 4f 43 54 59 50)"),
+    (b"\0\0\0\x18ftypheic\0\0\0\0mif1heic" + b"\0" * 64, "is a HEIF/HEIC/AVIF image, which aat does not read"),
+    (b"RIFF\0\0\0\0WEBPVP8 " + b"\0" * 64, "is a WebP image, which aat does not read"),
+])
+def test_unknown_content_is_one_line_naming_the_file(content, expect, model_path, good, tmp_path, capsys):
+    from aat_deploy.cli import capture as capture_cli
+
+    cap, earlier = good
+    bad = write_png_capture(tmp_path / "bad", FOCUS)
+    (bad / "img_1.png").write_bytes(content)
+    rc, lines, out = infer([bad, cap, "--model", model_path, "--out", tmp_path / "o"], capsys)
+    assert rc == 1 and len(lines) == 2 and f"{bad / 'img_1.png'}: {expect}" in lines[0], lines
+    assert f"{cap} ->" in out
+    assert capture_cli.main(["inspect", str(bad / "img_1.png")]) == 1  # one file, any name
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"{bad / 'img_1.png'}: {expect}" in err[0], err
+
+
+@pytest.mark.parametrize("orientation", range(1, 9))
+def test_jpeg_orientation_is_applied_as_opencv_applies_it(orientation, tmp_path):
+    """JPEG frames are decoded by libjpeg-turbo in strict mode (simplejpeg), which leaves the EXIF orientation
+    to us: the same upright pixels as OpenCV's decoder (the one used before), for each of the eight values."""
+    from aat_deploy.capture.raw import load_frame, srgb_to_linear
+
+    img = np.random.default_rng(orientation).integers(0, 256, (24, 40, 3), np.uint8)
+    jpg = cv2.imencode(".jpg", cv2.GaussianBlur(img, (0, 0), 1.5), [cv2.IMWRITE_JPEG_QUALITY, 95])[1].tobytes()
+    tiff = b"II*\0" + struct.pack("<I", 8) + struct.pack("<H", 1) + struct.pack("<HHII", 0x0112, 3, 1, orientation) \
+        + struct.pack("<I", 0)
+    app1 = b"Exif\0\0" + tiff
+    f = tmp_path / "o.jpg"
+    f.write_bytes(jpg[:2] + b"\xff\xe1" + struct.pack(">H", len(app1) + 2) + app1 + jpg[2:])
+    want = cv2.imdecode(np.frombuffer(f.read_bytes(), np.uint8), cv2.IMREAD_COLOR)[..., ::-1]
+    got, info = load_frame(f)
+    assert want.shape[:2] == ((24, 40) if orientation < 5 else (40, 24))
+    assert info == {"bits": 8} and np.array_equal(got, srgb_to_linear(want.astype(np.float32) / 255.0))
 
 
 # -- 2: two captures with the same folder name -------------------------------------------------------------------

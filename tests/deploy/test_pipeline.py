@@ -199,7 +199,7 @@ def test_failure_leaves_no_output(model, dng_capture, tmp_path):
     ("missing", "no focus distance"),
     ("sizes", "different sizes"),
     ("truncated_dng", "frame_01.dng"),
-    ("truncated_png", "truncated image"),
+    ("truncated_png", "truncated PNG"),
     ("garbage", "img_1.png"),
     ("bad_sidecar", "capture.json"),
     ("sidecar_missing_file", "does not exist"),

@@ -48,13 +48,16 @@ def test_pcb_sweep_needs_focus_then_runs_aligned(tmp_path, tmp_path_factory):
     src = _need("focal_stack_pcb_focusstack")
     files = sorted(src.glob("pcb_*.JPG"))
     cap = _linked(files, tmp_path / "pcb")
+    with pytest.raises(CaptureError, match=r"pcb_000\.JPG: a link out of the folder .*--allow-outside-links"):
+        read_capture(cap, use_exiftool=False)  # the frames are links to ../shared (issue 31: not followed unasked)
     with pytest.raises(CaptureError, match=r"pcb_000\.JPG: no focus distance.*capture\.json"):
-        read_capture(cap, use_exiftool=False)
+        read_capture(cap, use_exiftool=False, allow_outside_links=True)
     # focus distances unknown for this sweep: a sidecar supplies made-up, increasing ones
     (cap / "capture.json").write_text(json.dumps(
         {"frames": [{"file": f.name, "focus_m": round(0.05 + 0.01 * i, 3)} for i, f in enumerate(files)]}))
     model = DfFModel(tiny_model_path(tmp_path_factory), threads=1)
-    s = run_capture(cap, model, tmp_path / "out", Options(quiet=True, record=False, align=True, use_exiftool=False))
+    s = run_capture(cap, model, tmp_path / "out", Options(quiet=True, record=False, align=True, use_exiftool=False,
+                                                          allow_outside_links=True))
     assert s["input_size_px"] == [2048, 1536] and s["output_size_px"] == [64, 48]
     assert len(s["align"]) == 10
     assert any("outside the model's range" in w for w in s["warnings"])
@@ -71,15 +74,16 @@ def test_phone_stack_with_sidecar(tmp_path, tmp_path_factory):
     (cap / "capture.json").write_text(json.dumps(
         {"frames": [{"file": f.name, "focus_m": v} for f, v in zip(files, values)]}))
     with pytest.raises(CaptureError, match=r"frames\[0\] \('00.jpg'\) needs focus_m > 0 in metres, at most 1000"):
-        read_capture(cap, use_exiftool=False)  # frame 00's 7.2e6 ("infinity") is not a focus distance
+        read_capture(cap, use_exiftool=False, allow_outside_links=True)  # frame 00's 7.2e6 ("infinity")
     files, values = files[1:], values[1:]
     (cap / "capture.json").write_text(json.dumps(
         {"frames": [{"file": f.name, "focus_m": v} for f, v in zip(files, values)]}))
-    c = read_capture(cap, use_exiftool=False)
+    c = read_capture(cap, use_exiftool=False, allow_outside_links=True)
     assert [f.focus_source for f in c.frames] == ["capture.json"] * 9
     assert any("00.jpg" in w and "not listed" in w for w in c.warnings)
     model = DfFModel(tiny_model_path(tmp_path_factory), threads=1)
-    s = run_capture(cap, model, tmp_path / "out", Options(quiet=True, record=False, use_exiftool=False))
+    s = run_capture(cap, model, tmp_path / "out", Options(quiet=True, record=False, use_exiftool=False,
+                                                          allow_outside_links=True))
     assert s["input_size_px"] == [1280, 720]
     assert any("centre-cropped" in w for w in s["warnings"])  # 16:9 frames, 4:3 model
     assert s["focus_m"] == sorted(values)  # sorted near to far
