@@ -2,7 +2,7 @@
 training/data/cache.py), so every training run that uses the same data reads them instead of rendering again.
 
     OMP_WAIT_POLICY=PASSIVE nice python scripts/render_training_stacks.py configs/paper50/dfv_aat.json [...] \
-        [--workers 2] [--split train|val|both] [--shard i/n]
+        [--workers 2] [--split train|val|both] [--shard i/n] [--device cpu|cuda|...]
     python scripts/render_training_stacks.py CONFIG --shard 3/8            # job 3 of 8 (array jobs, machines)
     torchrun --nproc_per_node=8 scripts/render_training_stacks.py CONFIG --workers 1   # shard = rank/world
 
@@ -12,7 +12,9 @@ in the cache are skipped (a killed job loses at most the items being rendered); 
 shard records what it did in <cache>/shards/; whichever job finds the cache complete writes <cache>/manifest.json
 (every item's SHA-256). Several configs that share their data (the AAT and thin-lens configs of one experiment
 differ only in the simulator, so they have two caches; the AiFNet and DFVNet configs share them) are rendered
-once. Prints, per cache, how many items it holds.
+once. Prints, per cache, how many items it holds. --device cuda renders on the GPU (default cpu: a GPU's float
+rounding differs from the CPU's, so all shards of one cache should use one kind of device; each shard's record
+names its device).
 """
 
 from __future__ import annotations
@@ -54,13 +56,13 @@ def _datasets(config_paths: list[str], split: str) -> dict:
 def _work(args) -> int:
     """Render the uncached items of `indices` of one dataset (one torch thread: items do not depend on how the
     work is split). Reports each item with `report.put(1)` (a queue; or None)."""
-    (data, simulator, lens, effects, _), indices, report = args
+    (data, simulator, lens, effects, _), indices, report, device = args
     import torch
 
     torch.set_num_threads(1)
     from training.train.data import make_dataset
 
-    ds = make_dataset(data, simulator, lens, effects)
+    ds = make_dataset(data, simulator, lens, effects, device=device)
     done, parent = 0, os.getppid()
     for i in indices:
         if os.getppid() != parent:
@@ -73,9 +75,10 @@ def _work(args) -> int:
     return done
 
 
-def render_shard(spec: tuple, shard: Shard, workers: int, progress: bool = True, desc: str = "") -> int:
-    """Render this shard's uncached items of one dataset with `workers` processes (1: in this process).
-    Returns how many were rendered."""
+def render_shard(spec: tuple, shard: Shard, workers: int, progress: bool = True, desc: str = "",
+                 device: str = "cpu") -> int:
+    """Render this shard's uncached items of one dataset with `workers` processes (1: in this process), on
+    `device`. Returns how many were rendered."""
     from tqdm import tqdm
 
     from training.train.data import make_dataset
@@ -94,14 +97,14 @@ def render_shard(spec: tuple, shard: Shard, workers: int, progress: bool = True,
                     bar.update(n)
 
             try:
-                return _work((spec, todo, _Bar()))
+                return _work((spec, todo, _Bar(), device))
             finally:
                 torch.set_num_threads(threads)
     ctx = mp.get_context("spawn")
     with ctx.Manager() as mgr:
         q = mgr.Queue()
         with ctx.Pool(workers) as pool:
-            res = pool.map_async(_work, [(spec, todo[k::workers], q) for k in range(workers)])
+            res = pool.map_async(_work, [(spec, todo[k::workers], q, device) for k in range(workers)])
             with tqdm(total=len(todo), desc=desc, unit="stack", disable=not progress) as bar:
                 while not res.ready():  # a failing worker ends the wait: res.get() raises its error
                     try:
@@ -118,6 +121,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=2, help="processes of this job (default 2; 1 = this process)")
     ap.add_argument("--split", choices=("train", "val", "both"), default="both")
     add_shard_argument(ap)
+    ap.add_argument("--device", default="cpu", metavar="cpu|cuda[:N]|mps|auto",
+                    help="where the simulator renders (default cpu; under torchrun cuda means each rank's GPU)")
     ap.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
     a = ap.parse_args(argv)
     env = shard_from_env()
@@ -130,8 +135,8 @@ def main(argv: list[str] | None = None) -> int:
     for cache, spec in _datasets(a.configs, a.split).items():
         t0 = time.time()
         tag = Path(cache).name + (f" shard {shard.name}" if shard.count > 1 else "")
-        rendered = render_shard(spec, shard, a.workers, progress=not a.quiet, desc=tag)
-        write_shard_record(Path(cache), shard, spec[4], rendered, time.time() - t0)
+        rendered = render_shard(spec, shard, a.workers, progress=not a.quiet, desc=tag, device=a.device)
+        write_shard_record(Path(cache), shard, spec[4], rendered, time.time() - t0, device=a.device)
         data = dataclasses.asdict(make_dataset(*spec[:4]).cfg)
         manifest = write_manifest(Path(cache), data, spec[4])
         left = len(missing_items(Path(cache), spec[4]))

@@ -173,12 +173,12 @@ def fit_surrogate(ctx: Context, lens, out: Path, wavelength_nm: float | None = N
     data = {}
     for name, layout, part in (("axis", "axis", exp.train_axis), ("val", "field", exp.val)):
         d = build_psf_dataset(lens, exp.data_config(layout, part), work, compiled=p["compiled"],
-                              progress=ctx.progress)
+                              progress=ctx.progress, device=ctx.device)
         data[name] = to_tensors(d)
     ctx.log(f"psf: {p['axis_n']} axis PSFs traced at {wavelength:g} nm; fitting RotPSF for "
             f"{p['fit_minutes'] * 60:.0f} s")
-    model, fit_cfg = exp.run_fit("rot", lens, data, cache_dir=work, progress=ctx.progress)
-    st = torch.load(exp.checkpoint("rot", work, lens), weights_only=False)
+    model, fit_cfg = exp.run_fit("rot", lens, data, cache_dir=work, progress=ctx.progress, device=ctx.device)
+    st = torch.load(exp.checkpoint("rot", work, lens), map_location="cpu", weights_only=False)
     last = (fit_cfg.history or [{}])[-1]
     centre = {} if center_wavelength_nm is None else {"center_wavelength_nm": center_wavelength_nm}
     export_psf_onnx(model, lens, out, force=True, extra_metadata={

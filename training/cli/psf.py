@@ -1,7 +1,7 @@
 """`aat-psf`: ray-traced PSFs, surrogates and their export.
 
     aat-psf show LENS --focus-m 1.5 --depths-m 1.2,1.5,2 --fields-deg 0,12,23.5 --png out.png [--model M.onnx]
-    aat-psf fit --config configs/psf_rf50.json
+    aat-psf fit --config configs/psf_rf50.json [--device auto|cpu|cuda[:N]|mps]
     aat-psf export --config configs/psf_rf50.json --out models/psf_rf50.onnx [--force]
 
 Field angles are chief-ray angles along the image diagonal (towards the top-right corner); distances are metres
@@ -20,6 +20,7 @@ import numpy as np
 from aat_deploy.cli.common import parser, run_or_hint, subparser
 from aat_deploy.io.atomic import atomic_file
 from aat_deploy.shipped import resolve, shipped_dir
+from training.devices.options import add_device_argument
 
 
 def _floats(text: str) -> list[float]:
@@ -114,14 +115,16 @@ def cmd_show(a) -> int:
 def cmd_fit(a) -> int:
     import torch
 
+    from training.devices.select import resolve_device
     from training.psf.experiment import PSFExperiment
 
+    resolve_device(a.device)  # a missing GPU is refused before any tracing
     torch.set_num_threads(a.threads)
     exp = PSFExperiment.load(a.config)
     lens = exp.lens_obj()
-    data = exp.datasets(lens)
+    data = exp.datasets(lens, device=a.device)
     for name in a.only or list(exp.fits):
-        _, cfg = exp.run_fit(name, lens, data)
+        _, cfg = exp.run_fit(name, lens, data, device=a.device)
         last = cfg.history[-1] if cfg.history else {}
         print(f"{name}: validation l1 {last.get('l1', float('nan')):.3e} after {last.get('minutes', 0):.1f} min; "
               f"checkpoint {exp.checkpoint(name, lens=lens)}")
@@ -142,7 +145,7 @@ def cmd_export(a) -> int:
         raise SystemExit(f"aat-psf: error: {ckpt}: no checkpoint; run `aat-psf fit --config {a.config}` first")
     model = make_model("rot" if a.fit.startswith("rot") else "paper_mlp", lens, exp.spec(lens), exp.near_m,
                        exp.far_m)
-    st = torch.load(ckpt, weights_only=False)
+    st = torch.load(ckpt, map_location="cpu", weights_only=False)
     model.load_state_dict(st["model"])
     hist = st.get("history") or [{}]
     md = export_psf_onnx(model, lens, a.out, force=a.force, extra_metadata={
@@ -177,6 +180,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", required=True, help="PSF experiment config (configs/psf_*.json)")
     p.add_argument("--only", nargs="*", help="fit names to run (default: all in the config)")
     p.add_argument("--threads", type=int, default=2, help="torch threads (default 2)")
+    add_device_argument(p)
     p.set_defaults(func=cmd_fit)
     p = subparser(sub, "export", "export a fitted surrogate to ONNX with metadata")
     p.add_argument("--config", required=True, help="the config the surrogate was fitted with")

@@ -49,15 +49,16 @@ def missing_items(cache: Path, n_items: int) -> list[int]:
     return [i for i in range(n_items) if not item_path(cache, i).is_file()]
 
 
-def write_shard_record(cache: Path, shard: Shard, n_items: int, rendered: int, seconds: float) -> Path:
-    """shards/<i>-of-<n>.json: this shard's share, how many items it rendered now and before (a resumed shard
-    adds a session) and whether all its items exist."""
+def write_shard_record(cache: Path, shard: Shard, n_items: int, rendered: int, seconds: float,
+                       device: str = "cpu") -> Path:
+    """shards/<i>-of-<n>.json: this shard's share, how many items it rendered now and before, where (a resumed
+    shard adds a session) and how many of its items exist."""
     path = Path(cache) / "shards" / f"{shard.index}-of-{shard.count}.json"
     old = json.loads(path.read_text()) if path.is_file() else {}
     mine = shard.items(n_items)
     rec = {"shard": shard.name, "n_items": n_items, "items": len(mine),
            "held": sum(item_path(cache, i).is_file() for i in mine),
-           "sessions": old.get("sessions", []) + [{"rendered": rendered, "seconds": round(seconds, 1),
+           "sessions": old.get("sessions", []) + [{"rendered": rendered, "seconds": round(seconds, 1), "device": device,
                                                    "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}]}
     path.parent.mkdir(parents=True, exist_ok=True)
     write_text_atomic(path, json.dumps(rec, indent=1) + "\n")

@@ -124,15 +124,19 @@ def _resolve(p: str | None) -> Path | None:
 class FocalStackDataset(Dataset):
     config_class = StackDataConfig
 
-    def __init__(self, cfg: StackDataConfig):
+    def __init__(self, cfg: StackDataConfig, device: str = "cpu"):
+        """device: where the simulator renders (training.render.simulator; the items come back on the CPU). Not
+        part of the data's identity: a cache filled on a GPU differs from a CPU one by float rounding only."""
         self.cfg = cfg
         self.lens = load_lens(_resolve(cfg.lens))
         lens_src = None
         names = {str(e).split(":")[0] for e in cfg.effects}  # 'name:k=v' too
         # chromatic looks for its per-wavelength surrogates next to the lens's (else it ray-traces by itself)
         if cfg.simulator == "aat" or "vignetting" in names or ("chromatic" in names and cfg.psf):
-            lens_src = OnnxPSF(_resolve(cfg.psf), self.lens, threads=1) if cfg.psf else RayTracedPSF(self.lens)
-        self.sim = Simulator(self.lens, lens_src, fx.parse(cfg.effect_list()), LayeredConfig(cell_px=cfg.cell_px))
+            lens_src = (OnnxPSF(_resolve(cfg.psf), self.lens, threads=1) if cfg.psf
+                        else RayTracedPSF(self.lens, device=device))
+        self.sim = Simulator(self.lens, lens_src, fx.parse(cfg.effect_list()), LayeredConfig(cell_px=cfg.cell_px),
+                             device=device)
         self.schedule = FocusSchedule(cfg.focus_near_m, cfg.focus_far_m, cfg.stack_size, cfg.jitter_d)
         s = self.lens.sensor
         self.sensor_hw = (s.height_px, s.width_px)

@@ -30,6 +30,9 @@ def init_distributed(device: torch.device, timeout: datetime.timedelta = DEFAULT
     """(rank, world size, whether this call created the process group). Creates the group from torchrun's
     environment when WORLD_SIZE > 1 and there is none yet; the backend follows `device`."""
     created = False
+    if world_from_env() > 1 and device.type == "mps":
+        raise ValueError("--device mps under torchrun: torch has no collective backend for MPS tensors; "
+                         "train one process on MPS, or use --device cpu")
     if world_from_env() > 1 and not dist.is_initialized():
         kw = {"device_id": device} if device.type == "cuda" else {}
         dist.init_process_group(backend_for(device), timeout=timeout, **kw)

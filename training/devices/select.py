@@ -80,3 +80,15 @@ def pin_memory(device: torch.device) -> bool:
 def to_device(batch: dict, device: torch.device) -> dict:
     """Every tensor of a loader batch on `device` (non-blocking from pinned memory)."""
     return {k: v.to(device, non_blocking=True) if isinstance(v, torch.Tensor) else v for k, v in batch.items()}
+
+
+def to_cpu(obj):
+    """A state dict (nested dicts / lists of tensors, e.g. an optimizer's) with every tensor on the CPU: what
+    checkpoints store, so they load anywhere."""
+    if isinstance(obj, torch.Tensor):
+        return obj.detach().cpu()
+    if isinstance(obj, dict):
+        return {k: to_cpu(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return type(obj)(to_cpu(v) for v in obj)
+    return obj

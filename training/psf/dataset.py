@@ -82,8 +82,9 @@ def _atomic_savez(path: Path, **arrays) -> None:
 
 
 def build_psf_dataset(lens: Lens, cfg: PSFDataConfig, cache_dir: Path | None = None, compiled: bool = True,
-                      chunk: int = 2048, progress: bool = True) -> dict[str, np.ndarray]:
-    """Trace (or load from the cache) a PSF dataset. Resumes part-built datasets chunk by chunk."""
+                      chunk: int = 2048, progress: bool = True, device: str = "cpu") -> dict[str, np.ndarray]:
+    """Trace (or load from the cache) a PSF dataset, on `device` (raytrace_psfs). Resumes part-built datasets
+    chunk by chunk."""
     cache_dir = Path(cache_dir or DEFAULT_CACHE) / "psf"
     path = cache_dir / f"{cfg.layout}_{cfg.key(lens)}.npz"
     if path.exists():
@@ -108,7 +109,8 @@ def build_psf_dataset(lens: Lens, cfg: PSFDataConfig, cache_dir: Path | None = N
             continue
         b = raytrace_psfs(lens, inp["x"][sl], inp["y"][sl], inp["depth_m"][sl], inp["focus_m"][sl], spec,
                           n_rays=cfg.n_rays, wavelength_nm=cfg.wavelength_nm, seed=cfg.seed * 100003 + i,
-                          compiled=compiled, chunk=256, oversample=over, center_wavelength_nm=cfg.center_wavelength_nm)
+                          compiled=compiled, chunk=256, oversample=over, center_wavelength_nm=cfg.center_wavelength_nm,
+                          device=device)
         kernels[sl], energy[sl], scale[sl] = b.kernels.numpy(), b.energy, b.scale
         _atomic_savez(part, kernels=kernels[sl], energy=energy[sl], scale=scale[sl])
     data = {**{k_: v.astype(np.float32) for k_, v in inp.items()}, "kernels": kernels, "energy": energy,

@@ -62,27 +62,30 @@ class PSFExperiment:
                              margin_px=self.margin_px, wavelength_nm=self.wavelength_nm,
                              center_wavelength_nm=self.center_wavelength_nm, **part)
 
-    def datasets(self, lens: Lens, cache_dir=None, compiled=True) -> dict[str, dict]:
-        """Train (axis, field) and validation sets as tensors, traced once and cached; with build times."""
+    def datasets(self, lens: Lens, cache_dir=None, compiled=True, device: str = "cpu") -> dict[str, dict]:
+        """Train (axis, field) and validation sets as tensors, traced once (on `device`) and cached; with build
+        times."""
         out = {}
         for name, layout, part in (("axis", "axis", self.train_axis), ("field", "field", self.train_field),
                                    ("val", "field", self.val)):
-            data = build_psf_dataset(lens, self.data_config(layout, part), cache_dir, compiled=compiled)
+            data = build_psf_dataset(lens, self.data_config(layout, part), cache_dir, compiled=compiled,
+                                     device=device)
             out[name] = to_tensors(data)
             out[name]["_seconds"] = float(data["build_seconds"])  # tracing time when it was built
         return out
 
     def run_fit(self, name: str, lens: Lens, data: dict, cache_dir=None, progress: bool = True,
-                ) -> tuple[PSFModel, FitConfig]:
+                device: str = "cpu") -> tuple[PSFModel, FitConfig]:
         """Fit surrogate `name` (a key of `fits`; "rot*" = RotPSF on axis data, "paper_mlp*" = PaperMLP on
-        field data), resuming from its checkpoint."""
+        field data) on `device`, resuming from its checkpoint."""
         f = dict(self.fits[name])
         kind = "rot" if name.startswith("rot") else "paper_mlp"
         model = make_model(kind, lens, self.spec(lens), self.near_m, self.far_m)
         train = data["axis"] if kind == "rot" else data["field"]
         v = data["val"]
         val = (torch.stack([v["x"], v["y"], v["depth_m"], v["focus_m"]], -1), v["kernels"])
-        cfg = fit(model, train, FitConfig(**f), ckpt=self.checkpoint(name, cache_dir, lens), val=val, progress=progress)
+        cfg = fit(model, train, FitConfig(**f), ckpt=self.checkpoint(name, cache_dir, lens), val=val, progress=progress,
+                  device=device)
         model.eval()
         return model, cfg
 

@@ -2,7 +2,8 @@
 
 The learning rate follows a cosine over the time budget (not over steps), so a fit stopped and resumed ends
 where an uninterrupted one would. A held-out set is scored every `eval_every_s` seconds; that history is the
-"accuracy per training minute" curve.
+"accuracy per training minute" curve. `device` (training.devices.select) runs the fit on a GPU; checkpoints hold
+CPU tensors and load on any device, and the fitted model is handed back on the CPU.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import torch
 from tqdm import tqdm
 
 from aat_deploy.io.atomic import atomic_file
+from training.devices.select import resolve_device, to_cpu
 from training.psf.surrogates import PaperMLP, PSFModel, RotPSF
 
 
@@ -41,9 +43,10 @@ def psf_errors(pred: torch.Tensor, gt: torch.Tensor) -> tuple[float, float]:
 @torch.no_grad()
 def evaluate(model: PSFModel, q: torch.Tensor, gt: torch.Tensor, batch: int = 4096) -> tuple[float, float]:
     model.eval()
-    preds = torch.cat([model(q[i:i + batch]) for i in range(0, q.shape[0], batch)])
+    dev = next(model.parameters()).device
+    preds = torch.cat([model(q[i:i + batch].to(dev)).cpu() for i in range(0, q.shape[0], batch)])
     model.train()
-    return psf_errors(preds, gt)
+    return psf_errors(preds, gt.cpu())  # float64 on the CPU (MPS has no float64)
 
 
 def _batch_loss(model: PSFModel, data: dict, idx: torch.Tensor, loss: str) -> torch.Tensor:
@@ -66,19 +69,24 @@ def _batch_loss(model: PSFModel, data: dict, idx: torch.Tensor, loss: str) -> to
 
 
 def fit(model: PSFModel, data: dict[str, torch.Tensor], cfg: FitConfig, ckpt: Path | None = None,
-        val: tuple[torch.Tensor, torch.Tensor] | None = None, progress: bool = True) -> FitConfig:
-    """Train `model` on `data` (tensors from dataset.to_tensors) for cfg.minutes of wall-clock time.
+        val: tuple[torch.Tensor, torch.Tensor] | None = None, progress: bool = True,
+        device: str | torch.device = "cpu") -> FitConfig:
+    """Train `model` on `data` (tensors from dataset.to_tensors) for cfg.minutes of wall-clock time, on `device`
+    (auto | cpu | cuda[:N] | mps); the model ends on the CPU.
 
     ckpt: a checkpoint path; if it exists the fit resumes from it (model, optimiser, elapsed time, history).
     val: (queries (M, 4), ray-traced kernels (M, k, k)) scored during training.
     """
+    dev = resolve_device(device)
     torch.manual_seed(cfg.seed)
+    model.to(dev)
+    data = {k: v.to(dev) if isinstance(v, torch.Tensor) else v for k, v in data.items()}
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     elapsed, step = 0.0, 0
     if ckpt is not None and Path(ckpt).exists():
-        st = torch.load(ckpt, weights_only=False)
+        st = torch.load(ckpt, map_location="cpu", weights_only=False)
         model.load_state_dict(st["model"])
-        opt.load_state_dict(st["opt"])
+        opt.load_state_dict(st["opt"])  # moves the moments to the parameters' device
         elapsed, step, cfg.history = st["elapsed"], st["step"], st["history"]
     n = data["kernels"].shape[0]
     budget = cfg.minutes * 60.0
@@ -93,13 +101,13 @@ def fit(model: PSFModel, data: dict[str, torch.Tensor], cfg: FitConfig, ckpt: Pa
             return
         Path(ckpt).parent.mkdir(parents=True, exist_ok=True)
         with atomic_file(ckpt) as tmp:
-            torch.save({"model": model.state_dict(), "opt": opt.state_dict(), "elapsed": elapsed, "step": step,
-                        "history": cfg.history, "config": asdict(cfg)}, tmp)
+            torch.save({"model": to_cpu(model.state_dict()), "opt": to_cpu(opt.state_dict()), "elapsed": elapsed,
+                        "step": step, "history": cfg.history, "config": asdict(cfg)}, tmp)
 
     while elapsed < budget:
         for g in opt.param_groups:  # cosine over wall-clock time
             g["lr"] = cfg.lr * 0.5 * (1 + math.cos(math.pi * min(elapsed / budget, 1.0)))
-        idx = torch.randint(0, n, (cfg.batch,), generator=gen)
+        idx = torch.randint(0, n, (cfg.batch,), generator=gen).to(dev)  # drawn on the CPU: the same on any device
         loss = _batch_loss(model, data, idx, cfg.loss)
         opt.zero_grad(set_to_none=True)
         loss.backward()
@@ -120,6 +128,7 @@ def fit(model: PSFModel, data: dict[str, torch.Tensor], cfg: FitConfig, ckpt: Pa
             last_ckpt = elapsed
     save()
     bar.close()
+    model.cpu()
     return cfg
 
 

@@ -27,6 +27,7 @@ from aat_deploy.lens.schema import Lens
 from aat_deploy.optics.focus_table import FocusTable
 from aat_deploy.optics.paraxial import paraxial_data
 from aat_deploy.psf.kernel import KernelSpec
+from training.devices.select import resolve_device
 from training.optics.trace import start_plane_z_mm, stratified_disk, trace_components, uniform_disk_grid
 from training.psf.geometry import focus_table, object_points_mm
 from training.psf.splat import splat_bilinear
@@ -166,6 +167,7 @@ def raytrace_psfs(
     chunk: int = 128,
     oversample: int = 1,
     center_wavelength_nm: float | None = None,
+    device: str | torch.device = "cpu",
 ) -> PSFBatch:
     """Ray-traced PSFs for arrays x, y (normalised field), depth_m, focus_m (m from the sensor), broadcast.
 
@@ -176,7 +178,11 @@ def raytrace_psfs(
     center_wavelength_nm: centre the kernels on the chief ray of this wavelength instead of their own, so that
         kernels of several wavelengths keep their lateral colour (the shift between their chief rays); `center_mm`
         is then that reference hit. None: each kernel is centred on its own chief ray.
+    device: where the rays are traced and splatted (auto | cpu | cuda[:N] | mps; training.devices.select). Ray
+        aiming and the pupil samples stay on the CPU in float64 (the same random rays on every device); the
+        results come back on the CPU.
     """
+    dev = resolve_device(device)
     spec = spec or KernelSpec.for_lens(lens)
     table = table or focus_table(lens)
     x, y, depth_m, focus_m = (np.asarray(a, dtype=np.float64).reshape(-1) for a in
@@ -210,19 +216,19 @@ def raytrace_psfs(
         pup = torch.stack([ca * base[:, 0] - sa * base[:, 1], sa * base[:, 0] + ca * base[:, 1]], -1)
         pup = torch.cat([aim[:, None, :], pup], 1)  # ray 0 = chief ray
         comps = _rays_to_pupil(lens, obj, pup, p.entrance_pupil_z_mm)
-        flat = [c.reshape(-1).float() for c in comps]
+        flat = [c.reshape(-1).float().to(dev) for c in comps]
         sz = torch.from_numpy(sensor_z[idx]).float()[:, None].expand(-1, n_rays + 1).reshape(-1)
-        hx, hy, valid = tracer(*flat, sz.contiguous())
+        hx, hy, valid = tracer(*flat, sz.contiguous().to(dev))
         hx, hy, valid = (t.view(len(idx), n_rays + 1)[:b] for t in (hx, hy, valid))
         # Upright image coordinates relative to the chief ray, in cells.
         cx, cy = hx[:, :1], hy[:, :1]
         if recentre:
-            cx, cy = _chief_hit(lens, obj[:b], float(center_wavelength_nm), sensor_z[sl])
-        cell = torch.from_numpy(scale[sl] * lens.sensor.pixel_mm / oversample).float()[:, None]
+            cx, cy = (c.to(dev) for c in _chief_hit(lens, obj[:b], float(center_wavelength_nm), sensor_z[sl]))
+        cell = torch.from_numpy(scale[sl] * lens.sensor.pixel_mm / oversample).float()[:, None].to(dev)
         col = (-(hx[:, 1:] - cx)) / cell + k // 2
         row = (hy[:, 1:] - cy) / cell + k // 2  # upright y up = sensor -y; rows grow downward
         w = valid[:, 1:].float() / n_in
-        kernels[sl] = splat_bilinear(col, row, w, k)
-        energy[sl] = w.sum(1).double().numpy()
-        center[sl] = -torch.cat([cx, cy], 1).double().numpy()
+        kernels[sl] = splat_bilinear(col, row, w, k).cpu()
+        energy[sl] = w.sum(1).cpu().double().numpy()
+        center[sl] = -torch.cat([cx, cy], 1).cpu().double().numpy()
     return PSFBatch(kernels, scale, energy, center, sensor_z)

@@ -27,10 +27,10 @@ class TorchLayered(LayeredBackend):
         return x.to(dtype)
 
     def full(self, n: int, value: float, dtype):
-        return torch.full((n,), value, dtype=dtype)
+        return torch.full((n,), value, dtype=dtype)  # on the default device (Simulator's device context)
 
     def to_numpy(self, x) -> np.ndarray:
-        return x.numpy()
+        return x.cpu().numpy()
 
     def concat(self, arrays, axis: int):
         return torch.cat(arrays, axis)
@@ -74,7 +74,7 @@ class TorchLayered(LayeredBackend):
         if na <= 64:
             return super().overlap_add(blocks, idx, ny, nx, cc, r)
         # fold sums overlapping blocks in one call
-        flat = torch.zeros(ny * nx, ctot * (cc + 2 * r) ** 2, dtype=blocks.dtype)
+        flat = torch.zeros(ny * nx, ctot * (cc + 2 * r) ** 2, dtype=blocks.dtype, device=blocks.device)
         flat[idx[:, 0] * nx + idx[:, 1]] = blocks.reshape(na, -1)
         return F.fold(flat.T[None], (ny * cc + 2 * r, nx * cc + 2 * r), cc + 2 * r, stride=cc)[0]
 

@@ -3,6 +3,11 @@
 Without effects it is the thin-lens baseline (Gaussian PSFs of the same EFL, F-number and pixels); the
 `aberrations` effect swaps in the real lens's PSFs (aberration-aware training); the other effects add what a
 real camera adds. Frames come out in linear units where 1.0 is the sensor's white level.
+
+`device` (training.devices.select): the layered renderer (the FFT convolutions, the bulk of the work) runs
+there, under torch's default-device context, so every tensor the shared algorithm creates lands on it; PSF
+sources answer on the CPU and their kernels are copied over; the effects' numpy hooks and the returned frames
+are on the CPU.
 """
 
 from __future__ import annotations
@@ -17,6 +22,7 @@ from aat_deploy.lens.io import load_lens
 from aat_deploy.lens.schema import Lens
 from aat_deploy.render import effects as fx
 from aat_deploy.render.optical import optical_stack
+from training.devices.select import resolve_device
 from training.render.layered import LayeredConfig
 from training.render.sources import OnnxPSF, RayTracedPSF, thin_lens_source
 
@@ -49,8 +55,9 @@ class Stack:
 
 class Simulator:
     def __init__(self, lens: Lens, lens_source=None, effects: list | None = None,
-                 layered: LayeredConfig = LayeredConfig(), thin_source=None):
+                 layered: LayeredConfig = LayeredConfig(), thin_source=None, device: str | torch.device = "cpu"):
         self.lens = lens
+        self.device = resolve_device(device)
         self.lens_source = lens_source
         self.thin_source = thin_source or thin_lens_source(lens)
         self.effects = sorted(effects or [], key=lambda e: e.order)
@@ -95,8 +102,14 @@ class Simulator:
         return self.post(self.optical(rgb, depth_m, focus, ctx), focus, ctx, rng)
 
     def optical(self, rgb, depth_m, focus: np.ndarray, ctx: fx.SimContext) -> torch.Tensor:
-        """Frames (S, C, H, W) through the lens: PSFs and per-field focus, before warps and the sensor."""
-        return optical_stack(self.effects, self.thin_source, rgb, depth_m, focus, ctx, self.layered)
+        """Frames (S, C, H, W) through the lens: PSFs and per-field focus, before warps and the sensor (on the CPU,
+        rendered on the simulator's device)."""
+        if self.device.type == "cpu":
+            return optical_stack(self.effects, self.thin_source, rgb, depth_m, focus, ctx, self.layered)
+        with self.device:  # tensors the renderer creates land on the device
+            frames = optical_stack(self.effects, self.thin_source, rgb.to(self.device), depth_m.to(self.device),
+                                   focus, ctx, self.layered)
+        return frames.cpu()
 
     def post(self, frames: torch.Tensor, focus: np.ndarray, ctx: fx.SimContext, rng: np.random.Generator) -> torch.Tensor:
         """The effects' geometry (`warp`), whole-stack (`stack`) then sensor (`sensor`) hooks (`effects.post_stack`).

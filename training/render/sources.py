@@ -26,13 +26,13 @@ class RayTracedPSF(_LensGeometry):
     """PSFs traced on demand (`training.psf.raytrace`), at one wavelength."""
 
     def __init__(self, lens: Lens, spec: KernelSpec | None = None, n_rays: int = 2048, compiled: bool = False,
-                 wavelength_nm: float = DEFAULT_WAVELENGTH_NM, seed: int = 0):
+                 wavelength_nm: float = DEFAULT_WAVELENGTH_NM, seed: int = 0, device: str = "cpu"):
         self.lens, self.spec, self.n_rays, self.compiled = lens, spec or KernelSpec.for_lens(lens), n_rays, compiled
-        self.wavelength_nm, self.seed = wavelength_nm, seed
+        self.wavelength_nm, self.seed, self.device = wavelength_nm, seed, device
 
     def __call__(self, x, y, depth_m, focus_m):
         b = raytrace_psfs(self.lens, x, y, depth_m, focus_m, self.spec, n_rays=self.n_rays, compiled=self.compiled,
-                          wavelength_nm=self.wavelength_nm, seed=self.seed)
+                          wavelength_nm=self.wavelength_nm, seed=self.seed, device=self.device)
         return b.kernels, torch.from_numpy(np.asarray(b.scale, dtype=np.float32))
 
 

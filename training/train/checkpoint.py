@@ -9,22 +9,12 @@ from pathlib import Path
 import torch
 
 from aat_deploy.io.atomic import atomic_file
+from training.devices.select import to_cpu  # noqa: F401 (re-exported: what checkpoints store)
 
 
 def save_atomic(obj: dict, path: Path) -> None:
     with atomic_file(path) as tmp:
         torch.save(obj, tmp)
-
-
-def to_cpu(obj):
-    """A state dict (nested dicts / lists of tensors, e.g. an optimizer's) with every tensor on the CPU."""
-    if isinstance(obj, torch.Tensor):
-        return obj.detach().cpu()
-    if isinstance(obj, dict):
-        return {k: to_cpu(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return type(obj)(to_cpu(v) for v in obj)
-    return obj
 
 
 def load(path: Path, map_location: str | torch.device = "cpu") -> dict:

@@ -35,8 +35,10 @@ def resolve_lens_path(lens: str) -> str:
     return str(p if p.is_absolute() or p.exists() else ROOT / p)
 
 
-def make_dataset(data: dict, simulator: str, lens: str, effects: list[str] | None = None) -> Dataset:
-    """FocalStackDataset for one split, everything but the simulator identical between AAT and baseline runs."""
+def make_dataset(data: dict, simulator: str, lens: str, effects: list[str] | None = None,
+                 device: str = "cpu") -> Dataset:
+    """FocalStackDataset for one split, everything but the simulator identical between AAT and baseline runs;
+    device: where it renders (the items come back on the CPU)."""
     from training.data import stacks
 
     cfg_cls = _config_class(stacks.FocalStackDataset)
@@ -50,4 +52,6 @@ def make_dataset(data: dict, simulator: str, lens: str, effects: list[str] | Non
     unknown = sorted(set(kw) - names)
     if unknown:
         raise ValueError(f"data config: keys {unknown} are not fields of {cfg_cls.__name__} ({sorted(names)})")
+    if device != "cpu":
+        return stacks.FocalStackDataset(cfg_cls(**kw), device=device)
     return stacks.FocalStackDataset(cfg_cls(**kw))

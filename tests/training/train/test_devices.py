@@ -76,6 +76,16 @@ def test_cli_refuses_a_missing_gpu_in_one_line(monkeypatch, capsys):
     assert err.startswith("aat-train: error: --device cuda: no CUDA device here") and "\n" not in err
 
 
+def test_psf_fit_refuses_a_missing_gpu_before_tracing(monkeypatch, capsys):
+    from training.cli.psf import main
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    monkeypatch.setattr("training.psf.experiment.PSFExperiment.load", lambda path: pytest.fail("traced first"))
+    assert main(["fit", "--config", str(ROOT / "configs" / "psf_ci.json"), "--device", "cuda"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("aat-psf: error: --device cuda: no CUDA device here") and "\n" not in err
+
+
 def test_checkpoint_loads_onto_the_requested_device(tmp_path):
     """map_location: tensors land where asked (the meta device stands in for a GPU here), whatever wrote them."""
     from training.train.checkpoint import load, save_atomic, to_cpu
