@@ -25,7 +25,7 @@ from .capture.folder import focus_problem, read_capture
 from .capture.raw import load_frame, srgb_to_linear
 from .errors import CaptureError
 from .camera import Intrinsics
-from .io.atomic import atomic_folder
+from .io.atomic import atomic_folder, writing
 from .io.guard import check_output_dir
 from .model import DfFModel
 from .outputs import DepthMaps, RecordingInputs, to_srgb8, write_outputs
@@ -65,7 +65,7 @@ class DepthResult:
             raise ValueError(str(e)) from None
         maps = DepthMaps(self.depth_m, self.aif.transpose(2, 0, 1), self.std_m)
         rec = RecordingInputs(self.frames, self.focus_m) if recording and self.frames is not None else None
-        with atomic_folder(folder, force, "aat-infer") as tmp:
+        with writing(folder), atomic_folder(folder, force, "aat-infer") as tmp:
             info = write_outputs(tmp, maps, self.camera, rec)
             summary = {"source": "aat_deploy.api", "focus_m": [float(f) for f in self.focus_m], "model": self.model,
                        "output_size_px": [self.camera.width, self.camera.height], "camera": camera_json(self.camera),
@@ -108,6 +108,9 @@ def read_stack(folder: str | Path, use_exiftool: bool = True, *, max_megapixels:
 
 def _frames(stack, srgb: bool | None) -> list[np.ndarray]:
     """(S, H, W, 3) or a sequence of (H, W, 3) -> list of float32 linear RGB frames."""
+    if isinstance(stack, (str, bytes, dict)) or not hasattr(stack, "__iter__"):
+        raise ValueError(f"stack: expected an (S, H, W, 3) array or a sequence of (H, W, 3) frames, got "
+                         f"{type(stack).__name__}")
     frames = [np.asarray(f) for f in stack]
     if not frames:
         raise ValueError("stack: no frames")
@@ -142,13 +145,17 @@ def depth_from_focus(stack, focus_m, model: str | Path | DfFModel = DEFAULT_MODE
     size; native_res=True returns maps at the frames' own size (the crop), upsampled guided by the all-in-focus
     image. align: affine alignment against focus breathing; tile: run in tiles of this many pixels."""
     frames = _frames(stack, srgb)
-    focus = np.asarray(focus_m, dtype=np.float64).reshape(-1)
+    try:
+        focus = np.asarray(focus_m, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise ValueError(f"focus_m: expected one focus distance in metres per frame, got {type(focus_m).__name__}"
+                         ) from None
     if len(focus) != len(frames):
         raise ValueError(f"focus_m: {len(focus)} distances for {len(frames)} frames")
     for i, f in enumerate(focus):
         why = focus_problem(float(f))
         if why is not None:
-            raise ValueError(f"focus_m[{i}] = {f!r}: not a focus distance in metres ({why})")
+            raise ValueError(f"focus_m[{i}] = {float(f):g}: not a focus distance in metres ({why})")
     if len(set(np.round(focus, 6))) != len(focus):
         raise ValueError("focus_m: two frames have the same focus distance")
     net = model if isinstance(model, DfFModel) else load_model(model, threads)

@@ -40,7 +40,7 @@ def load_json(path: Path, error: type[CaptureError] = CaptureError):
     """A user's JSON file (UTF-8) as Python objects; `error` naming the file for anything unreadable, including
     nesting too deep for the parser and integers too long to convert."""
     try:
-        return json.loads(Path(path).read_text(encoding="utf-8"))
+        return json.loads(Path(path).read_text(encoding="utf-8-sig"))  # a BOM (Windows editors) is no error
     except OSError as e:
         raise error(f"{path}: cannot read ({e.strerror or e})") from None
     except UnicodeDecodeError:
@@ -104,6 +104,14 @@ def file_kind(path: Path) -> str | None:
     if stat.S_ISSOCK(mode):
         return "a socket"
     return "not a regular file"
+
+
+_CONTROL = {c: f"\\x{c:02x}" for c in [*range(0x20), 0x7F]} | {0x0A: "\\n", 0x0D: "\\r", 0x09: "\\t"}
+
+
+def one_line(text: str) -> str:
+    """`text` with control characters escaped (a newline in a folder name must not split a result line)."""
+    return str(text).translate(_CONTROL)
 
 
 def safe_output_streams() -> None:

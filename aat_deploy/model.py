@@ -18,7 +18,8 @@ import numpy as np
 import onnxruntime as ort
 
 from .camera import model_intrinsics
-from .errors import ModelError
+from .errors import ModelError, file_kind
+from .machine import bound_threads
 from .shipped import shipped_hint
 from .camera import Intrinsics
 
@@ -95,6 +96,10 @@ class DfFOutput:
     std_m: np.ndarray
 
 
+CONTRACT_RANK = {"stack": (5, "(B, S, 3, H, W)"), "focus_m": (2, "(B, S)"), "field_xy": (4, "(B, 2, H, W)"),
+                 "depth_m": (3, "(B, H, W)"), "aif": (4, "(B, 3, H, W)"), "std_m": (3, "(B, H, W)")}
+
+
 class DfFModel:
     """An aat DfF ONNX model on onnxruntime's CPU provider."""
 
@@ -102,11 +107,14 @@ class DfFModel:
 
     def __init__(self, path: str | Path, threads: int | None = None):
         path = Path(path)
-        if not path.is_file():
+        kind = file_kind(path)
+        if kind == "missing":
             raise ModelError(f"{path}: no such model file{shipped_hint('models')}")
+        if kind is not None:
+            raise ModelError(f"{path}: is {kind}, expected an ONNX model file (.onnx)")
         opts = ort.SessionOptions()
         if threads:
-            opts.intra_op_num_threads = int(threads)
+            opts.intra_op_num_threads = bound_threads(threads)
             opts.inter_op_num_threads = 1
         try:
             self.session = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
@@ -125,6 +133,12 @@ class DfFModel:
         if not {"stack", "focus_m"} <= names_in or not {"depth_m", "aif", "std_m"} <= names_out:
             raise ModelError(f"{path}: inputs {sorted(names_in)} / outputs {sorted(names_out)} do not follow the "
                              "contract (stack, focus_m -> depth_m, aif, std_m)")
+        for io_list, what in ((self.session.get_inputs(), "input"), (self.session.get_outputs(), "output")):
+            for a in io_list:  # checked at load, so a wrong model fails once (exit 2), not per capture
+                want = CONTRACT_RANK.get(a.name)
+                if want is not None and a.shape is not None and len(a.shape) != want[0]:
+                    raise ModelError(f"{path}: {what} {a.name!r} has rank {len(a.shape)} {list(a.shape)}, the "
+                                     f"contract says {want[0]} {want[1]} (docs/contracts.md)")
         self._validate_meta()
         self.field_aware = "field_xy" in names_in
 

@@ -25,7 +25,7 @@ from .capture.folder import Capture, read_capture
 from .capture.raw import load_frame
 from .errors import CaptureError
 from .gt.read import read_depth_file, units_problem
-from .io.atomic import atomic_folder
+from .io.atomic import atomic_folder, writing
 from .io.guard import check_output_dir
 from .model import DfFModel
 from .normalise import DESCRIPTION as NORMALISATION
@@ -174,7 +174,7 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
     maps, camera, stack = res.maps, res.camera, res.stack
     w_px, h_px = res.working_size
 
-    with atomic_folder(out_dir, opts.force, "aat-infer") as tmp:
+    with writing(out_dir), atomic_folder(out_dir, opts.force, "aat-infer") as tmp:  # OSError: one line, no tmp
         gt = _ground_truth(cap, size0, (w_px, h_px), warnings, model.focus_range_m)
         rec = RecordingInputs(stack, focus, gt, cap.name) if opts.record else None
         say(opts.quiet, f"{cap.name}: writing outputs" + (" and the recording" if rec else ""))

@@ -26,9 +26,10 @@ from ..capture.exif import read_metadata
 from ..capture.focuslist import parse_focus_list
 from ..capture.folder import SIDECAR, _sidecar, focus_problem, frame_files, read_capture
 from ..capture.imagefile import frame_header
-from ..errors import CaptureError, check_inside, read_input_bytes, safe_output_streams
+from ..errors import CaptureError, check_inside, one_line, read_input_bytes, safe_output_streams
 from ..io.atomic import atomic_file
-from .common import EXIT_FAILED, EXIT_OK, add_reader_options, check_reader_options, parser, subparser
+from .common import (EXIT_FAILED, EXIT_OK, add_reader_options, check_reader_options, parser, run_guarded,
+                     subparser)
 
 
 def _frame_rows(target: Path, args) -> list[dict]:
@@ -95,7 +96,7 @@ def inspect(args) -> int:
         try:
             rows = _frame_rows(target, args)
         except CaptureError as e:
-            print(f"aat-capture: CANNOT READ: {e}", file=sys.stderr, flush=True)
+            print(one_line(f"aat-capture: CANNOT READ: {e}"), file=sys.stderr, flush=True)
             failed += 1
             continue
         problem = _problem(target, rows, args)
@@ -112,9 +113,9 @@ def inspect(args) -> int:
                 for n in r["notes"]:
                     print(f"  note: {n}")
             if target.is_dir() and problem is None:
-                print(f"{target}: ok, {len(rows)} frames aat-infer can run")
+                print(one_line(f"{target}: ok, {len(rows)} frames aat-infer can run"))
         if problem is not None:
-            print(f"aat-capture: CANNOT RUN: {problem}", file=sys.stderr, flush=True)
+            print(one_line(f"aat-capture: CANNOT RUN: {problem}"), file=sys.stderr, flush=True)
     if args.json:
         print(json.dumps(out, indent=2))
     return EXIT_FAILED if failed else EXIT_OK
@@ -205,6 +206,11 @@ def plan(args, ap) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The command; Ctrl-C or SIGTERM at any point is one line and exit status 130/143 (common.run_guarded)."""
+    return run_guarded("aat-capture", _main, argv)
+
+
+def _main(argv: list[str] | None) -> int:
     safe_output_streams()
     ap = parser("aat-capture", __doc__.split("\n")[0], quiet=False)
     sub = ap.add_subparsers(dest="cmd", required=True, metavar="{inspect,init,plan}")

@@ -4,12 +4,51 @@ one-line message instead of a traceback when a command needs the `train` extra (
 from __future__ import annotations
 
 import argparse
+import signal
+import sys
 
 from .. import DISTRIBUTION, __version__
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 EXIT_STATUS = ("exit status: 0 all done; 1 some capture or file failed (one line each, the others still ran); "
-               "2 usage error or nothing could be run")
+               "2 usage error or nothing could be run; 130 interrupted (Ctrl-C), 143 terminated (SIGTERM)")
+
+
+class Interrupted(KeyboardInterrupt):
+    """SIGINT or SIGTERM, raised in the main thread so every `finally` and atomic writer removes what it had
+    started (aat_deploy.io.atomic)."""
+
+    def __init__(self, signum: int):
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+def run_guarded(prog: str, main, argv) -> int:
+    """main(argv) with SIGINT and SIGTERM raised as Interrupted, so an interrupted run leaves no temporary folder
+    behind; the interruption is one line and the exit status 128 + the signal (130 Ctrl-C, 143 SIGTERM), never a
+    traceback, also during start-up (commands import their heavy modules inside main for that)."""
+    first: list[int] = []
+
+    def handler(signum, frame):
+        first.append(signum)
+        raise Interrupted(signum)
+
+    old = {}
+    try:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            old[sig] = signal.signal(sig, handler)
+    except ValueError:  # not the main thread (a library caller): its own signal handling stays
+        pass
+    try:
+        return main(argv)
+    except KeyboardInterrupt:
+        sig = first[0] if first else signal.SIGINT
+        what = "interrupted" if sig == signal.SIGINT else "terminated"
+        print(f"{prog}: {what} ({signal.Signals(sig).name})", file=sys.stderr, flush=True)
+        return 128 + int(sig)
+    finally:
+        for sig, h in old.items():
+            signal.signal(sig, h)
 
 
 def version_text(prog: str) -> str:
@@ -56,6 +95,21 @@ def check_reader_options(ap: argparse.ArgumentParser, args) -> None:
 
     if args.max_megapixels is not None and not (args.max_megapixels > 0 and math.isfinite(args.max_megapixels)):
         ap.error("--max-megapixels must be a positive number")
+
+
+def threads_option(prog: str, ap: argparse.ArgumentParser, threads: int | None) -> int | None:
+    """--threads checked (>= 1) and bounded to the machine's cores, saying so when it is lowered."""
+    from ..machine import machine_cores
+
+    if threads is None:
+        return None
+    if threads < 1:
+        ap.error("--threads must be >= 1")
+    cores = machine_cores()
+    if threads > cores:
+        print(f"{prog}: note: --threads {threads}: this machine has {cores} core(s); using {cores}", file=sys.stderr)
+        return cores
+    return threads
 
 
 def install_hint(extra: str = "train") -> str:

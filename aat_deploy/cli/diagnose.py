@@ -14,7 +14,7 @@ import os
 import sys
 from pathlib import Path
 
-from .common import add_list_option, parser, print_effects
+from .common import add_list_option, parser, print_effects, run_guarded, threads_option
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -37,7 +37,14 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    a = build_parser().parse_args(argv)
+    """The command; Ctrl-C or SIGTERM at any point is one line and exit status 130/143 (common.run_guarded)."""
+    return run_guarded("aat-diagnose", _main, argv)
+
+
+def _main(argv: list[str] | None) -> int:
+    ap = build_parser()
+    a = ap.parse_args(argv)
+    a.threads = threads_option("aat-diagnose", ap, a.threads)
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     from aat_deploy.diagnose.session import DiagnoseError, run
     from aat_deploy.shipped import resolve

@@ -14,16 +14,22 @@ import os
 import sys
 from pathlib import Path
 
-from ..errors import CaptureError, safe_output_streams
-from ..eval.report import MD_COLUMNS
-from ..eval.run import EvalOptions, evaluate
-from ..eval.score import ALIGN_MODES
-from ..shipped import resolve
-from .common import add_reader_options, check_reader_options, parser
+from .common import add_reader_options, check_reader_options, parser, run_guarded, threads_option
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The command; Ctrl-C or SIGTERM at any point is one line and exit status 130/143 (common.run_guarded)."""
+    return run_guarded("aat-eval", _main, argv)
+
+
+def _main(argv: list[str] | None) -> int:
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    from ..errors import CaptureError, one_line, safe_output_streams  # the heavy modules load inside the interrupt guard
+    from ..eval.report import MD_COLUMNS
+    from ..eval.run import EvalOptions, evaluate
+    from ..eval.score import ALIGN_MODES
+    from ..shipped import resolve
+
     safe_output_streams()
     ap = parser("aat-eval", __doc__.split("\n")[0])
     ap.add_argument("root", type=Path, metavar="ROOT", help="a capture folder or a folder of capture folders")
@@ -46,8 +52,7 @@ def main(argv: list[str] | None = None) -> int:
     add_reader_options(ap)
     args = ap.parse_args(argv)
     check_reader_options(ap, args)
-    if args.threads is not None and args.threads < 1:
-        ap.error("--threads must be >= 1")
+    args.threads = threads_option("aat-eval", ap, args.threads)
     models = ([args.model] if args.model else []) + [m for m in args.compare if m != args.model]
     models = [resolve(m, "models") for m in models]  # paths, or shipped models' names
     if not models:
@@ -59,7 +64,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         rep = evaluate(args.root, models, args.out, opts, threads=args.threads)
     except CaptureError as e:
-        print(f"aat-eval: error: {e}", file=sys.stderr)
+        print(one_line(f"aat-eval: error: {e}"), file=sys.stderr)
         return 2
     keys = [k for k, _ in MD_COLUMNS[:3]]
     for label, m in rep["overall"].items():

@@ -25,14 +25,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import CaptureError, safe_output_streams
+from ..errors import CaptureError, one_line, safe_output_streams
 from ..gt.read import check_aspect, check_units, find_gt, load_ground_truth
 from ..camera import load_intrinsics
 from ..gt.raycast import load_mesh, load_pose, render_depth
 from ..io.atomic import atomic_files
 from ..io.guard import check_output_files
 from ..io.images import imwrite
-from .common import parser, subparser
+from .common import parser, run_guarded, subparser
 
 MM_MAX = 65535
 
@@ -156,7 +156,7 @@ def cmd_check(a) -> int:
                 check_aspect(gt.depth_m.shape, (img.shape[1], img.shape[0]), src.depth)
         except CaptureError as e:
             bad += 1
-            print(f"aat-gt: error: {e}", file=sys.stderr)
+            print(one_line(f"aat-gt: error: {e}"), file=sys.stderr)
             continue
         except MemoryError:
             bad += 1
@@ -177,6 +177,11 @@ def cmd_check(a) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The command; Ctrl-C or SIGTERM at any point is one line and exit status 130/143 (common.run_guarded)."""
+    return run_guarded("aat-gt", _main, argv)
+
+
+def _main(argv: list[str] | None) -> int:
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     safe_output_streams()
     ap = parser("aat-gt", __doc__.split("\n")[0], quiet=False)
@@ -219,7 +224,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return {"render": cmd_render, "pose": cmd_pose, "check": cmd_check}[a.cmd](a)
     except CaptureError as e:
-        print(f"aat-gt: error: {e}", file=sys.stderr)
+        print(one_line(f"aat-gt: error: {e}"), file=sys.stderr)
         return 2
 
 

@@ -22,18 +22,24 @@ import sys
 import time
 from pathlib import Path
 
-from ..capture.focuslist import parse_focus_list
-from ..errors import CaptureError, safe_output_streams
-from ..focus.method import FocusConfig
-from ..focus.runner import FocusMethod
-from ..model import DfFModel
-from ..pipeline import Options, check_output, output_dir_for, output_dirs, run_capture
-from ..shipped import resolve
-from .common import add_reader_options, check_reader_options, parser
+from .common import add_reader_options, check_reader_options, parser, run_guarded, threads_option
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The command; Ctrl-C or SIGTERM at any point is one line and exit status 130/143 (common.run_guarded)."""
+    return run_guarded("aat-infer", _main, argv)
+
+
+def _main(argv: list[str] | None) -> int:
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    from ..capture.focuslist import parse_focus_list  # the heavy modules load inside the interrupt guard
+    from ..errors import CaptureError, one_line, safe_output_streams
+    from ..focus.method import FocusConfig
+    from ..focus.runner import FocusMethod
+    from ..model import DfFModel
+    from ..pipeline import Options, check_output, output_dir_for, output_dirs, run_capture
+    from ..shipped import resolve
+
     safe_output_streams()
     ap = parser("aat-infer", __doc__.split("\n")[0])
     ap.add_argument("captures", nargs="+", metavar="CAPTURE_DIR", help="capture folder(s): frames + focus distances")
@@ -67,8 +73,7 @@ def main(argv: list[str] | None = None) -> int:
     add_reader_options(ap)
     args = ap.parse_args(argv)
     check_reader_options(ap, args)
-    if args.threads is not None and args.threads < 1:
-        ap.error("--threads must be >= 1")
+    args.threads = threads_option("aat-infer", ap, args.threads)
     if args.tile is not None and args.tile < 16:
         ap.error("--tile must be >= 16 px")
     if args.method == "model" and args.model is None:
@@ -101,7 +106,7 @@ def main(argv: list[str] | None = None) -> int:
         model = (FocusMethod(config, lens=args.lens, psf=args.psf, max_side=args.max_side, progress=not args.quiet)
                  if args.method == "focus" else DfFModel(args.model, threads=args.threads))
     except CaptureError as e:
-        print(f"aat-infer: error: {e}", file=sys.stderr)
+        print(one_line(f"aat-infer: error: {e}"), file=sys.stderr)
         return 2
     opts = Options(tile=args.tile, align=args.align, strict=args.strict, force=args.force,
                    use_exiftool=not args.no_exiftool, focus_m=focus_m, record=not args.no_recording,
@@ -111,32 +116,33 @@ def main(argv: list[str] | None = None) -> int:
     for i, (c, out) in enumerate(zip(captures, outs)):
         t0 = time.perf_counter()
         if not args.quiet:
-            print(f"[{i + 1}/{len(captures)}] {c}", file=sys.stderr, flush=True)
+            print(one_line(f"[{i + 1}/{len(captures)}] {c}"), file=sys.stderr, flush=True)
         if out.name != output_dir_for(c, args.out, len(captures) == 1).name:
-            print(f"aat-infer: note: another capture in this batch is also named {c.resolve().name!r}: "
-                  f"{c} goes to {out}", file=sys.stderr, flush=True)
+            print(one_line(f"aat-infer: note: another capture in this batch is also named {c.resolve().name!r}: "
+                           f"{c} goes to {out}"), file=sys.stderr, flush=True)
         try:
             if i in refused:
                 raise refused[i]
             summary = run_capture(c, model, out, opts)
         except CaptureError as e:
             failed += 1
-            print(f"aat-infer: FAILED {c}: {e}", file=sys.stderr, flush=True)
+            print(one_line(f"aat-infer: FAILED {c}: {e}"), file=sys.stderr, flush=True)
             continue
         except MemoryError:
             failed += 1
-            print(f"aat-infer: FAILED {c}: out of memory (try --tile 256)", file=sys.stderr, flush=True)
+            hint = "--max-side N or --max-megapixels" if args.method == "focus" else "--tile 256"
+            print(one_line(f"aat-infer: FAILED {c}: out of memory (try {hint})"), file=sys.stderr, flush=True)
             continue
         except Exception as e:  # noqa: BLE001 (one capture's surprise must not stop the batch)
             failed += 1
             msg = str(e).splitlines()[0][:200] if str(e) else ""
-            print(f"aat-infer: FAILED {c}: unexpected {type(e).__name__}: {msg}", file=sys.stderr, flush=True)
+            print(one_line(f"aat-infer: FAILED {c}: unexpected {type(e).__name__}: {msg}"), file=sys.stderr, flush=True)
             continue
         for w in summary["warnings"]:
-            print(f"aat-infer: warning: {w}", file=sys.stderr)
+            print(one_line(f"aat-infer: warning: {w}"), file=sys.stderr)
         lo, hi = summary["depth_m_range"]
-        print(f"{c} -> {out}  ({len(summary['focus_m'])} frames, depth {lo:.3g}..{hi:.3g} m, "
-              f"{time.perf_counter() - t0:.2f} s)", flush=True)
+        print(one_line(f"{c} -> {out}  ({len(summary['focus_m'])} frames, depth {lo:.3g}..{hi:.3g} m, "
+                       f"{time.perf_counter() - t0:.2f} s)"), flush=True)
     if failed:
         print(f"aat-infer: {failed} of {len(captures)} capture(s) failed", file=sys.stderr)
     return 1 if failed else 0

@@ -37,11 +37,30 @@ def serve_command(rrd: Path, web_port: int, grpc_port: int) -> list[str]:
 
 
 def _check_rrd(path: Path) -> str | None:
-    if not path.is_file():
-        return f"{path}: no such file"
+    """Why `path` cannot be served, or None: it must be a file rerun reads whole (magic bytes, then every chunk:
+    a file with the right magic and garbage after it was served before, to a blank viewer)."""
+    import warnings
+
+    from ..errors import file_kind
+
+    kind = file_kind(path)
+    if kind is not None:
+        return f"{path}: no such file" if kind == "missing" else f"{path}: is {kind}, expected a recording (.rrd)"
     with open(path, "rb") as f:
         if f.read(4) not in (b"RRF2", b"RRF0", b"RRF1"):
             return f"{path}: not a rerun recording (.rrd)"
+    from rerun.chunk import RrdReader
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # a file without its footer: rerun warns, then reads it whole
+            reader = RrdReader(path)
+            if not reader.recordings():
+                return f"{path}: a rerun file without a recording"
+            for _ in reader.stream():
+                pass
+    except Exception as e:  # noqa: BLE001 (rerun's reader raises RuntimeError/ValueError from Rust)
+        return f"{path}: not a readable rerun recording ({str(e).splitlines()[0][:160] if str(e) else type(e).__name__})"
     return None
 
 

@@ -23,11 +23,11 @@ import cv2
 import numpy as np
 
 from ..capture.raw import load_frame
-from ..errors import CaptureError
+from ..errors import CaptureError, one_line
 from ..geometry import fit_to_sensor
 from ..metrics import MetricAccumulator, valid_mask
 from ..model import DfFModel
-from ..io.atomic import atomic_folder
+from ..io.atomic import atomic_folder, writing
 from ..io.guard import check_no_overlap, check_output_dir
 from ..io.images import imread
 from ..pipeline import Options
@@ -143,7 +143,7 @@ def evaluate(root: str | Path, model_paths: list[str | Path], out_dir: str | Pat
         raise CaptureError(f"{root}: no capture folder with ground truth (gt.json, gt_depth_m.npy/.pfm/.tif, "
                            "gt_depth_mm.png) under it")
     t0 = time.perf_counter()
-    with atomic_folder(out_dir, opts.force, "aat-eval") as tmp:
+    with writing(out_dir), atomic_folder(out_dir, opts.force, "aat-eval") as tmp:
         (tmp / "maps").mkdir()
         result = _evaluate_into(tmp, root, caps, without, models, labels, opts)
         result["seconds"] = round(time.perf_counter() - t0, 2)
@@ -171,7 +171,7 @@ def _evaluate_into(tmp: Path, root: Path, caps: list[Path], without: list[Path],
 
     def fail(name: str, label: str, msg: str) -> None:
         rows.append({"capture": name, "model": label, "status": "failed", "error": msg})
-        line = f"aat-eval: FAILED {name} ({label}): {msg}"
+        line = one_line(f"aat-eval: FAILED {name} ({label}): {msg}")
         opts.messages.append(line)
         bar.note(line)
 
@@ -210,7 +210,7 @@ def _evaluate_into(tmp: Path, root: Path, caps: list[Path], without: list[Path],
                     rows.append(s.row)
                     scored[lb] = s
                     for w in s.row["warnings"]:
-                        bar.note(f"aat-eval: warning: {w}")
+                        bar.note(one_line(f"aat-eval: warning: {w}"))
                 bar.step(f"{name} ({lb})")
             if scored:
                 _capture_pictures(tmp, ci, name, scored, opts, rec)

@@ -16,6 +16,7 @@ siblings whose process is gone (never a folder without our marker).
 
 from __future__ import annotations
 
+import errno
 import itertools
 import os
 import re
@@ -27,8 +28,34 @@ from pathlib import Path
 from ..errors import OutputError
 from . import marker
 
+_SHORT_WRITE = re.compile(r"(\d+) requested and (\d+) written")  # numpy's tofile/save on a full disk (no errno)
 _SIBLING = re.compile(r"^\.(?P<name>.+)\.(?:tmp|old)-(?P<pid>\d+)$")
 _COUNTER = itertools.count()  # temporary files of one process (threads too) never share a name
+
+
+def write_error(folder: str | Path, e: OSError) -> OutputError:
+    """One line naming the output folder for an OSError while it was written; a full disk is said so, also when
+    numpy reports it only as a short write ("614400 requested and 524256 written", no errno)."""
+    short = _SHORT_WRITE.search(str(e))
+    if e.errno in (errno.ENOSPC, errno.EDQUOT) or short:
+        why = "no space left on the device" + (f" ({short[1]} bytes to write, {short[2]} written)" if short else "")
+    else:
+        why = e.strerror or (str(e).splitlines()[0][:160] if str(e) else type(e).__name__)
+    return OutputError(f"{folder}: could not write the outputs ({why}); nothing was left there")
+
+
+@contextmanager
+def writing(folder: str | Path) -> Iterator[None]:
+    """Turn an OSError of the block into write_error(folder, e): put outside atomic_folder, so the temporary folder
+    is gone before the one line is reported.
+
+        with writing(out), atomic_folder(out, force, "aat-infer") as tmp:
+            ...
+    """
+    try:
+        yield
+    except OSError as e:
+        raise write_error(folder, e) from None
 
 
 def temp_file(path: str | Path) -> Path:

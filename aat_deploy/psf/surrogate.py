@@ -8,6 +8,8 @@ from pathlib import Path
 import numpy as np
 import onnxruntime as ort
 
+from ..machine import bound_threads
+
 
 class PSFSurrogate:
     """An ONNX PSF surrogate and its metadata (lens, sensor, kernel size, valid ranges, units)."""
@@ -18,7 +20,7 @@ class PSFSurrogate:
             raise FileNotFoundError(f"{path}: no such PSF model")
         opts = ort.SessionOptions()
         if threads:
-            opts.intra_op_num_threads = threads
+            opts.intra_op_num_threads = bound_threads(threads)
         try:
             self.session = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
         except Exception as e:  # onnxruntime raises its own exception types

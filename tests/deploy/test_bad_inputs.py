@@ -757,6 +757,241 @@ def test_stale_partial_folders_of_dead_runs_are_cleaned(model_path, good, tmp_pa
     assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == sorted(d.name for d in keep)
 
 
+# -- issue 31, 5: SIGTERM / Ctrl-C ----------------------------------------------------------------------------------
+HARNESS = """
+import sys, time
+sys.path.insert(0, {root!r})
+import {module} as target
+real = target.{name}
+def held(*a, **k):
+    out = real(*a, **k) if {after} else None
+    open({flag!r}, "w").write("in")
+    time.sleep(120)
+    return out if {after} else real(*a, **k)
+target.{name} = held
+from aat_deploy.cli.infer import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def _run_until(tmp_path, module, name, after, argv, sig):
+    """aat-infer in a subprocess, held inside module.name (after it ran, or before); send `sig` once it is there.
+    Returns (exit status, stderr lines)."""
+    import signal as _signal
+    import time
+
+    flag = tmp_path / "reached"
+    code = HARNESS.format(root=str(Path(__file__).resolve().parents[2]), module=module, name=name, after=after,
+                          flag=str(flag))
+    proc = subprocess.Popen([sys.executable, "-c", code, *map(str, argv)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    end = time.monotonic() + 120
+    while not flag.exists() and proc.poll() is None and time.monotonic() < end:
+        time.sleep(0.05)
+    assert flag.exists(), proc.communicate()
+    proc.send_signal(getattr(_signal, sig))
+    _, err = proc.communicate(timeout=60)
+    return proc.returncode, [ln for ln in err.splitlines() if ln.strip()]
+
+
+@pytest.mark.parametrize("sig, status", [("SIGTERM", 143), ("SIGINT", 130)])
+def test_a_signal_while_outputs_are_written_leaves_no_temporary_folder(sig, status, model_path, good, tmp_path):
+    """Before: SIGTERM while the outputs were written left a hidden partial .OUT.tmp-PID/ every time."""
+    cap, earlier = good
+    out = tmp_path / "runs" / "o"
+    before = tree_hash(cap, earlier)
+    rc, err = _run_until(tmp_path, "aat_deploy.pipeline", "write_outputs", True,
+                         [cap, "--model", model_path, "--out", out, "-q", "--threads", "1"], sig)
+    assert rc == status and err == [f"aat-infer: {'terminated' if sig == 'SIGTERM' else 'interrupted'} ({sig})"], err
+    assert not out.exists() and list(out.parent.iterdir()) == []  # no .o.tmp-PID left behind
+    assert tree_hash(cap, earlier) == before
+
+
+def test_ctrl_c_during_start_up_is_one_line_and_exit_130(model_path, good, tmp_path):
+    """Before: Ctrl-C while the command was starting printed a 30-line traceback."""
+    cap, earlier = good
+    for module, name in (("aat_deploy.shipped", "resolve"), ("aat_deploy.model", "DfFModel.__init__")):
+        rc, err = _run_until(tmp_path, module, name, False, [cap, "--model", model_path, "--out", tmp_path / "o", "-q"],
+                             "SIGINT")
+        assert rc == 130 and err == ["aat-infer: interrupted (SIGINT)"], err
+        (tmp_path / "reached").unlink()
+
+
+# -- issue 31, 4: --threads bounded to the machine --------------------------------------------------------------------
+def test_threads_beyond_the_machine_are_bounded_and_said(model_path, good, tmp_path, capsys, monkeypatch):
+    """Before: --threads 100000 was accepted (16 GB, still running after 5 minutes)."""
+    import aat_deploy.machine as machine
+
+    cap, earlier = good
+    monkeypatch.setattr(machine.os, "sched_getaffinity", lambda pid: {0, 1})  # a 2-core machine, whatever runs this
+    made = []
+    import aat_deploy.model as model_mod
+
+    real = model_mod.ort.InferenceSession
+    monkeypatch.setattr(model_mod.ort, "InferenceSession",
+                        lambda p, o, **k: made.append(o.intra_op_num_threads) or real(p, o, **k))
+    rc = infer_cli.main([str(cap), "--model", str(model_path), "--out", str(tmp_path / "o"), "-q", "--no-recording",
+                         "--threads", "100000"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 0 and err == ["aat-infer: note: --threads 100000: this machine has 2 core(s); using 2"], err
+    assert made == [2]
+    assert DfFModel(model_path, threads=10 ** 6).session.get_session_options().intra_op_num_threads == 2  # the API
+
+
+# -- issue 31, 9: messages that did not name the file or the problem -------------------------------------------------
+def test_nan_or_inf_in_a_float_tiff_frame_names_the_file(model_path, good, tmp_path, capsys):
+    """Before: "unexpected ValueError: normalise_stack: the stack contains NaN or inf"."""
+    cap, earlier = good
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    frames = []
+    for i, f in enumerate(FOCUS):
+        img = np.full((48, 64, 3), 0.5, np.float32)
+        if i == 1:
+            img[3, 4, 1], img[5, 6] = np.nan, np.inf
+        cv2.imwrite(str(bad / f"f{i}.tif"), img)
+        frames.append({"file": f"f{i}.tif", "focus_m": f})
+    (bad / "capture.json").write_text(json.dumps({"frames": frames}))
+    rc, lines, out = infer([bad, cap, "--model", model_path, "--out", tmp_path / "o"], capsys)
+    assert rc == 1 and f"{bad / 'f1.tif'}: 2 pixel(s) are NaN or infinite" in lines[0], lines
+    assert f"{cap} ->" in out
+
+
+def _full_tmpfs(path: Path, size: str):
+    path.mkdir()
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(path)], capture_output=True)
+    if r.returncode != 0:
+        pytest.skip(f"cannot mount a small tmpfs to fill ({r.stderr.decode().strip()[:100]}): needs root with "
+                    "CAP_SYS_ADMIN; the short-write message is tested without it")
+    return path
+
+
+def test_a_full_disk_is_one_line_naming_the_output_and_leaves_nothing(model_path, good, tmp_path, capsys,
+                                                                        monkeypatch):
+    """Before: "unexpected OSError: 614400 requested and 524256 written" (numpy's short write on a full disk)."""
+    cap, earlier = good
+    import aat_deploy.outputs as outputs
+
+    def short_write(*a, **k):
+        raise OSError("614400 requested and 524256 written")
+
+    with monkeypatch.context() as m:
+        m.setattr(outputs.np, "save", short_write)
+        rc, lines, _ = infer([cap, "--model", model_path, "--out", tmp_path / "o"], capsys)
+    assert rc == 1 and (f"{tmp_path / 'o'}: could not write the outputs (no space left on the device (614400 bytes "
+                        "to write, 524256 written)); nothing was left there") in lines[0], lines
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith((".o.", "o"))]
+    disk = _full_tmpfs(tmp_path / "disk", "96k")
+    try:
+        rc, lines, _ = infer([cap, "--model", model_path, "--out", disk / "o"], capsys)
+        assert rc == 1 and f"{disk / 'o'}: could not write the outputs (no space left on the device" in lines[0], lines
+        assert list(disk.iterdir()) == []
+    finally:
+        subprocess.run(["umount", str(disk)], check=True)
+
+
+def test_out_on_a_mount_point_is_refused_before_any_work(model_path, good, tmp_path, capsys, monkeypatch):
+    """Before: EBUSY only after all the work (a mount point cannot be renamed away)."""
+    cap, earlier = good
+    mnt = _full_tmpfs(tmp_path / "mnt", "4m")
+    try:
+        calls = []
+        import aat_deploy.pipeline as pipeline
+
+        real = pipeline.load_frame
+        monkeypatch.setattr(pipeline, "load_frame", lambda p, *a: calls.append(p) or real(p, *a))
+        rc, lines, _ = infer([cap, "--model", model_path, "--out", mnt, "--force"], capsys)
+        assert rc == 1 and f"{mnt}: is a mount point, which cannot be replaced; choose a folder inside it" in lines[0]
+        assert not calls
+        rc, lines, _ = infer([cap, "--model", model_path, "--out", mnt / "o"], capsys)
+        assert rc == 0 and (mnt / "o" / "summary.json").is_file()  # a folder inside it is fine
+    finally:
+        subprocess.run(["umount", str(mnt)], check=True)
+
+
+def _onnx_with_stack_rank(src: Path, dst: Path, rank: int) -> Path:
+    """A model following the contract's names and metadata whose `stack` input has another rank."""
+    import onnx
+    from onnx import TensorProto, helper
+
+    meta = {p.key: p.value for p in onnx.load(str(src)).metadata_props}
+    dims = ["B", "S", "C", "H", "W"][:rank]
+    g = helper.make_graph(
+        [helper.make_node("Identity", ["stack"], ["aif"]),
+         helper.make_node("ReduceMean", ["stack"], ["depth_m"], axes=[1], keepdims=0),
+         helper.make_node("ReduceMean", ["stack"], ["std_m"], axes=[1], keepdims=0)], "wrong_rank",
+        [helper.make_tensor_value_info("stack", TensorProto.FLOAT, dims),
+         helper.make_tensor_value_info("focus_m", TensorProto.FLOAT, ["B", "S"])],
+        [helper.make_tensor_value_info("aif", TensorProto.FLOAT, dims),
+         helper.make_tensor_value_info("depth_m", TensorProto.FLOAT, dims[:1] + dims[2:]),
+         helper.make_tensor_value_info("std_m", TensorProto.FLOAT, dims[:1] + dims[2:])])
+    m = helper.make_model(g, opset_imports=[helper.make_opsetid("", 13)])
+    for k, v in meta.items():
+        p = m.metadata_props.add()
+        p.key, p.value = k, v
+    onnx.save(m, str(dst))
+    return dst
+
+
+def test_model_and_recording_problems_are_said_at_load(model_path, good, tmp_path, capsys):
+    """Before: a model with the wrong input rank failed per capture (exit 1); a folder as --model or as the .rrd
+    was "no such file"; a garbage .rrd with valid magic bytes was served with no error."""
+    cap, earlier = good
+    bad = _onnx_with_stack_rank(model_path, tmp_path / "rank4.onnx", 4)
+    for model, expect in ((bad, "rank4.onnx: input 'stack' has rank 4 ['B', 'S', 'C', 'H'], the contract says 5 "
+                                "(B, S, 3, H, W)"),
+                          (tmp_path, f"{tmp_path}: is a folder, expected an ONNX model file (.onnx)")):
+        rc = infer_cli.main([str(cap), str(cap), "--model", str(model), "--out", str(tmp_path / "o"), "-q"])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert rc == 2 and len(err) == 1 and expect in err[0], err
+    rrd = tmp_path / "r.rrd"
+    rrd.write_bytes(b"RRF2" + bytes(range(256)) * 16)
+    for path, expect in ((rrd, "r.rrd: not a readable rerun recording ("),
+                         (tmp_path, f"{tmp_path}: is a folder, expected a recording (.rrd)")):
+        assert view_cli.main([str(path)]) == 1
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and expect in err[0], err
+
+
+def test_capture_json_with_a_byte_order_mark_is_read(model_path, tmp_path, capsys):
+    """Before: a Python-internal message ("Unexpected UTF-8 BOM (decode using utf-8-sig)")."""
+    cap = write_png_capture(tmp_path / "bom", FOCUS)
+    (cap / "capture.json").write_bytes(b"\xef\xbb\xbf" + (cap / "capture.json").read_bytes())
+    rc, lines, _ = infer([cap, "--model", model_path, "--out", tmp_path / "o"], capsys)
+    assert rc == 0 and not lines, lines
+    assert json.loads((tmp_path / "o" / "summary.json").read_text())["focus_m"] == FOCUS
+
+
+def test_a_newline_in_a_folder_name_keeps_every_message_on_one_line(model_path, tmp_path, capsys):
+    """Before: the result line (and a failure line) split at the newline."""
+    ok = write_png_capture(tmp_path / "two\nlines", FOCUS)
+    bad = write_png_capture(tmp_path / "bad\nname", FOCUS)
+    (bad / "img_1.png").write_bytes(b"nothing")
+    rc = infer_cli.main([str(ok), str(bad), "--model", str(model_path), "--out", str(tmp_path / "o"), "-q",
+                         "--no-recording", "--threads", "1"])
+    cap = capsys.readouterr()
+    assert rc == 1
+    assert cap.out.splitlines() == [f"{tmp_path}/two\\nlines -> {tmp_path}/o/two\\nlines  "
+                                    + cap.out.split("  ", 1)[1].strip()]
+    fails = [ln for ln in cap.err.splitlines() if "FAILED" in ln]
+    assert len(fails) == 1 and f"FAILED {tmp_path}/bad\\nname: {tmp_path}/bad\\nname/img_1.png: unknown content" \
+        in fails[0]
+
+
+def test_api_errors_are_one_line_value_errors(model_path):
+    """Before: stack=None raised TypeError; a bad focus distance printed np.float64(...)."""
+    from aat_deploy.api import depth_from_focus
+
+    net = DfFModel(model_path, threads=1)
+    with pytest.raises(ValueError, match=r"^stack: expected an \(S, H, W, 3\) array .*got NoneType$"):
+        depth_from_focus(None, FOCUS, net)
+    frames = np.full((3, 48, 64, 3), 0.5, np.float32)
+    with pytest.raises(ValueError, match=r"^focus_m\[1\] = -1: not a focus distance in metres \(not positive\)$"):
+        depth_from_focus(frames, np.array([0.6, -1.0, 2.0]), net)
+    with pytest.raises(ValueError, match=r"^focus_m: expected one focus distance in metres per frame, got dict$"):
+        depth_from_focus(frames, {"a": 1}, net)
+
+
 # -- 10: Canon compacts record FocusDistanceLower = 0 --------------------------------------------------------------
 @pytest.mark.parametrize("upper, lower, expected", [(216, 0, 2.16), (200, 100, 4 / 3), (65535, 546, 10.92),
                                                     (65535, 0, math.inf)])
