@@ -89,3 +89,47 @@ def write_capture(out_dir, frames: np.ndarray, focus_reported_m, lens: Lens, gt_
         for f in tmp.iterdir():
             f.chmod(0o644)
     return out_dir
+
+
+def shoot(lens: Lens, rgb: np.ndarray, depth_m: np.ndarray, focus_true_m, effects=(), psf=None, seed: int = 0,
+          cell_px: int = 64, workers: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """A focal stack of a scene through the lens, torch-free: rgb (3, H, W) linear and depth_m (H, W) metres
+    from the sensor (> 0) at the lens's full sensor; focus_true_m (S,) where the camera really focused. effects:
+    registered effect names/specs (`aat_deploy.render.effects.parse`), rendered with the lens's PSFs from psf
+    (its surrogate .onnx, or an `OnnxSource`; None = the thin-lens Gaussian, focusing paraxially). Returns frames (S, 3, H, W) float32
+    linear as the sensor records them and the focus distances (S,) the metadata reports (the effects'
+    `report_focus`). Effects that need torch raise `NeedsTorch` (`aat-render` renders those)."""
+    from aat_deploy.render import effects as fx
+    from aat_deploy.render.layered import LayeredConfig
+    from aat_deploy.render.optical import optical_stack
+    from aat_deploy.render.sources import GaussianSource, OnnxSource
+
+    s = lens.sensor
+    if rgb.shape[1:] != (s.height_px, s.width_px) or depth_m.shape != rgb.shape[1:]:
+        raise ValueError(f"scene {rgb.shape} / {depth_m.shape} is not the lens's sensor {s.height_px}x{s.width_px}")
+    src = psf if psf is None or isinstance(psf, OnnxSource) else OnnxSource(psf, lens, threads=workers)
+    chosen = fx.parse(list(effects) if not isinstance(effects, str) else effects)
+    if src is not None and "aberrations" not in [e.name for e in chosen]:
+        chosen = fx.parse(["aberrations"] + [fx.spec(e) for e in chosen])
+    from aat_deploy.optics.focus_table import paraxial_focus_table
+
+    # the lens's focusing (sensor tilt, tolerances): the surrogate's real-ray table, else the paraxial one
+    table = src.focus_table() if src is not None else None
+    table = table if table is not None else paraxial_focus_table(lens)
+    ctx = fx.SimContext(lens, (s.height_px, s.width_px), (0, 0), src, table,
+                        src.exit_pupil_z_mm() if src is not None else None)
+    for e in chosen:
+        why = e.torch_reason(ctx) or ("it needs the lens's PSFs (give psf)" if e.uses_lens_psfs and src is None
+                                      else "")
+        if why:
+            raise fx.NeedsTorch(f"effect {e.name!r}: {why}")
+    focus = np.asarray(focus_true_m, np.float64).ravel()
+    rng = np.random.default_rng(seed)
+    frames = optical_stack(chosen, GaussianSource(lens), np.ascontiguousarray(rgb, np.float32),
+                           np.ascontiguousarray(depth_m, np.float32), focus, ctx, LayeredConfig(cell_px=cell_px),
+                           workers)
+    frames = fx.post_stack(chosen, frames, focus, ctx, rng)
+    reported = focus.copy()
+    for e in chosen:
+        reported = e.report_focus(reported, ctx, rng)
+    return np.asarray(frames, np.float32), reported

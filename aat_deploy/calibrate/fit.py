@@ -1,0 +1,181 @@
+"""From measured chart sweeps to a `CameraCalibration` (what `aat-calibrate fit` runs): the tiles' observations
+pooled over the sweeps, the smooth model (`model.py`) with its bootstrap, the blur growth, the residuals.
+
+Frames from different cameras across the sweeps are refused (one line); everything is computed before anything
+is written (the CLI writes atomically).
+"""
+
+from __future__ import annotations
+
+import datetime
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .. import __version__
+from .format import CameraCalibration, CameraIdentity, FieldPoly, poly_terms
+from .model import Observations, bootstrap, fit_model, with_intervals
+from .peaks import blur_slope, relative_blur_px
+from .sweep import SweepError, SweepMeasurement, identity_differences
+
+BLUR_DEGREE = 2
+MIN_TILES = 30
+
+
+@dataclass
+class FitResult:
+    """The calibration, the pooled observations and the model fit, per-sweep tables and warnings."""
+
+    calibration: CameraCalibration
+    observations: Observations
+    model: object
+    blur_obs: dict
+    sweeps: list
+    warnings: list[str] = field(default_factory=list)
+
+
+def observations(measures: list[SweepMeasurement]) -> Observations:
+    """Every counted tile of every sweep; cells = (sweep, interval between the two frames the peak lies between)."""
+    cols = {k: [] for k in ("x", "y", "reported_d", "object_d", "sweep", "cell")}
+    for i, m in enumerate(measures):
+        ok = m.peaks.counted
+        x, y = m.peaks.grid.field()
+        rd = m.peaks.reported_d
+        interval = np.clip(np.searchsorted(rd, m.peaks.peak_d[ok]), 0, len(rd))
+        cols["x"].append(x[ok])
+        cols["y"].append(y[ok])
+        cols["reported_d"].append(m.peaks.peak_d[ok])
+        cols["object_d"].append(m.object_d[ok])
+        cols["sweep"].append(np.full(int(ok.sum()), i))
+        cols["cell"].append(i * 10_000 + interval)
+    return Observations(*(np.concatenate(cols[k]).astype(np.float64 if k not in ("sweep", "cell") else np.int64)
+                          for k in cols))
+
+
+def camera_identity(measures: list[SweepMeasurement]) -> CameraIdentity:
+    """The sweeps' common camera; SweepError naming the sweep whose frames come from another camera."""
+    first = measures[0].sweep
+    for m in measures[1:]:
+        diff = identity_differences(first.identity, m.sweep.identity)
+        if diff:
+            raise SweepError(f"{m.sweep.path}: from another camera than {first.path} ({'; '.join(diff)}): calibrate "
+                             "one camera, lens, aperture and zoom at a time")
+        if m.sweep.size_px != first.size_px:
+            raise SweepError(f"{m.sweep.path}: frames of {m.sweep.size_px[0]}x{m.sweep.size_px[1]} px, "
+                             f"{first.path}'s {first.size_px[0]}x{first.size_px[1]} px")
+    i = first.identity
+    num = lambda v: float(v) if v not in (None, "") else None
+    return CameraIdentity(str(i.get("make") or ""), str(i.get("model") or ""), str(i.get("lens") or ""),
+                          num(i.get("focal_length_mm")), num(i.get("f_number")))
+
+
+def fit_blur(measures: list[SweepMeasurement], model) -> tuple[FieldPoly | None, dict]:
+    """Blur growth: per tile the Gaussian-equivalent sigma per diopter (`peaks.blur_slope`), times 4 (a disk's
+    diameter), in px of the frames as shot; a smooth field (degree BLUR_DEGREE with a constant), linear in the
+    on-axis focus when there are two or more sweeps. Returns (FieldPoly or None, observations)."""
+    xs, ys, ts, ks = [], [], [], []
+    for m in measures:
+        pk = m.peaks
+        ok = pk.counted
+        if not ok.any():
+            continue
+        x, y = pk.grid.field()
+        sig = relative_blur_px(m.sweep.frames, pk.sharpest, pk.grid)
+        frame_d = np.stack([model.predict(x, y, np.full(x.shape, r)) for r in pk.reported_d])  # (S, ny, nx)
+        k = blur_slope(sig, frame_d - m.object_d[None], pk.sharpest)
+        good = ok & np.isfinite(k) & (k > 0)
+        xs.append(x[good])
+        ys.append(y[good])
+        ts.append(model.focus.true_diopters(pk.peak_d[good]))
+        ks.append(4.0 * k[good] / m.sweep.scale)  # diameter, px of the frames as shot
+    obs = {"x": np.concatenate(xs) if xs else np.zeros(0), "y": np.concatenate(ys) if ys else np.zeros(0),
+           "t_d": np.concatenate(ts) if ts else np.zeros(0), "px_per_d": np.concatenate(ks) if ks else np.zeros(0)}
+    n = len(obs["x"])
+    terms = poly_terms(BLUR_DEGREE, constant=True)
+    if n < 2 * len(terms):
+        return None, obs
+    fd = 1 if len({round(float(m.chart_distance_m), 3) for m in measures}) >= 2 else 0
+    lo, hi = float(obs["t_d"].min()), float(obs["t_d"].max())
+    fp0 = FieldPoly(terms, np.zeros((len(terms), fd + 1)), (lo, hi))
+    leg = np.polynomial.legendre.legvander(fp0.tau(obs["t_d"]), fd)
+    basis = np.stack([obs["x"] ** a * obs["y"] ** b for a, b in terms], 1)
+    a = (basis[:, :, None] * leg[:, None, :]).reshape(n, -1)
+    keep = np.ones(n, bool)
+    for _ in range(2):  # one pass of outlier rejection (tiles whose best sigma hit the grid's end)
+        sol, *_ = np.linalg.lstsq(a[keep], obs["px_per_d"][keep], rcond=None)
+        res = obs["px_per_d"] - a @ sol
+        mad = float(np.median(np.abs(res[keep] - np.median(res[keep])))) * 1.4826
+        keep = np.abs(res) <= max(4 * mad, 1e-9)
+    obs["residual"] = res
+    obs["kept"] = keep
+    return FieldPoly(terms, sol.reshape(len(terms), fd + 1), (lo, hi)), obs
+
+
+def fit_calibration(measures: list[SweepMeasurement], n_boot: int = 100, degree: int | None = None,
+                    focus_degree: int | None = None, sensor_mm: tuple[float, float] | None = None,
+                    settings: dict | None = None, progress=None) -> FitResult:
+    """The calibration from measured sweeps (`sweep.measure_sweep`)."""
+    if not measures:
+        raise SweepError("no sweeps to fit")
+    identity = camera_identity(measures)
+    obs = observations(measures)
+    if len(obs) < MIN_TILES:
+        raise SweepError(f"{measures[0].sweep.path}: only {len(obs)} tiles with a bracketed focus peak over all "
+                         f"sweeps (need {MIN_TILES}): fill the frame with the chart and sweep past it on both sides")
+    # robust: tiles whose peak disagrees wildly with the first fit (chart border, a glare) are dropped once
+    fit = fit_model(obs, degree, focus_degree)
+    mad = float(np.median(np.abs(fit.residual_d - np.median(fit.residual_d)))) * 1.4826
+    bad = np.abs(fit.residual_d) > max(5 * mad, 0.005)
+    warnings: list[str] = []
+    if bad.any():
+        obs = obs.subset(~bad)
+        fit = fit_model(obs, fit.degree, fit.focus_degree)
+        warnings.append(f"{int(bad.sum())} of {len(bad)} tiles left out as outliers (peak more than "
+                        f"{max(5 * mad, 0.005):.3f} D off the first fit)")
+    if progress:
+        progress("bootstrap")
+    boot = bootstrap(obs, fit, n_boot=n_boot)
+    fe = with_intervals(fit.focus, boot)
+    if boot.support.get(fe.family, 0) < 0.5:
+        warnings.append(f"the focus-error family {fe.family!r} is chosen by only {100 * boot.support.get(fe.family, 0):.0f}"
+                        f" % of bootstrap replicates ({', '.join(f'{k} {100 * v:.0f} %' for k, v in boot.support.items() if v)})")
+    if progress:
+        progress("blur")
+    blur, blur_obs = fit_blur(measures, fit)
+    res = fit.residual_d
+    per_sweep = []
+    for i, m in enumerate(measures):
+        r = res[obs.sweep == i]
+        per_sweep.append({"sweep": str(m.sweep.path), "tiles": int(len(r)),
+                          "chart_distance_m": round(m.chart_distance_m, 4), "distance_from": m.geometry.how,
+                          "reported_focus_m": [round(float(v), 4) for v in m.sweep.reported_m],
+                          "mean_d": float(np.mean(r)) if len(r) else None,
+                          "rms_d": float(np.sqrt(np.mean(r ** 2))) if len(r) else None,
+                          "markers": int(m.view.markers), "marker_rms_px": round(float(m.view.rms_px), 3),
+                          "notes": m.geometry.notes})
+        for n in m.geometry.notes:
+            if n not in warnings:
+                warnings.append(n)
+    residuals = {"tiles": int(len(res)), "rms_d": float(np.sqrt(np.mean(res ** 2))),
+                 "p95_d": float(np.quantile(np.abs(res), 0.95)), "max_d": float(np.max(np.abs(res))),
+                 "per_sweep": per_sweep,
+                 "families": {k: {"bic": float(v[3]), "rms_d": float(np.sqrt(np.mean(v[2] ** 2)))}
+                              for k, v in fit.fits.items()}}
+    if blur is not None:
+        keep = blur_obs["kept"]
+        residuals["blur_rms_px_per_d"] = float(np.sqrt(np.mean(blur_obs["residual"][keep] ** 2)))
+        residuals["blur_tiles"] = int(keep.sum())
+    uncertainty = {"x": boot.grid_x.tolist(), "y": boot.grid_y.tolist(),
+                   "sd_d": np.round(boot.map_sd, 6).tolist(), "replicates": boot.replicates,
+                   "what": "bootstrap standard deviation of the field term at the middle of the focus range"}
+    first = measures[0].sweep
+    fitinfo = {"method": "chart", "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+               "version": __version__, "degree": fit.degree, "focus_degree": fit.focus_degree,
+               "order_cv": fit.cv, "working_scale": first.scale, **(settings or {})}
+    cal = CameraCalibration(identity, first.size_px, fe, fit.field, blur, sensor_mm, residuals, uncertainty, fitinfo)
+    return FitResult(cal, obs, fit, blur_obs, per_sweep, warnings)
+
+
+def finite_or_none(v):
+    return v if isinstance(v, (int, float)) and math.isfinite(v) else None

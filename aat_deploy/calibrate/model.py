@@ -1,0 +1,282 @@
+"""The smooth model fitted to tile observations: "a frame reporting focus r diopters has the object at D diopters in
+focus at field (x, y)" -> the reported-focus error (`FocusError`, a family) and the field term (`FieldPoly`), with
+the model order chosen by cross-validation, the family by BIC, and bootstrap intervals (numpy only).
+
+    D_i = g(r_i) + sum_k sum_j c[k, j] phi_k(x_i, y_i) P_j(tau(g(r_i)))
+
+g is the family: none (g = r), offset (g = r - b), scale (g = s r), monotone (a parabola in r, stored as 9 knots of
+`map_d`, the diagnosis's form; only with three or more sweeps: `families_for`). phi_k are the monomials of degree 1..n in (x, y) (no constant: the frame centre is
+g's), P_j Legendre polynomials of the on-axis focus over the measured range. For a given g the model is linear in
+(family parameters, c); g enters tau, so the fit alternates (tau from the last g) until it settles.
+
+Family choice: BIC with the observations grouped into cells of one sweep and one frame interval (tiles that peak
+between the same two frames share that frame's focus error, so counting them as independent would let every
+extra parameter look significant; the diagnosis counts frames the same way). Model order: spatial-block
+cross-validation over the tiles. Intervals: a Poisson bootstrap of tiles (and of sweeps when there are three or
+more) that refits and reselects.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from .format import FieldPoly, FocusError, poly_terms
+
+FAMILY_PARAMS = {"none": 0, "offset": 1, "scale": 1, "monotone": 3}
+DEGREES = (2, 3, 4, 5, 6)
+MONOTONE_KNOTS = 9
+
+
+@dataclass
+class Observations:
+    """N tile observations: x, y normalised field; reported_d the reported focus (diopters) at the tile's focus
+    peak; object_d the tile's object (diopters from the sensor plane); sweep (N,) int; weight (N,) >= 0;
+    cell (N,) int: the sweep-and-frame-interval group (for BIC)."""
+
+    x: np.ndarray
+    y: np.ndarray
+    reported_d: np.ndarray
+    object_d: np.ndarray
+    sweep: np.ndarray
+    cell: np.ndarray
+    weight: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.weight is None:
+            self.weight = np.ones_like(self.x)
+
+    def __len__(self) -> int:
+        return len(self.x)
+
+    def subset(self, keep: np.ndarray) -> Observations:
+        return Observations(*(getattr(self, k)[keep] for k in ("x", "y", "reported_d", "object_d", "sweep", "cell",
+                                                                  "weight")))
+
+
+@dataclass
+class ModelFit:
+    """focus: the chosen family's error; field: the field term; residual_d (N,) object minus model; fits: every
+    family's (FocusError, FieldPoly, BIC); degree, focus_degree: the model order; cv: the order's CV table."""
+
+    focus: FocusError
+    field: FieldPoly
+    residual_d: np.ndarray
+    fits: dict = field(default_factory=dict)
+    degree: int = 0
+    focus_degree: int = 0
+    cv: list = field(default_factory=list)
+
+    def predict(self, x, y, reported_d) -> np.ndarray:
+        """In-focus object diopters at field (x, y) for reported focus diopters (all broadcast together)."""
+        x, y, r = np.broadcast_arrays(*(np.asarray(v, np.float64) for v in (x, y, reported_d)))
+        t = self.focus.true_diopters(r.ravel())
+        out = t + (self.field.focus_weights(t) * self.field.basis(x.ravel(), y.ravel()).T).sum(1)
+        return out.reshape(x.shape)
+
+
+def _family_columns(name: str, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(columns (N, p), target offset o (N,)): D - o = columns . params + field."""
+    if name == "none":
+        return np.zeros((len(r), 0)), r
+    if name == "offset":
+        return -np.ones((len(r), 1)), r
+    if name == "scale":
+        return r[:, None], np.zeros_like(r)
+    return np.column_stack([np.ones_like(r), r, r * r]), np.zeros_like(r)
+
+
+def _focus_error(name: str, p: np.ndarray, r_range: tuple[float, float]) -> FocusError | None:
+    """The family's FocusError from its least-squares parameters (None: a monotone fit that turns back)."""
+    if name == "none":
+        return FocusError("none")
+    if name == "offset":
+        return FocusError("offset", bias_d=float(p[0]))
+    if name == "scale":
+        return FocusError("scale", scale=float(p[0])) if p[0] > 0 else None
+    xs = np.linspace(r_range[0], r_range[1], MONOTONE_KNOTS)
+    ys = p[0] + p[1] * xs + p[2] * xs * xs
+    if np.any(np.diff(xs) <= 0) or np.any(np.diff(ys) <= 0):
+        return None
+    return FocusError("monotone", map_d=tuple(float(v) for pair in zip(xs, ys) for v in pair))
+
+
+def fit_family(obs: Observations, name: str, degree: int, focus_degree: int, iterations: int = 6,
+               weight: np.ndarray | None = None) -> tuple[FocusError, FieldPoly, np.ndarray] | None:
+    """One family at one model order: (FocusError, FieldPoly, residuals (N,)) or None if it cannot be fitted."""
+    w = obs.weight if weight is None else weight
+    r, d = obs.reported_d, obs.object_d
+    terms = poly_terms(degree, constant=False)
+    basis = np.stack([obs.x ** a * obs.y ** b for a, b in terms], 1)  # (N, K)
+    fam, off = _family_columns(name, r)
+    r_range = (float(r.min()), float(r.max()))
+    t = r.copy()
+    sw = np.sqrt(np.maximum(w, 0))
+    fe = fp = None
+    for _ in range(iterations):
+        lo, hi = float(t.min()), float(t.max())
+        fp0 = FieldPoly(terms, np.zeros((len(terms), focus_degree + 1)), (lo, hi))
+        leg = np.polynomial.legendre.legvander(fp0.tau(t), focus_degree)  # (N, J)
+        field_cols = (basis[:, :, None] * leg[:, None, :]).reshape(len(r), -1)
+        a = np.column_stack([fam, field_cols])
+        sol, *_ = np.linalg.lstsq(a * sw[:, None], (d - off) * sw, rcond=None)
+        if not np.all(np.isfinite(sol)):
+            return None
+        p, c = sol[:fam.shape[1]], sol[fam.shape[1]:].reshape(len(terms), focus_degree + 1)
+        fe = _focus_error(name, p, r_range)
+        if fe is None:
+            return None
+        t_new = fe.true_diopters(r)
+        fp = FieldPoly(terms, c, (lo, hi))
+        if np.max(np.abs(t_new - t)) < 1e-7:
+            t = t_new
+            break
+        t = t_new
+    pred = fe.true_diopters(r) + (fp.focus_weights(fe.true_diopters(r)) * basis).sum(1)
+    return fe, fp, d - pred
+
+
+def bic(obs: Observations, residual: np.ndarray, k: int, weight: np.ndarray | None = None) -> float:
+    """n log(RSS / n) + k log n over cells (the weighted mean residual of each cell)."""
+    w = obs.weight if weight is None else weight
+    cells, inv = np.unique(obs.cell, return_inverse=True)
+    sw = np.bincount(inv, weights=w, minlength=len(cells))
+    ok = sw > 0
+    mean = np.bincount(inv, weights=w * residual, minlength=len(cells))[ok] / sw[ok]
+    n = max(int(ok.sum()), 2)
+    return n * math.log(max(float(np.sum(mean ** 2)), 1e-300) / n) + k * math.log(n)
+
+
+def spatial_folds(obs: Observations, k: int = 5, blocks: int = 4) -> np.ndarray:
+    """(N,) fold index: the field cut into blocks x blocks squares, assigned to folds at random (seeded)."""
+    bx = np.clip(((obs.x + 1) / 2 * blocks).astype(int), 0, blocks - 1)
+    by = np.clip(((obs.y + 1) / 2 * blocks).astype(int), 0, blocks - 1)
+    perm = np.random.default_rng(0).permutation(blocks * blocks) % k
+    return perm[by * blocks + bx]
+
+
+def choose_order(obs: Observations, family: str, focus_degrees: tuple[int, ...], degrees=DEGREES
+                 ) -> tuple[int, int, list]:
+    """(degree, focus_degree, table) minimising the spatial-block CV RMS residual (each held-out fold predicted by
+    the fit on the others); ties within 2 % go to the smaller model."""
+    folds = spatial_folds(obs)
+    table = []
+    for fd in focus_degrees:
+        for deg in degrees:
+            err, n = 0.0, 0
+            for f in np.unique(folds):
+                test = folds == f
+                w = np.where(test, 0.0, obs.weight)
+                res = fit_family(obs, family, deg, fd, weight=w)
+                if res is None:
+                    err = math.inf
+                    break
+                err += float(np.sum(obs.weight[test] * res[2][test] ** 2))
+                n += float(obs.weight[test].sum())
+            table.append({"degree": deg, "focus_degree": fd, "params": len(poly_terms(deg, False)) * (fd + 1),
+                          "cv_rms_d": math.sqrt(err / max(n, 1e-12)) if math.isfinite(err) else math.inf})
+    best = min(t["cv_rms_d"] for t in table)
+    ok = [t for t in table if t["cv_rms_d"] <= best * 1.02]
+    pick = min(ok, key=lambda t: (t["params"], t["degree"]))
+    return pick["degree"], pick["focus_degree"], table
+
+
+def families_for(obs: Observations) -> tuple[str, ...]:
+    """The families the sweeps can tell apart: a monotone curve (3 parameters) needs three chart distances; with
+    two, each sweep's own small offset (a tape-measure error) would bend the curve through the gap between them."""
+    n = len(np.unique(obs.sweep))
+    return tuple(f for f in FAMILY_PARAMS if f != "monotone" or n >= 3)
+
+
+def fit_all(obs: Observations, degree: int, focus_degree: int, families=None,
+            weight: np.ndarray | None = None) -> dict:
+    """{family: (FocusError, FieldPoly, residuals, BIC)} for every family (default: `families_for`) that can be
+    fitted."""
+    out = {}
+    for name in families or families_for(obs):
+        res = fit_family(obs, name, degree, focus_degree, weight=weight)
+        if res is not None:
+            out[name] = (*res, bic(obs, res[2], FAMILY_PARAMS[name], weight))
+    return out
+
+
+def select(fits: dict) -> str:
+    """The family with the lowest BIC (ties: fewer parameters)."""
+    return min(fits, key=lambda n: (round(fits[n][3], 9), FAMILY_PARAMS[n]))
+
+
+def fit_model(obs: Observations, degree: int | None = None, focus_degree: int | None = None) -> ModelFit:
+    """The model on all observations: order by CV (unless given), family by BIC. With one sweep the field term
+    cannot depend on focus (focus_degree 0); with two at most linearly."""
+    n_sweeps = len(np.unique(obs.sweep))
+    max_fd = min(2, n_sweeps - 1)
+    table = []
+    if degree is None or focus_degree is None:
+        fds = (focus_degree,) if focus_degree is not None else tuple(range(max_fd + 1))
+        degs = (degree,) if degree is not None else DEGREES
+        fam = "monotone" if "monotone" in families_for(obs) else "scale"
+        degree, focus_degree, table = choose_order(obs, fam, fds, degs)
+    fits = fit_all(obs, degree, focus_degree)
+    if not fits:
+        raise ValueError("no focus-error family could be fitted to the tiles")
+    best = select(fits)
+    fe, fp, res, _ = fits[best]
+    return ModelFit(fe, fp, res, fits, degree, focus_degree, table)
+
+
+@dataclass
+class Bootstrap:
+    """support {family: share}; intervals {"bias_d" | "scale": [lo, hi]} of the chosen family; map_sd (ny, nx) the
+    spread of the in-focus diopters at the middle of the focus range on grid x (nx,), y (ny,); replicates."""
+
+    support: dict
+    intervals: dict
+    grid_x: np.ndarray
+    grid_y: np.ndarray
+    map_sd: np.ndarray
+    replicates: int
+
+
+def bootstrap(obs: Observations, fit: ModelFit, n_boot: int = 100, seed: int = 0, level: float = 0.95,
+              grid: tuple[int, int] = (9, 13)) -> Bootstrap:
+    """Poisson weights per tile, times per sweep when there are >= 3 sweeps; each replicate refits every family at
+    the chosen order and reselects."""
+    rng = np.random.default_rng(seed)
+    sweeps = np.unique(obs.sweep)
+    wins = {k: 0 for k in FAMILY_PARAMS}
+    params: dict[str, list] = {"bias_d": [], "scale": []}
+    ny, nx = grid
+    gx, gy = np.linspace(-1, 1, nx), np.linspace(-1, 1, ny)
+    xx, yy = np.meshgrid(gx, gy)
+    lo, hi = fit.field.focus_range_d
+    mid_t = 0.5 * (lo + hi)
+    maps = []
+    for _ in range(n_boot):
+        w = obs.weight * rng.poisson(1.0, len(obs))
+        if len(sweeps) >= 3:
+            ws = rng.poisson(1.0, len(sweeps))
+            w = w * ws[np.searchsorted(sweeps, obs.sweep)]
+        if w.sum() <= 0:
+            continue
+        fits = fit_all(obs, fit.degree, fit.focus_degree, weight=w)
+        if not fits:
+            continue
+        wins[select(fits)] += 1
+        if fit.focus.family in fits:
+            fe, fp = fits[fit.focus.family][:2]
+            params["bias_d"].append(fe.bias_d)
+            params["scale"].append(fe.scale)
+            maps.append(fp(xx, yy, [mid_t])[0])
+    a = (1 - level) / 2
+    total = max(sum(wins.values()), 1)
+    keys = {"offset": ["bias_d"], "scale": ["scale"]}.get(fit.focus.family, [])
+    intervals = {k: [float(np.quantile(params[k], a)), float(np.quantile(params[k], 1 - a))]
+                 for k in keys if params[k]}
+    sd = np.std(np.array(maps), 0) if len(maps) > 1 else np.full((ny, nx), np.nan)
+    return Bootstrap({k: v / total for k, v in wins.items()}, intervals, gx, gy, sd, len(maps))
+
+
+def with_intervals(fe: FocusError, boot: Bootstrap) -> FocusError:
+    return replace(fe, intervals=boot.intervals, support=boot.support)

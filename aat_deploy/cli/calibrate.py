@@ -1,0 +1,299 @@
+"""aat-calibrate: calibrate a camera from focus sweeps of a flat chart, without its optical prescription.
+
+    aat-calibrate chart --out chart.png [--size-mm 600,400] [--markers 6,4] [--marker-mm M] [--dpi 150] [--seed N] [--force]
+    aat-calibrate fit SWEEP_DIR [SWEEP_DIR ...] --chart chart.json --out mycam.json [--distance-m D1,D2,...]
+                      [--pupil-to-sensor-mm P] [--sensor-mm W,H] [--max-side 1600] [--boot 100] [--force]
+    aat-calibrate shoot --chart chart.png --lens LENS --distance-m D --out SWEEP_DIR [--psf PSF.onnx]
+                      [--tilt-deg X,Y] [--sweep-d 0.3] [--step-d 0.04] [--effects noise,...] [--seed N] [--force]
+    aat-calibrate show mycam.json [--png maps.png]
+
+chart: a printable target (dead-leaves texture and ArUco markers) and chart.json, its layout (print at 100 %:
+the PNG carries its dpi; check a marker's size with a ruler). fit: per sweep the chart's pose from its markers
+and each tile's focus peak; the smooth per-position best-focus model, the reported focus's error and the blur
+growth, with bootstrap intervals; writes mycam.json (format aat-camera-calibration-v1, docs/contracts.md) and
+mycam.png (the maps). Nothing is written when any sweep is unusable (one line each). --distance-m: per sweep, the
+distance from the camera's sensor plane to the chart at the frame centre (tape or laser meter). shoot: the
+virtual camera photographs the chart at a pose through a lens with any registered effects (a sweep folder of
+DNGs with the true geometry in virtual_camera.json; torch-free with the lens's PSF surrogate). How to shoot:
+docs/calibration.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import CaptureError, safe_output_streams
+from .common import EXIT_FAILED, EXIT_OK, EXIT_USAGE, parser, subparser
+
+
+def _pair(text: str, what: str) -> tuple[float, float]:
+    try:
+        a, b = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{what}: expected two numbers 'A,B', got {text!r}") from None
+    return a, b
+
+
+def _floats(text: str) -> list[float]:
+    try:
+        v = [float(t) for t in text.split(",") if t.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
+    if not v or not all(np.isfinite(v)):
+        raise argparse.ArgumentTypeError(f"expected comma-separated finite numbers, got {text!r}")
+    return v
+
+
+def _say(args, msg: str) -> None:
+    if not getattr(args, "quiet", False):
+        print(msg, file=sys.stderr, flush=True)
+
+
+# -- chart -------------------------------------------------------------------------------------------------------
+def cmd_chart(args) -> int:
+    from ..calibrate.chart import ChartSpec, write_chart
+
+    try:
+        spec = ChartSpec(size_mm=args.size_mm, markers=tuple(int(v) for v in args.markers), dpi=args.dpi,
+                         marker_mm=args.marker_mm, seed=args.seed)
+        png, js = write_chart(args.out, spec, force=args.force)
+    except (ValueError, CaptureError) as e:
+        print(f"aat-calibrate: error: {e}", file=sys.stderr)
+        return EXIT_USAGE
+    print(json.dumps({"chart": str(png), "layout": str(js), "size_mm": list(spec.size_mm), "dpi": spec.dpi,
+                      "marker_mm": round(spec.marker_side_mm, 3)}))
+    return EXIT_OK
+
+
+# -- fit ---------------------------------------------------------------------------------------------------------
+def cmd_fit(args) -> int:
+    from ..calibrate.chart import load_layout
+    from ..calibrate.fit import fit_calibration
+    from ..calibrate.format import CalibrationError
+    from ..calibrate.plots import calibration_png
+    from ..calibrate.sweep import load_sweep, measure_sweep
+    from ..focus.method import FocusConfig
+    from ..io.atomic import atomic_files
+
+    out = Path(args.out)
+    png = out.with_suffix(".png")
+    for p in (out, png):
+        if p.exists() and not args.force:
+            print(f"aat-calibrate: error: {p}: exists (use --force to overwrite)", file=sys.stderr)
+            return EXIT_USAGE
+    sweeps = [Path(s) for s in args.sweeps]
+    if args.distance_m is not None and len(args.distance_m) != len(sweeps):
+        print(f"aat-calibrate: error: --distance-m gives {len(args.distance_m)} distances for {len(sweeps)} sweeps",
+              file=sys.stderr)
+        return EXIT_USAGE
+    if any(p.resolve() in (s.resolve(), *s.resolve().parents) for s in sweeps for p in (out, png)):
+        print(f"aat-calibrate: error: {out}: the output must not be inside a sweep folder", file=sys.stderr)
+        return EXIT_USAGE
+    try:
+        layout = load_layout(args.chart)
+    except CaptureError as e:
+        print(f"aat-calibrate: error: {e}", file=sys.stderr)
+        return EXIT_USAGE
+    cfg = FocusConfig()
+    measures, failed = [], 0
+    for i, s in enumerate(sweeps):
+        _say(args, f"aat-calibrate: measuring {s} ({i + 1}/{len(sweeps)})")
+        try:
+            sw = load_sweep(s, args.max_side)
+            measures.append(measure_sweep(sw, layout, None if args.distance_m is None else args.distance_m[i],
+                                          args.pupil_to_sensor_mm, args.sensor_mm, cfg.measure, cfg.window_px,
+                                          cfg.prefilter_px))
+        except CaptureError as e:
+            print(f"aat-calibrate: error: {e}", file=sys.stderr)
+            failed += 1
+    if failed:
+        print(f"aat-calibrate: {failed} of {len(sweeps)} sweeps unusable: nothing written", file=sys.stderr)
+        return EXIT_FAILED
+    settings = {"sweeps": [str(s) for s in sweeps], "chart": str(args.chart),
+                "distance_m": args.distance_m, "measure": cfg.measure, "window_px": cfg.window_px,
+                "prefilter_px": cfg.prefilter_px, "estimator": "gauss", "max_side": args.max_side}
+    try:
+        res = fit_calibration(measures, n_boot=args.boot, sensor_mm=args.sensor_mm, settings=settings,
+                              progress=lambda what: _say(args, f"aat-calibrate: {what}"))
+    except (CaptureError, ValueError) as e:
+        print(f"aat-calibrate: error: {e}", file=sys.stderr)
+        return EXIT_FAILED
+    cal = res.calibration
+    out.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        with atomic_files(out, png) as (tj, tp):
+            from ..calibrate.format import save_calibration
+
+            save_calibration(cal, tj, force=True)
+            calibration_png(cal, tp, res.observations, res.model.residual_d)
+    except (OSError, CalibrationError) as e:
+        print(f"aat-calibrate: error: {out}: cannot write ({e})", file=sys.stderr)
+        return EXIT_FAILED
+    for w in res.warnings:
+        print(f"aat-calibrate: warning: {w}", file=sys.stderr)
+    print(json.dumps(summary(cal, out, png)))
+    return EXIT_OK
+
+
+def summary(cal, out: Path | None = None, png: Path | None = None) -> dict:
+    fe = cal.focus_error
+    near, far = cal.focus_range_m
+    d = {"calibration": str(out) if out else None, "maps": str(png) if png else None,
+         "camera": cal.to_dict()["camera"], "focus_error": {"family": fe.family, "bias_d": fe.bias_d,
+                                                            "scale": fe.scale, "intervals": fe.intervals,
+                                                            "support": fe.support},
+         "focus_range_m": [round(near, 4), round(far, 4)],
+         "residual_rms_d": cal.residuals.get("rms_d"), "residual_p95_d": cal.residuals.get("p95_d"),
+         "tiles": cal.residuals.get("tiles")}
+    return {k: v for k, v in d.items() if v is not None}
+
+
+# -- shoot (the virtual camera) ------------------------------------------------------------------------------------
+def cmd_shoot(args) -> int:
+    from ..calibrate.chart import load_layout
+    from ..calibrate.pose import ChartPose
+    from ..calibrate.scene import chart_scene
+    from ..capture.virtual import shoot, write_capture
+    from ..diagnose.lookup import find_surrogate
+    from ..io.images import imread
+    from ..lens.io import load_lens
+    from ..optics.paraxial import paraxial_data
+    from ..render import effects as fx
+    from ..shipped import resolve
+
+    out = Path(args.out)
+    if out.exists() and not args.force:
+        print(f"aat-calibrate: error: {out}: exists (use --force to overwrite)", file=sys.stderr)
+        return EXIT_USAGE
+    chart_png = Path(args.chart)
+    try:
+        layout = load_layout(chart_png.with_suffix(".json"))
+        img = imread(chart_png, 0)
+        if img is None:
+            raise CaptureError(f"{chart_png}: not a readable image")
+        if img.dtype != np.uint8 or (img.shape[1], img.shape[0]) != tuple(layout.image_px):
+            raise CaptureError(f"{chart_png}: not the image of {chart_png.with_suffix('.json')} (8-bit, "
+                               f"{layout.image_px[0]}x{layout.image_px[1]} px expected)")
+        lens = load_lens(resolve(args.lens, "lenses"))
+        effects = fx.parse(args.effects)
+        src = find_surrogate(lens, resolve(args.psf, "models") if args.psf else None)
+    except (CaptureError, ValueError, OSError) as e:
+        print(f"aat-calibrate: error: {str(e).splitlines()[0]}", file=sys.stderr)
+        return EXIT_USAGE
+    p = paraxial_data(lens)
+    s = lens.sensor
+    f_px = p.efl_mm / s.pixel_mm
+    pupil = p.total_track_mm + p.bfl_mm - p.entrance_pupil_z_mm  # paraxial, focused at infinity (aat-gt's)
+    pose = ChartPose(args.distance_m, args.tilt_deg[0], args.tilt_deg[1], args.roll_deg)
+    try:
+        rgb, depth = chart_scene(img, layout, pose, s.width_px, s.height_px, f_px, pupil)
+    except ValueError as e:
+        print(f"aat-calibrate: error: {e}", file=sys.stderr)
+        return EXIT_USAGE
+    d = 1.0 / depth
+    focus_d = np.arange(float(d.max()) + args.sweep_d, float(d.min()) - args.sweep_d - 1e-9, -args.step_d)
+    focus_d = focus_d[focus_d > 0.01]
+    _say(args, f"aat-calibrate: shooting {len(focus_d)} frames of the chart at {args.distance_m} m through {lens.name}")
+    try:
+        frames, reported = shoot(lens, rgb * args.exposure, depth, 1.0 / focus_d, [fx.spec(e) for e in effects], src,
+                                 args.seed, workers=args.threads)
+    except (fx.NeedsTorch, ValueError) as e:
+        print(f"aat-calibrate: error: {str(e).splitlines()[0]} (aat-render renders with torch)", file=sys.stderr)
+        return EXIT_USAGE
+    info = {"what": "a chart sweep shot by the virtual camera (aat-calibrate shoot)", "lens": lens.name,
+            "lens_hash": lens.prescription_hash(), "psf": None if src is None else str(src.path),
+            "effects": [fx.spec(e) for e in effects], "seed": args.seed, "chart": str(chart_png),
+            "pose": {"distance_m": pose.distance_m, "tilt_x_deg": pose.tilt_x_deg, "tilt_y_deg": pose.tilt_y_deg,
+                     "roll_deg": pose.roll_deg},
+            "pupil_to_sensor_mm": pupil, "f_px": f_px, "focus_true_m": (1.0 / focus_d).tolist(),
+            "focus_reported_m": reported.tolist()}
+    try:
+        write_capture(out, frames, reported, lens, depth, rgb, info, force=args.force)
+    except (FileExistsError, ValueError, OSError) as e:
+        print(f"aat-calibrate: error: {e}", file=sys.stderr)
+        return EXIT_FAILED
+    print(json.dumps({"sweep": str(out), "frames": len(focus_d), "chart_distance_m": args.distance_m}))
+    return EXIT_OK
+
+
+# -- show --------------------------------------------------------------------------------------------------------
+def cmd_show(args) -> int:
+    from ..calibrate.format import CalibrationError, load_calibration
+    from ..calibrate.plots import calibration_png
+
+    try:
+        cal = load_calibration(args.calibration)
+        if args.png:
+            if Path(args.png).exists() and not args.force:
+                raise CalibrationError(f"{args.png}: exists (use --force to overwrite)")
+            calibration_png(cal, args.png)
+    except (CalibrationError, OSError) as e:
+        print(f"aat-calibrate: error: {e}", file=sys.stderr)
+        return EXIT_FAILED
+    print(json.dumps(summary(cal, Path(args.calibration), Path(args.png) if args.png else None)))
+    return EXIT_OK
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = parser("aat-calibrate", __doc__.split("\n")[0], quiet=False)
+    sub = ap.add_subparsers(dest="cmd", required=True, metavar="{chart,fit,shoot,show}")
+    c = subparser(sub, "chart", "write a printable calibration chart (PNG) and its layout (JSON beside it)")
+    c.add_argument("--out", required=True, help="chart image to write (.png); the layout goes to the same name .json")
+    c.add_argument("--size-mm", type=lambda t: _pair(t, "--size-mm"), default=(600.0, 400.0), metavar="W,H",
+                   help="printed size in mm (default 600,400; the frame should be filled by the chart)")
+    c.add_argument("--markers", type=lambda t: _pair(t, "--markers"), default=(6, 4), metavar="NX,NY",
+                   help="ArUco markers across and down (default 6,4)")
+    c.add_argument("--marker-mm", type=float, help="marker side in mm (default: a quarter of their spacing)")
+    c.add_argument("--dpi", type=float, default=150.0, help="image resolution for printing (default 150)")
+    c.add_argument("--seed", type=int, default=0, help="the texture's random seed")
+    c.add_argument("--force", action="store_true", help="overwrite existing files")
+    f = subparser(sub, "fit", "fit a camera calibration to chart sweeps")
+    f.add_argument("sweeps", nargs="+", metavar="SWEEP_DIR", help="one capture folder per chart position")
+    f.add_argument("--chart", required=True, help="the chart's layout (chart.json from `aat-calibrate chart`)")
+    f.add_argument("--out", required=True, help="calibration file to write (.json; the maps go to .png beside it)")
+    f.add_argument("--distance-m", type=_floats, metavar="D1,D2,...",
+                   help="per sweep, metres from the sensor plane to the chart at the frame centre (measured)")
+    f.add_argument("--pupil-to-sensor-mm", type=float, help="entrance pupil's distance in front of the sensor "
+                   "(default: the EXIF focal length)")
+    f.add_argument("--sensor-mm", type=lambda t: _pair(t, "--sensor-mm"), metavar="W,H",
+                   help="sensor size in mm (focal length in px for the pose; stored in the calibration)")
+    f.add_argument("--max-side", type=int, default=1600, help="measure on frames reduced to this many px (default "
+                   "1600)")
+    f.add_argument("--boot", type=int, default=100, help="bootstrap replicates for the intervals (default 100)")
+    f.add_argument("--force", action="store_true", help="overwrite an existing calibration")
+    s = subparser(sub, "shoot", "the virtual camera: a chart sweep through a lens with effects (a capture folder)")
+    s.add_argument("--chart", required=True, help="chart image (.png with its .json beside it)")
+    s.add_argument("--lens", required=True, help="lens file or shipped lens name")
+    s.add_argument("--psf", help="the lens's PSF surrogate (default: a shipped one for the lens, else thin lens)")
+    s.add_argument("--distance-m", type=float, required=True, help="sensor plane to chart at the frame centre (m)")
+    s.add_argument("--tilt-deg", type=lambda t: _pair(t, "--tilt-deg"), default=(0.0, 0.0), metavar="X,Y",
+                   help="chart rotation about the vertical / horizontal axis (deg; +: right / top side farther)")
+    s.add_argument("--roll-deg", type=float, default=0.0, help="chart rotation about the optical axis (deg)")
+    s.add_argument("--sweep-d", type=float, default=0.3, help="the sweep extends this far beyond the chart (D)")
+    s.add_argument("--step-d", type=float, default=0.04, help="frame spacing (D)")
+    s.add_argument("--effects", default="", help="registered effects, comma-separated (aat-diagnose --list-effects)")
+    s.add_argument("--exposure", type=float, default=0.6, help="linear level of the chart's white (1 = clipping)")
+    s.add_argument("--seed", type=int, default=0, help="random seed (noise)")
+    s.add_argument("--threads", type=int, default=2, help="render threads")
+    s.add_argument("--out", required=True, help="sweep folder to write")
+    s.add_argument("--force", action="store_true", help="replace an existing sweep folder")
+    w = subparser(sub, "show", "summarise a calibration file (and draw its maps)")
+    w.add_argument("calibration")
+    w.add_argument("--png", help="write the maps here")
+    w.add_argument("--force", action="store_true", help="overwrite an existing --png")
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    safe_output_streams()
+    args = build_parser().parse_args(argv)
+    return {"chart": cmd_chart, "fit": cmd_fit, "shoot": cmd_shoot, "show": cmd_show}[args.cmd](args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,131 @@
+"""`aat-calibrate` end to end through files (run as `python -m aat_deploy.cli.calibrate`'s main): the chart, the
+virtual camera shooting it into DNG sweep folders, the fit, and the one-line errors with nothing written."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shutil
+from functools import lru_cache
+
+import numpy as np
+import pytest
+from conftest import ROOT
+
+from aat_deploy.calibrate import in_focus_diopters, load_calibration
+from aat_deploy.cli import calibrate as cli
+from aat_deploy.lens.io import load_lens, save_lens
+
+W, H = 320, 214
+SWEEPS = ((0.6, "12,3"), (1.0, "-10,0"))
+
+
+@pytest.fixture(scope="module")
+def rig(tmp_path_factory):
+    """A chart, a small RF50 (thin-lens PSFs at 320 x 214 px) and two shot sweeps of a copy whose reported focus
+    is 1.1 x the true distance."""
+    d = tmp_path_factory.mktemp("calib")
+    lens = load_lens(ROOT / "lenses" / "canon_rf50mm_f1.8.json")
+    lens = dataclasses.replace(lens, sensor=lens.sensor.with_resolution(W, H))
+    save_lens(lens, d / "small_rf50.json")
+    assert cli.main(["chart", "--out", str(d / "chart.png"), "--size-mm", "700,467", "--marker-mm", "45",
+                     "--dpi", "30", "-q"]) == 0
+    for i, (dist, tilt) in enumerate(SWEEPS):
+        assert cli.main(["shoot", "--chart", str(d / "chart.png"), "--lens", str(d / "small_rf50.json"),
+                         "--distance-m", str(dist), f"--tilt-deg={tilt}", "--effects",
+                         "focus_metadata:bias_d=0:scale=1.1,noise", "--out", str(d / f"sweep{i}"), "-q"]) == 0
+    return d
+
+
+def test_chart_writes_image_and_layout_and_keeps_existing_files(rig, capsys):
+    assert (rig / "chart.png").is_file() and json.loads((rig / "chart.json").read_text())["format"] == "aat-chart-v1"
+    before = (rig / "chart.png").read_bytes()
+    assert cli.main(["chart", "--out", str(rig / "chart.png"), "--dpi", "30", "-q"]) == 2
+    assert "exists" in capsys.readouterr().err and (rig / "chart.png").read_bytes() == before
+    assert cli.main(["chart", "--out", str(rig / "c2.png"), "--size-mm", "10,10", "--dpi", "30"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "px per module" in err[0] and not (rig / "c2.png").exists()
+
+
+def test_shoot_writes_a_capture_with_the_copys_reported_focus(rig):
+    info = json.loads((rig / "sweep0" / "virtual_camera.json").read_text())
+    assert len(list((rig / "sweep0").glob("*.dng"))) == len(info["focus_true_m"]) >= 10
+    np.testing.assert_allclose(info["focus_reported_m"], 1.1 * np.array(info["focus_true_m"]), rtol=1e-9)
+
+
+def test_fit_from_dng_sweeps(rig, capsys):
+    out = rig / "out" / "cam.json"
+    rc = cli.main(["fit", str(rig / "sweep0"), str(rig / "sweep1"), "--chart", str(rig / "chart.json"),
+                   "--distance-m", "0.6,1.0", "--out", str(out), "--boot", "20", "-q"])
+    cap = capsys.readouterr()
+    assert rc == 0, cap.err
+    summary = json.loads(cap.out.strip().splitlines()[-1])
+    assert summary["focus_error"]["family"] == "scale" and abs(summary["focus_error"]["scale"] - 1.1) < 0.01
+    assert out.is_file() and out.with_suffix(".png").is_file()
+    cal = load_calibration(out)
+    assert cal.camera.model == "virtual camera" and cal.size_px == (W, H)
+    # the centre of a frame reported at 1.1 m is truly at 1.0 m
+    assert float(in_focus_diopters(cal, [1.1], H, W)[0, H // 2, W // 2]) == pytest.approx(1.0, abs=0.01)
+    assert cli.main(["show", str(out), "-q"]) == 0
+    assert json.loads(capsys.readouterr().out)["focus_error"]["family"] == "scale"
+    # an existing calibration is kept without --force
+    before = out.read_bytes()
+    assert cli.main(["fit", str(rig / "sweep0"), "--chart", str(rig / "chart.json"), "--out", str(out), "-q"]) == 2
+    assert "exists" in capsys.readouterr().err and out.read_bytes() == before
+
+
+def _copy_sweep(src, dst):
+    shutil.copytree(src, dst)
+    return dst
+
+
+def test_bad_sweeps_are_one_line_errors_with_nothing_written(rig, tmp_path, capsys):
+    """Markers not found (another chart's layout), frames from another camera inside a sweep, and sweeps of
+    different cameras: one line each, exit 1, no calibration written."""
+    out = tmp_path / "cam.json"
+    other = json.loads((rig / "chart.json").read_text())
+    for m in other["markers"]:
+        m["id"] += 100
+    (tmp_path / "other.json").write_text(json.dumps(other))
+    rc = cli.main(["fit", str(rig / "sweep0"), "--chart", str(tmp_path / "other.json"), "--distance-m", "0.6",
+                   "--out", str(out), "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 1 and any("chart markers not found" in e for e in err) and not out.exists()
+    assert err[-1].endswith("nothing written")
+    # a frame of another lens (its DNG says so) inside sweep0
+    lens = load_lens(rig / "small_rf50.json")
+    other_lens = dataclasses.replace(lens, name="Another lens")
+    save_lens(other_lens, tmp_path / "other_lens.json")
+    assert cli.main(["shoot", "--chart", str(rig / "chart.png"), "--lens", str(tmp_path / "other_lens.json"),
+                     "--distance-m", "1.0", "--out", str(tmp_path / "other_sweep"), "--step-d", "0.1", "-q"]) == 0
+    mixed = _copy_sweep(rig / "sweep0", tmp_path / "mixed")
+    shutil.copy(sorted((tmp_path / "other_sweep").glob("*.dng"))[0], mixed / "zz_other.dng")
+    rc = cli.main(["fit", str(mixed), "--chart", str(rig / "chart.json"), "--distance-m", "0.6", "--out", str(out),
+                   "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 1 and any("from another camera" in e and "zz_other.dng" in e for e in err) and not out.exists()
+    rc = cli.main(["fit", str(rig / "sweep1"), str(tmp_path / "other_sweep"), "--chart", str(rig / "chart.json"),
+                   "--distance-m", "1.0,1.0", "--out", str(out), "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 1 and len(err) == 1 and "from another camera" in err[0] and not out.exists()
+    # a wrong number of distances is a usage error
+    assert cli.main(["fit", str(rig / "sweep1"), "--chart", str(rig / "chart.json"), "--distance-m", "1,2",
+                     "--out", str(out), "-q"]) == 2
+    assert not out.exists()
+
+
+def test_calibrate_cli_is_torch_free(rig, tmp_path):
+    from deploy_fixtures import run_without_torch
+
+    out = tmp_path / "cam.json"
+    r = run_without_torch(f"""
+        import sys
+        from aat_deploy.cli import calibrate
+        rc = calibrate.main(["fit", {str(rig / "sweep0")!r}, {str(rig / "sweep1")!r}, "--chart",
+                             {str(rig / "chart.json")!r}, "--distance-m", "0.6,1.0", "--out", {str(out)!r},
+                             "--boot", "5", "-q"])
+        assert rc == 0, rc
+        print(any(m == "torch" or m.startswith("torch.") for m in sys.modules))
+    """, tmp_path)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.strip().splitlines()[-1] == "False" and out.is_file()
