@@ -242,7 +242,7 @@ def test_too_few_textured_tiles_is_refused():
     """A small chart (a quarter of the frame's width, large markers) in front of a blank wall."""
     lens, f_px, pupil = small_rf50()
     w_mm = 0.25 * W / f_px * 1000 * 0.8
-    img, layout = make_chart(ChartSpec(size_mm=(w_mm, w_mm / 1.5), markers=(2, 2), marker_mm=0.4 * w_mm / 1.5,
+    img, layout = make_chart(ChartSpec(size_mm=(w_mm, w_mm / 1.5), markers=(2, 2), marker_mm=0.33 * w_mm / 1.5,
                                        dpi=25.4 * 12 * W / w_mm))
     rgb, depth = chart_scene(img, layout, ChartPose(0.8, 8.0), W, H, f_px, pupil)
     d = 1 / depth
