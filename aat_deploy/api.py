@@ -4,6 +4,8 @@
 
     stack, focus_m = read_stack("captures/sample_rf50")     # (S, H, W, 3) linear RGB, (S,) metres
     result = depth_from_focus(stack, focus_m)               # the shipped DFVNet by default
+    result = depth_from_focus(stack, focus_m, "dfv_aat", camera=(50, 1.8, 4.3))   # any camera: f mm, N, pixel um
+    result = depth_from_focus(stack, focus_m, "dfv_aat", lens="lenses/canon_rf50mm_f1.8.json")  # aberration-aware
     result.depth_m, result.aif, result.std_m, result.camera
     result.save("out/sample")                               # the files aat-infer writes
 
@@ -27,7 +29,7 @@ from .errors import CaptureError
 from .camera import Intrinsics
 from .io.atomic import atomic_folder, writing
 from .io.guard import check_output_dir
-from .model import DfFModel
+from .model import DfFModel, open_model
 from .outputs import DepthMaps, RecordingInputs, to_srgb8, write_outputs
 from .process import depth_from_frames
 from .shipped import resolve
@@ -77,11 +79,42 @@ class DepthResult:
 
 @lru_cache(maxsize=4)
 def load_model(model: str | Path = DEFAULT_MODEL, threads: int | None = None) -> DfFModel:
-    """A DfF model by path or shipped name (cached: loading takes a moment)."""
+    """A DfF model by path or shipped name (cached: loading takes a moment); the any-camera model (`dfv_aat`) as
+    a `FocusMapModel` not yet told its camera."""
     try:
-        return DfFModel(resolve(model, "models"), threads=threads)
+        return open_model(resolve(model, "models"), threads=threads)
     except CaptureError as e:
         raise ValueError(str(e)) from None
+
+
+def _bind_camera(net, frames, focus, camera, lens, psf, calibration):
+    """The any-camera model told its camera: optics from `camera` ((focal mm, f-number, pixel um) or the text
+    "F,N,PIXEL_UM") or the lens / PSF / calibration file, the focus mapping from that file (else a thin lens)."""
+    import copy
+
+    from .anycam.model import FocusMapModel, mapping_from_args
+    from .anycam.optics import parse_camera
+
+    if not isinstance(net, FocusMapModel):
+        if any(v is not None for v in (camera, lens, psf, calibration)):
+            raise ValueError(f"{net.path.name} is a lens-specific model: camera, lens, psf and calibration belong "
+                             "to the any-camera model (model='dfv_aat')")
+        return net
+    width = frames[0].shape[1]
+    try:
+        net = copy.copy(net).configure(mapping_from_args(lens, psf, calibration), max_side=net.max_side)
+        if camera is not None:
+            text = camera if isinstance(camera, str) else ",".join(str(float(v)) for v in camera)
+            optics = parse_camera(text, width)
+        else:
+            optics = net.mapping_optics(width)
+    except CaptureError as e:
+        raise ValueError(str(e)) from None
+    if optics is None and not (net.mapping.kind == "calibration"
+                               and getattr(net.mapping.calibration, "blur", None) is not None):
+        raise ValueError("the any-camera model needs the camera: camera=(focal_mm, f_number, pixel_um) or a lens, "
+                         "psf or calibration file")
+    return net.bound(optics, focus)
 
 
 def read_stack(folder: str | Path, use_exiftool: bool = True, *, max_megapixels: float | None = None,
@@ -135,7 +168,8 @@ def _frames(stack, srgb: bool | None) -> list[np.ndarray]:
 
 def depth_from_focus(stack, focus_m, model: str | Path | DfFModel = DEFAULT_MODEL, *, srgb: bool | None = None,
                      align: bool = False, native_res: bool = False, tile: int | None = None,
-                     threads: int | None = None) -> DepthResult:
+                     threads: int | None = None, camera=None, lens: str | Path | None = None,
+                     psf: str | Path | None = None, calibration: str | Path | None = None) -> DepthResult:
     """Depth (m from the sensor), all-in-focus and uncertainty of one focal stack.
 
     stack: (S, H, W, 3) array (or S arrays (H, W, 3)): float = linear RGB of any non-negative scale (srgb=True:
@@ -143,7 +177,10 @@ def depth_from_focus(stack, focus_m, model: str | Path | DfFModel = DEFAULT_MODE
     metres from the sensor plane, any order (frames are sorted near to far). model: a shipped model's name, a
     path, or a loaded DfFModel. The frames are centre-cropped to the model's sensor aspect and resized to its
     size; native_res=True returns maps at the frames' own size (the crop), upsampled guided by the all-in-focus
-    image. align: affine alignment against focus breathing; tile: run in tiles of this many pixels."""
+    image. align: affine alignment against focus breathing; tile: run in tiles of this many pixels.
+    The any-camera model (model="dfv_aat") also needs the camera: camera=(focal length mm, f-number, pixel pitch um
+    of the frames as given), or a lens file (lens=), PSF surrogate (psf=) or calibration (calibration=), which
+    also make it aberration-aware (what each frame has in focus at each pixel); frames span the sensor."""
     frames = _frames(stack, srgb)
     try:
         focus = np.asarray(focus_m, dtype=np.float64).reshape(-1)
@@ -166,6 +203,7 @@ def depth_from_focus(stack, focus_m, model: str | Path | DfFModel = DEFAULT_MODE
         raise ValueError("tile: an integer >= 16 (px) or None")
     order = np.argsort(focus, kind="stable")
     frames, focus = [frames[i] for i in order], focus[order].astype(np.float32)
+    net = _bind_camera(net, frames, focus, camera, lens, psf, calibration)
     try:
         res = depth_from_frames(frames, focus, net, align=align, tile=tile, native=native_res)
     except CaptureError as e:

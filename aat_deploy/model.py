@@ -97,13 +97,16 @@ class DfFOutput:
 
 
 CONTRACT_RANK = {"stack": (5, "(B, S, 3, H, W)"), "focus_m": (2, "(B, S)"), "field_xy": (4, "(B, 2, H, W)"),
-                 "depth_m": (3, "(B, H, W)"), "aif": (4, "(B, 3, H, W)"), "std_m": (3, "(B, H, W)")}
+                 "depth_m": (3, "(B, H, W)"), "aif": (4, "(B, 3, H, W)"), "std_m": (3, "(B, H, W)"),
+                 "focus_diopters": (4, "(B, S, H, W)"), "defocus_px_per_d": (4, "(B, 1, H, W)")}
 
 
 class DfFModel:
     """An aat DfF ONNX model on onnxruntime's CPU provider."""
 
     kind = "model"  # what the pipeline calls it in messages (the classical method says "method")
+    required_meta = REQUIRED_META
+    inputs = ("stack", "focus_m")
 
     def __init__(self, path: str | Path, threads: int | None = None):
         path = Path(path)
@@ -124,15 +127,15 @@ class DfFModel:
         raw = dict(self.session.get_modelmeta().custom_metadata_map)
         if raw.get("aat.kind") != "dff":
             raise ModelError(f"{path}: not an aat depth-from-focus model (metadata aat.kind = {raw.get('aat.kind')!r})")
-        missing = [k for k in REQUIRED_META if k not in raw]
+        missing = [k for k in self.required_meta if k not in raw]
         if missing:
             raise ModelError(f"{path}: metadata lacks {', '.join(missing)}")
         self.meta = {k: _decode(v) for k, v in raw.items()}
         names_in = {i.name for i in self.session.get_inputs()}
         names_out = {o.name for o in self.session.get_outputs()}
-        if not {"stack", "focus_m"} <= names_in or not {"depth_m", "aif", "std_m"} <= names_out:
+        if not set(self.inputs) <= names_in or not {"depth_m", "aif", "std_m"} <= names_out:
             raise ModelError(f"{path}: inputs {sorted(names_in)} / outputs {sorted(names_out)} do not follow the "
-                             "contract (stack, focus_m -> depth_m, aif, std_m)")
+                             f"contract ({', '.join(self.inputs)} -> depth_m, aif, std_m)")
         for io_list, what in ((self.session.get_inputs(), "input"), (self.session.get_outputs(), "output")):
             for a in io_list:  # checked at load, so a wrong model fails once (exit 2), not per capture
                 want = CONTRACT_RANK.get(a.name)
@@ -259,6 +262,23 @@ class DfFModel:
         acc_w = np.maximum(acc_w, 1e-12)
         return DfFOutput((acc_d / acc_w).astype(np.float32), (acc_a / acc_w).astype(np.float32),
                          (acc_s / acc_w).astype(np.float32))
+
+
+def open_model(path: str | Path, threads: int | None = None) -> DfFModel:
+    """A DfF model file as the right class: the any-camera model (metadata aat.inputs = focus_map,
+    `aat_deploy.anycam.model.FocusMapModel`, not yet told its camera) or a lens-specific `DfFModel`."""
+    path = Path(path)
+    if path.is_file():
+        try:
+            meta = dict(ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+                        .get_modelmeta().custom_metadata_map)
+        except Exception:  # noqa: BLE001 (DfFModel reports an unloadable file in one line)
+            meta = {}
+        if meta.get("aat.inputs") == "focus_map":
+            from .anycam.model import FocusMapModel
+
+            return FocusMapModel(path, threads=threads)
+    return DfFModel(path, threads=threads)
 
 
 def _pad_linear(field: np.ndarray, ph: int, pw: int) -> np.ndarray:

@@ -164,6 +164,8 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
                                f"{frames[0].path.name} is {size0[1]}x{size0[0]}: frames of different sizes")
         images.append(img)
         decode_info.append(info)
+    if hasattr(model, "for_capture"):  # the any-camera model: told this capture's camera (EXIF or --camera)
+        model = model.for_capture(cap, size0)
     lap("decode")
 
     res = depth_from_frames(images, focus, model, align=opts.align, tile=opts.tile, native=opts.native,

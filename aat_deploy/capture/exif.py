@@ -30,6 +30,8 @@ from .tiff import TiffBuffer
 EXIF_POINTER, MAKER_NOTE, SUBJECT_DISTANCE = 0x8769, 0x927C, 0x9206
 MAKE, MODEL, FOCAL_LENGTH, F_NUMBER, LENS_MODEL = 0x010F, 0x0110, 0x920A, 0x829D, 0xA434
 DNG_LENS_MODEL = 0xC62A  # LensInfo is 0xC630; DNG writers put LensModel in EXIF 0xA434 too
+FOCAL_LENGTH_35MM, FOCAL_PLANE_X_RES, FOCAL_PLANE_UNIT = 0xA405, 0xA20E, 0xA210
+FOCAL_PLANE_UNIT_MM = {2: 25.4, 3: 10.0, 4: 1.0, 5: 0.001}  # ResolutionUnit: inch, cm, mm, um -> mm per unit
 
 
 @dataclass
@@ -46,6 +48,8 @@ class FrameMeta:
     f_number: float | None = None
     width: int | None = None
     height: int | None = None
+    focal_length_35mm: float | None = None  # EXIF FocalLengthIn35mmFilm: the focal length times the crop factor
+    focal_plane_px_per_mm: float | None = None  # EXIF FocalPlaneXResolution in pixels per mm of the sensor
     container: str | None = None
     focus_tags: dict[str, float] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
@@ -154,6 +158,8 @@ def read_metadata(path: str | Path, use_exiftool: bool = True, buf: bytes | None
         meta.lens = meta.lens or et.lens
         meta.focal_length_mm = meta.focal_length_mm or et.focal_length_mm
         meta.f_number = meta.f_number or et.f_number
+        meta.focal_length_35mm = meta.focal_length_35mm or et.focal_length_35mm
+        meta.focal_plane_px_per_mm = meta.focal_plane_px_per_mm or et.focal_plane_px_per_mm
     if meta.width is None and blocks.container in ("jpeg", "png"):
         meta.width, meta.height = claimed_size(buf, blocks.container) or (None, None)
     return meta
@@ -182,6 +188,14 @@ def _read_tiff(buf: bytes, tb: TiffBuffer, first: int, role: str, meta: FrameMet
             v = tb.number(exif, tag) or tb.number(ifd0, tag)
             if v and math.isfinite(v):
                 setattr(meta, attr, v)
+    if meta.focal_length_35mm is None:
+        v = tb.number(exif, FOCAL_LENGTH_35MM)
+        if v and math.isfinite(v) and v > 0:
+            meta.focal_length_35mm = float(v)
+    if meta.focal_plane_px_per_mm is None:
+        res, unit = tb.number(exif, FOCAL_PLANE_X_RES), tb.number(exif, FOCAL_PLANE_UNIT) or 2
+        if res and math.isfinite(res) and res > 0 and int(unit) in FOCAL_PLANE_UNIT_MM:
+            meta.focal_plane_px_per_mm = float(res) / FOCAL_PLANE_UNIT_MM[int(unit)]
     if meta.width is None:
         w, h = tb.number(exif, 0xA002), tb.number(exif, 0xA003)
         if w and h:

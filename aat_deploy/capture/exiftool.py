@@ -14,7 +14,9 @@ from .makernotes import canon_focus_m
 # exiftool tag names that hold a focus distance in metres, in the order we trust them
 FOCUS_TAGS = ("FocusDistance", "FocusDistanceUpper", "SubjectDistance", "ObjectDistance", "ApproximateFocusDistance")
 _ASKED = ("FocusDistance", "FocusDistanceUpper", "FocusDistanceLower", "SubjectDistance", "ObjectDistance",
-          "ApproximateFocusDistance", "Make", "Model", "LensModel", "Lens", "FocalLength", "FNumber")
+          "ApproximateFocusDistance", "Make", "Model", "LensModel", "Lens", "FocalLength", "FNumber",
+          "FocalLengthIn35mmFormat", "FocalPlaneXResolution", "FocalPlaneResolutionUnit")
+_PLANE_UNIT_MM = {2: 25.4, 3: 10.0, 4: 1.0, 5: 0.001}  # exiftool -n FocalPlaneResolutionUnit: inch, cm, mm, um
 
 
 @dataclass
@@ -29,6 +31,8 @@ class ExifToolResult:
     lens: str | None = None
     focal_length_mm: float | None = None
     f_number: float | None = None
+    focal_length_35mm: float | None = None
+    focal_plane_px_per_mm: float | None = None
 
 
 def available() -> bool:
@@ -66,8 +70,12 @@ def read(path: str | Path, timeout_s: float = 30.0) -> ExifToolResult:
     out.make = data.get("Make") or None
     out.model = str(data["Model"]) if data.get("Model") is not None else None
     out.lens = data.get("LensModel") or data.get("Lens") or None
-    for attr, name in (("focal_length_mm", "FocalLength"), ("f_number", "FNumber")):
+    for attr, name in (("focal_length_mm", "FocalLength"), ("f_number", "FNumber"),
+                       ("focal_length_35mm", "FocalLengthIn35mmFormat")):
         v = data.get(name)
         if isinstance(v, (int, float)):
             setattr(out, attr, float(v))
+    res, unit = data.get("FocalPlaneXResolution"), data.get("FocalPlaneResolutionUnit", 2)
+    if isinstance(res, (int, float)) and math.isfinite(res) and res > 0 and unit in _PLANE_UNIT_MM:
+        out.focal_plane_px_per_mm = float(res) / _PLANE_UNIT_MM[unit]
     return out

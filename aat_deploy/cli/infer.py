@@ -1,9 +1,14 @@
 """aat-infer: run an ONNX depth-from-focus model on capture folders.
 
     aat-infer CAPTURE_DIR... --model M.onnx [--out DIR] [--force] [--strict] [--threads N] [--tile N] [--align]
+    aat-infer CAPTURE_DIR... --model dfv_aat [--camera F_MM,N,PIXEL_UM] [--lens LENS | --psf PSF.onnx |
+                             --calibration CAL.json] [--max-side N]
     aat-infer CAPTURE_DIR... --method focus [--lens LENS | --psf PSF.onnx] [--focus-m 0.6,0.8,...] [--max-side N]
                              [--prefilter-px SIGMA]
 
+--model dfv_aat is the any-camera model: it takes the camera's focal length, f-number and pixel pitch from EXIF (or
+--camera) and what each frame has in focus at each pixel from a thin lens, or aberration-aware from the lens's
+best-focus map (--lens, --psf) or a calibration (--calibration); it refuses in one line what it cannot know.
 --method focus needs no trained model: classical depth from focus (aat_deploy.focus) at the capture's own
 resolution, aberration-aware with the lens's best-focus map (--lens, --psf). It also writes confidence.npy/png.
 
@@ -36,7 +41,8 @@ def _main(argv: list[str] | None) -> int:
     from ..errors import CaptureError, one_line, safe_output_streams
     from ..focus.method import FocusConfig
     from ..focus.runner import FocusMethod
-    from ..model import DfFModel
+    from ..anycam.model import DEFAULT_MAX_SIDE, FocusMapModel, mapping_from_args
+    from ..model import open_model
     from ..pipeline import Options, check_output, output_dir_for, output_dirs, run_capture
     from ..shipped import resolve
 
@@ -47,12 +53,21 @@ def _main(argv: list[str] | None) -> int:
                     "name (rf50_dfvnet_aat, ...); required unless --method focus")
     ap.add_argument("--method", choices=("model", "focus"), default="model",
                     help="model (a trained DfF net, default) or focus (classical focus measures, no model)")
-    ap.add_argument("--lens", type=Path, help="--method focus: lens file, for its best-focus map (aberration-aware)")
-    ap.add_argument("--psf", type=Path, help="--method focus: PSF surrogate carrying the lens's best-focus map")
+    ap.add_argument("--lens", type=Path, help="--method focus or dfv_aat: lens file, for its best-focus map "
+                    "(aberration-aware)")
+    ap.add_argument("--psf", type=Path, help="--method focus or dfv_aat: PSF surrogate carrying the lens's "
+                    "best-focus map")
+    ap.add_argument("--calibration", type=Path, metavar="CAL.json",
+                    help="dfv_aat: a camera calibration (aat-camera-calibration-v1): per-pixel best focus, the "
+                         "reported focus's error and the measured blur growth")
+    ap.add_argument("--camera", metavar="F_MM,N,PIXEL_UM",
+                    help="dfv_aat: focal length (mm), f-number and pixel pitch (um, of the frames as captured), for "
+                         "frames whose EXIF lacks them")
     ap.add_argument("--focus-m", metavar="F1,F2,...", help="focus distances (m) of the frames in file-name order, "
                     "for files without focus metadata (overrides capture.json)")
     ap.add_argument("--max-side", type=int, metavar="N",
-                    help="--method focus: work at most this many px on the longer side")
+                    help="--method focus or dfv_aat: work at most this many px on the longer side (dfv_aat: default "
+                         "1024)")
     ap.add_argument("--prefilter-px", type=float, metavar="SIGMA",
                     help="--method focus: Gaussian blur of each frame before the focus measure, standard deviation "
                          f"in px at the working size (default {FocusConfig.prefilter_px:g}, chosen on validation "
@@ -78,8 +93,8 @@ def _main(argv: list[str] | None) -> int:
         ap.error("--tile must be >= 16 px")
     if args.method == "model" and args.model is None:
         ap.error("--model is required (or --method focus, which needs no trained model)")
-    if args.method == "model" and (args.lens or args.psf or args.max_side or args.prefilter_px is not None):
-        ap.error("--lens, --psf, --max-side and --prefilter-px belong to --method focus")
+    if args.method == "focus" and (args.camera or args.calibration):
+        ap.error("--camera and --calibration belong to the any-camera model (--model dfv_aat)")
     if args.method == "focus" and args.model is not None:
         ap.error("--method focus uses no --model")
     if args.prefilter_px is not None and not 0 <= args.prefilter_px <= 50:
@@ -92,22 +107,35 @@ def _main(argv: list[str] | None) -> int:
         args.lens = resolve(args.lens, "lenses")
     if args.psf is not None:
         args.psf = resolve(args.psf, "models")
+    lens_specific = None
     captures = [Path(c) for c in args.captures]
     outs = output_dirs(captures, args.out)
     refused = {}  # before any work: an output folder that is, holds or sits in an input is never touched
     for i, (c, out) in enumerate(zip(captures, outs)):
         try:
-            check_output(out, args.force, [*captures, *(p for p in (args.model, args.lens, args.psf) if p)])
+            check_output(out, args.force, [*captures, *(p for p in (args.model, args.lens, args.psf,
+                                                                      args.calibration) if p)])
         except CaptureError as e:
             refused[i] = e
     try:
         focus_m = parse_focus_list(args.focus_m) if args.focus_m is not None else None
         config = FocusConfig() if args.prefilter_px is None else FocusConfig(prefilter_px=args.prefilter_px)
-        model = (FocusMethod(config, lens=args.lens, psf=args.psf, max_side=args.max_side, progress=not args.quiet)
-                 if args.method == "focus" else DfFModel(args.model, threads=args.threads))
+        if args.method == "focus":
+            model = FocusMethod(config, lens=args.lens, psf=args.psf, max_side=args.max_side, progress=not args.quiet)
+        else:
+            model = open_model(args.model, threads=args.threads)
+            if isinstance(model, FocusMapModel):  # the any-camera model: its camera and focus mapping
+                model.configure(mapping_from_args(args.lens, args.psf, args.calibration), camera=args.camera,
+                                max_side=args.max_side or DEFAULT_MAX_SIDE)
+            elif args.lens or args.psf or args.max_side or args.prefilter_px is not None or args.camera \
+                    or args.calibration:
+                lens_specific = args.model
     except CaptureError as e:
         print(one_line(f"aat-infer: error: {e}"), file=sys.stderr)
         return 2
+    if lens_specific is not None:
+        ap.error(f"{lens_specific.name} is a lens-specific model: --lens, --psf, --calibration, --camera and "
+                 "--max-side belong to --model dfv_aat, --prefilter-px to --method focus")
     opts = Options(tile=args.tile, align=args.align, strict=args.strict, force=args.force,
                    use_exiftool=not args.no_exiftool, focus_m=focus_m, record=not args.no_recording,
                    quiet=args.quiet, native=args.native_res, max_megapixels=args.max_megapixels,

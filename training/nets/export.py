@@ -170,3 +170,101 @@ def read_metadata(path) -> dict[str, str]:
     import onnx
 
     return {p.key: p.value for p in onnx.load(str(path), load_external_data=False).metadata_props}
+
+
+# -- the any-camera model (training.nets.dfvaat): per-pixel focus inputs -------------------------------------------
+FOCUS_MAP_INPUTS = ("input focus_diopters (B, S, H, W): object diopters (1/m, distances from the sensor plane) in best "
+                    "focus in each frame at each pixel; input defocus_px_per_d (B, 1, H, W): blur-diameter growth "
+                    "(px) per diopter of defocus at each pixel; frames sorted near to far (descending diopters)")
+
+
+def focus_map_metadata(model, *, effects: list[str], stack_range: tuple[int, int], config_hash: str,
+                       k_range: tuple[float, float], extra: dict | None = None) -> dict[str, str]:
+    """metadata_props of the any-camera model (docs/contracts.md, "DfF model with focus maps"): no lens, sensor or
+    focus range of its own; it declares the inputs it needs and the defocus scales it was trained on."""
+    md = {
+        "aat.kind": "dff",
+        "aat.net": model.name,
+        "aat.size": model.size,
+        "aat.inputs": "focus_map",
+        "aat.focus_map_inputs": FOCUS_MAP_INPUTS,
+        "aat.simulator": "any_camera",
+        "aat.effects": json.dumps(list(effects)),
+        "aat.stack_min": str(int(stack_range[0])),
+        "aat.stack_max": str(int(stack_range[1])),
+        "aat.defocus_px_per_d_range": json.dumps([float(k_range[0]), float(k_range[1])]),
+        "aat.size_multiple": str(model.size_multiple),
+        "aat.input_normalisation": NORMALISATION,
+        "aat.config_hash": config_hash,
+        "aat.version": package_version(),
+        "aat.distances": DISTANCES,
+        "aat.n_params": str(model.n_params),
+    }
+    md.update({f"aat.{k}": (v if isinstance(v, str) else json.dumps(v)) for k, v in (extra or {}).items()})
+    return md
+
+
+def _focus_map_example(b: int, s: int, h: int, w: int, seed: int = 0):
+    g = torch.Generator().manual_seed(seed)
+    stack = torch.rand(b, s, 3, h, w, generator=g)
+    near, far = 1.0 / (0.3 + torch.rand(b, generator=g)), 0.1 * torch.rand(b, generator=g)
+    t = torch.linspace(0, 1, s)[None, :, None, None]
+    field = 0.05 * torch.rand(b, 1, h, w, generator=g)
+    fd = near[:, None, None, None] * (1 - t) + far[:, None, None, None] * t + field
+    k = 1.0 + 40 * torch.rand(b, 1, 1, 1, generator=g) * (1 + 0.1 * torch.rand(b, 1, h, w, generator=g))
+    return stack, fd, k
+
+
+def parity_focus_map(model, onnx_path, shapes: list[tuple[int, int, int, int]]) -> float:
+    """`parity` for the any-camera model: largest relative ORT-vs-torch difference over its outputs at each
+    (B, S, H, W) (depth and std over the largest in-focus distance, aif over the stack's largest value)."""
+    import onnxruntime as ort
+
+    sess = ort.InferenceSession(str(onnx_path), providers=["CPUExecutionProvider"])
+    worst = 0.0
+    model = model.eval()
+    for i, shp in enumerate(shapes):
+        stack, fd, k = _focus_map_example(*shp, seed=i)
+        outs = sess.run(None, {"stack": stack.numpy(), "focus_diopters": fd.numpy(), "defocus_px_per_d": k.numpy()})
+        with torch.no_grad():
+            ref = model(stack, fd, k)
+        dmax = float((1.0 / fd.clamp_min(1e-3)).max())
+        for o, r, s in zip(outs, ref, (dmax, float(stack.abs().max()), dmax)):
+            if o.shape != tuple(r.shape):
+                raise RuntimeError(f"onnxruntime output shape {o.shape} != torch {tuple(r.shape)} at {shp}")
+            worst = max(worst, float(np.abs(o - r.numpy()).max()) / max(s, 1e-30))
+    return worst
+
+
+def export_focus_map_onnx(model, path, metadata: dict[str, str], *, force: bool = False,
+                          check_shapes: list[tuple[int, int, int, int]] | None = None, opset: int = 17) -> float:
+    """Write the any-camera model to ONNX (atomic, no overwrite unless force), dynamic B, S, H, W, exported at one
+    shape and checked against torch at others (default: four, none the export's); refuses beyond PARITY_TOL."""
+    import onnx
+
+    path = Path(path)
+    if path.exists() and not force:
+        raise FileExistsError(f"{path}: exists (use --force to overwrite)")
+    m = model.size_multiple
+    shapes = check_shapes or [(1, 3, m, 3 * m), (1, 5, 2 * m, 2 * m), (2, 9, 3 * m, 2 * m), (1, 16, 2 * m, 3 * m)]
+    model = model.eval().float()
+    args = _focus_map_example(1, 4, 2 * m, 2 * m)
+    axes = {"stack": {0: "B", 1: "S", 3: "H", 4: "W"}, "focus_diopters": {0: "B", 1: "S", 2: "H", 3: "W"},
+            "defocus_px_per_d": {0: "B", 2: "H", 3: "W"},
+            "depth_m": {0: "B", 1: "H", 2: "W"}, "aif": {0: "B", 2: "H", 3: "W"}, "std_m": {0: "B", 1: "H", 2: "W"}}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_file(path) as tmp:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            torch.onnx.export(model, args, str(tmp), input_names=["stack", "focus_diopters", "defocus_px_per_d"],
+                              output_names=["depth_m", "aif", "std_m"], opset_version=opset, dynamo=False,
+                              dynamic_axes=axes)
+        proto = onnx.load(str(tmp))
+        for k, v in metadata.items():
+            proto.metadata_props.add(key=k, value=str(v))
+        onnx.save(proto, str(tmp))
+        err = parity_focus_map(model, tmp, shapes)
+        if err > PARITY_TOL:
+            raise RuntimeError(f"{path}: onnxruntime differs from torch by {err:.2e} of the inputs' magnitude "
+                               f"(> {PARITY_TOL:g})")
+    return err

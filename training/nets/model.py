@@ -79,6 +79,13 @@ class DfFNet(nn.Module):
 
 
 def build_model(net: str, size: str, field_channels: int = 0) -> DfFNet:
+    """A DfFNet, or for net "dfvaat" the any-camera net (training.nets.dfvaat.FocusMapDfF: per-pixel focus inputs)."""
+    if net == "dfvaat":
+        from training.nets.dfvaat import build
+
+        if field_channels:
+            raise ValueError("dfvaat takes per-pixel focus maps, not field coordinates (field_channels must be 0)")
+        return build(size)
     return DfFNet(build_net(net, size, field_channels), net, size, field_channels)
 
 

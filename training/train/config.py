@@ -14,7 +14,8 @@ from pathlib import Path
 from training.nets.export import config_hash
 from training.nets.model import FIELD_CHANNELS, NETS, SIZES
 
-SIMULATORS = ("aat", "thin_lens")
+SIMULATORS = ("aat", "thin_lens", "any_camera")  # any_camera: the dfvaat net's data (training.data.anycam)
+ALL_NETS = NETS + ("dfvaat",)
 
 
 class ConfigError(ValueError):
@@ -67,8 +68,11 @@ class TrainConfig:
     init: str | None = None  # weights to start from: an exported DfF .onnx or a model.pt/last.pt (training.nets.warm_start)
 
     def validate(self) -> TrainConfig:
-        if self.net not in NETS:
-            raise ConfigError(f"config {self.name}: net must be one of {NETS}, got {self.net!r}")
+        if self.net not in ALL_NETS:
+            raise ConfigError(f"config {self.name}: net must be one of {ALL_NETS}, got {self.net!r}")
+        if (self.net == "dfvaat") != (self.simulator == "any_camera"):
+            raise ConfigError(f"config {self.name}: net dfvaat goes with simulator any_camera (its own data), "
+                              "and only it")
         if self.size not in SIZES:
             raise ConfigError(f"config {self.name}: size must be one of {SIZES}, got {self.size!r}")
         if self.simulator not in SIMULATORS:

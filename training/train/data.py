@@ -39,6 +39,13 @@ def make_dataset(data: dict, simulator: str, lens: str, effects: list[str] | Non
                  device: str = "cpu") -> Dataset:
     """FocalStackDataset for one split, everything but the simulator identical between AAT and baseline runs;
     device: where it renders (the items come back on the CPU)."""
+    if simulator == "any_camera":  # the any-camera net's data: its own cameras, no lens or effects of the config
+        from training.data.anycam import AnyCamConfig, AnyCamDataset
+
+        try:
+            return AnyCamDataset(AnyCamConfig(**data))
+        except TypeError as e:
+            raise ValueError(f"data config: {e}") from None
     from training.data import stacks
 
     cfg_cls = _config_class(stacks.FocalStackDataset)

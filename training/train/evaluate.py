@@ -24,6 +24,16 @@ def evaluate(model: DfFNet, dataset: Dataset, max_items: int | None = None, focu
     try:
         for i in range(n):
             item = dataset[i]
+            if getattr(model, "name", "") == "dfvaat":  # per-pixel focus maps (training.nets.dfvaat)
+                from training.nets.dfvaat import predict as predict_focus_map
+
+                out = predict_focus_map(model, item["stack"][None].float().to(dev),
+                                        item["focus_diopters"][None].float().to(dev),
+                                        item["defocus_px_per_d"][None].float().to(dev))
+                acc.add(out["depth_m"][0].cpu().numpy(), np.asarray(item["depth_m"]),
+                        out["aif"][0].clamp(0, 1).cpu().numpy(), np.asarray(item["aif"]),
+                        focus_m=np.asarray(item["focus_m"]))
+                continue
             field = item["field_xy"][None].float().to(dev) if model.field_channels and "field_xy" in item else None
             out = predict(model, item["stack"][None].float().to(dev), item["focus_m"][None].float().to(dev), field)
             aif_ref = item.get("aif")

@@ -16,6 +16,14 @@ def export_checkpoint(checkpoint, out, *, force: bool = False, extra: dict | Non
     (metadata, the relative ORT-vs-torch difference over three shapes, `training.nets.export.parity`).
     extra: more aat.* metadata keys."""
     model, cfg = load_trained(Path(checkpoint))
+    if cfg.net == "dfvaat":  # the any-camera model: no lens of its own (training.nets.export.focus_map_metadata)
+        from training.data.cameras import K_MAX_PX_PER_D
+        from training.nets.export import export_focus_map_onnx, focus_map_metadata
+
+        md = focus_map_metadata(model, effects=["camera_processing"], stack_range=cfg.stack_range,
+                                config_hash=cfg.hash(), k_range=(0.3, K_MAX_PX_PER_D),
+                                extra={"train_steps": cfg.steps, "config_name": cfg.name, **(extra or {})})
+        return md, export_focus_map_onnx(model, out, md, force=force)
     lens = load_lens(resolve_lens_path(cfg.lens))
     md = dff_metadata(model, lens, simulator=cfg.simulator, effects=list(cfg.effects),
                       focus_range_m=cfg.focus_range_m, stack_range=cfg.stack_range, config_hash=cfg.hash(),

@@ -39,7 +39,8 @@ from training.nets.model import build_model, train_levels
 from training.train.checkpoint import load, save_atomic, to_cpu
 from training.train.config import TrainConfig
 from training.train.evaluate import evaluate
-from training.train.loss import dff_loss
+from training.nets.dfvaat import train_levels as focus_map_levels
+from training.train.loss import dff_loss, focus_map_loss
 from training.train.sampler import ResumableSampler
 from training.train.schedule import lr_at
 
@@ -172,7 +173,8 @@ def _train(cfg, out_dir: Path, train_set, val_set, resume, stop_at_step, progres
         epoch, offset = divmod(step, per_epoch)
         sampler.set_epoch(epoch, offset * cfg.batch_size)
         loader = DataLoader(train_set, batch_size=cfg.batch_size, sampler=sampler, drop_last=True,
-                            num_workers=cfg.num_workers, pin_memory=pin_memory(device))
+                            num_workers=cfg.num_workers, pin_memory=pin_memory(device),
+                            collate_fn=getattr(train_set, "collate", None))
         for batch in loader:
             t0 = time.perf_counter()
             batch = to_device(batch, device)
@@ -181,10 +183,13 @@ def _train(cfg, out_dir: Path, train_set, val_set, resume, stop_at_step, progres
                 g["lr"] = lr
             field = batch["field_xy"].float() if cfg.field_channels else None
             with autocast(device, amp):  # the nets only: the loss below is float32
-                levels = train_levels(ddp, batch["stack"].float(), batch["focus_m"].float(), model.size_multiple,
-                                      field)
+                if cfg.net == "dfvaat":  # per-pixel focus maps in (training.nets.dfvaat)
+                    levels = focus_map_levels(ddp, batch)
+                else:
+                    levels = train_levels(ddp, batch["stack"].float(), batch["focus_m"].float(),
+                                          model.size_multiple, field)
             levels = [tuple(None if t is None else t.float() for t in lv) for lv in levels]
-            loss, parts = dff_loss(levels, batch, cfg.loss)
+            loss, parts = (focus_map_loss if cfg.net == "dfvaat" else dff_loss)(levels, batch, cfg.loss)
             opt.zero_grad(set_to_none=True)
             scaler.scale(loss).backward()
             if cfg.grad_clip > 0:

@@ -65,3 +65,33 @@ def dff_loss(levels: list[tuple[Tensor, Tensor | None, Tensor]], batch: dict[str
         parts["smooth"] = float(l_s.detach())
     parts["total"] = float(total.detach())
     return total, parts
+
+
+def focus_map_loss(levels: list[tuple], batch: dict[str, Tensor], cfg: LossConfig) -> tuple[Tensor, dict[str, float]]:
+    """The any-camera net's loss (training.nets.dfvaat): L1 of the interpolated diopters in units of each stack's
+    mean frame spacing (so a phone's 10-diopter sweep and a full-frame camera's 2-diopter one weigh alike: the
+    error is in frames), plus L1 of depth relative to the item's median depth (what metre errors weigh).
+    levels: [(depth_m, aif, std_m, diopters), ...] finest first; batch: "depth_m" (B, H, W), "focus_diopters"
+    (B, S, H, W); optional "aif" for cfg.aif."""
+    gt = batch["depth_m"]
+    mask = depth_mask(gt)
+    fd = batch["focus_diopters"]
+    s = fd.shape[1]
+    mean_d = fd.mean((2, 3))
+    spacing = ((mean_d.max(1).values - mean_d.min(1).values) / max(s - 1, 1)).clamp_min(1e-3)[:, None, None]
+    inv_gt = 1.0 / torch.where(mask, gt, torch.ones_like(gt))
+    med = torch.stack([g[m].median() if m.any() else g.new_tensor(1.0) for g, m in zip(gt, mask)])[:, None, None]
+    weights = list(cfg.level_weights)[: len(levels)]
+    wsum = sum(weights)
+    l_frames = sum(w * masked_l1(lv[3] / spacing, inv_gt / spacing, mask) for w, lv in zip(weights, levels)) / wsum
+    l_rel = sum(w * masked_l1(lv[0] / med, gt / med, mask) for w, lv in zip(weights, levels)) / wsum
+    total = cfg.depth * (l_frames + l_rel)
+    parts = {"frames_l1": float(masked_l1(levels[0][3].detach() / spacing, inv_gt / spacing, mask)),
+             "rel_l1": float(masked_l1(levels[0][0].detach() / med, gt / med, mask)),
+             "depth_l1": float(masked_l1(levels[0][0].detach(), gt, mask))}
+    if cfg.aif > 0:
+        l_aif = (levels[0][1] - batch["aif"]).abs().mean()
+        total = total + cfg.aif * l_aif
+        parts["aif_l1"] = float(l_aif.detach())
+    parts["total"] = float(total.detach())
+    return total, parts

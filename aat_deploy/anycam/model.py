@@ -1,0 +1,226 @@
+"""The any-camera ONNX model (`models/dfv_aat.onnx`, docs/contracts.md "DfF model with focus maps").
+
+Inputs: stack (B, S, 3, H, W) normalised (frames near -> far), focus_diopters (B, S, H, W), defocus_px_per_d
+(B, 1, H, W); outputs depth_m, aif, std_m as every DfF model. It has no lens or sensor of its own: before it runs
+on a capture it is told the camera (`for_capture`: optics from `--camera`, the lens / calibration, or EXIF) and
+how frames map to in-focus distances (`aat_deploy.anycam.maps.FocusMapping`); then it behaves as a `DfFModel` for
+the pipeline (working size, intrinsics, tiled inference).
+
+Working size: the frames' own, reduced (area averaging) so the longer side is at most `max_side` px and the
+thin-lens blur growth at most `K_MAX_PX_PER_D` px per diopter (the largest the net was trained on with margin):
+more pixels than that only make the blur wider than the net's reach.
+"""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import numpy as np
+
+from ..camera import Intrinsics
+from ..errors import CaptureError, ModelError
+from ..model import DfFModel, _meta_int
+from .maps import FocusMapping
+from .optics import CameraOptics, from_exif
+
+REQUIRED = ("aat.kind", "aat.inputs", "aat.stack_min", "aat.stack_max", "aat.size_multiple")
+K_MAX_PX_PER_D = 48.0
+DEFAULT_MAX_SIDE = 1024
+
+
+class FocusMapModel(DfFModel):
+    """`DfFModel` for the any-camera model; `for_capture` binds a camera and mapping (a copy)."""
+
+    required_meta = REQUIRED
+    inputs = ("stack", "focus_diopters", "defocus_px_per_d")
+
+    def __init__(self, path: str | Path, threads: int | None = None, mapping: FocusMapping | None = None,
+                 camera: str | None = None, max_side: int = DEFAULT_MAX_SIDE):
+        super().__init__(path, threads)
+        self.optics: CameraOptics | None = None
+        self._focus_mid_m = 2.0
+        self.configure(mapping, camera, max_side)
+
+    def configure(self, mapping: FocusMapping | None = None, camera: str | None = None,
+                  max_side: int = DEFAULT_MAX_SIDE) -> FocusMapModel:
+        """Set the focus mapping (None: thin lens), the --camera text (parsed per capture: its pixel pitch is at the
+        capture's width) and the working size's limit. Returns self."""
+        self.mapping = mapping or FocusMapping("thin_lens")
+        self.camera_arg = camera
+        if int(max_side) < 32:
+            raise CaptureError(f"--max-side {max_side}: at least 32 px")
+        self.max_side = int(max_side)
+        if self.mapping.lens_optics is not None:  # compared with the captures' EXIF (pipeline.identity_warnings)
+            self.focal_length_mm, self.f_number = self.mapping.lens_optics[:2]
+            self.lens_name = self.mapping.lens_name
+        return self
+
+    def _validate_meta(self) -> None:
+        m = self.meta
+        if m.get("aat.inputs") != "focus_map":
+            raise ModelError(f"{self.path}: not an any-camera model (metadata aat.inputs = {m.get('aat.inputs')!r})")
+        self.size_multiple = _meta_int(self.path, m, "aat.size_multiple", 1, 4096)
+        self.stack_range = (_meta_int(self.path, m, "aat.stack_min", 1, 4096),
+                            _meta_int(self.path, m, "aat.stack_max", 1, 4096))
+        self.focus_range_m = (0.02, 1.0e4)  # any camera: the capture's own sweep
+        self.lens_name = None  # set by for_capture when a lens file gives the map
+        self.focal_length_mm = self.f_number = None
+        self.pixel_um = None
+        self.sensor_px = None
+
+    # -- binding a camera -------------------------------------------------------------------------------------
+    def for_capture(self, capture, frame_hw: tuple[int, int] | None = None) -> FocusMapModel:
+        """A copy told this capture's camera: optics from --camera, else the mapping's lens or calibration, else
+        the frames' EXIF (CaptureError naming what is missing). frame_hw: the frames' size (default: EXIF's)."""
+        where = str(getattr(capture, "path", "capture"))
+        metas = [f.meta for f in capture.frames]
+        w = frame_hw[1] if frame_hw else next((m.width for m in metas if m.width), None)
+        optics = self._optics(metas, w, where)
+        focus = np.array([f.focus_m for f in capture.frames], np.float64)
+        return self.bound(optics, focus)
+
+    def bound(self, optics: CameraOptics | None, focus_m) -> FocusMapModel:
+        """A copy with these optics (None: only a calibration's measured scale can serve) and sweep."""
+        out = copy.copy(self)
+        out.optics = optics
+        out.mapping = copy.copy(self.mapping)
+        out.mapping.optics = optics
+        f = np.asarray(focus_m, np.float64)
+        out._focus_mid_m = float(2.0 / (1.0 / f.min() + 1.0 / f.max()))
+        if optics is not None:
+            out.focal_length_mm, out.f_number = optics.focal_mm, optics.f_number
+        return out
+
+    def _optics(self, metas, width_px, where: str) -> CameraOptics:
+        if width_px is None:
+            raise CaptureError(f"{where}: the frames' size is unknown")
+        if self.camera_arg:
+            from .optics import parse_camera
+
+            try:
+                return parse_camera(self.camera_arg, width_px)
+            except ValueError as e:
+                raise CaptureError(str(e)) from None
+        lens_optics = self.mapping_optics(width_px)
+        if lens_optics is not None:
+            return lens_optics
+        return from_exif(metas, width_px, where)
+
+    def mapping_optics(self, width_px: int) -> CameraOptics | None:
+        """Optics from the mapping's lens / PSF / calibration file (frames taken to span its sensor)."""
+        src = getattr(self.mapping, "lens_optics", None)
+        if src is None:
+            return None
+        focal, fno, sensor_w_mm, what = src
+        return CameraOptics(focal, fno, 1000.0 * sensor_w_mm / width_px, int(width_px), what)
+
+    # -- what the pipeline asks of a model --------------------------------------------------------------------
+    def _k_native(self, width_px: int) -> float:
+        if self.mapping.kind == "calibration" and getattr(self.mapping.calibration, "blur", None) is not None:
+            return float(np.median(self.mapping.defocus_px_per_d([self._focus_mid_m], 8, width_px)))
+        if self.optics is None:
+            raise CaptureError("the any-camera model has not been told the camera (focal length, f-number, pixels)")
+        return self.optics.defocus_px_per_d(self._focus_mid_m, width_px)
+
+    def working_size(self, frame_hw: tuple[int, int]) -> tuple[int, int]:
+        """(W, H): the frames' size, reduced so the longer side is <= max_side and the blur growth <= K_MAX."""
+        h, w = int(frame_hw[0]), int(frame_hw[1])
+        s = min(1.0, self.max_side / max(h, w), K_MAX_PX_PER_D / max(self._k_native(w), 1e-9))
+        return max(32, round(w * s)), max(32, round(h * s))
+
+    def intrinsics(self, size_wh: tuple[int, int] | None = None) -> Intrinsics:
+        w, h = (int(size_wh[0]), int(size_wh[1])) if size_wh else (640, 480)
+        if self.optics is None:
+            f = float(max(w, h))
+            return Intrinsics(w, h, f, f, (w - 1) / 2, (h - 1) / 2, 0.0, "dfv_aat: no focal length known",
+                              ["focal length assumed: the longer side in px"])
+        f = self.optics.focal_mm / (self.optics.pixel_um_at(w) / 1000.0)
+        return Intrinsics(w, h, f, f, (w - 1) / 2, (h - 1) / 2, float(self.optics.focal_mm),
+                          f"dfv_aat: {self.optics.source}",
+                          ["pupil_to_sensor_mm unknown: the focal length is used (thin lens focused at infinity)"])
+
+    def focal_length_px_at(self, size_wh: tuple[int, int]) -> float:
+        return self.intrinsics(size_wh).fx
+
+    def summary(self) -> dict:
+        return {"path": str(self.path), "kind": "any_camera", "net": self.meta.get("aat.net"),
+                "config_hash": self.meta.get("aat.config_hash"), "version": self.meta.get("aat.version"),
+                "focus_mapping": self.mapping.summary()}
+
+    # -- inference --------------------------------------------------------------------------------------------
+    def maps(self, focus_m, height: int, width: int) -> np.ndarray:
+        """(S + 1, H, W) float32: the in-focus diopters of every frame and the defocus scale, at this size."""
+        fd = self.mapping.frame_diopters(focus_m, height, width)
+        k = self.mapping.defocus_px_per_d(focus_m, height, width)
+        return np.concatenate([fd, k], 0).astype(np.float32)
+
+    def infer(self, stack: np.ndarray, focus_m: np.ndarray, tile: int | None = None, overlap: int = 32,
+              progress=None, field_xy: np.ndarray | None = None):
+        h, w = stack.shape[2:]
+        maps = self.maps(focus_m, h, w) if field_xy is None else field_xy
+        return super().infer(stack, focus_m, tile, overlap, progress, field_xy=maps)
+
+    def _run(self, stack: np.ndarray, focus_m: np.ndarray, field_xy: np.ndarray | None = None):
+        from ..model import DfFOutput, _pad_linear
+
+        _, _, h, w = stack.shape
+        m = self.size_multiple
+        ph, pw = (-h) % m, (-w) % m
+        if ph or pw:
+            mode = "reflect" if ph < h and pw < w else "symmetric"
+            stack = np.pad(stack, ((0, 0), (0, 0), (0, ph), (0, pw)), mode=mode)
+        maps = _pad_linear(np.asarray(field_xy, np.float32), ph, pw)
+        feeds = {"stack": np.ascontiguousarray(stack[None], dtype=np.float32),
+                 "focus_diopters": np.ascontiguousarray(maps[None, :-1]),
+                 "defocus_px_per_d": np.ascontiguousarray(maps[None, -1:])}
+        depth, aif, std = self.session.run(["depth_m", "aif", "std_m"], feeds)
+        return DfFOutput(depth[0, :h, :w], aif[0, :, :h, :w], std[0, :h, :w])
+
+
+def mapping_from_args(lens=None, psf=None, calibration=None) -> FocusMapping:
+    """The focus mapping of `--lens`, `--psf` or `--calibration` (at most one; none: thin lens), with the optics
+    that file gives (`lens_optics`: focal length, f-number, sensor width (mm), description). CaptureError in one
+    line for a file that cannot serve."""
+    given = [n for n, v in (("--lens", lens), ("--psf", psf), ("--calibration", calibration)) if v is not None]
+    if len(given) > 1:
+        raise CaptureError(f"give one of --lens, --psf, --calibration, not {' and '.join(given)}")
+    from ..focus.bestfocus import BestFocusError, for_lens, from_psf
+
+    try:
+        if lens is not None:
+            from ..lens.io import load_lens
+            from ..optics.paraxial import paraxial_data
+
+            fmap, src = for_lens(lens)
+            ln = load_lens(lens)
+            p = paraxial_data(ln)
+            mp = FocusMapping("best_focus", best_focus=fmap, source=src)
+            mp.lens_optics = (p.efl_mm, p.fno, ln.sensor.width_mm, f"lens file {lens}")
+            mp.lens_name = ln.name
+            return mp
+        if psf is not None:
+            from ..psf.surrogate import PSFSurrogate
+
+            fmap = from_psf(psf)
+            meta = PSFSurrogate(psf, threads=1).meta
+            mp = FocusMapping("best_focus", best_focus=fmap, source=str(psf))
+            efl, epd = float(meta.get("aat.efl_mm", "nan")), float(meta.get("aat.entrance_pupil_mm", "nan"))
+            if np.isfinite(efl) and np.isfinite(epd) and epd > 0:
+                mp.lens_optics = (efl, efl / epd, float(fmap.sensor_mm[0]), f"PSF surrogate {psf}")
+            return mp
+    except BestFocusError as e:
+        raise CaptureError(str(e)) from None
+    if calibration is not None:
+        from ..calibrate.format import load_calibration
+
+        cal = load_calibration(calibration)
+        mp = FocusMapping("calibration", calibration=cal, source=str(calibration))
+        c = cal.camera
+        if c.focal_length_mm and c.f_number and cal.sensor_mm:
+            mp.lens_optics = (c.focal_length_mm, c.f_number, cal.sensor_mm[0], f"calibration {calibration}")
+        return mp
+    return FocusMapping("thin_lens")
+
+
+__all__ = ["FocusMapModel", "mapping_from_args", "K_MAX_PX_PER_D", "DEFAULT_MAX_SIDE"]

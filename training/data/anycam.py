@@ -1,0 +1,330 @@
+"""Training data for one DfF net on every camera (`dfv_aat`): focal stacks of random cameras with the per-pixel
+in-focus diopters and the defocus scale a user of that camera would give the net.
+
+Each item (deterministic in (seed, index), rendered once and cached as float16 linear frames) is:
+- a camera: with probability `traced_fraction` the Canon RF50 through its PSF surrogate (real traced PSFs, the
+  lens's own best-focus map), else a random camera of `training.data.cameras` (phone to full frame) with cheap
+  parametric aberrated PSFs driven by a random best-focus map (`training.render.parametric`);
+- a scene: a room (`training.data.rooms`: floor, walls, furniture in the camera's perspective, textureless and dark
+  surfaces) with probability `room_fraction`, else planes and shapes (`training.data.scenes`), depths around the
+  camera's sweep;
+- a dense sweep of `cameras.RENDER_FRAMES` frames (even in diopters, random, or linear in depth) rendered through
+  the camera at the item's place on its sensor.
+
+When read, a training item is cropped (and mirrored: the image and its maps together, which is the mirrored
+camera's render); `collate` then picks, per batch, how many frames and which (any S from 3 to 16, strided, random
+or phone-like) and applies a camera's processing to every item with random settings (exposure, misalignment,
+sensor noise, RAW development, a phone's JPEG pipeline when the `phone_jpeg` effect exists), then normalises as the
+runtime does. So the cached renders serve endless stack sizes, schedules and camera effects.
+
+A batch: "stack" (B, S, 3, H, W) normalised (docs/contracts.md), "focus_diopters" (B, S, H, W) object diopters in
+best focus per frame and pixel (1/m from the sensor plane), "defocus_px_per_d" (B, 1, H, W) blur-diameter growth
+per diopter of defocus (px), "focus_m" (B, S) the nominal focus distances (m), "depth_m" (B, H, W) ground truth
+(m), "aif" (B, 3, H, W) in the stack's units. Validation items (`fixed_subsets`) come whole, their frames and
+effects fixed by (seed, index).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch.utils.data import Dataset
+
+from aat_deploy.io.atomic import atomic_file
+from aat_deploy.normalise import normalise_scale, scaled
+from training.data import cameras as cams
+from training.data.rooms import RoomConfig, room_scene
+from training.data.scenes import SceneConfig, procedural_scene
+from training.render.parametric import Camera, ParametricSource
+
+ROOT = Path(__file__).resolve().parents[2]
+TRACED = {"rf50": ("lenses/canon_rf50mm_f1.8.json", "models/psf_rf50.onnx")}
+HELD_OUT_LENSES = ("paper_50mm_f2.8", "canon_ef50mm_f1.8", "nikon_z35")  # never in training (TEAM.md)
+
+
+@dataclass(frozen=True)
+class AnyCamConfig:
+    """n_items renders of height x width px (+ margin_px rendered and dropped on every side); crop: side of the
+    random square crops read for training (0 = the whole render); camera_effects: apply a camera's processing
+    when reading; fixed_subsets: validation mode (frames and effects fixed per index, no crop)."""
+
+    n_items: int = 3000
+    seed: int = 0
+    height: int = 160
+    width: int = 160
+    margin_px: int = 16
+    crop: int = 128
+    flips: bool = True
+    room_fraction: float = 0.5
+    traced_fraction: float = 0.15
+    photo_fraction: float = 0.5
+    photo_split: str = "train"
+    cell_px: int = 64
+    layer_blur_px: float = 1.5
+    max_layers: int = 128
+    camera_effects: bool = True
+    fixed_subsets: bool = False
+    cache_dir: str | None = None
+
+    def key(self) -> str:
+        """Hash of what defines the renders (not how they are read)."""
+        d = asdict(self)
+        for k in ("n_items", "crop", "flips", "camera_effects", "fixed_subsets", "cache_dir"):
+            d.pop(k)
+        if d["max_layers"] == 128:
+            d.pop("max_layers")  # the layered renderer's default (renders made before the field hash as before)
+        d["version"] = 1
+        return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:12]
+
+
+def _resolve(p: str) -> Path:
+    q = Path(p)
+    return q if q.is_absolute() else ROOT / q
+
+
+class AnyCamDataset(Dataset):
+    config_class = AnyCamConfig
+
+    def __init__(self, cfg: AnyCamConfig):
+        self.cfg = cfg
+        self.cache = Path(cfg.cache_dir) / f"anycam_{cfg.key()}" if cfg.cache_dir else None
+        self._traced: dict = {}
+
+    def __len__(self) -> int:
+        return self.cfg.n_items
+
+    # -- rendering --------------------------------------------------------------------------------------------
+    def _traced_lens(self, name: str):
+        if name not in self._traced:
+            from aat_deploy.focus.bestfocus import for_lens
+            from aat_deploy.lens.io import load_lens
+            from aat_deploy.render import effects as fx
+            from training.render.layered import LayeredConfig
+            from training.render.simulator import Simulator
+            from training.render.sources import OnnxPSF
+
+            lens_path, psf_path = TRACED[name]
+            lens = load_lens(_resolve(lens_path))
+            sim = Simulator(lens, OnnxPSF(_resolve(psf_path), lens, threads=1), fx.parse(["aberrations"]),
+                            LayeredConfig(cell_px=self.cfg.cell_px, layer_blur_px=self.cfg.layer_blur_px,
+                                          max_layers=self.cfg.max_layers))
+            fmap, _ = for_lens(_resolve(lens_path), compute=False)
+            self._traced[name] = (lens, sim, fmap)
+        return self._traced[name]
+
+    def _scene(self, rng, h, w, f_px, centre_rc, near, far):
+        c = self.cfg
+        if rng.random() < c.room_fraction:
+            return room_scene(rng, h, w, f_px, centre_rc, (near, far),
+                              RoomConfig(photo_fraction=0.4 * c.photo_fraction / 0.5, photo_split=c.photo_split))
+        return procedural_scene(SceneConfig(height=h, width=w, near_m=near, far_m=far,
+                                            photo_fraction=c.photo_fraction, photo_split=c.photo_split), rng)
+
+    def render(self, index: int) -> dict:
+        """Item `index` (numpy): frames (F, 3, h, w) linear float32, focus_m (F,) near -> far, depth_m (h, w),
+        aif (3, h, w) linear, origin (row, col) on the sensor, sensor_hw, and what defines its focus map."""
+        import torch as _torch
+
+        from aat_deploy.render.fields import field_of
+        from aat_deploy.render.layered import LayeredConfig, render_layered
+
+        c = self.cfg
+        rng = np.random.default_rng([c.seed, index, 35])
+        m = c.margin_px
+        hh, ww = c.height + 2 * m, c.width + 2 * m
+        traced = rng.random() < c.traced_fraction
+        if traced:
+            lens, sim, fmap = self._traced_lens("rf50")
+            from aat_deploy.optics.paraxial import paraxial_data
+
+            p = paraxial_data(lens)
+            sensor_hw = (lens.sensor.height_px, lens.sensor.width_px)
+            cam = Camera(p.efl_mm, p.fno, sensor_hw, lens.sensor.pixel_mm)
+            info = {"class": "traced", "lens": "rf50"}
+            near, far = cams.random_focus_range(rng, 0.35, "full_frame")
+            near, far = max(near, 0.3), min(far, 20.0)  # the surrogate's range
+        else:
+            cam, info = cams.random_camera(rng)
+            sensor_hw = cam.sensor_hw
+            near, far = cams.random_focus_range(rng, info["min_focus_m"], info["class"],
+                                                cam.defocus_px_per_diopter(2.0))
+        focus, kind = cams.dense_schedule(rng, near, far)
+        spacing = (1 / focus[0] - 1 / focus[-1]) / (len(focus) - 1)
+        if not traced:
+            ab = cams.random_aberrations(rng, spacing, 0.5 * (1 / near + 1 / far))
+            cam = Camera(cam.focal_mm, cam.f_number, cam.sensor_hw, cam.pixel_mm, ab)
+        hs, ws = sensor_hw
+        origin = (int(rng.integers(0, max(1, hs - c.height + 1))), int(rng.integers(0, max(1, ws - c.width + 1))))
+        # scene depths mostly inside the sweep (a user sweeps over the scene), sometimes a little beyond either end
+        s_near = near * float(np.exp(rng.uniform(-0.15, 0.35)))
+        s_far = max(far * float(np.exp(rng.uniform(-0.7, 0.15))), s_near * 1.3)
+        f_px = cam.focal_mm / cam.pixel_mm
+        centre = (hs / 2 - (origin[0] - m), ws / 2 - (origin[1] - m))  # optical axis in the rendered window
+        rgb, depth = self._scene(rng, hh, ww, f_px, centre, s_near, s_far)
+        img = np.ascontiguousarray(rgb.transpose(2, 0, 1)).astype(np.float32)
+        depth = np.ascontiguousarray(depth).astype(np.float32)
+        o = (origin[0] - m, origin[1] - m)
+        if traced:
+            frames = sim.optical(_torch.from_numpy(img), _torch.from_numpy(depth), focus,
+                                 sim.context(o)).numpy()
+        else:
+            src = ParametricSource(cam, focus)
+            cfg = LayeredConfig(cell_px=c.cell_px, layer_blur_px=c.layer_blur_px, max_layers=c.max_layers)
+            frames = np.stack([render_layered(img, depth, float(f), src,
+                                              lambda r, q: field_of(r, q, sensor_hw, o), cfg) for f in focus])
+        sl = (slice(m, m + c.height), slice(m, m + c.width))
+        info.update({"schedule": kind, "focus_range_m": [near, far]})
+        return {"frames": frames[:, :, sl[0], sl[1]].astype(np.float32), "focus_m": focus.astype(np.float64),
+                "depth_m": depth[sl].astype(np.float32), "aif": img[:, sl[0], sl[1]],
+                "origin": np.array(origin, np.int64), "sensor_hw": np.array(sensor_hw, np.int64),
+                "camera": json.dumps({"focal_mm": cam.focal_mm, "f_number": cam.f_number,
+                                      "pixel_mm": cam.pixel_mm, "aberrations": cam.aberrations.to_dict(),
+                                      "traced": info.get("lens"), "info": info})}
+
+    def is_cached(self, index: int) -> bool:
+        return self.cache is not None and (self.cache / f"{index:06d}.npz").is_file()
+
+    def load_or_render(self, index: int) -> dict:
+        """Item `index` whole (numpy): from the cache, else rendered (and cached, frames as float16)."""
+        f = self.cache / f"{index:06d}.npz" if self.cache is not None else None
+        if f is not None and f.is_file():
+            try:
+                with np.load(f) as z:
+                    item = {k: z[k] for k in z.files}
+                item["frames"] = item["frames"].astype(np.float32)
+                item["camera"] = str(item["camera"])
+                return item
+            except Exception:  # noqa: BLE001 (a torn write: render again)
+                pass
+        item = self.render(index)
+        if f is not None:
+            self.cache.mkdir(parents=True, exist_ok=True)
+            with atomic_file(f) as tmp:
+                np.savez(tmp, **{**item, "frames": item["frames"].astype(np.float16)})
+            item["frames"] = item["frames"].astype(np.float16).astype(np.float32)  # as every later read sees it
+        return item
+
+    # -- the maps a user would give ------------------------------------------------------------------------------
+    def focus_maps(self, item: dict, r0: int, c0: int, h: int, w: int) -> tuple[np.ndarray, float]:
+        """(F, h, w) float32 in-focus diopters of the window (r0, c0, h, w) of the item, and its defocus scale
+        (px per diopter): the camera's own map (parametric) or the lens's best-focus map (traced)."""
+        cam_d = json.loads(item["camera"])
+        sensor_hw = tuple(int(v) for v in item["sensor_hw"])
+        origin = (int(item["origin"][0]) + r0, int(item["origin"][1]) + c0)
+        focus = np.asarray(item["focus_m"], np.float64)
+        from training.render.parametric import Aberrations
+
+        cam = Camera(cam_d["focal_mm"], cam_d["f_number"], sensor_hw, cam_d["pixel_mm"],
+                     Aberrations(**cam_d["aberrations"]))
+        k = cam.defocus_px_per_diopter(float(np.sqrt(focus[0] * focus[-1])))
+        if cam_d.get("traced"):
+            from aat_deploy.render.fields import pixel_fields
+
+            _, _, fmap = self._traced_lens(cam_d["traced"])
+            x, y = pixel_fields(h, w, sensor_hw, origin)
+            a = sensor_hw[1] / sensor_hw[0]
+            r = np.hypot(x * a, y) / np.hypot(a, 1.0)
+            return fmap.frame_diopters(focus, r.ravel()).reshape(len(focus), h, w).astype(np.float32), k
+        return cam.frame_diopters(focus, h, w, origin), k
+
+    # -- reading ---------------------------------------------------------------------------------------------
+    def __getitem__(self, index: int) -> dict:
+        if not 0 <= index < len(self):
+            raise IndexError(index)
+        item = self.load_or_render(index)
+        c = self.cfg
+        h, w = item["depth_m"].shape
+        if c.fixed_subsets:
+            rng = np.random.default_rng([c.seed, index, 77])
+            maps, k = self.focus_maps(item, 0, 0, h, w)
+            dense = {"frames": item["frames"], "maps": maps, "k": k, "focus_m": item["focus_m"],
+                     "depth_m": item["depth_m"], "aif": item["aif"]}
+            return _to_torch(finish(dense, rng, c.camera_effects, cams.subset(rng, len(item["focus_m"]))[0]))
+        r0 = c0 = 0
+        if c.crop:
+            r0 = int(torch.randint(0, h - c.crop + 1, ()))
+            c0 = int(torch.randint(0, w - c.crop + 1, ()))
+            h = w = c.crop
+        maps, k = self.focus_maps(item, r0, c0, h, w)
+        sl = (slice(r0, r0 + h), slice(c0, c0 + w))
+        out = {"frames": item["frames"][:, :, sl[0], sl[1]], "maps": maps, "k": k, "focus_m": item["focus_m"],
+               "depth_m": item["depth_m"][sl], "aif": item["aif"][:, sl[0], sl[1]]}
+        if c.flips:
+            flip = torch.randint(0, 2, (2,)).tolist()
+            for do, ax in zip(flip, (-1, -2)):
+                if do:
+                    for key in ("frames", "maps", "depth_m", "aif"):
+                        out[key] = np.flip(out[key], ax)
+        out = {k_: (np.ascontiguousarray(v) if isinstance(v, np.ndarray) else v) for k_, v in out.items()}
+        out["seed"] = int(torch.randint(0, 2**31 - 1, ()))
+        return out
+
+    def collate(self, items: list[dict]) -> dict:
+        """One training batch: the same S for every item (drawn here), each item's frames a subset of its sweep,
+        its camera's processing applied, normalised; see the module docstring for the keys."""
+        rng = np.random.default_rng(items[0]["seed"])
+        s = int(rng.integers(cams.S_RANGE[0], cams.S_RANGE[1] + 1))
+        out = []
+        for it in items:
+            r = np.random.default_rng(it["seed"])
+            kind = str(r.choice(["stride", "random", "near"], p=[0.5, 0.3, 0.2]))
+            idx, _ = cams.subset(r, len(it["focus_m"]), kind, s)
+            out.append(finish(it, r, self.cfg.camera_effects, idx))
+        return {k: torch.stack([torch.from_numpy(np.ascontiguousarray(o[k])) for o in out]) for k in out[0]}
+
+
+def _to_torch(d: dict) -> dict:
+    return {k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in d.items()}
+
+
+def camera_processing(frames: np.ndarray, rng: np.random.Generator, origin=(0, 0)) -> np.ndarray:
+    """A random camera's processing of linear frames (S, 3, H, W) rendered with white = 1: exposure level and
+    per-frame changes, misalignment, Poisson-Gaussian noise, RAW development (bilinear demosaicking) and, when the
+    `phone_jpeg` effect is registered, a phone's JPEG pipeline. Returns linear frames as the runtime decodes them."""
+    from aat_deploy.render import effects as fx
+
+    hs, ws = frames.shape[-2:]
+    ctx = fx.SimContext(None, (hs, ws), (0, 0), exit_pupil_z_mm=0.0)
+    level = float(np.percentile(frames, 99.5))
+    x = frames * np.float32(rng.uniform(0.25, 1.0) / max(level, 1e-6))
+    effects = []
+    if rng.random() < 0.5:
+        effects.append(fx.make("exposure", sigma_log=float(rng.uniform(0.0, 0.05))))
+    if rng.random() < 0.4:
+        effects.append(fx.make("misalignment", sigma_px=float(rng.uniform(0.0, 0.8)),
+                               sigma_scale=float(rng.uniform(0.0, 0.002))))
+    if rng.random() < 0.85:  # at working sizes a pixel bins several photosites: 2,000-50,000 electrons
+        effects.append(fx.make("noise", full_well_e=float(np.exp(rng.uniform(np.log(2000), np.log(50000)))),
+                               read_noise_e=float(rng.uniform(1.0, 4.0))))
+    if rng.random() < 0.25:
+        effects.append(fx.make("raw_pipeline", demosaic="bilinear"))
+    if "phone_jpeg" in fx.names() and rng.random() < 0.35:
+        from aat_deploy.render.effects import phone_jpeg
+
+        effects.append(fx.make("phone_jpeg", **phone_jpeg.random_settings(rng)))
+    if not effects:
+        return x
+    return np.clip(fx.post_stack(sorted(effects, key=lambda e: e.order), x, np.ones(len(x)), ctx, rng), 0, None)
+
+
+def finish(it: dict, rng: np.random.Generator, effects: bool, idx: np.ndarray) -> dict:
+    """A stack from a (cropped) dense item: frames `idx`, the camera's processing, the runtime's normalisation,
+    the maps a user gives (with the small errors of a real calibration: an offset and a scale error)."""
+    frames = np.asarray(it["frames"], np.float32)[idx]
+    if effects:
+        frames = camera_processing(frames, rng)
+    p = normalise_scale(frames)
+    maps = np.asarray(it["maps"], np.float32)[idx]
+    spacing = max(float(maps.mean((1, 2))[0] - maps.mean((1, 2))[-1]) / max(len(idx) - 1, 1), 1e-3)
+    maps = maps + np.float32(rng.normal(0, 0.03) * spacing)  # calibration offset, a few hundredths of a frame
+    k = float(it["k"]) * float(np.exp(rng.normal(0, 0.05)))  # f-number / pixel pitch rounding
+    h, w = frames.shape[-2:]
+    return {"stack": scaled(frames, p), "focus_diopters": maps.astype(np.float32),
+            "defocus_px_per_d": np.full((1, h, w), k, np.float32),
+            "focus_m": np.asarray(it["focus_m"], np.float32)[idx], "depth_m": np.asarray(it["depth_m"], np.float32),
+            "aif": scaled(np.asarray(it["aif"], np.float32), p)}

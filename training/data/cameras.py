@@ -1,0 +1,150 @@
+"""Random cameras and focus schedules for training one DfF net on every camera.
+
+A camera is a sensor class (phone 1/2.5" to 1/1.3", 1-inch, APS-C, full frame), a focal length and f-number of that
+class, and a working resolution (the pixels the net sees: 320 to 1280 px across, fewer when the blur per diopter
+would exceed `K_MAX_PX_PER_D`, as the runtime brings captures to that limit too). Its best-focus map gets random
+field curvature, tilt and astigmatism (`training.render.parametric`), sized in units of the schedule's frame
+spacing so every camera sees shifts of a fraction of a frame to about two frames.
+
+Schedules are rendered dense (`RENDER_FRAMES` frames) and the frames a training stack shows are a subset chosen
+when the item is read (`subset`): any S from 3 to 16, evenly strided (an even schedule stays even), a random
+subset, or a phone-like few frames at the near end. Distances are metres from the sensor plane; diopters 1/m.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from training.render.parametric import Aberrations, Camera
+
+K_MAX_PX_PER_D = 64.0  # blur growth the net is trained for at most (px of blur diameter per diopter)
+RENDER_FRAMES = 16
+S_RANGE = (3, 16)
+
+
+@dataclass(frozen=True)
+class SensorClass:
+    name: str
+    diag_mm: tuple[float, float]  # sensor diagonal range
+    aspect: float  # width / height
+    focal_mm: tuple[float, float]
+    f_number: tuple[float, float]
+    min_focus_m: tuple[float, float]  # nearest focus distance range
+    weight: float
+
+
+SENSOR_CLASSES = (
+    SensorClass("phone", (7.2, 12.3), 4 / 3, (4.0, 7.0), (1.6, 2.2), (0.07, 0.15), 0.3),
+    SensorClass("one_inch", (15.9, 15.9), 3 / 2, (9.0, 25.0), (1.8, 4.0), (0.05, 0.4), 0.15),
+    SensorClass("aps_c", (28.2, 28.4), 3 / 2, (16.0, 56.0), (1.4, 4.0), (0.2, 0.5), 0.2),
+    SensorClass("full_frame", (43.3, 43.3), 3 / 2, (24.0, 85.0), (1.4, 4.0), (0.25, 0.85), 0.35),
+)
+
+
+def _log_uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
+    return float(np.exp(rng.uniform(np.log(lo), np.log(hi)))) if hi > lo else float(lo)
+
+
+def random_camera(rng: np.random.Generator) -> tuple[Camera, dict]:
+    """A random camera (no aberrations yet) and a description of the draw."""
+    w = np.array([c.weight for c in SENSOR_CLASSES])
+    cls = SENSOR_CLASSES[int(rng.choice(len(w), p=w / w.sum()))]
+    diag = rng.uniform(*cls.diag_mm)
+    focal = _log_uniform(rng, *cls.focal_mm)
+    fno = _log_uniform(rng, *cls.f_number)
+    width_mm = diag * cls.aspect / np.hypot(cls.aspect, 1.0)
+    width_px = int(round(_log_uniform(rng, 320, 1280)))
+    cam = Camera(focal, fno, (max(8, round(width_px / cls.aspect)), width_px), width_mm / width_px)
+    k = cam.defocus_px_per_diopter(2.0)
+    if k > K_MAX_PX_PER_D:  # fewer pixels, as the runtime does for such a camera
+        width_px = max(160, int(width_px * K_MAX_PX_PER_D / k))
+        cam = Camera(focal, fno, (max(8, round(width_px / cls.aspect)), width_px), width_mm / width_px)
+    info = {"class": cls.name, "sensor_mm": [width_mm, width_mm / cls.aspect], "focal_mm": focal, "f_number": fno,
+            "width_px": cam.sensor_hw[1], "height_px": cam.sensor_hw[0],
+            "min_focus_m": _log_uniform(rng, *cls.min_focus_m)}
+    return cam, info
+
+
+MIN_SPAN_PX = 4.0  # a sweep changes the blur by at least this much (px), else there is nothing to learn from
+
+
+def random_focus_range(rng: np.random.Generator, min_focus_m: float, cls: str, k_px_per_d: float | None = None
+                       ) -> tuple[float, float]:
+    """(near, far) of a camera's sweep (m): phones mostly sweep the near range, other cameras anything from
+    their nearest focus to a far distance (infinity focus kept finite: 50 m). With the camera's defocus scale
+    k_px_per_d, sweeps whose blur changes by less than MIN_SPAN_PX over the whole range are drawn again (a few
+    times; then the widest one drawn is kept)."""
+    best = None
+    for _ in range(12):
+        if cls == "phone" and rng.random() < 0.6:
+            near = _log_uniform(rng, min_focus_m, 0.4)
+            far = _log_uniform(rng, max(near * 2.0, 0.5), 5.0)
+        else:
+            near = _log_uniform(rng, min_focus_m, max(min_focus_m * 1.01, 3.0))
+            far = _log_uniform(rng, near * 1.6, max(near * 1.7, 50.0))
+        span = (1 / near - 1 / far) * (k_px_per_d or np.inf)
+        if best is None or span > best[0]:
+            best = (span, near, far)
+        if span >= MIN_SPAN_PX:
+            break
+    return best[1], best[2]
+
+
+def dense_schedule(rng: np.random.Generator, near_m: float, far_m: float, n: int = RENDER_FRAMES,
+                   kind: str | None = None) -> tuple[np.ndarray, str]:
+    """n focus distances (m) near -> far over [near_m, far_m]: 'even' in diopters (jittered by up to 0.2 of a
+    spacing), 'random' (sorted uniform diopters) or 'depth' (linear in metres, the paper's protocol's shape)."""
+    kind = kind or str(rng.choice(["even", "random", "depth"], p=[0.55, 0.25, 0.2]))
+    dn, df = 1.0 / near_m, 1.0 / far_m
+    if kind == "even":
+        d = np.linspace(dn, df, n)
+        d = d + rng.uniform(-0.2, 0.2, n) * (dn - df) / (n - 1)
+    elif kind == "random":
+        d = np.sort(rng.uniform(df, dn, n))[::-1]
+        d[0], d[-1] = dn, df
+    else:
+        d = 1.0 / np.linspace(near_m, far_m, n)
+    d = np.sort(np.clip(d, df * 0.5, None))[::-1]
+    # distinct frames: at least 1 % of the mean spacing apart
+    gap = (d[0] - d[-1]) / (n - 1) * 0.01
+    for i in range(1, n):
+        d[i] = min(d[i], d[i - 1] - gap)
+    return 1.0 / np.maximum(d, 1e-3), kind
+
+
+def random_aberrations(rng: np.random.Generator, spacing_d: float, d_mid: float, strength: float = 1.0
+                       ) -> Aberrations:
+    """Field curvature, tilt and astigmatism in units of the schedule's frame spacing (diopters): up to about two
+    frames of curvature at the corner, half a frame of tilt, a frame of astigmatism; about one camera in six is
+    nearly perfect."""
+    if rng.random() < 0.15:
+        strength *= 0.1
+    u = spacing_d * strength
+    return Aberrations(c2=float(rng.normal(0, 0.8) * u), c4=float(rng.normal(0, 0.4) * u),
+                       tx=float(rng.normal(0, 0.2) * u), ty=float(rng.normal(0, 0.2) * u),
+                       a2=float(rng.normal(0, 0.5) * u), g=float(rng.uniform(-0.2, 0.2)), d_mid=float(d_mid),
+                       b0_px=float(rng.uniform(0.4, 1.6)), shape_p=float(_log_uniform(rng, 2.0, 10.0)))
+
+
+def subset(rng, n: int, kind: str | None = None, s: int | None = None) -> tuple[np.ndarray, str]:
+    """Indices (ascending: near -> far) of the frames of a dense schedule of n frames that one stack shows.
+    rng: a numpy Generator or a torch Generator-like with `integers`. kind: 'stride' (S frames evenly strided
+    through a window: an even schedule stays even), 'random' (any S frames), 'near' (phone-like: 3-6 frames from
+    the near end, strided). S is drawn from S_RANGE unless given."""
+    kind = kind or str(rng.choice(["stride", "random", "near"], p=[0.5, 0.3, 0.2]))
+    if kind == "near":
+        s = min(s or int(rng.integers(3, 7)), n)
+        stride = int(rng.integers(1, max(1, (n // 2 + 2) // max(s - 1, 1)) + 1))
+        stride = max(1, min(stride, (n - 1) // max(s - 1, 1)))
+        return np.arange(s) * stride, kind
+    s = min(s or int(rng.integers(S_RANGE[0], S_RANGE[1] + 1)), n)
+    if kind == "stride":  # mostly the widest stride (the sweep's whole range), else any window
+        widest = (n - 1) // max(s - 1, 1)
+        stride = widest if rng.random() < 0.7 else int(rng.integers(1, widest + 1))
+        start = int(rng.integers(0, n - (s - 1) * stride))
+        return start + np.arange(s) * stride, kind
+    # random: the sweep's two ends and any frames between (a sweep spans its range, unevenly)
+    inner = np.sort(rng.choice(np.arange(1, n - 1), max(s - 2, 0), replace=False)) if s > 2 else np.array([], int)
+    return np.concatenate([[0], inner, [n - 1]])[:s].astype(np.int64), kind

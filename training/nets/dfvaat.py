@@ -1,0 +1,134 @@
+"""`dfv_aat`: one depth-from-focus net for every camera, told what each frame has in focus at each pixel.
+
+A DFVNet (training.nets.dfvnet, the small configuration) whose per-frame input is the RGB frame plus two channels
+made from what the camera's user knows:
+- `focus_diopters` (B, S, H, W): the object diopters (1/m, distances from the sensor plane) in best focus in frame s
+  at each pixel (a thin lens's nominal focus, a traced lens's best-focus map, or a calibration);
+- `defocus_px_per_d` (B, 1, H, W): how fast blur grows with defocus (px of blur diameter per diopter), from focal
+  length, f-number and pixel pitch, or measured.
+Channel 1 is each frame's defocus position in pixels of blur, k (D_s - mean_s D_s) / 16: how much sharper or blurrier
+than its neighbours frame s makes a point, whatever the camera; channel 2 is log2(k) / 4. The head interpolates the
+per-pixel focus diopters: D = sum_s p_s D_s(pixel) with p = softmax over S, depth_m = 1 / D. A pixel that is sharpest
+in frame s is placed where that frame really focuses at that pixel, so the map's aberrations (field curvature,
+tilt, astigmatism) need not be learnt: the net is aberration-aware for lenses it never saw.
+
+Every kernel is shape-agnostic (as DFVNet's), so one ONNX export runs at any S (>= 3), H, W (multiples of 32).
+Frames are sorted near -> far (descending mean diopters); the runtime sorts and pads, as `predict` does here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from training.nets.blocks import count_params
+from training.nets.dfvnet import DFVNET_CONFIGS, DFVNet
+
+NET_NAME = "dfvaat"
+MIN_DIOPTERS = 1e-3  # 1 km: depth of a pixel whose interpolated focus is at or past infinity
+EXTRA_CHANNELS = 2
+# the small DFVNet with a slightly narrower context fusion, so that the two extra input channels leave the parameter
+# count at or below the small DFVNet's (902,806)
+CONFIGS = {"small": replace(DFVNET_CONFIGS["small"], context_fuse=62)}
+
+
+def focus_channels(focus_diopters: Tensor, defocus_px_per_d: Tensor) -> Tensor:
+    """(B, S, H, W), (B, 1, H, W) -> (B, S, 2, H, W): blur position k (D_s - mean D) / 16 and log2(k) / 4."""
+    k = defocus_px_per_d.clamp_min(1e-3)
+    pos = (focus_diopters - focus_diopters.mean(1, keepdim=True)) * k / 16.0
+    lk = (torch.log2(k) / 4.0).expand_as(focus_diopters)
+    return torch.stack([pos, lk], 2)
+
+
+def focus_map_head(logits: Tensor, stack: Tensor | None, focus_diopters: Tensor
+                   ) -> tuple[Tensor, Tensor | None, Tensor, Tensor]:
+    """logits (B, S, H, W), stack (B, S, 3, H, W) or None, focus_diopters (B, S, H, W) ->
+    depth_m (B, H, W), aif (B, 3, H, W) or None, std_m (B, H, W), diopters (B, H, W)."""
+    p = torch.softmax(logits, dim=1)
+    d = (p * focus_diopters).sum(1)
+    depth = 1.0 / d.clamp_min(MIN_DIOPTERS)
+    frame_m = 1.0 / focus_diopters.clamp_min(MIN_DIOPTERS)
+    var = (p * (frame_m - depth[:, None]) ** 2).sum(1)
+    std = torch.sqrt(var.clamp_min(0.0) + 1e-12)
+    aif = (p[:, :, None] * stack).sum(1) if stack is not None else None
+    return depth, aif, std, d
+
+
+class FocusMapDfF(nn.Module):
+    """forward(stack (B, S, 3, H, W), focus_diopters (B, S, H, W), defocus_px_per_d (B, 1, H, W)) ->
+    (depth_m (B, H, W), aif (B, 3, H, W), std_m (B, H, W)); frames sorted near -> far, H and W multiples of
+    `size_multiple`. With all_levels: [(depth_m, aif, std_m, diopters), ...] finest first (training)."""
+
+    name = NET_NAME
+    field_channels = 0
+
+    def __init__(self, size: str = "small"):
+        super().__init__()
+        self.size = size
+        self.net = DFVNet(CONFIGS[size], in_channels=3 + EXTRA_CHANNELS)
+        self.size_multiple = int(self.net.size_multiple)
+
+    @property
+    def n_params(self) -> int:
+        return count_params(self)
+
+    def levels(self, stack: Tensor, focus_diopters: Tensor, defocus_px_per_d: Tensor) -> list[tuple]:
+        x = torch.cat([stack, focus_channels(focus_diopters, defocus_px_per_d).to(stack.dtype)], 2)
+        return [focus_map_head(lg, stack if i == 0 else None, focus_diopters) for i, lg in enumerate(self.net(x))]
+
+    def forward(self, stack: Tensor, focus_diopters: Tensor, defocus_px_per_d: Tensor, all_levels: bool = False):
+        levels = self.levels(stack, focus_diopters, defocus_px_per_d)
+        if all_levels:
+            return levels
+        depth, aif, std, _ = levels[0]
+        return depth, aif, std
+
+
+def sort_near_to_far(stack: Tensor, focus_diopters: Tensor) -> tuple[Tensor, Tensor]:
+    """Frames reordered by descending mean in-focus diopters (near -> far)."""
+    order = torch.argsort(focus_diopters.mean((2, 3)), dim=1, descending=True)
+    st = torch.gather(stack, 1, order[:, :, None, None, None].expand_as(stack))
+    fd = torch.gather(focus_diopters, 1, order[:, :, None, None].expand_as(focus_diopters))
+    return st, fd
+
+
+def _pad(x: Tensor, m: int) -> tuple[Tensor, tuple[int, int]]:
+    """(..., H, W) reflect-padded at the bottom/right to multiples of m (replicate where reflect cannot)."""
+    h, w = x.shape[-2:]
+    ph, pw = (-h) % m, (-w) % m
+    if not (ph or pw):
+        return x, (h, w)
+    lead = x.shape[:-2]
+    flat = x.reshape(-1, 1, h, w)
+    flat = F.pad(flat, (0, pw, 0, ph), mode="reflect" if ph < h and pw < w else "replicate")
+    return flat.reshape(*lead, h + ph, w + pw), (h, w)
+
+
+def train_levels(module: nn.Module, batch: dict) -> list[tuple]:
+    """Training forward of a FocusMapDfF (or its DDP wrapper) on a batch of `training.data.anycam`: sorted,
+    padded, every level cropped back. Returns [(depth_m, aif, std_m, diopters), ...] finest first."""
+    stack, fd = sort_near_to_far(batch["stack"].float(), batch["focus_diopters"].float())
+    m = 32
+    stack_p, (h, w) = _pad(stack, m)
+    fd_p, _ = _pad(fd, m)
+    k_p, _ = _pad(batch["defocus_px_per_d"].float(), m)
+    levels = module(stack_p, fd_p, k_p, all_levels=True)
+    return [tuple(None if t is None else t[..., :h, :w] for t in lv) for lv in levels]
+
+
+@torch.no_grad()
+def predict(model: FocusMapDfF, stack: Tensor, focus_diopters: Tensor, defocus_px_per_d: Tensor) -> dict:
+    """Any stack: frames sorted, H, W padded and cropped back. stack (B, S, 3, H, W) normalised, focus_diopters
+    (B, S, H, W), defocus_px_per_d (B, 1, H, W). Returns {"depth_m", "aif", "std_m", "diopters"}."""
+    if stack.shape[1] < 3:
+        raise ValueError(f"predict: dfv_aat needs at least 3 frames, got {stack.shape[1]}")
+    out = train_levels(model, {"stack": stack, "focus_diopters": focus_diopters,
+                               "defocus_px_per_d": defocus_px_per_d})[0]
+    return dict(zip(("depth_m", "aif", "std_m", "diopters"), out))
+
+
+def build(size: str = "small") -> FocusMapDfF:
+    return FocusMapDfF(size)
