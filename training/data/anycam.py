@@ -35,9 +35,9 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from aat_deploy.io.atomic import atomic_file
 from aat_deploy.normalise import normalise_scale, scaled
 from training.data import cameras as cams
+from training.data.cache import item_path, save_item
 from training.data.rooms import RoomConfig, room_scene
 from training.data.scenes import SceneConfig, procedural_scene
 from training.render.parametric import Camera, ParametricSource
@@ -187,11 +187,12 @@ class AnyCamDataset(Dataset):
                                       "traced": info.get("lens"), "info": info})}
 
     def is_cached(self, index: int) -> bool:
-        return self.cache is not None and (self.cache / f"{index:06d}.npz").is_file()
+        return self.cache is not None and item_path(self.cache, index).is_file()
 
     def load_or_render(self, index: int) -> dict:
-        """Item `index` whole (numpy): from the cache, else rendered (and cached, frames as float16)."""
-        f = self.cache / f"{index:06d}.npz" if self.cache is not None else None
+        """Item `index` whole (numpy): from the cache, else rendered and cached (frames as float16; the cache's
+        layout and byte-deterministic files of `training.data.cache`, so sharded rendering fills it)."""
+        f = item_path(self.cache, index) if self.cache is not None else None
         if f is not None and f.is_file():
             try:
                 with np.load(f) as z:
@@ -204,8 +205,7 @@ class AnyCamDataset(Dataset):
         item = self.render(index)
         if f is not None:
             self.cache.mkdir(parents=True, exist_ok=True)
-            with atomic_file(f) as tmp:
-                np.savez(tmp, **{**item, "frames": item["frames"].astype(np.float16)})
+            save_item(f, {**item, "frames": item["frames"].astype(np.float16), "camera": np.asarray(item["camera"])})
             item["frames"] = item["frames"].astype(np.float16).astype(np.float32)  # as every later read sees it
         return item
 

@@ -27,7 +27,8 @@ class LossConfig:
     """Weights of the loss terms. depth: L1 on depth over valid ground truth (the paper's loss). aif: L1 on the
     all-in-focus image. smooth: edge-aware Charbonnier smoothness of depth (weights exp(-smooth_edge |grad I|)).
     level_weights: per output level, finest first (DFVNet's deep supervision; missing levels get 0).
-    mask_focus_range: also mask ground truth outside each stack's focus range."""
+    mask_focus_range: also mask ground truth outside each stack's focus range (for the dfvaat net only in its
+    validation: its loss scores every pixel, training.train.loss.focus_map_loss)."""
 
     depth: float = 1.0
     aif: float = 0.0

@@ -1,0 +1,101 @@
+"""The any-camera training data (training.data.anycam, cameras): items are deterministic, batches share one stack
+size, subsets keep the sweep's order, the maps a net is told match its frames (also mirrored), and no held-out
+lens enters."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from training.data import cameras as cams
+from training.data.anycam import HELD_OUT_LENSES, TRACED, AnyCamConfig, AnyCamDataset
+
+
+@pytest.fixture(scope="module")
+def ds(tmp_path_factory):
+    cfg = AnyCamConfig(n_items=6, seed=3, height=48, width=48, margin_px=8, crop=32, max_layers=24,
+                       cache_dir=str(tmp_path_factory.mktemp("anycam")))
+    return AnyCamDataset(cfg)
+
+
+def test_items_are_deterministic_and_cached_bytes_equal(ds, tmp_path):
+    a = ds.load_or_render(0)
+    other = AnyCamDataset(AnyCamConfig(**{**ds.cfg.__dict__, "cache_dir": str(tmp_path)}))
+    b = other.load_or_render(0)
+    assert (ds.cache / "000000.npz").read_bytes() == (other.cache / "000000.npz").read_bytes()
+    assert np.array_equal(a["frames"], b["frames"]) and a["camera"] == b["camera"]
+    assert a["frames"].shape == (cams.RENDER_FRAMES, 3, 48, 48)
+    assert np.all(np.diff(a["focus_m"]) > 0)  # near -> far
+
+
+def test_batches_share_one_stack_size_and_carry_the_maps(ds):
+    torch.manual_seed(0)
+    sizes = set()
+    for _ in range(3):
+        batch = ds.collate([ds[i] for i in range(4)])
+        b, s = batch["focus_m"].shape
+        sizes.add(s)
+        assert batch["stack"].shape == (b, s, 3, 32, 32)
+        assert batch["focus_diopters"].shape == (b, s, 32, 32)
+        assert batch["defocus_px_per_d"].shape == (b, 1, 32, 32)
+        assert cams.S_RANGE[0] <= s <= cams.S_RANGE[1]
+        assert float(batch["stack"].min()) >= 0 and float(batch["stack"].max()) <= 1
+        md = batch["focus_diopters"].mean((2, 3))
+        assert bool((md[:, :-1] > md[:, 1:]).all())  # near -> far
+    assert len(sizes) > 1
+
+
+def test_maps_follow_the_frames_when_mirrored(ds):
+    item = ds.load_or_render(1)
+    h, w = item["depth_m"].shape
+    maps, _ = ds.focus_maps(item, 0, 0, h, w)
+    torch.manual_seed(5)
+    seen = set()
+    for _ in range(12):
+        it = ds[1]
+        r0c0 = None
+        for r0 in range(h - 32 + 1):
+            for c0 in range(w - 32 + 1):
+                for fl in ((False, False), (True, False), (False, True), (True, True)):
+                    d = item["depth_m"][r0:r0 + 32, c0:c0 + 32]
+                    m = maps[:, r0:r0 + 32, c0:c0 + 32]
+                    if fl[0]:
+                        d, m = d[:, ::-1], m[:, :, ::-1]
+                    if fl[1]:
+                        d, m = d[::-1], m[:, ::-1]
+                    if np.array_equal(d, it["depth_m"]):
+                        r0c0 = fl
+                        assert np.allclose(m, it["maps"], atol=1e-6)
+        assert r0c0 is not None
+        seen.add(r0c0)
+    assert len(seen) > 1
+
+
+def test_subsets_keep_order_and_size():
+    rng = np.random.default_rng(0)
+    for kind in ("stride", "random", "near"):
+        for s in range(3, 17):
+            idx, _ = cams.subset(rng, 16, kind, s)
+            assert len(idx) == s and np.all(np.diff(idx) > 0) and idx.min() >= 0 and idx.max() < 16
+    idx, _ = cams.subset(rng, 16, "random", 5)
+    assert idx[0] == 0 and idx[-1] == 15  # a random schedule still spans the sweep
+
+
+def test_random_cameras_span_phones_to_full_frame_within_the_blur_limit():
+    rng = np.random.default_rng(1)
+    classes, ks = set(), []
+    for _ in range(300):
+        cam, info = cams.random_camera(rng)
+        classes.add(info["class"])
+        ks.append(cam.defocus_px_per_diopter(2.0))
+    assert classes == {c.name for c in cams.SENSOR_CLASSES}
+    assert max(ks) <= cams.K_MAX_PX_PER_D * 1.05 and min(ks) < 1.0
+
+
+def test_no_held_out_lens_is_rendered(ds):
+    used = {p for pair in TRACED.values() for p in pair}
+    assert not any(h in p for p in used for h in HELD_OUT_LENSES)
+    for i in range(len(ds)):
+        cam = json.loads(ds.load_or_render(i)["camera"])
+        assert cam["traced"] in (None, *TRACED)
