@@ -1,0 +1,20 @@
+#!/usr/bin/env bash
+# Issue 35's any-camera model (models/dfv_aat.onnx): configs/anycam/dfv_aat.json, one run, resumable.
+#   OUT=cache/runs nice -n 15 scripts/train_dfv_aat.sh          (rerun the same command to continue after a kill)
+# then: python scripts/export_dff_models.py --runs cache/runs dfv_aat   (models/dfv_aat.onnx)
+# Training data is rendered once into cache/stacks (scripts/render_training_stacks.py configs/anycam/dfv_aat.json,
+# under the heavy-job lock); items still missing when the run reads them are rendered by the run itself and cached.
+# A run whose folder is missing (a new machine) starts from its committed checkpoint in checkpoints/dfv_aat/
+# (DEST=checkpoints OUT=cache/runs scripts/snapshot_runs.sh copies last.pt and the logs there).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+export OMP_WAIT_POLICY=PASSIVE OMP_NUM_THREADS=1 PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}"
+OUT=${OUT:-cache/runs}
+n=dfv_aat
+mkdir -p "$OUT"
+if [ -f "$OUT/$n/model.pt" ]; then echo "$n: done ($OUT/$n/model.pt)"; exit 0; fi
+if [ ! -f "$OUT/$n/last.pt" ] && [ -f "checkpoints/$n/last.pt" ]; then
+  mkdir -p "$OUT/$n" && cp checkpoints/"$n"/* "$OUT/$n/" && echo "$n: resumed from checkpoints/$n"
+fi
+exec python -m training.cli.train --config configs/anycam/$n.json --out "$OUT/$n" --resume --no-progress \
+  >> "$OUT/$n.log" 2>&1
