@@ -200,12 +200,16 @@ class DfFModel:
         if ph or pw:
             mode = "reflect" if ph < h and pw < w else "symmetric"
             stack = np.pad(stack, ((0, 0), (0, 0), (0, ph), (0, pw)), mode=mode)
+        depth, aif, std = self.session.run(["depth_m", "aif", "std_m"], self._feeds(stack, focus_m, field_xy, ph, pw))
+        return DfFOutput(depth[0, :h, :w], aif[0, :, :h, :w], std[0, :h, :w])
+
+    def _feeds(self, stack: np.ndarray, focus_m: np.ndarray, field_xy: np.ndarray | None, ph: int, pw: int) -> dict:
+        """onnxruntime's inputs for one padded stack (S, 3, H + ph, W + pw); field_xy unpadded, padded here."""
         feeds = {"stack": np.ascontiguousarray(stack[None], dtype=np.float32),
                  "focus_m": np.asarray(focus_m, np.float32)[None]}
         if self.field_aware:
             feeds["field_xy"] = _pad_linear(np.asarray(field_xy, np.float32), ph, pw)[None]
-        depth, aif, std = self.session.run(["depth_m", "aif", "std_m"], feeds)
-        return DfFOutput(depth[0, :h, :w], aif[0, :, :h, :w], std[0, :h, :w])
+        return feeds
 
     def infer(self, stack: np.ndarray, focus_m: np.ndarray, tile: int | None = None, overlap: int = 32,
               progress=None, field_xy: np.ndarray | None = None) -> DfFOutput:

@@ -161,21 +161,14 @@ class FocusMapModel(DfFModel):
         maps = self.maps(focus_m, h, w) if field_xy is None else field_xy
         return super().infer(stack, focus_m, tile, overlap, progress, field_xy=maps)
 
-    def _run(self, stack: np.ndarray, focus_m: np.ndarray, field_xy: np.ndarray | None = None):
-        from ..model import DfFOutput, _pad_linear
+    def _feeds(self, stack: np.ndarray, focus_m: np.ndarray, field_xy: np.ndarray | None, ph: int, pw: int) -> dict:
+        """field_xy carries the maps (S + 1, H, W) (`maps`), padded by continuing them linearly."""
+        from ..model import _pad_linear
 
-        _, _, h, w = stack.shape
-        m = self.size_multiple
-        ph, pw = (-h) % m, (-w) % m
-        if ph or pw:
-            mode = "reflect" if ph < h and pw < w else "symmetric"
-            stack = np.pad(stack, ((0, 0), (0, 0), (0, ph), (0, pw)), mode=mode)
         maps = _pad_linear(np.asarray(field_xy, np.float32), ph, pw)
-        feeds = {"stack": np.ascontiguousarray(stack[None], dtype=np.float32),
-                 "focus_diopters": np.ascontiguousarray(maps[None, :-1]),
-                 "defocus_px_per_d": np.ascontiguousarray(maps[None, -1:])}
-        depth, aif, std = self.session.run(["depth_m", "aif", "std_m"], feeds)
-        return DfFOutput(depth[0, :h, :w], aif[0, :, :h, :w], std[0, :h, :w])
+        return {"stack": np.ascontiguousarray(stack[None], dtype=np.float32),
+                "focus_diopters": np.ascontiguousarray(maps[None, :-1]),
+                "defocus_px_per_d": np.ascontiguousarray(maps[None, -1:])}
 
 
 def mapping_from_args(lens=None, psf=None, calibration=None) -> FocusMapping:

@@ -133,8 +133,6 @@ def export_dff_onnx(model: DfFNet, path, metadata: dict[str, str], *, force: boo
     with `metadata` (see dff_metadata). Checks onnxruntime against torch at `check_shapes` (B, S, H, W)
     (default: three different shapes) and refuses to write if they differ by more than `PARITY_TOL` (relative,
     see `parity`). Returns that relative difference."""
-    import onnx
-
     path = Path(path)
     if path.exists() and not force:
         raise FileExistsError(f"{path}: exists (use --force to overwrite)")
@@ -147,6 +145,15 @@ def export_dff_onnx(model: DfFNet, path, metadata: dict[str, str], *, force: boo
             "depth_m": {0: "B", 1: "H", 2: "W"}, "aif": {0: "B", 2: "H", 3: "W"}, "std_m": {0: "B", 1: "H", 2: "W"}}
     if model.field_channels:
         axes["field_xy"] = {0: "B", 2: "H", 3: "W"}
+    return _write_checked(model, path, args, names, axes, metadata, lambda tmp: parity(model, tmp, shapes), opset)
+
+
+def _write_checked(model, path: Path, args: tuple, names: list[str], axes: dict, metadata: dict[str, str],
+                   check, opset: int) -> float:
+    """torch.onnx.export (legacy exporter, dynamic axes) into a temporary file, metadata added, `check(tmp)` (the
+    relative ORT-vs-torch difference) refused above PARITY_TOL, then renamed into place. Returns the difference."""
+    import onnx
+
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_file(path) as tmp:
         with warnings.catch_warnings():
@@ -158,7 +165,7 @@ def export_dff_onnx(model: DfFNet, path, metadata: dict[str, str], *, force: boo
         for k, v in metadata.items():
             proto.metadata_props.add(key=k, value=str(v))
         onnx.save(proto, str(tmp))
-        err = parity(model, tmp, shapes)
+        err = check(tmp)
         if err > PARITY_TOL:
             raise RuntimeError(f"{path}: onnxruntime differs from torch by {err:.2e} of the inputs' magnitude "
                                f"(> {PARITY_TOL:g})")
@@ -240,8 +247,6 @@ def export_focus_map_onnx(model, path, metadata: dict[str, str], *, force: bool 
                           check_shapes: list[tuple[int, int, int, int]] | None = None, opset: int = 17) -> float:
     """Write the any-camera model to ONNX (atomic, no overwrite unless force), dynamic B, S, H, W, exported at one
     shape and checked against torch at others (default: four, none the export's); refuses beyond PARITY_TOL."""
-    import onnx
-
     path = Path(path)
     if path.exists() and not force:
         raise FileExistsError(f"{path}: exists (use --force to overwrite)")
@@ -252,19 +257,5 @@ def export_focus_map_onnx(model, path, metadata: dict[str, str], *, force: bool 
     axes = {"stack": {0: "B", 1: "S", 3: "H", 4: "W"}, "focus_diopters": {0: "B", 1: "S", 2: "H", 3: "W"},
             "defocus_px_per_d": {0: "B", 2: "H", 3: "W"},
             "depth_m": {0: "B", 1: "H", 2: "W"}, "aif": {0: "B", 2: "H", 3: "W"}, "std_m": {0: "B", 1: "H", 2: "W"}}
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_file(path) as tmp:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            torch.onnx.export(model, args, str(tmp), input_names=["stack", "focus_diopters", "defocus_px_per_d"],
-                              output_names=["depth_m", "aif", "std_m"], opset_version=opset, dynamo=False,
-                              dynamic_axes=axes)
-        proto = onnx.load(str(tmp))
-        for k, v in metadata.items():
-            proto.metadata_props.add(key=k, value=str(v))
-        onnx.save(proto, str(tmp))
-        err = parity_focus_map(model, tmp, shapes)
-        if err > PARITY_TOL:
-            raise RuntimeError(f"{path}: onnxruntime differs from torch by {err:.2e} of the inputs' magnitude "
-                               f"(> {PARITY_TOL:g})")
-    return err
+    return _write_checked(model, path, args, ["stack", "focus_diopters", "defocus_px_per_d"], axes, metadata,
+                          lambda tmp: parity_focus_map(model, tmp, shapes), opset)
