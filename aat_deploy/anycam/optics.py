@@ -13,10 +13,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numpy as np
-
 from ..errors import CaptureError
-from ..optics.thin_lens import blur_diameter_px
 
 FULL_FRAME_DIAGONAL_MM = math.hypot(36.0, 24.0)
 
@@ -37,12 +34,11 @@ class CameraOptics:
 
     def defocus_px_per_d(self, focus_m: float, width_px: int) -> float:
         """Blur-disk diameter (px at width_px across) per diopter of defocus near focus_m (m from the sensor): the
-        blur of an object 0.02 D nearer than focus, over 0.02 D (thin lens)."""
-        step = 0.02
-        near = 1.0 / (1.0 / focus_m + step)
-        b = blur_diameter_px(np.array([near]), np.array([focus_m], np.float64), self.focal_mm,
-                             self.focal_mm / self.f_number, self.pixel_um_at(width_px) / 1000.0)[0]
-        return float(b / step)
+        thin lens's (`aat_deploy.calibrate.format.thin_lens_defocus_scale_px_per_d`, as a calibration without a
+        measured blur growth gives it)."""
+        from ..calibrate.format import thin_lens_defocus_scale_px_per_d
+
+        return thin_lens_defocus_scale_px_per_d(self.focal_mm, self.f_number, self.pixel_um_at(width_px), focus_m)
 
     def as_json(self) -> dict:
         return {"focal_length_mm": self.focal_mm, "f_number": self.f_number, "pixel_um": self.pixel_um,

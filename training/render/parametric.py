@@ -73,11 +73,11 @@ class Camera:
                                 self.epd_mm, self.pixel_mm)
 
     def defocus_px_per_diopter(self, focus_m: float) -> float:
-        """Blur growth (px of blur diameter per diopter of defocus) near focus_m: the defocus scale a net is given
-        (the blur of an object 0.02 D nearer, over 0.02 D, as aat_deploy's thin-lens scale is defined)."""
-        d = 1.0 / focus_m
-        step = 0.02
-        return float(self.blur_px(1.0 / (d + step), focus_m)) / step
+        """Blur growth (px of blur diameter per diopter of defocus) near focus_m: the defocus scale a net is given,
+        as the runtime computes it (`aat_deploy.calibrate.format.thin_lens_defocus_scale_px_per_d`)."""
+        from aat_deploy.calibrate.format import thin_lens_defocus_scale_px_per_d
+
+        return thin_lens_defocus_scale_px_per_d(self.focal_mm, self.f_number, self.pixel_mm * 1000.0, float(focus_m))
 
     def radius(self, x, y) -> np.ndarray:
         """Normalised image radius (1 = sensor corner) of field (x, y)."""

@@ -101,3 +101,24 @@ def test_best_focus_map_moves_focus_with_the_field_radius():
     fd = mp.frame_diopters([1.0], 60, 90)
     assert fd[0, 30, 45] == pytest.approx(1.0, abs=2e-3)  # centre
     assert fd[0, 0, 0] == pytest.approx(0.9, abs=5e-3)  # corner: 0.1 D farther
+
+
+def test_calibration_map_applies_the_focus_error_the_tilt_and_the_measured_blur(tmp_path):
+    from aat_deploy.anycam.model import mapping_from_args
+    from aat_deploy.calibrate.format import (CameraCalibration, CameraIdentity, FieldPoly, FocusError,
+                                             save_calibration)
+
+    # best focus tilted along x by 0.1 D edge to edge; the reported focus 10 % too far (scale 0.9); blur 20 px/D
+    tilt = FieldPoly(np.array([[1, 0]]), np.array([[0.05]]), (0.1, 3.0))
+    blur = FieldPoly(np.array([[0, 0]]), np.array([[20.0]]), (0.1, 3.0))
+    cal = CameraCalibration(CameraIdentity(focal_length_mm=50, f_number=2.0), (200, 100),
+                            FocusError("scale", scale=1 / 0.9), tilt, blur, (36.0, 18.0))
+    path = save_calibration(cal, tmp_path / "cam.json")
+    mp = mapping_from_args(calibration=path)
+    assert mp.kind == "calibration" and mp.lens_optics[:3] == (50, 2.0, 36.0)
+    fd = mp.frame_diopters([1.0, 2.0], 10, 20)
+    on_axis = np.array([1.0, 0.5]) / 0.9
+    assert np.allclose(fd[:, 5, 10], on_axis, atol=3e-3)
+    assert fd[0, 5, -1] - fd[0, 5, 0] == pytest.approx(0.1 * 19 / 20, abs=3e-3)  # the tilt, pixel centres
+    k = mp.defocus_px_per_d([1.0, 2.0], 10, 20)
+    assert np.allclose(k, 20.0 * 20 / 200)  # measured at 200 px across, used at 20
