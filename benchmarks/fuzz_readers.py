@@ -1,6 +1,9 @@
-"""Long fuzz sweep of the readers users feed the runtime (issue 18): mutated DNG/TIFF/JPEG/PNG frames (metadata and
-pixels), maker-note blocks, capture.json and gt.json. Prints a table: cases, clean errors (the project's own
-CaptureError), other exceptions (bugs), crashes (the worker process died) and hangs (no answer within --timeout).
+"""Long fuzz sweep of the readers users feed the runtime (issues 18 and 31): mutated DNG/TIFF/JPEG/PNG frames
+(metadata and pixels), maker-note blocks, capture.json, gt.json, and whole random capture folders through
+`aat-infer --method focus`. Prints a table: cases, clean errors (the project's own CaptureError; for capture folders
+exit status 1 with one line naming a file in the folder), other exceptions (bugs; for capture folders also any
+broken promise: inputs changed, a temporary left behind, a message that names no file, an unexpected exception),
+crashes (the worker process died) and hangs (no answer within --timeout).
 
     python benchmarks/fuzz_readers.py [--cases 1000] [--seed 0] [--timeout 10]
 
@@ -27,17 +30,69 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data" / "raw_exif_makernotes_exiftool"
-READERS = ("frame", "makernote", "capture_json", "gt_json")
+READERS = ("frame", "makernote", "capture_json", "gt_json", "capture_folder")
 MAKERS = [b"Canon", b"NIKON", b"OLYMPUS", b"KONICA MINOLTA", b"CASIO"]
 NOTE_HEADS = [b"", b"Nikon\0\x02\x10\0\0", b"Nikon\0\x01\0", b"OLYMPUS\0II\x03\0", b"OLYMP\0\x01\0", b"QVC\0\0\0"]
 EXTREMES = [0, 1, 0xFFFF, 0x7FFFFFFF, 0xFFFFFFFF, 0x80000000]
 
 
 # -- worker: run one reader on one case, answer one JSON line -------------------------------------------------------
+def tree_hash(*roots: Path) -> dict[str, str]:
+    """Every entry under the roots: file bytes (sha256), symlink targets, folders and special files by kind."""
+    import hashlib
+
+    out = {}
+    for root in roots:
+        for cur, dirs, files in os.walk(root):
+            for name in dirs + files:
+                q = Path(cur) / name
+                out[str(q)] = ("link:" + os.readlink(q) if q.is_symlink() else
+                               hashlib.sha256(q.read_bytes()).hexdigest() if q.is_file() else "other")
+    return out
+
+
+def run_folder_case(case: Path) -> dict:
+    """A random capture folder (case/cap, with case/outside beside it) through aat-infer --method focus, and the
+    promises checked: exit status 0 or 1, a failure is one line naming the folder or a file in it, inputs
+    byte-identical, no temporary left."""
+    import contextlib
+    import io
+
+    from aat_deploy.cli import infer
+
+    cap, out = case / "cap", case / "o"
+    before = tree_hash(cap, case / "outside")
+    err, std = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(std):
+        rc = infer.main([str(cap), "--method", "focus", "--out", str(out), "-q", "--no-recording"])
+    lines = [ln for ln in err.getvalue().splitlines() if ln.strip() and "warning:" not in ln]
+    broken = []
+    if tree_hash(cap, case / "outside") != before:
+        broken.append("inputs changed")
+    if [q for q in case.rglob(".*") if q.name != ".aat-output.json"]:
+        broken.append("temporary left")
+    if rc == 1:
+        why = lines[0].split(f"FAILED {cap}: ", 1)[-1] if lines else ""
+        if "unexpected" in why or "Traceback" in err.getvalue():
+            broken.append(why[:100])
+        elif not why.startswith(str(cap)):
+            broken.append(f"names no file: {why[:80]}")
+    elif rc != 0:
+        broken.append(f"exit status {rc}")
+    if broken:
+        return {"outcome": "other", "detail": "; ".join(broken)}
+    return {"outcome": "ok"} if rc == 0 else {"outcome": "clean", "one_line": len(lines) == 2}
+
+
 def run_case(kind: str, path: str) -> dict:
     from aat_deploy.errors import CaptureError
 
     p = Path(path)
+    if kind == "capture_folder":
+        try:
+            return run_folder_case(p)
+        except Exception as e:  # noqa: BLE001 (the command itself raised: a bug)
+            return {"outcome": "other", "detail": f"{type(e).__name__}: {str(e).splitlines()[0][:100] if str(e) else ''}"}
     try:
         if kind in ("frame", "makernote"):
             from aat_deploy.capture.exif import read_metadata
@@ -196,19 +251,34 @@ def makernote_jpeg(base: bytes, rng: np.random.Generator) -> bytes:
 
 def seeds(tmp: Path) -> dict[str, bytes]:
     sys.path.insert(0, str(ROOT / "tests"))
-    from deploy_fixtures import canon_jpeg, write_dng_capture, write_png_capture
+    from deploy_fixtures import canon_jpeg, fuzz_seeds, write_dng_capture, write_png_capture
 
     cap = write_dng_capture(tmp / "seed_dng", [0.7, 1.4], h=24, w=32, gt=False)
     png = write_png_capture(tmp / "seed_png", [0.7, 1.4], h=24, w=32)
     out = {"virtual.dng": (cap / "frame_00.dng").read_bytes(), "canon.jpg": canon_jpeg(216, 0),
            "frame.png": (png / "img_0.png").read_bytes()}
+    FOLDER_SEEDS.update(fuzz_seeds(tmp / "folder_seeds"))
     if SHARED.is_dir():
         out.update({p.name: p.read_bytes() for p in sorted(SHARED.iterdir()) if p.suffix != ".md"})
     return out
 
 
+FOLDER_SEEDS: dict[str, list[bytes]] = {}  # good frames for random capture folders (filled by seeds())
+
+
 def make_case(kind: str, i: int, rng: np.random.Generator, base: dict[str, bytes], tmp: Path) -> Path:
     d = tmp / f"{kind}_{i}"
+    if kind == "capture_folder":  # 3..6 good frames of any format and name, in 60 % of the cases 1 or 2 of them
+        from deploy_fixtures import ENTRY_KINDS, SIDECAR_KINDS, random_capture  # replaced by any entry kind
+
+        kinds = [str(rng.choice(["jpeg", "png", "dng", "jpeg_named_png"])) for _ in range(rng.integers(3, 7))]
+        if rng.random() < 0.6:
+            for at in rng.choice(len(kinds), size=rng.integers(1, 3), replace=False):
+                kinds[at] = str(rng.choice(ENTRY_KINDS))
+        sidecar = str(rng.choice(SIDECAR_KINDS)) if rng.random() < 0.3 else "list"
+        junk = rng.integers(0, 256, rng.integers(1, 64), dtype=np.uint8).tobytes()
+        random_capture(d / "cap", kinds, sidecar, FOLDER_SEEDS, d / "outside", junk)
+        return d
     d.mkdir()
     if kind == "frame":
         name = list(base)[rng.integers(len(base))]

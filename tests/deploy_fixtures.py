@@ -198,6 +198,92 @@ def claim_size(buf: bytes, w: int, h: int) -> bytes:
     return bytes(b)
 
 
+ENTRY_KINDS = ("jpeg", "png", "dng", "jpeg_named_png", "png_small", "cut_jpeg", "bomb", "garbage", "empty",
+               "html", "nan_tiff", "link_out", "link_dup", "hardlink_dup", "dangling", "folder")
+SIDECAR_KINDS = ("none", "list", "list_bom", "broken_json", "lists_missing")
+FUZZ_FOCUS_M = (0.6, 0.9, 1.4, 2.2, 3.5, 5.0)
+
+
+def fuzz_seeds(folder: Path) -> dict[str, list[bytes]]:
+    """Good 48 x 64 frames of one scene at the focus distances FUZZ_FOCUS_M, as JPEG, PNG and DNG bytes (the DNGs
+    carry their focus distance in EXIF), for random_capture."""
+    folder = Path(folder)
+    j = write_jpeg_capture(folder / "j", list(FUZZ_FOCUS_M))
+    p = write_png_capture(folder / "p", list(FUZZ_FOCUS_M))
+    d = write_dng_capture(folder / "d", list(FUZZ_FOCUS_M), gt=False)
+    return {"jpeg": [(j / f"img_{i}.jpg").read_bytes() for i in range(len(FUZZ_FOCUS_M))],
+            "png": [(p / f"img_{i}.png").read_bytes() for i in range(len(FUZZ_FOCUS_M))],
+            "dng": [(d / f"frame_{i:02d}.dng").read_bytes() for i in range(len(FUZZ_FOCUS_M))]}
+
+
+def random_capture(folder: Path, kinds: list[str], sidecar: str, seeds: dict[str, list[bytes]], outside: Path,
+                   junk: bytes = b"\x00\x01junk") -> Path:
+    """A capture folder with one entry per kind (ENTRY_KINDS: good frames of three formats, misnamed, cut, bombs,
+    garbage, NaN, links out of the folder or to another frame, dangling links, folders named like frames) and a
+    capture.json of the given kind (SIDECAR_KINDS). Entry i has the focus distance FUZZ_FOCUS_M[i]. `outside` is a
+    folder beside it holding a good frame the links may point to (it must never be read)."""
+    folder, outside = Path(folder), Path(outside)
+    folder.mkdir(parents=True)
+    outside.mkdir(parents=True, exist_ok=True)
+    if not (outside / "secret.png").exists():
+        (outside / "secret.png").write_bytes(seeds["png"][0])
+    names = []
+    for i, kind in enumerate(kinds):
+        k = i % len(FUZZ_FOCUS_M)
+        name = {"jpeg": f"f{i}.jpg", "dng": f"f{i}.dng", "nan_tiff": f"f{i}.tif"}.get(kind, f"f{i}.png")
+        path = folder / name
+        if kind in ("jpeg", "png", "dng"):
+            path.write_bytes(seeds[kind][k])
+        elif kind == "jpeg_named_png":
+            path.write_bytes(seeds["jpeg"][k])
+        elif kind == "png_small":
+            img = cv2.imdecode(np.frombuffer(seeds["png"][k], np.uint8), cv2.IMREAD_UNCHANGED)
+            path.write_bytes(cv2.imencode(".png", img[:24, :32])[1].tobytes())
+        elif kind == "cut_jpeg":
+            b = seeds["jpeg"][k]
+            path.write_bytes(b[:len(b) // 3] + b"\xff\xd9")
+        elif kind == "bomb":
+            path.write_bytes(claim_size(seeds["jpeg"][k], 20000, 20000))
+        elif kind == "garbage":
+            path.write_bytes(junk)
+        elif kind == "empty":
+            path.write_bytes(b"")
+        elif kind == "html":
+            path.write_bytes(b"<html><body>a page saved under an image's name</body></html>")
+        elif kind == "nan_tiff":
+            img = np.full((48, 64, 3), 0.5, np.float32)
+            img[7, 9] = np.nan
+            cv2.imwrite(str(path), img)
+        elif kind == "link_out":
+            path.symlink_to(outside / "secret.png")
+        elif kind in ("link_dup", "hardlink_dup"):
+            first = names[0] if names else None
+            if first is None or not (folder / first).is_file():
+                path.write_bytes(seeds["png"][k])
+            elif kind == "link_dup":
+                path.symlink_to(first)
+            else:
+                os.link(folder / first, path)
+        elif kind == "dangling":
+            path.symlink_to(folder / "gone.png")
+        elif kind == "folder":
+            path.mkdir()
+        else:
+            raise ValueError(kind)
+        names.append(name)
+    frames = [{"file": n, "focus_m": FUZZ_FOCUS_M[i % len(FUZZ_FOCUS_M)]} for i, n in enumerate(names)]
+    if sidecar == "lists_missing":
+        frames.append({"file": "not_here.png", "focus_m": 9.0})
+    text = json.dumps({"frames": frames}).encode()
+    if sidecar in ("list", "lists_missing"):
+        (folder / "capture.json").write_bytes(text)
+    elif sidecar == "list_bom":
+        (folder / "capture.json").write_bytes(b"\xef\xbb\xbf" + text)
+    elif sidecar == "broken_json":
+        (folder / "capture.json").write_bytes(text[: len(text) // 2])
+    return folder
+
+
 def tiny_model_path(tmp_path_factory, name: str = "tiny_dff.onnx", **meta_over) -> Path:
     """Build the tiny model once per test session (per distinct name) and return its path."""
     path = tmp_path_factory.getbasetemp() / name

@@ -23,7 +23,17 @@ import cv2
 import numpy as np
 import pytest
 from conftest import LENSES, SHARED
-from deploy_fixtures import canon_jpeg, claim_size, write_dng_capture, write_jpeg_capture, write_png_capture
+from deploy_fixtures import (
+    ENTRY_KINDS,
+    SIDECAR_KINDS,
+    canon_jpeg,
+    claim_size,
+    fuzz_seeds,
+    random_capture,
+    write_dng_capture,
+    write_jpeg_capture,
+    write_png_capture,
+)
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -1171,3 +1181,47 @@ def test_model_metadata_fuzz(model_path, tmp_path):
             assert k in str(e) and "\n" not in str(e)
         else:
             assert m.focal_length_px > 0 and all(x > 0 for x in m.sensor_px) and m.size_multiple >= 1
+
+
+# -- issue 31: random capture folders against the promises -----------------------------------------------------------
+GOOD_KINDS = {"jpeg", "png", "dng", "jpeg_named_png"}
+SKIPPED_UNLISTED = {"dangling", "folder"}  # not regular files: skipped with a warning unless capture.json lists them
+
+
+@pytest.fixture(scope="module")
+def fuzz_env(tmp_path_factory):
+    d = tmp_path_factory.mktemp("capfuzz")
+    return fuzz_seeds(d / "seeds"), write_dng_capture(d / "good", FOCUS)
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture,
+                                                                  HealthCheck.too_slow])
+@given(kinds=st.lists(st.sampled_from(ENTRY_KINDS), min_size=1, max_size=5), sidecar=st.sampled_from(SIDECAR_KINDS),
+       junk=st.binary(min_size=1, max_size=64))
+def test_fuzz_capture_folders_keep_the_promises(fuzz_env, model_path, tmp_path_factory, capsys, kinds, sidecar,
+                                                  junk):
+    """Random capture folders (file kinds and contents, links out and within, sizes, sidecars) beside a good
+    capture through aat-infer: exit status 0 or 1, a failure is exactly one line naming a file in the capture (or
+    the capture), the batch goes on, the inputs are byte-identical afterwards, and no temporary is left."""
+    seeds, good = fuzz_env
+    tmp = tmp_path_factory.mktemp("case")
+    cap = random_capture(tmp / "cap", kinds, sidecar, seeds, tmp / "outside", junk)
+    before = tree_hash(cap, tmp / "outside", good)
+    out = tmp / "o"
+    rc, lines, stdout = infer([cap, good, "--model", model_path, "--out", out], capsys)
+    assert rc in (0, 1)
+    assert f"{good} ->" in stdout and (out / "good" / "summary.json").is_file()  # the batch went on
+    if rc == 1:
+        assert len(lines) == 2 and lines[0].startswith(f"aat-infer: FAILED {cap}: ") and "1 of 2" in lines[1], lines
+        why = lines[0][len(f"aat-infer: FAILED {cap}: "):]
+        assert why.startswith(str(cap)) and "unexpected" not in why, why  # names the capture or a file in it
+    else:
+        assert not lines and (out / "cap" / "summary.json").is_file()
+        assert set(kinds) <= GOOD_KINDS | (SKIPPED_UNLISTED if sidecar == "none" else set()), (kinds, sidecar)
+        assert sidecar in ("none", "list", "list_bom")
+    if set(kinds) <= GOOD_KINDS and sidecar in ("list", "list_bom") and len(kinds) >= 2:
+        assert rc == 0, lines  # good frames of any format and name, listed with distinct focus distances, run
+    assert tree_hash(cap, tmp / "outside", good) == before  # inputs unchanged
+    stray = [p for p in out.rglob(".*") if p.name != ".aat-output.json"] + [
+        p for p in tmp.iterdir() if p.name.startswith(".")]
+    assert not stray, stray  # no temporary left
