@@ -5,7 +5,7 @@ exit status 1 with one line naming a file in the folder), other exceptions (bugs
 broken promise: inputs changed, a temporary left behind, a message that names no file, an unexpected exception),
 crashes (the worker process died) and hangs (no answer within --timeout).
 
-    python benchmarks/fuzz_readers.py [--cases 1000] [--seed 0] [--timeout 10]
+    python benchmarks/fuzz_readers.py [--cases 1000] [--seed 0] [--timeout 10] [--readers frame,capture_folder,...]
 
 Each case runs in a worker subprocess (restarted after a crash or hang), so a segfault in a decoder is counted, not
 fatal. Seeds: a virtual-camera DNG, a Canon maker-note JPEG and a 16-bit PNG made here, plus the real files in
@@ -37,26 +37,15 @@ EXTREMES = [0, 1, 0xFFFF, 0x7FFFFFFF, 0xFFFFFFFF, 0x80000000]
 
 
 # -- worker: run one reader on one case, answer one JSON line -------------------------------------------------------
-def tree_hash(*roots: Path) -> dict[str, str]:
-    """Every entry under the roots: file bytes (sha256), symlink targets, folders and special files by kind."""
-    import hashlib
-
-    out = {}
-    for root in roots:
-        for cur, dirs, files in os.walk(root):
-            for name in dirs + files:
-                q = Path(cur) / name
-                out[str(q)] = ("link:" + os.readlink(q) if q.is_symlink() else
-                               hashlib.sha256(q.read_bytes()).hexdigest() if q.is_file() else "other")
-    return out
-
-
 def run_folder_case(case: Path) -> dict:
     """A random capture folder (case/cap, with case/outside beside it) through aat-infer --method focus, and the
     promises checked: exit status 0 or 1, a failure is one line naming the folder or a file in it, inputs
     byte-identical, no temporary left."""
     import contextlib
     import io
+
+    sys.path.insert(0, str(ROOT / "tests"))
+    from deploy_fixtures import tree_hash
 
     from aat_deploy.cli import infer
 
@@ -307,13 +296,18 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--cases", type=int, default=1000, help="cases per reader")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--readers", default=",".join(READERS),
+                    help=f"comma-separated subset of {','.join(READERS)} (each reader's cases depend only on the seed)")
     ap.add_argument("--timeout", type=float, default=10.0, help="seconds before a case counts as a hang")
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.worker:
         worker()
         return 0
-    rng = np.random.default_rng(args.seed)
+    readers = [r for r in args.readers.split(",") if r]
+    unknown = sorted(set(readers) - set(READERS))
+    if unknown:
+        ap.error(f"--readers: unknown {', '.join(unknown)}")
     t0 = time.perf_counter()
     rows, others = [], Counter()
     with tempfile.TemporaryDirectory(prefix="aat_fuzz_") as tmp:
@@ -321,7 +315,8 @@ def main() -> int:
         base = seeds(tmp)
         w = Worker()
         try:
-            for kind in READERS:
+            for kind in readers:
+                rng = np.random.default_rng([args.seed, READERS.index(kind)])
                 count, multi = Counter(), 0
                 for i in range(args.cases):
                     res = w.ask(kind, make_case(kind, i, rng, base, tmp), args.timeout)

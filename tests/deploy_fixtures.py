@@ -198,6 +198,25 @@ def claim_size(buf: bytes, w: int, h: int) -> bytes:
     return bytes(b)
 
 
+def tree_hash(*roots: Path) -> dict[str, str]:
+    """Every entry under the roots: file bytes (sha256), symlink targets, folders and special files by kind."""
+    import hashlib
+
+    out: dict[str, str] = {}
+    for root in roots:
+        for cur, dirs, files in os.walk(root):
+            for name in dirs + files:
+                p = Path(cur) / name
+                if p.is_symlink():
+                    out[str(p)] = "link:" + os.readlink(p)
+                elif p.is_file():
+                    out[str(p)] = hashlib.sha256(p.read_bytes()).hexdigest()
+                else:
+                    out[str(p)] = "dir" if p.is_dir() else "special"
+        out[str(root)] = "root"
+    return out
+
+
 ENTRY_KINDS = ("jpeg", "png", "dng", "jpeg_named_png", "png_small", "cut_jpeg", "bomb", "garbage", "empty",
                "html", "nan_tiff", "link_out", "link_dup", "hardlink_dup", "dangling", "folder")
 SIDECAR_KINDS = ("none", "list", "list_bom", "broken_json", "lists_missing")

@@ -9,7 +9,6 @@ project's own error types is a bug. `benchmarks/fuzz_readers.py` runs the long s
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import os
@@ -30,6 +29,7 @@ from deploy_fixtures import (
     claim_size,
     fuzz_seeds,
     random_capture,
+    tree_hash,
     write_dng_capture,
     write_jpeg_capture,
     write_png_capture,
@@ -53,23 +53,6 @@ FUZZ = settings(max_examples=60, deadline=None, suppress_health_check=[HealthChe
 
 
 # -- helpers ---------------------------------------------------------------------------------------------------
-def tree_hash(*roots: Path) -> dict[str, str]:
-    """Every entry under the roots: file bytes (sha256), symlink targets, folders and special files by kind."""
-    out: dict[str, str] = {}
-    for root in roots:
-        for cur, dirs, files in os.walk(root):
-            for name in dirs + files:
-                p = Path(cur) / name
-                if p.is_symlink():
-                    out[str(p)] = "link:" + os.readlink(p)
-                elif p.is_file():
-                    out[str(p)] = hashlib.sha256(p.read_bytes()).hexdigest()
-                else:
-                    out[str(p)] = "dir" if p.is_dir() else "special"
-        out[str(root)] = "root"
-    return out
-
-
 def infer(args, capsys) -> tuple[int, list[str], str]:
     """aat-infer in this process: (exit code, stderr lines that report a failure or error, stdout)."""
     rc = infer_cli.main([str(a) for a in args] + ["--threads", "1", "-q", "--no-recording"])
