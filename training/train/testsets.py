@@ -2,7 +2,8 @@
 
 A test set is whole-sensor stacks rendered through one lens with its PSFs (the `aat` simulator): procedural
 scenes from their own seed, textured with the held-out photographs (training.data.textures, "test" split) and
-random depth ranges, plus the real Middlebury 2014 Motorcycle scene scaled to cover the sensor; optionally with
+random depth ranges, plus the real Middlebury 2014 Motorcycle scene scaled to cover the sensor (and with `nyu` the
+real indoor NYU Depth V2 frame 0045); optionally with
 capture effects on top (`effects`: sensor noise, vignetting, RAW development...), to test the nets on stacks that
 look like a camera's rather than the simulator's. Two focus
 protocols:
@@ -45,6 +46,10 @@ class TestSetSpec:
     cell_px: int = 64
     effects: tuple = ()  # capture effects on top of the simulator (aat_deploy.render.effects names, 'name:k=v')
     photo_split: str = "test"  # "train": validation sets (with their own seed) for choosing settings, never tests
+    scene_near_m: float = 0.5  # the procedural scenes' depth range (metres from the sensor)
+    scene_far_m: float = 10.0
+    nyu: bool = False  # also NYU Depth V2 frame 0045 (../shared/data/rgbd_nyuv2_0045), a real indoor RGB-D scene
+    jitter_d: float = 0.0  # "fixed" protocol: each distance moved at random by up to this fraction of the spacing
 
     def __post_init__(self):
         if self.protocol not in PROTOCOLS:
@@ -64,6 +69,9 @@ class TestSetSpec:
             d.pop("effects")  # sets without effects hash (and stay cached) as before the field existed
         else:
             d["effects"] = list(self.effects)
+        for f, default in (("scene_near_m", 0.5), ("scene_far_m", 10.0), ("nyu", False), ("jitter_d", 0.0)):
+            if d[f] == default:
+                d.pop(f)  # likewise
         return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:12]
 
 
@@ -90,6 +98,7 @@ def _dataset(spec: TestSetSpec, cache_dir: str | None):
     cfg = StackDataConfig(simulator=spec.simulator, lens=lens_path, psf=spec.psf, height=sensor.height_px,
                           width=sensor.width_px, stack_size=spec.stack_size, focus_near_m=spec.focus_near_m,
                           focus_far_m=spec.focus_far_m, scene_range=spec.scene_range,
+                          scene_near_m=spec.scene_near_m, scene_far_m=spec.scene_far_m, jitter_d=spec.jitter_d,
                           photo_fraction=spec.photo_fraction, photo_split=spec.photo_split,
                           schedule="scene" if spec.protocol == "paper" else "fixed", scene_perturb=0.25,
                           n_items=max(1, spec.n_procedural), seed=spec.seed, margin_px=0, cell_px=spec.cell_px,
@@ -99,20 +108,39 @@ def _dataset(spec: TestSetSpec, cache_dir: str | None):
 
 def _middlebury(spec: TestSetSpec, ds, cache_dir: str | None) -> TestItem:
     """Middlebury Motorcycle scaled to cover the sensor, rendered with the set's simulator and protocol."""
-    f = Path(cache_dir) / f"middlebury_{spec.key()}.npz" if cache_dir else None
+    from training.data.rgbd import load_middlebury_motorcycle
+
+    return _real_rgbd(spec, ds, cache_dir, "middlebury", load_middlebury_motorcycle)
+
+
+NYU_DIR = Path(__file__).resolve().parents[3] / "shared" / "data" / "rgbd_nyuv2_0045"
+
+
+def load_nyu_0045() -> tuple[np.ndarray, np.ndarray]:
+    """NYU Depth V2 labelled frame 0045 from ../shared/data (linear RGB, depth m); FileNotFoundError if absent."""
+    from training.data.rgbd import load_rgbd
+
+    if not (NYU_DIR / "rgb.png").is_file():
+        raise FileNotFoundError(f"{NYU_DIR}: not present (a user's clone has no ../shared/data)")
+    return load_rgbd(NYU_DIR / "rgb.png", NYU_DIR / "depth_1e-4m.png", depth_scale_m=1e-4)
+
+
+def _real_rgbd(spec: TestSetSpec, ds, cache_dir: str | None, name: str, loader) -> TestItem:
+    """A real RGB-D scene (loader() -> (linear RGB, depth m)) scaled to cover the sensor, rendered with the set's
+    simulator and protocol, cached as <name>_<key>.npz."""
+    f = Path(cache_dir) / f"{name}_{spec.key()}.npz" if cache_dir else None
     if f is not None and f.is_file():
         with np.load(f) as z:
-            return TestItem("middlebury", z["stack"].astype(np.float32), z["focus_m"], z["depth_m"], z["aif"])
+            return TestItem(name, z["stack"].astype(np.float32), z["focus_m"], z["depth_m"], z["aif"])
     import torch
 
     from aat_deploy.geometry import fit_rgbd_to_sensor
     from aat_deploy.gt.holes import fill_holes
     from aat_deploy.io.atomic import atomic_file
     from aat_deploy.normalise import normalise_scale, scaled
-    from training.data.rgbd import load_middlebury_motorcycle
     from training.render.schedule import scene_range_distances
 
-    rgb, gt = fit_rgbd_to_sensor(*load_middlebury_motorcycle(), ds.sensor_hw)
+    rgb, gt = fit_rgbd_to_sensor(*loader(), ds.sensor_hw)
     if spec.protocol == "paper":
         focus = scene_range_distances(gt, spec.stack_size, np.random.default_rng([spec.seed, 1 << 20]), 0.25)
     else:
@@ -123,7 +151,7 @@ def _middlebury(spec: TestSetSpec, ds, cache_dir: str | None) -> TestItem:
                              rng=np.random.default_rng([spec.seed, 1 << 21]))
     frames = st.frames.numpy()
     p = normalise_scale(frames)
-    item = TestItem("middlebury", scaled(frames, p), st.focus_m.astype(np.float32), gt.astype(np.float32),
+    item = TestItem(name, scaled(frames, p), st.focus_m.astype(np.float32), gt.astype(np.float32),
                     scaled(rgb.transpose(2, 0, 1), p))
     if f is not None:
         f.parent.mkdir(parents=True, exist_ok=True)
@@ -148,4 +176,6 @@ def load_test_set(spec: TestSetSpec, cache_dir: str | None = "cache/heldout", pr
                                           it["depth_m"], it["aif"]))
     if spec.middlebury:
         out["middlebury"] = [_middlebury(spec, ds, cache_dir)]
+    if spec.nyu:
+        out["nyu"] = [_real_rgbd(spec, ds, cache_dir, "nyu", load_nyu_0045)]
     return out
