@@ -6,6 +6,7 @@
     result = depth_from_focus(stack, focus_m)               # the shipped DFVNet by default
     result = depth_from_focus(stack, focus_m, "dfv_aat", camera=(50, 1.8, 4.3))   # any camera: f mm, N, pixel um
     result = depth_from_focus(stack, focus_m, "dfv_aat", lens="lenses/canon_rf50mm_f1.8.json")  # aberration-aware
+    result = depth_from_focus(stack, focus_m, "focus", calibration="mycam.json")  # classical, your camera's map
     result.depth_m, result.aif, result.std_m, result.camera
     result.save("out/sample")                               # the files aat-infer writes
 
@@ -180,7 +181,10 @@ def depth_from_focus(stack, focus_m, model: str | Path | DfFModel = DEFAULT_MODE
     image. align: affine alignment against focus breathing; tile: run in tiles of this many pixels.
     The any-camera model (model="dfv_aat") also needs the camera: camera=(focal length mm, f-number, pixel pitch um
     of the frames as given), or a lens file (lens=), PSF surrogate (psf=) or calibration (calibration=), which
-    also make it aberration-aware (what each frame has in focus at each pixel); frames span the sensor."""
+    also make it aberration-aware (what each frame has in focus at each pixel); frames span the sensor.
+    model="focus": the classical method, no trained model (`aat-infer --method focus`), at the frames' own size;
+    lens=, psf= or calibration= (your camera's, from `aat-calibrate fit`: a path or a `CameraCalibration`) make it
+    aberration-aware."""
     frames = _frames(stack, srgb)
     try:
         focus = np.asarray(focus_m, dtype=np.float64).reshape(-1)
@@ -195,7 +199,16 @@ def depth_from_focus(stack, focus_m, model: str | Path | DfFModel = DEFAULT_MODE
             raise ValueError(f"focus_m[{i}] = {float(f):g}: not a focus distance in metres ({why})")
     if len(set(np.round(focus, 6))) != len(focus):
         raise ValueError("focus_m: two frames have the same focus distance")
-    net = model if isinstance(model, DfFModel) else load_model(model, threads)
+    classical = isinstance(model, str) and model == "focus"
+    if classical:
+        from .focus.runner import FocusMethod
+
+        try:
+            net = FocusMethod(lens=lens, psf=psf, calibration=calibration)
+        except CaptureError as e:
+            raise ValueError(str(e)) from None
+    else:
+        net = model if isinstance(model, DfFModel) else load_model(model, threads)
     lo, hi = net.stack_range
     if not lo <= len(frames) <= hi:
         raise ValueError(f"stack: {len(frames)} frames, the model takes {lo}..{hi}")
@@ -203,7 +216,8 @@ def depth_from_focus(stack, focus_m, model: str | Path | DfFModel = DEFAULT_MODE
         raise ValueError("tile: an integer >= 16 (px) or None")
     order = np.argsort(focus, kind="stable")
     frames, focus = [frames[i] for i in order], focus[order].astype(np.float32)
-    net = _bind_camera(net, frames, focus, camera, lens, psf, calibration)
+    if not classical:
+        net = _bind_camera(net, frames, focus, camera, lens, psf, calibration)
     try:
         res = depth_from_frames(frames, focus, net, align=align, tile=tile, native=native_res)
     except CaptureError as e:

@@ -1,12 +1,12 @@
 """aat-capture: look at capture folders before running a model on them, write their capture.json, plan a stack.
 
-    aat-capture inspect CAPTURE_DIR_OR_FILE... [--json] [--no-exiftool]
+    aat-capture inspect CAPTURE_DIR_OR_FILE... [--json] [--no-exiftool] [--calibration CAM.json]
     aat-capture init CAPTURE_DIR [--focus-m F1,F2,...] [--force] [--no-exiftool]
     aat-capture plan --near M --far M --frames N
 
 inspect: per frame the focus distance found (metres from the sensor), where it came from (capture.json, which EXIF
 or maker-note tag, exiftool), camera make/model, lens, focal length, F-number and image size; per folder whether
-aat-infer can run it, and if not why. Exit status 1 if a folder cannot be run or a file gives no usable focus
+aat-infer can run it, and if not why; with --calibration, whether its camera is the calibrated one. Exit status 1 if a folder cannot be run or a file gives no usable focus
 distance.
 init: write CAPTURE_DIR/capture.json listing the frame files in name order with their focus distances: from
 --focus-m (in that order), else from each file's metadata, else null for you to fill in. An existing capture.json
@@ -28,7 +28,7 @@ from ..capture.folder import SIDECAR, _sidecar, focus_problem, frame_files, read
 from ..capture.imagefile import frame_header
 from ..errors import CaptureError, check_inside, one_line, read_input_bytes, safe_output_streams
 from ..io.atomic import atomic_file
-from .common import (EXIT_FAILED, EXIT_OK, add_reader_options, check_reader_options, parser, run_guarded,
+from .common import (EXIT_FAILED, EXIT_OK, EXIT_USAGE, add_reader_options, check_reader_options, parser, run_guarded,
                      subparser)
 
 
@@ -89,8 +89,33 @@ def _problem(target: Path, rows: list[dict], args) -> str | None:
     return None if why is None else f"{target}: focus distance {_fmt(f, ' m')} is not usable ({why})"
 
 
+def calibration_mismatch(cal, rows: list[dict]) -> list[str]:
+    """How the frames' cameras (EXIF rows) differ from a calibration's camera, and frame sizes of another aspect
+    ratio than its frames': one phrase each, [] when they match as far as the metadata tells."""
+    out: list[str] = []
+    for r in rows:
+        for m in cal.camera.mismatch(r.get("make"), r.get("model"), r.get("lens"), r.get("focal_length_mm"),
+                                     r.get("f_number")):
+            if m not in out:
+                out.append(m)
+        if r.get("width") and r.get("height"):
+            w = cal.aspect_warning(int(r["height"]), int(r["width"]), "frames")
+            if w and w not in out:
+                out.append(w)
+    return out
+
+
 def inspect(args) -> int:
     failed, out = 0, []
+    cal = None
+    if args.calibration is not None:
+        from ..calibrate.format import load_calibration
+
+        try:
+            cal = load_calibration(args.calibration)
+        except CaptureError as e:
+            print(one_line(f"aat-capture: error: {e}"), file=sys.stderr, flush=True)
+            return EXIT_USAGE
     for t in args.targets:
         target = Path(t)
         try:
@@ -101,8 +126,11 @@ def inspect(args) -> int:
             continue
         problem = _problem(target, rows, args)
         failed += problem is not None
+        differs = calibration_mismatch(cal, rows) if cal is not None else None
         for r in rows:
             r["capture"], r["capture_problem"] = str(target), problem
+            if differs is not None:
+                r["calibration_mismatch"] = differs
         out += rows
         if not args.json and not args.quiet:
             for r in rows:
@@ -114,6 +142,10 @@ def inspect(args) -> int:
                     print(f"  note: {n}")
             if target.is_dir() and problem is None:
                 print(one_line(f"{target}: ok, {len(rows)} frames aat-infer can run"))
+        if differs is not None and not args.json:  # a result: printed under --quiet too
+            verdict = (f"matches the calibration's camera ({args.calibration})" if not differs else
+                       f"NOT the calibration's camera ({args.calibration}): {'; '.join(differs)}")
+            print(one_line(f"{target}: {verdict}"))
         if problem is not None:
             print(one_line(f"aat-capture: CANNOT RUN: {problem}"), file=sys.stderr, flush=True)
     if args.json:
@@ -220,6 +252,8 @@ def _main(argv: list[str] | None) -> int:
     ins.add_argument("--json", action="store_true", help="print a JSON list of per-frame objects (with 'capture' and "
                      "'capture_problem': null when aat-infer can run it)")
     ins.add_argument("--no-exiftool", action="store_true", help="do not fall back to exiftool even if installed")
+    ins.add_argument("--calibration", type=Path, metavar="CAM.json", help="say whether each capture's camera (make, "
+                     "model, lens, focal length, F-number, frame aspect) matches this calibration's (aat-calibrate)")
     add_reader_options(ins)
     ini = subparser(sub, "init", "write CAPTURE_DIR/capture.json listing its frames and their focus distances")
     ini.add_argument("folder", metavar="CAPTURE_DIR")

@@ -3,14 +3,16 @@
     aat-infer CAPTURE_DIR... --model M.onnx [--out DIR] [--force] [--strict] [--threads N] [--tile N] [--align]
     aat-infer CAPTURE_DIR... --model dfv_aat [--camera F_MM,N,PIXEL_UM] [--lens LENS | --psf PSF.onnx |
                              --calibration CAL.json] [--max-side N]
-    aat-infer CAPTURE_DIR... --method focus [--lens LENS | --psf PSF.onnx] [--focus-m 0.6,0.8,...] [--max-side N]
-                             [--prefilter-px SIGMA]
+    aat-infer CAPTURE_DIR... --method focus [--lens LENS | --psf PSF.onnx | --calibration CAL.json]
+                             [--focus-m 0.6,0.8,...] [--max-side N] [--prefilter-px SIGMA]
 
 --model dfv_aat is the any-camera model: it takes the camera's focal length, f-number and pixel pitch from EXIF (or
 --camera) and what each frame has in focus at each pixel from a thin lens, or aberration-aware from the lens's
 best-focus map (--lens, --psf) or a calibration (--calibration); it refuses in one line what it cannot know.
 --method focus needs no trained model: classical depth from focus (aat_deploy.focus) at the capture's own
-resolution, aberration-aware with the lens's best-focus map (--lens, --psf). It also writes confidence.npy/png.
+resolution, aberration-aware with the lens's best-focus map (--lens, --psf) or your camera's calibration
+(--calibration, made by aat-calibrate: per pixel and frame what is in focus, the reported focus corrected). It also
+writes confidence.npy/png.
 
 Writes depth (depth_m.npy/.tif, depth_mm.png, depth_color.png), aif.png, uncertainty (std_m.npy, std_mm.png,
 std_color.png), points.ply, camera.json, summary.json and recording.rrd per capture (docs/contracts.md), into DIR itself for one capture, DIR/<capture name>/ for several (default DIR: ./aat_out/<capture name>); captures
@@ -58,8 +60,9 @@ def _main(argv: list[str] | None) -> int:
     ap.add_argument("--psf", type=Path, help="--method focus or dfv_aat: PSF surrogate carrying the lens's "
                     "best-focus map")
     ap.add_argument("--calibration", type=Path, metavar="CAL.json",
-                    help="dfv_aat: a camera calibration (aat-camera-calibration-v1): per-pixel best focus, the "
-                         "reported focus's error and the measured blur growth")
+                    help="--method focus or dfv_aat: a camera calibration (aat-calibrate fit, "
+                         "aat-camera-calibration-v1): per-pixel best focus, the reported focus's error and the "
+                         "measured blur growth; replaces the nominal focus distances and the radial --lens map")
     ap.add_argument("--camera", metavar="F_MM,N,PIXEL_UM",
                     help="dfv_aat: focal length (mm), f-number and pixel pitch (um, of the frames as captured), for "
                          "frames whose EXIF lacks them")
@@ -93,8 +96,8 @@ def _main(argv: list[str] | None) -> int:
         ap.error("--tile must be >= 16 px")
     if args.method == "model" and args.model is None:
         ap.error("--model is required (or --method focus, which needs no trained model)")
-    if args.method == "focus" and (args.camera or args.calibration):
-        ap.error("--camera and --calibration belong to the any-camera model (--model dfv_aat)")
+    if args.method == "focus" and args.camera:
+        ap.error("--camera belongs to the any-camera model (--model dfv_aat)")
     if args.method == "focus" and args.model is not None:
         ap.error("--method focus uses no --model")
     if args.prefilter_px is not None and not 0 <= args.prefilter_px <= 50:
@@ -121,7 +124,8 @@ def _main(argv: list[str] | None) -> int:
         focus_m = parse_focus_list(args.focus_m) if args.focus_m is not None else None
         config = FocusConfig() if args.prefilter_px is None else FocusConfig(prefilter_px=args.prefilter_px)
         if args.method == "focus":
-            model = FocusMethod(config, lens=args.lens, psf=args.psf, max_side=args.max_side, progress=not args.quiet)
+            model = FocusMethod(config, lens=args.lens, psf=args.psf, max_side=args.max_side, progress=not args.quiet,
+                                calibration=args.calibration)
         else:
             model = open_model(args.model, threads=args.threads)
             if isinstance(model, FocusMapModel):  # the any-camera model: its camera and focus mapping

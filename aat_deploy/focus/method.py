@@ -102,14 +102,33 @@ def calibration_mismatch(best_focus: BestFocusMap, config: FocusConfig) -> str:
     return "; ".join(diffs)
 
 
+def calibration_settings_mismatch(cal, config: FocusConfig) -> str:
+    """Where `config`'s measure settings differ from those a camera calibration was fitted with ("" if none or
+    unknown): the calibration is where that measure peaks."""
+    fit = cal.fit if isinstance(cal.fit, dict) else {}
+    diffs = []
+    for k in ("measure", "window_px", "prefilter_px"):
+        if k not in fit:
+            continue
+        v, now = fit[k], getattr(config, k)
+        same = v == now if k == "measure" else isinstance(v, (int, float)) and abs(float(v) - float(now)) < 1e-9
+        if not same:
+            diffs.append(f"{k} {v} in the calibration, {now} here")
+    return "; ".join(diffs)
+
+
 def depth_from_focus(stack: np.ndarray, focus_m, best_focus: BestFocusMap | None = None,
-                     config: FocusConfig = FocusConfig(), volume: np.ndarray | None = None) -> FocusResult:
+                     config: FocusConfig = FocusConfig(), volume: np.ndarray | None = None,
+                     calibration=None) -> FocusResult:
     """Depth, all-in-focus image and confidence from a focal stack.
 
     stack: (S, 3, H, W) linear RGB (any scale: the runtime's normalised stacks or raw linear values), S >= 3, any
     frame order; focus_m: (S,) reported focus distances, metres from the sensor (> 0). best_focus: the lens's
     map for the aberration-aware mapping (frames spanning its sensor), None = thin-lens mapping.
     volume: a precomputed focus volume (S, H, W) of `stack` with config's measure (benchmarks reuse it).
+    calibration: a camera calibration (`aat_deploy.calibrate.CameraCalibration`, frames spanning its field): each
+    frame's reported focus mapped to the diopters in focus at every pixel (`in_focus_diopters`), instead of the
+    nominal focus and the radial map (not with best_focus).
     """
     t0 = time.perf_counter()
     timings: dict[str, float] = {}
@@ -146,7 +165,31 @@ def depth_from_focus(stack: np.ndarray, focus_m, best_focus: BestFocusMap | None
     lap("placement")
 
     s, _, h, w = stack.shape
-    if best_focus is None:
+    if calibration is not None and best_focus is not None:
+        raise ValueError("give a best-focus map or a camera calibration, not both")
+    if calibration is not None:
+        from ..calibrate.format import in_focus_diopters, on_axis_diopters
+
+        # per frame and pixel: the flat take of `estimate.positions_at` with one "radius bin" per pixel
+        x = in_focus_diopters(calibration, f, h, w).reshape(s, h * w)
+        rbin = np.arange(h * w, dtype=np.int64).reshape(h, w)
+        mapping = "calibration"
+        for msg in (calibration.aspect_warning(h, w), ):
+            if msg:
+                warnings.append(msg)
+        mismatch = calibration_settings_mismatch(calibration, config)
+        if mismatch:
+            warnings.append(f"the camera calibration was fitted with another focus measure ({mismatch}): where "
+                            "the measure peaks may differ")
+        lo, hi = calibration.best_focus.focus_range_d
+        t = on_axis_diopters(calibration, f)
+        margin = 0.1 * (hi - lo) + 0.05
+        out = [v for v, d in zip(f, t) if not lo - margin <= d <= hi + margin]
+        if out:
+            near, far = calibration.focus_range_m
+            warnings.append(f"focus distances {', '.join(f'{v:g}' for v in out)} m lie outside the calibrated "
+                            f"{near:.3g}..{far:.3g} m: its field term is held, the focus error extrapolated")
+    elif best_focus is None:
         x, rbin, mapping = (1.0 / f).astype(np.float32), None, "thin_lens"
     else:
         x = best_focus.radial_lut(f, config.radius_bins, config.calibrated)
@@ -182,6 +225,11 @@ def depth_from_focus(stack: np.ndarray, focus_m, best_focus: BestFocusMap | None
     lap("spread")
     info = {"config": asdict(config), "mapping": mapping, "frames": int(s), "size_px": [int(w), int(h)],
             "focus_m_used": [float(v) for v in f], "placements": placements, "timings_s": timings}
+    if calibration is not None:
+        c = calibration.camera
+        info["calibration"] = {"camera": f"{c.make} {c.model}".strip(), "lens": c.lens,
+                               "focus_error": calibration.focus_error.family,
+                               "focus_range_m": [round(v, 4) for v in calibration.focus_range_m]}
     if best_focus is not None:
         info["best_focus_map"] = {"lens_name": best_focus.lens_name, "lens_hash": best_focus.lens_hash,
                                   "calibrated": bool(config.calibrated and best_focus.offset_diopters is not None)}

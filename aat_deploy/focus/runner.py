@@ -5,6 +5,9 @@
 - lens: none (thin-lens mapping; camera identity is not checked), or a best-focus map from `--lens LENS` (the
   map stored next to the lens file, else traced now with torch) or `--psf PSF.onnx` (the map stamped in its
   metadata): aberration-aware mapping, and the lens's focal length / F-number are compared with the EXIF ones;
+  or a camera calibration (`--calibration mycam.json`, `aat_deploy.calibrate`): every frame's reported focus
+  mapped to what is in focus at every pixel, and the calibrated camera's lens, focal length and F-number compared
+  with the EXIF ones;
 - focal length in pixels for the recording: from the lens (EFL over the sensor's width at the working size),
   else an assumed horizontal field of view of about 53 degrees (f = the longer side in px), said in the summary.
 """
@@ -30,14 +33,27 @@ class FocusMethod:
     kind = "method"
 
     def __init__(self, config: FocusConfig = FocusConfig(), lens: str | Path | None = None,
-                 psf: str | Path | None = None, max_side: int | None = None, progress: bool = False):
-        if lens is not None and psf is not None:
-            raise CaptureError("give --lens or --psf, not both")
+                 psf: str | Path | None = None, max_side: int | None = None, progress: bool = False,
+                 calibration=None):
+        if sum(v is not None for v in (lens, psf, calibration)) > 1:
+            raise CaptureError("give one of --lens, --psf or --calibration")
         self.config, self.max_side = config, max_side
         self.best_focus: BestFocusMap | None = None
+        self.calibration = None
         self.map_source = None
         self.lens_name = None
         self.focal_length_mm = self.f_number = self.sensor_mm = None
+        if calibration is not None:
+            from ..calibrate.format import CameraCalibration, load_calibration
+
+            # a path (CalibrationError is a CaptureError: one line) or a calibration in memory
+            self.calibration = calibration if isinstance(calibration, CameraCalibration) else \
+                load_calibration(calibration)
+            self.map_source = "in memory" if isinstance(calibration, CameraCalibration) else str(calibration)
+            cam = self.calibration.camera
+            self.lens_name = cam.lens or None
+            self.focal_length_mm, self.f_number = cam.focal_length_mm, cam.f_number
+            self.sensor_mm = self.calibration.sensor_mm
         try:
             if psf is not None:
                 self.best_focus, self.map_source = from_psf(psf), str(psf)
@@ -50,6 +66,7 @@ class FocusMethod:
         elif psf is not None:
             self._psf_identity(Path(psf))
         self.stack_range = (3, MAX_FRAMES)
+        # (a calibration's range is checked in the method, on the on-axis focus its error model gives)
         self.focus_range_m = self.best_focus.focus_range_m if self.best_focus else (0.0, float("inf"))
 
     def _lens_identity(self, path: Path) -> None:
@@ -101,6 +118,9 @@ class FocusMethod:
 
     def frame_warnings(self, frame_hw: tuple[int, int], where) -> list[str]:
         """The aberration-aware mapping assumes the frames span the lens's sensor: warn on another aspect."""
+        if self.calibration is not None:
+            msg = self.calibration.aspect_warning(*frame_hw, where=str(where) + ": frames")
+            return [msg] if msg else []
         if self.best_focus is None:
             return []
         sw, sh = self.best_focus.sensor_mm
@@ -111,8 +131,9 @@ class FocusMethod:
         return []
 
     def summary(self) -> dict:
-        return {"method": "focus", "mapping": "aberration_aware" if self.best_focus else "thin_lens",
-                "best_focus_map": self.map_source, "lens_name": self.lens_name,
+        mapping = "calibration" if self.calibration else "aberration_aware" if self.best_focus else "thin_lens"
+        return {"method": "focus", "mapping": mapping,
+                "best_focus_map" if self.calibration is None else "calibration": self.map_source, "lens_name": self.lens_name,
                 "focal_length_mm": self.focal_length_mm, "f_number": self.f_number, "max_side": self.max_side,
                 "focal_length_px": "from the lens" if self.focal_length_mm and self.sensor_mm else
                 "assumed: the longer side in px (no lens given)",
@@ -121,7 +142,7 @@ class FocusMethod:
     def infer(self, stack: np.ndarray, focus_m: np.ndarray, tile: int | None = None, progress=None) -> FocusResult:
         """stack (S, 3, H, W) normalised, focus_m (S,) metres; `tile` is not needed (memory is a few stacks)."""
         try:
-            res = depth_from_focus(stack, focus_m, self.best_focus, self.config)
+            res = depth_from_focus(stack, focus_m, self.best_focus, self.config, calibration=self.calibration)
         except ValueError as e:
             raise CaptureError(str(e)) from None
         # the pipeline's arrays are in the input frame order; depth etc. are per pixel, so nothing to reorder

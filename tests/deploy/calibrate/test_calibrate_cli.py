@@ -129,3 +129,64 @@ def test_calibrate_cli_is_torch_free(rig, tmp_path):
     """, tmp_path)
     assert r.returncode == 0, r.stderr[-2000:]
     assert r.stdout.strip().splitlines()[-1] == "False" and out.is_file()
+
+
+def test_infer_and_api_use_the_calibration(rig, tmp_path, capsys):
+    """Depth of a chart sweep of the copy (reported focus 1.1 x the true distance) against its ground truth:
+    with --calibration the error is a fraction of the nominal mapping's (which is ~10 % off in scale)."""
+    from aat_deploy.api import depth_from_focus, read_stack
+    from aat_deploy.cli import infer
+
+    cam = rig / "out" / "cam.json"
+    if not cam.is_file():
+        assert cli.main(["fit", str(rig / "sweep0"), str(rig / "sweep1"), "--chart", str(rig / "chart.json"),
+                         "--distance-m", "0.6,1.0", "--out", str(cam), "--boot", "10", "-q"]) == 0
+    gt = np.load(rig / "sweep1" / "gt_depth_m.npy")
+    maes = {}
+    for name, extra in (("thin", []), ("cal", ["--calibration", str(cam)])):
+        out = tmp_path / name
+        assert infer.main([str(rig / "sweep1"), "--method", "focus", "--out", str(out), "--no-recording", "-q",
+                           *extra]) == 0, capsys.readouterr().err
+        d = np.load(out / "depth_m.npy")
+        maes[name] = float(np.nanmean(np.abs(d - gt)))
+        summary = json.loads((out / "summary.json").read_text())
+    assert summary["model"]["mapping"] == "calibration" and summary["model"]["calibration"] == str(cam)
+    assert maes["cal"] < 0.3 * maes["thin"], maes
+    assert maes["thin"] > 0.05  # the copy's scaled reported focus: ~10 % of 1 m
+    stack, focus = read_stack(rig / "sweep1")
+    res = depth_from_focus(stack, focus, "focus", calibration=cam)
+    assert float(np.nanmean(np.abs(res.depth_m - gt))) == pytest.approx(maes["cal"], rel=0.05)
+    with pytest.raises(ValueError, match="lens-specific model"):
+        depth_from_focus(stack, focus, model="rf50_dfvnet_aat", calibration=cam)
+    # not with a lens-specific model; a broken file is one line
+    with pytest.raises(SystemExit):
+        infer.main([str(rig / "sweep1"), "--model", "rf50_dfvnet_aat", "--calibration", str(cam)])
+    capsys.readouterr()
+    bad = tmp_path / "bad.json"
+    bad.write_text("{}")
+    assert infer.main([str(rig / "sweep1"), "--method", "focus", "--calibration", str(bad), "--out",
+                       str(tmp_path / "x"), "-q"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not a camera calibration" in err[0]
+
+
+def test_capture_inspect_says_whether_the_camera_matches(rig, tmp_path, capsys):
+    from aat_deploy.cli import capture
+
+    cam = rig / "out" / "cam.json"
+    if not cam.is_file():
+        assert cli.main(["fit", str(rig / "sweep0"), str(rig / "sweep1"), "--chart", str(rig / "chart.json"),
+                         "--distance-m", "0.6,1.0", "--out", str(cam), "--boot", "10", "-q"]) == 0
+    capsys.readouterr()
+    assert capture.main(["inspect", str(rig / "sweep1"), "--calibration", str(cam), "-q"]) == 0
+    assert "matches the calibration's camera" in capsys.readouterr().out
+    d = json.loads(cam.read_text())
+    d["camera"]["lens"], d["camera"]["f_number"] = "Another lens", 4.0
+    other = tmp_path / "other.json"
+    other.write_text(json.dumps(d))
+    assert capture.main(["inspect", str(rig / "sweep1"), "--calibration", str(other), "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert any("lens" in m for m in rows[0]["calibration_mismatch"])
+    assert any("f-number" in m for m in rows[0]["calibration_mismatch"])
+    assert capture.main(["inspect", str(rig / "sweep1"), "--calibration", str(tmp_path / "none.json")]) == 2
+    assert "missing" in capsys.readouterr().err
