@@ -157,7 +157,7 @@ def test_infer_and_api_use_the_calibration(rig, tmp_path, capsys):
     res = depth_from_focus(stack, focus, "focus", calibration=cam)
     assert float(np.nanmean(np.abs(res.depth_m - gt))) == pytest.approx(maes["cal"], rel=0.05)
     with pytest.raises(ValueError, match="lens-specific model"):
-        depth_from_focus(stack, focus, model="rf50_dfvnet_aat", calibration=cam)
+        depth_from_focus(stack[:8], focus[:8], model="rf50_dfvnet_aat", calibration=cam)
     # not with a lens-specific model; a broken file is one line
     with pytest.raises(SystemExit):
         infer.main([str(rig / "sweep1"), "--model", "rf50_dfvnet_aat", "--calibration", str(cam)])
