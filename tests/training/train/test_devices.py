@@ -214,3 +214,30 @@ def test_ddp_equals_one_process_with_the_same_effective_batch_and_resumes_single
     assert any(not torch.equal(fresh[k], b[k]) for k in fresh)  # and it trained
     steps = [json.loads(r)["step"] for r in (ddp_dir / "log.jsonl").read_text().splitlines()]
     assert steps == [1, 2, 3, 4, 5]  # rank 0 alone logged, once per step
+
+
+def test_torchrun_restarts_after_a_lost_process_and_resumes(tmp_path):
+    """torchrun --max-restarts=3 with 2 gloo processes: rank 1 dies before step 4 (after the step-2 checkpoint);
+    torchrun restarts both, they resume from last.pt and end where an uninterrupted 2-process run ends, bit for
+    bit (the same steps on the same data). Three restarts, not one: a restarted group's gloo connection can fail
+    once on a stale address from the dead attempt (seen here about once in five runs; pytorch/pytorch#167288
+    reports the same with NCCL), and the next restart then succeeds."""
+    import subprocess
+    import sys
+
+    from training.train.checkpoint import load
+
+    worker = Path(__file__).with_name("elastic_worker.py")
+    env = dict(os.environ, PYTHONPATH=str(ROOT), OMP_NUM_THREADS="1", OMP_WAIT_POLICY="PASSIVE")
+    for name, extra in (("whole", []), ("lost", ["die"])):
+        r = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2",
+                            "--max-restarts=3", str(worker), str(tmp_path / name), *extra],
+                           env=env, capture_output=True, text=True, timeout=300)
+        (tmp_path / f"{name}.log").write_text(r.stderr)
+        assert r.returncode == 0, (name, str(tmp_path / f"{name}.log"))
+    whole, lost = load(tmp_path / "whole" / "model.pt"), load(tmp_path / "lost" / "model.pt")
+    assert whole["step"] == lost["step"] == 5
+    for k in whole["model"]:
+        assert torch.equal(whole["model"][k], lost["model"][k]), k
+    sessions = json.loads((tmp_path / "lost" / "train_summary.json").read_text())["sessions"]
+    assert [s["from_step"] for s in sessions] == [0, 2]  # the second attempt resumed at the last checkpoint
