@@ -119,7 +119,7 @@ def calibration_settings_mismatch(cal, config: FocusConfig) -> str:
 
 def depth_from_focus(stack: np.ndarray, focus_m, best_focus: BestFocusMap | None = None,
                      config: FocusConfig = FocusConfig(), volume: np.ndarray | None = None,
-                     calibration=None) -> FocusResult:
+                     calibration=None, frame_diopters: np.ndarray | None = None) -> FocusResult:
     """Depth, all-in-focus image and confidence from a focal stack.
 
     stack: (S, 3, H, W) linear RGB (any scale: the runtime's normalised stacks or raw linear values), S >= 3, any
@@ -129,6 +129,8 @@ def depth_from_focus(stack: np.ndarray, focus_m, best_focus: BestFocusMap | None
     calibration: a camera calibration (`aat_deploy.calibrate.CameraCalibration`, frames spanning its field): each
     frame's reported focus mapped to the diopters in focus at every pixel (`in_focus_diopters`), instead of the
     nominal focus and the radial map (not with best_focus).
+    frame_diopters: (S, H, W) the diopters each frame (input order) has in focus at each pixel, from anywhere (a
+    simulator's truth, another mapping): used as given (no tied-frame placement), instead of all the above.
     """
     t0 = time.perf_counter()
     timings: dict[str, float] = {}
@@ -153,7 +155,7 @@ def depth_from_focus(stack: np.ndarray, focus_m, best_focus: BestFocusMap | None
     lap("measure")
 
     placements: list[dict] = []
-    if tied_groups(f):
+    if tied_groups(f) and frame_diopters is None:
         f, placements = place_equal_focus(vol, f)
         desc = ", ".join(f"frame {p['frame']} {p['reported_m']:g} -> {p['placed_m']:.4g} m" for p in placements)
         warnings.append(f"frames with equal reported focus distances placed from the images: {desc}")
@@ -162,16 +164,23 @@ def depth_from_focus(stack: np.ndarray, focus_m, best_focus: BestFocusMap | None
     order = np.argsort(f, kind="stable")
     if np.any(order != np.arange(f.size)):  # (copies of the stack cost time: only when the order changes)
         f, stack, vol = f[order], stack[order], vol[order]
+        if frame_diopters is not None:
+            frame_diopters = np.asarray(frame_diopters)[order]
     lap("placement")
 
     s, _, h, w = stack.shape
-    if calibration is not None and best_focus is not None:
-        raise ValueError("give a best-focus map or a camera calibration, not both")
-    if calibration is not None:
+    if sum(v is not None for v in (calibration, best_focus, frame_diopters)) > 1:
+        raise ValueError("give one of a best-focus map, a camera calibration or per-pixel frame diopters")
+    if frame_diopters is not None:
+        fd = np.asarray(frame_diopters, np.float32)
+        if fd.shape != (s, h, w) or not np.isfinite(fd).all():
+            raise ValueError(f"frame_diopters must be finite (S, H, W) = {(s, h, w)}, got {fd.shape}")
+        # per frame and pixel: the flat take of `estimate.positions_at` with one "radius bin" per pixel
+        x, rbin, mapping = fd.reshape(s, h * w), np.arange(h * w, dtype=np.int64).reshape(h, w), "per_pixel"
+    elif calibration is not None:
         from ..calibrate.format import in_focus_diopters, on_axis_diopters
 
-        # per frame and pixel: the flat take of `estimate.positions_at` with one "radius bin" per pixel
-        x = in_focus_diopters(calibration, f, h, w).reshape(s, h * w)
+        x = in_focus_diopters(calibration, f, h, w).reshape(s, h * w)  # per pixel, as frame_diopters
         rbin = np.arange(h * w, dtype=np.int64).reshape(h, w)
         mapping = "calibration"
         for msg in (calibration.aspect_warning(h, w), ):
