@@ -14,19 +14,30 @@ def fit_to_sensor(img: np.ndarray, size_wh: tuple[int, int]) -> tuple[np.ndarray
     bilinear when enlarging). Returns the image and {"crop_xywh": [...], "scale": s}.
     """
     tw, th = size_wh
-    h, w = img.shape[:2]
+    geometry = sensor_crop(img.shape[:2], size_wh)
+    x0, y0, cw, ch = geometry["crop_xywh"]
+    if (cw, ch) == (tw, th) and (x0, y0) == (0, 0):
+        return img, geometry
+    crop = img[y0:y0 + ch, x0:x0 + cw]
+    interp = cv2.INTER_AREA if cw > tw else cv2.INTER_LINEAR
+    out = cv2.resize(np.ascontiguousarray(crop), (tw, th), interpolation=interp)
+    return out.astype(np.float32, copy=False), geometry
+
+
+def sensor_crop(hw: tuple[int, int], size_wh: tuple[int, int]) -> dict:
+    """What fit_to_sensor does to a frame of hw = (H, W) px: {"crop_xywh": the centre crop to size_wh's aspect
+    ratio, "scale": size_wh's width over the crop's}."""
+    tw, th = size_wh
+    h, w = int(hw[0]), int(hw[1])
     if (w, h) == (tw, th):
-        return img, {"crop_xywh": [0, 0, w, h], "scale": 1.0}
+        return {"crop_xywh": [0, 0, w, h], "scale": 1.0}
     target = tw / th
     if w / h > target:  # too wide: crop columns
         cw, ch = round(h * target), h
     else:
         cw, ch = w, round(w / target)
     x0, y0 = (w - cw) // 2, (h - ch) // 2
-    crop = img[y0:y0 + ch, x0:x0 + cw]
-    interp = cv2.INTER_AREA if cw > tw else cv2.INTER_LINEAR
-    out = cv2.resize(np.ascontiguousarray(crop), (tw, th), interpolation=interp)
-    return out.astype(np.float32, copy=False), {"crop_xywh": [x0, y0, cw, ch], "scale": tw / cw}
+    return {"crop_xywh": [x0, y0, cw, ch], "scale": tw / cw}
 
 
 

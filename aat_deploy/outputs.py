@@ -178,7 +178,7 @@ def _write_rrd(path: Path, depth: np.ndarray, aif8: np.ndarray, std: np.ndarray 
     depth_r, std_r, gt_r = near(depth), near(None if std is None else np.asarray(std, np.float32)), \
         near(None if rec.gt_depth_m is None else np.asarray(rec.gt_depth_m, np.float32))
     aif_r = area(aif8)
-    frames8 = [area(to_srgb8(fr)) for fr in rec.frames]
+    frames8 = [to_srgb8(area(np.ascontiguousarray(fr.transpose(1, 2, 0)))) for fr in rec.frames]  # small first
     pts, rows, cols = points_from_depth(depth_r, cam, _stride(rh * rw, MAX_RRD_POINTS))
     write_recording(path, frames_srgb8=frames8, focus_m=[float(f) for f in rec.focus_m], depth_m=depth_r,
                     aif_srgb8=aif_r, std_m=std_r, camera=cam, points=pts, point_colors=aif_r[rows, cols],

@@ -1,7 +1,8 @@
 """One capture folder → depth, all-in-focus, uncertainty, summary and a rerun recording.
 
 Stages (each timed in summary.json): metadata (focus distances, identity check), decode (RAW/images to linear
-RGB), geometry (fit to the model's sensor px), align (optional), normalise, infer (onnxruntime, padded,
+RGB, each frame fitted to the working size as it is decoded: aat_deploy.process.fitted_frames), geometry (the
+working size's checks), align (optional), normalise, infer (onnxruntime, padded,
 tiled if asked), native (--native-res: depth and all-in-focus at the capture's resolution, aat_deploy.upsample),
 write (files, aat_deploy.outputs: the one writer every depth method uses), record (.rrd). The output folder is checked before any work
 (aat_deploy.io.guard) and written to a temporary sibling renamed into place at the end (aat_deploy.io.atomic), so a
@@ -10,16 +11,17 @@ failed run never leaves a half-written output folder.
 
 from __future__ import annotations
 
+import importlib
 import json
 import math
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
 import numpy as np
-from tqdm import tqdm
 
 from .capture.folder import Capture, read_capture
 from .capture.raw import load_frame
@@ -56,13 +58,16 @@ class Options:
     warnings: list[str] = field(default_factory=list)
 
 
-def _progress(items, desc: str, quiet: bool):
-    """A tqdm bar over items on stderr (nothing when quiet)."""
-    items = list(items)
-    if quiet:
-        yield from items
-        return
-    yield from tqdm(items, desc=f"  {desc}", leave=False, file=sys.stderr)
+def _import_in_background(module: str) -> None:
+    """Start importing `module` in a thread (Python's import lock makes a later import wait for it to finish);
+    a failure here is left to that later import to report."""
+    def work():
+        try:
+            importlib.import_module(module)
+        except Exception:  # noqa: BLE001 (reported where the module is really needed)
+            pass
+
+    threading.Thread(target=work, name=f"import {module}", daemon=True).start()
 
 
 def identity_warnings(capture: Capture, model: DfFModel) -> list[str]:
@@ -125,6 +130,8 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
     t_all = time.perf_counter()
     capture_dir, out_dir = Path(capture_dir), Path(out_dir)
     check_output(out_dir, opts.force, [capture_dir])
+    if opts.record:
+        _import_in_background("aat_deploy.recording")  # rerun takes ~1 s to import: meanwhile frames decode
     timings: dict[str, float] = {}
     clock = time.perf_counter()
 
@@ -154,24 +161,32 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
                         + ", ".join(outside))
     lap("metadata")
 
-    images, decode_info, size0 = [], [], None
-    for f in _progress(frames, f"{cap.name}: decode", opts.quiet):
-        img, info = load_frame(f.path, opts.max_megapixels)
-        if size0 is None:
-            size0 = img.shape[:2]
-        elif img.shape[:2] != size0:
-            raise CaptureError(f"{f.path}: frame is {img.shape[1]}x{img.shape[0]} px, "
-                               f"{frames[0].path.name} is {size0[1]}x{size0[0]}: frames of different sizes")
-        images.append(img)
-        decode_info.append(info)
-    if hasattr(model, "for_capture"):  # the any-camera model: told this capture's camera (EXIF or --camera)
-        model = model.for_capture(cap, size0)
-    lap("decode")
+    decode_info: dict[int, dict] = {}
+    first: dict = {}
 
-    res = depth_from_frames(images, focus, model, align=opts.align, tile=opts.tile, native=opts.native,
-                            name=cap.name, where=str(capture_dir), labels=[f.path.name for f in frames],
-                            quiet=opts.quiet, lap=lap)
-    del images
+    def decoder(i: int, path: Path):
+        def decode() -> np.ndarray:  # called once per frame (twice when the focus method's size needs it)
+            if i == 0 and "img" in first:  # decoded already, for the any-camera model's camera
+                return first.pop("img")
+            img, info = load_frame(path, opts.max_megapixels)
+            if not first:
+                first.update(hw=img.shape[:2], name=path.name)
+            elif img.shape[:2] != first["hw"]:
+                h0, w0 = first["hw"]
+                raise CaptureError(f"{path}: frame is {img.shape[1]}x{img.shape[0]} px, {first['name']} is "
+                                   f"{w0}x{h0}: frames of different sizes")
+            decode_info.setdefault(i, info)
+            return img
+        return decode
+
+    sources = [decoder(i, f.path) for i, f in enumerate(frames)]
+    if hasattr(model, "for_capture"):  # the any-camera model: told this capture's camera (EXIF or --camera)
+        first["img"] = sources[0]()  # the frames' size, before the others are decoded
+        model = model.for_capture(cap, first["hw"])
+    res = depth_from_frames(sources, focus, model, align=opts.align,
+                            tile=opts.tile, native=opts.native, name=cap.name, where=str(capture_dir),
+                            labels=[f.path.name for f in frames], quiet=opts.quiet, lap=lap)
+    size0 = first["hw"]
     warnings += res.warnings
     maps, camera, stack = res.maps, res.camera, res.stack
     w_px, h_px = res.working_size
@@ -187,7 +202,7 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
             "frames": [{"file": f.path.name, "focus_m": float(f.focus_m), "focus_source": f.focus_source,
                         "make": f.meta.make, "model": f.meta.model, "lens": f.meta.lens,
                         "focal_length_mm": f.meta.focal_length_mm, "f_number": f.meta.f_number,
-                        **({"decode": d} if d else {})} for f, d in zip(frames, decode_info)],
+                        **({"decode": decode_info[i]} if decode_info.get(i) else {})} for i, f in enumerate(frames)],
             "focus_m": [float(f.focus_m) for f in frames],
             "model": model.summary(),
             "input_size_px": [int(size0[1]), int(size0[0])],

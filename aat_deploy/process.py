@@ -17,7 +17,8 @@ import numpy as np
 from tqdm import tqdm
 
 from .camera import Intrinsics
-from .geometry import align_stack, equalise_exposure, fit_to_sensor
+from .errors import CaptureError
+from .geometry import align_stack, equalise_exposure, fit_to_sensor, sensor_crop
 from .model import DfFModel
 from .normalise import normalise_scale, normalise_stack
 from .outputs import DepthMaps
@@ -65,27 +66,101 @@ def say(quiet: bool, msg: str) -> None:
         print(f"  {msg}", file=sys.stderr, flush=True)
 
 
-def depth_from_frames(images: list[np.ndarray], focus_m: np.ndarray, model: DfFModel, *, align: bool = False,
+Frame = np.ndarray | Callable[[], np.ndarray]  # a frame, or a function that decodes it (the pipeline: its file)
+
+
+def _native_frames(images: list[Frame], labels: list[str], name: str, quiet: bool):
+    """Yield (index, frame (H, W, 3) float32) decoding lazily, with a progress bar for decoded files; frames of
+    another size than the first are refused (one line naming both)."""
+    size0 = None
+    decoding = any(callable(im) for im in images)
+    items = enumerate(images)
+    if decoding and not quiet:
+        items = tqdm(items, total=len(images), desc=f"  {name}: decode", leave=False, file=sys.stderr)
+    for i, im in items:
+        img = im() if callable(im) else im
+        if size0 is None:
+            size0 = img.shape[:2]
+        elif img.shape[:2] != size0:
+            raise CaptureError(f"{labels[i]}: frame is {img.shape[1]}x{img.shape[0]} px, {labels[0]} is "
+                               f"{size0[1]}x{size0[0]}: frames of different sizes")
+        yield i, img
+
+
+def _reduce(img: np.ndarray, size_wh: tuple[int, int]) -> np.ndarray:
+    """The whole frame resized to size_wh (area averaging; the focus method keeps the frame's aspect)."""
+    if (img.shape[1], img.shape[0]) == tuple(size_wh):
+        return img
+    return cv2.resize(np.ascontiguousarray(img), tuple(size_wh), interpolation=cv2.INTER_AREA).astype(np.float32)
+
+
+def fitted_frames(images: list[Frame], model: DfFModel, *, native: bool = False, name: str = "stack",
+                  labels: list[str] | None = None, quiet: bool = True) -> tuple[list, dict, tuple, list | None, dict]:
+    """The frames at the method's working size, decoded one at a time so that no native-size stack is ever held.
+
+    images: S frames (H, W, 3) float32 linear RGB, or functions returning them (decoded on demand). A DfF model
+    (or the focus method with a fixed size) fixes the working size from the first frame: each frame is fitted as
+    it comes (`fit_to_sensor`). The focus method's automatic size (`FocusMethod.auto`) needs the stack's blur
+    step first (`aat_deploy.focus.scale`): tiles are cut from each native frame and the frame is kept reduced by
+    a factor the rule can only exceed (`FocusMethod.pre_reduction`); once the step is known the kept frames are
+    reduced to the chosen size (or, when the rule wants less reduction than that, decoded again).
+    Returns (frames (h, w, 3) float32, geometry (fit_to_sensor's), native size (H, W), native frames as float16
+    (the whole frames, for `native_frames`) when native=True else None, the resolution choice (focus method))."""
+    labels = labels or [f"frame {i}" for i in range(len(images))]
+    auto = getattr(model, "auto", False)
+    out, natives, regions, choice = [], [] if native else None, [], {}
+    sampler = size0 = pre_wh = size_wh = None
+    for i, img in _native_frames(images, labels, name, quiet):
+        if size0 is None:
+            size0 = img.shape[:2]
+            if auto:
+                from .focus.scale import TileSampler
+
+                sampler = TileSampler.for_size(size0)
+                pre_wh = model.pre_reduction(size0)
+            else:
+                size_wh = model.working_size(size0)
+        if auto:
+            regions.append(sampler.sample(img))
+            out.append(_reduce(img, pre_wh))
+        else:
+            out.append(fit_to_sensor(img, size_wh)[0])
+        if natives is not None:
+            natives.append(img.astype(np.float16))
+        del img
+    if not auto:
+        return out, sensor_crop(size0, size_wh), size0, natives, choice
+    size_wh, choice = model.choose_size(size0, [np.stack(lev) for lev in zip(*regions)])
+    if size_wh[0] > pre_wh[0] or size_wh[1] > pre_wh[1]:  # less reduction than kept: from the native frames again
+        out = [_reduce(img, size_wh) for _, img in _native_frames(images, labels, name, True)]
+        choice["decoded_twice"] = True
+    else:
+        out = [_reduce(im, size_wh) for im in out]
+    h0, w0 = size0
+    return out, {"crop_xywh": [0, 0, int(w0), int(h0)], "scale": size_wh[0] / w0}, size0, natives, choice
+
+
+def depth_from_frames(images: list[Frame], focus_m: np.ndarray, model: DfFModel, *, align: bool = False,
                       tile: int | None = None, native: bool = False, name: str = "stack",
                       where: str | None = None, labels: list[str] | None = None, quiet: bool = True,
                       lap: Callable[[str], None] = lambda stage: None) -> StackResult:
     """Depth, all-in-focus and uncertainty of one focal stack.
 
-    images: S frames (H, W, 3) float32 linear RGB of one size, sorted by focus near to far; focus_m: (S,) metres
-    from the sensor, ascending. native: maps at the frames' own size (their crop to the sensor's aspect) instead of
-    the model's sensor size. name names the stack in progress lines, where (default: name) in warnings, labels
-    (one per frame) the frames; lap(stage) is called after each stage (geometry, align, normalise, infer, native) for timings."""
+    images: S frames (H, W, 3) float32 linear RGB of one size, or functions that decode them (`fitted_frames`),
+    sorted by focus near to far; focus_m: (S,) metres from the sensor, ascending. native: maps at the frames' own
+    size (their crop to the sensor's aspect) instead of the working size. name names the stack in progress lines,
+    where (default: name) in warnings, labels (one per frame) the frames; lap(stage) is called after each stage
+    (decode, geometry, align, normalise, infer, native) for timings."""
     warnings: list[str] = []
     where = name if where is None else where
-    size0 = images[0].shape[:2]
-    w_px, h_px = model.working_size(size0)  # a model's sensor; the focus method's frame size (or --max-side)
+    images, geometry, size0, originals, choice = fitted_frames(images, model, native=native, name=name,
+                                                               labels=labels, quiet=quiet)
+    lap("decode")
+    h_px, w_px = images[0].shape[:2]
     if getattr(model, "kind", "model") == "method":
         warnings += model.frame_warnings(size0, where)
-    fitted = [fit_to_sensor(im, (w_px, h_px)) for im in images]
-    geometry = fitted[0][1]
-    # native: keep the decoded frames for the native maps (nothing to do when they are the working size)
-    originals = images if native and tuple(geometry["crop_xywh"][2:]) != (w_px, h_px) else None
-    images = [im for im, _ in fitted]
+    if tuple(geometry["crop_xywh"][2:]) == (w_px, h_px):
+        originals = None  # native: nothing to do when the frames are the working size
     if abs(size0[1] / size0[0] - w_px / h_px) > 0.01 * (w_px / h_px):
         warnings.append(f"{where}: frames are {size0[1]}x{size0[0]} px, the model's sensor is {w_px}x{h_px}: "
                         "centre-cropped to its aspect ratio")
@@ -117,6 +192,9 @@ def depth_from_frames(images: list[np.ndarray], focus_m: np.ndarray, model: DfFM
     warnings += getattr(res, "warnings", [])
     lap("infer")
 
+    info = getattr(res, "info", None)
+    if choice:
+        info = {**(info or {}), "working_resolution": choice}
     maps = working = DepthMaps(res.depth_m, res.aif, res.std_m, getattr(res, "confidence", None))
     camera = model.intrinsics((w_px, h_px))
     if originals is not None:
@@ -131,22 +209,23 @@ def depth_from_frames(images: list[np.ndarray], focus_m: np.ndarray, model: DfFM
         maps = DepthMaps(depth_n, aif_n, std_n, conf)
         camera = camera.resized(depth_n.shape[1], depth_n.shape[0])
     lap("native")
-    return StackResult(maps, camera, working, stack, geometry, align_info, warnings, getattr(res, "info", None))
+    return StackResult(maps, camera, working, stack, geometry, align_info, warnings, info)
 
 
 def native_frames(images: list[np.ndarray], geometry: dict, align_info: list[dict] | None, scale: float,
                   size_wh: tuple[int, int]) -> list[np.ndarray]:
     """The decoded frames (H0, W0, 3) cropped as fit_to_sensor cropped them, aligned with the working size's
-    warps (scaled to the crop's pixels) if any, and normalised with the stack's divisor."""
+    warps (scaled to the crop's pixels) if any, and normalised with the stack's divisor; float16 (H, W, 3), one
+    frame at a time in float32 (at 12 MP a float32 frame is 150 MB: the stack is kept at half that)."""
     x0, y0, cw, ch = geometry["crop_xywh"]
     out = []
     for i, im in enumerate(images):
-        crop = np.ascontiguousarray(im[y0:y0 + ch, x0:x0 + cw])
+        crop = np.ascontiguousarray(im[y0:y0 + ch, x0:x0 + cw], dtype=np.float32)
         if align_info is not None:
             m = native_warp(np.asarray(align_info[i]["matrix"], np.float64), (cw, ch), size_wh)
             crop = cv2.warpAffine(crop, m, (cw, ch), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                                   borderMode=cv2.BORDER_REFLECT)
-        out.append(np.clip(crop / np.float32(scale), 0.0, 1.0).astype(np.float32))
+        out.append(np.clip(crop / np.float32(scale), 0.0, 1.0).astype(np.float16))
     return out
 
 

@@ -15,6 +15,7 @@ Values are in [0, 1] relative to the file's white level (the stack is normalised
 
 from __future__ import annotations
 
+import functools
 import io
 import re
 from pathlib import Path
@@ -36,6 +37,14 @@ def srgb_to_linear(x: np.ndarray) -> np.ndarray:
     """sRGB-encoded values in [0, 1] → linear (IEC 61966-2-1)."""
     x = np.asarray(x, dtype=np.float32)
     return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
+@functools.cache
+def _srgb_lut(dtype) -> np.ndarray:
+    """srgb_to_linear of every code of an 8- or 16-bit image (the same float32 values, about 15x faster to apply
+    to a 12-MP frame than the formula)."""
+    top = np.iinfo(dtype).max
+    return srgb_to_linear(np.arange(top + 1, dtype=np.float32) / np.float32(top))
 
 
 def linear_to_srgb(x: np.ndarray) -> np.ndarray:
@@ -139,10 +148,10 @@ def _load_image(path: Path, buf: bytes, kind: str) -> tuple[np.ndarray, dict]:
     if kind == "png" and b"IEND" not in buf[-32:]:
         raise CaptureError(f"{path}: truncated PNG file (no end chunk)")
     img = _decode_jpeg(path, buf) if kind == "jpeg" else _decode_cv(path, buf)
-    if img.dtype == np.uint8:
-        return srgb_to_linear(img.astype(np.float32) / 255.0), {"bits": 8}
+    if img.dtype == np.uint8:  # OpenCV's table lookup: 3x numpy's on a 12-MP frame
+        return cv2.LUT(np.ascontiguousarray(img), _srgb_lut(img.dtype)), {"bits": 8}
     if img.dtype == np.uint16:
-        return srgb_to_linear(img.astype(np.float32) / 65535.0), {"bits": 16}
+        return np.take(_srgb_lut(img.dtype), img), {"bits": 16}
     if img.dtype in (np.float32, np.float64):
         img = np.ascontiguousarray(img, dtype=np.float32)
         bad = int(np.count_nonzero(~np.isfinite(img).all(axis=2)))

@@ -9,8 +9,8 @@
 --model dfv_aat is the any-camera model: it takes the camera's focal length, f-number and pixel pitch from EXIF (or
 --camera) and what each frame has in focus at each pixel from a thin lens, or aberration-aware from the lens's
 best-focus map (--lens, --psf) or a calibration (--calibration); it refuses in one line what it cannot know.
---method focus needs no trained model: classical depth from focus (aat_deploy.focus) at the capture's own
-resolution, aberration-aware with the lens's best-focus map (--lens, --psf) or your camera's calibration
+--method focus needs no trained model: classical depth from focus (aat_deploy.focus) at a working resolution
+chosen from the stack's blur step (--max-side N, or 0 for the frames' own size), aberration-aware with the lens's best-focus map (--lens, --psf) or your camera's calibration
 (--calibration, made by aat-calibrate: per pixel and frame what is in focus, the reported focus corrected). It also
 writes confidence.npy/png.
 
@@ -70,7 +70,8 @@ def _main(argv: list[str] | None) -> int:
                     "for files without focus metadata (overrides capture.json)")
     ap.add_argument("--max-side", type=int, metavar="N",
                     help="--method focus or dfv_aat: work at most this many px on the longer side (dfv_aat: default "
-                         "1024)")
+                         "1024; --method focus: default chosen from the stack's blur step, docs/focus_method.md, "
+                         "0 = the frames' own size)")
     ap.add_argument("--prefilter-px", type=float, metavar="SIGMA",
                     help="--method focus: Gaussian blur of each frame before the focus measure, standard deviation "
                          f"in px at the working size (default {FocusConfig.prefilter_px:g}, chosen on validation "
@@ -102,8 +103,8 @@ def _main(argv: list[str] | None) -> int:
         ap.error("--method focus uses no --model")
     if args.prefilter_px is not None and not 0 <= args.prefilter_px <= 50:
         ap.error("--prefilter-px must be between 0 and 50 px")
-    if args.max_side is not None and args.max_side < 16:
-        ap.error("--max-side must be >= 16 px")
+    if args.max_side is not None and not (args.max_side >= 16 or (args.max_side == 0 and args.method == "focus")):
+        ap.error("--max-side must be >= 16 px (or 0 with --method focus: the frames' own size)")
     if args.model is not None:
         args.model = resolve(args.model, "models")  # a path, or a shipped model's name
     if args.lens is not None:
@@ -131,7 +132,7 @@ def _main(argv: list[str] | None) -> int:
             if isinstance(model, FocusMapModel):  # the any-camera model: its camera and focus mapping
                 model.configure(mapping_from_args(args.lens, args.psf, args.calibration), camera=args.camera,
                                 max_side=args.max_side or DEFAULT_MAX_SIDE)
-            elif args.lens or args.psf or args.max_side or args.prefilter_px is not None or args.camera \
+            elif args.lens or args.psf or args.max_side is not None or args.prefilter_px is not None or args.camera \
                     or args.calibration:
                 lens_specific = args.model
     except CaptureError as e:

@@ -44,7 +44,7 @@ def _window(img: np.ndarray, window_px: float) -> np.ndarray:
     return cv2.GaussianBlur(img, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
 
 
-def _second_diffs(g: np.ndarray, step: int) -> tuple[np.ndarray, np.ndarray]:
+def second_diffs(g: np.ndarray, step: int) -> tuple[np.ndarray, np.ndarray]:
     k = np.zeros((1, 2 * step + 1), np.float32)
     k[0, 0], k[0, step], k[0, -1] = 1.0, -2.0, 1.0
     dxx = cv2.filter2D(g, cv2.CV_32F, k, borderType=cv2.BORDER_REFLECT)
@@ -58,12 +58,12 @@ def lape(g: np.ndarray, window_px: float = 9, step: int = 1) -> np.ndarray:
 
 
 def sml(g: np.ndarray, window_px: float = 9, step: int = 1) -> np.ndarray:
-    dxx, dyy = _second_diffs(g, step)
+    dxx, dyy = second_diffs(g, step)
     return _window(np.abs(dxx) + np.abs(dyy), window_px)
 
 
 def mlap2(g: np.ndarray, window_px: float = 9, step: int = 1) -> np.ndarray:
-    dxx, dyy = _second_diffs(g, step)
+    dxx, dyy = second_diffs(g, step)
     ml = np.abs(dxx) + np.abs(dyy)
     return _window(ml * ml, window_px)
 

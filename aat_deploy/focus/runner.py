@@ -1,7 +1,9 @@
 """The classical method behind `aat-infer --method focus`: what `aat_deploy.pipeline.run_capture` needs of a model
 (`DfFModel`'s interface), for `depth_from_focus` at the capture's own resolution.
 
-- working size: the frames' own size, or reduced so the longer side is at most `max_side` px (area averaging);
+- working size: by default chosen from the stack's blur step (`aat_deploy.focus.scale`: reduced while the blur
+  between adjacent frames stays several pixels; `auto`, `pre_reduction`, `choose_size`); or reduced so the longer
+  side is at most `max_side` px (area averaging); `max_side=0`: the frames' own size;
 - lens: none (thin-lens mapping; camera identity is not checked), or a best-focus map from `--lens LENS` (the
   map stored next to the lens file, else traced now with torch) or `--psf PSF.onnx` (the map stamped in its
   metadata): aberration-aware mapping, and the lens's focal length / F-number are compared with the EXIF ones;
@@ -22,9 +24,16 @@ import numpy as np
 from ..errors import CaptureError
 from ..camera import Intrinsics
 from .bestfocus import BestFocusError, BestFocusMap, for_lens, from_psf
+from . import scale
 from .method import FocusConfig, FocusResult, depth_from_focus
 
 MAX_FRAMES = 10_000
+
+
+def _scaled(frame_hw: tuple[int, int], k: float) -> tuple[int, int]:
+    """(W, H) of a frame of frame_hw = (H, W) reduced by k (>= 1), at least 1 px."""
+    h, w = int(frame_hw[0]), int(frame_hw[1])
+    return max(1, round(w / k)), max(1, round(h / k))
 
 
 class FocusMethod:
@@ -89,13 +98,37 @@ class FocusMethod:
         self.sensor_mm = tuple(json.loads(meta["aat.sensor_mm"])) if "aat.sensor_mm" in meta else None
 
     # -- what the pipeline asks of a model ---------------------------------------------------------------------
+    @property
+    def auto(self) -> bool:
+        """The working size is chosen from the stack's blur step (no --max-side)."""
+        return self.max_side is None
+
     def working_size(self, frame_hw: tuple[int, int]) -> tuple[int, int]:
-        """(W, H) the frames are processed at: their own size, or scaled so the longer side is `max_side`."""
+        """(W, H) the frames are processed at with a fixed size: their own size (max_side 0), or scaled so the
+        longer side is `max_side`."""
         h, w = int(frame_hw[0]), int(frame_hw[1])
         if self.max_side and max(h, w) > self.max_side:
             s = self.max_side / max(h, w)
             return max(1, round(w * s)), max(1, round(h * s))
         return w, h
+
+    def pre_reduction(self, frame_hw: tuple[int, int]) -> tuple[int, int]:
+        """(W, H) to keep each frame at while the blur step is not yet known: reduced by the largest whole factor
+        the rule allows whatever the step (its size floor), so the chosen size can be reached without decoding
+        again unless the step is small."""
+        return _scaled(frame_hw, max(1, int(max(frame_hw) // scale.SIDE_MIN_PX)))
+
+    def choose_size(self, frame_hw: tuple[int, int], levels: list[np.ndarray]) -> tuple[tuple[int, int], dict]:
+        """(W, H) by the rule of `aat_deploy.focus.scale` from the frames' tiles (per pyramid level (S, N, R, R),
+        frames sorted by focus: `scale.TileSampler`), and what summary.json reports about the choice."""
+        step, details = scale.blur_step_px(levels)
+        k = scale.working_factor(step, frame_hw)
+        size = _scaled(frame_hw, k)
+        return size, {"blur_step_px": None if step is None else round(step, 2), "factor": round(k, 3),
+                      "size_px": list(size), "native_px": [int(frame_hw[1]), int(frame_hw[0])],
+                      "rule": scale.rule_text(), "tiles": details,
+                      **({} if step is not None else {"note": "blur step not measurable (too few textured tiles "
+                                                               "with a focus peak): the frames' own size"})}
 
     def intrinsics(self, size_wh: tuple[int, int]) -> Intrinsics:
         """Pinhole intrinsics at the working size (aat_deploy.camera): the focal length from the lens, else the

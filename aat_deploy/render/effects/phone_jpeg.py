@@ -95,6 +95,17 @@ def denoise_ycc(ycc: np.ndarray, range_sigma: float, sigma_px: float) -> np.ndar
     return out
 
 
+def jpeg_bytes(rgb8: np.ndarray, quality: int, subsampling: str) -> bytes:
+    """(H, W, 3) RGB or (H, W) uint8 -> a JPEG file's bytes at `quality` and chroma `subsampling` ("420" | "444")."""
+    bgr = rgb8[..., ::-1] if rgb8.ndim == 3 else rgb8
+    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(bgr),
+                           [cv2.IMWRITE_JPEG_QUALITY, int(quality), cv2.IMWRITE_JPEG_SAMPLING_FACTOR,
+                            SUBSAMPLING[subsampling]])
+    if not ok:
+        raise RuntimeError("effect 'phone_jpeg': OpenCV could not encode the JPEG")
+    return buf.tobytes()
+
+
 def jpeg_roundtrip(rgb8: np.ndarray, quality: int, subsampling: str, origin: tuple[int, int]) -> np.ndarray:
     """(H, W, 3) or (H, W) uint8 through a JPEG at `quality`, with the block grid of the full sensor: the crop is
     padded (reflected) to start on a block boundary of the sensor, encoded, decoded and cut back."""
@@ -102,20 +113,15 @@ def jpeg_roundtrip(rgb8: np.ndarray, quality: int, subsampling: str, origin: tup
     pr, pc = origin[0] % mcu, origin[1] % mcu
     pad = ((pr, 0), (pc, 0)) + (((0, 0),) if rgb8.ndim == 3 else ())
     img = np.pad(rgb8, pad, mode="reflect") if (pr or pc) else rgb8
-    bgr = img[..., ::-1] if img.ndim == 3 else img
-    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(bgr),
-                           [cv2.IMWRITE_JPEG_QUALITY, int(quality), cv2.IMWRITE_JPEG_SAMPLING_FACTOR,
-                            SUBSAMPLING[subsampling]])
-    if not ok:
-        raise RuntimeError("effect 'phone_jpeg': OpenCV could not encode the JPEG")
+    buf = np.frombuffer(jpeg_bytes(img, quality, subsampling), np.uint8)
     dec = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED if img.ndim == 2 else cv2.IMREAD_COLOR)
     dec = dec[..., ::-1] if dec.ndim == 3 else dec
     return dec[pr:, pc:]
 
 
-def develop(frame: np.ndarray, p: dict, sensor_hw: tuple[int, int], origin: tuple[int, int] = (0, 0)) -> np.ndarray:
-    """(C, H, W) linear (1.0 = white level), C = 3 or 1 -> the phone's JPEG decoded to linear, float32 (C, H, W);
-    p the effect's settings (module doc)."""
+def processed_srgb8(frame: np.ndarray, p: dict, sensor_hw: tuple[int, int]) -> np.ndarray:
+    """(C, H, W) linear (1.0 = white level), C = 3 or 1 -> the phone's 8-bit sRGB image before the JPEG, uint8
+    (C, H, W): steps 1-4 of the module doc, p the effect's settings."""
     c = frame.shape[0]
     if c not in (1, 3):
         raise ValueError(f"effect 'phone_jpeg' needs RGB (3, H, W) or grey (1, H, W) frames, got {frame.shape}")
@@ -126,7 +132,14 @@ def develop(frame: np.ndarray, p: dict, sensor_hw: tuple[int, int], origin: tupl
     ycc = denoise_ycc(ycc, float(p["denoise"]), float(p["denoise_px"]))
     ycc[0] = unsharp(ycc[0], float(p["sharpen"]), float(p["sharpen_px"]))
     enc = np.einsum("ij,jhw->ihw", _YCC2RGB, ycc) if c == 3 else ycc
-    rgb8 = np.rint(np.clip(enc, 0.0, 1.0) * 255).astype(np.uint8)
+    return np.rint(np.clip(enc, 0.0, 1.0) * 255).astype(np.uint8)
+
+
+def develop(frame: np.ndarray, p: dict, sensor_hw: tuple[int, int], origin: tuple[int, int] = (0, 0)) -> np.ndarray:
+    """(C, H, W) linear (1.0 = white level), C = 3 or 1 -> the phone's JPEG decoded to linear, float32 (C, H, W);
+    p the effect's settings (module doc)."""
+    c = frame.shape[0]
+    rgb8 = processed_srgb8(frame, p, sensor_hw)
     dec = jpeg_roundtrip(rgb8.transpose(1, 2, 0) if c == 3 else rgb8[0], int(p["quality"]), str(p["subsampling"]),
                          origin)
     dec = dec.transpose(2, 0, 1) if c == 3 else dec[None]

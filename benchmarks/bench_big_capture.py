@@ -1,0 +1,135 @@
+"""Big captures: `aat-infer --method focus` on a 12-MP 5-frame phone stack, before and after issue 34's speed work,
+in one run.
+
+    OMP_WAIT_POLICY=PASSIVE python benchmarks/bench_big_capture.py [--repeat 3] [--reference c861edf]
+
+Input: the synthetic 12.5-MP phone capture of `benchmarks/big_capture.py` (five 4080 x 3072 JPEGs with ground
+truth; rendered on first use into cache/, about 2 minutes). "Before" is the runtime as it was at the reference
+commit (its `aat_deploy/` exported with `git archive` into cache/bench_ref/<commit>/, run as a separate process
+exactly as a user runs it); "after" is this checkout. Each configuration runs `--repeat` times, interleaved, each in
+a fresh process (`python -m aat_deploy.cli.infer CAPTURE --method focus ...`, 2 cores as the machine has them); the
+table gives the best wall time (start of the process to its end: interpreter, imports, reading, the method,
+writing every output and the recording), its ratio to "before", the stage timings of that run (summary.json), its
+peak resident memory (the process's maxrss), the outputs' size on disk, and the depth error against the ground
+truth at the native 4080 x 3072 grid (working-size depth enlarged bilinearly in diopters: resolution lost is
+counted as error).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from big_capture import make_capture  # noqa: E402
+
+REFERENCE = "c861edf778f2e1c7376ef0bffe0d80dd94bfb960"  # main before issue 34's big-capture work
+CONFIGS = {  # name: (code, extra aat-infer arguments)
+    "before (reference)": ("reference", []),
+    "after": ("this", []),
+    "after, --native-res": ("this", ["--native-res"]),
+    "after, --max-side 0 (native working size)": ("this", ["--max-side", "0"]),
+}
+STAGES = ("decode", "normalise", "infer", "native", "write", "record")
+
+
+def reference_tree(commit: str) -> Path:
+    """The reference commit's aat_deploy/ exported into cache/bench_ref/<commit>/ (once)."""
+    full = subprocess.run(["git", "-C", str(ROOT), "rev-parse", commit], capture_output=True, text=True,
+                          check=True).stdout.strip()
+    out = ROOT / "cache" / "bench_ref" / full
+    if not (out / "aat_deploy").is_dir():
+        tmp = out.with_name(out.name + ".tmp")
+        shutil.rmtree(tmp, ignore_errors=True)
+        tmp.mkdir(parents=True)
+        arch = subprocess.run(["git", "-C", str(ROOT), "archive", full, "aat_deploy"], capture_output=True,
+                              check=True).stdout
+        subprocess.run(["tar", "-x", "-C", str(tmp)], input=arch, check=True)
+        tmp.rename(out)
+    return out
+
+
+def run(code_root: Path, capture: Path, out: Path, extra: list[str]) -> dict:
+    """One aat-infer process: wall seconds, peak RSS (MB) and its summary.json."""
+    env = {**os.environ, "PYTHONPATH": str(code_root), "OMP_WAIT_POLICY": "PASSIVE"}
+    cmd = [sys.executable, "-m", "aat_deploy.cli.infer", str(capture), "--method", "focus", "--out", str(out),
+           "--force", "-q", *extra]
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(cmd, cwd=code_root, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    _, status, usage = os.wait4(proc.pid, 0)
+    wall = time.perf_counter() - t0
+    err = proc.stderr.read().decode(errors="replace")
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    if proc.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed ({proc.returncode}): {err[-500:]}")
+    return {"wall_s": wall, "rss_mb": usage.ru_maxrss / 1024, "summary": json.loads((out / "summary.json").read_text()),
+            "disk_mb": sum(f.stat().st_size for f in out.iterdir()) / 1e6, "depth": np.load(out / "depth_m.npy")}
+
+
+def native_error(depth: np.ndarray, gt: np.ndarray) -> dict:
+    """Depth metrics at the ground truth's grid: a smaller map enlarged bilinearly in diopters."""
+    import cv2
+
+    from aat_deploy.metrics import depth_metrics
+
+    if depth.shape != gt.shape:
+        inv = 1.0 / np.where(np.isfinite(depth) & (depth > 0), depth, np.nan)
+        inv = np.nan_to_num(inv, nan=float(np.nanmedian(inv)))
+        depth = 1.0 / np.maximum(cv2.resize(inv.astype(np.float32), gt.shape[::-1], interpolation=cv2.INTER_LINEAR),
+                                 1e-6)
+    return depth_metrics(depth, gt)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--reference", default=REFERENCE, help="commit whose runtime is 'before'")
+    ap.add_argument("--capture", type=Path, default=ROOT / "cache/big_capture/phone12mp")
+    a = ap.parse_args(argv)
+    capture = make_capture(a.capture)
+    gt = np.load(capture / "gt_depth_m.npy")
+    roots = {"reference": reference_tree(a.reference), "this": ROOT}
+    best: dict[str, dict] = {}
+    with tempfile.TemporaryDirectory(prefix="bench_big_") as d:
+        for rep in range(a.repeat):
+            for name, (code, extra) in CONFIGS.items():
+                r = run(roots[code], capture, Path(d) / f"out{len(best)}_{rep}", extra)
+                print(f"  run {rep + 1}/{a.repeat} {name}: {r['wall_s']:.2f} s, {r['rss_mb']:.0f} MB", file=sys.stderr,
+                      flush=True)
+                if name not in best or r["wall_s"] < best[name]["wall_s"]:
+                    best[name] = r
+    ref = best["before (reference)"]["wall_s"]
+    h, w = gt.shape
+    print(f"\n### aat-infer --method focus on a {w} x {h} (12.5 MP) 5-frame phone JPEG stack, 2 cores "
+          f"(best of {a.repeat}, one run; reference {a.reference[:7]})\n")
+    print("| configuration | working size | wall time | vs before | " + " | ".join(STAGES)
+          + " | peak memory | outputs | MAE m | AbsRel | δ1 |")
+    print("|---|---|---:|---:|" + "---:|" * len(STAGES) + "---:|---:|---:|---:|---:|")
+    for name, r in best.items():
+        s = r["summary"]
+        t = s["timings_s"]
+        m = native_error(r["depth"], gt)
+        ws = "x".join(str(v) for v in s["working_size_px"])
+        print(f"| {name} | {ws} | {r['wall_s']:.2f} s | {r['wall_s'] / ref:.2f}x | "
+              + " | ".join(f"{t.get(k, 0):.2f}" for k in STAGES)
+              + f" | {r['rss_mb']:.0f} MB | {r['disk_mb']:.0f} MB | {m['mae']:.3f} | {m['abs_rel']:.3f} | "
+                f"{m['delta1']:.3f} |")
+    choice = best["after"]["summary"].get("method_info", {}).get("working_resolution", {})
+    print(f"\nworking resolution (after): blur step {choice.get('blur_step_px')} px, factor {choice.get('factor')}; "
+          f"{choice.get('rule', '')}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
