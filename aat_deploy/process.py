@@ -39,6 +39,7 @@ class StackResult:
     align_info: list[dict] | None
     warnings: list[str] = field(default_factory=list)
     info: dict | None = None  # what the method reports about itself (the focus method's settings, placements)
+    frame_hw: tuple[int, int] | None = None  # (H, W) of the frames as given (before fitting)
 
     @property
     def working_size(self) -> tuple[int, int]:
@@ -209,7 +210,7 @@ def depth_from_frames(images: list[Frame], focus_m: np.ndarray, model: DfFModel,
         maps = DepthMaps(depth_n, aif_n, std_n, conf)
         camera = camera.resized(depth_n.shape[1], depth_n.shape[0])
     lap("native")
-    return StackResult(maps, camera, working, stack, geometry, align_info, warnings, info)
+    return StackResult(maps, camera, working, stack, geometry, align_info, warnings, info, tuple(size0))
 
 
 def native_frames(images: list[np.ndarray], geometry: dict, align_info: list[dict] | None, scale: float,

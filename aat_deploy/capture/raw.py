@@ -47,6 +47,16 @@ def _srgb_lut(dtype) -> np.ndarray:
     return srgb_to_linear(np.arange(top + 1, dtype=np.float32) / np.float32(top))
 
 
+def srgb_codes_to_linear(img: np.ndarray) -> np.ndarray:
+    """8- or 16-bit sRGB-encoded values (any shape) -> linear float32 in [0, 1] (the same values as
+    srgb_to_linear(img / max code), by table lookup)."""
+    if img.dtype == np.uint8 and img.ndim <= 3 and (img.ndim < 3 or img.shape[2] <= 4):
+        return cv2.LUT(np.ascontiguousarray(img), _srgb_lut(img.dtype))  # OpenCV's lookup: 3x numpy's at 12 MP
+    if img.dtype in (np.uint8, np.uint16):
+        return np.take(_srgb_lut(img.dtype), img)
+    raise TypeError(f"srgb_codes_to_linear: 8- or 16-bit codes expected, got {img.dtype}")
+
+
 def linear_to_srgb(x: np.ndarray) -> np.ndarray:
     """Linear values (clipped to [0, 1]) → sRGB encoding in [0, 1]."""
     x = np.clip(np.asarray(x, dtype=np.float32), 0.0, 1.0)
@@ -148,10 +158,8 @@ def _load_image(path: Path, buf: bytes, kind: str) -> tuple[np.ndarray, dict]:
     if kind == "png" and b"IEND" not in buf[-32:]:
         raise CaptureError(f"{path}: truncated PNG file (no end chunk)")
     img = _decode_jpeg(path, buf) if kind == "jpeg" else _decode_cv(path, buf)
-    if img.dtype == np.uint8:  # OpenCV's table lookup: 3x numpy's on a 12-MP frame
-        return cv2.LUT(np.ascontiguousarray(img), _srgb_lut(img.dtype)), {"bits": 8}
-    if img.dtype == np.uint16:
-        return np.take(_srgb_lut(img.dtype), img), {"bits": 16}
+    if img.dtype in (np.uint8, np.uint16):
+        return srgb_codes_to_linear(img), {"bits": 8 * img.itemsize}
     if img.dtype in (np.float32, np.float64):
         img = np.ascontiguousarray(img, dtype=np.float32)
         bad = int(np.count_nonzero(~np.isfinite(img).all(axis=2)))

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from ..capture.raw import FRAME_EXTENSIONS
-from ..errors import CaptureError
+from ..errors import CaptureError, one_line
 from ..gt.read import has_ground_truth
 
 
@@ -39,6 +39,13 @@ class Progress:
             self.bar.write(line, file=sys.stderr)
         else:
             print(line, file=sys.stderr, flush=True)
+
+    def fail(self, rows: list[dict], messages: list[str], name: str, label: str, msg: str) -> None:
+        """Record that `label` failed on `name`: a failed row, the message, and a line under the bar."""
+        rows.append({"capture": name, "model": label, "status": "failed", "error": msg})
+        line = one_line(f"aat-eval: FAILED {name} ({label}): {msg}")
+        messages.append(line)
+        self.note(line)
 
     def close(self) -> None:
         if self.bar is not None:

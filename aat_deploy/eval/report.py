@@ -24,6 +24,20 @@ MD_COLUMNS = (("mae", "MAE m"), ("rmse", "RMSE m"), ("abs_rel", "AbsRel"), ("sq_
 OVERALL = "ALL"
 
 
+def overall_means(rows: list[dict], labels: list[str]) -> tuple[dict[str, dict], set[str]]:
+    """The mean metrics per model over the captures every model scored ("ok" rows), and those captures."""
+    from ..metrics import MetricAccumulator
+
+    ok = {lb: {r["capture"] for r in rows if r["model"] == lb and r["status"] == "ok"} for lb in labels}
+    common = set.intersection(*ok.values()) if ok else set()
+    overall = {}
+    for lb in labels:
+        acc = MetricAccumulator()
+        acc.rows = [r for r in rows if r["model"] == lb and r["status"] == "ok" and r["capture"] in common]
+        overall[lb] = acc.result()
+    return overall, common
+
+
 def _clean(v):
     """JSON-safe value: NaN/inf → None, numpy scalars → Python."""
     if isinstance(v, (np.floating, np.integer)):

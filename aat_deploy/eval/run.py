@@ -170,10 +170,7 @@ def _evaluate_into(tmp: Path, root: Path, caps: list[Path], without: list[Path],
     bar = Progress(len(caps) * len(models), opts.quiet)
 
     def fail(name: str, label: str, msg: str) -> None:
-        rows.append({"capture": name, "model": label, "status": "failed", "error": msg})
-        line = one_line(f"aat-eval: FAILED {name} ({label}): {msg}")
-        opts.messages.append(line)
-        bar.note(line)
+        bar.fail(rows, opts.messages, name, label, msg)
 
     try:
         for ci, cap in enumerate(caps):
@@ -246,13 +243,8 @@ def _capture_pictures(tmp: Path, index: int, name: str, scored: dict, opts: Eval
 
 def _finish(tmp: Path, root: Path, caps, without, models, labels, rows, cap_info, accs, profiles,
             opts: EvalOptions) -> dict:
-    ok = {lb: {r["capture"] for r in rows if r["model"] == lb and r["status"] == "ok"} for lb in labels}
-    common = set.intersection(*ok.values()) if ok else set()
-    overall = {}
+    overall, common = report.overall_means(rows, labels)
     for lb in labels:
-        acc = MetricAccumulator()
-        acc.rows = [r for r in rows if r["model"] == lb and r["status"] == "ok" and r["capture"] in common]
-        overall[lb] = acc.result()
         if accs[lb].rows:
             emap = accs[lb].error_map()
             np.save(tmp / "maps" / lb / "mean_abs_error.npy", emap.astype(np.float32))
