@@ -70,7 +70,7 @@ def say(quiet: bool, msg: str) -> None:
 Frame = np.ndarray | Callable[[], np.ndarray]  # a frame, or a function that decodes it (the pipeline: its file)
 
 
-def _native_frames(images: list[Frame], labels: list[str], name: str, quiet: bool):
+def _decoded(images: list[Frame], labels: list[str], name: str, quiet: bool):
     """Yield (index, frame (H, W, 3) float32) decoding lazily, with a progress bar for decoded files; frames of
     another size than the first are refused (one line naming both)."""
     size0 = None
@@ -111,7 +111,7 @@ def fitted_frames(images: list[Frame], model: DfFModel, *, native: bool = False,
     auto = getattr(model, "auto", False)
     out, natives, regions, choice = [], [] if native else None, [], {}
     sampler = size0 = pre_wh = size_wh = None
-    for i, img in _native_frames(images, labels, name, quiet):
+    for i, img in _decoded(images, labels, name, quiet):
         if size0 is None:
             size0 = img.shape[:2]
             if auto:
@@ -133,7 +133,7 @@ def fitted_frames(images: list[Frame], model: DfFModel, *, native: bool = False,
         return out, sensor_crop(size0, size_wh), size0, natives, choice
     size_wh, choice = model.choose_size(size0, [np.stack(lev) for lev in zip(*regions)])
     if size_wh[0] > pre_wh[0] or size_wh[1] > pre_wh[1]:  # less reduction than kept: from the native frames again
-        out = [_reduce(img, size_wh) for _, img in _native_frames(images, labels, name, True)]
+        out = [_reduce(img, size_wh) for _, img in _decoded(images, labels, name, True)]
         choice["decoded_twice"] = True
     else:
         out = [_reduce(im, size_wh) for im in out]
@@ -217,10 +217,12 @@ def native_frames(images: list[np.ndarray], geometry: dict, align_info: list[dic
                   size_wh: tuple[int, int]) -> list[np.ndarray]:
     """The decoded frames (H0, W0, 3) cropped as fit_to_sensor cropped them, aligned with the working size's
     warps (scaled to the crop's pixels) if any, and normalised with the stack's divisor; float16 (H, W, 3), one
-    frame at a time in float32 (at 12 MP a float32 frame is 150 MB: the stack is kept at half that)."""
+    frame at a time in float32 (at 12 MP a float32 frame is 150 MB: the stack is kept at half that). The entries of
+    `images` are released (set to None) as they are used: pass a list of your own."""
     x0, y0, cw, ch = geometry["crop_xywh"]
     out = []
-    for i, im in enumerate(images):
+    for i in range(len(images)):
+        im, images[i] = images[i], None
         crop = np.ascontiguousarray(im[y0:y0 + ch, x0:x0 + cw], dtype=np.float32)
         if align_info is not None:
             m = native_warp(np.asarray(align_info[i]["matrix"], np.float64), (cw, ch), size_wh)

@@ -86,7 +86,7 @@ def make_capture(out: Path, width: int = PHONE["width_px"], height: int = PHONE[
     cfg = LayeredConfig(cell_px=512, layer_blur_px=max(1.0, 3.0 * rw / PHONE["width_px"]))
     noise, phone = fx.parse(["noise:full_well_e=6000"])[0], PhoneJpeg()
     p = phone.params
-    with atomic_folder(out, force=True) as tmp:
+    with atomic_folder(out, True, "benchmarks/big_capture.py") as tmp:
         names = []
         for i, f in enumerate(focus):
             frame = optical_stack([], src, rgb, depth, [float(f)], ctx, cfg)[0]

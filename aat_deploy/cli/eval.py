@@ -122,7 +122,7 @@ def _dataset(ap, args, models: list[Path]) -> int:
     except ValueError:
         ap.error(f"--frames must be indices separated by commas, got {args.frames!r}")
     try:
-        check_output_dir(args.out, [args.root, *models], args.force, marker="metrics.json", tool="aat-eval")
+        check_output_dir(args.out, [args.root, *models], args.force, tool="aat-eval")
         ds = open_dataset(args.dataset, args.root, split=args.split, frames=frames, aperture=args.aperture)
         labels = model_labels(models)
         methods = [(lb, DfFModel(m, threads=args.threads)) for lb, m in zip(labels, models)]
