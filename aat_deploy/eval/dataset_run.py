@@ -69,7 +69,7 @@ def evaluate_dataset(ds: Dataset, methods: list[tuple[str, object]], out_dir: st
     t0 = time.perf_counter()
     n = len(ds) if opts.limit is None else min(len(ds), opts.limit)
     rows: list[dict] = []
-    with atomic_folder(out_dir, opts.force, "aat-eval") as tmp:
+    with writing(out_dir), atomic_folder(out_dir, opts.force, "aat-eval") as tmp:
         for label, _ in methods:
             (tmp / "maps" / label).mkdir(parents=True)
         bar = Progress(n * len(methods), opts.quiet)
