@@ -7,6 +7,7 @@ multi-GPU command passes; an explicit `cuda:N` with several processes per machin
 
 from __future__ import annotations
 
+import functools
 import os
 import re
 
@@ -92,3 +93,14 @@ def to_cpu(obj):
     if isinstance(obj, (list, tuple)):
         return type(obj)(to_cpu(v) for v in obj)
     return obj
+
+
+def on_cpu(fn):
+    """Run `fn` with the CPU as torch's default device, whatever device context its caller is in: for the PSF
+    sources, which answer on the CPU (their random generators and numpy exchanges are CPU-bound) while the
+    simulator renders on a GPU under `with device:` (training.render.simulator)."""
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        with torch.device("cpu"):
+            return fn(*args, **kwargs)
+    return wrapper

@@ -27,7 +27,7 @@ from aat_deploy.lens.schema import Lens
 from aat_deploy.optics.focus_table import FocusTable
 from aat_deploy.optics.paraxial import paraxial_data
 from aat_deploy.psf.kernel import KernelSpec
-from training.devices.select import resolve_device
+from training.devices.select import on_cpu, resolve_device
 from training.optics.trace import start_plane_z_mm, stratified_disk, trace_components, uniform_disk_grid
 from training.psf.geometry import focus_table, object_points_mm
 from training.psf.splat import splat_bilinear
@@ -152,6 +152,7 @@ def _tracer(lens: Lens, wavelength_nm: float, compiled: bool) -> _Tracer:
     return _Tracer(lens, wavelength_nm, compiled)
 
 
+@on_cpu  # CPU-bound setup whatever the caller's default device; `device` says where the rays go
 def raytrace_psfs(
     lens: Lens,
     x,

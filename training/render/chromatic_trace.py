@@ -12,6 +12,7 @@ from aat_deploy.optics.thin_lens import thin_lens_blur_px
 from aat_deploy.psf.kernel import KernelSpec
 from aat_deploy.render.effects import SimContext
 from aat_deploy.render.effects.chromatic import REFERENCE_WAVELENGTH_NM
+from training.devices.select import on_cpu
 from training.psf.raytrace import raytrace_psfs
 
 
@@ -30,6 +31,7 @@ class ThreeWavelengths:
     def blur_px(self, depth_m, focus_m):
         return thin_lens_blur_px(self.lens, depth_m, focus_m)
 
+    @on_cpu
     def __call__(self, x, y, depth_m, focus_m):
         ref = raytrace_psfs(self.lens, x, y, depth_m, focus_m, self.spec, n_rays=16, table=self.table,
                             wavelength_nm=REFERENCE_WAVELENGTH_NM)

@@ -1,9 +1,9 @@
 """Where a renderer gets its PSFs: the ray tracer, a surrogate network, or the thin-lens Gaussian.
 
-Every source maps arrays (x, y, depth_m, focus_m) to (kernels (N, k, k), scale (N,)) in the common storage of
-`aat_deploy.psf.kernel`, so renderers never care which one they use, and tells its window size `k`, cell size
-`scale(depth_m, focus_m)` and thin-lens blur `blur_px(depth_m, focus_m)` (numpy, pixels). Same focal length,
-F-number and sensor in all three: the only difference is the aberrations.
+Every source maps arrays (x, y, depth_m, focus_m) to (kernels (N, k, k), scale (N,)), CPU tensors, in the
+common storage of `aat_deploy.psf.kernel`, so renderers never care which one they use, and tells its window size
+`k`, cell size `scale(depth_m, focus_m)` and thin-lens blur `blur_px(depth_m, focus_m)` (numpy, pixels). Same
+focal length, F-number and sensor in all three: the only difference is the aberrations.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ from aat_deploy.render.fields import field_of, pixel_fields  # noqa: F401 (re-ex
 from aat_deploy.render.sources import LensGeometry as _LensGeometry
 from aat_deploy.render.sources import OnnxSource
 from aat_deploy.render.sources import UnitEnergy  # noqa: F401 (re-exported)
+from training.devices.select import on_cpu
 from training.psf.raytrace import DEFAULT_WAVELENGTH_NM, raytrace_psfs
 from training.psf.surrogates import GaussianPSF, PSFModel
 
@@ -44,6 +45,7 @@ class ModelPSF(_LensGeometry):
         self.spec = KernelSpec(size=model.k, margin_px=model.margin_px)
 
     @torch.no_grad()
+    @on_cpu
     def __call__(self, x, y, depth_m, focus_m):
         x, y, d, f = (np.asarray(a, dtype=np.float32).ravel() for a in np.broadcast_arrays(x, y, depth_m, focus_m))
         q = torch.from_numpy(np.stack([x, y, d, f], -1))

@@ -241,3 +241,21 @@ def test_torchrun_restarts_after_a_lost_process_and_resumes(tmp_path):
         assert torch.equal(whole["model"][k], lost["model"][k]), k
     sessions = json.loads((tmp_path / "lost" / "train_summary.json").read_text())["sessions"]
     assert [s["from_step"] for s in sessions] == [0, 2]  # the second attempt resumed at the last checkpoint
+
+
+def test_psf_sources_answer_on_the_cpu_inside_a_device_context():
+    """The simulator renders on a GPU under `with device:`; the PSF sources it calls must still compute on the CPU
+    (their generators and numpy exchanges are CPU-bound). The meta device stands in for the GPU: inside its
+    context the ray tracer and the thin-lens source give the same CPU kernels as outside."""
+    import numpy as np
+
+    from aat_deploy.lens.io import load_lens
+    from training.render.sources import RayTracedPSF, thin_lens_source
+
+    lens = load_lens(ROOT / "lenses" / "canon_rf50mm_f1.8.json")
+    x, y, d, f = np.array([0.0, 0.5]), np.array([0.0, -0.3]), np.array([1.0, 3.0]), np.array([2.0, 2.0])
+    for src in (RayTracedPSF(lens, n_rays=64), thin_lens_source(lens)):
+        k_out, s_out = src(x, y, d, f)
+        with torch.device("meta"):
+            k_in, s_in = src(x, y, d, f)
+        assert k_in.device.type == "cpu" and torch.equal(k_in, k_out) and torch.equal(s_in, s_out)
