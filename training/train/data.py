@@ -40,6 +40,8 @@ def make_dataset(data: dict, simulator: str, lens: str, effects: list[str] | Non
     """FocalStackDataset for one split, everything but the simulator identical between AAT and baseline runs;
     device: where it renders (the items come back on the CPU)."""
     if simulator == "any_camera":  # the any-camera net's data: its own cameras, no lens or effects of the config
+        if device != "cpu":
+            raise ValueError(f"device {device!r}: the any-camera data (training.data.anycam) renders on the CPU only")
         from training.data.anycam import AnyCamConfig, AnyCamDataset
 
         try:
