@@ -7,7 +7,9 @@ torchrun --max-restarts starts the workers again and they resume from last.pt.
 
 from __future__ import annotations
 
+import ctypes
 import os
+import signal
 import sys
 from pathlib import Path
 
@@ -21,7 +23,17 @@ from training.train import loop  # noqa: E402
 from training.train.config import LossConfig  # noqa: E402
 
 
+def _die_with_the_agent() -> None:
+    """Linux: this worker is killed when torchrun's agent ends (torchrun starts workers in sessions of their own,
+    so a test that kills a hung torchrun would otherwise leave them behind)."""
+    try:
+        ctypes.CDLL("libc.so.6").prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
 def main() -> None:
+    _die_with_the_agent()
     torch.set_num_threads(1)
     out, die = Path(sys.argv[1]), sys.argv[2:] == ["die"]
     attempt = int(os.environ.get("TORCHELASTIC_RESTART_COUNT", "0"))

@@ -230,11 +230,20 @@ def test_torchrun_restarts_after_a_lost_process_and_resumes(tmp_path):
     worker = Path(__file__).with_name("elastic_worker.py")
     env = dict(os.environ, PYTHONPATH=str(ROOT), OMP_NUM_THREADS="1", OMP_WAIT_POLICY="PASSIVE")
     for name, extra in (("whole", []), ("lost", ["die"])):
-        r = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2",
-                            "--max-restarts=3", str(worker), str(tmp_path / name), *extra],
-                           env=env, capture_output=True, text=True, timeout=300)
-        (tmp_path / f"{name}.log").write_text(r.stderr)
-        assert r.returncode == 0, (name, str(tmp_path / f"{name}.log"))
+        p = subprocess.Popen([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2",
+                              "--max-restarts=3", str(worker), str(tmp_path / name), *extra],
+                             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        try:
+            _, err = p.communicate(timeout=300)
+        except subprocess.TimeoutExpired:  # a hung run: torchrun stops its workers on SIGTERM (and they die with it)
+            p.terminate()
+            try:
+                _, err = p.communicate(timeout=60)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                _, err = p.communicate()
+        (tmp_path / f"{name}.log").write_text(err)
+        assert p.returncode == 0, (name, str(tmp_path / f"{name}.log"))
     whole, lost = load(tmp_path / "whole" / "model.pt"), load(tmp_path / "lost" / "model.pt")
     assert whole["step"] == lost["step"] == 5
     for k in whole["model"]:
