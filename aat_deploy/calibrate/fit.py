@@ -64,7 +64,12 @@ def camera_identity(measures: list[SweepMeasurement]) -> CameraIdentity:
         if m.sweep.size_px != first.size_px:
             raise SweepError(f"{m.sweep.path}: frames of {m.sweep.size_px[0]}x{m.sweep.size_px[1]} px, "
                              f"{first.path}'s {first.size_px[0]}x{first.size_px[1]} px")
-    i = first.identity
+    return camera_identity_of(first)
+
+
+def camera_identity_of(sweep) -> CameraIdentity:
+    """A sweep's (or capture's) camera from its frames' EXIF."""
+    i = sweep.identity
     num = lambda v: float(v) if v not in (None, "") else None
     return CameraIdentity(str(i.get("make") or ""), str(i.get("model") or ""), str(i.get("lens") or ""),
                           num(i.get("focal_length_mm")), num(i.get("f_number")))

@@ -5,6 +5,8 @@ effects; every later step is tested against this known truth."""
 
 from __future__ import annotations
 
+import math
+
 import cv2
 import numpy as np
 
@@ -53,3 +55,31 @@ def chart_scene(chart_u8: np.ndarray, layout: ChartLayout, pose: ChartPose, widt
     img = cv2.resize(big, (width, height), interpolation=cv2.INTER_AREA)
     return np.repeat(img[None], 3, 0).astype(np.float32), depth_m
 
+
+
+def turned_view(rgb: np.ndarray, z_mm: np.ndarray, f_px: float, yaw_deg: float, pitch_deg: float, width: int,
+                height: int) -> tuple[np.ndarray, np.ndarray]:
+    """The scene seen by the same pinhole turned about its centre (the pupil): rgb (3, Hp, Wp) and z_mm (Hp, Wp)
+    (z from the pinhole, mm) of a wide view with focal length f_px and its principal point at its centre; yaw
+    (+: turned right), pitch (+: turned up). Returns rgb (3, H, W) (bilinear) and z_mm (H, W) (nearest, so
+    depth edges stay sharp) of the turned H x W view: a point keeps its range rho = z / cos(theta), so
+    z' = z cos(theta') / cos(theta)."""
+    hp, wp = z_mm.shape
+    k0 = np.array([[f_px, 0, (wp - 1) / 2], [0, f_px, (hp - 1) / 2], [0, 0, 1]])
+    k1 = np.array([[f_px, 0, (width - 1) / 2], [0, f_px, (height - 1) / 2], [0, 0, 1]])
+    a, b = math.radians(yaw_deg), math.radians(pitch_deg)
+    ry = np.array([[math.cos(a), 0, math.sin(a)], [0, 1, 0], [-math.sin(a), 0, math.cos(a)]])
+    rx = np.array([[1, 0, 0], [0, math.cos(b), -math.sin(b)], [0, math.sin(b), math.cos(b)]])
+    r = ry @ rx  # new camera axes in the old camera's frame: a ray d1 of the new view is r @ d1 in the old
+    m = k0 @ r @ np.linalg.inv(k1)  # new pixel -> old pixel
+    flags = cv2.WARP_INVERSE_MAP
+    out_rgb = np.stack([cv2.warpPerspective(np.ascontiguousarray(c, np.float32), m, (width, height),
+                                            flags=cv2.INTER_LINEAR | flags, borderMode=cv2.BORDER_REFLECT)
+                        for c in rgb])
+    z_old = cv2.warpPerspective(np.ascontiguousarray(z_mm, np.float32), m, (width, height),
+                                flags=cv2.INTER_NEAREST | flags, borderMode=cv2.BORDER_REFLECT)
+    vv, uu = np.mgrid[0:height, 0:width].astype(np.float64)
+    src = cv2.perspectiveTransform(np.stack([uu, vv], -1).reshape(-1, 1, 2), m).reshape(height, width, 2)
+    cos_old = 1 / np.sqrt(1 + ((src[..., 0] - k0[0, 2]) ** 2 + (src[..., 1] - k0[1, 2]) ** 2) / f_px ** 2)
+    cos_new = 1 / np.sqrt(1 + ((uu - k1[0, 2]) ** 2 + (vv - k1[1, 2]) ** 2) / f_px ** 2)
+    return out_rgb.astype(np.float32), (z_old * cos_new / cos_old).astype(np.float32)

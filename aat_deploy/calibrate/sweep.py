@@ -71,7 +71,7 @@ def identity_differences(a: dict, b: dict) -> list[str]:
     return out
 
 
-def load_sweep(folder: str | Path, max_side: int | None = 1600) -> Sweep:
+def load_sweep(folder: str | Path, max_side: int | None = 1600, min_frames: int = MIN_FRAMES) -> Sweep:
     """Frames and reported focus of a sweep folder; SweepError for fewer than MIN_FRAMES frames, frames of other
     sizes, or frames from different cameras (make, model, lens, focal length, f-number in their EXIF)."""
     folder = Path(folder)
@@ -80,8 +80,8 @@ def load_sweep(folder: str | Path, max_side: int | None = 1600) -> Sweep:
     except CaptureError as e:
         raise SweepError(str(e)) from None
     frames = sorted(cap.frames, key=lambda f: -f.focus_m)  # far to near: reported diopters ascending
-    if len(frames) < MIN_FRAMES:
-        raise SweepError(f"{folder}: {len(frames)} frames; a calibration sweep needs at least {MIN_FRAMES} (better "
+    if len(frames) < min_frames:
+        raise SweepError(f"{folder}: {len(frames)} frames; a calibration sweep needs at least {min_frames} (better "
                          "15-25, evenly in diopters across the chart)")
     ids = [identity_of(f.meta) for f in frames]
     for f, i in zip(frames[1:], ids[1:]):

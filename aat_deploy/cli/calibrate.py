@@ -3,6 +3,7 @@
     aat-calibrate chart --out chart.png [--size-mm 600,400] [--markers 6,4] [--marker-mm M] [--dpi 150] [--seed N] [--force]
     aat-calibrate fit SWEEP_DIR [SWEEP_DIR ...] --chart chart.json --out mycam.json [--distance-m D1,D2,...]
                       [--pupil-to-sensor-mm P] [--sensor-mm W,H] [--max-side 1600] [--boot 100] [--force]
+    aat-calibrate fit --from-scenes CAPTURE_DIR [CAPTURE_DIR ...] --out mycam.json [--sensor-mm W,H] [--force]
     aat-calibrate shoot --chart chart.png --lens LENS --distance-m D --out SWEEP_DIR [--psf PSF.onnx]
                       [--tilt-deg X,Y] [--sweep-d 0.3] [--step-d 0.04] [--effects noise,...] [--seed N] [--force]
     aat-calibrate show mycam.json [--png maps.png]
@@ -14,8 +15,10 @@ growth, with bootstrap intervals; writes mycam.json (format aat-camera-calibrati
 mycam.png (the maps). Nothing is written when any sweep is unusable (one line each). --distance-m: per sweep, the
 distance from the camera's sensor plane to the chart at the frame centre (tape or laser meter). shoot: the
 virtual camera photographs the chart at a pose through a lens with any registered effects (a sweep folder of
-DNGs with the true geometry in virtual_camera.json; torch-free with the lens's PSF surrogate). How to shoot:
-docs/calibration.md.
+DNGs with the true geometry in virtual_camera.json; torch-free with the lens's PSF surrogate). --from-scenes: no
+chart; ordinary stacks from a camera turned between them: the field term under which their estimates agree
+where they see the same surface (the reported focus's offset and scale cannot be identified and are kept). How to
+shoot: docs/calibration.md.
 """
 
 from __future__ import annotations
@@ -87,12 +90,17 @@ def cmd_fit(args) -> int:
             print(f"aat-calibrate: error: {p}: exists (use --force to overwrite)", file=sys.stderr)
             return EXIT_USAGE
     sweeps = [Path(s) for s in args.sweeps]
+    if any(p.resolve() in (s.resolve(), *s.resolve().parents) for s in sweeps for p in (out, png)):
+        print(f"aat-calibrate: error: {out}: the output must not be inside a sweep folder", file=sys.stderr)
+        return EXIT_USAGE
+    if args.from_scenes:
+        return fit_scenes(args, sweeps, out, png)
+    if args.chart is None:
+        print("aat-calibrate: error: --chart chart.json is required (or --from-scenes)", file=sys.stderr)
+        return EXIT_USAGE
     if args.distance_m is not None and len(args.distance_m) != len(sweeps):
         print(f"aat-calibrate: error: --distance-m gives {len(args.distance_m)} distances for {len(sweeps)} sweeps",
               file=sys.stderr)
-        return EXIT_USAGE
-    if any(p.resolve() in (s.resolve(), *s.resolve().parents) for s in sweeps for p in (out, png)):
-        print(f"aat-calibrate: error: {out}: the output must not be inside a sweep folder", file=sys.stderr)
         return EXIT_USAGE
     try:
         layout = load_layout(args.chart)
@@ -137,6 +145,58 @@ def cmd_fit(args) -> int:
     for w in res.warnings:
         print(f"aat-calibrate: warning: {w}", file=sys.stderr)
     print(json.dumps(summary(cal, out, png)))
+    return EXIT_OK
+
+
+def fit_scenes(args, captures: list[Path], out: Path, png: Path) -> int:
+    """Blind calibration (`aat_deploy.calibrate.scenes`): nothing is written unless every capture reads."""
+    from ..calibrate.fit import camera_identity_of
+    from ..calibrate.format import CalibrationError, save_calibration
+    from ..calibrate.plots import calibration_png
+    from ..calibrate.scenes import estimate_scene, fit_from_scenes
+    from ..calibrate.sweep import identity_differences, load_sweep
+    from ..io.atomic import atomic_files
+
+    scenes, loaded, failed = [], [], 0
+    for i, c in enumerate(captures):
+        _say(args, f"aat-calibrate: estimating {c} ({i + 1}/{len(captures)})")
+        try:
+            sw = load_sweep(c, args.max_side, min_frames=3)
+            if loaded:
+                diff = identity_differences(loaded[0].identity, sw.identity)
+                if diff or sw.size_px != loaded[0].size_px:
+                    raise CaptureError(f"{c}: from another camera than {loaded[0].path} "
+                                       f"({'; '.join(diff) or 'frame size'}): calibrate one camera at a time")
+            scenes.append(estimate_scene(c.name, sw.frames, sw.reported_m))
+            loaded.append(sw)
+        except CaptureError as e:
+            print(f"aat-calibrate: error: {e}", file=sys.stderr)
+            failed += 1
+    if failed:
+        print(f"aat-calibrate: {failed} of {len(captures)} captures unusable: nothing written", file=sys.stderr)
+        return EXIT_FAILED
+    if len(scenes) < 2:
+        print("aat-calibrate: error: --from-scenes needs at least two captures of the same surfaces", file=sys.stderr)
+        return EXIT_USAGE
+    try:
+        res = fit_from_scenes(scenes, camera_identity_of(loaded[0]), loaded[0].size_px, args.sensor_mm,
+                              args.pupil_to_sensor_mm, n_boot=min(args.boot, 50),
+                              settings={"captures": [str(c) for c in captures], "max_side": args.max_side})
+    except ValueError as e:
+        print(f"aat-calibrate: error: {e}", file=sys.stderr)
+        return EXIT_FAILED
+    cal = res.calibration
+    try:
+        with atomic_files(out, png) as (tj, tp):
+            save_calibration(cal, tj, force=True)
+            calibration_png(cal, tp)
+    except (OSError, CalibrationError) as e:
+        print(f"aat-calibrate: error: {out}: cannot write ({e})", file=sys.stderr)
+        return EXIT_FAILED
+    for w in res.warnings:
+        print(f"aat-calibrate: warning: {w}", file=sys.stderr)
+    print(json.dumps({**summary(cal, out, png), "pairs": cal.residuals["pairs"],
+                      "samples": cal.residuals["samples"]}))
     return EXIT_OK
 
 
@@ -253,8 +313,11 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--seed", type=int, default=0, help="the texture's random seed")
     c.add_argument("--force", action="store_true", help="overwrite existing files")
     f = subparser(sub, "fit", "fit a camera calibration to chart sweeps")
-    f.add_argument("sweeps", nargs="+", metavar="SWEEP_DIR", help="one capture folder per chart position")
-    f.add_argument("--chart", required=True, help="the chart's layout (chart.json from `aat-calibrate chart`)")
+    f.add_argument("sweeps", nargs="+", metavar="SWEEP_DIR", help="one capture folder per chart position (with "
+                   "--from-scenes: per scene)")
+    f.add_argument("--chart", help="the chart's layout (chart.json from `aat-calibrate chart`)")
+    f.add_argument("--from-scenes", action="store_true", help="no chart: the folders are ordinary stacks of one "
+                   "camera turned between them (blind calibration of the field term; docs/calibration.md)")
     f.add_argument("--out", required=True, help="calibration file to write (.json; the maps go to .png beside it)")
     f.add_argument("--distance-m", type=_floats, metavar="D1,D2,...",
                    help="per sweep, metres from the sensor plane to the chart at the frame centre (measured)")
