@@ -27,6 +27,10 @@ b) **depth**: held-out scenes (`training.train.testsets`: procedural scenes with
    pixels and in the outer field (normalised radius > 0.66), mean over scenes with 95 % bootstrap intervals;
    paired ratios calibration / oracle and calibration / prescription (scenes resampled).
 c) **needs**: the map's RMS error with fewer chart distances and sparser sweeps (the same renders, subsets).
+d) **blind** (`aat-calibrate fit --from-scenes`): wide procedural worlds (test-split photographs, their own seed),
+   each seen by the copy turned by -6, 0 and +6 deg in yaw and pitch (9 captures per world, 8 frames 0.5-10 m);
+   the field term (in focus at (x, y) minus at the centre) against the truth's over the schedule, RMS, as the
+   number of captures grows; beside it the chart calibration's, the prescription map's and none (thin lens).
 
 Renders are cached under cache/calibrate/ (sweeps) and cache/heldout/ (test stacks, by content).
 """
@@ -334,6 +338,84 @@ def part_needs(rig: Rig, sweeps: list[dict], log) -> list[dict]:
     return rows
 
 
+def world_views(rig: Rig, k: int, log) -> list[tuple[np.ndarray, np.ndarray]]:
+    """World k seen from 9 turned views through the copy (cached): [(frames, reported_m)]."""
+    from aat_deploy.calibrate.scene import turned_view
+    from aat_deploy.capture.virtual import shoot
+    from training.data.scenes import SceneConfig, procedural_scene
+
+    s = rig.setup
+    f = CACHE / f"{s.key}_blind_world{k}.npz"
+    if f.is_file():
+        z = np.load(f)
+        return [(z[f"frames{i}"].astype(np.float32), z[f"reported{i}"]) for i in range(9)]
+    hp, wp = int(rig.h * 1.45), int(rig.w * 1.45)
+    rgb, depth = procedural_scene(SceneConfig(height=hp, width=wp, near_m=0.5, far_m=10.0, photo_fraction=0.5,
+                                              photo_split="test"), np.random.default_rng([424242, k]))
+    z_mm = depth * 1000.0 - rig.pupil
+    true_m = 1.0 / np.linspace(1 / 10.0, 1 / 0.5, 8)
+    out = []
+    t0 = time.time()
+    for i, (yaw, pitch) in enumerate([(a, b) for a in (-6, 0, 6) for b in (-6, 0, 6)]):
+        v_rgb, v_z = turned_view(rgb.transpose(2, 0, 1), z_mm, rig.f_px, yaw, pitch, rig.w, rig.h)
+        out.append(shoot(rig.lens, v_rgb, v_z / 1000 + rig.pupil / 1000, true_m, effects_for(s, "copy"), rig.src,
+                         seed=100 * k + i, workers=2))
+    log(f"  {s.key} blind world {k}: 9 views in {time.time() - t0:.0f} s")
+    from aat_deploy.io.atomic import atomic_file
+
+    with atomic_file(f) as tmp:
+        np.savez(tmp, **{f"frames{i}": fr.astype(np.float16) for i, (fr, _) in enumerate(out)},
+                 **{f"reported{i}": rep for i, (_, rep) in enumerate(out)})
+    return out
+
+
+def field_error(rig: Rig, pred: np.ndarray, truth: np.ndarray) -> float:
+    """RMS (D) of the field terms (in focus minus at the frame centre) over frames and pixels."""
+    c = (rig.h // 2, rig.w // 2)
+    fp = pred - pred[:, c[0], c[1]][:, None, None]
+    ft = truth - truth[:, c[0], c[1]][:, None, None]
+    return float(np.sqrt(np.mean((fp - ft) ** 2)))
+
+
+def part_blind(rig: Rig, chart_cal, n_worlds: int, log) -> list[dict]:
+    from aat_deploy.calibrate import in_focus_diopters
+    from aat_deploy.calibrate.fit import camera_identity_of
+    from aat_deploy.calibrate.scenes import estimate_scene, fit_from_scenes
+    from aat_deploy.calibrate.sweep import Sweep
+
+    s = rig.setup
+    eff = effects_for(s, "copy")
+    true_m = 1.0 / np.linspace(1 / 10.0, 1 / 0.5, 8)
+    rep = true_m * SCALE
+    truth = rig.truth(eff, true_m)
+    r = rig.fmap.radius_px(rig.h, rig.w)
+    base = {"chart calibration": field_error(rig, in_focus_diopters(chart_cal, rep, rig.h, rig.w), truth),
+            "prescription map": field_error(rig, np.stack([rig.fmap.frame_diopters([f], r.ravel())[0].reshape(
+                rig.h, rig.w) for f in rep]), truth),
+            "none (thin lens)": field_error(rig, np.broadcast_to((1 / rep)[:, None, None], truth.shape), truth)}
+    scenes = []
+    for k in range(n_worlds):
+        for i, (fr, rp) in enumerate(world_views(rig, k, log)):
+            scenes.append(estimate_scene(f"world{k}_view{i}", fr, rp))
+    ident = camera_identity_of(Sweep(Path("x"), np.zeros((1, 3, 2, 2)), np.ones(1),
+                                     {"focal_length_mm": round(rig.efl, 2), "f_number": round(rig.fno, 2)},
+                                     (rig.w, rig.h), 1.0))
+    rows = [{"captures": 0, **base}]
+    for n in sorted({3, 9, 18, 27, len(scenes)}):
+        if n > len(scenes):
+            continue
+        try:
+            res = fit_from_scenes(scenes[:n], ident, (rig.w, rig.h), n_boot=20)
+        except ValueError as e:
+            rows.append({"captures": n, "blind": None, "error": str(e)[:120]})
+            continue
+        err = field_error(rig, in_focus_diopters(res.calibration, rep, rig.h, rig.w), truth)
+        rows.append({"captures": n, "blind": err, "pairs": res.calibration.residuals["pairs"],
+                     "samples": res.calibration.residuals["samples"]})
+        log(f"  blind {n} captures: field RMS {err:.4f} D ({rows[-1]['pairs']} pairs)")
+    return rows
+
+
 # -- tables ----------------------------------------------------------------------------------------------------------
 def fmt(v, d=3) -> str:
     m, lo, hi = v
@@ -379,6 +461,17 @@ def tables(res: dict) -> str:
                 else:
                     out.append(f"| {lens} | {r['distances_m']} | {r['step_d']:.2f} | {r['frames']} | {r['family']} | "
                                f"{r['inside_rms_d']:.4f} | {r['schedule_rms_d']:.4f} |")
+    if res.get("blind"):
+        out += ["", "### d) Blind calibration from scenes: the field term's error against the copy's truth", "",
+                "| lens | captures (turned views) | overlapping pairs | field term RMS (D), 8 frames 0.5-10 m |",
+                "|---|---|---|---|"]
+        for lens, rows in res["blind"].items():
+            base = rows[0]
+            for k in ("none (thin lens)", "prescription map", "chart calibration"):
+                out.append(f"| {lens} | {k} | - | {base[k]:.4f} |")
+            for r in rows[1:]:
+                out.append(f"| {lens} | {r['captures']} | {r.get('pairs', '-')} | "
+                           + (f"{r['blind']:.4f} |" if r.get("blind") is not None else f"refused: {r['error']} |"))
     return "\n".join(out)
 
 
@@ -388,11 +481,12 @@ def main(argv=None) -> int:
     ap.add_argument("--parts", default="map,depth,needs")
     ap.add_argument("--n", type=int, default=24, help="procedural held-out scenes per lens (plus Middlebury)")
     ap.add_argument("--boot", type=int, default=100)
+    ap.add_argument("--worlds", type=int, default=3, help="blind: worlds of 9 turned views each")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "calibrate.json"))
     a = ap.parse_args(argv)
     parts = set(a.parts.split(","))
     log = lambda m: print(m, file=sys.stderr, flush=True)
-    res: dict = {"map": [], "depth": {}, "needs": {}}
+    res: dict = {"map": [], "depth": {}, "needs": {}, "blind": {}}
     for key in a.lenses.split(","):
         rig = Rig(LENSES[key])
         log(f"{key}: {rig.lens.name}")
@@ -403,6 +497,8 @@ def main(argv=None) -> int:
             res["depth"][key] = part_depth(rig, fits["copy"][0], a.n, log)
         if "needs" in parts:
             res["needs"][key] = part_needs(rig, fits["copy"][1], log)
+        if "blind" in parts:
+            res["blind"][key] = part_blind(rig, fits["copy"][0], a.worlds, log)
     text = tables(res)
     print(text)
     from aat_deploy.io.atomic import write_text_atomic
