@@ -291,13 +291,12 @@ class CameraCalibration:
 
 
 def _obj(d: dict, key: str) -> dict:
-    v = d[key]
-    if not isinstance(v, dict):
-        raise CalibrationError(f"{key} must be an object, got {type(v).__name__}")
-    return v
+    """A required object (KeyError when missing)."""
+    return _dict(d, key) if key in d else d[key]
 
 
 def _dict(d: dict, key: str) -> dict:
+    """An optional object ({} when missing or null)."""
     v = d.get(key)
     if v is None:
         return {}
