@@ -45,7 +45,7 @@ SETS = (("rf50 960", "lenses/canon_rf50mm_f1.8.json", "models/psf_rf50.onnx", "a
         ("thin 1920", "cache/lenses/ideal_thin_rf50_1920x1280.json", None, "thin_lens", 8, False))
 FACTORS = (1.5, 2.0, 3.0, 4.0)
 STEP_CANDIDATES = (2.0, 3.0, 4.0, 6.0, 8.0)
-SIDE_CANDIDATES = (480, 640, 960, 1280)
+SIDE_CANDIDATES = (480, 640, 960, 1024, 1280)
 TOLERANCE = 0.02  # "no accuracy lost": the paired MAE ratio to the native size at most 1.02 in every cell
 
 
