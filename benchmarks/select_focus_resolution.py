@@ -18,7 +18,8 @@ and scored against the ground truth there (MAE, metres), so detail lost to the r
    the working size (estimated step / k).
 3. The rule itself, k = min(step / T, longer side / L) (none below k = 1.25), for each candidate (T, L px):
    the paired MAE ratio to the native size over every validation stack. Chosen: among the candidates whose ratio
-   is at most 1 + TOLERANCE in every (set, noise) cell, the one that reduces the most (largest mean k).
+   is at most 1 + TOLERANCE in every (set, noise) cell, the one that reduces the most (largest mean k), and
+   among equals the larger thresholds (where these sets do not decide, the more cautious rule).
 Writes benchmarks/results/focus_resolution_selection.json.
 """
 
@@ -166,7 +167,8 @@ def main(argv: list[str] | None = None) -> int:
 
     ok = [c for c in cands if all(r["ratio"][0] <= 1 + TOLERANCE for r in rule_rows[c])]
     mean_k = {c: float(np.mean([r["mean_k"] for r in rule_rows[c]])) for c in cands}
-    chosen = max(ok, key=lambda c: (mean_k[c], -c[0], -c[1])) if ok else None
+    # the most reduction; among equals the larger thresholds (the more cautious rule where these sets do not decide)
+    chosen = max(ok, key=lambda c: (round(mean_k[c], 3), c[0], c[1])) if ok else None
 
     print(f"\n#### Blur step: estimated from the frames vs the thin-lens step of the schedule ({a.n} validation "
           f"stacks per cell, {max(2, a.n // 2)} at 1920 x 1280)\n")
