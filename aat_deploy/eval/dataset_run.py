@@ -45,8 +45,9 @@ class DatasetEvalOptions:
 
 def score_stack(pred_m: np.ndarray, gt: np.ndarray, mask: np.ndarray | None, frame_wh: tuple[int, int],
                 crop_xywh, ds: Dataset, where: str) -> tuple[dict, np.ndarray, np.ndarray]:
-    """(metrics in the dataset's unit, prediction and ground truth in that unit on the working grid, NaN =
-    not scored) of one working-size depth map (h, w) in metres against the dataset's ground truth."""
+    """(metrics in the dataset's unit plus `coverage`, the share of valid ground-truth pixels the prediction
+    answers (not NaN); prediction and ground truth in that unit on the working grid, NaN = not scored) of one
+    working-size depth map (h, w) in metres against the dataset's ground truth."""
     h, w = pred_m.shape
     g = to_sensor(gt, frame_wh, tuple(crop_xywh), (w, h), where).astype(np.float64)
     valid = np.isfinite(g) & (g > 0)
@@ -56,8 +57,10 @@ def score_stack(pred_m: np.ndarray, gt: np.ndarray, mask: np.ndarray | None, fra
     p = np.asarray(conv.to_unit(np.asarray(pred_m, np.float64)), np.float64)
     if conv.clip is not None:
         p, g = np.clip(p, *conv.clip), np.clip(g, *conv.clip)
-    valid &= np.isfinite(p)
+    n_gt = int(valid.sum())
+    valid &= np.isfinite(p)  # a method may leave pixels unknown (NaN): scored where it answers, coverage reported
     row = depth_metrics(p, np.where(valid, g, 0.0), mask=valid)
+    row["coverage"] = float(valid.sum() / n_gt) if n_gt else 0.0
     return row, p, np.where(valid, g, np.nan)
 
 
@@ -163,6 +166,10 @@ def markdown(result: dict) -> str:
     for label, m in result["overall"].items():
         out.append(f"| {label} | {m.get('n_images', 0)} | " + " | ".join(report._fmt(m.get(k), k) for k, _ in cols)
                    + " |")
+    cov = [r["coverage"] for r in result["per_capture"] if r.get("status") == "ok" and "coverage" in r]
+    if cov and min(cov) < 1:
+        out += ["", f"Predictions left some pixels unknown (NaN): scored where they answer; coverage of the valid "
+                f"ground truth per stack {min(cov):.3f} .. {max(cov):.3f} (metrics.json has each)."]
     scored = [r for r in result["per_capture"] if r.get("status") == "ok"]
     if scored:
         out += ["", "## Per stack", "", "| stack | model | pixels | " + " | ".join(n for _, n in cols) + " |",

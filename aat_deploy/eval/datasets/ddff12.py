@@ -28,8 +28,9 @@ SPLITS = ("train", "val", "test")
 
 
 def to_disparity(depth_m: np.ndarray) -> np.ndarray:
+    """BF / depth; unknown (NaN, not positive) stays unknown (NaN)."""
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(depth_m > 0, BF / depth_m, 0.0)
+        return np.where(np.isfinite(depth_m) & (depth_m > 0), BF / depth_m, np.nan)
 
 
 CONVENTIONS = Conventions(

@@ -126,6 +126,10 @@ def test_scoring_conventions_against_hand_computed_cases():
     assert row["n_valid"] == 23 and row["mse"] == pytest.approx(0.0, abs=1e-12)
     row, _, _ = score_stack(2 * depth, gt_disp, None, (6, 4), crop, ds, "gt")
     assert row["abs_rel"] == pytest.approx(0.5) and row["delta1"] == 0.0 and row["mae"] == pytest.approx(0.05)
+    half = depth.copy()
+    half[:2] = np.nan  # a method's unknown pixels: scored where it answers, the share reported
+    row, _, _ = score_stack(half, gt_disp, None, (6, 4), crop, ds, "gt")
+    assert row["n_valid"] == 12 and row["coverage"] == pytest.approx(12 / 23) and row["mse"] == pytest.approx(0.0)
     fod = fod500.FoD500.__new__(fod500.FoD500)
     gt = np.full((4, 6), 1.0, np.float32)
     row, _, _ = score_stack(np.full((4, 6), 5.0, np.float32), gt, None, (6, 4), crop, fod, "gt")
