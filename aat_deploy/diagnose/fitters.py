@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from aat_deploy.diagnose import focusfit as ff
+from aat_deploy.diagnose import focusrobust
 from aat_deploy.diagnose.compare import focus_curves, image_distances, region_brightness, region_index, region_shifts
 from aat_deploy.diagnose.optimise import grid_then_golden
 from aat_deploy.normalise import normalise_stack
@@ -92,18 +93,21 @@ def focus_sweep(state: FitState, step_d: float = SWEEP_STEP_D) -> ff.SweepData:
     grid = np.arange(lo, hi + 1e-9, step_d)
     key = (tuple(tb.spec(e) for e in chain), float(grid[0]), len(grid))
     if key not in state.sweep_cache:
-        twin_curves = []
+        twin_curves, twin_lum = [], []
         for i, (c, a) in enumerate(zip(state.caps_b, state.aifs_b)):
-            lin = tb.linear(c, a, chain, state.seed + i, focus_true_m=1.0 / grid)
-            twin_curves.append(focus_curves(normalise_stack(np.clip(lin, 0, None)), ff.FIT_GRID).mean(-1))
-        state.sweep_cache[key] = np.stack(twin_curves)  # (n, R, K)
-    twin = state.sweep_cache[key]
+            stack = normalise_stack(np.clip(tb.linear(c, a, chain, state.seed + i, focus_true_m=1.0 / grid), 0, None))
+            twin_curves.append(focus_curves(stack, ff.FIT_GRID).mean(-1))
+            twin_lum.append(region_brightness(stack, ff.FIT_GRID).mean(-1))
+        state.sweep_cache[key] = (np.stack(twin_curves), np.stack(twin_lum))  # (n, R, K), (n, R)
+    twin, twin_lum = state.sweep_cache[key]
     s_max = max(len(r) for r in rep)
     cap = np.full((len(rep), twin.shape[1], s_max), np.nan)
+    cap_lum = np.full_like(cap, np.nan)
     rep_d, base_d = np.zeros((len(rep), s_max)), np.zeros((len(rep), s_max))
     for i, stack in enumerate(state.real_b):
         s = len(rep[i])
         cap[i, :, :s] = focus_curves(stack, ff.FIT_GRID).mean(-1)
+        cap_lum[i, :, :s] = region_brightness(stack, ff.FIT_GRID)
         rep_d[i] = np.concatenate([rep[i], np.full(s_max - s, rep[i][-1])])
         base_d[i] = np.concatenate([base[i], np.full(s_max - s, base[i][-1])])
     weight = (twin.max(2) - twin.min(2) > MIN_TEXTURE_LOG).astype(np.float64)
@@ -112,7 +116,7 @@ def focus_sweep(state: FitState, step_d: float = SWEEP_STEP_D) -> ff.SweepData:
     rows, cols = ff.FIT_GRID
     r, q = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")
     xy = np.stack([2 * (q.ravel() + 0.5) / cols - 1, 1 - 2 * (r.ravel() + 0.5) / rows], 1)
-    return ff.SweepData(grid, twin, cap, rep_d, base_d, xy, weight)
+    return ff.SweepData(grid, twin, cap, rep_d, base_d, xy, weight, cap_lum, twin_lum)
 
 
 def fit_curves(stack: np.ndarray, factor: int) -> np.ndarray:
@@ -145,11 +149,12 @@ def shifted_focus_d(table, focus_d: np.ndarray, dz_mm: np.ndarray) -> np.ndarray
 
 
 def fit_focus_metadata(state: FitState) -> Fitted:
-    """The focus-metadata error family the images support (`focusfit.fit_metadata`) and the corrected focus
-    distances of every capture (metres, with intervals)."""
-    data = focus_sweep(state)
+    """The focus-metadata error family the images support (`focusfit.fit_metadata`, on the sweep made robust to
+    the frames' exposure, the capture's noise floor and poorly matched regions: `focusrobust.prepare`) and the
+    corrected focus distances of every capture (metres, with intervals)."""
+    data, robust = focusrobust.prepare(focus_sweep(state))
     fit = ff.fit_metadata(data, n_boot=state.n_boot, seed=state.seed)
-    rep = {"focus_fit": fit.summary(), "corrected_focus": []}
+    rep = {"focus_fit": {**fit.summary(), "robust": robust}, "corrected_focus": []}
     for i, c in enumerate(state.caps):
         s = len(c.focus_m)
         rep["corrected_focus"].append({

@@ -51,7 +51,9 @@ class SweepData:
     measures (channel mean); reported_d, base_d (n, S) the reported focus and the one the current twin assumes
     (its effects' `twin_focus`), diopters; field_xy (R, 2) normalised field (x right, y up) of region centres.
     weight (n, R): 0 for regions without texture (their focus measure does not change with focus). Captures
-    with fewer frames are padded: NaN in `capture` (and any reported value) counts nothing."""
+    with fewer frames are padded: NaN in `capture` (and any reported value) counts nothing. capture_lum (n, R, S)
+    and twin_lum (n, R): log region-mean luminance of the capture frames and of the twin (mean over the sweep),
+    for the frames' exposure (`focusrobust`); None = not measured."""
 
     grid_d: np.ndarray
     twin: np.ndarray
@@ -60,6 +62,8 @@ class SweepData:
     base_d: np.ndarray
     field_xy: np.ndarray
     weight: np.ndarray | None = None
+    capture_lum: np.ndarray | None = None
+    twin_lum: np.ndarray | None = None
 
     def __post_init__(self):
         n, r, _ = self.capture.shape
@@ -197,6 +201,27 @@ def _coordinate(data: SweepData, weight: np.ndarray, d: np.ndarray, masks: list[
     return d
 
 
+def value_masks(data: SweepData, frames: np.ndarray | None = None) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The distinct reported values (diopters, ascending) of the real frames and, per value, its frames (n, S)."""
+    fr = data.frames if frames is None else frames
+    rep = np.asarray(data.reported_d, np.float64)
+    values = np.unique(np.round(rep[fr > 0], 9))
+    return values, [np.isclose(rep, v, atol=1e-9) for v in values]
+
+
+def frame_focus(data: SweepData, weight: np.ndarray | None = None, start: np.ndarray | None = None,
+                frames: np.ndarray | None = None) -> np.ndarray:
+    """(n, S) every frame's effective focus (diopters): each distinct reported value its own focus within
+    +-MAX_ERROR_D of it, by coordinate search from `start` (default: the reported focus), made non-decreasing in
+    the reported value (the `per_frame` family)."""
+    w = data.weight if weight is None else weight
+    rep = np.asarray(data.reported_d, np.float64)
+    values, masks = value_masks(data, frames)
+    d = _coordinate(data, w, rep if start is None else np.asarray(start, np.float64), masks,
+                    [(v - MAX_ERROR_D, v + MAX_ERROR_D) for v in values])
+    return curve(rep, values, isotonic(np.array([d[m][0] for m in masks])))
+
+
 def fit_families(data: SweepData, weight: np.ndarray | None = None, frames: np.ndarray | None = None
                  ) -> dict[str, FamilyFit]:
     """Every applicable family fitted on the sweep (weights: regions (n, R); frames (n, S) counts them for BIC)."""
@@ -216,8 +241,7 @@ def fit_families(data: SweepData, weight: np.ndarray | None = None, frames: np.n
                 math.log(1 / 0.6), 0.01, 0.001)
     s = math.exp(u)
     fits["scale"] = FamilyFit("scale", 1, {"bias_d": 0.0, "scale": s}, rep * s, ss(rep * s))
-    values = np.unique(np.round(rep[fr > 0], 9))
-    masks = [np.isclose(rep, v, atol=1e-9) for v in values]
+    values, masks = value_masks(data, fr)
     if len(values) >= 3:
         # a smooth monotone curve: the parabola through 3 knots (its true values at the lowest, middle and highest
         # reported focus), linear in the knots' values: d = basis . y; coordinate search from the offset fit
@@ -246,9 +270,8 @@ def fit_families(data: SweepData, weight: np.ndarray | None = None, frames: np.n
         d = curve(rep, values, tv)
         fits["quantisation"] = FamilyFit("quantisation", len(values), {"bias_d": 0.0, "map_d": _knots(values, tv)},
                                          d, ss(d), detail={"quantiser": q[0], "step_d": q[1]})
-    d = _coordinate(data, w, start, masks, [(v - MAX_ERROR_D, v + MAX_ERROR_D) for v in values])
-    tv = isotonic(np.array([d[m][0] for m in masks]))
-    d = curve(rep, values, tv)
+    d = frame_focus(data, w, start, fr)
+    tv = np.array([d[m][0] for m in masks])
     fits["per_frame"] = FamilyFit("per_frame", len(values), {"bias_d": 0.0, "map_d": _knots(values, tv)}, d, ss(d))
     for f in fits.values():
         f.bic = n_f * math.log(max(f.ss, 1e-300) / n_f) + f.k * math.log(n_f)
@@ -274,11 +297,13 @@ class MetadataFit:
     true_d_ci: np.ndarray
     params_ci: dict
     support: dict
+    on_bound: np.ndarray | None = None  # (n, S) the per-frame estimate sits on its +-MAX_ERROR_D search bound
 
     def summary(self) -> dict:
         b = self.best
         return {"family": b.name, "params": b.params, "params_ci": self.params_ci, "support": self.support,
                 "frame_focus_d": self.fits["per_frame"].true_d.tolist(),
+                "frames_on_bound": [] if self.on_bound is None else self.on_bound.tolist(),
                 "families": [{"family": f.name, "k": f.k, "ss": f.ss, "bic": f.bic, **f.detail}
                              for f in self.fits.values()], **b.detail}
 
@@ -320,7 +345,8 @@ def fit_metadata(data: SweepData, n_boot: int = 50, seed: int = 0, level: float 
     ci = np.stack([np.quantile(tr, a, 0), np.quantile(tr, 1 - a, 0)], -1)
     pci = {k: [float(np.quantile(v, a)), float(np.quantile(v, 1 - a))] for k, v in par_reps.items() if v}
     total = max(sum(wins.values()), 1)
-    return MetadataFit(best, fits, ci, pci, {k: v / total for k, v in wins.items()})
+    bound = (np.abs(np.abs(fits["per_frame"].true_d - data.reported_d) - MAX_ERROR_D) < 2e-3) & (data.frames > 0)
+    return MetadataFit(best, fits, ci, pci, {k: v / total for k, v in wins.items()}, bound)
 
 
 # --- field-dependent focus (sensor tilt, lens tolerances) ---------------------------------------------------
