@@ -81,7 +81,8 @@ def run_case(kind: str, path: str) -> dict:
         try:
             return run_folder_case(p)
         except Exception as e:  # noqa: BLE001 (the command itself raised: a bug)
-            return {"outcome": "other", "detail": f"{type(e).__name__}: {str(e).splitlines()[0][:100] if str(e) else ''}"}
+            why = str(e).splitlines()[0][:100] if str(e) else ""
+            return {"outcome": "other", "detail": f"{type(e).__name__}: {why}"}
     try:
         if kind in ("frame", "makernote"):
             from aat_deploy.capture.exif import read_metadata

@@ -128,7 +128,8 @@ def _bigtiff_size(buf: bytes) -> tuple[int, int] | None:
             break
         tag, typ, count = struct.unpack(e + "HHQ", buf[at:at + 12])
         if tag in (256, 257) and count == 1 and typ in (3, 4, 16):
-            dims[tag] = struct.unpack(e + {3: "H", 4: "I", 16: "Q"}[typ], buf[at + 12:at + 12 + {3: 2, 4: 4, 16: 8}[typ]])[0]
+            code = {3: "H", 4: "I", 16: "Q"}[typ]
+            dims[tag] = struct.unpack(e + code, buf[at + 12:at + 12 + struct.calcsize(code)])[0]
     return (dims[256], dims[257]) if len(dims) == 2 else None
 
 

@@ -28,7 +28,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def _main(argv: list[str] | None) -> int:
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-    from ..errors import CaptureError, one_line, safe_output_streams  # the heavy modules load inside the interrupt guard
+    from ..errors import CaptureError, one_line, safe_output_streams  # heavy modules load inside the guard
     from ..eval.report import MD_COLUMNS
     from ..eval.run import EvalOptions, evaluate
     from ..eval.datasets import NAMES as DATASETS

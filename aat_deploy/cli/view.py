@@ -60,7 +60,8 @@ def _check_rrd(path: Path) -> str | None:
             for _ in reader.stream():
                 pass
     except Exception as e:  # noqa: BLE001 (rerun's reader raises RuntimeError/ValueError from Rust)
-        return f"{path}: not a readable rerun recording ({str(e).splitlines()[0][:160] if str(e) else type(e).__name__})"
+        why = str(e).splitlines()[0][:160] if str(e) else type(e).__name__
+        return f"{path}: not a readable rerun recording ({why})"
     return None
 
 

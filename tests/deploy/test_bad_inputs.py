@@ -423,7 +423,7 @@ def test_links_out_of_the_capture_are_not_followed(link, model_path, good, tmp_p
     assert tree_hash(bad, outside, cap, earlier) == before
 
 
-# -- issue 31, 6: the same frame twice; a cut JPEG with an end marker appended ------------------------------------------
+# -- issue 31, 6: the same frame twice; a JPEG cut short with an end marker appended -----------------------------------
 @pytest.mark.parametrize("how", ["hardlink", "symlink"])
 def test_the_same_frame_listed_twice_through_a_link_is_refused(how, model_path, good, tmp_path, capsys):
     cap, earlier = good
@@ -808,6 +808,27 @@ def test_ctrl_c_during_start_up_is_one_line_and_exit_130(model_path, good, tmp_p
                              "SIGINT")
         assert rc == 130 and err == ["aat-infer: interrupted (SIGINT)"], err
         (tmp_path / "reached").unlink()
+
+
+# -- issue 31, 8: aat-gt check as strict as aat-eval ----------------------------------------------------------------
+def test_gt_check_refuses_another_aspect_ratio_and_takes_shipped_model_names(good, tmp_path, capsys):
+    """Before: aat-gt check accepted 1920 x 320 ground truth for 960 x 640 frames (aat-eval refuses it), and
+    `--model rf50_dfvnet_aat_field` was "no such model file" while listed as usable."""
+    from aat_deploy.cli import gt as gt_cli
+
+    cap, earlier = good
+    wide = tmp_path / "wide"
+    shutil.copytree(cap, wide)
+    (wide / "gt_depth_mm.png").unlink()
+    np.save(wide / "gt_depth_m.npy", np.full((16, 96), 2.0, np.float32))  # 6:1 for 64 x 48 (4:3) frames
+    before = tree_hash(wide, cap)
+    assert gt_cli.main(["check", str(wide), str(cap), "--model", "rf50_dfvnet_aat_field"]) == 1
+    out = capsys.readouterr()
+    errs = [ln for ln in out.err.splitlines() if ln.startswith("aat-gt: error")]
+    assert len(errs) == 1 and (f"{wide / 'gt_depth_m.npy'}: ground truth is 96x16 px, the frames are 64x48 px: a "
+                               "different aspect ratio") in errs[0], out.err
+    assert "no such model file" not in out.err and "frames 64x48 px" in out.out  # the good capture was checked
+    assert tree_hash(wide, cap) == before
 
 
 # -- issue 31, 4: --threads bounded to the machine --------------------------------------------------------------------

@@ -51,7 +51,8 @@ def test_outputs_and_summary(model, dng_capture, tmp_path):
     out = tmp_path / "out"
     s = run_capture(dng_capture, model, out, Options(quiet=True))
     assert sorted(p.name for p in out.iterdir()) == sorted(
-        [MARKER, "aif.png", "depth_m.npy", "depth_m.tif", "depth_mm.png", "depth_color.png", "recording.rrd", "std_m.npy",
+        [MARKER, "aif.png",
+         "depth_m.npy", "depth_m.tif", "depth_mm.png", "depth_color.png", "recording.rrd", "std_m.npy",
          "std_mm.png", "std_color.png", "points.ply", "camera.json", "summary.json"])
     depth = np.load(out / "depth_m.npy")
     assert depth.dtype == np.float32 and depth.shape == (48, 64)
