@@ -164,7 +164,7 @@ def mutate(buf: bytes, rng: np.random.Generator) -> bytes:
     elif op == 1:
         for _ in range(rng.integers(1, 9)):
             b[rng.integers(min(512, len(b)))] = rng.integers(256)
-    elif op == 2:
+    elif op == 2 and len(b) >= 4:  # (a shorter buffer has no 32-bit word)
         for _ in range(rng.integers(1, 5)):
             at = int(rng.integers(max(1, min(1024, len(b)) - 4)))
             struct.pack_into("<I" if rng.integers(2) else ">I", b, at, int(rng.choice(EXTREMES)))

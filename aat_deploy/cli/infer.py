@@ -163,7 +163,7 @@ def _main(argv: list[str] | None) -> int:
             continue
         except MemoryError:
             failed += 1
-            hint = "--max-side N or --max-megapixels" if args.method == "focus" else "--tile 256"
+            hint = "--max-side 2048" if args.method == "focus" else "--tile 256"
             print(one_line(f"aat-infer: FAILED {c}: out of memory (try {hint})"), file=sys.stderr, flush=True)
             continue
         except Exception as e:  # noqa: BLE001 (one capture's surprise must not stop the batch)
