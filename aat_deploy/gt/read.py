@@ -80,7 +80,7 @@ def find_gt(folder: str | Path, allow_outside_links: bool = False) -> GTSource |
     """The capture folder's ground-truth files (see the module doc), or None. GTError for a bad gt.json, or for a
     ground-truth file that is a link leading out of the folder (unless allow_outside_links)."""
     folder = Path(folder)
-    src = _find_gt(folder)
+    src = _find_gt(folder, allow_outside_links)
     if src is not None:
         for p in (src.depth, src.mask, src.aif):
             if p is not None:
@@ -88,13 +88,13 @@ def find_gt(folder: str | Path, allow_outside_links: bool = False) -> GTSource |
     return src
 
 
-def _find_gt(folder: Path) -> GTSource | None:
+def _find_gt(folder: Path, allow_outside_links: bool) -> GTSource | None:
     aif = folder / "gt_aif.png"
     aif = aif if aif.is_file() else None
     spec: dict = {}
     jpath = folder / GT_JSON
     if jpath.is_file():
-        check_inside(folder, jpath, False, GTError)
+        check_inside(folder, jpath, allow_outside_links, GTError)
         spec = load_json(jpath, GTError)
         if not isinstance(spec, dict) or set(spec) - {"depth", "scale_to_m", "mask", "note"}:
             raise GTError(f'{jpath}: expected {{"depth": FILE, "scale_to_m": S, "mask": FILE}} (all optional), '
