@@ -40,16 +40,18 @@ EXTREMES = [0, 1, 0xFFFF, 0x7FFFFFFF, 0xFFFFFFFF, 0x80000000]
 def run_folder_case(case: Path) -> dict:
     """A random capture folder (case/cap, with case/outside beside it) through aat-infer --method focus, and the
     promises checked: exit status 0 or 1, a failure is one line naming the folder or a file in it, inputs
-    byte-identical, no temporary left."""
+    byte-identical, no temporary left; a folder with a bad entry (cut, bomb, garbage, NaN, a link out of it or to
+    another frame ...) is refused, one of good frames of any format and name, listed in capture.json, runs."""
     import contextlib
     import io
 
     sys.path.insert(0, str(ROOT / "tests"))
-    from deploy_fixtures import tree_hash
+    from deploy_fixtures import GOOD_KINDS, SKIPPED_UNLISTED, tree_hash
 
     from aat_deploy.cli import infer
 
     cap, out = case / "cap", case / "o"
+    spec = json.loads((case / "spec.json").read_text())  # the entry kinds and sidecar it was made of
     before = tree_hash(cap, case / "outside")
     err, std = io.StringIO(), io.StringIO()
     with contextlib.redirect_stderr(err), contextlib.redirect_stdout(std):
@@ -68,6 +70,11 @@ def run_folder_case(case: Path) -> dict:
             broken.append(f"names no file: {why[:80]}")
     elif rc != 0:
         broken.append(f"exit status {rc}")
+    kinds, sidecar = set(spec["kinds"]), spec["sidecar"]
+    if rc == 0 and not kinds <= GOOD_KINDS | (SKIPPED_UNLISTED if sidecar == "none" else set()):
+        broken.append("accepted bad input: " + ", ".join(sorted(kinds - GOOD_KINDS)))
+    if rc == 1 and kinds <= GOOD_KINDS and sidecar in ("list", "list_bom") and len(spec["kinds"]) >= 3:
+        broken.append("refused a good capture")
     if broken:
         return {"outcome": "other", "detail": "; ".join(broken)}
     return {"outcome": "ok"} if rc == 0 else {"outcome": "clean", "one_line": len(lines) == 2}
@@ -268,6 +275,7 @@ def make_case(kind: str, i: int, rng: np.random.Generator, base: dict[str, bytes
         sidecar = str(rng.choice(SIDECAR_KINDS)) if rng.random() < 0.3 else "list"
         junk = rng.integers(0, 256, rng.integers(1, 64), dtype=np.uint8).tobytes()
         random_capture(d / "cap", kinds, sidecar, FOLDER_SEEDS, d / "outside", junk)
+        (d / "spec.json").write_text(json.dumps({"kinds": kinds, "sidecar": sidecar}))
         return d
     d.mkdir()
     if kind == "frame":

@@ -220,6 +220,8 @@ def tree_hash(*roots: Path) -> dict[str, str]:
 ENTRY_KINDS = ("jpeg", "png", "dng", "jpeg_named_png", "png_small", "cut_jpeg", "bomb", "garbage", "empty",
                "html", "nan_tiff", "link_out", "link_dup", "hardlink_dup", "dangling", "folder")
 SIDECAR_KINDS = ("none", "list", "list_bom", "broken_json", "lists_missing")
+GOOD_KINDS = {"jpeg", "png", "dng", "jpeg_named_png"}  # good frames, whatever their name
+SKIPPED_UNLISTED = {"dangling", "folder"}  # not regular files: skipped with a warning unless capture.json lists them
 FUZZ_FOCUS_M = (0.6, 0.9, 1.4, 2.2, 3.5, 5.0)
 
 

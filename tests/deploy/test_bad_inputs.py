@@ -24,6 +24,8 @@ import pytest
 from conftest import LENSES, SHARED
 from deploy_fixtures import (
     ENTRY_KINDS,
+    GOOD_KINDS,
+    SKIPPED_UNLISTED,
     SIDECAR_KINDS,
     canon_jpeg,
     claim_size,
@@ -1188,8 +1190,6 @@ def test_model_metadata_fuzz(model_path, tmp_path):
 
 
 # -- issue 31: random capture folders against the promises -----------------------------------------------------------
-GOOD_KINDS = {"jpeg", "png", "dng", "jpeg_named_png"}
-SKIPPED_UNLISTED = {"dangling", "folder"}  # not regular files: skipped with a warning unless capture.json lists them
 
 
 @pytest.fixture(scope="module")
