@@ -274,7 +274,7 @@ def make_case(kind: str, i: int, rng: np.random.Generator, base: dict[str, bytes
                 kinds[at] = str(rng.choice(ENTRY_KINDS))
         sidecar = str(rng.choice(SIDECAR_KINDS)) if rng.random() < 0.3 else "list"
         junk = rng.integers(0, 256, rng.integers(1, 64), dtype=np.uint8).tobytes()
-        random_capture(d / "cap", kinds, sidecar, FOLDER_SEEDS, d / "outside", junk)
+        kinds = random_capture(d / "cap", kinds, sidecar, FOLDER_SEEDS, d / "outside", junk)
         (d / "spec.json").write_text(json.dumps({"kinds": kinds, "sidecar": sidecar}))
         return d
     d.mkdir()

@@ -238,17 +238,18 @@ def fuzz_seeds(folder: Path) -> dict[str, list[bytes]]:
 
 
 def random_capture(folder: Path, kinds: list[str], sidecar: str, seeds: dict[str, list[bytes]], outside: Path,
-                   junk: bytes = b"\x00\x01junk") -> Path:
+                   junk: bytes = b"\x00\x01junk") -> list[str]:
     """A capture folder with one entry per kind (ENTRY_KINDS: good frames of three formats, misnamed, cut, bombs,
     garbage, NaN, links out of the folder or to another frame, dangling links, folders named like frames) and a
     capture.json of the given kind (SIDECAR_KINDS). Entry i has the focus distance FUZZ_FOCUS_M[i]. `outside` is a
-    folder beside it holding a good frame the links may point to (it must never be read)."""
+    folder beside it holding a good frame the links may point to (it must never be read). Returns the kinds as
+    made (a link to another frame with no regular first frame to point at is made a good PNG)."""
     folder, outside = Path(folder), Path(outside)
     folder.mkdir(parents=True)
     outside.mkdir(parents=True, exist_ok=True)
     if not (outside / "secret.png").exists():
         (outside / "secret.png").write_bytes(seeds["png"][0])
-    names = []
+    names, made = [], []
     for i, kind in enumerate(kinds):
         k = i % len(FUZZ_FOCUS_M)
         name = {"jpeg": f"f{i}.jpg", "dng": f"f{i}.dng", "nan_tiff": f"f{i}.tif"}.get(kind, f"f{i}.png")
@@ -279,8 +280,9 @@ def random_capture(folder: Path, kinds: list[str], sidecar: str, seeds: dict[str
             path.symlink_to(outside / "secret.png")
         elif kind in ("link_dup", "hardlink_dup"):
             first = names[0] if names else None
-            if first is None or not (folder / first).is_file():
+            if first is None or not (folder / first).is_file() or (folder / first).is_symlink():
                 path.write_bytes(seeds["png"][k])
+                kind = "png"
             elif kind == "link_dup":
                 path.symlink_to(first)
             else:
@@ -292,6 +294,7 @@ def random_capture(folder: Path, kinds: list[str], sidecar: str, seeds: dict[str
         else:
             raise ValueError(kind)
         names.append(name)
+        made.append(kind)
     frames = [{"file": n, "focus_m": FUZZ_FOCUS_M[i % len(FUZZ_FOCUS_M)]} for i, n in enumerate(names)]
     if sidecar == "lists_missing":
         frames.append({"file": "not_here.png", "focus_m": 9.0})
@@ -302,7 +305,7 @@ def random_capture(folder: Path, kinds: list[str], sidecar: str, seeds: dict[str
         (folder / "capture.json").write_bytes(b"\xef\xbb\xbf" + text)
     elif sidecar == "broken_json":
         (folder / "capture.json").write_bytes(text[: len(text) // 2])
-    return folder
+    return made
 
 
 def tiny_model_path(tmp_path_factory, name: str = "tiny_dff.onnx", **meta_over) -> Path:

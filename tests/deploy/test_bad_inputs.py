@@ -1209,7 +1209,8 @@ def test_fuzz_capture_folders_keep_the_promises(fuzz_env, model_path, tmp_path_f
     the capture), the batch goes on, the inputs are byte-identical afterwards, and no temporary is left."""
     seeds, good = fuzz_env
     tmp = tmp_path_factory.mktemp("case")
-    cap = random_capture(tmp / "cap", kinds, sidecar, seeds, tmp / "outside", junk)
+    cap = tmp / "cap"
+    kinds = random_capture(cap, kinds, sidecar, seeds, tmp / "outside", junk)
     before = tree_hash(cap, tmp / "outside", good)
     out = tmp / "o"
     rc, lines, stdout = infer([cap, good, "--model", model_path, "--out", out], capsys)
