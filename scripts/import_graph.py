@@ -11,6 +11,12 @@ submodule `pkg.name` when that is a module of the project, else of `pkg`. The ru
 - **ground floor**: `aat_deploy` (the torch-free runtime) never imports `training` (the torch side);
 - **no cycles**: no strongly connected set of modules (Tarjan), counting lazy imports;
 - **CLI at the top**: no module outside a `cli` package imports one inside it.
+
+It also lists **folders that import each other** (a folder is a package directory; modules directly in it belong to
+it, a subfolder is its own folder): `aat_deploy/lens` -> `aat_deploy/optics` -> `aat_deploy/lens` is a cycle of
+rooms even when no module cycle exists. Each pair is shown with the imports of its lighter direction (the ones to
+move). These are reported, not checked (`--check` ignores them: the tree still has some, issue 36);
+tests/deploy/test_ground_floor.py keeps their list from growing.
 """
 
 from __future__ import annotations
@@ -146,6 +152,22 @@ def cycles(mods: dict[str, Path], edges: list[Edge]) -> list[list[str]]:
     return sorted(sccs)
 
 
+def folder_of(module: str, mods: dict[str, Path]) -> str:
+    """The package directory a module lives in, as a dotted name (a package's `__init__` is in its own folder)."""
+    p = mods[module]
+    return module if p.name == "__init__.py" else module.rpartition(".")[0]
+
+
+def folder_pairs(mods: dict[str, Path], edges: list[Edge]) -> list[tuple[str, str, list[Edge], list[Edge]]]:
+    """Folders that import each other: (a, b, imports a -> b, imports b -> a), a < b, sorted."""
+    between: dict[tuple[str, str], list[Edge]] = defaultdict(list)
+    for e in edges:
+        a, b = folder_of(e.src, mods), folder_of(e.dst, mods)
+        if a != b:
+            between[(a, b)].append(e)
+    return [(a, b, es, between[(b, a)]) for (a, b), es in sorted(between.items()) if a < b and (b, a) in between]
+
+
 def is_cli(module: str) -> bool:
     return ".cli." in f".{module}." and not module.endswith(".cli")
 
@@ -159,6 +181,7 @@ def report(root: Path = ROOT) -> dict:
         "deploy_to_training": [e for e in edges if e.src.startswith("aat_deploy") and e.dst.startswith("training")],
         "training_to_deploy": [e for e in edges if e.src.startswith("training") and e.dst.startswith("aat_deploy")],
         "cycles": cycles(mods, edges),
+        "folder_pairs": folder_pairs(mods, edges),
         "library_to_cli": [e for e in edges if is_cli(e.dst) and not is_cli(e.src)],
     }
 
@@ -185,6 +208,12 @@ def main(argv: list[str] | None = None) -> int:
     print(f"cycles: {len(r['cycles'])}")
     for c in r["cycles"]:
         print("  " + " <-> ".join(c))
+    print(f"folders that import each other: {len(r['folder_pairs'])}")
+    for a, b, ab, ba in r["folder_pairs"]:
+        (x, y, few) = (a, b, ab) if len(ab) <= len(ba) else (b, a, ba)
+        print(f"  {a} <-> {b}  ({len(ab)} imports one way, {len(ba)} the other; the {len(few)} {x} -> {y}:)")
+        for e in sorted(few, key=lambda e: (e.src, e.line)):
+            print(f"    {_rel(e.src, mods)}:{e.line} -> {e.dst}{'  (lazy)' if e.lazy else ''}")
     print(f"library -> CLI imports: {len(r['library_to_cli'])}")
     for e in r["library_to_cli"]:
         print(f"  {_rel(e.src, mods)}:{e.line} -> {e.dst}{'  (lazy)' if e.lazy else ''}")
