@@ -9,7 +9,14 @@ import sys
 from pathlib import Path, PurePosixPath, PureWindowsPath
 
 
-class CaptureError(ValueError):
+class AatError(ValueError):
+    """The root of every error aat raises on purpose (bad input, a setting that cannot work, a missing extra): the
+    message is one line naming the file or the setting and the problem. A ValueError, so callers that catch
+    ValueError keep working; `except AatError` catches exactly aat's own. Some also derive from the built-in their
+    callers catch (RuntimeError, ImportError). Not an error: `cli.common.Interrupted` (a KeyboardInterrupt)."""
+
+
+class CaptureError(AatError):
     """Bad input: an unreadable file, an inconsistent capture folder, a model that does not fit."""
 
 

@@ -22,6 +22,7 @@ import importlib.metadata
 import importlib.util
 import tomllib
 
+from .errors import AatError
 from .shipped import _checkout
 
 GROUP = "aat_deploy.extensions"
@@ -37,7 +38,7 @@ def declared() -> dict[str, str]:
     return {ep.name: ep.value for ep in importlib.metadata.entry_points(group=GROUP)}
 
 
-class ExtensionUnavailable(ImportError):
+class ExtensionUnavailable(AatError, ImportError):
     """A capability of the training side that this install cannot provide; the message is one line."""
 
 

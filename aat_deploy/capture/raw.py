@@ -25,7 +25,7 @@ import numpy as np
 import rawpy
 import simplejpeg
 
-from ..errors import CaptureError, read_input_bytes
+from ..errors import AatError, CaptureError, read_input_bytes
 from .containers import container_of, find_blocks
 from .imagefile import FRAME_EXTENSIONS, IMAGE_EXTENSIONS, RAW_EXTENSIONS, check_pixels, claimed_size, frame_header
 
@@ -88,7 +88,7 @@ def _load_raw(path: Path, buf: bytes, limit: float | None) -> tuple[np.ndarray, 
     return rgb.astype(np.float32) / 65535.0, info
 
 
-class _Unsupported(Exception):
+class _Unsupported(AatError):
     """LibRaw does not know the file."""
 
 

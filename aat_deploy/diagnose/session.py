@@ -20,7 +20,7 @@ from aat_deploy import extensions
 from aat_deploy.diagnose import report
 from aat_deploy.diagnose.inputs import find_captures, load_capture_data
 from aat_deploy.diagnose.search import Diagnosis, DiagnoseConfig, diagnose
-from aat_deploy.errors import CaptureError, ModelError
+from aat_deploy.errors import AatError, CaptureError, ModelError
 from aat_deploy.io.atomic import atomic_folder
 from aat_deploy.io.guard import check_no_overlap
 from aat_deploy.model import DfFModel
@@ -31,7 +31,7 @@ from aat_deploy.lens.schema import Lens
 from aat_deploy.render import effects as fx
 
 
-class DiagnoseError(RuntimeError):
+class DiagnoseError(AatError, RuntimeError):
     pass
 
 

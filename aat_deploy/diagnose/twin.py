@@ -25,13 +25,14 @@ from aat_deploy.normalise import normalise_stack
 from aat_deploy.render.layered import LayeredConfig
 from aat_deploy.render.optical import optical_stack
 from aat_deploy.render.sources import GaussianSource, OnnxSource
+from aat_deploy.errors import AatError
 from aat_deploy.gt.holes import fill_holes
 from aat_deploy.lens.schema import Lens
 from aat_deploy.optics.focus_table import FocusTable, paraxial_focus_table
 from aat_deploy.render import effects as fx
 
 
-class TwinError(ValueError):
+class TwinError(AatError):
     pass
 
 

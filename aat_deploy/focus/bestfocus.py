@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import AatError
 from ..extensions import ExtensionUnavailable
 from ..extensions import load as load_extension
 from ..io.atomic import write_text_atomic
@@ -35,7 +36,7 @@ METADATA_KEY = "aat.best_focus_map"
 SUBFOLDER = "best_focus"
 
 
-class BestFocusError(ValueError):
+class BestFocusError(AatError):
     """A best-focus map is missing or malformed (message: one line naming the file)."""
 
 

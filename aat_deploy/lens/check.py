@@ -8,11 +8,12 @@ from __future__ import annotations
 
 import math
 
+from ..errors import AatError
 from .materials import UnknownMaterialError, parse_material
 from .schema import Lens
 
 
-class LensFileError(ValueError):
+class LensFileError(AatError):
     """A lens file that cannot be read; the message names the file and the problem."""
 
 

@@ -18,6 +18,8 @@ from importlib import resources
 
 import numpy as np
 
+from ..errors import AatError
+
 # Spectral lines (nm) used by the paper's "nd/Vd" Cauchy convention.
 CAUCHY_ANCHOR_NM = 589.3
 LINE_F_NM = 486.1
@@ -31,7 +33,7 @@ _ND_VD = re.compile(r"^\s*([0-9]*\.?[0-9]+)\s*/\s*([0-9]*\.?[0-9]+)\s*$")
 _AIR_NAMES = {"air", "vacuum", "occluder", ""}
 
 
-class UnknownMaterialError(ValueError):
+class UnknownMaterialError(AatError):
     """A material name that is neither air, an "nd/Vd" pair nor a glass in the shipped catalogue."""
 
 

@@ -15,6 +15,7 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from aat_deploy.errors import AatError
 from training.chain.hashing import file_sha256
 
 FORMAT = "aat-train-chain-v1"
@@ -51,7 +52,7 @@ FINE_TUNE_LR_FACTOR = 0.1  # with --init the preset's learning rate is scaled by
 PSF_NEAR_FACTOR, PSF_FAR_FACTOR = 0.8, 2.0  # surrogate range = focus range widened by these (depth margin)
 
 
-class ChainConfigError(ValueError):
+class ChainConfigError(AatError):
     """A command line that cannot be resolved (one line, names the option)."""
 
 

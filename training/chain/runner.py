@@ -17,6 +17,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from aat_deploy.errors import AatError
 from training.chain import config as chain_config
 from training.chain.hashing import StageMarkers, dict_sha256, write_json_atomic
 from training.chain.stages import Context, Stage, stages
@@ -24,7 +25,7 @@ from training.chain.stages import Context, Stage, stages
 DIST_TIMEOUT = datetime.timedelta(hours=12)
 
 
-class ChainError(RuntimeError):
+class ChainError(AatError, RuntimeError):
     """A run that cannot go on (one line)."""
 
 

@@ -12,6 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from aat_deploy.errors import AatError
 from aat_deploy.capture.raw import srgb_to_linear
 
 SHARED_MIDDLEBURY = Path(__file__).resolve().parents[3] / "shared" / "data" / "middlebury2014_motorcycle"
@@ -19,7 +20,7 @@ SHARED_MIDDLEBURY = Path(__file__).resolve().parents[3] / "shared" / "data" / "m
 MOTORCYCLE_F_PX, MOTORCYCLE_DOFFS_PX, MOTORCYCLE_BASELINE_MM = 994.978, 31.086, 193.001
 
 
-class RGBDError(ValueError):
+class RGBDError(AatError):
     """A scene file that cannot be used (message names the file and the problem)."""
 
 

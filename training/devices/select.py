@@ -13,10 +13,12 @@ import re
 
 import torch
 
+from aat_deploy.errors import AatError
+
 _SPEC = re.compile(r"^(auto|cpu|mps|cuda(:\d+)?)$")
 
 
-class DeviceError(ValueError):
+class DeviceError(AatError):
     """A --device that is malformed or not available here (one line)."""
 
 

@@ -30,11 +30,12 @@ from pathlib import Path
 import torch
 from torch import nn
 
+from aat_deploy.errors import AatError
 from training.nets.export import PARITY_TOL
 from training.nets.model import DfFNet, pad_to_multiple, sort_by_focus
 
 
-class InitError(ValueError):
+class InitError(AatError):
     """An --init file that cannot initialise the requested net."""
 
 

@@ -11,6 +11,7 @@ import json
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
+from aat_deploy.errors import AatError
 from training.nets.export import config_hash
 from training.nets.model import FIELD_CHANNELS, NETS, SIZES
 
@@ -18,7 +19,7 @@ SIMULATORS = ("aat", "thin_lens", "any_camera")  # any_camera: the dfvaat net's 
 ALL_NETS = NETS + ("dfvaat",)
 
 
-class ConfigError(ValueError):
+class ConfigError(AatError):
     pass
 
 

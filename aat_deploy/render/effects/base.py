@@ -11,11 +11,12 @@ from typing import Any
 import numpy as np
 
 from aat_deploy import extensions
+from aat_deploy.errors import AatError
 from aat_deploy.lens.schema import Lens
 from aat_deploy.optics.paraxial import paraxial_data
 
 
-class NeedsTorch(RuntimeError):
+class NeedsTorch(AatError, RuntimeError):
     """Raised for effects (or PSFs) that only the training simulator can render, when it is not installed."""
 
 
