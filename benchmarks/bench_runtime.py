@@ -1,11 +1,14 @@
 """Runtime inference: onnxruntime (what `aat-infer` runs) vs torch eager on the same net and input.
 
     OMP_WAIT_POLICY=PASSIVE python benchmarks/bench_runtime.py [--sizes small] [--hw 640x960] [--stack 8]
+                                                               [--nets dfvnet,aifnet,dfvaat]
 
 For each net, a freshly built model (weights do not change the speed) is exported exactly as the shipped
 models are (training.nets.export), then one normalised (S, 3, H, W) stack is run by torch (`predict`, eager,
 no grad) and by the runtime (`aat_deploy.model.DfFModel.infer`), both on 2 threads; best of 3, one run.
-Prints a table: seconds per stack each way, the ratio, and the max |difference| of the depths.
+Prints a table: seconds per stack each way, the ratio, and the max |difference| of the depths. The any-camera net
+(`dfvaat`, the small DFVNet told per-pixel focus maps) runs as `aat-infer --model dfv_aat` runs it: its runtime time
+includes making the maps (thin lens, a 50 mm f/1.8 camera).
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ def main() -> None:
     ap.add_argument("--sizes", default="small")
     ap.add_argument("--hw", default="640x960")
     ap.add_argument("--stack", type=int, default=8)
+    ap.add_argument("--nets", default="dfvnet,aifnet,dfvaat")
     args = ap.parse_args()
     h, w = (int(v) for v in args.hw.split("x"))
     torch.set_num_threads(2)
@@ -42,7 +46,10 @@ def main() -> None:
     focus = np.sort(1 / np.linspace(2.0, 0.1, args.stack)).astype(np.float32)
     rows = []
     for size in args.sizes.split(","):
-        for net in ("dfvnet", "aifnet"):
+        for net in args.nets.split(","):
+            if net == "dfvaat":
+                rows.append(any_camera(size, stack, focus))
+                continue
             torch.manual_seed(0)
             model = build_model(net, size).eval()
             with tempfile.TemporaryDirectory() as d:
@@ -63,6 +70,30 @@ def main() -> None:
     print("|---|---|---|---|---|")
     for name, tt, to, d in rows:
         print(f"| {name} | {tt:.2f} s | {to:.2f} s | {tt / to:.2f}x | {d:.1e} |")
+
+
+def any_camera(size: str, stack: np.ndarray, focus: np.ndarray) -> tuple:
+    """The any-camera net, torch vs the runtime (maps included), as one table row."""
+    from aat_deploy.anycam.model import FocusMapModel
+    from aat_deploy.anycam.optics import CameraOptics
+    from training.nets.dfvaat import build, predict
+    from training.nets.export import export_focus_map_onnx, focus_map_metadata
+
+    torch.manual_seed(0)
+    model = build(size).eval()
+    h, w = stack.shape[2:]
+    with tempfile.TemporaryDirectory() as d:
+        path = Path(d) / "m.onnx"
+        export_focus_map_onnx(model, path, focus_map_metadata(model, effects=[], stack_range=(3, 16),
+                                                              config_hash="benchmark", k_range=(0.3, 64)))
+        rt = FocusMapModel(path, threads=2).bound(CameraOptics(50.0, 1.8, 37.5, w, "benchmark"), focus)
+        maps = torch.from_numpy(rt.maps(focus, h, w))[None]
+        with torch.no_grad():
+            ref, t_torch = best_of(lambda: predict(model, torch.from_numpy(stack)[None], maps[:, :-1], maps[:, -1:]),
+                                   repeat=3)
+        out, t_ort = best_of(lambda: rt.infer(stack, focus), repeat=3)
+    print(f"done dfvaat {size}", flush=True)
+    return (f"dfvaat {size} (any camera)", t_torch, t_ort, float(np.abs(out.depth_m - ref["depth_m"][0].numpy()).max()))
 
 
 if __name__ == "__main__":
