@@ -263,3 +263,30 @@ def test_diopter_loss_is_l1_on_inverse_depth():
     assert abs(float(loss) - expect) < 1e-6
     loss_m, _ = dff_loss([(pred, None, None)], batch, LossConfig())
     assert abs(float(loss_m) - (0.5 + 0 + 1.0) / 3) < 1e-6
+
+
+@pytest.mark.numerics
+def test_any_camera_net_trains_resumes_exactly_validates_and_exports(tmp_path):
+    """The dfvaat net through the project's loop: per-batch stack sizes (the dataset's collate), its own loss, exact
+    resume, validation on whole items with their own frames, export with the focus-map metadata."""
+    from training.data.anycam import AnyCamConfig, AnyCamDataset
+    from training.train.export import export_checkpoint
+    from training.train.loop import load_trained, train
+
+    common = dict(seed=4, height=32, width=32, margin_px=8, max_layers=16, cache_dir=str(tmp_path / "cache"))
+    data = AnyCamDataset(AnyCamConfig(n_items=6, crop=0, **common))
+    val = AnyCamDataset(AnyCamConfig(n_items=6, crop=0, fixed_subsets=True, **common))
+    cfg = train_config(net="dfvaat", simulator="any_camera", lens="", val_every=0,
+                       loss=LossConfig(level_weights=(2.0, 1.0), mask_focus_range=True))
+    full = train(cfg, tmp_path / "a", train_set=data, val_set=val, progress=False)
+    assert full.finished and full.step == 6 and 0 < full.val_metrics["mae"] < 100
+    train(cfg, tmp_path / "b", train_set=data, val_set=val, stop_at_step=3, progress=False)
+    rest = train(cfg, tmp_path / "b", train_set=data, val_set=val, resume=True, progress=False)
+    assert rest.finished
+    ma, _ = load_trained(tmp_path / "a" / "model.pt")
+    mb, _ = load_trained(tmp_path / "b" / "model.pt")
+    assert torch.equal(_params(ma), _params(mb))
+    log = [json.loads(line) for line in (tmp_path / "a" / "log.jsonl").read_text().splitlines() if "frames_l1" in line]
+    assert len(log) == 6 and all(math.isfinite(r["frames_l1"]) for r in log)
+    md, err = export_checkpoint(tmp_path / "a" / "model.pt", tmp_path / "m.onnx")
+    assert md["aat.inputs"] == "focus_map" and md["aat.net"] == "dfvaat" and err < 1e-3
