@@ -182,9 +182,9 @@ def tables(model_path: Path, n: int, threads: int, cache: str) -> dict:
         print(f"\n#### paper50, MAE by {what.replace('_', ' ')} ({n} procedural stacks, 95 % bootstrap)\n")
         print(f"| {what.replace('_', ' ')} | {DFV_MAP} | {CL_MAP} | ratio |\n|---|---|---|---|")
         for k, r in rows.items():
-            a, b = r[DFV_MAP]["procedural"], r[CL_MAP]["procedural"]
-            print(f"| {k} | {fmt(summarise(a)['mae'], 3)} | {fmt(summarise(b)['mae'], 3)} | "
-                  f"{fmt(paired_ratio(a, b), 2)} |")
+            cells = [fmt(summarise(r[lab]["procedural"])["mae"], 3) if lab in r else "–" for lab in (DFV_MAP, CL_MAP)]
+            ratio = fmt(paired_ratio(r[DFV_MAP]["procedural"], r[CL_MAP]["procedural"]), 2) if DFV_MAP in r else "–"
+            print(f"| {k} | {cells[0]} | {cells[1]} | {ratio} |")
     return out
 
 
@@ -226,7 +226,7 @@ def main(argv: list[str] | None = None) -> int:
 
                 field_figures(maps, a.out / "figures" / f"anycam_{lens_key}_{protocol}.png",
                               f"{lens_key}, {protocol} protocol: MAE against field radius")
-    if a.tables and a.model.is_file():
+    if a.tables:
         results["tables"] = tables(a.model, max(8, a.n // 2), a.threads, a.cache)
     a.out.mkdir(parents=True, exist_ok=True)
     path = a.out / "anycam.json"
