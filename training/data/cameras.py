@@ -68,14 +68,15 @@ def random_camera(rng: np.random.Generator) -> tuple[Camera, dict]:
 
 
 MIN_SPAN_PX = 4.0  # a sweep changes the blur by at least this much (px), else there is nothing to learn from
+MAX_SPAN_PX = 200.0  # and by at most this much: wider blur teaches nothing and renders with huge kernels (memory)
 
 
 def random_focus_range(rng: np.random.Generator, min_focus_m: float, cls: str, k_px_per_d: float | None = None
                        ) -> tuple[float, float]:
     """(near, far) of a camera's sweep (m): phones mostly sweep the near range, other cameras anything from
     their nearest focus to a far distance (infinity focus kept finite: 50 m). With the camera's defocus scale
-    k_px_per_d, sweeps whose blur changes by less than MIN_SPAN_PX over the whole range are drawn again (a few
-    times; then the widest one drawn is kept)."""
+    k_px_per_d, sweeps whose blur changes by less than MIN_SPAN_PX or more than MAX_SPAN_PX over the whole range
+    are drawn again (a few times; then the widest one drawn is kept, its near end moved back to MAX_SPAN_PX)."""
     best = None
     for _ in range(12):
         if cls == "phone" and rng.random() < 0.6:
@@ -84,12 +85,17 @@ def random_focus_range(rng: np.random.Generator, min_focus_m: float, cls: str, k
         else:
             near = _log_uniform(rng, min_focus_m, max(min_focus_m * 1.01, 3.0))
             far = _log_uniform(rng, near * 1.6, max(near * 1.7, 50.0))
-        span = (1 / near - 1 / far) * (k_px_per_d or np.inf)
-        if best is None or span > best[0]:
+        if not k_px_per_d:
+            return near, far
+        span = (1 / near - 1 / far) * k_px_per_d
+        if best is None or (span > best[0] if best[0] < MIN_SPAN_PX else span < best[0]):
             best = (span, near, far)
-        if span >= MIN_SPAN_PX:
-            break
-    return best[1], best[2]
+        if MIN_SPAN_PX <= span <= MAX_SPAN_PX:
+            return near, far
+    span, near, far = best
+    if span > MAX_SPAN_PX:
+        near = 1.0 / (1.0 / far + MAX_SPAN_PX / k_px_per_d)
+    return near, far
 
 
 def dense_schedule(rng: np.random.Generator, near_m: float, far_m: float, n: int = RENDER_FRAMES,

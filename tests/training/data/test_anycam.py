@@ -99,3 +99,16 @@ def test_no_held_out_lens_is_rendered(ds):
     for i in range(len(ds)):
         cam = json.loads(ds.load_or_render(i)["camera"])
         assert cam["traced"] in (None, *TRACED)
+
+
+def test_sweeps_change_the_blur_by_a_bounded_amount():
+    """Sweeps whose blur would span thousands of pixels (a 1-inch camera focused at 5 cm at full resolution) are
+    drawn again or shortened: such renders need huge kernels (the first training run's data worker ran out of
+    memory on one) and teach nothing."""
+    rng = np.random.default_rng(2)
+    for _ in range(400):
+        cam, info = cams.random_camera(rng)
+        k = cam.defocus_px_per_diopter(2.0)
+        near, far = cams.random_focus_range(rng, info["min_focus_m"], info["class"], k)
+        assert 0 < near < far
+        assert k * (1 / near - 1 / far) <= cams.MAX_SPAN_PX * 1.0001
