@@ -16,5 +16,12 @@ if [ -f "$OUT/$n/model.pt" ]; then echo "$n: done ($OUT/$n/model.pt)"; exit 0; f
 if [ ! -f "$OUT/$n/last.pt" ] && [ -f "checkpoints/$n/last.pt" ]; then
   mkdir -p "$OUT/$n" && cp checkpoints/"$n"/* "$OUT/$n/" && echo "$n: resumed from checkpoints/$n"
 fi
-exec python -m training.cli.train --config configs/anycam/$n.json --out "$OUT/$n" --resume --no-progress \
-  >> "$OUT/$n.log" 2>&1
+# a run killed from outside (the machine's memory is shared: the OOM killer) resumes from its last checkpoint
+for attempt in $(seq 1 ${RETRIES:-20}); do
+  python -m training.cli.train --config configs/anycam/$n.json --out "$OUT/$n" --resume --no-progress \
+    >> "$OUT/$n.log" 2>&1 && exit 0
+  [ -f "$OUT/$n/model.pt" ] && exit 0
+  echo "$n: attempt $attempt failed ($(date)); resuming in 60 s" >> "$OUT/$n.log"
+  sleep 60
+done
+exit 1
