@@ -2,6 +2,7 @@
 shrinks once that effect is simulated (method: docs/diagnosis.md).
 
     aat-diagnose ROOT --model M.onnx [--lens LENS] [--psf PSF.onnx] --out DIR [--retrain-steps N] [--force]
+                 [--calibration CAM.json]
     aat-diagnose --list-effects
 
 Runs without torch (twins from the exported PSF surrogate); only --retrain-steps needs the train extra.
@@ -26,6 +27,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--lens", help="lens file the model was trained for (default: found in lenses/ by name)")
     p.add_argument("--psf", help="PSF surrogate (.onnx) of that lens (default: found in models/; else ray tracing)")
     p.add_argument("--effects", help="only try these registered effects (comma-separated; default all)")
+    p.add_argument("--calibration", help="camera calibration (aat-calibrate fit): the captures' reported focus is "
+                   "corrected by its reported-focus error before the diagnosis")
     p.add_argument("--retrain-steps", type=int, default=0,
                    help="fine-tune the model with the named effects for this many steps and score it (needs aat-train)")
     p.add_argument("--torch-free", action="store_true",
@@ -57,7 +60,7 @@ def _main(argv: list[str] | None) -> int:
 
     out = Path(a.out)
     try:  # before any work: the report folder may be replaced, so it must never hold or sit in an input
-        check_output_dir(out, [a.root, a.model, *(p for p in (a.lens, a.psf) if p)], a.force,
+        check_output_dir(out, [a.root, a.model, *(p for p in (a.lens, a.psf, a.calibration) if p)], a.force,
                          tool="aat-diagnose", nest_ok=[a.root])
     except OutputError as e:
         print(f"aat-diagnose: error: {e}", file=sys.stderr)
@@ -65,7 +68,7 @@ def _main(argv: list[str] | None) -> int:
     try:
         res = run(a.root, a.model, out, lens=a.lens, psf=a.psf, effects=a.effects, retrain_steps=a.retrain_steps,
                   threads=a.threads, seed=a.seed, force=a.force, quiet=a.quiet,
-                  torch_free=a.torch_free)
+                  torch_free=a.torch_free, calibration=a.calibration)
     except DiagnoseError as e:
         print(f"aat-diagnose: error: {e}", file=sys.stderr)
         return 1

@@ -9,6 +9,7 @@ runs `aat-train` (the `train` extra)."""
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 import subprocess
 import sys
@@ -67,9 +68,25 @@ def retrain_command(model_path: Path, lens_path: Path, psf_path: Path | None, ef
     return cmd
 
 
+def calibrated_focus(caps: list, calibration) -> tuple[list, dict]:
+    """Captures with their reported focus corrected by a camera calibration's reported-focus error
+    (`aat_deploy.calibrate`: on the frame centre; the model is fed these distances, the twins are rendered at
+    them) and what was done."""
+    from aat_deploy.calibrate.format import on_axis_diopters
+
+    out = []
+    for c in caps:
+        d = on_axis_diopters(calibration, c.focus_m)
+        out.append(dataclasses.replace(c, focus_m=(1.0 / np.maximum(d, 1e-3)).astype(c.focus_m.dtype)))
+    fe = calibration.focus_error
+    return out, {"family": fe.family, "bias_d": fe.bias_d, "scale": fe.scale, "map_d": list(fe.map_d),
+                 "note": "reported focus corrected by the calibration's error before the diagnosis; its field term "
+                         "is not used (the twin's lens has its own)"}
+
+
 def run(root, model_path, out: Path, *, lens=None, psf=None, effects=None, retrain_steps: int = 0,
         threads: int = 2, seed: int = 0, force: bool = False, quiet: bool = False, cfg: DiagnoseConfig | None = None,
-        torch_free: bool = False) -> dict:
+        torch_free: bool = False, calibration=None) -> dict:
     say = _say(quiet)
     if retrain_steps and shutil.which("aat-train") is None:
         raise DiagnoseError("--retrain-steps needs aat-train (pip install 'aat-dff[train]')")
@@ -88,10 +105,19 @@ def run(root, model_path, out: Path, *, lens=None, psf=None, effects=None, retra
             raise DiagnoseError(f"{root}: no capture folder with ground truth (see docs/contracts.md)")
         say(f"{len(folders)} capture(s); model simulator: {', '.join(fx.spec(e) for e in twins.base) or 'thin lens'}")
         caps = [load_capture_data(f, model) for f in folders]
+        cal_info = None
+        if calibration is not None:
+            from aat_deploy.calibrate.format import load_calibration
+
+            caps, cal_info = calibrated_focus(caps, load_calibration(calibration))
+            cal_info["file"] = str(calibration)
+            say(f"focus distances corrected by {calibration} ({cal_info['family']})")
     except (ModelError, TwinError, CaptureError, FileNotFoundError, ValueError) as e:
         raise DiagnoseError(str(e)) from None
     res, diag, chain = diagnose(model, twins, caps, cfg, progress=say)
     res["root"] = str(root)
+    if cal_info is not None:
+        res["calibration"] = cal_info
     res["model"] = {"file": str(model_path), "net": model.meta.get("aat.net"), "simulator": model.meta.get("aat.simulator"),
                     "effects": [fx.spec(e) for e in twins.base]}
     shrink = res["shrink"]

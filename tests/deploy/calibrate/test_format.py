@@ -251,3 +251,21 @@ def test_format_api_is_torch_free(tmp_path):
     """, tmp_path)
     assert r.returncode == 0, r.stderr[-2000:]
     assert r.stdout.strip().splitlines()[-1] == "False"
+
+
+def test_diagnosis_takes_the_calibrations_focus_error():
+    """aat-diagnose --calibration: the captures' reported focus corrected by the calibration's error (scale 1.1:
+    a frame reported at 1.1 m was focused at 1.0 m), what the model and the twins are then given."""
+    from pathlib import Path
+
+    from aat_deploy.cli.diagnose import build_parser
+    from aat_deploy.diagnose.inputs import CaptureData
+    from aat_deploy.diagnose.session import calibrated_focus
+
+    cap = CaptureData("c", Path("c"), np.zeros((3, 3, 4, 6), np.float32), np.array([0.55, 1.1, 2.2]),
+                      np.ones((4, 6), np.float32))
+    (out,), info = calibrated_focus([cap], make_cal(FocusError("scale", scale=1.1)))
+    np.testing.assert_allclose(out.focus_m, [0.5, 1.0, 2.0], rtol=1e-12)
+    assert info["family"] == "scale" and cap.focus_m[1] == 1.1  # the input is not changed
+    a = build_parser().parse_args(["root", "--model", "m.onnx", "--out", "o", "--calibration", "cam.json"])
+    assert a.calibration == "cam.json"
