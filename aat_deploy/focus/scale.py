@@ -23,10 +23,10 @@ small a step, too coarse a level reads it too small as well). No such level: unk
 (and not at all when k < K_MIN): the step stays at least STEP_MIN_PX at the working size and the longer side at
 least SIDE_MIN_PX. Chosen on validation stacks (`benchmarks/select_focus_resolution.py`, BENCHMARKS.md,
 "Working resolution"): depth error against ground truth at the native grid, for every candidate pair, the pair that
-reduces most without raising the error anywhere. The size floor is measured: from 1920 x 1280 stacks working at
-960 px lowered the error, at 640 px raised it, and any reduction of 960 x 640 stacks raised it. The step threshold
-is not decided by those sets (where the floor allowed a reduction, the step stayed >= 11 px): 8 px is the most
-cautious candidate.
+reduces most without raising the error anywhere. The size floor is measured: from 1920 x 1280 stacks, working at
+960 px is level on clean frames and better with noise; 960 x 640 stacks of 8 or 16 frames lose accuracy when reduced.
+The step threshold is not decided by those sets (where the floor allowed a reduction, the step stayed >= 13 px):
+8 px is the most cautious candidate.
 """
 
 from __future__ import annotations
