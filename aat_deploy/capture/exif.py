@@ -219,20 +219,8 @@ def _read_tiff(buf: bytes, tb: TiffBuffer, first: int, role: str, meta: FrameMet
 
 
 def _maker_note(buf: bytes, tb: TiffBuffer, mn, meta: FrameMeta) -> tuple[dict[str, float], str]:
-    make = (meta.make or "").upper()
-    if make.startswith("CANON"):
-        ifd = tb.ifd(mn.data_offset, absolute=True)
-        meta.lens = meta.lens or makernotes.canon_lens(tb, ifd)
-        return makernotes.canon(tb, ifd, meta.model or ""), "Canon"
-    if make.startswith("NIKON"):
-        tags, note = makernotes.nikon(buf, tb, mn)
-        if note:
-            meta.notes.append(note)
-        return tags, "Nikon LensData"
-    if make.startswith(("OLYMPUS", "OM DIGITAL")):
-        return makernotes.olympus(buf, tb, mn), "Olympus FocusInfo"
-    if "MINOLTA" in make:
-        return makernotes.minolta(tb, mn), "Minolta CameraSettings"
-    if make.startswith("CASIO"):
-        return makernotes.casio(buf, tb, mn), "Casio"
-    return {}, ""
+    """(maker tags, maker-note name) from the decoder registered for the camera's make (makernotes.DECODERS)."""
+    decoder = makernotes.decoder_for(meta.make)
+    if decoder is None:
+        return {}, ""
+    return decoder.decode(buf, tb, mn, meta), decoder.name

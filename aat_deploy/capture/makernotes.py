@@ -13,12 +13,17 @@ ExifTool tag documentation (Canon, Nikon, Olympus, Minolta, Casio, FLIR tag tabl
 | Minolta | CameraSettings (0x0001 / 0x0003, big-endian int32u) [19] | /1000 m; 0 = infinity |
 | Casio | type 1 tag 0x0006, type 2 ("QVC") tag 0x2022 ObjectDistance | mm /1000 |
 | FLIR | APP1 FFF CameraInfo record: float FocusDistance at 0x45c, ObjectDistance at 0x24 | m |
+
+The EXIF maker note (tag 0x927C) is decoded by the entry of `DECODERS` whose make matches the file's EXIF Make:
+a new maker's decoder is one function and one entry there (`decoder_for` picks it).
 """
 
 from __future__ import annotations
 
 import math
 import struct
+from collections.abc import Callable
+from dataclasses import dataclass
 
 from .tiff import Entry, TiffBuffer
 
@@ -211,3 +216,51 @@ def flir(fff: bytes) -> dict[str, float]:
             out["ObjectDistance"] = float(obj)
         return out
     return {}
+
+
+# ------------------------------------------------------------------------------------------------
+# The EXIF maker note by camera make
+# ------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class MakerNoteDecoder:
+    """`decode(buf, tb, mn, meta)` -> {exiftool tag: value} for an EXIF maker note (entry `mn` of the Exif IFD
+    read through `tb`) of a camera whose upper-cased EXIF Make starts with one of `makes` (or, with `anywhere`,
+    contains one). `meta` is the frame's `exif.FrameMeta`: a decoder may fill `meta.lens` where it is empty and
+    append to `meta.notes` (why nothing was decoded). `name` is the maker note's name in `focus_source`."""
+
+    makes: tuple[str, ...]
+    name: str
+    decode: Callable[..., dict[str, float]]
+    anywhere: bool = False
+
+    def matches(self, make: str) -> bool:
+        make = make.upper()
+        return any(m in make for m in self.makes) if self.anywhere else make.startswith(self.makes)
+
+
+def _canon_note(buf: bytes, tb: TiffBuffer, mn: Entry, meta) -> dict[str, float]:
+    ifd = tb.ifd(mn.data_offset, absolute=True)
+    meta.lens = meta.lens or canon_lens(tb, ifd)
+    return canon(tb, ifd, meta.model or "")
+
+
+def _nikon_note(buf: bytes, tb: TiffBuffer, mn: Entry, meta) -> dict[str, float]:
+    tags, note = nikon(buf, tb, mn)
+    if note:
+        meta.notes.append(note)
+    return tags
+
+
+DECODERS: tuple[MakerNoteDecoder, ...] = (  # the first that matches decodes
+    MakerNoteDecoder(("CANON",), "Canon", _canon_note),
+    MakerNoteDecoder(("NIKON",), "Nikon LensData", _nikon_note),
+    MakerNoteDecoder(("OLYMPUS", "OM DIGITAL"), "Olympus FocusInfo", lambda buf, tb, mn, meta: olympus(buf, tb, mn)),
+    MakerNoteDecoder(("MINOLTA",), "Minolta CameraSettings", lambda buf, tb, mn, meta: minolta(tb, mn),
+                     anywhere=True),  # "Minolta Co., Ltd.", "KONICA MINOLTA"
+    MakerNoteDecoder(("CASIO",), "Casio", lambda buf, tb, mn, meta: casio(buf, tb, mn)),
+)
+
+
+def decoder_for(make: str | None) -> MakerNoteDecoder | None:
+    """The maker-note decoder for an EXIF Make (None: no decoder for this maker)."""
+    return next((d for d in DECODERS if d.matches(make or "")), None)

@@ -183,3 +183,38 @@ def test_exiftool_not_used_when_metadata_has_focus(tmp_path, monkeypatch):
     meta = read_metadata(cap / "frame_00.dng")
     assert meta.focus_m == pytest.approx(0.7) and meta.focus_source == "EXIF SubjectDistance"
     assert meta.focus_tags["ApproximateFocusDistance"] == pytest.approx(0.7)
+
+
+def test_the_maker_note_decoder_is_picked_by_make():
+    """The registry answers as the make chain it replaced: prefixes of the upper-cased EXIF Make, Minolta anywhere."""
+    from aat_deploy.capture.makernotes import decoder_for
+
+    names = {make: getattr(decoder_for(make), "name", None) for make in (
+        "Canon", "NIKON CORPORATION", "OLYMPUS IMAGING CORP.", "OM Digital Solutions", "Minolta Co., Ltd.",
+        "KONICA MINOLTA", "CASIO COMPUTER CO.,LTD.", "SONY", "", None, "Leica Canon")}
+    assert names == {"Canon": "Canon", "NIKON CORPORATION": "Nikon LensData",
+                     "OLYMPUS IMAGING CORP.": "Olympus FocusInfo", "OM Digital Solutions": "Olympus FocusInfo",
+                     "Minolta Co., Ltd.": "Minolta CameraSettings", "KONICA MINOLTA": "Minolta CameraSettings",
+                     "CASIO COMPUTER CO.,LTD.": "Casio", "SONY": None, "": None, None: None, "Leica Canon": None}
+
+
+def test_a_new_maker_note_decoder_is_one_registry_entry(tmp_path, monkeypatch):
+    """An entry put before the others in makernotes.DECODERS decodes the maker note; nothing else is touched."""
+    from deploy_fixtures import canon_jpeg
+
+    from aat_deploy.capture import makernotes
+
+    path = tmp_path / "f.jpg"
+    path.write_bytes(canon_jpeg(150, 140))
+    assert read_metadata(path, use_exiftool=False).focus_source.startswith("maker note: Canon ")
+    seen = []
+
+    def decode(buf, tb, mn, meta):
+        seen.append((mn.tag, meta.make))
+        return {"ObjectDistance": 1.25}
+
+    new = makernotes.MakerNoteDecoder(("CANON",), "Test maker", decode)
+    monkeypatch.setattr(makernotes, "DECODERS", (new, *makernotes.DECODERS))
+    meta = read_metadata(path, use_exiftool=False)
+    assert (meta.focus_m, meta.focus_source) == (1.25, "maker note: Test maker ObjectDistance")
+    assert seen == [(0x927C, "Canon")]
