@@ -14,7 +14,6 @@ from __future__ import annotations
 import importlib
 import json
 import math
-import sys
 import threading
 import time
 from dataclasses import dataclass, field

@@ -9,7 +9,7 @@ import pkgutil
 from pathlib import Path
 from typing import Any
 
-from .base import Effect, spec
+from .base import Effect
 
 _REGISTRY: dict[str, type[Effect]] = {}
 _LOADED = False

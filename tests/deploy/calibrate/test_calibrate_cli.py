@@ -6,7 +6,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import shutil
-from functools import lru_cache
 
 import numpy as np
 import pytest

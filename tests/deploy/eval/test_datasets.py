@@ -17,7 +17,7 @@ from aat_deploy.capture.raw import linear_to_srgb
 from aat_deploy.cli.eval import main
 from aat_deploy.eval.dataset_run import score_stack
 from aat_deploy.eval.datasets import DatasetError, need, open_dataset
-from aat_deploy.eval.datasets import ddff12, fod500, mobile_depth, zedd
+from aat_deploy.eval.datasets import ddff12, fod500, zedd
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from deploy_fixtures import render_stack, synthetic_scene  # noqa: E402

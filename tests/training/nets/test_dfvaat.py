@@ -2,7 +2,6 @@
 than the small DFVNet, and one ONNX export (dynamic S, H, W) matches torch at shapes other than the export's
 (the DFVNet pitfall of shape-derived pooling kernels, reference-facts 7)."""
 
-import numpy as np
 import pytest
 import torch
 

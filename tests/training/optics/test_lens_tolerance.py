@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from aat_deploy.lens.io import load_lens
-from training.optics.tolerance import (best_focus_z_mm, focal_surface_change_mm, sensitivity_table,
+from training.optics.tolerance import (focal_surface_change_mm, sensitivity_table,
                                        trace_decentred)
 from training.optics.trace import Rays, rays_through_pupil, trace, uniform_disk_grid
 from aat_deploy.render import effects as fx

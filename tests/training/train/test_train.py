@@ -13,13 +13,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-import torch.nn.functional as F
 from training_fixtures import TwoPlaneStacks, train_config
 
 from training.train.config import (
     ConfigError,
     LossConfig,
-    TrainConfig,
     config_from_dict,
     load_config,
 )
