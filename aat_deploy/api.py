@@ -30,7 +30,8 @@ from .errors import CaptureError
 from .camera import Intrinsics
 from .io.atomic import atomic_folder, writing
 from .io.guard import check_output_dir
-from .model import DfFModel, open_model
+from .anycam.model import open_model
+from .model import DfFModel
 from .outputs import DepthMaps, RecordingInputs, to_srgb8, write_outputs
 from .process import depth_from_frames
 from .shipped import resolve

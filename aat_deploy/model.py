@@ -268,23 +268,6 @@ class DfFModel:
                          (acc_s / acc_w).astype(np.float32))
 
 
-def open_model(path: str | Path, threads: int | None = None) -> DfFModel:
-    """A DfF model file as the right class: the any-camera model (metadata aat.inputs = focus_map,
-    `aat_deploy.anycam.model.FocusMapModel`, not yet told its camera) or a lens-specific `DfFModel`."""
-    path = Path(path)
-    if path.is_file():
-        try:
-            meta = dict(ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
-                        .get_modelmeta().custom_metadata_map)
-        except Exception:  # noqa: BLE001 (DfFModel reports an unloadable file in one line)
-            meta = {}
-        if meta.get("aat.inputs") == "focus_map":
-            from .anycam.model import FocusMapModel
-
-            return FocusMapModel(path, threads=threads)
-    return DfFModel(path, threads=threads)
-
-
 def _pad_linear(field: np.ndarray, ph: int, pw: int) -> np.ndarray:
     """(C, H, W) coordinates padded at the bottom/right by continuing them linearly (they are linear in the
     pixel index), as training.nets.model.pad_field does in torch."""

@@ -17,6 +17,7 @@ import copy
 from pathlib import Path
 
 import numpy as np
+import onnxruntime as ort
 
 from ..camera import Intrinsics
 from ..errors import CaptureError, ModelError
@@ -169,6 +170,22 @@ class FocusMapModel(DfFModel):
         return {"stack": np.ascontiguousarray(stack[None], dtype=np.float32),
                 "focus_diopters": np.ascontiguousarray(maps[None, :-1]),
                 "defocus_px_per_d": np.ascontiguousarray(maps[None, -1:])}
+
+
+def open_model(path: str | Path, threads: int | None = None) -> DfFModel:
+    """A DfF model file as the right class: the any-camera model (metadata aat.inputs = focus_map,
+    `FocusMapModel`, not yet told its camera) or a lens-specific `DfFModel` (`aat_deploy.model`). It lives here,
+    above both classes, so that `aat_deploy.model` does not import this module back."""
+    path = Path(path)
+    if path.is_file():
+        try:
+            meta = dict(ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+                        .get_modelmeta().custom_metadata_map)
+        except Exception:  # noqa: BLE001 (DfFModel reports an unloadable file in one line)
+            meta = {}
+        if meta.get("aat.inputs") == "focus_map":
+            return FocusMapModel(path, threads=threads)
+    return DfFModel(path, threads=threads)
 
 
 def mapping_from_args(lens=None, psf=None, calibration=None) -> FocusMapping:

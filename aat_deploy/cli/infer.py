@@ -44,7 +44,7 @@ def _main(argv: list[str] | None) -> int:
     from ..focus.method import FocusConfig
     from ..focus.runner import FocusMethod
     from ..anycam.model import DEFAULT_MAX_SIDE, FocusMapModel, mapping_from_args
-    from ..model import open_model
+    from ..anycam.model import open_model
     from ..pipeline import Options, check_output, output_dir_for, output_dirs, run_capture
     from ..shipped import resolve
 

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ...capture.raw import load_frame
-from . import Conventions, Dataset, DatasetError, Item, depth_unit, need, select_frames
+from .base import Conventions, Dataset, DatasetError, Item, depth_unit, need, select_frames
 
 FOCUS_M = np.array([0.1, 0.15, 0.3, 0.7, 1.5])
 SPLITS = {"train": range(0, 400), "test": range(400, 500)}

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ...capture.raw import load_frame
-from . import Conventions, Dataset, DatasetError, Item, depth_unit, select_frames
+from .base import Conventions, Dataset, DatasetError, Item, depth_unit, select_frames
 
 LAYOUTS = (("a", "focus_dpth.txt"), ("", "focus_distance.txt"))  # (frame name prefix, focus file)
 PLACEHOLDER_D = (2.0, 1.0)  # placeholder focus positions (diopters), near to far: 0.5 ... 1 m

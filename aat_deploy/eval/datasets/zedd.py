@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from ...capture.raw import load_frame
-from . import Conventions, Dataset, DatasetError, Item, depth_unit, select_frames
+from .base import Conventions, Dataset, DatasetError, Item, depth_unit, select_frames
 
 SPLITS = ("val", "test")
 APERTURES = (1.4, 2.0, 2.8, 4.0, 5.6, 16.0)
