@@ -38,10 +38,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..diagnose.focusfit import curve
 from ..errors import CaptureError, file_kind
 from ..io.atomic import write_text_atomic
 from ..optics.thin_lens import blur_diameter_px
+from ..render.effects.focus_metadata import curve_d
 
 FORMAT = "aat-camera-calibration-v1"
 FAMILIES = ("none", "offset", "scale", "monotone")  # the diagnosis's vocabulary (aat_deploy.diagnose.focusfit)
@@ -117,7 +117,7 @@ class FocusError:
         d = (np.asarray(reported_d, np.float64) - self.bias_d) * self.scale
         if self.map_d:
             k = np.asarray(self.map_d).reshape(-1, 2)
-            d = curve(d, k[:, 0], k[:, 1])
+            d = curve_d(d, k[:, 0], k[:, 1])
         return d
 
 
