@@ -101,6 +101,8 @@ def _main(argv: list[str] | None) -> int:
         ap.error("--camera belongs to the any-camera model (--model dfv_aat)")
     if args.method == "focus" and args.model is not None:
         ap.error("--method focus uses no --model")
+    if args.method == "model" and args.prefilter_px is not None:  # known before any model is opened
+        ap.error("--prefilter-px belongs to --method focus (the classical method's pre-filter)")
     if args.prefilter_px is not None and not 0 <= args.prefilter_px <= 50:
         ap.error("--prefilter-px must be between 0 and 50 px")
     if args.max_side is not None and not (args.max_side >= 16 or (args.max_side == 0 and args.method == "focus")):
@@ -132,15 +134,14 @@ def _main(argv: list[str] | None) -> int:
             if isinstance(model, FocusMapModel):  # the any-camera model: its camera and focus mapping
                 model.configure(mapping_from_args(args.lens, args.psf, args.calibration), camera=args.camera,
                                 max_side=args.max_side or DEFAULT_MAX_SIDE)
-            elif args.lens or args.psf or args.max_side is not None or args.prefilter_px is not None or args.camera \
-                    or args.calibration:
+            elif args.lens or args.psf or args.max_side is not None or args.camera or args.calibration:
                 lens_specific = args.model
     except CaptureError as e:
         print(one_line(f"aat-infer: error: {e}"), file=sys.stderr)
         return 2
     if lens_specific is not None:
         ap.error(f"{lens_specific.name} is a lens-specific model: --lens, --psf, --calibration, --camera and "
-                 "--max-side belong to --model dfv_aat, --prefilter-px to --method focus")
+                 "--max-side belong to --model dfv_aat (--lens and --psf also to --method focus)")
     opts = Options(tile=args.tile, align=args.align, strict=args.strict, force=args.force,
                    use_exiftool=not args.no_exiftool, focus_m=focus_m, record=not args.no_recording,
                    quiet=args.quiet, native=args.native_res, max_megapixels=args.max_megapixels,
