@@ -49,7 +49,8 @@ def _datasets(config_paths: list[str], split: str) -> dict:
             ds = make_dataset(data, cfg.simulator, cfg.lens, cfg.effects)
             if ds.cache is None:
                 raise SystemExit(f"{p}: {name} data has no cache_dir: nothing to render into")
-            out.setdefault(str(ds.cache), (dict(data), cfg.simulator, cfg.lens, list(cfg.effects), len(ds)))
+            # every item of the config (a dataset may read fewer: the any-camera data's only_cached)
+            out.setdefault(str(ds.cache), (dict(data), cfg.simulator, cfg.lens, list(cfg.effects), ds.cfg.n_items))
     return out
 
 

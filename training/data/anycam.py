@@ -44,6 +44,8 @@ from training.render.parametric import Camera, ParametricSource
 
 ROOT = Path(__file__).resolve().parents[2]
 TRACED = {"rf50": ("lenses/canon_rf50mm_f1.8.json", "models/psf_rf50.onnx")}
+MAX_BLUR_PX = 1000.0  # largest thin-lens blur diameter an item may have (kernels and memory grow with it)
+NEAREST_SCENE = 0.85  # scene depths are at least this fraction of the sweep's nearest focus distance
 HELD_OUT_LENSES = ("paper_50mm_f2.8", "canon_ef50mm_f1.8", "nikon_z35")  # never in training (TEAM.md)
 
 
@@ -70,11 +72,12 @@ class AnyCamConfig:
     camera_effects: bool = True
     fixed_subsets: bool = False
     cache_dir: str | None = None
+    only_cached: bool = False  # read only the items already in the cache (a run started before its data is rendered)
 
     def key(self) -> str:
         """Hash of what defines the renders (not how they are read)."""
         d = asdict(self)
-        for k in ("n_items", "crop", "flips", "camera_effects", "fixed_subsets", "cache_dir"):
+        for k in ("n_items", "crop", "flips", "camera_effects", "fixed_subsets", "cache_dir", "only_cached"):
             d.pop(k)
         if d["max_layers"] == 128:
             d.pop("max_layers")  # the layered renderer's default (renders made before the field hash as before)
@@ -94,9 +97,13 @@ class AnyCamDataset(Dataset):
         self.cfg = cfg
         self.cache = Path(cfg.cache_dir) / f"anycam_{cfg.key()}" if cfg.cache_dir else None
         self._traced: dict = {}
+        # with only_cached, position j reads item self.items[j]: the cached ones, as found now
+        self.items = [i for i in range(cfg.n_items) if not cfg.only_cached or self.is_cached(i)]
+        if not self.items:
+            raise ValueError(f"{self.cache}: no cached items (only_cached): render them first")
 
     def __len__(self) -> int:
-        return self.cfg.n_items
+        return len(self.items)
 
     # -- rendering --------------------------------------------------------------------------------------------
     def _traced_lens(self, name: str):
@@ -167,7 +174,12 @@ class AnyCamDataset(Dataset):
         centre = (hs / 2 - (origin[0] - m), ws / 2 - (origin[1] - m))  # optical axis in the rendered window
         rgb, depth = self._scene(rng, hh, ww, f_px, centre, s_near, s_far)
         img = np.ascontiguousarray(rgb.transpose(2, 0, 1)).astype(np.float32)
-        depth = np.ascontiguousarray(depth).astype(np.float32)
+        # nothing much nearer than the nearest focus (a room's floor at the camera's feet): blur there is no cue and
+        # near a lens's close-focus limit the thin-lens blur explodes (kernels of thousands of px)
+        depth = np.ascontiguousarray(np.maximum(depth, NEAREST_SCENE * near)).astype(np.float32)
+        worst = float(np.max(cam.blur_px(np.array([depth.min(), depth.max()])[:, None], focus[None, :])))
+        if worst > MAX_BLUR_PX:  # a guard: the sweep's limits above keep every item below it
+            raise RuntimeError(f"anycam item {index}: a blur of {worst:.0f} px (> {MAX_BLUR_PX:g}); not rendered")
         o = (origin[0] - m, origin[1] - m)
         if traced:
             frames = sim.optical(_torch.from_numpy(img), _torch.from_numpy(depth), focus,
@@ -233,9 +245,10 @@ class AnyCamDataset(Dataset):
         return cam.frame_diopters(focus, h, w, origin), k
 
     # -- reading ---------------------------------------------------------------------------------------------
-    def __getitem__(self, index: int) -> dict:
-        if not 0 <= index < len(self):
-            raise IndexError(index)
+    def __getitem__(self, position: int) -> dict:
+        if not 0 <= position < len(self):
+            raise IndexError(position)
+        index = self.items[position]
         item = self.load_or_render(index)
         c = self.cfg
         h, w = item["depth_m"].shape

@@ -21,6 +21,7 @@ from training.render.parametric import Aberrations, Camera
 
 K_MAX_PX_PER_D = 64.0  # blur growth the net is trained for at most (px of blur diameter per diopter)
 RENDER_FRAMES = 16
+MIN_FOCUS_FOCAL_LENGTHS = 8.0
 S_RANGE = (3, 16)
 
 
@@ -61,9 +62,10 @@ def random_camera(rng: np.random.Generator) -> tuple[Camera, dict]:
     if k > K_MAX_PX_PER_D:  # fewer pixels, as the runtime does for such a camera
         width_px = max(160, int(width_px * K_MAX_PX_PER_D / k))
         cam = Camera(focal, fno, (max(8, round(width_px / cls.aspect)), width_px), width_mm / width_px)
+    # a lens focuses no nearer than a few focal lengths (4 f is 1:1 macro; 8 f is a normal lens's close focus)
+    min_focus = max(_log_uniform(rng, *cls.min_focus_m), MIN_FOCUS_FOCAL_LENGTHS * focal / 1000.0)
     info = {"class": cls.name, "sensor_mm": [width_mm, width_mm / cls.aspect], "focal_mm": focal, "f_number": fno,
-            "width_px": cam.sensor_hw[1], "height_px": cam.sensor_hw[0],
-            "min_focus_m": _log_uniform(rng, *cls.min_focus_m)}
+            "width_px": cam.sensor_hw[1], "height_px": cam.sensor_hw[0], "min_focus_m": min_focus}
     return cam, info
 
 

@@ -112,3 +112,25 @@ def test_sweeps_change_the_blur_by_a_bounded_amount():
         near, far = cams.random_focus_range(rng, info["min_focus_m"], info["class"], k)
         assert 0 < near < far
         assert k * (1 / near - 1 / far) <= cams.MAX_SPAN_PX * 1.0001
+
+
+def test_no_camera_focuses_nearer_than_its_close_focus_limit():
+    """Focus distances below ~4 focal lengths have no thin-lens solution (the blur formula explodes: the second
+    out-of-memory render); cameras focus no nearer than 8 focal lengths."""
+    rng = np.random.default_rng(3)
+    for _ in range(300):
+        cam, info = cams.random_camera(rng)
+        assert info["min_focus_m"] >= cams.MIN_FOCUS_FOCAL_LENGTHS * cam.focal_mm / 1000 - 1e-12
+        near, _ = cams.random_focus_range(rng, info["min_focus_m"], info["class"], cam.defocus_px_per_diopter(2.0))
+        assert near >= 4 * cam.focal_mm / 1000
+
+
+def test_only_cached_reads_the_cached_items(ds):
+    from dataclasses import replace
+
+    ds.load_or_render(2)
+    ds.load_or_render(5)
+    part = AnyCamDataset(replace(ds.cfg, only_cached=True, n_items=6))
+    cached = [i for i in range(6) if ds.is_cached(i)]
+    assert part.items == cached and len(part) == len(cached) and 5 in cached
+    assert part.cfg.key() == ds.cfg.key()  # the same renders
