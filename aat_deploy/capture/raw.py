@@ -143,7 +143,11 @@ def _decode_jpeg(path: Path, buf: bytes) -> np.ndarray:
 
 def _decode_cv(path: Path, buf: bytes) -> np.ndarray:
     """A PNG or TIFF through OpenCV as RGB (H, W, 3) of its own depth (EXIF orientation applied by OpenCV)."""
-    img = cv2.imdecode(np.frombuffer(buf, np.uint8), cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR)
+    try:
+        img = cv2.imdecode(np.frombuffer(buf, np.uint8), cv2.IMREAD_ANYDEPTH | cv2.IMREAD_ANYCOLOR)
+    except cv2.error as e:  # OpenCV's own checks (e.g. a header claiming a size past its limits) raise
+        why = next((ln.split("error: ", 1)[-1] for ln in str(e).splitlines() if "error:" in ln), "decoder error")
+        raise CaptureError(f"{path}: not a readable image (OpenCV refused it: {why.strip()[:160]})") from None
     if img is None:
         raise CaptureError(f"{path}: not a readable image (OpenCV could not decode it; damaged or truncated?)")
     if img.ndim == 2:
