@@ -8,7 +8,6 @@ is written (the CLI writes atomically).
 from __future__ import annotations
 
 import datetime
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -181,6 +180,3 @@ def fit_calibration(measures: list[SweepMeasurement], n_boot: int = 100, degree:
     cal = CameraCalibration(identity, first.size_px, fe, fit.field, blur, sensor_mm, residuals, uncertainty, fitinfo)
     return FitResult(cal, obs, fit, blur_obs, per_sweep, warnings)
 
-
-def finite_or_none(v):
-    return v if isinstance(v, (int, float)) and math.isfinite(v) else None
