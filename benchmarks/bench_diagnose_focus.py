@@ -209,6 +209,9 @@ def table(rows: list[dict]) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--captures", type=int, default=3, help="the sample and this many minus one captures like it")
+    ap.add_argument("--folders", nargs="+", help="these capture folders instead (e.g. the tuning capture "
+                    "scene2029, rendered like the others with --scene-seed 2029 --seed 4, which is not in the "
+                    "benchmark: focusfit.SYSTEMATIC_D was set on it)")
     ap.add_argument("--kinds", help=f"only these sets (comma-separated of {', '.join(kinds())})")
     ap.add_argument("--model", default=str(ROOT / "models" / "rf50_dfvnet_aat_field.onnx"))
     ap.add_argument("--rounds", type=int, default=3, help="greedy rounds (aat-diagnose's default: 3)")
@@ -236,7 +239,7 @@ def main() -> None:
     if unknown:
         raise SystemExit(f"--kinds: unknown {', '.join(sorted(unknown))}; known: {', '.join(kinds())}")
     cache, out = Path(a.cache), Path(a.out)
-    caps = capture_folders(a.captures, cache)
+    caps = [Path(f) for f in a.folders] if a.folders else capture_folders(a.captures, cache)
     done = {(r["capture"], r["kind"]) for r in map(json.loads, out.read_text().splitlines())} if out.exists() else set()
     todo = [(k, c, n) for k, c in enumerate(caps) for n in names if (c.name, n) not in done]
     model = DfFModel(a.model, threads=2)

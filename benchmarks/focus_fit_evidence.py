@@ -56,13 +56,19 @@ def recorded_mean(path: Path) -> tuple[float, float]:
     return float(x.mean()), float(x.max())
 
 
-def sweep_for(twins, cap, chain: list, factor: int, correction: bool = True):
-    """The diagnosis's focus sweep (`fitters.focus_sweep`) of one capture with the twin's effects `chain`."""
-    from aat_deploy.diagnose import fitters
+def sweep_for(twins, cap, chain: list, factor: int, correction: str = "twin"):
+    """The diagnosis's focus sweep of one capture with the twin's effects `chain`; its binning correction anchored
+    at the twin's focus ("twin", `fitters.focus_sweep`), there and at the frames' estimated focus ("estimates",
+    `anchors.reanchored_sweep`, what the diagnosis does), or none ("none")."""
+    from aat_deploy.diagnose import anchors, fitters
+    from aat_deploy.diagnose import focusrobust as fr
     from aat_deploy.render import effects as fx
 
-    full = [fitters.fit_curves(twins.render(cap, cap.aif_linear, chain, seed=0), factor)] if correction else None
+    full = [fitters.fit_curves(twins.render(cap, cap.aif_linear, chain, seed=0), factor)] \
+        if correction != "none" else None
     state = fitters.FitState(twins, [cap], [cap.aif_linear], chain, fx.make, factor, 0, 0, {}, full)
+    if correction == "estimates":
+        return anchors.reanchored_sweep(state, lambda d: np.asarray(fr.prepare(d)[1]["frame_focus_d"][-1]))[0]
     return fitters.focus_sweep(state)
 
 
@@ -142,19 +148,23 @@ def main() -> None:
     truth_d = 1.0 / cap.focus_m
     none = fr.RobustConfig(floors=False, gains=False, weights=False)
     variants = [  # (label, development, chain, binning correction, old fit?, robust config, texture-only weights)
-        ("as it was: old development, old fit", "old", [], True, True, none, False),
-        ("old fit, development fixed", "now", [], True, True, none, False),
-        ("old fit, development fixed, textureless half of the regions left out", "now", [], True, True, none, True),
+        ("as it was: old development, old fit", "old", [], "twin", True, none, False),
+        ("old fit, development fixed", "now", [], "twin", True, none, False),
+        ("old fit, development fixed, textureless half of the regions left out", "now", [], "twin", True, none,
+         True),
         ("old fit, development fixed, twin with the capture's noise and vignetting", "now",
-         ["vignetting", "noise"], True, True, none, False),
-        ("old development, exposure gains only", "old", [], True, False,
+         ["vignetting", "noise"], "twin", True, none, False),
+        ("old development, exposure gains only", "old", [], "twin", False,
          fr.RobustConfig(floors=False, weights=False), False),
-        ("development fixed, noise floors only", "now", [], True, False, fr.RobustConfig(gains=False, weights=False),
+        ("development fixed, noise floors only", "now", [], "twin", False,
+         fr.RobustConfig(gains=False, weights=False), False),
+        ("old development, floors and exposure gains", "old", [], "twin", False, fr.RobustConfig(weights=False),
          False),
-        ("old development, floors and exposure gains", "old", [], True, False, fr.RobustConfig(weights=False), False),
-        ("new fit (floors, gains, weights), old development", "old", [], True, False, fr.RobustConfig(), False),
-        ("new fit, development fixed", "now", [], True, False, fr.RobustConfig(), False),
-        ("new fit, development fixed, no binning correction", "now", [], False, False, fr.RobustConfig(), False),
+        ("floors, gains and weights, old development", "old", [], "twin", False, fr.RobustConfig(), False),
+        ("floors, gains and weights, development fixed", "now", [], "twin", False, fr.RobustConfig(), False),
+        ("the same without the binning correction", "now", [], "none", False, fr.RobustConfig(), False),
+        ("new fit: the correction also anchored at the estimates", "now", [], "estimates", False, fr.RobustConfig(),
+         False),
     ]
     results = {"brightness": bright, "truth_d": truth_d.tolist(), "estimates": {}}
     with tempfile.TemporaryDirectory() as tmp:
@@ -188,7 +198,7 @@ def main() -> None:
                       f"{r['corrected_max']:.3f} |", flush=True)
                 bar.update()
         bar.close()
-        curves = region_examples(sweeps[("capture", (), True)], truth_d)
+        curves = region_examples(sweeps[("capture", (), "twin")], truth_d)
     results["regions"] = curves
     figure(Path(a.figure), results, cap.focus_m)
     print(f"\nfigure: {a.figure}")
@@ -232,7 +242,8 @@ def figure(path: Path, res: dict, focus_m: np.ndarray) -> None:
     for k, (name, est) in enumerate(res["estimates"].items()):
         a = ax[1 + k]
         for label, style in (("as it was: old development, old fit", "r.-"), ("old fit, development fixed", "m.-"),
-                             ("development fixed, noise floors only", "g.-"), ("new fit, development fixed", "b.-")):
+                             ("development fixed, noise floors only", "g.-"),
+                             ("new fit: the correction also anchored at the estimates", "b.-")):
             if label in est:
                 a.plot(i, est[label]["err"], style, label=label)
         a.axhline(0, color="k", lw=0.5)

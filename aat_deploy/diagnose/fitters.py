@@ -22,8 +22,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from aat_deploy.diagnose import anchors, focusrobust
 from aat_deploy.diagnose import focusfit as ff
-from aat_deploy.diagnose import focusrobust
 from aat_deploy.diagnose.compare import focus_curves, image_distances, region_brightness, region_index, region_shifts
 from aat_deploy.diagnose.optimise import grid_then_golden
 from aat_deploy.normalise import normalise_stack
@@ -77,11 +77,12 @@ class FitState:
 
 
 # --- focus sweep ------------------------------------------------------------------------------------------------
-def focus_sweep(state: FitState, step_d: float = SWEEP_STEP_D) -> ff.SweepData:
+def focus_sweep(state: FitState, step_d: float = SWEEP_STEP_D, correct: bool = True) -> ff.SweepData:
     """The twin with the chain's effects rendered (binned) at a ladder of focus distances covering every capture's
     reported and assumed focus +- SWEEP_MARGIN_D, its region focus measures against the capture frames'. Effects
     whose settings differ frame by frame (`stack` hooks) are left out of the sweep. Cached by the chain's
-    effects (a later round that only adds noise re-applies it to the cached optics)."""
+    effects (a later round that only adds noise re-applies it to the cached optics). correct: add the binning
+    correction (when the full-resolution twin's curves are known)."""
     tb = state.tb
     chain = [e for e in state.chain if not tb.has_stack_hook(e)]
     rep = [1.0 / c.focus_m for c in state.caps_b]
@@ -111,7 +112,7 @@ def focus_sweep(state: FitState, step_d: float = SWEEP_STEP_D) -> ff.SweepData:
         rep_d[i] = np.concatenate([rep[i], np.full(s_max - s, rep[i][-1])])
         base_d[i] = np.concatenate([base[i], np.full(s_max - s, base[i][-1])])
     weight = (twin.max(2) - twin.min(2) > MIN_TEXTURE_LOG).astype(np.float64)
-    if state.full_curves is not None:
+    if correct and state.full_curves is not None:
         twin = twin + binning_correction(state, chain, grid, base)
     rows, cols = ff.FIT_GRID
     r, q = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")
@@ -152,9 +153,14 @@ def fit_focus_metadata(state: FitState) -> Fitted:
     """The focus-metadata error family the images support (`focusfit.fit_metadata`, on the sweep made robust to
     the frames' exposure, the capture's noise floor and poorly matched regions: `focusrobust.prepare`) and the
     corrected focus distances of every capture (metres, with intervals)."""
-    data, robust = focusrobust.prepare(focus_sweep(state))
+    if state.full_curves is not None:  # the binning correction anchored at the frames' estimated focus too
+        sweep, anchored = anchors.reanchored_sweep(
+            state, lambda d: np.asarray(focusrobust.prepare(d)[1]["frame_focus_d"][-1]))
+    else:
+        sweep, anchored = focus_sweep(state), {}
+    data, robust = focusrobust.prepare(sweep)
     fit = ff.fit_metadata(data, n_boot=state.n_boot, seed=state.seed)
-    rep = {"focus_fit": {**fit.summary(), "robust": robust}, "corrected_focus": []}
+    rep = {"focus_fit": {**fit.summary(), "robust": {**robust, **anchored}}, "corrected_focus": []}
     for i, c in enumerate(state.caps):
         s = len(c.focus_m)
         rep["corrected_focus"].append({

@@ -33,7 +33,9 @@ import numpy as np
 from aat_deploy.diagnose import focusfit as ff
 
 FLOOR_STEPS_LOG = np.arange(0.5, 8.01, 0.5)  # candidate floors: log units below the region's highest twin value
-ITERATIONS = 4  # floors <-> per-frame focus (from a wrong reported focus the first floors are too high)
+ITERATIONS = 12  # at most, floors <-> per-frame focus (from a wrong reported focus the first floors are too high,
+# which holds the estimates back: each round moves them part of the way)
+CONVERGED_D = 0.002  # ... until no frame's estimate moves more than this (diopters)
 MIN_VARIANCE_SHARE = 0.25  # a region's residual variance counts at least this share of the median region's
 
 
@@ -121,8 +123,10 @@ def prepare(data: ff.SweepData, cfg: RobustConfig = RobustConfig()) -> tuple[ff.
     rep["frame_focus_d"] = []
     for _ in range(cfg.iterations if cfg.floors else 0):
         out = floored(base, fit_floors(base, d))
-        d = ff.frame_focus(out, start=d)
+        d, prev = ff.frame_focus(out, start=d), d
         rep["frame_focus_d"].append(np.round(d, 4).tolist())
+        if np.max(np.abs(d - prev)) < CONVERGED_D:
+            break
     if cfg.floors:
         beta = fit_floors(base, d)
         out = floored(base, beta)

@@ -1,0 +1,81 @@
+"""The binning correction of the focus sweep, anchored where the frames were really focused (docs/diagnosis.md,
+"Focus errors"; issue 32).
+
+The sweep is rendered binned, and a binned render cannot reproduce a nearly sharp PSF's sub-pixel phases; the
+correction is the difference between the binned full-resolution twin and the binned render, known only at the
+focus distances the full-resolution twin was rendered at (its *anchors*) and interpolated in focus between them
+(`fitters.binning_correction`). Anchored at the twin's own frames (the reported focus) it is exact there and
+wrong in between, where it changes fastest (near focus): a frame truly focused 0.05 D from its reported value
+was pulled back towards it by up to 0.05 D (capture 2029 of `benchmarks/bench_diagnose_focus.py`). So, once the
+frames' focus is estimated, the full-resolution twin is rendered there too and the correction interpolated over
+both anchor sets (`reanchored_sweep`).
+
+The full-resolution curves are the twin's without the effects that act frame by frame (exposure, misalignment),
+as the sweep is: a fitted exposure in the chain would otherwise enter the correction as focus.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from aat_deploy.diagnose import focusfit as ff
+from aat_deploy.diagnose.binned import bin_frames
+from aat_deploy.diagnose.compare import focus_curves
+from aat_deploy.normalise import normalise_stack
+
+REANCHOR_D = 0.01  # re-anchor when some frame's estimate is this far (diopters) from the twin's focus
+
+
+def _curves(stack: np.ndarray, factor: int = 1) -> np.ndarray:
+    return focus_curves(normalise_stack(bin_frames(np.clip(stack, 0, None), factor)), ff.FIT_GRID).mean(-1)
+
+
+def anchor_deltas(state, chain: list, focus_d: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per capture, (focus (S,) diopters, delta (R, S)): the binned full-resolution twin's curves minus the binned
+    render's, both with `chain` at those focus distances. The full-resolution optics are cached by the renderer:
+    at the twin's own focus this costs no new optical render."""
+    out = []
+    for i, (c, cb, a, ab, d) in enumerate(zip(state.caps, state.caps_b, state.aifs, state.aifs_b, focus_d)):
+        full = state.twins.linear(c, a, chain, state.seed + i, focus_true_m=1.0 / d)
+        own = state.tb.linear(cb, ab, chain, state.seed + i, focus_true_m=1.0 / d)
+        # the full-resolution twin is normalised as a stack, then binned, as `fitters.fit_curves` does
+        full_curves = focus_curves(normalise_stack(bin_frames(normalise_stack(np.clip(full, 0, None)), state.factor)),
+                                   ff.FIT_GRID).mean(-1)
+        out.append((np.asarray(d, np.float64), full_curves - _curves(own)))
+    return out
+
+
+def correction(grid: np.ndarray, anchors: list[list[tuple[np.ndarray, np.ndarray]]]) -> np.ndarray:
+    """(n, R, K) the correction over the sweep's grid, interpolated in focus over every anchor set of each capture
+    (flat beyond the outermost anchors)."""
+    out = []
+    for sets in anchors:
+        d = np.concatenate([s[0] for s in sets])
+        delta = np.concatenate([s[1] for s in sets], axis=1)
+        order = np.argsort(d)
+        out.append(np.stack([np.interp(grid, d[order], row[order]) for row in delta]))
+    return np.stack(out)
+
+
+def reanchored_sweep(state, estimate) -> tuple[ff.SweepData, dict]:
+    """The focus sweep with its binning correction anchored at the twin's own focus and, when some frame's estimate
+    lies REANCHOR_D or more from it, at the estimates too (`estimate(sweep) -> (n, S)` diopters: the per-frame
+    focus). Returns the sweep and a report (where it was anchored)."""
+    from aat_deploy.diagnose.fitters import focus_sweep
+
+    raw = focus_sweep(state, correct=False)
+    chain = [e for e in state.chain if not state.tb.has_stack_hook(e)]
+    s_n = [len(c.focus_m) for c in state.caps]
+    base = [raw.base_d[i, :s] for i, s in enumerate(s_n)]
+    anchors = [[a] for a in anchor_deltas(state, chain, base)]
+    data = raw.with_twin(raw.twin + correction(raw.grid_d, anchors))
+    est = np.asarray(estimate(data), np.float64)
+    rep = {"anchors_d": [b.round(4).tolist() for b in base]}
+    moved = [np.max(np.abs(est[i, :s] - base[i])) for i, s in enumerate(s_n)]
+    if max(moved) >= REANCHOR_D:
+        extra = anchor_deltas(state, chain, [np.clip(est[i, :s], raw.grid_d[0], raw.grid_d[-1])
+                                             for i, s in enumerate(s_n)])
+        anchors = [a + [x] for a, x in zip(anchors, extra)]
+        data = raw.with_twin(raw.twin + correction(raw.grid_d, anchors))
+        rep["reanchored_d"] = [x[0].round(4).tolist() for x in extra]
+    return data, rep
