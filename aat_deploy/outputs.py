@@ -28,6 +28,7 @@ from .camera import CAMERA_FRAME, POINT_FROM_PIXEL, camera_json, points_from_dep
 from .capture.raw import linear_to_srgb
 from .errors import OutputError
 from .camera import Intrinsics
+from .io.depth_png import encode_mm16
 from .io.colorize import depth_preview, depth_range, uncertainty_preview, uncertainty_range
 from .io.images import imwrite
 from .io.ply import write_ply
@@ -84,11 +85,6 @@ def to_srgb8(linear: np.ndarray) -> np.ndarray:
     return np.rint(linear_to_srgb(x) * 255).astype(np.uint8)
 
 
-def _to_mm16(x_m: np.ndarray) -> np.ndarray:
-    mm = np.nan_to_num(x_m * 1000.0, nan=0.0, posinf=65535.0, neginf=0.0)
-    return np.clip(np.rint(mm), 0, 65535).astype(np.uint16)
-
-
 def _png(path: Path, img: np.ndarray) -> None:
     if img.ndim == 3:
         img = img[..., ::-1]  # RGB -> BGR for OpenCV
@@ -105,7 +101,8 @@ def write_outputs(folder: str | Path, maps: DepthMaps, camera: Intrinsics,
     """Write every output file of one capture into `folder` (which exists; the caller makes it atomic).
 
     camera: intrinsics of the maps' H x W (aat_deploy.camera). Returns {"outputs": {file: description},
-    "color_scales": {...}, "points": {...}, "timings_s": {"write": s, "record": s}} for summary.json."""
+    "color_scales": {...}, "points": {...}, "timings_s": {"write": s, "record": s}} for summary.json; a *_mm.png
+    that clipped values beyond 65.535 m says how many pixels in its description (aat_deploy.io.depth_png)."""
     t0 = time.perf_counter()
     folder = Path(folder)
     depth = np.asarray(maps.depth_m, np.float32)
@@ -118,7 +115,9 @@ def write_outputs(folder: str | Path, maps: DepthMaps, camera: Intrinsics,
     written: list[str] = []
 
     np.save(folder / "depth_m.npy", depth)
-    _png(folder / "depth_mm.png", _to_mm16(depth))
+    clipped: dict[str, int] = {}  # *_mm.png: pixels beyond 65.535 m
+    depth_mm, clipped["depth_mm.png"] = encode_mm16(depth)
+    _png(folder / "depth_mm.png", depth_mm)
     ok, enc = cv2.imencode(".tiff", depth)
     if not ok:
         raise OutputError(f"{folder / 'depth_m.tif'}: could not encode the TIFF")
@@ -134,7 +133,8 @@ def write_outputs(folder: str | Path, maps: DepthMaps, camera: Intrinsics,
     if maps.std_m is not None:
         std = np.asarray(maps.std_m, np.float32)
         np.save(folder / "std_m.npy", std)
-        _png(folder / "std_mm.png", _to_mm16(std))
+        std_mm, clipped["std_mm.png"] = encode_mm16(std)
+        _png(folder / "std_mm.png", std_mm)
         preview, std_scale = uncertainty_preview(std, uncertainty_range(std)[1])
         _png(folder / "std_color.png", preview)
         scales["std_color.png"] = std_scale.as_json()
@@ -160,8 +160,10 @@ def write_outputs(folder: str | Path, maps: DepthMaps, camera: Intrinsics,
         _write_rrd(folder / "recording.rrd", depth, aif8, maps.std_m, camera, recording, depth_scale, std_scale)
         written.append("recording.rrd")
     timings["record"] = round(time.perf_counter() - t1, 4)
-    return {"outputs": {k: DESCRIPTIONS[k] for k in written}, "color_scales": scales,
-            "points": {"count": int(len(pts)), "stride_px": stride}, "timings_s": timings}
+    described = {k: DESCRIPTIONS[k] + (f"; {clipped[k]} px beyond 65.535 m clipped to 65535" if clipped.get(k) else "")
+                 for k in written}  # the PNG's policy: aat_deploy.io.depth_png
+    return {"outputs": described, "color_scales": scales, "points": {"count": int(len(pts)), "stride_px": stride},
+            "timings_s": timings}
 
 
 def _write_rrd(path: Path, depth: np.ndarray, aif8: np.ndarray, std: np.ndarray | None, camera: Intrinsics,

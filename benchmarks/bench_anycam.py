@@ -39,7 +39,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from bench_table2 import fmt, paired_ratio, score, summarise  # noqa: E402 (one scoring for every DfF table)
+from aat_deploy.eval.score import scene_scores as score  # noqa: E402 (one scoring for every DfF table)
+from aat_deploy.eval.stats import fmt_interval as fmt  # noqa: E402
+from aat_deploy.eval.stats import paired_ratio, summarise  # noqa: E402
 
 from aat_deploy.io.atomic import write_text_atomic  # noqa: E402
 

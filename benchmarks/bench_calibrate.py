@@ -48,9 +48,9 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from bench_table2 import N_BOOT, paired_ratio  # noqa: E402 (one paired bootstrap for every DfF table)
+from aat_deploy.eval.stats import N_BOOT, bootstrap_mean, paired_ratio, zone_masks  # noqa: E402 (every DfF table's)
+from aat_deploy.eval.stats import fmt_interval as fmt  # noqa: E402
 
 CACHE = ROOT / "cache" / "calibrate"
 SCALE = 1.1  # the copy's reported distance / true distance
@@ -263,8 +263,6 @@ def part_map(rig: Rig, n_boot: int, log) -> tuple[list, dict]:
 
 
 def zone_scores(depth: np.ndarray, gt: np.ndarray) -> dict:
-    from training.train.heldout import zone_masks
-
     valid = np.isfinite(gt) & (gt > 0)
     err = np.abs(depth - gt)
     outer = zone_masks(*gt.shape)["outer"] & valid
@@ -272,7 +270,6 @@ def zone_scores(depth: np.ndarray, gt: np.ndarray) -> dict:
 
 
 def part_depth(rig: Rig, cal, n: int, log) -> dict:
-    from aat_deploy.diagnose.bootstrap import capture_bootstrap
     from aat_deploy.focus import FocusConfig, depth_from_focus
     from aat_deploy.focus.measures import focus_volume
     from training.train.testsets import TestSetSpec, load_test_set
@@ -298,7 +295,7 @@ def part_depth(rig: Rig, cal, n: int, log) -> dict:
             per[k].append({"scene": it.name, **zone_scores(r.depth_m, it.depth_m)})
     out = {"scenes": len(items), "per_scene": per}
     for k, v in per.items():
-        out[k] = {z: list(capture_bootstrap(np.array([x[z] for x in v]), n_boot=N_BOOT, seed=1))
+        out[k] = {z: list(bootstrap_mean([x[z] for x in v], n_boot=N_BOOT, seed=1))
                   for z in ("mae", "mae_outer")}
     for z in ("mae", "mae_outer"):
         out[f"cal/oracle {z}"] = paired_ratio(per["calibration"], per["oracle"], z)
@@ -416,11 +413,6 @@ def part_blind(rig: Rig, chart_cal, n_worlds: int, log) -> list[dict]:
 
 
 # -- tables ----------------------------------------------------------------------------------------------------------
-def fmt(v, d=3) -> str:
-    m, lo, hi = v
-    return f"{m:.{d}f} [{lo:.{d}f}, {hi:.{d}f}]"
-
-
 def tables(res: dict) -> str:
     out = ["### a) The calibrated map against the copy's truth (diopters over every pixel)", "",
            "| lens | variant | focus error fitted | tiles | residual RMS | calibration RMS / p95, inside | "

@@ -7,8 +7,8 @@ Test sets (never seen in training; all rendered with the RF50's PSFs, the `aat` 
 - procedural: `--n` held-out procedural scenes (seed 777777) at the full 640 x 960 sensor;
 - middlebury: the real Middlebury 2014 Motorcycle scene (2.1-5.0 m) scaled to cover the sensor.
 Models are the shipped ONNX files, run with onnxruntime exactly as `aat-infer` runs them. Metrics per image,
-then averaged (aat_deploy.metrics); depth in metres from the sensor. Also MAE by field zone (normalised radius
-< 0.33 centre, > 0.66 outer) and a figure of the mean error over the field per model. The evaluation code is
+then averaged (aat_deploy.metrics); depth in metres from the sensor. Also MAE by field zone (field radius
+< 0.33 centre, > 0.66 outer: aat_deploy.eval.stats) and a figure of the mean error over the field per model. The evaluation code is
 `training/train/heldout.py` (shared with `aat-train --lens`).
 """
 

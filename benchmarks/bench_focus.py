@@ -8,10 +8,10 @@ Test stacks: `training.train.testsets` (the cache every DfF benchmark shares), t
 diopters over 0.5-10 m, never looking at the scene; `--n` held-out procedural scenes (photo textures of the test
 split, random depth ranges) and Middlebury 2014 Motorcycle, all rendered through the lens's PSF surrogate at its
 full sensor. Depth in metres from the sensor over valid ground truth; per scene MAE, AbsRel, delta1 overall, in the
-centre (normalised field radius < 0.33) and the outer field (> 0.66), as `training.train.heldout.zone_masks`; the
-mean over scenes with a 95 % bootstrap interval over scenes (`aat_deploy.diagnose.bootstrap.capture_bootstrap`);
+centre (field radius < 0.33) and the outer field (> 0.66), the zones of `aat_deploy.eval.stats` (circular radius over
+the half-diagonal, 1 = corner); the mean over scenes with a 95 % bootstrap interval over scenes (`summarise`);
 Middlebury is one scene: its interval resamples 16 px tiles (`ratio_bootstrap`). "AA / thin" rows: the ratio of
-mean MAEs with a paired bootstrap over scenes.
+mean MAEs with a paired bootstrap over scenes (`paired_ratio`).
 
 Mappings: thin lens (each frame in focus at its nominal distance), aberration-aware traced (the lens's best-focus
 map, min RMS spot) and aberration-aware calibrated (plus the offset measured on rendered stacks), both from
@@ -37,13 +37,19 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from aat_deploy.io.atomic import write_text_atomic  # noqa: E402
-from bench_table2 import N_BOOT, paired_ratio  # noqa: E402 (one paired bootstrap for every DfF table)
+from aat_deploy.eval.stats import (  # noqa: E402 (the statistics of every DfF table)
+    N_BOOT,
+    bootstrap_mean,
+    fmt_interval,
+    paired_ratio,
+    ratio_bootstrap,
+    summarise,
+    zone_masks,
+)
+from training.train.testsets import LENSES  # noqa: E402
 
-LENSES = {"rf50": ("lenses/canon_rf50mm_f1.8.json", "models/psf_rf50.onnx"),
-          "paper50": ("lenses/paper_50mm_f2.8.json", "models/psf_paper50.onnx")}
 ZONES = ("all", "centre", "outer")
 KEYS = ("mae", "abs_rel", "delta1")
 
@@ -51,14 +57,13 @@ KEYS = ("mae", "abs_rel", "delta1")
 def load_items(lens: str, n: int):
     from training.train.testsets import TestSetSpec, load_test_set
 
-    path, psf = LENSES[lens]
+    path, psf = LENSES[lens]["lens"], LENSES[lens]["psf"]
     return load_test_set(TestSetSpec(path, psf, 8, protocol="fixed", n_procedural=n), str(ROOT / "cache/heldout"))
 
 
 def score(depth_m: np.ndarray, gt_m: np.ndarray) -> dict:
     """Per-scene {zone_key: value} for KEYS over ZONES."""
     from aat_deploy.metrics import depth_metrics
-    from training.train.heldout import zone_masks
 
     masks = {"all": None, **zone_masks(*gt_m.shape)}
     out = {}
@@ -71,9 +76,6 @@ def score(depth_m: np.ndarray, gt_m: np.ndarray) -> dict:
 
 def tile_interval(depth_m: np.ndarray, gt_m: np.ndarray) -> dict:
     """One scene: {zone_key: [mean, lo, hi]} with a tile bootstrap (`ratio_bootstrap`)."""
-    from aat_deploy.diagnose.bootstrap import ratio_bootstrap
-    from training.train.heldout import zone_masks
-
     masks = {"all": np.ones(gt_m.shape, bool), **zone_masks(*gt_m.shape)}
     valid = np.isfinite(gt_m) & (gt_m > 0)
     g = np.where(valid, gt_m, 1.0)
@@ -89,24 +91,12 @@ def tile_interval(depth_m: np.ndarray, gt_m: np.ndarray) -> dict:
     return out
 
 
-def summarise(per_scene: list[dict]) -> dict:
-    from aat_deploy.diagnose.bootstrap import capture_bootstrap
-
-    keys = per_scene[0].keys()
-    return {k: list(capture_bootstrap(np.array([s[k] for s in per_scene]), n_boot=N_BOOT, seed=1)) for k in keys}
-
-
-def fmt(v, d=3) -> str:
-    m, lo, hi = v
-    return f"{m:.{d}f} [{lo:.{d}f}, {hi:.{d}f}]" if lo != hi else f"{m:.{d}f}"
-
-
 def table(rows: list[tuple[str, dict]]) -> str:
     head = ("| method | MAE (m) | AbsRel | δ1 | MAE centre | AbsRel centre | δ1 centre | MAE outer | AbsRel outer "
             "| δ1 outer |\n|---|" + "---|" * 9)
     lines = [head]
     for lab, s in rows:
-        lines.append(f"| {lab} | " + " | ".join(fmt(s[f'{z}_{k}']) for z in ZONES for k in KEYS) + " |")
+        lines.append(f"| {lab} | " + " | ".join(fmt_interval(s[f'{z}_{k}']) for z in ZONES for k in KEYS) + " |")
     return "\n".join(lines)
 
 
@@ -155,9 +145,8 @@ def run_variants(items) -> list[tuple[str, dict]]:
     for mode in ("weights", "peak"):
         res = classical(items, replace(base, aif=mode, fill="none"))
         p = [psnr(np.clip(a, 0, 1), np.clip(it.aif, 0, 1)) for (_, a), it in zip(res, items)]
-        from aat_deploy.diagnose.bootstrap import capture_bootstrap
 
-        aif_rows.append((mode, list(capture_bootstrap(np.array(p), n_boot=N_BOOT, seed=1))))
+        aif_rows.append((mode, list(bootstrap_mean(p, n_boot=N_BOOT, seed=1))))
     return rows, aif_rows
 
 
@@ -231,7 +220,7 @@ def main(argv: list[str] | None = None) -> int:
     from aat_deploy.focus import FocusConfig
     from aat_deploy.focus.bestfocus import load_json, map_path_for_lens
 
-    lens_path = ROOT / LENSES[a.lens][0]
+    lens_path = ROOT / LENSES[a.lens]["lens"]
     mp = map_path_for_lens(lens_path)
     fmap = load_json(mp) if mp.is_file() else None
     if fmap is None:
@@ -257,7 +246,7 @@ def main(argv: list[str] | None = None) -> int:
         print(table(rows))
         print("\n| AiF blending | PSNR (dB) vs the ground-truth all-in-focus |\n|---|---|")
         for mode, v in aif_rows:
-            print(f"| {mode} | {fmt(v, 2)} |")
+            print(f"| {mode} | {fmt_interval(v, 2)} |")
         result["variants"] = dict(rows)
         result["aif"] = dict(aif_rows)
     for sname, items in sets.items():
@@ -287,7 +276,7 @@ def main(argv: list[str] | None = None) -> int:
                 print("\n| MAE ratio, aberration-aware / thin-lens mapping (paired over scenes) | all | centre "
                       "| outer |\n|---|---|---|---|")
                 for lab, r in ratios.items():
-                    print(f"| {lab} | " + " | ".join(fmt(r[z]) for z in ZONES) + " |")
+                    print(f"| {lab} | " + " | ".join(fmt_interval(r[z]) for z in ZONES) + " |")
         result["sets"][sname] = {"rows": dict(rows), "ratios": ratios, "per_scene": per}
     out = Path(a.out) / f"focus_{a.lens}.json"
     out.parent.mkdir(parents=True, exist_ok=True)

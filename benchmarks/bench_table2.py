@@ -12,7 +12,8 @@ Beside them, the simplest honest baseline on the same stacks: the runtime's clas
 (aat_deploy.focus, when present), with the nominal (thin-lens) focus mapping and with the lens's best-focus map.
 
 Metrics per image, then the mean over images (aat_deploy.metrics), depth in metres from the sensor, over valid
-ground truth; MAE in the centre (normalised field radius < 0.33) and the outer field (> 0.66); all-in-focus PSNR
+ground truth; MAE in the centre (field radius < 0.33) and the outer field (> 0.66), the zones of
+`aat_deploy.eval.stats` (circular radius over the half-diagonal, 1 = corner; per scene `scene_scores`); all-in-focus PSNR
 and SSIM (normalised units, data range 1). 95 % intervals: bootstrap over scenes (procedural set; Middlebury is
 one scene, no interval). "ratio" rows: mean MAE of the AAT model / mean MAE of its thin-lens twin, with a paired
 bootstrap interval over scenes; the same for each AAT model against the aberration-aware classical method, and for
@@ -34,87 +35,35 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from aat_deploy.eval.score import scene_scores as score  # noqa: E402,F401 (re-exported, below)
+from aat_deploy.eval.stats import (  # noqa: E402
+    N_BOOT,  # noqa: F401
+    field_radius,
+    paired_diff,
+    paired_ratio,
+    summarise,
+)
+from aat_deploy.eval.stats import fmt_interval as fmt  # noqa: E402
 from aat_deploy.io.atomic import write_text_atomic  # noqa: E402
+from training.train.testsets import LENSES  # noqa: E402
 
-LENSES = {
-    "paper50": {"lens": "lenses/paper_50mm_f2.8.json", "psf": "models/psf_paper50.onnx", "stack_size": 10},
-    "rf50": {"lens": "lenses/canon_rf50mm_f1.8.json", "psf": "models/psf_rf50.onnx", "stack_size": 8},
-}
+# score, summarise, paired_ratio, paired_diff, fmt, N_BOOT and LENSES stay importable from here (as the scripts of work in
+# progress import them) until benchmarks/ becomes a package; new code imports aat_deploy.eval.stats / .score and training.train.testsets.
+
 KEYS = ("mae", "mse", "rmse", "abs_rel", "sq_rel", "delta1", "delta2", "delta3", "mae_centre", "mae_outer",
         "psnr", "ssim")
-N_BOOT = 2000
 CLASSICAL_AA = "Classical focus, aberration-aware"
 AIF_LOSS = " + AiF loss"  # label suffix of the nets fine-tuned with an all-in-focus term (configs/table2/*_aif.json)
 ABLATIONS = (" + field", AIF_LOSS)
 
 
-def score(depth_m: np.ndarray, gt_m: np.ndarray, aif: np.ndarray | None, aif_ref: np.ndarray | None) -> dict:
-    """Per-image metrics: the paper's depth metrics, zone MAE, all-in-focus PSNR/SSIM (NaN without an AiF)."""
-    from aat_deploy.metrics import depth_metrics, psnr, ssim
-    from training.train.heldout import zone_masks
-
-    m = depth_metrics(depth_m, gt_m)
-    for z, mask in zone_masks(*gt_m.shape).items():
-        m[f"mae_{z}"] = depth_metrics(depth_m, gt_m, mask=mask)["mae"]
-    if aif is not None and aif_ref is not None:
-        a, r = np.clip(aif, 0, 1), np.clip(aif_ref, 0, 1)
-        m["psnr"] = psnr(a, r)
-        m["ssim"] = ssim(a, r, channel_axis=0)
-    else:
-        m["psnr"] = m["ssim"] = float("nan")
-    return m
-
-
-def summarise(per_scene: list[dict]) -> dict:
-    """{key: [mean, ci_low, ci_high]} over scenes (interval NaN-free only with >= 2 scenes)."""
-    from aat_deploy.diagnose.bootstrap import capture_bootstrap
-
-    out = {}
-    for k in KEYS:
-        v = np.array([s[k] for s in per_scene], np.float64)
-        v = v[np.isfinite(v)]
-        if v.size == 0:
-            out[k] = [float("nan")] * 3
-        else:
-            out[k] = list(capture_bootstrap(v, n_boot=N_BOOT, seed=1))
-    return out
-
-
-def paired_ratio(a: list[dict], b: list[dict], key: str = "mae") -> list[float]:
-    """mean(a[key]) / mean(b[key]) over the same scenes, with a paired bootstrap interval (scenes resampled)."""
-    x = np.array([s[key] for s in a], np.float64)
-    y = np.array([s[key] for s in b], np.float64)
-    est = float(x.mean() / y.mean())
-    if len(x) < 2:
-        return [est, float("nan"), float("nan")]
-    rng = np.random.default_rng(2)
-    idx = rng.integers(0, len(x), size=(N_BOOT, len(x)))
-    reps = x[idx].mean(1) / y[idx].mean(1)
-    return [est, float(np.quantile(reps, 0.025)), float(np.quantile(reps, 0.975))]
-
-
-def paired_diff(a: list[dict], b: list[dict], key: str = "psnr") -> list[float]:
-    """mean(a[key] - b[key]) over the scenes where both are finite, with a paired bootstrap interval (the AiF
-    PSNR comparison of the paper's Table 3, in dB)."""
-    d = np.array([x[key] - y[key] for x, y in zip(a, b)], np.float64)
-    d = d[np.isfinite(d)]
-    if d.size == 0:
-        return [float("nan")] * 3
-    est = float(d.mean())
-    if d.size < 2:
-        return [est, float("nan"), float("nan")]
-    rng = np.random.default_rng(3)
-    reps = d[rng.integers(0, d.size, size=(N_BOOT, d.size))].mean(1)
-    return [est, float(np.quantile(reps, 0.025)), float(np.quantile(reps, 0.975))]
-
-
 def field_figures(maps: dict[str, np.ndarray], path: Path, title: str) -> None:
     """Mean |error| over the sensor per model (one panel each) and MAE against field radius: the paper's Fig. 9."""
-    from training.train.heldout import ModelResult, plot_error_over_field, plot_error_vs_radius, radius_map
+    from training.train.heldout import ModelResult, plot_error_over_field, plot_error_vs_radius
 
     results = []
     for lab, emap in maps.items():
-        r = radius_map(*emap.shape)
+        r = field_radius(*emap.shape)
         edges = np.linspace(0, 1, 11)
         prof = np.array([np.nanmean(emap[(r >= lo) & (r < hi if hi < 1 else r <= hi)]) for lo, hi in
                          zip(edges[:-1], edges[1:])])
@@ -161,15 +110,6 @@ def label_of(meta: dict, path: Path) -> str:
     sim = "AAT" if meta.get("aat.simulator") == "aat" else "Baseline"
     return (f"{sim} {net}" + (" + field" if int(meta.get("aat.field_channels") or 0) else "")
             + (AIF_LOSS if str(meta.get("aat.config_name", "")).endswith("_aif") else ""))
-
-
-def fmt(v: list[float], digits: int = 4) -> str:
-    m, lo, hi = v
-    if not np.isfinite(m):
-        return "–"
-    if not (np.isfinite(lo) and np.isfinite(hi)) or lo == hi:
-        return f"{m:.{digits}f}"
-    return f"{m:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
 
 
 def table(rows: list[tuple[str, dict]]) -> str:
@@ -226,7 +166,7 @@ def main(argv: list[str] | None = None) -> int:
                 lab = label_of(meta, path)
                 per_model[lab] = per
                 maps[lab] = err_map
-                rows.append((lab, summarise(per)))
+                rows.append((lab, summarise(per, KEYS)))
                 print(f"{sname} {protocol}: {lab} ({path.name}) {time.time() - t0:.0f} s", file=sys.stderr)
             if not a.no_classical:
                 for lab, fn in classical_methods(spec_l["lens"]):
@@ -237,7 +177,7 @@ def main(argv: list[str] | None = None) -> int:
                         errs.append(np.where(it.depth_m > 0, np.abs(depth - it.depth_m), np.nan))
                     maps[lab] = np.nanmean(np.stack(errs), 0)
                     per_model[lab] = per
-                    rows.append((lab, summarise(per)))
+                    rows.append((lab, summarise(per, KEYS)))
             ratios = {}
             for lab in per_model:
                 if lab.startswith("AAT "):

@@ -21,8 +21,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from bench_table2 import LENSES  # noqa: E402
+from training.train.testsets import LENSES  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -45,7 +45,7 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     from tqdm import tqdm
 
-    from aat_deploy.diagnose.bootstrap import capture_bootstrap
+    from aat_deploy.eval.stats import bootstrap_mean
     from aat_deploy.metrics import depth_metrics
     from aat_deploy.model import DfFModel
     from aat_deploy.render.fields import pixel_fields
@@ -68,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
                     fxy = np.stack(pixel_fields(h, w, ds.sensor_hw, tuple(int(v) for v in it["origin"])))
                 out = model.infer(it["stack"], it["focus_m"], field_xy=fxy)
                 per[m].append(depth_metrics(out.depth_m, it["depth_m"])["mae"])
-        res[vname] = {m: list(capture_bootstrap(np.array(v), n_boot=2000, seed=1)) for m, v in per.items()}
+        res[vname] = {m: list(bootstrap_mean(v, n_boot=2000, seed=1)) for m, v in per.items()}
     print(f"\nDepth MAE (m), {a.n} images of {cfg.val_data['height']}x{cfg.val_data['width']} px per variant, "
           f"simulator {cfg.simulator}, 95 % bootstrap over images\n")
     print("| variant | " + " | ".join(models) + " |\n|---|" + "---|" * len(models))

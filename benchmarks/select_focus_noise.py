@@ -34,8 +34,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from bench_table2 import LENSES, N_BOOT, paired_ratio  # noqa: E402
+from aat_deploy.eval.stats import N_BOOT, bootstrap_mean, paired_ratio  # noqa: E402
+from training.train.testsets import LENSES  # noqa: E402
 
 VAL_SEED = 424242  # apart from the test sets' 777777 and from every training seed
 CONDITIONS = {"clean": (), "noise": ("noise",)}
@@ -74,7 +74,6 @@ def main(argv: list[str] | None = None) -> int:
     variants = [(e, s) for e in ESTIMATORS for s in sigmas]
     from tqdm import tqdm
 
-    from aat_deploy.diagnose.bootstrap import capture_bootstrap
     from aat_deploy.focus import FocusConfig, depth_from_focus
     from aat_deploy.focus.bestfocus import load_json, map_path_for_lens
     from aat_deploy.focus.measures import focus_volume
@@ -100,7 +99,7 @@ def main(argv: list[str] | None = None) -> int:
                         d = depth_from_focus(it.stack, it.focus_m, fmap, cfg, volume=vol).depth_m
                         per[(e, s)].append({"mae": float(np.abs(d - it.depth_m)[valid].mean())})
             cell = f"{lens} {cond}"
-            table[cell] = {name(v): {"mae": list(capture_bootstrap(np.array([p["mae"] for p in per[v]]),
+            table[cell] = {name(v): {"mae": list(bootstrap_mean([p["mae"] for p in per[v]],
                                                                     n_boot=N_BOOT, seed=1)),
                                      "ratio_to_reference": paired_ratio(per[v], per[REFERENCE])} for v in variants}
             ratios[cell] = {v: table[cell][name(v)]["ratio_to_reference"][0] for v in variants}

@@ -34,8 +34,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from bench_table2 import N_BOOT, paired_ratio  # noqa: E402
+from aat_deploy.eval.stats import N_BOOT, bootstrap_mean, paired_ratio  # noqa: E402
 from select_focus_noise import CONDITIONS, VAL_SEED  # noqa: E402
 
 # (label, lens, PSF surrogate, simulator, frames, aberration-aware): the RF50 at its 960 x 640 working size through
@@ -87,7 +86,6 @@ def main(argv: list[str] | None = None) -> int:
     from tqdm import tqdm
 
     from aat_deploy.calibrate import thin_lens_defocus_scale_px_per_d
-    from aat_deploy.diagnose.bootstrap import capture_bootstrap
     from aat_deploy.focus.bestfocus import load_json, map_path_for_lens
     from aat_deploy.focus.scale import TileSampler, blur_step_px
     from aat_deploy.io.atomic import write_text_atomic
@@ -154,7 +152,7 @@ def main(argv: list[str] | None = None) -> int:
                                       float(np.nanpercentile(est, 90))],
                 "step_unmeasured": int(np.isnan(est).sum()),
                 "step_thin_lens_px": float(np.median(thin_steps)),
-                "fixed": {str(k): {"mae": list(capture_bootstrap(np.array([p["mae"] for p in v]), n_boot=N_BOOT,
+                "fixed": {str(k): {"mae": list(bootstrap_mean([p["mae"] for p in v], n_boot=N_BOOT,
                                                                  seed=1)),
                                    "ratio": paired_ratio(v, base), "step_at_working_px": float(np.nanmedian(est) / k),
                                    "side_px": round(max(it.stack.shape[2:]) / k)} for k, v in per.items()},

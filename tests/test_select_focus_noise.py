@@ -2,7 +2,6 @@
 hand-computed cases."""
 
 import importlib.util
-import sys
 from pathlib import Path
 
 import pytest
@@ -12,7 +11,6 @@ ROOT = Path(__file__).resolve().parents[1]
 
 @pytest.fixture(scope="module")
 def select():
-    sys.path.insert(0, str(ROOT / "benchmarks"))  # it imports bench_table2's paired bootstrap
     spec = importlib.util.spec_from_file_location("select_focus_noise", ROOT / "benchmarks/select_focus_noise.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)

@@ -15,6 +15,7 @@ import numpy as np
 
 from aat_deploy.capture.raw import linear_to_srgb
 from aat_deploy.io.atomic import atomic_folder
+from aat_deploy.io.depth_png import encode_mm16
 from aat_deploy.lens.schema import Lens
 from aat_deploy.optics.paraxial import paraxial_data
 from aat_deploy.capture.dng import write_dng
@@ -81,7 +82,7 @@ def write_capture(out_dir, frames: np.ndarray, focus_reported_m, lens: Lens, gt_
         if gt_depth_m is not None:
             g = np.where(np.isfinite(gt_depth_m) & (gt_depth_m > 0), gt_depth_m, 0).astype(np.float32)
             np.save(tmp / "gt_depth_m.npy", g)
-            cv2.imwrite(str(tmp / "gt_depth_mm.png"), np.clip(np.round(g * 1000), 0, 65535).astype(np.uint16))
+            cv2.imwrite(str(tmp / "gt_depth_mm.png"), encode_mm16(g)[0])
         if aif_linear is not None:
             srgb = linear_to_srgb(np.transpose(aif_linear, (1, 2, 0)))
             cv2.imwrite(str(tmp / "gt_aif.png"), np.round(srgb[..., ::-1] * 255).astype(np.uint8))

@@ -30,11 +30,10 @@ from ..gt.read import check_aspect, check_units, find_gt, load_ground_truth
 from ..camera import load_intrinsics
 from ..gt.raycast import load_mesh, load_pose, render_depth
 from ..io.atomic import atomic_files
+from ..io.depth_png import encode_mm16
 from ..io.guard import check_output_files
 from ..io.images import imwrite
 from .common import parser, run_guarded, subparser
-
-MM_MAX = 65535
 
 
 def output_paths(out: Path) -> dict[str, Path]:
@@ -51,10 +50,7 @@ def output_paths(out: Path) -> dict[str, Path]:
 
 def _write_atomic(paths: dict[str, Path], depth_m: np.ndarray, info: dict) -> None:
     valid = np.isfinite(depth_m)
-    mm = np.where(valid, np.rint(np.nan_to_num(depth_m) * 1000.0), 0)
-    too_far = int((mm > MM_MAX).sum())
-    mm = np.where(mm > MM_MAX, 0, mm).astype(np.uint16)
-    info["beyond_png_range"] = too_far
+    mm, info["beyond_png_range"] = encode_mm16(depth_m)  # clipped to 65.535 m in the PNG; the .npy keeps them
     with atomic_files(*paths.values()) as tmps:
         tmp = dict(zip(paths, tmps))
         np.save(tmp["npy"], depth_m.astype(np.float32))

@@ -9,7 +9,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-RADIUS_EDGES = (0.0, 0.2, 0.4, 0.6, 0.8, 1.0001)  # field radius / half-diagonal
+from aat_deploy.eval.stats import field_radius
+
+RADIUS_EDGES = (0.0, 0.2, 0.4, 0.6, 0.8, 1.0001)  # field radius (aat_deploy.eval.stats.field_radius)
 DEFOCUS_EDGES_D = (0.0, 0.05, 0.1, 0.2, 0.4, np.inf)  # distance from the nearest focus setting, diopters
 MAP_GRID = (4, 6)  # rows x cols of the 2-D map
 
@@ -22,13 +24,6 @@ class Binning:
     index: np.ndarray
     labels: list[str]
     unit: str
-
-
-def field_radius(h: int, w: int) -> np.ndarray:
-    """Distance of each pixel centre from the optical axis (image centre) over the half-diagonal: 0..1."""
-    y = (np.arange(h) + 0.5 - h / 2)[:, None]
-    x = (np.arange(w) + 0.5 - w / 2)[None, :]
-    return (np.sqrt(x * x + y * y) / np.hypot(h / 2, w / 2)).astype(np.float32)
 
 
 def texture(aif_linear: np.ndarray) -> np.ndarray:
@@ -65,7 +60,7 @@ def make_binnings(gt_m: np.ndarray, focus_m: np.ndarray, aif_linear: np.ndarray,
     d_idx = _digitize(np.where(valid, gt_m, np.nan), np.asarray(depth_edges_m), valid)  # bin 0 = nearest
     depth_labels = _edge_labels(np.asarray(depth_edges_m), "{:.2f}")
     return [
-        Binning("field_radius", _digitize(field_radius(h, w), RADIUS_EDGES, valid), _edge_labels(RADIUS_EDGES, "{:.1f}"),
+        Binning("field_radius", _digitize(field_radius(h, w).astype(np.float32), RADIUS_EDGES, valid), _edge_labels(RADIUS_EDGES, "{:.1f}"),
                 "field radius / half-diagonal"),
         Binning("field_map", np.where(valid, cell, -1).astype(np.int32),
                 [f"r{r}c{c}" for r in range(rows) for c in range(cols)], f"{rows}x{cols} grid cell (row, col from top left)"),

@@ -23,6 +23,7 @@ import numpy as np
 
 from ..errors import CaptureError
 from ..io.atomic import atomic_folder, writing
+from ..io.colorize import colorize
 from ..metrics import depth_metrics
 from ..process import depth_from_frames
 from . import plots, report
@@ -120,7 +121,7 @@ def _run_one(ds: Dataset, item, label: str, model, tmp: Path, opts: DatasetEvalO
         if opts.pictures:
             shown = ds.conventions.to_unit(np.asarray(pred, np.float64))
             lo, hi = np.nanpercentile(shown, [1, 99]) if np.isfinite(shown).any() else (0.0, 1.0)
-            plots.write_rgb_png(tmp / "maps" / label / f"{item.name}.png", plots.colorize(shown, lo, max(hi, lo + 1e-9)))
+            plots.write_rgb_png(tmp / "maps" / label / f"{item.name}.png", colorize(shown, lo, max(hi, lo + 1e-9)))
         return {**row, "status": "shown"}
     frame_hw = res.frame_hw
     metrics, p, g = score_stack(pred, item.gt, item.mask, (frame_hw[1], frame_hw[0]), res.geometry["crop_xywh"],
@@ -130,7 +131,7 @@ def _run_one(ds: Dataset, item, label: str, model, tmp: Path, opts: DatasetEvalO
         hi = max(hi, lo + 1e-9)
         err = np.abs(p - g)
         emax = max(float(np.nanpercentile(err, 99)) if np.isfinite(err).any() else 1.0, 1e-9)
-        panel = np.hstack([plots.colorize(p, lo, hi), plots.colorize(g, lo, hi), plots.colorize(err, 0.0, emax)])
+        panel = np.hstack([colorize(p, lo, hi), colorize(g, lo, hi), colorize(err, 0.0, emax)])
         plots.write_rgb_png(tmp / "maps" / label / f"{item.name}.png", panel)
     return {**row, "status": "ok" if metrics["n_valid"] else "failed", **metrics,
             **({} if metrics["n_valid"] else {"error": "no valid ground-truth pixel"})}

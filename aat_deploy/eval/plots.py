@@ -1,26 +1,13 @@
-"""Pictures of an evaluation: colour-mapped error maps (OpenCV), per-capture panels and error profiles
-(matplotlib, Agg canvas only: no pyplot state, no display needed).
+"""Pictures of an evaluation: per-capture panels and error profiles (matplotlib, Agg canvas only: no pyplot state,
+no display needed). Colour-mapped error maps are `aat_deploy.io.colorize.colorize`.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-import cv2
 import numpy as np
 from ..io.images import imwrite
-
-INVALID_RGB = (40, 40, 40)
-
-
-def colorize(x: np.ndarray, vmin: float, vmax: float, colormap: int = cv2.COLORMAP_TURBO) -> np.ndarray:
-    """(H, W) float → (H, W, 3) uint8 RGB through an OpenCV colour map over [vmin, vmax]; NaN → dark grey."""
-    ok = np.isfinite(x)
-    span = max(vmax - vmin, 1e-12)
-    u8 = np.rint(np.clip((np.where(ok, x, vmin) - vmin) / span, 0, 1) * 255).astype(np.uint8)
-    rgb = cv2.applyColorMap(u8, colormap)[..., ::-1].copy()
-    rgb[~ok] = INVALID_RGB
-    return rgb
 
 
 def write_rgb_png(path: Path, rgb: np.ndarray) -> None:

@@ -13,7 +13,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from .plots import colorize
+from ..io.colorize import colorize
 
 
 def _entity(label: str) -> str:

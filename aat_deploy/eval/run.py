@@ -28,6 +28,7 @@ from ..geometry import fit_to_sensor
 from ..metrics import MetricAccumulator, valid_mask
 from ..model import DfFModel
 from ..io.atomic import atomic_folder, writing
+from ..io.colorize import colorize
 from ..io.guard import check_no_overlap, check_output_dir
 from ..io.images import imread
 from ..pipeline import Options
@@ -42,11 +43,11 @@ from ..gt.read import (
     load_ground_truth,
     to_sensor,
 )
+from .stats import field_radius
 from .score import (
     ErrorProfile,
     aif_pair,
     depth_profile,
-    field_radius,
     fit_alignment,
     radius_profile,
 )
@@ -229,7 +230,7 @@ def _capture_pictures(tmp: Path, index: int, name: str, scored: dict, opts: Eval
         depth_range = (depth_range[0] * 0.9, depth_range[0] * 1.1)
     for lb, s in scored.items():
         s.row["error_map_max_m"] = err_max
-        plots.write_rgb_png(tmp / "maps" / lb / f"{name}_abs_error.png", plots.colorize(np.abs(s.err), 0, err_max))
+        plots.write_rgb_png(tmp / "maps" / lb / f"{name}_abs_error.png", colorize(np.abs(s.err), 0, err_max))
     first = next(iter(scored.values()))
     same_size = all(s.gt.shape == first.gt.shape for s in scored.values())
     if opts.panels and same_size:
@@ -250,7 +251,7 @@ def _finish(tmp: Path, root: Path, caps, without, models, labels, rows, cap_info
             np.save(tmp / "maps" / lb / "mean_abs_error.npy", emap.astype(np.float32))
             fin = emap[np.isfinite(emap)]
             vmax = max(float(np.percentile(fin, ERROR_PERCENTILE)), 1e-3) if fin.size else 1.0
-            plots.write_rgb_png(tmp / "maps" / lb / "mean_abs_error.png", plots.colorize(emap, 0, vmax))
+            plots.write_rgb_png(tmp / "maps" / lb / "mean_abs_error.png", colorize(emap, 0, vmax))
             overall[lb]["mean_map_max_m"] = vmax
     prof = {lb: {k: p.as_dict() for k, p in profiles[lb].items()} for lb in labels}
     if any(accs[lb].rows for lb in labels):

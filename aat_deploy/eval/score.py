@@ -1,5 +1,6 @@
 """Scoring one prediction against ground truth: optional scale/shift fit (`--align`), the shared depth metrics
-(`aat_deploy.metrics`), all-in-focus PSNR/SSIM and error profiles over field radius and depth.
+(`aat_deploy.metrics`), all-in-focus PSNR/SSIM, a test scene's scores by field zone (`scene_scores`, the DfF
+tables') and error profiles over field radius and depth.
 
 Metric depth is scored as it is. `--align` fits, over the valid pixels, p' = s·p + t to the ground truth:
 - "scale-shift": least squares in depth (s, t);
@@ -15,6 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..capture.raw import linear_to_srgb, srgb_to_linear
+from ..metrics import depth_metrics, psnr, ssim
+from .stats import zone_masks
 
 ALIGN_MODES = ("scale-shift", "scale", "median")
 
@@ -50,11 +53,22 @@ def aif_pair(aif_srgb8: np.ndarray, ref_linear: np.ndarray) -> tuple[np.ndarray,
     return enc(np.clip(p * gain, 0, 1)), enc(r), gain
 
 
-def field_radius(h: int, w: int) -> np.ndarray:
-    """(H, W) distance of each pixel centre from the image centre over the half diagonal (0 centre, 1 corner)."""
-    y = (np.arange(h) + 0.5 - h / 2)[:, None]
-    x = (np.arange(w) + 0.5 - w / 2)[None, :]
-    return np.sqrt(x * x + y * y) / np.hypot(w / 2, h / 2)
+def scene_scores(depth_m: np.ndarray, gt_m: np.ndarray, aif: np.ndarray | None = None,
+                 aif_ref: np.ndarray | None = None) -> dict[str, float]:
+    """One test scene's scores in the DfF tables (benchmarks/): the depth metrics (`aat_deploy.metrics`) over valid
+    ground truth, `mae_<zone>` per field zone (`aat_deploy.eval.stats.zone_masks`), and the all-in-focus image's
+    `psnr` / `ssim` against the reference (clipped to [0, 1], data range 1; NaN without them).
+    depth_m, gt_m (H, W) metres from the sensor (gt 0 / NaN = unknown); aif, aif_ref (3, H, W) normalised linear."""
+    m = depth_metrics(depth_m, gt_m)
+    for z, mask in zone_masks(*gt_m.shape).items():
+        m[f"mae_{z}"] = depth_metrics(depth_m, gt_m, mask=mask)["mae"]
+    if aif is not None and aif_ref is not None:
+        a, r = np.clip(aif, 0, 1), np.clip(aif_ref, 0, 1)
+        m["psnr"] = psnr(a, r)
+        m["ssim"] = ssim(a, r, channel_axis=0)
+    else:
+        m["psnr"] = m["ssim"] = float("nan")
+    return m
 
 
 @dataclass
@@ -95,6 +109,7 @@ class ErrorProfile:
 
 
 def radius_profile(bins: int = 20) -> ErrorProfile:
+    """Even bins of the field radius (`aat_deploy.eval.stats.field_radius`) from 0 to 1."""
     return ErrorProfile("field_radius", "fraction of the half diagonal", np.linspace(0, 1, bins + 1))
 
 

@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import AatError
+from ..eval.stats import field_radius
 from ..extensions import ExtensionUnavailable
 from ..extensions import load as load_extension
 from ..io.atomic import write_text_atomic
@@ -98,11 +99,9 @@ class BestFocusMap:
         return self.frame_diopters(focus_m, centres, calibrated).astype(np.float32)
 
     def radius_px(self, h: int, w: int) -> np.ndarray:
-        """(H, W) normalised image radius of each pixel centre of an H x W frame spanning the sensor."""
-        sw, sh = self.sensor_mm
-        yy = ((np.arange(h) + 0.5) / h - 0.5) * sh
-        xx = ((np.arange(w) + 0.5) / w - 0.5) * sw
-        return (np.hypot(xx[None, :], yy[:, None]) / (0.5 * np.hypot(sw, sh))).astype(np.float32)
+        """(H, W) float32 field radius of each pixel centre of an H x W frame spanning the sensor, measured on it
+        in mm (`aat_deploy.eval.stats.field_radius`)."""
+        return field_radius(h, w, self.sensor_mm).astype(np.float32)
 
     # -- storage ---------------------------------------------------------------------------------------------
     def to_dict(self) -> dict:

@@ -3,7 +3,8 @@
 Each preview is the map in a colour scale with a labelled colour bar on its right (the range in metres written
 beside the map), as 8-bit RGB. Depth uses an inverse-depth (diopter) scale, so equal colour steps are equal steps
 of defocus, near at the low end of the colour map as in the rerun recording; uncertainty a linear scale from 0.
-Unknown pixels (NaN, inf, <= 0 depth) are grey.
+Unknown pixels (NaN, inf, <= 0 depth) are grey. `colorize` is the same colour mapping without a bar, on a linear
+scale (aat-eval's error maps); every colour picture of a map in aat_deploy is made here.
 """
 
 from __future__ import annotations
@@ -85,6 +86,13 @@ def _with_bar(img: np.ndarray, colormap: str, labels: list[tuple[float, str]], t
     if roomy:
         cv2.putText(panel, title, (gap, max(text_h + 2, top - text_h)), font, fs, ink, th, cv2.LINE_AA)
     return np.concatenate([img, panel], 1)
+
+
+def colorize(x: np.ndarray, lo: float, hi: float, colormap: str = DEPTH_COLORMAP) -> np.ndarray:
+    """(H, W) values -> (H, W, 3) uint8 RGB on a linear scale lo..hi (the colour map's ends, values outside
+    clipped), no bar; non-finite values grey. For maps that are not depth (errors, aat-eval's panels)."""
+    known = np.isfinite(x)
+    return _apply((np.where(known, x, lo) - lo) / max(hi - lo, 1e-12), known, colormap)
 
 
 def depth_preview(depth_m: np.ndarray, near_m: float, far_m: float, colormap: str = DEPTH_COLORMAP

@@ -42,7 +42,8 @@ def metrics_section(metrics: dict) -> list[str]:
     out = [f"{ts['scenes']} held-out procedural scenes (seed {ts['seed']}), whole sensor {ts['size_px'][0]} × "
            f"{ts['size_px'][1]} px, {ts['stack']} frames over {ts['focus_range_m'][0]:g}–{ts['focus_range_m'][1]:g} m, "
            f"rendered with the lens's PSFs" + (f" and {', '.join(ts['effects'])}" if ts["effects"] else "")
-           + ". Depth errors in metres from the sensor; centre / outer: normalised field radius < 0.33 / > 0.66.", "",
+           + ". Depth errors in metres from the sensor; centre / outer: field radius (from the centre over "
+           "the half-diagonal) < 0.33 / > 0.66.", "",
            "| model | file | " + " | ".join(c for c, _ in METRIC_COLS) + " |",
            "|---|---|" + "---|" * len(METRIC_COLS)]
     for name, r in metrics["models"].items():

@@ -4,8 +4,9 @@ the lens-to-model chain (`aat-train --lens`, training/chain).
 Test stacks are whole-sensor renders of scenes never seen in training (procedural scenes from their own seed, or
 a real RGB-D scene scaled to cover the sensor), normalised as the runtime normalises. Models run with
 onnxruntime exactly as `aat-infer` runs them (aat_deploy.model.DfFModel). Metrics per image, then averaged
-(aat_deploy.metrics), depth in metres from the sensor; MAE by field zone (normalised radius < 0.33 centre,
-> 0.66 outer; radius 1 = sensor corner) and MAE per radius bin (error vs field radius).
+(aat_deploy.metrics), depth in metres from the sensor; MAE by field zone and MAE per bin of the field radius (error
+vs field radius), both as `aat_deploy.eval.stats` defines them (circular radius, 1 = sensor corner; centre < 0.33,
+outer > 0.66).
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from aat_deploy.eval.stats import ZONES, field_radius, zone_masks
 from aat_deploy.io.atomic import atomic_file
 from aat_deploy.normalise import normalise_stack
 
@@ -51,20 +53,9 @@ def rgbd_item(dataset, rgb: np.ndarray, gt_m: np.ndarray) -> Item:
     return normalise_stack(st.frames.numpy()), st.focus_m.astype(np.float32), gt
 
 
-def radius_map(h: int, w: int) -> np.ndarray:
-    """Normalised field radius of each pixel centre: 0 at the centre, 1 at the sensor corners."""
-    yy, xx = np.mgrid[0:h, 0:w]
-    return np.hypot((xx + 0.5 - w / 2) / (w / 2), (yy + 0.5 - h / 2) / (h / 2)) / np.sqrt(2)
-
-
-def zone_masks(h: int, w: int) -> dict[str, np.ndarray]:
-    r = radius_map(h, w)
-    return {"centre": r < 0.33, "outer": r > 0.66}
-
-
 @dataclass
 class ModelResult:
-    """Metrics of one model on one test set: `metrics` (means over images, incl. mae_centre / mae_outer),
+    """Metrics of one model on one test set: `metrics` (means over images, incl. mae_centre / mae_middle / mae_outer),
     `error_map` (H, W) mean |error| in metres, `radial_mae` MAE (m) per bin of `radial_edges` (normalised radius)."""
 
     label: str
@@ -90,7 +81,7 @@ def evaluate_model(path, items: list[Item], threads: int = 2, n_bins: int = 10, 
     path = Path(path)
     model = DfFModel(path, threads=threads)
     acc = MetricAccumulator()
-    zones: dict[str, list[float]] = {"centre": [], "outer": []}
+    zones: dict[str, list[float]] = {z: [] for z in ZONES}
     edges = np.linspace(0.0, 1.0, n_bins + 1)
     per_bin: list[np.ndarray] = []
     for stack, focus, gt in items:
@@ -101,7 +92,7 @@ def evaluate_model(path, items: list[Item], threads: int = 2, n_bins: int = 10, 
         for z, m in zone_masks(*gt.shape).items():
             v = m & valid
             zones[z].append(float(err[v].mean()) if v.any() else float("nan"))
-        r = radius_map(*gt.shape)
+        r = field_radius(*gt.shape)
         row = np.full(n_bins, np.nan)
         for b in range(n_bins):
             v = valid & (r >= edges[b]) & ((r < edges[b + 1]) if b < n_bins - 1 else (r <= 1.0))

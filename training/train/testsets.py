@@ -27,6 +27,12 @@ from pathlib import Path
 import numpy as np
 
 PROTOCOLS = ("fixed", "paper")
+# The lenses the DfF tables test on, by the short name benchmarks/ use: lens file, PSF surrogate (paths from the
+# repository root) and the frames of their Table 2 stacks.
+LENSES = {
+    "paper50": {"lens": "lenses/paper_50mm_f2.8.json", "psf": "models/psf_paper50.onnx", "stack_size": 10},
+    "rf50": {"lens": "lenses/canon_rf50mm_f1.8.json", "psf": "models/psf_rf50.onnx", "stack_size": 8},
+}
 
 
 @dataclass(frozen=True)
