@@ -247,6 +247,8 @@ def main() -> None:
     src = find_surrogate(lens, None)
     out.parent.mkdir(parents=True, exist_ok=True)
     rows = [json.loads(x) for x in out.read_text().splitlines()] if out.exists() else []
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
+                            text=True).stdout.strip()
     bar = tqdm(todo, desc="sets", unit="set")
     for k, cap, kind in bar:
         bar.set_postfix_str(f"{cap.name} {kind}")
@@ -264,7 +266,8 @@ def main() -> None:
             (root / "diagnosis.json").write_text(json.dumps(res, indent=1, default=float))
         # the diagnosis sorts frames by reported distance: every error here keeps the true order
         row = {"capture": cap.name, **score(kind, kinds()[kind][0], true_d, rep, res),
-               "seconds": round(time.time() - t0, 1), "model": Path(a.model).name, "fit_only": a.fit_only}
+               "seconds": round(time.time() - t0, 1), "model": Path(a.model).name, "fit_only": a.fit_only,
+               "commit": commit}
         rows.append(row)
         with out.open("a") as f:
             f.write(json.dumps(row) + "\n")
