@@ -314,6 +314,24 @@ def fit_exposure(state: FitState) -> Fitted:
     return Fitted({"by_capture": {k: [round(float(x), 4) for x in v] for k, v in gains.items()}}, rep)
 
 
+def fit_focus_brightness(state: FitState) -> Fitted:
+    """The coefficient k of `focus_brightness` (1 = the lens's geometry) by least squares of every capture's
+    per-frame log gains against the twin (`region_gains`) on the log gains k = 1 makes (both less their mean over
+    the frames: a common exposure is no focus effect); None when k < 0.1."""
+    from aat_deploy.render.effects.focus_brightness import irradiance_gains
+
+    num = den = 0.0
+    ctx = state.tb.context()
+    for c, real, base in zip(state.caps_b, state.real_b, state.base_b):
+        g = np.log(region_gains(real, base))
+        u = np.log(irradiance_gains(state.tb.true_focus(c, state.chain, state.seed), ctx))
+        g, u = g - g.mean(), u - u.mean()
+        num, den = num + float(g @ u), den + float(u @ u)
+    k = num / den if den > 0 else 0.0
+    rep = {"brightness_fit": {"coefficient": k}}
+    return Fitted({"coefficient": _sig(min(k, 5.0), 2)} if k >= 0.1 else None, rep)
+
+
 def frame_warps(shifts: np.ndarray, h: int, w: int, grid: tuple[int, int]) -> np.ndarray:
     """Per frame (dx, dy, scale) that moves the twin onto the capture, by least squares on region shifts (R, S, 2)
     of the twin against the capture (`region_shifts(capture, twin)`; x right, y down, pixels) on `grid` regions
@@ -408,6 +426,7 @@ FITTERS: dict[str, Callable[[FitState], Fitted]] = {
     "sensor_tilt": fit_sensor_tilt,
     "noise": fit_noise,
     "focus_breathing": fit_breathing,
+    "focus_brightness": fit_focus_brightness,
     "exposure": fit_exposure,
     "misalignment": fit_misalignment,
     "lens_tolerance": fit_lens_tolerance,

@@ -241,3 +241,16 @@ def test_diagnosis_writes_corrected_capture_json(world, tmp_path):
         (copy / "capture.json").write_text(side.read_text())
         got = sorted(f.focus_m for f in read_capture(copy).frames)
         assert np.abs(1 / np.array(got) - 1 / FOCUS_M).max() < 0.03
+
+
+def test_focus_brightness_is_fitted_and_not_invented(world):
+    """Frames darker the nearer they are focused (the working f-number, focus_brightness at coefficient 1): the
+    fitted coefficient within 0.15 of 1; captures without it get none."""
+    from aat_deploy.diagnose import fitters as F
+    from aat_deploy.render import effects as fx
+
+    caps, twins = render_set(world, "brightness", [fx.make("focus_brightness")])
+    r = F.fit_focus_brightness(state_for(caps, twins))
+    assert r.params is not None and r.params["coefficient"] == pytest.approx(1.0, abs=0.15)
+    clean, twins = render_set(world, "clean", [])
+    assert F.fit_focus_brightness(state_for(clean, twins)).params is None
