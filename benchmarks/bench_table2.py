@@ -106,7 +106,10 @@ def classical_methods(lens_path: str):
 
 
 def label_of(meta: dict, path: Path) -> str:
-    net = {"dfvnet": "DFVNet", "aifnet": "AiFNet"}.get(str(meta.get("aat.net")), path.stem)
+    from training.nets.registry import NETS
+
+    spec = NETS.get(str(meta.get("aat.net")))
+    net = spec.label if spec else path.stem
     sim = "AAT" if meta.get("aat.simulator") == "aat" else "Baseline"
     return (f"{sim} {net}" + (" + field" if int(meta.get("aat.field_channels") or 0) else "")
             + (AIF_LOSS if str(meta.get("aat.config_name", "")).endswith("_aif") else ""))

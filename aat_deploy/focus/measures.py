@@ -21,11 +21,13 @@ frames are out of focus, and the per-pixel argmax picks noise.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
 
 LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)  # Rec. 709 / sRGB primaries (linear)
-MEASURES = ("lape", "sml", "mlap2", "tenengrad", "multiscale")
 
 
 def grey(stack: np.ndarray) -> np.ndarray:
@@ -74,9 +76,6 @@ def tenengrad(g: np.ndarray, window_px: float = 9, step: int = 1) -> np.ndarray:
     return _window(gx * gx + gy * gy, window_px)
 
 
-_SINGLE = {"lape": lape, "sml": sml, "mlap2": mlap2, "tenengrad": tenengrad}
-
-
 def prefilter(g: np.ndarray, sigma_px: float) -> np.ndarray:
     """Gaussian blur of each grey frame (S, H, W) with standard deviation sigma_px (px); 0 returns g."""
     if not sigma_px:
@@ -86,17 +85,16 @@ def prefilter(g: np.ndarray, sigma_px: float) -> np.ndarray:
     return np.stack([cv2.GaussianBlur(f, (0, 0), float(sigma_px), borderType=cv2.BORDER_REFLECT) for f in g])
 
 
-def focus_volume(stack: np.ndarray, measure: str = "mlap2", window_px: float = 9, step: int = 1,
-                 levels: int = 3, prefilter_px: float = 0.0) -> np.ndarray:
-    """Focus measure of every frame: stack (S, 3, H, W) or grey (S, H, W) -> (S, H, W) float32 >= 0.
+def _each_frame(measure: Callable) -> Callable:
+    """A measure of one frame (H, W) as a measure of a grey stack (S, H, W)."""
+    def volume(g: np.ndarray, window_px: float, step: int, levels: int) -> np.ndarray:
+        return np.stack([measure(f, window_px, step) for f in g])
+    return volume
 
-    `levels` is used by `multiscale` only (pyramid levels 0..levels-1)."""
-    if measure not in MEASURES:
-        raise ValueError(f"unknown focus measure {measure!r} (one of {', '.join(MEASURES)})")
-    g = prefilter(grey(stack), prefilter_px)
-    if measure in _SINGLE:
-        fn = _SINGLE[measure]
-        return np.stack([fn(f, window_px, step) for f in g])
+
+def multiscale(g: np.ndarray, window_px: float = 9, step: int = 1, levels: int = 3) -> np.ndarray:
+    """`mlap2` on pyramid levels 0..levels-1 of a grey stack (S, H, W), each level over its mean over the stack,
+    summed at full size -> (S, H, W) float32."""
     s, h, w = g.shape
     out = np.zeros((s, h, w), np.float32)
     pyr = [np.ascontiguousarray(f) for f in g]
@@ -111,3 +109,33 @@ def focus_volume(stack: np.ndarray, measure: str = "mlap2", window_px: float = 9
                 break
             pyr = [cv2.pyrDown(f, borderType=cv2.BORDER_REFLECT) for f in pyr]
     return out
+
+
+@dataclass(frozen=True)
+class FocusMeasure:
+    """volume(grey stack (S, H, W), window_px, step, levels) -> (S, H, W) float32 >= 0; tail_exponent: how the
+    response falls off with defocus in log, relative to a squared one (the `ratio` estimator's gamma)."""
+
+    volume: Callable
+    tail_exponent: float = 1.0
+
+
+# The focus measures by name. A new measure is one function and one entry; FocusConfig's check, the `ratio`
+# estimator's exponent and the benchmarks' comparisons take them from here.
+MEASURES: dict[str, FocusMeasure] = {
+    "lape": FocusMeasure(_each_frame(lape)),
+    "sml": FocusMeasure(_each_frame(sml), tail_exponent=0.5),  # rectified, not squared: falls off half as fast
+    "mlap2": FocusMeasure(_each_frame(mlap2)),
+    "tenengrad": FocusMeasure(_each_frame(tenengrad)),
+    "multiscale": FocusMeasure(multiscale),
+}
+
+
+def focus_volume(stack: np.ndarray, measure: str = "mlap2", window_px: float = 9, step: int = 1,
+                 levels: int = 3, prefilter_px: float = 0.0) -> np.ndarray:
+    """Focus measure of every frame: stack (S, 3, H, W) or grey (S, H, W) -> (S, H, W) float32 >= 0.
+
+    `levels` is used by `multiscale` only (pyramid levels 0..levels-1)."""
+    if measure not in MEASURES:
+        raise ValueError(f"unknown focus measure {measure!r} (one of {', '.join(MEASURES)})")
+    return MEASURES[measure].volume(prefilter(grey(stack), prefilter_px), window_px, step, levels)

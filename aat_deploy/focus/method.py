@@ -56,7 +56,7 @@ class FocusConfig:
     def tail_exponent(self) -> float:
         """gamma of the `ratio` estimator: 1 for the squared measures, 0.5 for `sml` (a rectified, unsquared
         response falls off half as fast in log)."""
-        return self.gamma if self.gamma is not None else (0.5 if self.measure == "sml" else 1.0)
+        return self.gamma if self.gamma is not None else MEASURES[self.measure].tail_exponent
 
     def __post_init__(self):
         for name, v, allowed in (("measure", self.measure, MEASURES), ("estimator", self.estimator, ESTIMATORS),

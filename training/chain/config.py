@@ -17,9 +17,10 @@ from pathlib import Path
 
 from aat_deploy.errors import AatError
 from training.chain.hashing import file_sha256
+from training.nets import registry
 
 FORMAT = "aat-train-chain-v1"
-NET_ALIASES = {"dfv": "dfvnet", "dfvnet": "dfvnet", "aif": "aifnet", "aifnet": "aifnet"}
+NET_ALIASES = registry.aliases(chain_only=True)  # --net: "dfv", "dfvnet", "aif", "aifnet" (training.nets.registry)
 
 # Per preset: PSF dataset + fit, training, evaluation. Crops are clipped to the sensor resolution.
 PRESETS: dict[str, dict] = {
@@ -89,7 +90,6 @@ def _file_ref(path: str | None, what: str) -> dict | None:
 
 def resolve(opts: ChainOptions) -> dict:
     """The resolved config dict (JSON-ready). Checks option values; the lens itself is read by the lens stage."""
-    from training.nets.model import SIZES
     from aat_deploy.render import effects as fx
 
     if opts.preset not in PRESETS:
@@ -111,10 +111,11 @@ def resolve(opts: ChainOptions) -> dict:
         net, size = init_net, init_size
     net = NET_ALIASES.get(net or "dfvnet")
     if net is None:
-        raise ChainConfigError(f"--net must be dfv or aif, got {opts.net!r}")
+        raise ChainConfigError(f"--net must be one of {', '.join(NET_ALIASES)}, got {opts.net!r}")
     size = size or "small"
-    if size not in SIZES:
-        raise ChainConfigError(f"--size must be one of {SIZES}, got {size!r}")
+    sizes = registry.NETS[net].sizes
+    if size not in sizes:
+        raise ChainConfigError(f"--size must be one of {sizes}, got {size!r}")
     near, far = (float(v) for v in opts.focus_range_m)
     if not 0 < near < far:
         raise ChainConfigError(f"--focus-range-m must be NEAR,FAR with 0 < NEAR < FAR metres, got {near:g},{far:g}")

@@ -241,7 +241,9 @@ def train_config(ctx: Context, simulator: str):
     cache = str(ctx.path(train_dir(simulator)) / "stacks")
     common = {"height": h, "width": w, "stack_size": c["stack"], "focus_near_m": near, "focus_far_m": far,
               "scene_near_m": near, "scene_far_m": far, "psf": psf, "cell_px": t["cell_px"], "cache_dir": cache}
-    levels = (8.0, 4.0) if c["net"] == "dfvnet" else (1.0,)
+    from training.nets.registry import NETS
+
+    levels = NETS[c["net"]].level_weights
     return TrainConfig(
         name=f"{train_dir(simulator)}_{c['net']}", net=c["net"], size=c["size"], simulator=simulator,
         lens=str(ctx.path("lens.json")), effects=list(c["effects"]),

@@ -30,6 +30,7 @@ from pathlib import Path
 from aat_deploy.cli.common import parser, run_or_hint
 from aat_deploy.shipped import resolve
 from training.devices.options import add_amp_argument, add_device_argument
+from training.nets import registry
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -69,8 +70,10 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--sensor-mm", type=_pair(float), metavar="W,H", help="sensor size in mm (default: the lens file's)")
     g.add_argument("--resolution", type=_pair(int), metavar="W,H",
                    help="working resolution in px, what the model and aat-infer use (default: the lens file's)")
-    g.add_argument("--net", choices=["dfv", "aif", "dfvnet", "aifnet"], help="network (default: dfv, or --init's)")
-    g.add_argument("--size", choices=["small", "full"], help="network size (default: small, or --init's)")
+    nets = registry.aliases(chain_only=True)  # the nets the chain trains, by name or short name
+    g.add_argument("--net", choices=list(nets), help="network (default: dfv, or --init's)")
+    g.add_argument("--size", choices=sorted({z for n in set(nets.values()) for z in registry.NETS[n].sizes}),
+                   help="network size (default: small, or --init's)")
     g.add_argument("--focus-range-m", type=_pair(float), default=(0.5, 10.0), metavar="NEAR,FAR",
                    help="focus distances, metres from the sensor (default 0.5,10)")
     g.add_argument("--stack", type=int, help="frames per stack (default: the preset's, 5 tiny / 8 otherwise)")

@@ -11,27 +11,20 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from training.nets.aifnet import AIFNET_CONFIGS, AiFNet
+from training.nets import registry
 from training.nets.blocks import count_params
-from training.nets.dfvnet import DFVNET_CONFIGS, DFVNet
 from training.nets.head import focus_head
-
-NETS = ("aifnet", "dfvnet")
-SIZES = ("small", "full")
-FIELD_CHANNELS = (0, 2)  # 2: normalised sensor x, y (x right, y up, +-1 at the edges) as extra input channels
 
 
 def build_net(net: str, size: str, field_channels: int = 0) -> nn.Module:
-    """A fresh (randomly initialised) AiFNet or DFVNet in its 'small' or 'full' configuration; field_channels
-    extra input channels per frame (2: the normalised sensor position x, y of each pixel)."""
-    if net not in NETS:
-        raise ValueError(f"unknown net {net!r}; expected one of {NETS}")
-    if size not in SIZES:
-        raise ValueError(f"unknown size {size!r}; expected one of {SIZES}")
-    if field_channels not in FIELD_CHANNELS:
-        raise ValueError(f"field_channels must be one of {FIELD_CHANNELS}, got {field_channels!r}")
-    c = 3 + field_channels
-    return AiFNet(AIFNET_CONFIGS[size], c) if net == "aifnet" else DFVNet(DFVNET_CONFIGS[size], in_channels=c)
+    """A fresh (randomly initialised) backbone of a net of the registry (training.nets.registry: AiFNet, DFVNet)
+    in one of its sizes; field_channels extra input channels per frame (2: the normalised sensor position x, y of
+    each pixel, x right, y up, +-1 at the edges)."""
+    spec = registry.get(net)
+    spec.check(size, field_channels)
+    if spec.focus_maps:
+        raise registry.UnknownNet(f"{spec.name} is a whole model (per-pixel focus maps in): build_model builds it")
+    return spec.builder(size, 3 + field_channels)
 
 
 class DfFNet(nn.Module):
@@ -78,15 +71,14 @@ class DfFNet(nn.Module):
         return depth, aif, std
 
 
-def build_model(net: str, size: str, field_channels: int = 0) -> DfFNet:
-    """A DfFNet, or for net "dfvaat" the any-camera net (training.nets.dfvaat.FocusMapDfF: per-pixel focus inputs)."""
-    if net == "dfvaat":
-        from training.nets.dfvaat import build
-
-        if field_channels:
-            raise ValueError("dfvaat takes per-pixel focus maps, not field coordinates (field_channels must be 0)")
-        return build(size)
-    return DfFNet(build_net(net, size, field_channels), net, size, field_channels)
+def build_model(net: str, size: str, field_channels: int = 0) -> nn.Module:
+    """A fresh model of a net of the registry (training.nets.registry): a DfFNet (backbone + focus head), or for a
+    net with per-pixel focus maps in (the any-camera "dfvaat") the model its builder makes."""
+    spec = registry.get(net)
+    spec.check(size, field_channels)
+    if spec.focus_maps:
+        return spec.builder(size, 3 + field_channels)
+    return DfFNet(spec.builder(size, 3 + field_channels), spec.name, size, field_channels)
 
 
 def sort_by_focus(stack: Tensor, focus_m: Tensor) -> tuple[Tensor, Tensor]:

@@ -12,11 +12,10 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 from aat_deploy.errors import AatError
+from training.nets import registry
 from training.nets.export import config_hash
-from training.nets.model import FIELD_CHANNELS, NETS, SIZES
 
-SIMULATORS = ("aat", "thin_lens", "any_camera")  # any_camera: the dfvaat net's data (training.data.anycam)
-ALL_NETS = NETS + ("dfvaat",)
+SIMULATORS = ("aat", "thin_lens", "any_camera")  # any_camera: the data of nets with focus maps (training.data.anycam)
 
 
 class ConfigError(AatError):
@@ -43,9 +42,9 @@ class LossConfig:
 @dataclass
 class TrainConfig:
     name: str
-    net: str  # "aifnet" | "dfvnet"
-    size: str  # "small" | "full"
-    simulator: str  # "aat" | "thin_lens"
+    net: str  # a net of training.nets.registry: "aifnet" | "dfvnet" | "dfvaat"
+    size: str  # one of the net's sizes: "small" | "full"
+    simulator: str  # "aat" | "thin_lens" | "any_camera"
     lens: str  # lens file (path relative to the repository root or absolute)
     data: dict = field(default_factory=dict)
     val_data: dict | None = None
@@ -70,13 +69,15 @@ class TrainConfig:
     init: str | None = None  # weights to start from: an exported DfF .onnx or a model.pt/last.pt (training.nets.warm_start)
 
     def validate(self) -> TrainConfig:
-        if self.net not in ALL_NETS:
-            raise ConfigError(f"config {self.name}: net must be one of {ALL_NETS}, got {self.net!r}")
-        if (self.net == "dfvaat") != (self.simulator == "any_camera"):
-            raise ConfigError(f"config {self.name}: net dfvaat goes with simulator any_camera (its own data), "
-                              "and only it")
-        if self.size not in SIZES:
-            raise ConfigError(f"config {self.name}: size must be one of {SIZES}, got {self.size!r}")
+        net = registry.NETS.get(self.net)
+        if net is None:
+            raise ConfigError(f"config {self.name}: net must be one of {tuple(registry.NETS)}, got {self.net!r}")
+        if net.focus_maps != (self.simulator == "any_camera"):
+            maps = [n.name for n in registry.NETS.values() if n.focus_maps]
+            raise ConfigError(f"config {self.name}: net {' / '.join(maps)} goes with simulator any_camera (its own "
+                              "data), and only it")
+        if self.size not in net.sizes:
+            raise ConfigError(f"config {self.name}: size must be one of {net.sizes}, got {self.size!r}")
         if self.simulator not in SIMULATORS:
             raise ConfigError(f"config {self.name}: simulator must be one of {SIMULATORS}, got {self.simulator!r}")
         if self.steps < 1 or self.batch_size < 1:
@@ -87,8 +88,8 @@ class TrainConfig:
             raise ConfigError(f"config {self.name}: focus_range_m must be [near, far] with 0 < near < far")
         if not 2 <= self.stack_range[0] <= self.stack_range[1]:
             raise ConfigError(f"config {self.name}: stack_range must be [min, max] with 2 <= min <= max")
-        if self.field_channels not in FIELD_CHANNELS:
-            raise ConfigError(f"config {self.name}: field_channels must be one of {FIELD_CHANNELS}")
+        if self.field_channels not in net.field_channels:
+            raise ConfigError(f"config {self.name}: field_channels must be one of {net.field_channels}")
         if self.loss.depth_space not in ("m", "diopter"):
             raise ConfigError(f"config {self.name}: loss.depth_space must be 'm' or 'diopter'")
         if not self.loss.level_weights or sum(self.loss.level_weights) <= 0:

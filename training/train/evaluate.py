@@ -8,6 +8,7 @@ import torch
 from torch.utils.data import Dataset
 
 from aat_deploy.metrics import MetricAccumulator
+from training.nets import registry
 from training.nets.model import DfFNet, predict
 
 
@@ -21,10 +22,12 @@ def evaluate(model: DfFNet, dataset: Dataset, max_items: int | None = None, focu
     model.eval()
     acc = MetricAccumulator(focus_range_mask=focus_range_mask)
     n = len(dataset) if max_items is None else min(max_items, len(dataset))
+    spec = registry.NETS.get(getattr(model, "name", ""))
+    maps_in = spec is not None and spec.focus_maps
     try:
         for i in range(n):
             item = dataset[i]
-            if getattr(model, "name", "") == "dfvaat":  # per-pixel focus maps (training.nets.dfvaat)
+            if maps_in:  # per-pixel focus maps (training.nets.dfvaat)
                 from training.nets.dfvaat import predict as predict_focus_map
 
                 out = predict_focus_map(model, item["stack"][None].float().to(dev),

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from aat_deploy.lens.io import load_lens
+from training.nets import registry
 from training.nets.export import dff_metadata, export_dff_onnx
 from training.train.data import resolve_lens_path
 from training.train.loop import load_trained
@@ -16,7 +17,7 @@ def export_checkpoint(checkpoint, out, *, force: bool = False, extra: dict | Non
     (metadata, the relative ORT-vs-torch difference over three shapes, `training.nets.export.parity`).
     extra: more aat.* metadata keys."""
     model, cfg = load_trained(Path(checkpoint))
-    if cfg.net == "dfvaat":  # the any-camera model: no lens of its own (training.nets.export.focus_map_metadata)
+    if registry.get(cfg.net).focus_maps:  # the any-camera model: no lens of its own (nets.export.focus_map_metadata)
         from training.data.cameras import K_MAX_PX_PER_D
         from training.nets.export import export_focus_map_onnx, focus_map_metadata
 

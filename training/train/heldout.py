@@ -68,7 +68,10 @@ class ModelResult:
 
 def model_label(meta: dict, path: Path) -> str:
     """'AAT DFVNet' / 'Baseline AiFNet' from a model's metadata (net from aat.net, else the file name)."""
-    net = {"dfvnet": "DFVNet", "aifnet": "AiFNet"}.get(str(meta.get("aat.net")), path.stem.split("_")[1])
+    from training.nets.registry import NETS
+
+    spec = NETS.get(str(meta.get("aat.net")))
+    net = spec.label if spec else path.stem.split("_")[1]
     return f"{'AAT' if meta.get('aat.simulator') == 'aat' else 'Baseline'} {net}"
 
 

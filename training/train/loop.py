@@ -35,6 +35,7 @@ from tqdm import tqdm
 from training.devices.distributed import barrier, broadcast_buffers, init_distributed
 from training.devices.precision import amp_dtype, amp_name, autocast, grad_scaler
 from training.devices.select import pin_memory, resolve_device, to_device
+from training.nets import registry
 from training.nets.model import build_model, train_levels
 from training.train.checkpoint import load, save_atomic, to_cpu
 from training.train.config import TrainConfig
@@ -105,6 +106,7 @@ def _train(cfg, out_dir: Path, train_set, val_set, resume, stop_at_step, progres
     train_set, val_set = _make_sets(cfg, train_set, val_set)
     torch.manual_seed(cfg.seed)
     model = build_model(cfg.net, cfg.size, cfg.field_channels)
+    maps_in = registry.get(cfg.net).focus_maps  # the any-camera net: per-pixel focus maps, its own loss
     step, wall_before, seen_before, sessions, state = 0, 0.0, 0, [], None
     t_start = time.perf_counter()
     if resume and ckpt_path.exists():
@@ -183,13 +185,13 @@ def _train(cfg, out_dir: Path, train_set, val_set, resume, stop_at_step, progres
                 g["lr"] = lr
             field = batch["field_xy"].float() if cfg.field_channels else None
             with autocast(device, amp):  # the nets only: the loss below is float32
-                if cfg.net == "dfvaat":  # per-pixel focus maps in (training.nets.dfvaat)
+                if maps_in:  # per-pixel focus maps in (training.nets.dfvaat)
                     levels = focus_map_levels(ddp, batch)
                 else:
                     levels = train_levels(ddp, batch["stack"].float(), batch["focus_m"].float(),
                                           model.size_multiple, field)
             levels = [tuple(None if t is None else t.float() for t in lv) for lv in levels]
-            loss, parts = (focus_map_loss if cfg.net == "dfvaat" else dff_loss)(levels, batch, cfg.loss)
+            loss, parts = (focus_map_loss if maps_in else dff_loss)(levels, batch, cfg.loss)
             opt.zero_grad(set_to_none=True)
             scaler.scale(loss).backward()
             if cfg.grad_clip > 0:
