@@ -15,12 +15,12 @@ mean MAEs with a paired bootstrap over scenes (`paired_ratio`).
 
 Mappings: thin lens (each frame in focus at its nominal distance), aberration-aware traced (the lens's best-focus
 map, min RMS spot) and aberration-aware calibrated (plus the offset measured on rendered stacks), both from
-`<lens folder>/best_focus/<lens stem>.json` (scripts/make_focus_map.py). Learned models: models/dff_dfvnet_*.onnx
+`<lens folder>/best_focus/<lens stem>.json` (`aat-lens focus-map LENS`). Learned models: models/dff_dfvnet_*.onnx
 (RF50 only), run as aat-infer runs them.
 --variants: the measure / estimator / window / filling comparison (thin-lens mapping, RF50 procedural scenes).
 --speed: one 8 x 3 x 640 x 960 stack, best of 5, 2 threads, thin-lens vs aberration-aware (same run).
 --calibration: only print the lens's stored calibration (where the focus measure peaks vs the traced min-RMS best
-focus, measured by scripts/make_focus_map.py on rendered stacks) as a table; no stacks.
+focus, measured by `aat-lens focus-map` on rendered stacks) as a table; no stacks.
 """
 
 from __future__ import annotations
@@ -224,7 +224,7 @@ def main(argv: list[str] | None = None) -> int:
     mp = map_path_for_lens(lens_path)
     fmap = load_json(mp) if mp.is_file() else None
     if fmap is None:
-        print(f"no best-focus map {mp}: only the thin-lens mapping (make it with scripts/make_focus_map.py)",
+        print(f"no best-focus map {mp}: only the thin-lens mapping (make it with aat-lens focus-map LENS)",
               file=sys.stderr)
     if a.calibration:
         if fmap is None:

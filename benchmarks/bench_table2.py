@@ -88,7 +88,7 @@ def run_model(path: Path, items, threads: int, tile: int | None = None) -> tuple
 def classical_methods(lens_path: str):
     """[(label, fn(item) -> (depth, aif))] of the runtime's classical focus method (aat_deploy.focus, default
     settings): the thin-lens mapping, and the lens's calibrated best-focus map when
-    `<lens folder>/best_focus/<lens stem>.json` exists (scripts/make_focus_map.py)."""
+    `<lens folder>/best_focus/<lens stem>.json` exists (`aat-lens focus-map LENS`)."""
     from aat_deploy.focus import depth_from_focus
     from aat_deploy.focus.bestfocus import load_json, map_path_for_lens
 

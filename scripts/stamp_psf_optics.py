@@ -5,7 +5,7 @@ focus table, and `aat-infer --method focus --psf PSF.onnx` maps frames aberratio
     python scripts/stamp_psf_optics.py PSF.onnx LENS.json     # e.g. models/psf_rf50.onnx lenses/canon_rf50mm_f1.8.json
 
 The lens file must be the one the surrogate was fitted for, sensor included (its prescription hash is checked).
-The best-focus map is `<lens folder>/best_focus/<lens stem>.json` (made by scripts/make_focus_map.py); without it
+The best-focus map is `<lens folder>/best_focus/<lens stem>.json` (made by `aat-lens focus-map LENS`, which can also stamp it: `--stamp PSF.onnx`); without it
 only the focus table and exit pupil are stamped, and the script says how to make it.
 """
 
@@ -28,5 +28,5 @@ if __name__ == "__main__":
     md = stamp_optics_metadata(sys.argv[1], load_lens(sys.argv[2]), best_focus=fmap)
     print(f"{sys.argv[1]}: stamped {', '.join(sorted(md))}")
     if fmap is None:
-        print(f"no best-focus map ({mp}): make it with `python scripts/make_focus_map.py {sys.argv[2]}`, then "
+        print(f"no best-focus map ({mp}): make it with `aat-lens focus-map {sys.argv[2]}`, then "
               "stamp again")

@@ -33,7 +33,7 @@ def _help(name: str, args: list[str], capsys) -> str:
 
 
 def _subcommands(text: str) -> list[str]:
-    m = re.search(r"usage: \S+ .*?\{([a-z,]+)\}", text)
+    m = re.search(r"usage: \S+ .*?\{([a-z,-]+)\}", text)  # sub-commands, hyphenated ones too (focus-map)
     return m.group(1).split(",") if m else []
 
 

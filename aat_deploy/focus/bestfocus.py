@@ -190,9 +190,9 @@ def for_lens(lens_path: str | Path, compute: bool = True, progress: bool = False
         m = load_json(stored)
         if m.lens_hash and m.lens_hash != lens.prescription_hash():
             raise BestFocusError(f"{stored}: made for another prescription than {lens_path} (lens hash differs); "
-                                 f"remake it with `python scripts/make_focus_map.py {lens_path} --force`")
+                                 f"remake it with `aat-lens focus-map {lens_path} --force`")
         return m, str(stored)
-    how = (f"make it with `python scripts/make_focus_map.py {lens_path}` (writes {stored}; needs the train extra) "
+    how = (f"make it with `aat-lens focus-map {lens_path}` (writes {stored}; needs the train extra) "
            "or pass --psf with the lens's stamped PSF surrogate")
     if not compute:
         raise BestFocusError(f"{lens_path}: no best-focus map ({stored} missing); {how}")
@@ -202,4 +202,4 @@ def for_lens(lens_path: str | Path, compute: bool = True, progress: bool = False
         raise BestFocusError(f"{lens_path}: no best-focus map ({stored} missing) and torch is not installed to "
                              f"trace it ({e}); {how}") from None
     m = trace(lens, progress=progress)  # 7 radii x 9 focus settings, uncalibrated
-    return m, f"traced now (uncalibrated, coarse; for the calibrated map run scripts/make_focus_map.py {lens_path})"
+    return m, f"traced now (uncalibrated, coarse; for the calibrated map run aat-lens focus-map {lens_path})"

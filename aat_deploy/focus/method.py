@@ -209,7 +209,7 @@ def depth_from_focus(stack: np.ndarray, focus_m, best_focus: BestFocusMap | None
             mismatch = calibration_mismatch(best_focus, config)
             if mismatch:
                 warnings.append(f"the best-focus map was calibrated with another focus measure ({mismatch}): its "
-                                "offsets may not fit these settings (remake it with scripts/make_focus_map.py)")
+                                "offsets may not fit these settings (remake it with aat-lens focus-map LENS --force)")
         near, far = best_focus.focus_range_m
         out = [v for v in f if not near * 0.999 <= v <= far * 1.001]
         if out:

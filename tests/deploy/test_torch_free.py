@@ -92,7 +92,7 @@ def test_focus_method_runs_without_torch(tmp_path):
     assert out == {"rcs": [0, 0, 0, 2], "torch_loaded": False}
     err = [ln for ln in r.stderr.splitlines() if ln.startswith("aat-infer: error")]
     assert len(err) == 1 and "rf50_copy.json" in err[0] and "torch is not installed" in err[0] \
-        and "make_focus_map.py" in err[0]
+        and "aat-lens focus-map" in err[0]
     for o in ("o1", "o2", "o3"):
         assert (tmp_path / o / "depth_m.npy").is_file() and (tmp_path / o / "confidence.npy").is_file()
     assert json.loads((tmp_path / "o3" / "summary.json").read_text())["model"]["mapping"] == "aberration_aware"

@@ -3,6 +3,8 @@
     aat-lens info LENS [--json]
     aat-lens spot LENS --field-deg F --focus-m D [--defocus-mm X] [--json] [--png out.png]
     aat-lens layout LENS --png out.png [--focus-m D]
+    aat-lens focus-map LENS [--png out.png] [--force] [--no-calibrate] [--psf trace|PSF.onnx] [--out MAP.json]
+                            [--stamp PSF.onnx]
 
 Distances in metres are measured from the sensor plane (camera convention); lengths in mm.
 """
@@ -142,13 +144,49 @@ def cmd_layout(a) -> int:
     return 0
 
 
+def cmd_focus_map(a) -> int:
+    """The lens's best-focus map for `aat-infer --method focus --lens` (traced, then calibrated on rendered stacks),
+    written to <lens folder>/best_focus/<lens stem>.json; --png draws it (the stored one, without --force)."""
+    import time
+
+    from aat_deploy.focus.bestfocus import load_json, map_path_for_lens
+
+    out = Path(a.out) if a.out else map_path_for_lens(a.lens)
+    png = _png_path(a.png, a.force)
+    if out.exists() and not a.force:
+        if png is None:
+            print(f"aat-lens: error: {out}: exists (pass --force to replace it, --png to draw it)", file=sys.stderr)
+            return 2
+        fmap = load_json(out)
+    else:
+        from training.render.focus_calibration import make_focus_map
+
+        t0 = time.time()
+        fmap, points = make_focus_map(a.lens, not a.no_calibrate, a.psf, progress=not a.quiet)
+        fmap.save_json(out)
+        print(f"wrote {out} ({time.time() - t0:.0f} s)")
+        for p in points:
+            print(json.dumps({k: (round(v, 4) if isinstance(v, float) else v) for k, v in p.items()}))
+    if png:
+        from training.optics.layout import draw_focus_map
+
+        _atomic_png(lambda p: draw_focus_map(fmap, p, fmap.lens_name), png)
+        print(f"wrote {png}")
+    if a.stamp:
+        from training.psf.export import stamp_optics_metadata
+
+        md = stamp_optics_metadata(a.stamp, load_lens(a.lens), best_focus=fmap)
+        print(f"{a.stamp}: stamped {', '.join(sorted(md))}")
+    return 0
+
+
 LENS_HELP = "lens file (our JSON, the paper's JSON, Zemax .zmx, DiffOptics .txt) or a shipped lens's name"
 
 
 def build_parser() -> argparse.ArgumentParser:
     ap = parser("aat-lens", "Inspect a lens prescription (units: mm; distances in metres from the sensor plane).",
                 quiet=False)
-    sub = ap.add_subparsers(dest="cmd", required=True, metavar="{info,spot,layout}")
+    sub = ap.add_subparsers(dest="cmd", required=True, metavar="{info,spot,layout,focus-map}")
     p = subparser(sub, "info", "surface table and paraxial data")
     p.add_argument("lens", metavar="LENS", help=LENS_HELP)
     p.add_argument("--json", action="store_true", help="print one JSON object")
@@ -170,6 +208,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--focus-m", type=_distance, default=math.inf, help="focus distance, m from the sensor (default inf)")
     p.add_argument("--force", action="store_true", help="overwrite an existing PNG")
     p.set_defaults(func=cmd_layout)
+    p = subparser(sub, "focus-map", "the lens's best-focus map for aat-infer --method focus --lens: real-ray traced, "
+                  "then calibrated on rendered stacks (needs the train extra; about 4 min tracing, 3 calibrating)")
+    p.add_argument("lens", metavar="LENS", help=LENS_HELP)
+    p.add_argument("--out", default=None, help="the map's file (default: <lens folder>/best_focus/<lens stem>.json)")
+    p.add_argument("--png", default=None, help="also draw the map (best focus against field radius) as this PNG; "
+                   "with an existing map and no --force, the stored map is drawn")
+    p.add_argument("--force", action="store_true", help="replace an existing map and PNG")
+    p.add_argument("--no-calibrate", action="store_true", help="the traced map only (no rendered calibration)")
+    p.add_argument("--psf", default="trace", help="PSFs of the calibration renders: trace (default) or a .onnx")
+    p.add_argument("--stamp", default=None, help="also stamp the map into this PSF surrogate's metadata, so that "
+                   "aat-infer --method focus --psf finds it")
+    p.set_defaults(func=cmd_focus_map)
     return ap
 
 

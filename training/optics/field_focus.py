@@ -131,7 +131,7 @@ def best_focus_map(lens: Lens, radii=None, focus_diopters=None, table: FocusTabl
 
 def coarse_best_focus_map(lens: Lens, progress: bool = False) -> BestFocusMap:
     """A quick, uncalibrated map for a lens that has none stored: 7 radii x 9 focus settings (about a tenth of
-    `scripts/make_focus_map.py`'s time). The runtime reaches it as the extension `best_focus_tracer`
+    `aat-lens focus-map`'s time). The runtime reaches it as the extension `best_focus_tracer`
     (`aat_deploy.extensions`) when the train extra is installed."""
     t = focus_table(lens)
     return best_focus_map(lens, radii=np.sqrt(np.linspace(0, 1, 7)),

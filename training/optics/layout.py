@@ -81,3 +81,31 @@ def draw_spot(sp: Spot, path, title: str = "") -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def draw_focus_map(fmap, path, title: str = "", n_lines: int = 6) -> None:
+    """A best-focus map (`aat_deploy.focus.bestfocus.BestFocusMap`): where a frame is in focus against the field
+    radius, as object diopters minus the frame's nominal diopters, for `n_lines` of its focus settings (even in
+    diopters); solid the calibrated map, dashed the traced one (only the traced one without a calibration)."""
+    fig, ax = plt.subplots(figsize=(6.5, 4.2))
+    cols = np.unique(np.rint(np.linspace(0, fmap.focus_diopters.size - 1, n_lines)).astype(int))
+    colours = plt.cm.viridis(np.linspace(0, 0.9, cols.size))
+    traced = fmap.shift_diopters(calibrated=False)
+    calibrated = fmap.shift_diopters(calibrated=True) if fmap.offset_diopters is not None else None
+    for c, j in zip(colours, cols):
+        f = fmap.focus_diopters[j]
+        label = f"frame at {1 / f:.3g} m" if f > 0 else "frame at infinity"
+        if calibrated is not None:
+            ax.plot(fmap.radius, calibrated[:, j], "-", color=c, label=label)
+            ax.plot(fmap.radius, traced[:, j], "--", color=c, lw=0.8)
+        else:
+            ax.plot(fmap.radius, traced[:, j], "-", color=c, label=label)
+    ax.axhline(0.0, color="0.6", lw=0.6)
+    ax.set_xlabel("field radius (0 centre, 1 sensor corner)")
+    ax.set_ylabel("best focus − nominal focus (diopters)")
+    kind = "calibrated (solid) and traced (dashed)" if calibrated is not None else "traced, not calibrated"
+    ax.set_title((title + "\n" if title else "") + f"best-focus map, {kind}", fontsize=10)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)

@@ -142,3 +142,22 @@ def calibrate(lens, fmap: BestFocusMap, cfg: CalibrationConfig = CalibrationConf
                                     "where the focus measure peaks, on rendered stacks (training.render.focus_calibration)",
                             **{k: (list(v) if isinstance(v, tuple) else v) for k, v in cfg.__dict__.items()}}
     return replace(fmap, offset_diopters=offset, notes=notes), points
+
+
+def make_focus_map(lens_path, calibrate_map: bool = True, psf: str = "trace", progress: bool = True
+                   ) -> tuple[BestFocusMap, list[dict]]:
+    """A lens file's best-focus map as `aat-lens focus-map` stores it: traced (training.optics.field_focus), then
+    calibrated on rendered stacks (PSFs: "trace" or a surrogate .onnx), the lens file and the calibration points in
+    its notes. Returns (map, calibration points)."""
+    from aat_deploy.lens.io import load_lens
+    from training.optics.field_focus import best_focus_map
+
+    lens = load_lens(lens_path)
+    fmap = best_focus_map(lens, progress=progress)
+    points: list[dict] = []
+    if calibrate_map:
+        fmap, points = calibrate(lens, fmap, CalibrationConfig(psf=psf), progress=progress)
+    notes = dict(fmap.notes)
+    notes["lens_file"] = str(lens_path)
+    notes["calibration_points"] = points
+    return replace(fmap, notes=notes), points

@@ -52,3 +52,27 @@ def test_bad_lens_file_is_a_one_line_error(tmp_path, capsys):
     assert main(["info", str(bad)]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("aat-lens: error:") and "bad.json" in err and "\n" not in err
+
+
+def test_focus_map_writes_draws_and_keeps_an_existing_map(tmp_path, capsys, monkeypatch):
+    import training.optics.field_focus as ff
+    from aat_deploy.focus.bestfocus import load_json
+
+    traced = ff.best_focus_map
+    small = lambda lens, progress=False: traced(lens, radii=[0.0, 0.6, 1.0], focus_diopters=[0.2, 1.0, 2.0])
+    monkeypatch.setattr(ff, "best_focus_map", small)  # a 3 x 3 map: seconds, not the full 13 x 33
+    out, png = tmp_path / "map.json", tmp_path / "map.png"
+    assert main(["focus-map", RF50, "--no-calibrate", "--out", str(out), "--png", str(png), "-q"]) == 0
+    fmap = load_json(out)
+    assert fmap.radius.tolist() == [0.0, 0.6, 1.0] and fmap.offset_diopters is None
+    assert fmap.notes["lens_file"] == RF50 and fmap.notes["calibration_points"] == []
+    assert fmap.frame_diopters([1.0], [0.0])[0, 0] == pytest.approx(1.0, abs=0.02)  # on axis: the nominal focus
+    assert png.stat().st_size > 1000
+    before = out.read_bytes()
+    capsys.readouterr()
+    assert main(["focus-map", RF50, "--out", str(out)]) == 2  # never replaced without --force
+    assert "exists" in capsys.readouterr().err
+    monkeypatch.setattr(ff, "best_focus_map", lambda *a, **k: pytest.fail("an existing map is not remade"))
+    again = tmp_path / "again.png"
+    assert main(["focus-map", RF50, "--out", str(out), "--png", str(again)]) == 0  # draws the stored map
+    assert again.stat().st_size > 1000 and out.read_bytes() == before
