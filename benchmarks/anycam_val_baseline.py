@@ -1,0 +1,72 @@
+"""The any-camera run's validation set scored by the classical method beside the net: the reference line of its
+validation curve (same items, same metrics, same mask as the run's validation).
+
+    OMP_WAIT_POLICY=PASSIVE python benchmarks/anycam_val_baseline.py [--config configs/anycam/dfv_aat.json]
+        [--checkpoint RUN/last.pt ...] [--n 64]
+
+The validation items (training.data.anycam, fixed_subsets: each item's frames and camera processing fixed) carry
+per-pixel in-focus diopters; the classical method (`aat_deploy.focus.depth_from_focus`) is given the same map
+(`frame_diopters`) and, for comparison, only the nominal focus distances. Metrics as the run's validation:
+aat_deploy.metrics over pixels inside each stack's focus range, averaged over items. Prints a markdown table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--config", default=str(ROOT / "configs" / "anycam" / "dfv_aat.json"))
+    ap.add_argument("--checkpoint", nargs="*", default=[], help="the net's checkpoints (last.pt, model.pt) to score too")
+    ap.add_argument("--n", type=int, default=64)
+    a = ap.parse_args(argv)
+    import torch
+
+    from aat_deploy.focus import depth_from_focus
+    from aat_deploy.metrics import MetricAccumulator
+    from training.nets.dfvaat import predict
+    from training.train.config import load_config
+    from training.train.data import make_dataset
+    from training.train.loop import load_trained
+
+    torch.set_num_threads(1)
+    cfg = load_config(a.config)
+    val = make_dataset(cfg.val_data, cfg.simulator, cfg.lens)
+    nets = {}
+    for p in a.checkpoint:
+        model, _ = load_trained(p)
+        step = torch.load(p, map_location="cpu", weights_only=False).get("step")
+        nets[f"dfv_aat (step {step})"] = model.eval()
+    accs = {k: MetricAccumulator(focus_range_mask=True) for k in
+            ("Classical, per-pixel map", "Classical, nominal focus", *nets)}
+    n = min(a.n, len(val))
+    for i in range(n):
+        it = val[i]
+        stack, fd = it["stack"].numpy(), it["focus_diopters"].numpy()
+        focus, gt = it["focus_m"].numpy(), it["depth_m"].numpy()
+        preds = {"Classical, per-pixel map": depth_from_focus(stack, focus, frame_diopters=fd).depth_m,
+                 "Classical, nominal focus": depth_from_focus(stack, focus).depth_m}
+        for label, model in nets.items():
+            preds[label] = predict(model, it["stack"][None], it["focus_diopters"][None],
+                                   it["defocus_px_per_d"][None])["depth_m"][0].numpy()
+        for label, d in preds.items():
+            accs[label].add(d, gt, focus_m=focus)
+        print(f"item {i + 1}/{n}", file=sys.stderr, flush=True)
+    print(f"\n#### {cfg.name} validation set: {n} items, pixels inside each stack's focus range\n")
+    print("| method | MAE (m) | AbsRel | δ1 |\n|---|---|---|---|")
+    for label, acc in accs.items():
+        r = acc.result()
+        print(f"| {label} | {r['mae']:.3f} | {r['abs_rel']:.3f} | {r['delta1']:.3f} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
