@@ -70,7 +70,10 @@ def dff_loss(levels: list[tuple[Tensor, Tensor | None, Tensor]], batch: dict[str
 def focus_map_loss(levels: list[tuple], batch: dict[str, Tensor], cfg: LossConfig) -> tuple[Tensor, dict[str, float]]:
     """The any-camera net's loss (training.nets.dfvaat): L1 of the interpolated diopters in units of each stack's
     mean frame spacing (so a phone's 10-diopter sweep and a full-frame camera's 2-diopter one weigh alike: the
-    error is in frames), plus L1 of depth relative to the item's median depth (what metre errors weigh).
+    error is in frames). Its optimum, the median, is the same in diopters as in metres; a loss in metres is not
+    bounded here (a sweep ending near infinity puts some frames' diopters at or past 0, where depth is 1 km), and
+    with an L1 of depth relative to the median depth added, such pixels made the first run's loss jump 30-fold.
+    The relative depth error is logged (rel_l1), not optimised.
     levels: [(depth_m, aif, std_m, diopters), ...] finest first; batch: "depth_m" (B, H, W), "focus_diopters"
     (B, S, H, W); optional "aif" for cfg.aif."""
     gt = batch["depth_m"]
@@ -84,8 +87,7 @@ def focus_map_loss(levels: list[tuple], batch: dict[str, Tensor], cfg: LossConfi
     weights = list(cfg.level_weights)[: len(levels)]
     wsum = sum(weights)
     l_frames = sum(w * masked_l1(lv[3] / spacing, inv_gt / spacing, mask) for w, lv in zip(weights, levels)) / wsum
-    l_rel = sum(w * masked_l1(lv[0] / med, gt / med, mask) for w, lv in zip(weights, levels)) / wsum
-    total = cfg.depth * (l_frames + l_rel)
+    total = cfg.depth * l_frames
     parts = {"frames_l1": float(masked_l1(levels[0][3].detach() / spacing, inv_gt / spacing, mask)),
              "rel_l1": float(masked_l1(levels[0][0].detach() / med, gt / med, mask)),
              "depth_l1": float(masked_l1(levels[0][0].detach(), gt, mask))}
