@@ -88,7 +88,9 @@ def focus_map_loss(levels: list[tuple], batch: dict[str, Tensor], cfg: LossConfi
     wsum = sum(weights)
     l_frames = sum(w * masked_l1(lv[3] / spacing, inv_gt / spacing, mask) for w, lv in zip(weights, levels)) / wsum
     total = cfg.depth * l_frames
+    inside = mask & (inv_gt <= fd.max(1).values) & (inv_gt >= fd.min(1).values)  # what depth from focus can reach
     parts = {"frames_l1": float(masked_l1(levels[0][3].detach() / spacing, inv_gt / spacing, mask)),
+             "frames_l1_in_range": float(masked_l1(levels[0][3].detach() / spacing, inv_gt / spacing, inside)),
              "rel_l1": float(masked_l1(levels[0][0].detach() / med, gt / med, mask)),
              "depth_l1": float(masked_l1(levels[0][0].detach(), gt, mask))}
     if cfg.aif > 0:
