@@ -257,7 +257,8 @@ class AnyCamDataset(Dataset):
             maps, k = self.focus_maps(item, 0, 0, h, w)
             dense = {"frames": item["frames"], "maps": maps, "k": k, "focus_m": item["focus_m"],
                      "depth_m": item["depth_m"], "aif": item["aif"]}
-            return _to_torch(finish(dense, rng, c.camera_effects, cams.subset(rng, len(item["focus_m"]))[0]))
+            s = int(rng.integers(cams.S_RANGE[0], cams.max_frames(_span_px(dense)) + 1))
+            return _to_torch(finish(dense, rng, c.camera_effects, cams.subset(rng, len(item["focus_m"]), s=s)[0]))
         r0 = c0 = 0
         if c.crop:
             r0 = int(torch.randint(0, h - c.crop + 1, ()))
@@ -281,7 +282,8 @@ class AnyCamDataset(Dataset):
         """One training batch: the same S for every item (drawn here), each item's frames a subset of its sweep,
         its camera's processing applied, normalised; see the module docstring for the keys."""
         rng = np.random.default_rng(items[0]["seed"])
-        s = int(rng.integers(cams.S_RANGE[0], cams.S_RANGE[1] + 1))
+        cap = cams.max_frames(float(np.median([_span_px(it) for it in items])))  # sweeps of little blur: few frames
+        s = int(rng.integers(cams.S_RANGE[0], cap + 1))
         out = []
         for it in items:
             r = np.random.default_rng(it["seed"])
@@ -289,6 +291,12 @@ class AnyCamDataset(Dataset):
             idx, _ = cams.subset(r, len(it["focus_m"]), kind, s)
             out.append(finish(it, r, self.cfg.camera_effects, idx))
         return {k: torch.stack([torch.from_numpy(np.ascontiguousarray(o[k])) for o in out]) for k in out[0]}
+
+
+def _span_px(it: dict) -> float:
+    """How much the blur changes over an item's whole sweep (px): defocus scale x its diopter range."""
+    f = np.asarray(it["focus_m"], np.float64)
+    return float(it["k"]) * (1.0 / f[0] - 1.0 / f[-1])
 
 
 def _to_torch(d: dict) -> dict:

@@ -136,6 +136,16 @@ def random_aberrations(rng: np.random.Generator, spacing_d: float, d_mid: float,
                        b0_px=float(rng.uniform(0.4, 1.6)), shape_p=float(_log_uniform(rng, 2.0, 10.0)))
 
 
+MIN_STEP_PX = 1.5  # frames are at least this much blur apart on average (px): finer steps carry little signal
+
+
+def max_frames(span_px: float) -> int:
+    """The most frames a sweep whose blur changes by span_px over its range is split into for training: its frames
+    stay at least MIN_STEP_PX apart on average (a phone's few-pixel sweep is 3-4 frames, as phones shoot), within
+    S_RANGE."""
+    return int(np.clip(1 + np.floor(span_px / MIN_STEP_PX), S_RANGE[0], S_RANGE[1]))
+
+
 def subset(rng, n: int, kind: str | None = None, s: int | None = None) -> tuple[np.ndarray, str]:
     """Indices (ascending: near -> far) of the frames of a dense schedule of n frames that one stack shows.
     rng: a numpy Generator or a torch Generator-like with `integers`. kind: 'stride' (S frames evenly strided
