@@ -247,8 +247,8 @@ def main() -> None:
     src = find_surrogate(lens, None)
     out.parent.mkdir(parents=True, exist_ok=True)
     rows = [json.loads(x) for x in out.read_text().splitlines()] if out.exists() else []
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
-                            text=True).stdout.strip()
+    commit = os.environ.get("AAT_COMMIT") or subprocess.run(  # AAT_COMMIT: a run from an exported snapshot
+        ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
     bar = tqdm(todo, desc="sets", unit="set")
     for k, cap, kind in bar:
         bar.set_postfix_str(f"{cap.name} {kind}")
