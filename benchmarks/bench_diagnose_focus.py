@@ -241,7 +241,8 @@ def main() -> None:
     cache, out = Path(a.cache), Path(a.out)
     caps = [Path(f) for f in a.folders] if a.folders else capture_folders(a.captures, cache)
     done = {(r["capture"], r["kind"]) for r in map(json.loads, out.read_text().splitlines())} if out.exists() else set()
-    todo = [(k, c, n) for k, c in enumerate(caps) for n in names if (c.name, n) not in done]
+    # kind by kind (every capture's untouched copy first): a run stopped early still covers every capture
+    todo = [(k, c, n) for n in names for k, c in enumerate(caps) if (c.name, n) not in done]
     model = DfFModel(a.model, threads=2)
     lens, _ = find_lens(model, None)
     src = find_surrogate(lens, None)
