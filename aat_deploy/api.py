@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from .camera import camera_json
+from .confidence import MIN_CONFIDENCE, mark_unknown
 from .capture.folder import focus_problem, read_capture
 from .capture.raw import load_frame, srgb_to_linear
 from .errors import CaptureError
@@ -43,7 +44,9 @@ DEFAULT_MODEL = "rf50_dfvnet_aat_field"
 class DepthResult:
     """depth_m (H, W) float32 metres from the sensor plane; aif (H, W, 3) float32 linear RGB in the stack's
     normalised units (about [0, 1]); std_m (H, W) float32 metres (uncertainty); camera: the maps' pinhole
-    intrinsics (aat_deploy.camera); focus_m (S,) the focus distances used, near to far; warnings: one line each."""
+    intrinsics (aat_deploy.camera); focus_m (S,) the focus distances used, near to far; warnings: one line each;
+    confidence (H, W) float32, the chance that the depth is within 10 % of the truth (aat_deploy.confidence), or
+    None for a model without a calibration; unknown: the unknown share and threshold (NaN in depth_m)."""
 
     depth_m: np.ndarray
     aif: np.ndarray
@@ -53,6 +56,8 @@ class DepthResult:
     model: dict
     warnings: list[str] = field(default_factory=list)
     frames: np.ndarray | None = field(default=None, repr=False)  # (S, 3, h, w) what the model saw
+    confidence: np.ndarray | None = None
+    unknown: dict | None = None
 
     @property
     def aif_srgb8(self) -> np.ndarray:
@@ -67,14 +72,15 @@ class DepthResult:
             check_output_dir(folder, [], force, tool="aat-infer")
         except CaptureError as e:
             raise ValueError(str(e)) from None
-        maps = DepthMaps(self.depth_m, self.aif.transpose(2, 0, 1), self.std_m)
+        maps = DepthMaps(self.depth_m, self.aif.transpose(2, 0, 1), self.std_m, self.confidence)
         rec = RecordingInputs(self.frames, self.focus_m) if recording and self.frames is not None else None
         with writing(folder), atomic_folder(folder, force, "aat-infer") as tmp:
             info = write_outputs(tmp, maps, self.camera, rec)
             summary = {"source": "aat_deploy.api", "focus_m": [float(f) for f in self.focus_m], "model": self.model,
                        "output_size_px": [self.camera.width, self.camera.height], "camera": camera_json(self.camera),
                        "color_scales": info["color_scales"], "points": info["points"],
-                       "outputs": {**info["outputs"], "summary.json": "this file"}, "warnings": self.warnings}
+                       "outputs": {**info["outputs"], "summary.json": "this file"}, "unknown": self.unknown,
+                       "warnings": self.warnings}
             (tmp / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=False))
         return folder
 
@@ -171,7 +177,8 @@ def _frames(stack, srgb: bool | None) -> list[np.ndarray]:
 def depth_from_focus(stack, focus_m, model: str | Path | DfFModel = DEFAULT_MODEL, *, srgb: bool | None = None,
                      align: bool = False, native_res: bool = False, tile: int | None = None,
                      threads: int | None = None, camera=None, lens: str | Path | None = None,
-                     psf: str | Path | None = None, calibration: str | Path | None = None) -> DepthResult:
+                     psf: str | Path | None = None, calibration: str | Path | None = None,
+                     min_confidence: float = MIN_CONFIDENCE) -> DepthResult:
     """Depth (m from the sensor), all-in-focus and uncertainty of one focal stack.
 
     stack: (S, H, W, 3) array (or S arrays (H, W, 3)): float = linear RGB of any non-negative scale (srgb=True:
@@ -185,7 +192,8 @@ def depth_from_focus(stack, focus_m, model: str | Path | DfFModel = DEFAULT_MODE
     also make it aberration-aware (what each frame has in focus at each pixel); frames span the sensor.
     model="focus": the classical method, no trained model (`aat-infer --method focus`), at the frames' own size;
     lens=, psf= or calibration= (your camera's, from `aat-calibrate fit`: a path or a `CameraCalibration`) make it
-    aberration-aware."""
+    aberration-aware.
+    min_confidence: depth whose calibrated confidence is below it is NaN (unknown); 0 keeps every pixel."""
     frames = _frames(stack, srgb)
     try:
         focus = np.asarray(focus_m, dtype=np.float64).reshape(-1)
@@ -224,8 +232,9 @@ def depth_from_focus(stack, focus_m, model: str | Path | DfFModel = DEFAULT_MODE
     except CaptureError as e:
         raise ValueError(str(e)) from None
     m = res.maps
-    return DepthResult(m.depth_m, np.ascontiguousarray(m.aif.transpose(1, 2, 0)), m.std_m, res.camera,
-                       focus.astype(np.float64), net.summary(), res.warnings, res.stack)
+    depth, unknown = mark_unknown(m.depth_m, m.confidence, min_confidence)
+    return DepthResult(depth, np.ascontiguousarray(m.aif.transpose(1, 2, 0)), m.std_m, res.camera,
+                       focus.astype(np.float64), net.summary(), res.warnings, res.stack, m.confidence, unknown)
 
 
 __all__ = ["DepthResult", "depth_from_focus", "load_model", "read_stack"]

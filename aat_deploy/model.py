@@ -18,6 +18,7 @@ import numpy as np
 import onnxruntime as ort
 
 from .camera import model_intrinsics
+from .confidence import CalibrationError, model_calibration, model_calibration_path
 from .errors import ModelError, file_kind
 from .machine import bound_threads
 from .shipped import shipped_hint
@@ -144,6 +145,10 @@ class DfFModel:
                                      f"contract says {want[0]} {want[1]} (docs/contracts.md)")
         self._validate_meta()
         self.field_aware = "field_xy" in names_in
+        try:  # <stem>.confidence.json next to the model: its std_m as a calibrated confidence (aat_deploy.confidence)
+            self.confidence_calibration = model_calibration(path)
+        except CalibrationError as e:
+            raise ModelError(str(e)) from None
 
     def _validate_meta(self) -> None:
         """Types, ranges and finiteness of the metadata the runtime computes with; ModelError naming the key."""
@@ -169,7 +174,9 @@ class DfFModel:
 
     def summary(self) -> dict:
         """Path and the metadata subset worth recording with results."""
-        return {"path": str(self.path), **{k: self.meta[k] for k in SUMMARY_META if k in self.meta}}
+        cal = model_calibration_path(self.path) if self.confidence_calibration is not None else None
+        return {"path": str(self.path), **{k: self.meta[k] for k in SUMMARY_META if k in self.meta},
+                "confidence_calibration": None if cal is None else str(cal)}
 
     def intrinsics(self, size_wh: tuple[int, int] | None = None) -> Intrinsics:
         """Pinhole intrinsics of the model's sensor (aat_deploy.camera), or of the same field of view sampled on

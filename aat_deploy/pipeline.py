@@ -24,13 +24,14 @@ import numpy as np
 
 from .capture.folder import Capture, read_capture
 from .capture.raw import load_frame
+from .confidence import MIN_CONFIDENCE, mark_unknown
 from .errors import CaptureError
 from .gt.read import read_depth_file, units_problem
 from .io.atomic import atomic_folder, writing
 from .io.guard import check_output_dir
 from .model import DfFModel
 from .normalise import DESCRIPTION as NORMALISATION
-from .outputs import DESCRIPTIONS, RecordingInputs, write_outputs
+from .outputs import DESCRIPTIONS, DepthMaps, RecordingInputs, write_outputs
 from .camera import camera_json
 from .process import depth_from_frames, say
 # every capture's files (confidence.* only from methods that give one)
@@ -54,6 +55,7 @@ class Options:
     native: bool = False  # depth and all-in-focus at the capture's resolution (aat_deploy.upsample)
     max_megapixels: float | None = None  # the pixel limit of frame headers (None: $AAT_MAX_MEGAPIXELS or 200)
     allow_outside_links: bool = False  # follow symlinks leading out of the capture folder
+    min_confidence: float = MIN_CONFIDENCE  # below it depth is unknown (NaN; aat_deploy.confidence)
     warnings: list[str] = field(default_factory=list)
 
 
@@ -188,6 +190,8 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
     size0 = first["hw"]
     warnings += res.warnings
     maps, camera, stack = res.maps, res.camera, res.stack
+    depth_known, unknown = mark_unknown(maps.depth_m, maps.confidence, opts.min_confidence)
+    maps = DepthMaps(depth_known, maps.aif, maps.std_m, maps.confidence)
     w_px, h_px = res.working_size
 
     with writing(out_dir), atomic_folder(out_dir, opts.force, "aat-infer") as tmp:  # OSError: one line, no tmp
@@ -212,7 +216,9 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
             "align": res.align_info,
             "normalisation": NORMALISATION,
             "tile": opts.tile,
-            "depth_m_range": [float(np.nanmin(maps.depth_m)), float(np.nanmax(maps.depth_m))],
+            "depth_m_range": ([float(np.nanmin(maps.depth_m)), float(np.nanmax(maps.depth_m))]
+                              if np.isfinite(maps.depth_m).any() else None),
+            "unknown": unknown,
             "ground_truth": _gt_stats(gt, res.working.depth_m),  # at the model's size, as the GT is
             "camera": camera_json(camera),
             **({"method_info": res.info} if res.info else {}),

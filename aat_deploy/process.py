@@ -17,6 +17,7 @@ import numpy as np
 from tqdm import tqdm
 
 from .camera import Intrinsics
+from .confidence import std_confidence
 from .errors import CaptureError
 from .geometry import align_stack, equalise_exposure, fit_to_sensor, sensor_crop
 from .model import DfFModel
@@ -196,7 +197,11 @@ def depth_from_frames(images: list[Frame], focus_m: np.ndarray, model: DfFModel,
     info = getattr(res, "info", None)
     if choice:
         info = {**(info or {}), "working_resolution": choice}
-    maps = working = DepthMaps(res.depth_m, res.aif, res.std_m, getattr(res, "confidence", None))
+    conf = getattr(res, "confidence", None)
+    cal = getattr(model, "confidence_calibration", None)
+    if conf is None and cal is not None:  # a model's std made a calibrated confidence (aat_deploy.confidence)
+        conf = std_confidence(cal, res.depth_m, res.std_m)
+    maps = working = DepthMaps(res.depth_m, res.aif, res.std_m, conf)
     camera = model.intrinsics((w_px, h_px))
     if originals is not None:
         say(quiet, f"{name}: depth and all-in-focus at the capture's "

@@ -1,7 +1,7 @@
 """Choose the classical focus method's pre-filter (`FocusConfig.prefilter_px`) and peak estimator together, on
 validation stacks, not test ones.
 
-    OMP_WAIT_POLICY=PASSIVE python benchmarks/select_focus_noise.py [--n 20] [--sigmas 0,0.5,0.75,1,1.5,2]
+    OMP_WAIT_POLICY=PASSIVE python benchmarks/select_focus_noise.py [--n 20] [--sigmas 0,0.5,0.75,1,1.5,2,3]
 
 Why: the focus measures are high-pass, so sensor noise dominates them wherever a frame is out of focus
 (benchmarks/probe_classical_noise.py looked at it on test scenes; this script is the one that chooses). A
@@ -10,14 +10,16 @@ pre-filter also changes the shape of the focus curve near its peak, which the su
 
 Validation sets: whole-sensor stacks of each shipped lens (rf50: 8 frames, paper50: 10 frames, the fixed schedule
 of bench_table2) rendered through its PSF surrogate, procedural scenes textured with the *training* photographs and
-seeded apart from every test set (`TestSetSpec(photo_split="train", seed=VAL_SEED)`), each without and with the
-`noise` effect (Poisson-Gaussian, 8000 e- full well, 3 e- read noise). Method: the runtime's classical method with
+seeded apart from every test set (`TestSetSpec(photo_split="train", seed=VAL_SEED)`), each in three conditions:
+clean, with the `noise` effect (Poisson-Gaussian, 8000 e- full well, 3 e- read noise), and `phone`: that noise then
+a typical phone's processing (the `phone_jpeg` effect at its defaults: local tone mapping 0.4, denoising 0.03,
+unsharp masking 0.8 at 1 px, JPEG quality 90 with 4:2:0). Method: the runtime's classical method with
 the lens's best-focus map (aberration-aware, as `aat-infer --method focus --lens` runs it), every other setting at
 its default. Depth MAE in metres from the sensor over valid ground truth, mean over scenes with a 95 % bootstrap
 interval; each cell's ratio to the reference (`ratio` estimator, no pre-filter: the defaults before this choice) is
 paired over scenes.
 
-Choice: the (estimator, sigma) with the lowest geometric mean, over the four (lens, noise) cells, of the MAE ratio
+Choice: the (estimator, sigma) with the lowest geometric mean, over the six (lens, condition) cells, of the MAE ratio
 to the reference (scale-free, so each lens and condition weighs alike). Writes
 benchmarks/results/focus_noise_selection.json.
 """
@@ -38,7 +40,7 @@ from aat_deploy.eval.stats import N_BOOT, bootstrap_mean, paired_ratio  # noqa: 
 from training.train.testsets import LENSES  # noqa: E402
 
 VAL_SEED = 424242  # apart from the test sets' 777777 and from every training seed
-CONDITIONS = {"clean": (), "noise": ("noise",)}
+CONDITIONS = {"clean": (), "noise": ("noise",), "phone": ("noise", "phone_jpeg")}
 ESTIMATORS = ("ratio", "gauss")
 REFERENCE = ("ratio", 0.0)
 
@@ -58,7 +60,7 @@ def name(v: tuple) -> str:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--n", type=int, default=20, help="validation scenes per lens and condition")
-    ap.add_argument("--sigmas", default="0,0.5,0.75,1,1.5,2", help="pre-filter sigmas (px), comma-separated")
+    ap.add_argument("--sigmas", default="0,0.5,0.75,1,1.5,2,3", help="pre-filter sigmas (px), comma-separated")
     ap.add_argument("--lenses", default="rf50,paper50")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/focus_noise_selection.json")
     a = ap.parse_args(argv)

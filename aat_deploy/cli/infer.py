@@ -5,6 +5,7 @@
                              --calibration CAL.json] [--max-side N]
     aat-infer CAPTURE_DIR... --method focus [--lens LENS | --psf PSF.onnx | --calibration CAL.json]
                              [--focus-m 0.6,0.8,...] [--max-side N] [--prefilter-px SIGMA]
+    [--min-confidence C]
 
 --model dfv_aat is the any-camera model: it takes the camera's focal length, f-number and pixel pitch from EXIF (or
 --camera) and what each frame has in focus at each pixel from a thin lens, or aberration-aware from the lens's
@@ -13,6 +14,9 @@ best-focus map (--lens, --psf) or a calibration (--calibration); it refuses in o
 chosen from the stack's blur step (--max-side N, or 0 for the frames' own size), aberration-aware with the lens's best-focus map (--lens, --psf) or your camera's calibration
 (--calibration, made by aat-calibrate: per pixel and frame what is in focus, the reported focus corrected). It also
 writes confidence.npy/png.
+Confidence is calibrated: the chance that the pixel's depth is within 10 % of the truth (aat_deploy.confidence);
+a model has one when its `<stem>.confidence.json` lies next to it. Below --min-confidence (default 0.5) depth is
+unknown: NaN in depth_m, grey in the previews, not in points.ply; summary.json gives the unknown share.
 
 Writes depth (depth_m.npy/.tif, depth_mm.png, depth_color.png), aif.png, uncertainty (std_m.npy, std_mm.png,
 std_color.png), points.ply, camera.json, summary.json and recording.rrd per capture (docs/contracts.md), into DIR itself for one capture, DIR/<capture name>/ for several (default DIR: ./aat_out/<capture name>); captures
@@ -40,6 +44,7 @@ def main(argv: list[str] | None = None) -> int:
 def _main(argv: list[str] | None) -> int:
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     from ..capture.focuslist import parse_focus_list  # the heavy modules load inside the interrupt guard
+    from ..confidence import MIN_CONFIDENCE
     from ..errors import CaptureError, one_line, safe_output_streams
     from ..focus.method import FocusConfig
     from ..focus.runner import FocusMethod
@@ -87,6 +92,9 @@ def _main(argv: list[str] | None) -> int:
     ap.add_argument("--native-res", action="store_true",
                     help="depth and all-in-focus at the capture's own resolution (the model runs at its sensor size; "
                          "depth upsampled guided by the all-in-focus image)")
+    ap.add_argument("--min-confidence", type=float, default=MIN_CONFIDENCE, metavar="C",
+                    help=f"depth whose calibrated confidence (chance of being within 10 %% of the truth) is below C is "
+                         f"written as unknown (NaN); 0 keeps every pixel (default {MIN_CONFIDENCE:g})")
     ap.add_argument("--no-exiftool", action="store_true", help="never fall back to exiftool")
     ap.add_argument("--no-recording", action="store_true", help="skip recording.rrd")
     add_reader_options(ap)
@@ -105,6 +113,8 @@ def _main(argv: list[str] | None) -> int:
         ap.error("--prefilter-px belongs to --method focus (the classical method's pre-filter)")
     if args.prefilter_px is not None and not 0 <= args.prefilter_px <= 50:
         ap.error("--prefilter-px must be between 0 and 50 px")
+    if not 0 <= args.min_confidence <= 1:
+        ap.error("--min-confidence must be between 0 and 1")
     if args.max_side is not None and not (args.max_side >= 16 or (args.max_side == 0 and args.method == "focus")):
         ap.error("--max-side must be >= 16 px (or 0 with --method focus: the frames' own size)")
     if args.model is not None:
@@ -145,7 +155,7 @@ def _main(argv: list[str] | None) -> int:
     opts = Options(tile=args.tile, align=args.align, strict=args.strict, force=args.force,
                    use_exiftool=not args.no_exiftool, focus_m=focus_m, record=not args.no_recording,
                    quiet=args.quiet, native=args.native_res, max_megapixels=args.max_megapixels,
-                   allow_outside_links=args.allow_outside_links)
+                   allow_outside_links=args.allow_outside_links, min_confidence=args.min_confidence)
     failed = 0
     for i, (c, out) in enumerate(zip(captures, outs)):
         t0 = time.perf_counter()
@@ -174,9 +184,12 @@ def _main(argv: list[str] | None) -> int:
             continue
         for w in summary["warnings"]:
             print(one_line(f"aat-infer: warning: {w}"), file=sys.stderr)
-        lo, hi = summary["depth_m_range"]
-        print(one_line(f"{c} -> {out}  ({len(summary['focus_m'])} frames, depth {lo:.3g}..{hi:.3g} m, "
-                       f"{time.perf_counter() - t0:.2f} s)"), flush=True)
+        rng = summary["depth_m_range"]
+        share = summary["unknown"]["unknown_share"]
+        print(one_line(f"{c} -> {out}  ({len(summary['focus_m'])} frames, "
+                       + (f"depth {rng[0]:.3g}..{rng[1]:.3g} m" if rng else "no depth known")
+                       + (f", {share:.0%} unknown" if share else "") + f", {time.perf_counter() - t0:.2f} s)"),
+              flush=True)
     if failed:
         print(f"aat-infer: {failed} of {len(captures)} capture(s) failed", file=sys.stderr)
     return 1 if failed else 0

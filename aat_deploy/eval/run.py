@@ -84,10 +84,12 @@ def _score_one(cap: Path, gt: GroundTruth, model: DfFModel, label: str, run_dir:
                acc: MetricAccumulator, profiles: dict[str, ErrorProfile], radius: np.ndarray) -> _Scored:
     """Run one model on one capture and score it. CaptureError (incl. GTError) on failure."""
     check_units(gt, model.focus_range_m)
+    # every pixel is scored (min_confidence 0: no depth marked unknown), as before the confidence was calibrated
     summary = infer_capture(cap, model, run_dir, Options(align=opts.align_frames, quiet=True, record=False,
                                                          use_exiftool=opts.use_exiftool,
                                                          max_megapixels=opts.max_megapixels,
-                                                         allow_outside_links=opts.allow_outside_links))
+                                                         allow_outside_links=opts.allow_outside_links,
+                                                         min_confidence=0.0))
     pred = np.load(run_dir / "depth_m.npy").astype(np.float64)
     frame_wh = tuple(summary["input_size_px"])
     crop = tuple(summary["geometry"]["crop_xywh"])

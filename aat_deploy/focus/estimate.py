@@ -116,7 +116,12 @@ def estimate_peak(volume: np.ndarray, x: np.ndarray, rbin: np.ndarray | None = N
         fit = (k == kc) | concave
         x1 = np.where(fit, np.clip(v, np.minimum(xa, xb), np.maximum(xa, xb)), positions_at(x, k, rbin))
         frac = np.where(fit, np.clip(vi, left, right), k).astype(np.float32)
+    return Peak(x1.astype(np.float32), k, frac, contrast(m_max, m_min, tau_rel))
+
+
+def contrast(m_max: np.ndarray, m_min: np.ndarray, tau_rel: float) -> np.ndarray:
+    """The focus curve's contrast (m_max - m_min) / (m_max + tau) in [0, 1], tau = tau_rel x the image's 99th
+    percentile of m_max (a measure far below the image's sharpest texture counts for little): (H, W) float32."""
     q = float(np.percentile(m_max, 99)) if m_max.size else 0.0
     tau = np.float32(max(tau_rel * q, 1e-30))
-    conf = ((m_max - m_min) / (m_max + tau)).astype(np.float32)
-    return Peak(x1.astype(np.float32), k, frac, np.clip(conf, 0, 1))
+    return np.clip(((m_max - m_min) / (m_max + tau)).astype(np.float32), 0, 1)

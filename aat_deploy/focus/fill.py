@@ -63,6 +63,14 @@ def fill_depth(diopters: np.ndarray, confidence: np.ndarray, guide: np.ndarray, 
                sigma_r: float = 0.1, c_full: float = 0.5, downscale: int = 2, iterations: int = 3) -> np.ndarray:
     """diopters (H, W), confidence (H, W) in [0, 1], guide (3, H, W) all-in-focus (display units, about [0, 1])
     -> (H, W) float32 diopters with unconfident pixels filled from confident ones along the guide."""
+    return fill_with_support(diopters, confidence, guide, sigma_s_px, sigma_r, c_full, downscale, iterations)[0]
+
+
+def fill_with_support(diopters: np.ndarray, confidence: np.ndarray, guide: np.ndarray, sigma_s_px: float = 40.0,
+                      sigma_r: float = 0.1, c_full: float = 0.5, downscale: int = 2, iterations: int = 3
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """`fill_depth`, and the fill's support (H, W) float32 in [0, 1]: RF(c), the confidence averaged over the
+    pixel's edge-aware neighbourhood (how much confident evidence the fill drew on; 0 where none reached)."""
     h, w = diopters.shape
     ds = max(1, int(downscale))
     sw, sh = max(1, w // ds), max(1, h // ds)
@@ -76,7 +84,9 @@ def fill_depth(diopters: np.ndarray, confidence: np.ndarray, guide: np.ndarray, 
     f = domain_transform_nc(num_den, g, sigma_s_px / ds, sigma_r, iterations)
     own = small(diopters)
     filled = np.where(f[1] > 1e-6, f[0] / np.maximum(f[1], 1e-12), own).astype(np.float32)  # no confident pixel
+    support = np.clip(f[1], 0.0, 1.0).astype(np.float32)
     if (sw, sh) != (w, h):
         filled = cv2.resize(filled, (w, h), interpolation=cv2.INTER_LINEAR)
+        support = cv2.resize(support, (w, h), interpolation=cv2.INTER_LINEAR)
     a = np.clip(c / c_full, 0.0, 1.0)
-    return (a * diopters + (1 - a) * filled).astype(np.float32)
+    return (a * diopters + (1 - a) * filled).astype(np.float32), support

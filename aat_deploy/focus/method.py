@@ -16,15 +16,17 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from ..confidence import Calibration, focus_calibration
 from .aif import AIF_MODES, blend, blend_at, focus_weights, spread_m
 from .bestfocus import BestFocusMap
-from .estimate import ESTIMATORS, estimate_peak
-from .fill import fill_depth
+from .estimate import ESTIMATORS, contrast, estimate_peak
+from .fill import fill_with_support
 from .measures import MEASURES, focus_volume
 from .placement import place_equal_focus, tied_groups
 
 MIN_DIOPTERS = 1e-3  # 1 km: estimates past infinity (a far frame's field shift) are clamped here
 FILL_MODES = ("none", "fill")
+CONFIDENCE_MODES = ("calibrated", "raw")
 
 
 @dataclass(frozen=True)
@@ -35,7 +37,10 @@ class FocusConfig:
     power; fill: "fill" (edge-aware filling of unconfident pixels) or "none", with the domain transform's spatial
     sigma (px at full size), range sigma (guide units, sqrt of the normalised AiF) and the confidence at which a
     pixel keeps its own estimate; radius_bins: resolution of the aberration-aware lookup; calibrated: add the
-    best-focus map's measured offset (if it has one)."""
+    best-focus map's measured offset (if it has one); confidence: "calibrated" (the chance that the depth is within
+    10 % of the truth, `aat_deploy.confidence`) or "raw" (the focus-curve contrast, as before the calibration
+    existed). The fill weighs by the raw contrast either way (c_full on its scale): the calibration changes what
+    the confidence says, not the depth."""
 
     measure: str = "mlap2"
     window_px: float = 15.0
@@ -51,6 +56,8 @@ class FocusConfig:
     fill_downscale: int = 2
     radius_bins: int = 256
     calibrated: bool = True
+    confidence: str = "calibrated"
+    tau_rel: float = 1e-3  # the fill's focus-curve contrast floor, relative to the image's sharpest (estimate.contrast)
 
     @property
     def tail_exponent(self) -> float:
@@ -60,7 +67,8 @@ class FocusConfig:
 
     def __post_init__(self):
         for name, v, allowed in (("measure", self.measure, MEASURES), ("estimator", self.estimator, ESTIMATORS),
-                                 ("aif", self.aif, AIF_MODES), ("fill", self.fill, FILL_MODES)):
+                                 ("aif", self.aif, AIF_MODES), ("fill", self.fill, FILL_MODES),
+                                 ("confidence", self.confidence, CONFIDENCE_MODES)):
             if v not in allowed:
                 raise ValueError(f"unknown {name} {v!r} (one of {', '.join(allowed)})")
         if not self.window_px > 0 or self.radius_bins < 2 or not self.prefilter_px >= 0:
@@ -70,9 +78,13 @@ class FocusConfig:
 @dataclass
 class FocusResult:
     """depth_m (H, W) metres from the sensor; aif (3, H, W) in the stack's units; std_m (H, W) spread of the focus
-    weights (m); confidence (H, W) in [0, 1]; diopters (H, W) the estimate before filling; focus_m (S,) the
+    weights (m); confidence (H, W) in [0, 1] (calibrated: the chance that depth_m is within the calibration's
+    tolerance; a filled pixel's is the fill's); diopters (H, W) the estimate before filling; focus_m (S,) the
     frames' focus distances as used (sorted near to far, tied frames placed); order (S,) input index of each;
-    warnings (one line each); info: settings, mapping, placements, timings."""
+    warnings (one line each); info: settings, mapping, placements, timings; score (H, W) the focus-curve
+    contrast the calibration reads (with its floor; the raw confidence without a calibration); fill_support
+    (H, W) the fill's support and filled (H, W) bool the pixels whose depth and confidence come (partly) from the
+    fill (both None without filling)."""
 
     depth_m: np.ndarray
     aif: np.ndarray
@@ -83,6 +95,9 @@ class FocusResult:
     order: np.ndarray
     warnings: list[str] = field(default_factory=list)
     info: dict = field(default_factory=dict)
+    score: np.ndarray | None = None
+    fill_support: np.ndarray | None = None
+    filled: np.ndarray | None = None
 
 
 def calibration_mismatch(best_focus: BestFocusMap, config: FocusConfig) -> str:
@@ -119,11 +134,12 @@ def calibration_settings_mismatch(cal, config: FocusConfig) -> str:
 
 def depth_from_focus(stack: np.ndarray, focus_m, best_focus: BestFocusMap | None = None,
                      config: FocusConfig = FocusConfig(), volume: np.ndarray | None = None,
-                     calibration=None, frame_diopters: np.ndarray | None = None) -> FocusResult:
+                     calibration=None, frame_diopters: np.ndarray | None = None,
+                     confidence_calibration: Calibration | None = None) -> FocusResult:
     """Depth, all-in-focus image and confidence from a focal stack.
 
-    stack: (S, 3, H, W) linear RGB (any scale: the runtime's normalised stacks or raw linear values), S >= 3, any
-    frame order; focus_m: (S,) reported focus distances, metres from the sensor (> 0). best_focus: the lens's
+    stack: (S, 3, H, W) linear RGB (any scale: the runtime's normalised stacks or raw linear values), S >= 3 (2 with
+    the `ratio` estimator: a depth-from-defocus pair), any frame order; focus_m: (S,) reported focus distances, metres from the sensor (> 0). best_focus: the lens's
     map for the aberration-aware mapping (frames spanning its sensor), None = thin-lens mapping.
     volume: a precomputed focus volume (S, H, W) of `stack` with config's measure (benchmarks reuse it).
     calibration: a camera calibration (`aat_deploy.calibrate.CameraCalibration`, frames spanning its field): each
@@ -131,6 +147,8 @@ def depth_from_focus(stack: np.ndarray, focus_m, best_focus: BestFocusMap | None
     nominal focus and the radial map (not with best_focus).
     frame_diopters: (S, H, W) the diopters each frame (input order) has in focus at each pixel, from anywhere (a
     simulator's truth, another mapping): used as given (no tied-frame placement), instead of all the above.
+    confidence_calibration: the confidence calibration (curves `estimate`, `fill`; `aat_deploy.confidence`) when
+    config.confidence is "calibrated"; None = the shipped one (aat_deploy/focus/data/confidence.json).
     """
     t0 = time.perf_counter()
     timings: dict[str, float] = {}
@@ -145,11 +163,14 @@ def depth_from_focus(stack: np.ndarray, focus_m, best_focus: BestFocusMap | None
     f = np.asarray(focus_m, np.float64).ravel()
     if stack.ndim != 4 or stack.shape[1] != 3 or stack.shape[0] != f.size:
         raise ValueError(f"stack must be (S, 3, H, W) with S focus distances, got {stack.shape} and {f.size}")
-    if f.size < 3:
-        raise ValueError(f"depth from focus needs at least 3 frames, got {f.size}")
+    if f.size < 3 and not (f.size == 2 and config.estimator == "ratio"):
+        raise ValueError(f"depth from focus needs at least 3 frames (2 with the ratio estimator), got {f.size}")
     if not np.all(np.isfinite(f)) or np.any(f <= 0):
         raise ValueError(f"focus distances must be finite and > 0 m, got {f.tolist()}")
     warnings: list[str] = []
+    if f.size == 2:
+        warnings.append("two frames (depth from defocus): depth is measured only between their focus distances; "
+                        "a point beyond them is placed between them, near the sharper frame's")
     vol = (focus_volume(stack, config.measure, config.window_px, prefilter_px=config.prefilter_px)
            if volume is None else volume)
     lap("measure")
@@ -215,18 +236,37 @@ def depth_from_focus(stack: np.ndarray, focus_m, best_focus: BestFocusMap | None
         if out:
             warnings.append(f"focus distances {', '.join(f'{v:g}' for v in out)} m lie outside the best-focus "
                             f"map's {near:g}..{far:g} m: its edge values are used")
-    peak = estimate_peak(vol, x, rbin, config.estimator, gamma=config.tail_exponent)
+    peak = estimate_peak(vol, x, rbin, config.estimator, tau_rel=config.tau_rel, gamma=config.tail_exponent)
     lap("estimate")
 
     weights = focus_weights(vol, config.aif_power)
     aif = blend(stack, weights) if config.aif == "weights" else blend_at(stack, peak.frac)
     lap("aif")
 
-    d = peak.diopters
+    cal = (confidence_calibration or focus_calibration()) if config.confidence == "calibrated" else None
+    if config.confidence == "calibrated" and cal is None:
+        warnings.append("no confidence calibration installed (aat_deploy/focus/data/confidence.json): the "
+                        "confidence is the raw focus-curve contrast")
+    elif cal is not None:
+        made = {k: cal.notes.get("focus_config", {}).get(k) for k in ("prefilter_px", "window_px", "measure")}
+        diff = [f"{k} {v} there, {getattr(config, k)} here" for k, v in made.items()
+                if v is not None and v != getattr(config, k)]
+        if diff:
+            warnings.append(f"the confidence calibration was made with other settings ({'; '.join(diff)}): the "
+                            "confidence may not mean what it says (rerun benchmarks/calibrate_confidence.py)")
+    d, conf, support, filled = peak.diopters, peak.confidence, None, None
+    score = peak.confidence
+    if cal is not None:  # the calibration reads the contrast with its own floor (chosen with it)
+        tau = float(cal.notes.get("estimate_tau_rel", config.tau_rel))
+        score = score if tau == config.tau_rel else contrast(vol.max(0), vol.min(0), tau)
+        conf = cal.probability("estimate", score, peak.diopters, f)
     if config.fill == "fill":
         guide = np.sqrt(np.clip(aif / max(float(np.percentile(aif, 99.5)), 1e-12), 0, 1))
-        d = fill_depth(d, peak.confidence, guide, config.sigma_s_px, config.sigma_r, config.c_full,
-                       config.fill_downscale)
+        d, support = fill_with_support(d, peak.confidence, guide, config.sigma_s_px, config.sigma_r, config.c_full,
+                                       config.fill_downscale)
+        filled = peak.confidence < config.c_full  # these take part (or all) of their depth from the fill
+        if cal is not None:
+            conf = np.where(filled, cal.probability("fill", support, d, f), conf).astype(np.float32)
     depth = (1.0 / np.maximum(d, MIN_DIOPTERS)).astype(np.float32)
     lap("fill")
     frame_m = (1.0 / np.maximum(x, MIN_DIOPTERS)).astype(np.float32)  # per frame (and radius bin), metres
@@ -239,7 +279,11 @@ def depth_from_focus(stack: np.ndarray, focus_m, best_focus: BestFocusMap | None
         info["calibration"] = {"camera": f"{c.make} {c.model}".strip(), "lens": c.lens,
                                "focus_error": calibration.focus_error.family,
                                "focus_range_m": [round(v, 4) for v in calibration.focus_range_m]}
+    info["confidence"] = {"calibrated": cal is not None,
+                          **({"tolerance_rel": cal.tolerance_rel} if cal is not None else {}),
+                          "filled_share": None if filled is None else float(filled.mean())}
     if best_focus is not None:
         info["best_focus_map"] = {"lens_name": best_focus.lens_name, "lens_hash": best_focus.lens_hash,
                                   "calibrated": bool(config.calibrated and best_focus.offset_diopters is not None)}
-    return FocusResult(depth, aif, std, peak.confidence, peak.diopters, f.astype(np.float32), order, warnings, info)
+    return FocusResult(depth, aif, std, conf, peak.diopters, f.astype(np.float32), order, warnings, info,
+                       score, support, filled)

@@ -95,24 +95,32 @@ def colorize(x: np.ndarray, lo: float, hi: float, colormap: str = DEPTH_COLORMAP
     return _apply((np.where(known, x, lo) - lo) / max(hi - lo, 1e-12), known, colormap)
 
 
-def depth_preview(depth_m: np.ndarray, near_m: float, far_m: float, colormap: str = DEPTH_COLORMAP
-                  ) -> tuple[np.ndarray, ColorScale]:
+def depth_preview(depth_m: np.ndarray, near_m: float, far_m: float, colormap: str = DEPTH_COLORMAP,
+                  unit: str = "m") -> tuple[np.ndarray, ColorScale]:
     """RGB uint8 (H, W + bar, 3): depth (H, W) metres on an inverse-depth scale from near_m (low end of the colour
-    map) to far_m (high end), values outside clipped, with the bar labelled in metres."""
+    map) to far_m (high end), values outside clipped, with the bar labelled in metres (or `unit`, for a stack whose
+    focus distances are in other units)."""
     known = np.isfinite(depth_m) & (depth_m > 0)
     inv_n, inv_f = 1.0 / near_m, 1.0 / far_m
     with np.errstate(divide="ignore", invalid="ignore"):
         t = (inv_n - 1.0 / depth_m.astype(np.float64)) / (inv_n - inv_f)
     img = _apply(t, known, colormap)
     tv = np.linspace(0.0, 1.0, TICKS)
-    labels = [(float(x), f"{1.0 / (inv_n - x * (inv_n - inv_f)):.3g} m") for x in tv]
+    labels = [(float(x), f"{1.0 / (inv_n - x * (inv_n - inv_f)):.3g} {unit}") for x in tv]
     return _with_bar(img, colormap, labels, "depth"), ColorScale(colormap, float(near_m), float(far_m), "inverse")
 
 
 def uncertainty_preview(std_m: np.ndarray, hi_m: float, colormap: str = UNCERTAINTY_COLORMAP
                         ) -> tuple[np.ndarray, ColorScale]:
     """RGB uint8 (H, W + bar, 3): uncertainty (H, W) metres on a linear scale 0..hi_m, with the bar in metres."""
-    known = np.isfinite(std_m)
-    img = _apply(std_m.astype(np.float64) / hi_m, known, colormap)
-    labels = [(float(x), f"{x * hi_m:.3g} m") for x in np.linspace(0.0, 1.0, TICKS)]
-    return _with_bar(img, colormap, labels, "std"), ColorScale(colormap, 0.0, float(hi_m), "linear")
+    img = linear_preview(std_m, 0.0, hi_m, "std", " m", colormap)
+    return img, ColorScale(colormap, 0.0, float(hi_m), "linear")
+
+
+def linear_preview(values: np.ndarray, lo: float, hi: float, title: str, unit: str = "",
+                   colormap: str = UNCERTAINTY_COLORMAP) -> np.ndarray:
+    """RGB uint8 (H, W + bar, 3): values (H, W) on a linear scale lo (low end of the colour map) .. hi, values
+    outside clipped, NaN grey, with the bar labelled "<value><unit>" (a confidence, a frame index, a disparity)."""
+    img = colorize(values.astype(np.float64), lo, hi, colormap)
+    labels = [(float(x), f"{lo + x * (hi - lo):.3g}{unit}") for x in np.linspace(0.0, 1.0, TICKS)]
+    return _with_bar(img, colormap, labels, title)

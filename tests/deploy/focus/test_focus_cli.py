@@ -39,7 +39,8 @@ def test_focus_method_writes_the_model_paths_outputs(tmp_path, capsys):
     for plane in (0.8, 3.0):  # the fixture's two planes (weak blur: 2.5 px per diopter), inner pixels
         m = gt == plane
         m[:, 28:36] = False
-        assert abs(1 / np.median(d[m]) - 1 / plane) < 0.1, (plane, np.median(d[m]))  # diopters
+        assert np.isfinite(d[m]).mean() > 0.5  # most of a textured plane is known (confident or filled)
+        assert abs(1 / np.nanmedian(d[m]) - 1 / plane) < 0.1, (plane, np.nanmedian(d[m]))  # diopters
 
 
 def test_focus_m_for_frames_without_metadata_and_its_errors(tmp_path, capsys):

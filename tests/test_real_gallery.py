@@ -1,0 +1,67 @@
+"""The real-stack gallery script (scripts/make_real_gallery.py): a method column added to its registry shows up in
+the pictures and the page; display units of stacks without metric focus; the shared stacks when present."""
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import ROOT, SHARED
+
+
+@pytest.fixture(scope="module")
+def gallery():
+    spec = importlib.util.spec_from_file_location("make_real_gallery", ROOT / "scripts/make_real_gallery.py")
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["make_real_gallery"] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def toy_stack(gallery, kind="position"):
+    """A textured plane whose in-focus frame runs from 0 (left) to 4 (right), frames blurred by defocus."""
+    import cv2
+
+    rng = np.random.default_rng(0)
+    tex = rng.random((48, 80)).astype(np.float32)
+    target = np.linspace(0, 4, 80)[None].repeat(48, 0)
+    frames = []
+    for k in range(5):
+        sig = 0.3 + 1.5 * np.abs(target - k)
+        lv = [cv2.GaussianBlur(tex, (0, 0), s) for s in np.linspace(0.3, 6.3, 16)]
+        fr = np.choose(np.clip(np.rint((sig - 0.3) / 0.4).astype(int), 0, 15), lv)
+        frames.append(np.repeat(fr[..., None], 3, 2))
+    focus, off, sign = gallery._by_index(np.stack(frames))
+    return gallery.RealStack("toy", "toy", "test", np.stack(frames).astype(np.float32), focus, "placeholders",
+                             unit="frame", kind=kind, offset=off, sign=sign)
+
+
+def test_frame_index_display_and_an_added_method_column(gallery, monkeypatch):
+    st = toy_stack(gallery)
+    col = gallery.focus_column(st, 640)
+    idx = gallery.RealStack.display(st, col.depth)
+    inner = np.isfinite(idx[:, 12:-12])
+    assert inner.mean() > 0.5
+    # the in-focus index follows the plane (0 at the left, 4 at the right) where known
+    cols = np.nanmedian(np.where(inner, idx[:, 12:-12], np.nan), 0)
+    assert np.corrcoef(np.arange(cols.size)[np.isfinite(cols)], cols[np.isfinite(cols)])[0, 1] > 0.9
+    one = gallery.row_picture(st, {"focus": col})
+
+    def twin(stack, max_side):  # another method: the same maps, as a model's column would come
+        return gallery.Column(col.depth, col.aif, None, 0.01, ["a note"], None)
+
+    monkeypatch.setitem(gallery.METHODS, "twin", ("another method", twin))
+    two = gallery.row_picture(st, {"focus": col, "twin": twin(st, 640)})
+    assert two.shape[0] == one.shape[0] and two.shape[1] > one.shape[1]
+    page = gallery.page([(st, {"focus": col, "twin": twin(st, 640)}, "toy.png")], 640)
+    assert "another method" in page and "a note" in page and "gallery/toy.png" in page
+
+
+@pytest.mark.skipif(not (SHARED / "dfd_pair_breakfast_watanabe_nayar").is_dir(),
+                    reason="../shared/data/dfd_pair_breakfast_watanabe_nayar absent (a clone without shared data)")
+def test_the_script_on_a_shared_stack(gallery, tmp_path):
+    assert gallery.main(["--out", str(tmp_path), "--stacks", "watanabe_nayar", "--max-side", "320"]) == 0
+    assert (tmp_path / "gallery" / "watanabe_nayar.png").is_file()
+    text = (tmp_path / "real_stacks.md").read_text()
+    assert "0.529 and 0.869 m" in text and "two frames" in text
