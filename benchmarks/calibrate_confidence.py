@@ -143,7 +143,7 @@ def assess_focus(cells, n: int, cfg, cal, thresholds):
     out, pooled = {}, {"conf": [], "ok": [], "raw": [], "filled": []}
     for cell in cells:
         fmap = focus_map(cell[0])
-        conf, ok, rawc, filled, own_ok = [], [], [], [], []
+        conf, ok, rawc, filled = [], [], [], []
         for it in stacks(cell, ASSESS_SEED, n):
             vol = focus_volume(it.stack, cfg.measure, cfg.window_px, prefilter_px=cfg.prefilter_px)
             r = depth_from_focus(it.stack, it.focus_m, fmap, cfg, volume=vol, confidence_calibration=cal)

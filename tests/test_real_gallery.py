@@ -3,7 +3,6 @@ the pictures and the page; display units of stacks without metric focus; the sha
 
 import importlib.util
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
