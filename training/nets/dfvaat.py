@@ -1,13 +1,16 @@
 """`dfv_aat`: one depth-from-focus net for every camera, told what each frame has in focus at each pixel.
 
-A DFVNet (training.nets.dfvnet, the small configuration) whose per-frame input is the RGB frame plus two channels
-made from what the camera's user knows:
+A DFVNet (training.nets.dfvnet, the small configuration) told, besides the RGB frames, two channels made from what
+the camera's user knows:
 - `focus_diopters` (B, S, H, W): the object diopters (1/m, distances from the sensor plane) in best focus in frame s
   at each pixel (a thin lens's nominal focus, a traced lens's best-focus map, or a calibration);
 - `defocus_px_per_d` (B, 1, H, W): how fast blur grows with defocus (px of blur diameter per diopter), from focal
   length, f-number and pixel pitch, or measured.
 Channel 1 is each frame's defocus position in pixels of blur, k (D_s - mean_s D_s) / 16: how much sharper or blurrier
-than its neighbours frame s makes a point, whatever the camera; channel 2 is log2(k) / 4. The head interpolates the
+than its neighbours frame s makes a point, whatever the camera; channel 2 is log2(k) / 4. They enter every level's
+per-frame features as a bias, a 1x1 convolution of the channels averaged down to that level's scale (`Conditioned
+DFVNet`), not as image channels: a nearly constant image channel through the zero-padded 7x7 stem marks the image
+border, and the first run's net learnt rings from the border instead of focus. The head interpolates the
 per-pixel focus diopters: D = sum_s p_s D_s(pixel) with p = softmax over S, depth_m = 1 / D. A pixel that is sharpest
 in frame s is placed where that frame really focuses at that pixel, so the map's aberrations (field curvature,
 tilt, astigmatism) need not be learnt: the net is aberration-aware for lenses it never saw.
@@ -25,13 +28,13 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from training.nets.blocks import count_params
-from training.nets.dfvnet import DFVNET_CONFIGS, DFVNet
+from training.nets.dfvnet import DFVNET_CONFIGS, DFVNet, DFVNetConfig
 
 NET_NAME = "dfvaat"
 MIN_DIOPTERS = 1e-3  # 1 km: depth of a pixel whose interpolated focus is at or past infinity
 EXTRA_CHANNELS = 2
-# the small DFVNet with a slightly narrower context fusion, so that the two extra input channels leave the parameter
-# count at or below the small DFVNet's (902,806)
+# the small DFVNet with a slightly narrower context fusion, so that the conditioning leaves the parameter count at or
+# below the small DFVNet's (902,806)
 CONFIGS = {"small": replace(DFVNET_CONFIGS["small"], context_fuse=62)}
 
 
@@ -57,6 +60,26 @@ def focus_map_head(logits: Tensor, stack: Tensor | None, focus_diopters: Tensor
     return depth, aif, std, d
 
 
+class ConditionedDFVNet(DFVNet):
+    """DFVNet on RGB frames whose per-frame features at /4, /8 (, /16, /32) get a per-pixel bias from conditioning
+    channels: a 1x1 convolution (no padding) of the channels average-pooled to that scale (fixed windows, exact at
+    every H, W that are multiples of 32). forward(stack (B, S, 3, H, W), cond (B, S, C, H, W))."""
+
+    def __init__(self, cfg: DFVNetConfig, cond_channels: int):
+        super().__init__(cfg, in_channels=3)
+        feats = tuple(reversed(cfg.features))  # /4, /8, /16, /32
+        self.cond = nn.ModuleList(nn.Conv2d(cond_channels, feats[i], 1) for i in range(cfg.levels))
+
+    def forward(self, stack: Tensor, cond: Tensor) -> list[Tensor]:
+        b, s, c, h, w = stack.shape
+        feats = self.encoder(stack.reshape(b * s, c, h, w))
+        flat = cond.reshape(b * s, cond.shape[2], h, w)
+        for i, proj in enumerate(self.cond):
+            f = 4 * 2**i
+            feats[i] = feats[i] + proj(F.avg_pool2d(flat, f, f))
+        return self.decode(feats, b, s)
+
+
 class FocusMapDfF(nn.Module):
     """forward(stack (B, S, 3, H, W), focus_diopters (B, S, H, W), defocus_px_per_d (B, 1, H, W)) ->
     (depth_m (B, H, W), aif (B, 3, H, W), std_m (B, H, W)); frames sorted near -> far, H and W multiples of
@@ -68,7 +91,7 @@ class FocusMapDfF(nn.Module):
     def __init__(self, size: str = "small"):
         super().__init__()
         self.size = size
-        self.net = DFVNet(CONFIGS[size], in_channels=3 + EXTRA_CHANNELS)
+        self.net = ConditionedDFVNet(CONFIGS[size], EXTRA_CHANNELS)
         self.size_multiple = int(self.net.size_multiple)
 
     @property
@@ -76,8 +99,9 @@ class FocusMapDfF(nn.Module):
         return count_params(self)
 
     def levels(self, stack: Tensor, focus_diopters: Tensor, defocus_px_per_d: Tensor) -> list[tuple]:
-        x = torch.cat([stack, focus_channels(focus_diopters, defocus_px_per_d).to(stack.dtype)], 2)
-        return [focus_map_head(lg, stack if i == 0 else None, focus_diopters) for i, lg in enumerate(self.net(x))]
+        cond = focus_channels(focus_diopters, defocus_px_per_d).to(stack.dtype)
+        return [focus_map_head(lg, stack if i == 0 else None, focus_diopters)
+                for i, lg in enumerate(self.net(stack, cond))]
 
     def forward(self, stack: Tensor, focus_diopters: Tensor, defocus_px_per_d: Tensor, all_levels: bool = False):
         levels = self.levels(stack, focus_diopters, defocus_px_per_d)

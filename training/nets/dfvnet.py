@@ -186,7 +186,10 @@ class DFVNet(nn.Module):
         """stack (B, S, C, H, W) (C = in_channels: RGB [+ field coordinates]), H and W multiples of 32 ->
         [logits (B, S, H, W), ...] finest first."""
         b, s, c, h, w = stack.shape
-        feats = self.encoder(stack.reshape(b * s, c, h, w))
+        return self.decode(self.encoder(stack.reshape(b * s, c, h, w)), b, s)
+
+    def decode(self, feats: list[Tensor], b: int, s: int) -> list[Tensor]:
+        """Per-frame features [/4, /8, /16, /32] of B x S frames -> [logits (B, S, H, W), ...] finest first."""
         logits, state = [], None
         for i in reversed(range(self.cfg.levels)):
             lg, state = self.decoders[i](self.volume(feats[i], b, s), state)
