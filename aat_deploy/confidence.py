@@ -31,7 +31,8 @@ FORMAT = "aat-confidence-calibration-v1"
 TOLERANCE_REL = 0.10  # "within 10 % of the true depth"
 MIN_CONFIDENCE = 0.5  # default threshold: below it depth is more likely off than within the tolerance
 SCORES = {
-    "estimate": "the focus method's focus-curve contrast (m_max - m_min) / (m_max + tau) before filling, in [0, 1]",
+    "estimate": "the focus method's own estimate: its agreement with its neighbours (`agreement`) or its focus-curve "
+                "contrast (m_max - m_min) / (m_max + tau), as notes.estimate_score says, in [0, 1]",
     "fill": "the fill's support: the confidence-weighted share of its edge-aware neighbourhood, in [0, 1]",
     "relative_std": "a DfF model's predicted std_m divided by its depth_m",
 }
@@ -89,6 +90,23 @@ def _cell(v: np.ndarray, knots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     i = np.clip(np.searchsorted(knots, v, side="right") - 1, 0, knots.size - 2)
     width = np.maximum(knots[i + 1] - knots[i], 1e-300)
     return i, np.clip((v - knots[i]) / width, 0.0, 1.0)
+
+
+def agreement(diopters: np.ndarray, focus_m, window_px: float) -> np.ndarray:
+    """How well a pixel's estimate agrees with its neighbours': 1 / (1 + s), s the standard deviation of the
+    estimates (diopters) over a box of about window_px (the focus measure's window) in units of the median frame
+    spacing in diopters. Noise scatters the estimates of textureless and low-contrast areas; occlusion bands and
+    depth edges spread them too. (H, W) float32 in (0, 1]."""
+    import cv2
+
+    x = np.sort(1.0 / np.asarray(focus_m, np.float64).ravel())
+    gap = float(np.median(np.diff(x))) if x.size > 1 else 1.0
+    k = max(3, int(round(window_px)) | 1)
+    d = np.asarray(diopters, np.float32)
+    m1 = cv2.blur(d, (k, k), borderType=cv2.BORDER_REFLECT)
+    m2 = cv2.blur(d * d, (k, k), borderType=cv2.BORDER_REFLECT)
+    s = np.sqrt(np.maximum(m2 - m1 * m1, 0.0)) / max(gap, 1e-9)
+    return (1.0 / (1.0 + s)).astype(np.float32)
 
 
 def tolerance_steps(diopters: np.ndarray, focus_m, tolerance_rel: float = TOLERANCE_REL) -> np.ndarray:

@@ -8,10 +8,11 @@ What confidence means (aat_deploy/confidence.py): the chance that the pixel's de
 Fitted by isotonic regression of "within 10 %" on each method's own score (for the focus method together with a
 second score, the tolerance in frame steps, `aat_deploy.confidence.tolerance_steps`: 10 % of the estimate in
 diopters over the local frame spacing, so one calibration serves near and far depths and any schedule):
-- the focus method: `estimate`, its focus-curve contrast (before filling), against its own (unfilled) estimate;
-  the contrast's floor `tau_rel` (`aat_deploy.focus.estimate.contrast`) is chosen first, among TAUS, as the one
-  whose calibrated confidence has the lowest Brier score on the fit stacks (the most informative score; every
-  choice is calibrated); then `fill`, the fill's support, against the final depth of the pixels the fill changed
+- the focus method: `estimate` against its own (unfilled) estimate, on the score among ESTIMATE_SCORES whose
+  calibrated confidence has the lowest Brier score on the fit stacks (the most informative; every one is
+  calibrated): the focus-curve contrast with floors 1e-3 .. 1e-1 (`aat_deploy.focus.estimate.contrast`), or the
+  estimates' agreement with their neighbours (`aat_deploy.confidence.agreement`); then `fill`, the fill's
+  support, against the final depth of the pixels the fill changed
   (those whose contrast is below the fill's c_full: the fill itself weighs by the contrast, as before);
 - a model: `relative_std`, its std_m / depth_m, against its depth (non-increasing).
 
@@ -46,7 +47,7 @@ from select_focus_noise import CONDITIONS, VAL_SEED  # noqa: E402
 
 ASSESS_SEED = 434343  # validation stacks apart from the fit's (424242), the test sets' (777777) and training seeds
 STRIDE = 4
-TAUS = (1e-3, 1e-2, 3e-2, 1e-1)
+ESTIMATE_SCORES = ("contrast 0.001", "contrast 0.01", "contrast 0.03", "contrast 0.1", "agreement")
 N_BINS, N_BINS2 = 24, 10  # quantile bins of the score and of the tolerance in frame steps
 CELLS = [(lens, LENSES[lens]["stack_size"], cond) for lens in ("rf50", "paper50") for cond in CONDITIONS] + \
         [("rf50", 5, "phone")]
@@ -80,16 +81,16 @@ def focus_map(lens: str):
 
 
 def fit_focus(cells, n: int, cfg, tol: float):
-    """Stage 1: tau_rel and `estimate` on the unfilled estimates; stage 2: `fill` on the filled pixels' final
-    depth. Returns the calibration (its notes carry the chosen floor, `estimate_tau_rel`) and the Brier score of
-    each floor."""
-    from aat_deploy.confidence import Calibration, Curve, fit_curve, tolerance_steps
+    """Stage 1: the score and `estimate` on the unfilled estimates; stage 2: `fill` on the filled pixels' final
+    depth. Returns the calibration (its notes name the chosen score, `estimate_score`) and each score's Brier
+    score."""
+    from aat_deploy.confidence import Calibration, Curve, agreement, fit_curve, tolerance_steps
     from aat_deploy.focus import depth_from_focus
     from aat_deploy.focus.estimate import contrast
     from aat_deploy.focus.measures import focus_volume
 
     raw = replace(cfg, confidence="raw", fill="none")
-    score, ok1, steps1 = {t: [] for t in TAUS}, [], []
+    score, ok1, steps1 = {t: [] for t in ESTIMATE_SCORES}, [], []
     for cell in cells:
         fmap = focus_map(cell[0])
         for it in stacks(cell, VAL_SEED, n):
@@ -98,19 +99,24 @@ def fit_focus(cells, n: int, cfg, tol: float):
             v = sub(it.depth_m) > 0
             d = 1.0 / np.maximum(sub(r.diopters), 1e-3)
             m_max, m_min = vol.max(0), vol.min(0)
-            for t in TAUS:
-                score[t].append(sub(contrast(m_max, m_min, t))[v])
+            for t in ESTIMATE_SCORES:
+                s = (agreement(r.diopters, r.focus_m, cfg.window_px) if t == "agreement"
+                     else contrast(m_max, m_min, float(t.split()[1])))
+                score[t].append(sub(s)[v])
             steps1.append(sub(tolerance_steps(r.diopters, r.focus_m, tol))[v])
             ok1.append(within(d, sub(it.depth_m), tol)[v])
     ok1, steps1 = np.concatenate(ok1), np.concatenate(steps1)
     curves, brier = {}, {}
-    for t in TAUS:
+    for t in ESTIMATE_SCORES:
         s = np.concatenate(score[t])
         curves[t] = fit_curve(s, ok1, n_bins=N_BINS, second=steps1, n_bins2=N_BINS2)
         brier[t] = float(np.mean((curves[t](s, steps1) - ok1) ** 2))
-    tau = min(TAUS, key=lambda t: brier[t])
-    est = curves[tau]
-    interim = Calibration({"estimate": est, "fill": Curve([0.0, 1.0], [0.0, 1.0])}, tol, {"estimate_tau_rel": tau})
+    best = min(ESTIMATE_SCORES, key=lambda t: brier[t])
+    if best not in ("agreement", "contrast 0.001"):  # the method computes these two (its contrast floor is 1e-3)
+        raise SystemExit(f"the best score is {best}: teach aat_deploy.focus.method to compute it first")
+    kind = "agreement" if best == "agreement" else "contrast"
+    est = curves[best]
+    interim = Calibration({"estimate": est, "fill": Curve([0.0, 1.0], [0.0, 1.0])}, tol, {"estimate_score": kind})
     support, ok2, steps2 = [], [], []
     for cell in cells:
         fmap = focus_map(cell[0])
@@ -126,9 +132,8 @@ def fit_focus(cells, n: int, cfg, tol: float):
     return Calibration({"estimate": est, "fill": fill}, tol, {
         "made_by": "benchmarks/calibrate_confidence.py", "fit_seed": VAL_SEED, "photo_split": "train",
         "cells": [cell_name(c) for c in cells], "scenes_per_cell": n, "pixel_stride": STRIDE,
-        "focus_config": {k: getattr(cfg, k) for k in ("measure", "window_px", "prefilter_px", "estimator", "c_full",
-                                                       "tau_rel")},
-        "estimate_tau_rel": tau, "brier_by_tau_rel": {f"{t:g}": b for t, b in brier.items()},
+        "focus_config": {k: getattr(cfg, k) for k in ("measure", "window_px", "prefilter_px", "estimator", "c_full")},
+        "estimate_score": kind, "brier_by_score": brier,
         "mapping": "aberration-aware (the lens's calibrated best-focus map)"}), brier
 
 
@@ -150,7 +155,7 @@ def assess_focus(cells, n: int, cfg, cal, thresholds):
             v = sub(it.depth_m) > 0
             conf.append(sub(r.confidence)[v])
             ok.append(within(sub(r.depth_m), sub(it.depth_m), cal.tolerance_rel)[v])
-            rawc.append(sub(contrast(vol.max(0), vol.min(0), cfg.tau_rel))[v])
+            rawc.append(sub(contrast(vol.max(0), vol.min(0), 1e-3))[v])  # the confidence before calibration
             filled.append(sub(r.filled)[v])
         conf, ok, rawc, filled = (np.concatenate(a) for a in (conf, ok, rawc, filled))
         for k, a in zip(("conf", "ok", "raw", "filled"), (conf, ok, rawc, filled)):
@@ -285,8 +290,8 @@ def main(argv: list[str] | None = None) -> int:
     thresholds = (0.3, MIN_CONFIDENCE, 0.7)
     cfg = FocusConfig()
     cal, brier = fit_focus(CELLS, a.n_fit, cfg, TOLERANCE_REL)
-    print("\nBrier score of the calibrated focus-curve contrast on the fit stacks, by its floor tau_rel: "
-          + ", ".join(f"{t:g}: {b:.4f}" for t, b in brier.items()) + f" (chosen {cal.notes['estimate_tau_rel']:g})")
+    print("\nBrier score on the fit stacks of each calibrated score of the method's own estimate: "
+          + ", ".join(f"{t}: {b:.4f}" for t, b in brier.items()) + f" (chosen: {cal.notes['estimate_score']})")
     focus = assess_focus(CELLS, a.n_assess, cfg, cal, thresholds)
     results = {"tolerance_rel": TOLERANCE_REL, "fit_seed": VAL_SEED, "assess_seed": ASSESS_SEED,
                "n_fit": a.n_fit, "n_assess": a.n_assess, "focus": {"calibration": cal.to_dict(), "assessment": focus},

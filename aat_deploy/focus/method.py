@@ -16,10 +16,10 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from ..confidence import Calibration, focus_calibration
+from ..confidence import Calibration, agreement, focus_calibration
 from .aif import AIF_MODES, blend, blend_at, focus_weights, spread_m
 from .bestfocus import BestFocusMap
-from .estimate import ESTIMATORS, contrast, estimate_peak
+from .estimate import ESTIMATORS, estimate_peak
 from .fill import fill_with_support
 from .measures import MEASURES, focus_volume
 from .placement import place_equal_focus, tied_groups
@@ -57,7 +57,6 @@ class FocusConfig:
     radius_bins: int = 256
     calibrated: bool = True
     confidence: str = "calibrated"
-    tau_rel: float = 1e-3  # the fill's focus-curve contrast floor, relative to the image's sharpest (estimate.contrast)
 
     @property
     def tail_exponent(self) -> float:
@@ -81,8 +80,8 @@ class FocusResult:
     weights (m); confidence (H, W) in [0, 1] (calibrated: the chance that depth_m is within the calibration's
     tolerance; a filled pixel's is the fill's); diopters (H, W) the estimate before filling; focus_m (S,) the
     frames' focus distances as used (sorted near to far, tied frames placed); order (S,) input index of each;
-    warnings (one line each); info: settings, mapping, placements, timings; score (H, W) the focus-curve
-    contrast the calibration reads (with its floor; the raw confidence without a calibration); fill_support
+    warnings (one line each); info: settings, mapping, placements, timings; score (H, W) the score the confidence
+    calibration reads (`aat_deploy.confidence.agreement`, or the raw confidence without a calibration); fill_support
     (H, W) the fill's support and filled (H, W) bool the pixels whose depth and confidence come (partly) from the
     fill (both None without filling)."""
 
@@ -236,7 +235,7 @@ def depth_from_focus(stack: np.ndarray, focus_m, best_focus: BestFocusMap | None
         if out:
             warnings.append(f"focus distances {', '.join(f'{v:g}' for v in out)} m lie outside the best-focus "
                             f"map's {near:g}..{far:g} m: its edge values are used")
-    peak = estimate_peak(vol, x, rbin, config.estimator, tau_rel=config.tau_rel, gamma=config.tail_exponent)
+    peak = estimate_peak(vol, x, rbin, config.estimator, gamma=config.tail_exponent)
     lap("estimate")
 
     weights = focus_weights(vol, config.aif_power)
@@ -256,9 +255,9 @@ def depth_from_focus(stack: np.ndarray, focus_m, best_focus: BestFocusMap | None
                             "confidence may not mean what it says (rerun benchmarks/calibrate_confidence.py)")
     d, conf, support, filled = peak.diopters, peak.confidence, None, None
     score = peak.confidence
-    if cal is not None:  # the calibration reads the contrast with its own floor (chosen with it)
-        tau = float(cal.notes.get("estimate_tau_rel", config.tau_rel))
-        score = score if tau == config.tau_rel else contrast(vol.max(0), vol.min(0), tau)
+    if cal is not None:  # the score the calibration was fitted on (the contrast, or the estimates' agreement)
+        if cal.notes.get("estimate_score") == "agreement":
+            score = agreement(peak.diopters, f, config.window_px)
         conf = cal.probability("estimate", score, peak.diopters, f)
     if config.fill == "fill":
         guide = np.sqrt(np.clip(aif / max(float(np.percentile(aif, 99.5)), 1e-12), 0, 1))

@@ -174,3 +174,12 @@ def test_tolerance_steps_by_hand():
     focus = [0.5, 1.0, 2.0, 4.0]  # 2, 1, 0.5, 0.25 D: gaps 0.25, 0.5, 1
     d = np.array([1.5, 0.3, 3.0])  # between 1 and 2 D; below the farthest frame; beyond the nearest
     assert cf.tolerance_steps(d, focus, 0.1).tolist() == pytest.approx([0.15 / 1.0, 0.03 / 0.25, 0.3 / 1.0])
+
+
+def test_agreement_by_hand():
+    focus = [0.5, 1.0 / 1.5, 1.0]  # 2, 1.5, 1 D: spacing 0.5 D
+    flat = np.full((20, 20), 1.2, np.float32)
+    assert np.allclose(cf.agreement(flat, focus, 15), 1.0)
+    checker = np.where((np.indices((31, 31)).sum(0) % 2) == 0, 1.0, 1.5).astype(np.float32)  # one spacing apart
+    a = cf.agreement(checker, focus, 15)[8:-8, 8:-8]  # std 0.25 D = half a spacing: 1 / 1.5
+    assert np.allclose(a, 1 / 1.5, atol=2e-3)
