@@ -172,12 +172,10 @@ class Calibration:
 
 
 def load(path: str | Path) -> Calibration:
-    path = Path(path)
-    try:
-        d = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise CalibrationError(f"{path}: cannot read a confidence calibration ({e})") from None
-    return Calibration.from_dict(d, str(path))
+    """A calibration file; CalibrationError (one line naming it) for anything unreadable or malformed."""
+    from .errors import load_json
+
+    return Calibration.from_dict(load_json(Path(path), CalibrationError), str(path))
 
 
 FOCUS_CALIBRATION = Path(__file__).resolve().parent / "focus" / "data" / "confidence.json"
