@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .errors import CaptureError, load_json
 from .io.atomic import write_text_atomic
 
 FORMAT = "aat-confidence-calibration-v1"
@@ -39,8 +40,8 @@ SCORES = {
 SECOND = "tolerance_steps: the tolerance in diopters over the local frame spacing in diopters"
 
 
-class CalibrationError(ValueError):
-    """A calibration file is missing or malformed (message: one line naming the file)."""
+class ConfidenceCalibrationError(CaptureError):
+    """A confidence-calibration file is missing or malformed (message: one line naming the file)."""
 
 
 @dataclass(frozen=True)
@@ -60,10 +61,10 @@ class Curve:
         knots = [x] if y is None else [x, y]
         if any(k.ndim != 1 or k.size < 1 or not np.isfinite(k).all() for k in knots) or p.shape != shape \
                 or not np.isfinite(p).all():
-            raise CalibrationError(f"calibration curve: knots {[k.shape for k in knots]} and probabilities {p.shape} "
+            raise ConfidenceCalibrationError(f"calibration curve: knots {[k.shape for k in knots]} and probabilities {p.shape} "
                                    "must be finite and match")
         if any(np.any(np.diff(k) < 0) for k in knots) or np.any((p < 0) | (p > 1)):
-            raise CalibrationError("calibration curve: knots must ascend and probabilities lie in [0, 1]")
+            raise ConfidenceCalibrationError("calibration curve: knots must ascend and probabilities lie in [0, 1]")
         object.__setattr__(self, "x", x)
         object.__setattr__(self, "y", y)
         object.__setattr__(self, "p", p)
@@ -152,16 +153,16 @@ class Calibration:
     @classmethod
     def from_dict(cls, d: dict, source: str = "confidence calibration") -> Calibration:
         if not isinstance(d, dict) or d.get("format") != FORMAT:
-            raise CalibrationError(f"{source}: not a confidence calibration (format {FORMAT!r} expected)")
+            raise ConfidenceCalibrationError(f"{source}: not a confidence calibration (format {FORMAT!r} expected)")
         try:
             curves = {k: Curve(v["x"], v["p"], int(v.get("pixels", 0)), v.get("y")) for k, v in d["curves"].items()}
             tol = float(d["tolerance_rel"])
-        except CalibrationError as e:
-            raise CalibrationError(f"{source}: {e}") from None
+        except ConfidenceCalibrationError as e:
+            raise ConfidenceCalibrationError(f"{source}: {e}") from None
         except (KeyError, TypeError, ValueError, AttributeError) as e:
-            raise CalibrationError(f"{source}: malformed confidence calibration ({type(e).__name__}: {e})") from None
+            raise ConfidenceCalibrationError(f"{source}: malformed confidence calibration ({type(e).__name__}: {e})") from None
         if not 0 < tol < 10:
-            raise CalibrationError(f"{source}: tolerance_rel {tol} out of range")
+            raise ConfidenceCalibrationError(f"{source}: tolerance_rel {tol} out of range")
         return cls(curves, tol, dict(d.get("notes") or {}))
 
     def save(self, path: str | Path) -> Path:
@@ -172,10 +173,8 @@ class Calibration:
 
 
 def load(path: str | Path) -> Calibration:
-    """A calibration file; CalibrationError (one line naming it) for anything unreadable or malformed."""
-    from .errors import load_json
-
-    return Calibration.from_dict(load_json(Path(path), CalibrationError), str(path))
+    """A calibration file; ConfidenceCalibrationError (one line naming it) for anything unreadable or malformed."""
+    return Calibration.from_dict(load_json(Path(path), ConfidenceCalibrationError), str(path))
 
 
 FOCUS_CALIBRATION = Path(__file__).resolve().parent / "focus" / "data" / "confidence.json"

@@ -18,7 +18,7 @@ import numpy as np
 import onnxruntime as ort
 
 from .camera import model_intrinsics
-from .confidence import CalibrationError, model_calibration, model_calibration_path
+from .confidence import ConfidenceCalibrationError, model_calibration, model_calibration_path
 from .errors import ModelError, file_kind
 from .machine import bound_threads
 from .shipped import shipped_hint
@@ -147,7 +147,7 @@ class DfFModel:
         self.field_aware = "field_xy" in names_in
         try:  # <stem>.confidence.json next to the model: its std_m as a calibrated confidence (aat_deploy.confidence)
             self.confidence_calibration = model_calibration(path)
-        except CalibrationError as e:
+        except ConfidenceCalibrationError as e:
             raise ModelError(str(e)) from None
 
     def _validate_meta(self) -> None:

@@ -57,13 +57,11 @@ def correction(grid: np.ndarray, anchors: list[list[tuple[np.ndarray, np.ndarray
     return np.stack(out)
 
 
-def reanchored_sweep(state, estimate) -> tuple[ff.SweepData, dict]:
-    """The focus sweep with its binning correction anchored at the twin's own focus and, when some frame's estimate
+def reanchored_sweep(state, raw: ff.SweepData, estimate) -> tuple[ff.SweepData, dict]:
+    """`raw`, the focus sweep without its binning correction (`fitters.focus_sweep(state, correct=False)`), with the
+    correction anchored at the twin's own focus and, when some frame's estimate
     lies REANCHOR_D or more from it, at the estimates too (`estimate(sweep) -> (n, S)` diopters: the per-frame
     focus). Returns the sweep and a report (where it was anchored)."""
-    from aat_deploy.diagnose.fitters import focus_sweep
-
-    raw = focus_sweep(state, correct=False)
     chain = [e for e in state.chain if not state.tb.has_stack_hook(e)]
     s_n = [len(c.focus_m) for c in state.caps]
     base = [raw.base_d[i, :s] for i, s in enumerate(s_n)]

@@ -155,7 +155,7 @@ def fit_focus_metadata(state: FitState) -> Fitted:
     corrected focus distances of every capture (metres, with intervals)."""
     if state.full_curves is not None:  # the binning correction anchored at the frames' estimated focus too
         sweep, anchored = anchors.reanchored_sweep(
-            state, lambda d: np.asarray(focusrobust.prepare(d)[1]["frame_focus_d"][-1]))
+            state, focus_sweep(state, correct=False), lambda d: np.asarray(focusrobust.prepare(d)[1]["frame_focus_d"][-1]))
     else:
         sweep, anchored = focus_sweep(state), {}
     data, robust = focusrobust.prepare(sweep)

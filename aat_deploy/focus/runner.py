@@ -55,7 +55,7 @@ class FocusMethod:
         if calibration is not None:
             from ..calibrate.format import CameraCalibration, load_calibration
 
-            # a path (CalibrationError is a CaptureError: one line) or a calibration in memory
+            # a path (a bad file is a ConfidenceCalibrationError, a CaptureError: one line) or a calibration in memory
             self.calibration = calibration if isinstance(calibration, CameraCalibration) else \
                 load_calibration(calibration)
             self.map_source = "in memory" if isinstance(calibration, CameraCalibration) else str(calibration)

@@ -57,7 +57,7 @@ def test_calibration_file_round_trip_and_errors(tmp_path):
                  json.dumps({**cal.to_dict(), "curves": {"e": {"x": [1, 0], "p": [0.1, 0.2]}}}),
                  json.dumps({**cal.to_dict(), "curves": {"e": {"x": [0, 1], "p": [0.1, 1.2]}}})):
         bad.write_text(text)
-        with pytest.raises(cf.CalibrationError) as e:
+        with pytest.raises(cf.ConfidenceCalibrationError) as e:
             cf.load(bad)
         assert str(bad) in str(e.value) and "\n" not in str(e.value)
 
