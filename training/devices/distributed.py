@@ -35,7 +35,13 @@ def init_distributed(device: torch.device, timeout: datetime.timedelta = DEFAULT
                          "train one process on MPS, or use --device cpu")
     if world_from_env() > 1 and not dist.is_initialized():
         kw = {"device_id": device} if device.type == "cuda" else {}
-        dist.init_process_group(backend_for(device), timeout=timeout, **kw)
+        # The group's keys under a prefix of this attempt: after torchrun restarts lost workers, the store can still
+        # hold the dead attempt's addresses, and gloo/NCCL would dial them ("Connection refused", or a hang until
+        # the timeout; pytorch/pytorch#167288). A fresh namespace per restart makes them unreachable.
+        store, rank, world = next(dist.rendezvous("env://", timeout=timeout))
+        attempt = os.environ.get("TORCHELASTIC_RESTART_COUNT", "0")
+        dist.init_process_group(backend_for(device), store=dist.PrefixStore(f"aat_attempt_{attempt}", store),
+                                rank=rank, world_size=world, timeout=timeout, **kw)
         created = True
     if dist.is_initialized():
         return dist.get_rank(), dist.get_world_size(), created
