@@ -68,7 +68,8 @@ def sweep_for(twins, cap, chain: list, factor: int, correction: str = "twin"):
         if correction != "none" else None
     state = fitters.FitState(twins, [cap], [cap.aif_linear], chain, fx.make, factor, 0, 0, {}, full)
     if correction == "estimates":
-        return anchors.reanchored_sweep(state, lambda d: np.asarray(fr.prepare(d)[1]["frame_focus_d"][-1]))[0]
+        return anchors.reanchored_sweep(state, fitters.focus_sweep(state, correct=False),
+                                        lambda d: np.asarray(fr.prepare(d)[1]["frame_focus_d"][-1]))[0]
     return fitters.focus_sweep(state)
 
 
