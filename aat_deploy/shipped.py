@@ -7,6 +7,11 @@ In a clone (editable install, or PYTHONPATH) they are the repository's `models/`
 
 Commands take a shipped file by name: `--model rf50_dfvnet_aat` (or `models/rf50_dfvnet_aat.onnx` from any folder),
 `aat-lens info canon_rf50mm_f1.8`. A path that exists always wins.
+
+What a name finds is what users are meant to use: the depth models and the PSF surrogates (`psf_*`, listed apart:
+they model a lens's blur, they estimate no depth) at the top of `models/`. The models kept to reproduce the
+benchmarks' rows (thin-lens baselines, ablations, superseded models) sit in `models/reproduce/`: no name finds or
+lists them, a path does (`models/reproduce/rf50_dfvnet_thin.onnx`, from any folder too).
 """
 
 from __future__ import annotations
@@ -18,6 +23,7 @@ from pathlib import Path
 from . import DISTRIBUTION
 
 KINDS = {"models": ".onnx", "lenses": ".json"}
+SURROGATE_PREFIX = "psf_"  # models/psf_<lens>.onnx: a lens's PSF surrogate, not a depth model
 
 
 def _checkout() -> Path | None:
@@ -47,28 +53,42 @@ def shipped_dir(kind: str) -> Path | None:
     return guess if guess.is_dir() else None
 
 
-def shipped_names(kind: str) -> list[str]:
+def shipped_names(kind: str, surrogates: bool = False) -> list[str]:
+    """The names resolve() finds: for "models" the depth models, or with surrogates=True the PSF surrogates
+    (never what models/reproduce/ holds)."""
     d = shipped_dir(kind)
-    return sorted(p.stem for p in d.glob(f"*{KINDS[kind]}")) if d else []
+    names = sorted(p.stem for p in d.glob(f"*{KINDS[kind]}")) if d else []
+    if kind != "models":
+        return names
+    return [n for n in names if n.startswith(SURROGATE_PREFIX) == surrogates]
 
 
 def resolve(arg: str | Path, kind: str) -> Path:
     """`arg` if that path exists; else the shipped file it names: a bare name with or without its suffix
-    (`dff_dfvnet_aat`), or `<kind>/<file>` as written in the README (`models/dff_dfvnet_aat.onnx`) from any
-    folder; else `arg` unchanged (the caller reports it missing, with shipped_hint)."""
+    (`rf50_dfvnet_aat`, the top of the folder only), or a path under `<kind>/` as written in the README
+    (`models/rf50_dfvnet_aat.onnx`, `models/reproduce/rf50_dfvnet_thin.onnx`) from any folder; else `arg`
+    unchanged (the caller reports it missing, with shipped_hint)."""
     p = Path(arg)
     if p.exists():
         return p
-    if len(p.parts) == 1 or (len(p.parts) == 2 and p.parts[0] == kind):
+    if len(p.parts) == 1 or (len(p.parts) >= 2 and p.parts[0] == kind and ".." not in p.parts):
         d = shipped_dir(kind)
         if d is not None:
-            for cand in (d / p.name, d / (p.name + KINDS[kind])):
+            rel = Path(*p.parts[1:]) if len(p.parts) >= 2 else p
+            for cand in (d / rel, d / (str(rel) + KINDS[kind])):
                 if cand.is_file():
                     return cand
     return p
 
 
 def shipped_hint(kind: str) -> str:
-    """' (shipped: a, b, ...)' listing what resolve() accepts by name, or ''."""
+    """' (shipped: a, b, ...)' listing what resolve() accepts by name, or ''; models: the depth models, then
+    the PSF surrogates apart."""
     names = shipped_names(kind)
+    if kind == "models":
+        psf = shipped_names(kind, surrogates=True)
+        if not names and not psf:
+            return ""
+        return (f" (shipped depth models, usable by name: {', '.join(names) or 'none'}"
+                + (f"; PSF surrogates: {', '.join(psf)}" if psf else "") + ")")
     return f" (shipped {kind}, usable by name: {', '.join(names)})" if names else ""

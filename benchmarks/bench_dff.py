@@ -18,7 +18,7 @@ import argparse
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-DEFAULT = ["dff_aifnet_thin", "dff_aifnet_aat", "dff_dfvnet_thin", "dff_dfvnet_aat"]
+DEFAULT = ["dff_aifnet_thin", "dff_aifnet_aat", "dff_dfvnet_thin", "dff_dfvnet_aat"]  # in models/reproduce/
 
 
 def test_sets(n: int) -> dict:
@@ -40,7 +40,7 @@ def main() -> None:
     args = ap.parse_args()
     from training.train.heldout import evaluate_model, plot_error_over_field, table
 
-    paths = [Path(m) for m in args.models] or [ROOT / "models" / f"{n}.onnx" for n in DEFAULT]
+    paths = [Path(m) for m in args.models] or [ROOT / "models" / "reproduce" / f"{n}.onnx" for n in DEFAULT]
     sets = test_sets(args.n)
     results: dict[str, list] = {s: [] for s in sets}
     for path in paths:

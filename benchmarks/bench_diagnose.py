@@ -10,7 +10,7 @@ effects (`aat-train --init ... --effects ...`) and the gap re-measured (remainin
 
 Models: benchmarks/diagnose_setup.py (RF50 at 288x192, small DFVNets, AAT and thin-lens simulators). The full
 frame at 125 um pixels is the default; `chromatic` is sub-pixel there and runs on the centre crop at 31.25 um;
-`--variant shipped` takes the shipped full-sensor models at 960 x 640 (models/dff_dfvnet_{aat,thin}.onnx, the
+`--variant shipped` takes the shipped full-sensor models at 960 x 640 (models/reproduce/dff_dfvnet_{aat,thin}.onnx, the
 RF50's surrogate), or any model files given with --model-aat / --model-thin / --lens / --psf:
 
     python benchmarks/diagnose_setup.py [--variant crop4]
@@ -275,7 +275,7 @@ def variant_files(args, setup: Path) -> tuple[Path, Path, dict]:
     """The lens, surrogate and models: the arguments, else the variant's (shipped: models/ and lenses/)."""
     if args.variant == "shipped":
         lens, psf = ROOT / "lenses" / "canon_rf50mm_f1.8.json", ROOT / "models" / "psf_rf50.onnx"
-        models = {"aat": ROOT / "models" / "dff_dfvnet_aat.onnx", "thin": ROOT / "models" / "dff_dfvnet_thin.onnx"}
+        models = {"aat": ROOT / "models" / "reproduce" / "dff_dfvnet_aat.onnx", "thin": ROOT / "models" / "reproduce" / "dff_dfvnet_thin.onnx"}
     else:
         lens, psf = setup / "rf50_288x192.json", setup / "psf.onnx"
         models = {"aat": setup / "diag_dfv_aat.onnx", "thin": setup / "diag_dfv_thin.onnx"}

@@ -42,7 +42,7 @@ def timed(root: Path, model: Path, psf: Path | None, search: str, rounds: int, e
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("root", nargs="?", default=str(ROOT / "captures" / "sample_rf50"))
-    ap.add_argument("--model", default=str(ROOT / "models" / "dff_dfvnet_aat.onnx"))
+    ap.add_argument("--model", default=str(ROOT / "models" / "reproduce" / "dff_dfvnet_aat.onnx"))
     ap.add_argument("--psf", default=None)
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--grid-rounds", type=int, default=1)

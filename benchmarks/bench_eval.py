@@ -16,7 +16,9 @@ import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-MODELS = ("rf50_dfvnet_aat_field", "rf50_dfvnet_aat", "rf50_dfvnet_thin", "rf50_aifnet_aat", "rf50_aifnet_thin")
+# paths under models/ (the baselines in models/reproduce/)
+MODELS = ("rf50_dfvnet_aat_field", "rf50_dfvnet_aat", "reproduce/rf50_dfvnet_thin", "reproduce/rf50_aifnet_aat",
+          "reproduce/rf50_aifnet_thin")
 
 
 def main() -> None:
@@ -24,7 +26,7 @@ def main() -> None:
     ap.add_argument("--root", type=Path, default=ROOT / "captures")
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--models", nargs="+", default=list(MODELS), help="names in models/ (default: the RF50 ones)")
+    ap.add_argument("--models", nargs="+", default=list(MODELS), help="names under models/ (default: the RF50 ones)")
     args = ap.parse_args()
     sys.path.insert(0, str(ROOT))
     from aat_deploy.eval.run import EvalOptions, evaluate

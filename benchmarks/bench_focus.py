@@ -155,7 +155,7 @@ def run_models(items) -> list[tuple[str, list]]:
 
     out = []
     for name in ("dff_dfvnet_aat", "dff_dfvnet_thin"):
-        path = ROOT / "models" / f"{name}.onnx"
+        path = ROOT / "models" / "reproduce" / f"{name}.onnx"
         if not path.is_file():
             continue
         m = DfFModel(path, threads=2)

@@ -7,7 +7,7 @@ one factor changed at a time (photo pool: train / test; schedule: mixed / fixed 
 ONNX models on every variant, through onnxruntime as `aat-infer` runs them:
 
     OMP_WAIT_POLICY=PASSIVE python benchmarks/probe_generalisation.py configs/table2/paper50_aifnet_aat.json \
-        --models models/paper50_aifnet_aat.onnx models/paper50_dfvnet_aat.onnx [--n 48] [--out R.json]
+        --models models/reproduce/paper50_aifnet_aat.onnx models/paper50_dfvnet_aat.onnx [--n 48] [--out R.json]
 
 A gap that opens with the held-out photographs (same schedule) is texture over-fitting; one that opens with the
 fixed schedule is the focus schedule. Depth MAE in metres from the sensor, mean over images with a 95 %

@@ -3,8 +3,9 @@
     python scripts/export_dff_models.py [--runs runs] [--force] [NAME ...]
     python scripts/export_dff_models.py --runs cache/runs/table2 paper50_dfvnet_aat ...   (scripts/train_table2.sh)
 
-NAME defaults to the four runs of scripts/train_dff_models.sh; each RUNS/NAME/model.pt -> models/NAME.onnx
-with an onnxruntime-vs-torch parity check at three shapes.
+NAME defaults to the four runs of scripts/train_dff_models.sh; each RUNS/NAME/model.pt -> OUT/NAME.onnx (OUT: models/,
+or models/reproduce/ for baselines, ablations and superseded models; see models/README.md) with an
+onnxruntime-vs-torch parity check at three shapes.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ def main() -> None:
     ap.add_argument("names", nargs="*", default=NAMES)
     ap.add_argument("--runs", default=str(ROOT / "runs"))
     ap.add_argument("--force", action="store_true")
+    ap.add_argument("--out", default=str(ROOT / "models"), help="folder of the .onnx files (default models/)")
     args = ap.parse_args()
     from training.train.export import export_checkpoint
 
@@ -31,8 +33,9 @@ def main() -> None:
         if not ckpt.is_file():
             print(f"{name}: no {ckpt} (train it first)")
             continue
-        _, err = export_checkpoint(ckpt, ROOT / "models" / f"{name}.onnx", force=args.force)
-        print(f"{name}: models/{name}.onnx, ORT vs torch {err:.2e} relative")
+        dst = Path(args.out) / f"{name}.onnx"
+        _, err = export_checkpoint(ckpt, dst, force=args.force)
+        print(f"{name}: {dst}, ORT vs torch {err:.2e} relative")
 
 
 if __name__ == "__main__":

@@ -3,7 +3,7 @@
     OMP_WAIT_POLICY=PASSIVE PYTHONPATH=. python scripts/output_fingerprints.py [--out fingerprints.json]
 
 Computes, from the checkout it runs in (about a minute on 2 cores):
-- `aat-infer captures/sample_rf50 --model models/dff_dfvnet_aat.onnx`: depth_m.npy, std_m.npy, aif.png;
+- `aat-infer captures/sample_rf50 --model models/reproduce/dff_dfvnet_aat.onnx`: depth_m.npy, std_m.npy, aif.png;
 - `aat-infer captures/sample_rf50 --method focus --lens canon_rf50mm_f1.8`: depth_m.npy, confidence.npy;
 - rendered training stacks (`FocalStackDataset.render`, item 0 and 1): the AAT simulator with vignetting and noise
   on a photo-textured scene, and the thin-lens simulator;
@@ -39,7 +39,7 @@ def _digest(a) -> str:
 
 
 def _infer(out: dict, tmp: Path) -> None:
-    runs = {"infer_dfvnet": ["--model", str(ROOT / "models/dff_dfvnet_aat.onnx")],
+    runs = {"infer_dfvnet": ["--model", str(ROOT / "models/reproduce/dff_dfvnet_aat.onnx")],
             "infer_focus": ["--method", "focus", "--lens", "canon_rf50mm_f1.8"]}
     for name, extra in runs.items():
         d = tmp / name

@@ -5,7 +5,7 @@
 # rerun after a kill and every run continues from $OUT/<name>/last.pt; finished runs are skipped. Training data
 # is rendered once into cache/stacks (scripts/render_training_stacks.py) and shared by the nets of one lens.
 #   OUT=cache/runs/table2 nice -n 10 scripts/train_table2.sh [NAME_AAT NAME_THIN ...]
-# then: python scripts/export_dff_models.py --runs cache/runs/table2 NAME ...   (models/NAME.onnx)
+# then: python scripts/export_dff_models.py --runs cache/runs/table2 NAME ...   (models/NAME.onnx; --out models/reproduce for baselines and ablations)
 # A run whose folder is missing (a new machine) starts from its committed checkpoint in checkpoints/table2/NAME/
 # (scripts/snapshot_runs.sh copies the unfinished runs' last.pt and logs there at the end of a session).
 # A run already shipped as models/NAME.onnx (and not in progress in $OUT) is skipped, with its data rendering.

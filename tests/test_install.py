@@ -106,7 +106,7 @@ def test_plain_install_runs_the_readme_from_a_clean_copy(tmp_path):
                           "coarse_best_focus_map) needs torch: pip install 'aat-dff[train]'"), module
 
     # from another folder: the model by the README's relative name and by its bare name, a lens by name
-    r = run(["aat-infer", str(clone / "captures" / "sample_rf50"), "--model", "models/dff_dfvnet_thin.onnx",
+    r = run(["aat-infer", str(clone / "captures" / "sample_rf50"), "--model", "models/reproduce/dff_dfvnet_thin.onnx",
              "--out", "o", "-q", "--no-recording"], elsewhere)
     assert r.returncode == 0, r.stderr[-2000:]
     assert (elsewhere / "o" / "points.ply").is_file()
@@ -121,6 +121,6 @@ def test_plain_install_runs_the_readme_from_a_clean_copy(tmp_path):
     assert r.returncode == 0 and json.loads(r.stdout)["efl_mm"] > 0, r.stderr[-2000:]
     r = run(["aat-infer", str(clone / "captures" / "sample_rf50"), "--model", "no_such_model", "--out", "x"],
             elsewhere)
-    assert r.returncode == 2 and "dff_dfvnet_aat" in r.stderr  # the error names what is shipped
+    assert r.returncode == 2 and "rf50_dfvnet_aat_field" in r.stderr  # the error names what is shipped
     r = run(["aat-capture", "--version"], elsewhere)
     assert r.stdout.strip().endswith("(aat-dff)")

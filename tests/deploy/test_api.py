@@ -73,5 +73,5 @@ def test_bad_input_is_one_line(model, stack, focus, message):
 
 
 def test_unknown_model_names_the_shipped_ones():
-    with pytest.raises(ValueError, match="dff_dfvnet_aat"):
+    with pytest.raises(ValueError, match="rf50_dfvnet_aat_field"):
         load_model("no_such_model")

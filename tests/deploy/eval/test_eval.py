@@ -239,7 +239,7 @@ def test_shipped_sample_agrees_with_aat_infer(tmp_path):
     """captures/sample_rf50 (virtual camera, GT beside it) with the shipped AAT model: aat-eval's scores equal the
     ground-truth error aat-infer writes into summary.json (separate code), and the AiF is scored."""
     out = tmp_path / "out"
-    model = ROOT / "models" / "dff_dfvnet_aat.onnx"
+    model = ROOT / "models" / "reproduce" / "dff_dfvnet_aat.onnx"
     rc, _ = _eval([ROOT / "captures" / "sample_rf50", "--model", model, "--out", out, "--no-recording",
                    "--no-panels"])
     assert rc == 0

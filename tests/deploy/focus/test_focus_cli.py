@@ -130,7 +130,7 @@ def test_cli_misuse_is_one_line(tmp_path, capsys):
     assert main([str(cap), "--method", "focus", "--lens", str(bad), "--out", str(tmp_path / "o")]) == 2
     err = _err_lines(capsys)
     assert len(err) == 1 and "nolens.json" in err[0]
-    assert main([str(cap), "--method", "focus", "--psf", str(ROOT / "models/dff_dfvnet_aat.onnx")]) == 2
+    assert main([str(cap), "--method", "focus", "--psf", str(ROOT / "models/reproduce/dff_dfvnet_aat.onnx")]) == 2
     err = _err_lines(capsys)
     assert len(err) == 1 and "not an aat PSF surrogate" in err[0]
 

@@ -107,7 +107,7 @@ def test_bad_pose_is_one_line_error(tmp_path, pose, msg):
 
 
 def test_intrinsics_sources(tmp_path):
-    model = ROOT / "models" / "dff_dfvnet_aat.onnx"
+    model = ROOT / "models" / "reproduce" / "dff_dfvnet_aat.onnx"
     i = load_intrinsics(model)
     assert (i.width, i.height) == (960, 640)
     assert i.fx == pytest.approx(49.5616023 / 0.0375) and i.cx == pytest.approx(479.5)

@@ -35,14 +35,14 @@ def test_module_path_from_scope_names():
 def test_shipped_models_load_exactly(name):
     net = name.split("_")[1]
     model = build_model(net, "small")
-    info = init_model(model, ROOT / "models" / f"{name}.onnx")
+    info = init_model(model, ROOT / "models" / "reproduce" / f"{name}.onnx")
     assert info["kind"] == "onnx" and info["folded_batchnorms"] > 10
     assert info["rel_diff_vs_onnxruntime"] <= PARITY_TOL
 
 
 def test_wrong_net_is_refused():
     with pytest.raises(InitError, match="aifnet small"):
-        init_model(build_model("dfvnet", "small"), ROOT / "models" / "dff_aifnet_aat.onnx")
+        init_model(build_model("dfvnet", "small"), ROOT / "models" / "reproduce" / "dff_aifnet_aat.onnx")
 
 
 def test_roundtrip_with_trained_statistics_and_recalibration(tmp_path):
