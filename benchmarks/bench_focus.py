@@ -15,7 +15,7 @@ mean MAEs with a paired bootstrap over scenes (`paired_ratio`).
 
 Mappings: thin lens (each frame in focus at its nominal distance), aberration-aware traced (the lens's best-focus
 map, min RMS spot) and aberration-aware calibrated (plus the offset measured on rendered stacks), both from
-`<lens folder>/best_focus/<lens stem>.json` (`aat-lens focus-map LENS`). Learned models: models/dff_dfvnet_*.onnx
+`<lens folder>/best_focus/<lens stem>.json` (`aat-lens focus-map LENS`). Learned models: models/reproduce/dff_dfvnet_*.onnx
 (RF50 only), run as aat-infer runs them.
 --variants: the measure / estimator / window / filling comparison (thin-lens mapping, RF50 procedural scenes).
 --speed: one 8 x 3 x 640 x 960 stack, best of 5, 2 threads, thin-lens vs aberration-aware (same run).

@@ -19,7 +19,7 @@ if [ ${#pairs[@]} -eq 0 ]; then
   # two runs at a time: the RF50 DFVNet pair right after the paper lens's pairs (the shipped lens's models), then
   # the field-aware DFVNets (the paper lens's AAT DFVNet trades centre for field: BENCHMARKS, "The paper's
   # Table 2 on its own lens"), the RF50 AiFNets, the paper-lens AiFNets fine-tuned with an all-in-focus loss
-  # (Table 3; they start from models/paper50_aifnet_*.onnx), then the field-aware AiFNets
+  # (Table 3; they start from models/reproduce/paper50_aifnet_*.onnx), then the field-aware AiFNets
   pairs=(paper50_dfvnet_aat paper50_dfvnet_thin paper50_aifnet_aat paper50_aifnet_thin
          rf50_dfvnet_aat rf50_dfvnet_thin paper50_dfvnet_aat_field rf50_dfvnet_aat_field
          rf50_aifnet_aat rf50_aifnet_thin paper50_aifnet_aat_aif paper50_aifnet_thin_aif
