@@ -1,10 +1,11 @@
 """Outputs written whole or not at all: the one place files and folders are written atomically.
 
-Files: `atomic_file(path)` yields a hidden temporary sibling `.NAME.tmp-PID-N.SUFFIX` (the suffix kept, so writers
-that pick the format by extension or add one, as cv2.imwrite, savefig and np.savez do, write the file as asked);
-when the block ends it replaces `path` with one rename, on an exception it is deleted and `path` is left as it
-was. `atomic_files` does the same for files that belong together; `write_text_atomic` / `write_bytes_atomic` for
-text and bytes.
+Files: `atomic_file(path)` yields a hidden temporary sibling `.NAME.tmp-PID-N-TAG.SUFFIX` (the suffix kept, so
+writers that pick the format by extension or add one, as cv2.imwrite, savefig and np.savez do, write the file as
+asked; TAG is a hash of NAME, PID and N, so a file of that name is provably one of ours, not a user's file of a
+similar name); when the block ends it replaces `path` with one rename, on an exception it is deleted and `path` is
+left as it was. `atomic_files` does the same for files that belong together; `write_text_atomic` /
+`write_bytes_atomic` for text and bytes.
 
 Folders: a folder is filled under a hidden temporary sibling `.NAME.tmp-PID` and renamed into place, carrying
 the marker of its tool and its content list (aat_deploy.io.marker); an existing folder (replaced only with force, and
@@ -12,12 +13,18 @@ only when its marker proves it is an earlier output of the same tool with nothin
 `.NAME.old-PID`, checked again, then deleted. A run interrupted by SIGINT/SIGTERM deletes its temporary folder; one
 killed outright leaves it behind, and the next run writing into the same parent folder deletes the marked hidden
 siblings whose process is gone (never a folder without our marker).
+
+Stale temporaries (clean_stale): the first write of a process into a folder deletes the temporaries there of
+processes that are gone (SIGKILL, power cut): folders with our marker, files whose name carries our tag. Nothing
+else is touched: not a symlink, not a name without a valid tag, not a live process's temporary.
 """
 
 from __future__ import annotations
 
 import errno
+import hashlib
 import itertools
+import threading
 import os
 import re
 import shutil
@@ -30,7 +37,10 @@ from . import marker
 
 _SHORT_WRITE = re.compile(r"(\d+) requested and (\d+) written")  # numpy's tofile/save on a full disk (no errno)
 _SIBLING = re.compile(r"^\.(?P<name>.+)\.(?:tmp|old)-(?P<pid>\d+)$")
+_TEMP_FILE = re.compile(r"^\.(?P<name>.+)\.tmp-(?P<pid>\d+)-(?P<n>\d+)-(?P<tag>[0-9a-f]{8})(?P<suffix>.*)$")
 _COUNTER = itertools.count()  # temporary files of one process (threads too) never share a name
+_SWEPT: set[tuple[int, str]] = set()  # (pid, folder) already swept by this process: once per folder is enough
+_SWEPT_LOCK = threading.Lock()
 
 
 def write_error(folder: str | Path, e: OSError) -> OutputError:
@@ -58,10 +68,24 @@ def writing(folder: str | Path) -> Iterator[None]:
         raise write_error(folder, e) from None
 
 
+def _tag(name: str, pid: int, n: int) -> str:
+    """The 8 hex digits that prove `.NAME.tmp-PID-N-TAG.SUFFIX` was named by temp_file."""
+    return hashlib.sha256(f"aat-temporary:{name}:{pid}:{n}".encode("utf-8", "surrogateescape")).hexdigest()[:8]
+
+
 def temp_file(path: str | Path) -> Path:
-    """A hidden temporary sibling of the file `path` that keeps its suffix: `.NAME.tmp-PID-N.SUFFIX`."""
+    """A hidden temporary sibling of the file `path` that keeps its suffix: `.NAME.tmp-PID-N-TAG.SUFFIX`."""
     path = Path(path)
-    return path.with_name(f".{path.name}.tmp-{os.getpid()}-{next(_COUNTER)}{path.suffix}")
+    pid, n = os.getpid(), next(_COUNTER)
+    return path.with_name(f".{path.name}.tmp-{pid}-{n}-{_tag(path.name, pid, n)}{path.suffix}")
+
+
+def temp_file_pid(name: str) -> int | None:
+    """The process id in a file name made by temp_file, or None if the name is not one (tag or suffix wrong)."""
+    m = _TEMP_FILE.match(name)
+    if not m or m["suffix"] != Path(m["name"]).suffix or m["tag"] != _tag(m["name"], int(m["pid"]), int(m["n"])):
+        return None
+    return int(m["pid"])
 
 
 @contextmanager
@@ -74,6 +98,8 @@ def atomic_files(*paths: str | Path) -> Iterator[list[Path]]:
             ...
     """
     tmps = [temp_file(p) for p in paths]
+    for folder in {t.parent for t in tmps}:
+        _sweep_once(folder)
     try:
         yield tmps
         for tmp, path in zip(tmps, paths):
@@ -133,18 +159,32 @@ def pid_alive(pid: int) -> bool:
 
 
 def clean_stale(out_dir: Path) -> list[Path]:
-    """Delete the hidden `.X.tmp-PID` / `.X.old-PID` folders beside out_dir whose process is gone and that carry our
-    marker (a temporary folder of a killed run; an earlier output moved aside, only if it still holds nothing but
-    what its tool wrote). Symlinks, files and unmarked folders are never touched. Returns what was deleted."""
-    out_dir = Path(out_dir)
-    parent = out_dir.parent
+    """Delete the stale temporaries beside out_dir (in its parent folder), returning what was deleted: the hidden
+    `.X.tmp-PID` / `.X.old-PID` folders whose process is gone and that carry our marker (a temporary folder of a
+    killed run; an earlier output moved aside, only if it still holds nothing but what its tool wrote), and the
+    files `.X.tmp-PID-N-TAG.S` whose process is gone and whose TAG proves temp_file named them (a file being
+    written when its process was killed). Symlinks, unmarked folders and untagged files are never touched."""
+    return sweep_folder(Path(out_dir).parent)
+
+
+def sweep_folder(parent: Path) -> list[Path]:
+    """Delete the stale temporaries of dead processes directly in `parent` (see clean_stale); the list deleted."""
     removed: list[Path] = []
     try:
-        entries = list(parent.iterdir())
+        entries = list(Path(parent).iterdir())
     except OSError:
         return removed
     for p in entries:
         m = _SIBLING.match(p.name)
+        file_pid = None if m else temp_file_pid(p.name)
+        if file_pid is not None:  # a file temporary: a regular file (never a link or folder) of a dead process
+            if file_pid != os.getpid() and not pid_alive(file_pid) and p.is_file() and not p.is_symlink():
+                try:
+                    p.unlink()
+                    removed.append(p)
+                except OSError:
+                    pass
+            continue
         if not m or int(m["pid"]) == os.getpid() or pid_alive(int(m["pid"])) or not marker.is_ours(p):
             continue
         if ".old-" in p.name and marker.replace_problem(p, marker.read(p)["tool"]) is not None:
@@ -152,6 +192,17 @@ def clean_stale(out_dir: Path) -> list[Path]:
         shutil.rmtree(p, ignore_errors=True)
         removed.append(p)
     return removed
+
+
+def _sweep_once(folder: Path) -> None:
+    """sweep_folder(folder) the first time this process writes a file there (a process killed later is swept by
+    the next run, so once is enough; a fork gets its own pass)."""
+    key = (os.getpid(), os.path.abspath(folder))
+    with _SWEPT_LOCK:
+        if key in _SWEPT:
+            return
+        _SWEPT.add(key)
+    sweep_folder(folder)
 
 
 def replace_folder(tmp: Path, out_dir: Path, force: bool, tool: str) -> None:

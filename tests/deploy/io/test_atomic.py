@@ -1,15 +1,20 @@
 """The one atomic-write helper (aat_deploy.io.atomic) for files: whole or nothing, temporaries that keep the
-suffix, unique per process and thread, normal permissions."""
+suffix, unique per process and thread, normal permissions; temporaries of killed processes swept, nothing else."""
 
 from __future__ import annotations
 
 import os
+import signal
 import stat
+import subprocess
+import sys
 import threading
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from aat_deploy.io import atomic
 from aat_deploy.io.atomic import atomic_file, atomic_files, temp_file, write_bytes_atomic, write_text_atomic
 
 
@@ -77,3 +82,56 @@ def test_names_unique_across_threads(tmp_path):
         t.join()
     lines = set(p.read_text().splitlines())
     assert len(lines) == 1 and [q.name for q in tmp_path.iterdir()] == ["item.npz"]  # one writer's file, whole
+
+
+KILLED_WHILE_WRITING = """
+import os, signal, sys
+sys.path.insert(0, {root!r})
+from aat_deploy.io.atomic import atomic_file
+with atomic_file(sys.argv[1]) as tmp:
+    open(tmp, "wb").write(b"half a file")
+    os.kill(os.getpid(), signal.SIGKILL)
+"""
+
+
+def _dead_pid() -> int:
+    p = subprocess.Popen([sys.executable, "-c", "pass"])
+    p.wait()
+    return p.pid
+
+
+def test_temporary_files_of_killed_processes_are_swept_and_nothing_else(tmp_path):
+    """Issue 31 leftover: a process killed (SIGKILL) inside atomic_file left its `.NAME.tmp-PID-...` file for ever
+    (only temporary folders were swept). The next write into that folder deletes it; a name without our tag, a live
+    process's temporary, and a link or folder that has a tagged name are kept."""
+    root = str(Path(__file__).resolve().parents[3])
+    proc = subprocess.run([sys.executable, "-c", KILLED_WHILE_WRITING.format(root=root), str(tmp_path / "cache.npz")])
+    assert proc.returncode == -signal.SIGKILL
+    stale = [q for q in tmp_path.iterdir()]
+    assert len(stale) == 1 and stale[0].name.startswith(".cache.npz.tmp-") and stale[0].read_bytes() == b"half a file"
+    dead, alive = _dead_pid(), os.getppid()
+    (tmp_path / "thesis.txt").write_text("a user's file")
+
+    def tagged(name: str, pid: int, n: int = 0, suffix: str | None = None) -> Path:
+        suffix = Path(name).suffix if suffix is None else suffix
+        return tmp_path / f".{name}.tmp-{pid}-{n}-{atomic._tag(name, pid, n)}{suffix}"
+
+    keep = [tmp_path / f".a.png.tmp-{dead}-0.png",  # no tag (a user's name, or written before tags)
+            tmp_path / f".a.png.tmp-{dead}-0-00000000.png",  # a wrong tag
+            tagged("a.png", alive),  # a running process's
+            tagged("a.png", dead, 1, ".jpg")]  # a tag, but not the suffix temp_file gives
+    for q in keep:
+        q.write_bytes(b"keep")
+    link, folder = tagged("b.png", dead), tagged("c.png", dead)
+    link.symlink_to(tmp_path / "thesis.txt")
+    folder.mkdir()
+    (folder / "x").write_text("keep")
+    gone = tagged("d.npz", dead, 7)
+    gone.write_bytes(b"stale")
+    assert atomic.temp_file_pid(gone.name) == dead and atomic.temp_file_pid(keep[1].name) is None
+
+    write_text_atomic(tmp_path / "other.json", "{}\n")  # the first write of this process into the folder sweeps it
+    assert not stale[0].exists() and not gone.exists()
+    assert all(q.read_bytes() == b"keep" for q in keep) and link.is_symlink() and (folder / "x").exists()
+    assert (tmp_path / "thesis.txt").read_text() == "a user's file"
+    assert atomic.temp_file_pid(temp_file(tmp_path / "x.tar.gz").name) == os.getpid()
