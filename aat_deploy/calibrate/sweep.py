@@ -71,12 +71,14 @@ def identity_differences(a: dict, b: dict) -> list[str]:
     return out
 
 
-def load_sweep(folder: str | Path, max_side: int | None = 1600, min_frames: int = MIN_FRAMES) -> Sweep:
+def load_sweep(folder: str | Path, max_side: int | None = 1600, min_frames: int = MIN_FRAMES, *,
+               max_megapixels: float | None = None, allow_outside_links: bool = False) -> Sweep:
     """Frames and reported focus of a sweep folder; SweepError for fewer than MIN_FRAMES frames, frames of other
-    sizes, or frames from different cameras (make, model, lens, focal length, f-number in their EXIF)."""
+    sizes, or frames from different cameras (make, model, lens, focal length, f-number in their EXIF).
+    max_megapixels / allow_outside_links: the readers' pixel limit and links out of the folder, as aat-infer."""
     folder = Path(folder)
     try:
-        cap = read_capture(folder)
+        cap = read_capture(folder, max_megapixels=max_megapixels, allow_outside_links=allow_outside_links)
     except CaptureError as e:
         raise SweepError(str(e)) from None
     frames = sorted(cap.frames, key=lambda f: -f.focus_m)  # far to near: reported diopters ascending
@@ -91,7 +93,7 @@ def load_sweep(folder: str | Path, max_side: int | None = 1600, min_frames: int 
                              "is one camera, lens, aperture and zoom")
     images, size = [], None
     for f in frames:
-        img, _ = load_frame(f.path)
+        img, _ = load_frame(f.path, max_megapixels)
         if size is None:
             size = img.shape[:2]
         elif img.shape[:2] != size:

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import CaptureError, safe_output_streams
-from .common import EXIT_FAILED, EXIT_OK, EXIT_USAGE, parser, subparser
+from .common import EXIT_FAILED, EXIT_OK, EXIT_USAGE, add_reader_options, check_reader_options, parser, subparser
 
 
 def _pair(text: str, what: str) -> tuple[float, float]:
@@ -112,7 +112,8 @@ def cmd_fit(args) -> int:
     for i, s in enumerate(sweeps):
         _say(args, f"aat-calibrate: measuring {s} ({i + 1}/{len(sweeps)})")
         try:
-            sw = load_sweep(s, args.max_side)
+            sw = load_sweep(s, args.max_side, max_megapixels=args.max_megapixels,
+                            allow_outside_links=args.allow_outside_links)
             measures.append(measure_sweep(sw, layout, None if args.distance_m is None else args.distance_m[i],
                                           args.pupil_to_sensor_mm, args.sensor_mm, cfg.measure, cfg.window_px,
                                           cfg.prefilter_px))
@@ -161,7 +162,8 @@ def fit_scenes(args, captures: list[Path], out: Path, png: Path) -> int:
     for i, c in enumerate(captures):
         _say(args, f"aat-calibrate: estimating {c} ({i + 1}/{len(captures)})")
         try:
-            sw = load_sweep(c, args.max_side, min_frames=3)
+            sw = load_sweep(c, args.max_side, min_frames=3, max_megapixels=args.max_megapixels,
+                            allow_outside_links=args.allow_outside_links)
             if loaded:
                 diff = identity_differences(loaded[0].identity, sw.identity)
                 if diff or sw.size_px != loaded[0].size_px:
@@ -329,6 +331,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "1600)")
     f.add_argument("--boot", type=int, default=100, help="bootstrap replicates for the intervals (default 100)")
     f.add_argument("--force", action="store_true", help="overwrite an existing calibration")
+    add_reader_options(f)
     s = subparser(sub, "shoot", "the virtual camera: a chart sweep through a lens with effects (a capture folder)")
     s.add_argument("--chart", required=True, help="chart image (.png with its .json beside it)")
     s.add_argument("--lens", required=True, help="lens file or shipped lens name")
@@ -354,7 +357,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     safe_output_streams()
-    args = build_parser().parse_args(argv)
+    ap = build_parser()
+    args = ap.parse_args(argv)
+    if args.cmd == "fit":
+        check_reader_options(ap, args)
     return {"chart": cmd_chart, "fit": cmd_fit, "shoot": cmd_shoot, "show": cmd_show}[args.cmd](args)
 
 

@@ -2,6 +2,7 @@
 
     aat-capture inspect CAPTURE_DIR_OR_FILE... [--json] [--no-exiftool] [--calibration CAM.json]
     aat-capture init CAPTURE_DIR [--focus-m F1,F2,...] [--force] [--no-exiftool]
+    (both also [--max-megapixels MP] [--allow-outside-links], as every command that reads captures)
     aat-capture plan --near M --far M --frames N
 
 inspect: per frame the focus distance found (metres from the sensor), where it came from (capture.json, which EXIF
@@ -186,11 +187,18 @@ def init(args, ap) -> int:
                  + ", ".join(p.name for p in files[:8]) + (" ..." if len(files) > 8 else ""))
     frames, missing = [], []
     for i, p in enumerate(files):
+        try:  # as aat-infer reads it: inside the folder, known content, within the pixel limit
+            check_inside(folder, p, args.allow_outside_links)
+            buf = read_input_bytes(p)
+            frame_header(p, buf, args.max_megapixels)
+        except CaptureError as e:
+            print(one_line(f"aat-capture: FAILED: {e}"), file=sys.stderr)
+            return EXIT_FAILED
         if focus is not None:
             f, src = focus[i], "--focus-m"
         else:
             try:
-                meta = read_metadata(p, use_exiftool=not args.no_exiftool)
+                meta = read_metadata(p, use_exiftool=not args.no_exiftool, buf=buf)
             except CaptureError as e:
                 print(f"aat-capture: warning: {e}", file=sys.stderr)
                 meta = None
@@ -261,6 +269,7 @@ def _main(argv: list[str] | None) -> int:
                      "in file-name order (default: from each file's metadata, null where it has none)")
     ini.add_argument("--force", action="store_true", help="replace an existing capture.json (kept as .bak)")
     ini.add_argument("--no-exiftool", action="store_true", help="do not fall back to exiftool even if installed")
+    add_reader_options(ini)
     pl = subparser(sub, "plan", "focus distances for a stack, evenly spaced in diopters")
     pl.add_argument("--near", type=float, required=True, metavar="M", help="nearest focus distance (m from the sensor)")
     pl.add_argument("--far", type=float, required=True, metavar="M", help="farthest focus distance (m)")
@@ -270,6 +279,7 @@ def _main(argv: list[str] | None) -> int:
         check_reader_options(ins, args)
         return inspect(args)
     if args.cmd == "init":
+        check_reader_options(ini, args)
         return init(args, ini)
     return plan(args, pl)
 

@@ -2,7 +2,7 @@
 shrinks once that effect is simulated (method: docs/diagnosis.md).
 
     aat-diagnose ROOT --model M.onnx [--lens LENS] [--psf PSF.onnx] --out DIR [--retrain-steps N] [--force]
-                 [--calibration CAM.json]
+                 [--calibration CAM.json] [--max-megapixels MP] [--allow-outside-links]
     aat-diagnose --list-effects
 
 Runs without torch (twins from the exported PSF surrogate); only --retrain-steps needs the train extra.
@@ -15,7 +15,8 @@ import os
 import sys
 from pathlib import Path
 
-from .common import add_list_option, parser, print_effects, run_guarded, threads_option
+from .common import (add_list_option, add_reader_options, check_reader_options, parser, print_effects, run_guarded,
+                     threads_option)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -36,6 +37,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--threads", type=int, default=2, help="onnxruntime threads")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--force", action="store_true", help="replace an existing --out folder")
+    add_reader_options(p)
     return p
 
 
@@ -47,6 +49,7 @@ def main(argv: list[str] | None = None) -> int:
 def _main(argv: list[str] | None) -> int:
     ap = build_parser()
     a = ap.parse_args(argv)
+    check_reader_options(ap, a)
     a.threads = threads_option("aat-diagnose", ap, a.threads)
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     from aat_deploy.diagnose.session import DiagnoseError, run
@@ -68,7 +71,8 @@ def _main(argv: list[str] | None) -> int:
     try:
         res = run(a.root, a.model, out, lens=a.lens, psf=a.psf, effects=a.effects, retrain_steps=a.retrain_steps,
                   threads=a.threads, seed=a.seed, force=a.force, quiet=a.quiet,
-                  torch_free=a.torch_free, calibration=a.calibration)
+                  torch_free=a.torch_free, calibration=a.calibration, max_megapixels=a.max_megapixels,
+                  allow_outside_links=a.allow_outside_links)
     except DiagnoseError as e:
         print(f"aat-diagnose: error: {e}", file=sys.stderr)
         return 1

@@ -4,7 +4,7 @@
                   [--pupil-to-sensor-mm D] [--mesh-scale S] [--max-incidence-deg A] [--force]
     aat-gt pose --points POINTS.json|.csv --lens M.onnx|INTRINSICS.json --out POSE.json [--init POSE.json]
                 [--image FRAME] [--width W --height H] [--mesh-scale S] [--force]
-    aat-gt check CAPTURE_DIR... [--model M.onnx]
+    aat-gt check CAPTURE_DIR... [--model M.onnx] [--max-megapixels MP] [--allow-outside-links]
 
 render: ray-casts a mesh (PLY/OBJ/..., e.g. a lidar scan) from the camera pose and writes depth in metres from
 the sensor plane: a 16-bit PNG in mm (0 = no surface), a float32 .npy in metres (NaN = no surface), a validity
@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import CaptureError, one_line, safe_output_streams
+from ..errors import CaptureError, check_inside, one_line, safe_output_streams
 from ..gt.read import check_aspect, check_units, find_gt, load_ground_truth
 from ..camera import load_intrinsics
 from ..gt.raycast import load_mesh, load_pose, render_depth
@@ -33,7 +33,7 @@ from ..io.atomic import atomic_files
 from ..io.depth_png import encode_mm16
 from ..io.guard import check_output_files
 from ..io.images import imwrite
-from .common import parser, run_guarded, subparser
+from .common import add_reader_options, check_reader_options, parser, run_guarded, subparser
 
 
 def output_paths(out: Path) -> dict[str, Path]:
@@ -140,14 +140,16 @@ def cmd_check(a) -> int:
     bad = 0
     for c in a.captures:
         try:
-            src = find_gt(c)
+            src = find_gt(c, a.allow_outside_links)
             if src is None:
                 raise CaptureError(f"{c}: no ground truth (gt.json, gt_depth_m.npy/.pfm/.tif, gt_depth_mm.png)")
-            gt = load_ground_truth(src)
+            gt = load_ground_truth(src, a.max_megapixels)
             if focus_range:
                 check_units(gt, focus_range)
             frames = frame_files(c)
-            img = load_frame(frames[0])[0] if frames else None
+            if frames:  # decoded as aat-eval decodes it: inside the folder, within the pixel limit
+                check_inside(c, frames[0], a.allow_outside_links)
+            img = load_frame(frames[0], a.max_megapixels)[0] if frames else None
             if img is not None:
                 check_aspect(gt.depth_m.shape, (img.shape[1], img.shape[0]), src.depth)
         except CaptureError as e:
@@ -211,7 +213,10 @@ def _main(argv: list[str] | None) -> int:
     c = subparser(sub, "check", "read captures' ground truth as aat-eval does")
     c.add_argument("captures", nargs="+", type=Path, metavar="CAPTURE_DIR")
     c.add_argument("--model", type=Path, help="also check the units against this model's focus range")
+    add_reader_options(c)
     a = ap.parse_args(argv)
+    if a.cmd == "check":
+        check_reader_options(c, a)
     if a.cmd == "pose" and (a.mesh_scale <= 0 or a.out.suffix.lower() != ".json"):
         ap.error("--mesh-scale must be > 0 and --out a .json path")
     if a.cmd == "render" and (a.mesh_scale <= 0 or (a.max_incidence_deg is not None

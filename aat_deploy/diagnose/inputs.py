@@ -34,14 +34,17 @@ def find_captures(root: str | Path, exclude: list[Path] = ()) -> list[Path]:
     return batch.find_captures(Path(root), list(exclude))[0]
 
 
-def load_capture_data(folder: str | Path, model: DfFModel, use_exiftool: bool = True) -> CaptureData:
+def load_capture_data(folder: str | Path, model: DfFModel, use_exiftool: bool = True, *,
+                      max_megapixels: float | None = None, allow_outside_links: bool = False) -> CaptureData:
+    """max_megapixels / allow_outside_links: the readers' pixel limit and links out of the folder, as aat-infer."""
     folder = Path(folder)
-    cap = read_capture(folder, use_exiftool=use_exiftool)
+    cap = read_capture(folder, use_exiftool=use_exiftool, max_megapixels=max_megapixels,
+                       allow_outside_links=allow_outside_links)
     frames = sorted(cap.frames, key=lambda f: f.focus_m)
     w_px, h_px = model.sensor_px
     images, size0 = [], None
     for f in frames:
-        img, _ = load_frame(f.path)
+        img, _ = load_frame(f.path, max_megapixels)
         if size0 is None:
             size0 = img.shape[:2]
         elif img.shape[:2] != size0:
@@ -49,16 +52,16 @@ def load_capture_data(folder: str | Path, model: DfFModel, use_exiftool: bool = 
         fitted, geometry = fit_to_sensor(img, (w_px, h_px))
         images.append(fitted.transpose(2, 0, 1))
     warnings = list(cap.warnings)
-    src = find_gt(folder)
+    src = find_gt(folder, allow_outside_links)
     if src is None:
         raise CaptureError(f"{folder}: no ground-truth depth (see docs/contracts.md)")
-    truth = load_ground_truth(src)
+    truth = load_ground_truth(src, max_megapixels)
     check_units(truth, model.focus_range_m)
     warnings += truth.warnings
     gt = to_sensor(truth.depth_m, (size0[1], size0[0]), geometry["crop_xywh"], (w_px, h_px), src.depth)
     aif = None
     if src.aif is not None:
-        rgb, _ = load_frame(src.aif)  # the frame reader: kind from content, pixel limit, sRGB to linear
+        rgb, _ = load_frame(src.aif, max_megapixels)  # the frame reader: kind from content, pixel limit, sRGB to linear
         aif = fit_to_sensor(rgb, (w_px, h_px))[0].transpose(2, 0, 1).astype(np.float32)
     return CaptureData(cap.name, folder, np.stack(images).astype(np.float32),
                        np.array([f.focus_m for f in frames], np.float64), gt, aif, warnings,

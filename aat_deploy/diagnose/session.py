@@ -86,7 +86,8 @@ def calibrated_focus(caps: list, calibration) -> tuple[list, dict]:
 
 def run(root, model_path, out: Path, *, lens=None, psf=None, effects=None, retrain_steps: int = 0,
         threads: int = 2, seed: int = 0, force: bool = False, quiet: bool = False, cfg: DiagnoseConfig | None = None,
-        torch_free: bool = False, calibration=None) -> dict:
+        torch_free: bool = False, calibration=None, max_megapixels: float | None = None,
+        allow_outside_links: bool = False) -> dict:
     say = _say(quiet)
     if retrain_steps and shutil.which("aat-train") is None:
         raise DiagnoseError("--retrain-steps needs aat-train (pip install 'aat-dff[train]')")
@@ -104,7 +105,8 @@ def run(root, model_path, out: Path, *, lens=None, psf=None, effects=None, retra
         if not folders:
             raise DiagnoseError(f"{root}: no capture folder with ground truth (see docs/contracts.md)")
         say(f"{len(folders)} capture(s); model simulator: {', '.join(fx.spec(e) for e in twins.base) or 'thin lens'}")
-        caps = [load_capture_data(f, model) for f in folders]
+        caps = [load_capture_data(f, model, max_megapixels=max_megapixels, allow_outside_links=allow_outside_links)
+                for f in folders]
         cal_info = None
         if calibration is not None:
             from aat_deploy.calibrate.format import load_calibration

@@ -1231,3 +1231,86 @@ def test_fuzz_capture_folders_keep_the_promises(fuzz_env, model_path, tmp_path_f
     stray = [p for p in out.rglob(".*") if p.name != ".aat-output.json"] + [
         p for p in tmp.iterdir() if p.name.startswith(".")]
     assert not stray, stray  # no temporary left
+
+
+# -- issue 31 leftover: every command that reads captures takes the readers' flags ---------------------------------
+READER_COMMANDS = [("aat_deploy.cli.infer", [], ["--model", "m"]), ("aat_deploy.cli.eval", [], ["--model", "m", "--out", "o"]),
+                   ("aat_deploy.cli.diagnose", [], ["--model", "m", "--out", "o"]),
+                   ("aat_deploy.cli.capture", ["inspect"], []), ("aat_deploy.cli.capture", ["init"], []),
+                   ("aat_deploy.cli.gt", ["check"], []), ("aat_deploy.cli.calibrate", ["fit"], ["--out", "c.json"])]
+
+
+@pytest.mark.parametrize("module, sub, required", READER_COMMANDS,
+                         ids=[f"{m.rsplit('.', 1)[1]} {' '.join(s)}".strip() for m, s, _ in READER_COMMANDS])
+def test_every_command_that_reads_captures_takes_the_reader_flags(module, sub, required, capsys):
+    """Before: aat-diagnose, aat-gt check, aat-capture init and aat-calibrate fit had neither --max-megapixels nor
+    --allow-outside-links (only $AAT_MAX_MEGAPIXELS worked); now one definition (cli.common.add_reader_options) is
+    shared by all, with one check of the value."""
+    import importlib
+
+    main = importlib.import_module(module).main
+    with pytest.raises(SystemExit) as e:
+        main([*sub, "--help"])
+    out = capsys.readouterr().out
+    assert e.value.code == 0 and "--max-megapixels MP" in out and "--allow-outside-links" in out
+    with pytest.raises(SystemExit) as e:
+        main([*sub, "x", *required, "--max-megapixels", "-1"])
+    assert e.value.code == 2 and "--max-megapixels must be a positive number" in capsys.readouterr().err
+
+
+def test_gt_check_and_capture_init_obey_the_reader_flags(good, tmp_path, capsys):
+    """aat-gt check and aat-capture init refuse a frame linked out of the folder unless --allow-outside-links, and
+    a frame or ground truth beyond --max-megapixels, in one line naming the file; inputs unchanged."""
+    from aat_deploy.cli import capture as capture_cli
+    from aat_deploy.cli import gt as gt_cli
+
+    cap, earlier = good
+    outside = write_dng_capture(tmp_path / "elsewhere", [0.6, 1.0, 2.0, 3.0])
+    bad = tmp_path / "bad"
+    shutil.copytree(cap, bad)
+    for p in bad.glob("frame_*.dng"):
+        p.unlink()
+    (bad / "frame_00.dng").symlink_to(outside / "frame_03.dng")
+    named = bad / "frame_00.dng"
+    before = tree_hash(bad, outside, cap)
+    assert gt_cli.main(["check", str(bad)]) == 1
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(err) == 1 and f"{named}: a link out of the folder" in err[0] and "--allow-outside-links" in err[0]
+    assert gt_cli.main(["check", str(bad), "--allow-outside-links"]) == 0
+    assert "frames 64x48 px" in capsys.readouterr().out
+    assert gt_cli.main(["check", str(cap), "--max-megapixels", "0.001"]) == 1
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(err) == 1 and str(cap) in err[0] and "megapixels" in err[0], err
+
+    assert capture_cli.main(["init", str(bad), "--focus-m", "2.0"]) == 1
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(err) == 1 and f"{named}: a link out of the folder" in err[0] and not (bad / "capture.json").exists()
+    assert capture_cli.main(["init", str(bad), "--focus-m", "2.0", "--max-megapixels", "0.001"]) == 1
+    assert not (bad / "capture.json").exists()
+    assert capture_cli.main(["init", str(bad), "--focus-m", "2.0", "--allow-outside-links", "-q"]) == 0
+    assert json.loads((bad / "capture.json").read_text())["frames"] == [{"file": "frame_00.dng", "focus_m": 2.0,
+                                                                          "from": "--focus-m"}]
+    (bad / "capture.json").unlink()
+    assert tree_hash(bad, outside, cap) == before
+
+
+def test_diagnose_obeys_the_reader_flags(model_path, good, tmp_path, capsys):
+    """aat-diagnose reads its captures with the same pixel limit and link rule as aat-eval."""
+    from aat_deploy.cli import diagnose as diagnose_cli
+
+    cap, earlier = good
+    outside = write_dng_capture(tmp_path / "elsewhere", FOCUS)
+    root = tmp_path / "root"
+    shutil.copytree(cap, root / "a")
+    (root / "a" / "gt_depth_mm.png").unlink()
+    (root / "a" / "gt_depth_mm.png").symlink_to(outside / "gt_depth_mm.png")
+    before = tree_hash(root, outside)
+    lens = ["--lens", str(LENSES / "canon_rf50mm_f1.8.json")]
+    rc = diagnose_cli.main([str(root), "--model", str(model_path), *lens, "--out", str(tmp_path / "d"), "-q"])
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert rc == 1 and len(err) == 1 and f"{root / 'a' / 'gt_depth_mm.png'}: a link out of the folder" in err[0], err
+    rc = diagnose_cli.main([str(root), "--model", str(model_path), *lens, "--out", str(tmp_path / "d"), "-q",
+                            "--allow-outside-links", "--max-megapixels", "0.001"])
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert rc == 1 and len(err) == 1 and "megapixels" in err[0] and str(root / "a") in err[0], err
+    assert not (tmp_path / "d").exists() and tree_hash(root, outside) == before
