@@ -215,10 +215,10 @@ def replace_folder(tmp: Path, out_dir: Path, force: bool, tool: str) -> None:
             raise OutputError(f"{out_dir}: output folder exists (pass --force to overwrite)")
         old = temp_sibling(out_dir, "old")
         os.replace(out_dir, old)
-        why = None if old.is_symlink() else marker.replace_problem(old, tool)
+        why = None if old.is_symlink() else marker.refusal(out_dir, tool, old)
         if why is not None:
             os.replace(old, out_dir)
-            raise OutputError(f"{out_dir}: {why}; not replaced even with --force: choose another output folder")
+            raise OutputError(why)
     try:
         os.replace(tmp, out_dir)
     except BaseException:

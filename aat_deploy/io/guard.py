@@ -80,9 +80,9 @@ def check_output_dir(out: str | Path, inputs: Iterable[str | Path], force: bool,
             raise OutputError(f"{out}: output folder exists (pass --force to overwrite)")
         if os.path.ismount(out):
             raise OutputError(f"{out}: is a mount point, which cannot be replaced; choose a folder inside it")
-        why = marker.replace_problem(out, tool)
+        why = marker.refusal(out, tool)
         if why is not None:
-            raise OutputError(f"{out}: {why}; not replaced even with --force: choose another output folder")
+            raise OutputError(why)
     check_writable(out)
 
 

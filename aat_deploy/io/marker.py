@@ -19,6 +19,7 @@ from pathlib import Path
 
 MARKER = ".aat-output.json"
 FORMAT = "aat-output/1"
+MARKER_SINCE = "2026-11-25"  # outputs written before this carry no marker, so --force refuses them
 
 
 def entries(folder: Path) -> dict[str, int | str]:
@@ -78,7 +79,8 @@ def replace_problem(folder: Path, tool: str) -> str | None:
         return f"cannot be read ({e.strerror or e})"
     doc = read(folder)
     if doc is None:
-        return (f"is not an earlier {tool} output (no {MARKER})" if not os.path.lexists(folder / MARKER)
+        return (f"is not an earlier {tool} output (no {MARKER}; outputs written before {MARKER_SINCE} have none)"
+                if not os.path.lexists(folder / MARKER)
                 else f"is not an earlier {tool} output (its {MARKER} is damaged)")
     if doc["tool"] != tool:
         return f"is an output of {doc['tool']}, not of {tool}"
@@ -94,6 +96,17 @@ def replace_problem(folder: Path, tool: str) -> str | None:
         more = f" and {len(changed) - 1} more" if len(changed) > 1 else ""
         return f"{changed[0]!r}{more} changed since {tool} wrote it"
     return None
+
+
+def refusal(out: Path, tool: str, folder: Path | None = None) -> str | None:
+    """The one-line refusal of `--force` over the existing output folder `out` (checked at `folder`, where it was
+    moved aside, if given), or None if `tool` may replace it. It names the folder, why, and what to do; a folder
+    without a marker (also an output written before MARKER_SINCE) is never replaced on a guess."""
+    why = replace_problem(Path(out if folder is None else folder), tool)
+    if why is None:
+        return None
+    return (f"{out}: {why}; --force replaces only a folder proven to be an earlier {tool} output, so nothing was "
+            "deleted: choose another output folder, or rename this one and run again")
 
 
 def is_ours(folder: Path) -> bool:

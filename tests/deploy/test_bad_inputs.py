@@ -218,7 +218,7 @@ def test_force_never_replaces_a_folder_that_merely_holds_an_output_name(model_pa
                                                               ("diagnose", "diagnosis.json"), ("api", "summary.json"))}
     before = tree_hash(*folders.values(), cap)
     rc, bad, _ = infer([cap, "--model", model_path, "--out", folders["infer"], "--force"], capsys)
-    assert rc == 1 and len(bad) == 2 and "is not an earlier aat-infer output (no .aat-output.json)" in bad[0], bad
+    assert rc == 1 and len(bad) == 2 and "is not an earlier aat-infer output (no .aat-output.json;" in bad[0], bad
     rc = eval_cli.main([str(cap), "--model", str(model_path), "--out", str(folders["eval"]), "--force", "-q"])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "not an earlier aat-eval output" in err[0], err
@@ -268,6 +268,53 @@ def test_force_replaces_an_earlier_output_only_while_it_holds_nothing_else(model
             (late / "added.txt").write_text("written meanwhile")
     assert (late / "added.txt").read_text() == "written meanwhile" and (late / "a.npy").read_bytes() == b"1"
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".late.")]
+
+
+def test_an_output_from_before_the_marker_is_refused_in_one_line_saying_what_to_do(model_path, good, tmp_path,
+                                                                                  capsys):
+    """Issue 31 leftover: outputs written before the marker existed have none, so --force refuses them. The refusal
+    is one line that names the folder, says why (no marker; outputs before 2026-11-25 have none) and what to do;
+    nothing is deleted, by the command, the Python API, or the re-check when the folder is swapped out."""
+    from aat_deploy.api import depth_from_focus
+    from aat_deploy.errors import OutputError
+    from aat_deploy.io.atomic import atomic_folder
+
+    cap, earlier = good
+    old = {}
+    for tool in ("infer", "eval"):  # an output as such a version left it: everything but the marker
+        old[tool] = tmp_path / f"old_{tool}"
+        if tool == "infer":
+            assert infer([cap, "--model", model_path, "--out", old[tool]], capsys)[0] == 0
+        else:
+            assert eval_cli.main([str(cap), "--model", str(model_path), "--out", str(old[tool]), "-q"]) == 0
+            capsys.readouterr()
+        (old[tool] / marker.MARKER).unlink()
+    before = tree_hash(*old.values(), cap)
+
+    def said(line: str, folder: Path, tool: str) -> bool:
+        return line.count(str(folder)) == 1 and "\n" not in line and all(s in line for s in (
+            f"{folder}: is not an earlier {tool} output (no .aat-output.json; outputs written before 2026-11-25 "
+            "have none)", "nothing was deleted: choose another output folder, or rename this one and run again"))
+
+    rc, bad, _ = infer([cap, "--model", model_path, "--out", old["infer"], "--force"], capsys)
+    assert rc == 1 and said(bad[0], old["infer"], "aat-infer"), bad
+    rc = eval_cli.main([str(cap), "--model", str(model_path), "--out", str(old["eval"]), "--force", "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and said(err[0], old["eval"], "aat-eval"), err
+    from deploy_fixtures import render_stack, synthetic_scene
+
+    tex, depth = synthetic_scene()
+    res = depth_from_focus(render_stack(tex, depth, FOCUS), FOCUS, DfFModel(model_path, threads=1))
+    with pytest.raises(ValueError) as e:
+        res.save(old["infer"], force=True)
+    assert said(str(e.value), old["infer"], "aat-infer"), e.value
+    with pytest.raises(OutputError) as e:  # the re-check at the swap: the marker gone while this run worked
+        with atomic_folder(tmp_path / "late", False, "aat-infer") as tmp:
+            (tmp / "summary.json").write_text("{}")
+        with atomic_folder(tmp_path / "late", True, "aat-infer") as tmp:
+            (tmp_path / "late" / marker.MARKER).unlink()
+    assert said(str(e.value), tmp_path / "late", "aat-infer") and (tmp_path / "late" / "summary.json").exists()
+    assert tree_hash(*old.values(), cap) == before
 
 
 # -- issue 31, 2 and 3: decompression bombs in frames and ground truth ---------------------------------------------
