@@ -189,3 +189,73 @@ def test_capture_inspect_says_whether_the_camera_matches(rig, tmp_path, capsys):
     assert any("f-number" in m for m in rows[0]["calibration_mismatch"])
     assert capture.main(["inspect", str(rig / "sweep1"), "--calibration", str(tmp_path / "none.json")]) == 2
     assert "missing" in capsys.readouterr().err
+
+
+def _texture(rng, h: int, w: int) -> np.ndarray:
+    """(H, W) in [0.1, 0.9]: noise at several scales (texture at every blur)."""
+    import cv2
+
+    t = sum(cv2.resize(rng.random((h // k + 1, w // k + 1)), (w, h), interpolation=cv2.INTER_CUBIC)
+            for k in (1, 3, 9))
+    return (0.1 + 0.8 * (t - t.min()) / (t.max() - t.min())).astype(np.float32)
+
+
+@pytest.fixture(scope="module")
+def scene(rig):
+    """Not a chart: a textured staircase at 0.65 / 0.8 / 0.95 m (inside the calibrated 0.6-1.0 m) shot by the same
+    copy (reported focus 1.1 x the true one), 8 frames even in diopters over 0.55-1.2 m (true)."""
+    from aat_deploy.capture.virtual import shoot, write_capture
+    from aat_deploy.render import effects as fx
+
+    lens = load_lens(rig / "small_rf50.json")
+    rng = np.random.default_rng(3)
+    depth = np.full((H, W), 0.65, np.float32)
+    depth[:, W // 3:] = 0.8
+    depth[:, 2 * W // 3:] = 0.95
+    rgb = np.stack([_texture(rng, H, W)] * 3) * 0.6
+    true_m = 1.0 / np.linspace(1 / 1.2, 1 / 0.55, 8)
+    frames, reported = shoot(lens, rgb, depth, true_m, [fx.spec(e) for e in fx.parse(
+        "focus_metadata:bias_d=0:scale=1.1,noise")], seed=5)
+    out = rig / "scene"
+    write_capture(out, frames, reported, lens, depth, rgb, {"what": "a staircase through the copy"})
+    return out, depth
+
+
+def test_calibration_corrects_depth_of_a_scene_the_right_way(rig, scene, tmp_path, capsys):
+    """A scene the fit never saw: without the calibration the depth follows the reported focus (1.1 x the true
+    distance); with it (CLI and API alike) that scale is taken out, on every step of the staircase."""
+    from aat_deploy.api import depth_from_focus, read_stack
+    from aat_deploy.cli import infer
+
+    cap, gt = scene
+    cam = rig / "out" / "cam.json"
+    if not cam.is_file():
+        assert cli.main(["fit", str(rig / "sweep0"), str(rig / "sweep1"), "--chart", str(rig / "chart.json"),
+                         "--distance-m", "0.6,1.0", "--out", str(cam), "--boot", "10", "-q"]) == 0
+    ratio = {}
+    for name, extra in (("thin", []), ("cal", ["--calibration", str(cam)])):
+        out = tmp_path / name
+        assert infer.main([str(cap), "--method", "focus", "--out", str(out), "--no-recording", "-q", *extra]) == 0, \
+            capsys.readouterr().err
+        d = np.load(out / "depth_m.npy")
+        # per step of the staircase, the median depth over its truth (inner columns: away from the edges)
+        ratio[name] = [float(np.nanmedian(d[20:-20, a + 15:b - 15] / gt[20:-20, a + 15:b - 15]))
+                       for a, b in ((0, W // 3), (W // 3, 2 * W // 3), (2 * W // 3, W))]
+        summary = json.loads((out / "summary.json").read_text())
+        assert summary["model"]["mapping"] == ("calibration" if extra else "thin_lens")
+    # on every step the calibration takes the reported focus's scale out (the 8-frame method's own few-% bias is
+    # in both) and so comes at least 0.07 closer to the truth
+    for t, c in zip(ratio["thin"], ratio["cal"]):
+        assert t / c == pytest.approx(1.1, abs=0.015), ratio
+        assert abs(c - 1.0) < abs(t - 1.0) - 0.07 and abs(c - 1.0) < 0.05, ratio
+    stack, focus = read_stack(cap)
+    np.testing.assert_allclose(np.sort(focus), np.sort(1.1 / np.linspace(1 / 1.2, 1 / 0.55, 8)), rtol=1e-3)
+    api = depth_from_focus(stack, focus, "focus", calibration=cam).depth_m
+    np.testing.assert_allclose(np.nanmedian(api / gt), np.nanmedian(np.load(tmp_path / "cal" / "depth_m.npy") / gt),
+                               rtol=0.01)
+    # one mapping at a time: a calibration replaces the --lens map, it is not added to it
+    capsys.readouterr()
+    assert infer.main([str(cap), "--method", "focus", "--calibration", str(cam), "--lens", "rf50",
+                       "--out", str(tmp_path / "both"), "-q"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--calibration" in err[0] and not (tmp_path / "both").exists()
