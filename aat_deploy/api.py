@@ -6,8 +6,9 @@
     result = depth_from_focus(stack, focus_m)               # the shipped DFVNet by default
     result = depth_from_focus(stack, focus_m, "dfv_aat", camera=(50, 1.8, 4.3))   # any camera: f mm, N, pixel um
     result = depth_from_focus(stack, focus_m, "dfv_aat", lens="lenses/canon_rf50mm_f1.8.json")  # aberration-aware
-    result = depth_from_focus(stack, focus_m, "focus", calibration="mycam.json")  # classical, your camera's map
-    result.depth_m, result.aif, result.std_m, result.camera
+    result = depth_from_focus(stack, focus_m, method="focus")                    # classical, no trained model
+    result = depth_from_focus(stack, focus_m, method="focus", calibration="mycam.json")  # your camera's map
+    result.depth_m, result.aif, result.std_m, result.confidence, result.camera
     result.save("out/sample")                               # the files aat-infer writes
 
 The same code as `aat-infer` (aat_deploy.process), without the capture folder: frames from anywhere (a camera
@@ -17,27 +18,29 @@ SDK, a simulator, a video) as numpy arrays. Errors are ValueError with one line 
 from __future__ import annotations
 
 import json
+import warnings as _warnings
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
-from .camera import camera_json
-from .confidence import MIN_CONFIDENCE, mark_unknown
+from .anycam.model import open_model
+from .camera import Intrinsics, camera_json
 from .capture.folder import focus_problem, read_capture
 from .capture.raw import load_frame, srgb_to_linear
+from .confidence import MIN_CONFIDENCE, mark_unknown
 from .errors import CaptureError
-from .camera import Intrinsics
+from .infer.method import DepthMethod
 from .io.atomic import atomic_folder, writing
 from .io.guard import check_output_dir
-from .anycam.model import open_model
 from .model import DfFModel
 from .outputs import DepthMaps, RecordingInputs, to_srgb8, write_outputs
 from .process import depth_from_frames
 from .shipped import resolve
 
 DEFAULT_MODEL = "rf50_dfvnet_aat_field"
+METHODS = ("model", "focus")  # a trained model (model=), or the classical focus method (no model)
 
 
 @dataclass
@@ -95,34 +98,24 @@ def load_model(model: str | Path = DEFAULT_MODEL, threads: int | None = None) ->
         raise ValueError(str(e)) from None
 
 
-def _bind_camera(net, frames, focus, camera, lens, psf, calibration):
-    """The any-camera model told its camera: optics from `camera` ((focal mm, f-number, pixel um) or the text
-    "F,N,PIXEL_UM") or the lens / PSF / calibration file, the focus mapping from that file (else a thin lens)."""
-    import copy
+def _method(model, method: str, threads: int | None) -> DepthMethod:
+    """The depth method `model` and `method` name: a DepthMethod as given, the classical focus method, or a DfF
+    model by name or path (default: the shipped main model)."""
+    if isinstance(model, str) and model == "focus":  # the older spelling of method="focus"
+        _warnings.warn('depth_from_focus(..., "focus") is now depth_from_focus(..., method="focus")',
+                       DeprecationWarning, stacklevel=3)
+        model, method = None, "focus"
+    if method not in METHODS:
+        raise ValueError(f"method: {method!r}, expected one of {', '.join(METHODS)}")
+    if isinstance(model, DepthMethod):
+        return model
+    if method == "focus":
+        if model is not None:
+            raise ValueError("model: method='focus' runs no trained model (give one of them)")
+        from .focus.runner import FocusMethod
 
-    from .anycam.model import FocusMapModel, mapping_from_args
-    from .anycam.optics import parse_camera
-
-    if not isinstance(net, FocusMapModel):
-        if any(v is not None for v in (camera, lens, psf, calibration)):
-            raise ValueError(f"{net.path.name} is a lens-specific model: camera, lens, psf and calibration belong "
-                             "to the any-camera model (model='dfv_aat')")
-        return net
-    width = frames[0].shape[1]
-    try:
-        net = copy.copy(net).configure(mapping_from_args(lens, psf, calibration), max_side=net.max_side)
-        if camera is not None:
-            text = camera if isinstance(camera, str) else ",".join(str(float(v)) for v in camera)
-            optics = parse_camera(text, width)
-        else:
-            optics = net.mapping_optics(width)
-    except CaptureError as e:
-        raise ValueError(str(e)) from None
-    if optics is None and not (net.mapping.kind == "calibration"
-                               and getattr(net.mapping.calibration, "blur", None) is not None):
-        raise ValueError("the any-camera model needs the camera: camera=(focal_mm, f_number, pixel_um) or a lens, "
-                         "psf or calibration file")
-    return net.bound(optics, focus)
+        return FocusMethod()
+    return load_model(DEFAULT_MODEL if model is None else model, threads)
 
 
 def read_stack(folder: str | Path, use_exiftool: bool = True, *, max_megapixels: float | None = None,
@@ -174,7 +167,8 @@ def _frames(stack, srgb: bool | None) -> list[np.ndarray]:
     return out
 
 
-def depth_from_focus(stack, focus_m, model: str | Path | DfFModel = DEFAULT_MODEL, *, srgb: bool | None = None,
+def depth_from_focus(stack, focus_m, model: str | Path | DepthMethod | None = None, *, method: str = "model",
+                     srgb: bool | None = None,
                      align: bool = False, native_res: bool = False, tile: int | None = None,
                      threads: int | None = None, camera=None, lens: str | Path | None = None,
                      psf: str | Path | None = None, calibration: str | Path | None = None,
@@ -184,15 +178,18 @@ def depth_from_focus(stack, focus_m, model: str | Path | DfFModel = DEFAULT_MODE
     stack: (S, H, W, 3) array (or S arrays (H, W, 3)): float = linear RGB of any non-negative scale (srgb=True:
     sRGB-encoded in [0, 1]); uint8/uint16 = sRGB-encoded images. focus_m: (S,) focus distance of each frame in
     metres from the sensor plane, any order (frames are sorted near to far). model: a shipped model's name, a
-    path, or a loaded DfFModel. The frames are centre-cropped to the model's sensor aspect and resized to its
+    path, or a loaded depth method (`aat_deploy.infer.method.DepthMethod`: a DfFModel, a FocusMethod with your
+    settings); None: the shipped main model. The frames are centre-cropped to the model's sensor aspect and resized to its
     size; native_res=True returns maps at the frames' own size (the crop), upsampled guided by the all-in-focus
     image. align: affine alignment against focus breathing; tile: run in tiles of this many pixels.
     The any-camera model (model="dfv_aat") also needs the camera: camera=(focal length mm, f-number, pixel pitch um
     of the frames as given), or a lens file (lens=), PSF surrogate (psf=) or calibration (calibration=), which
     also make it aberration-aware (what each frame has in focus at each pixel); frames span the sensor.
-    model="focus": the classical method, no trained model (`aat-infer --method focus`), at the frames' own size;
-    lens=, psf= or calibration= (your camera's, from `aat-calibrate fit`: a path or a `CameraCalibration`) make it
-    aberration-aware.
+    method="focus": the classical method, no trained model (`aat-infer --method focus`), at a working size it
+    chooses from the stack; lens=, psf= or calibration= (your camera's, from `aat-calibrate fit`: a path or a
+    `CameraCalibration`) make it aberration-aware. (model="focus", the older spelling, still works and warns.)
+    The result's confidence (H, W) is the chance that the depth is within 10 % of the truth: the classical
+    method's always, a model's when a calibration ships beside it (else None).
     min_confidence: depth whose calibrated confidence is below it is NaN (unknown); 0 keeps every pixel."""
     frames = _frames(stack, srgb)
     try:
@@ -208,26 +205,16 @@ def depth_from_focus(stack, focus_m, model: str | Path | DfFModel = DEFAULT_MODE
             raise ValueError(f"focus_m[{i}] = {float(f):g}: not a focus distance in metres ({why})")
     if len(set(np.round(focus, 6))) != len(focus):
         raise ValueError("focus_m: two frames have the same focus distance")
-    classical = isinstance(model, str) and model == "focus"
-    if classical:
-        from .focus.runner import FocusMethod
-
-        try:
-            net = FocusMethod(lens=lens, psf=psf, calibration=calibration)
-        except CaptureError as e:
-            raise ValueError(str(e)) from None
-    else:
-        net = model if isinstance(model, DfFModel) else load_model(model, threads)
+    net = _method(model, method, threads)
     lo, hi = net.stack_range
     if not lo <= len(frames) <= hi:
-        raise ValueError(f"stack: {len(frames)} frames, the model takes {lo}..{hi}")
+        raise ValueError(f"stack: {len(frames)} frames, the {net.noun} takes {lo}..{hi}")
     if tile is not None and (not isinstance(tile, int) or tile < 16):
         raise ValueError("tile: an integer >= 16 (px) or None")
     order = np.argsort(focus, kind="stable")
     frames, focus = [frames[i] for i in order], focus[order].astype(np.float32)
-    if not classical:
-        net = _bind_camera(net, frames, focus, camera, lens, psf, calibration)
     try:
+        net = net.for_arrays(frames[0].shape[:2], focus, camera=camera, lens=lens, psf=psf, calibration=calibration)
         res = depth_from_frames(frames, focus, net, align=align, tile=tile, native=native_res)
     except CaptureError as e:
         raise ValueError(str(e)) from None

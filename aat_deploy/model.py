@@ -11,18 +11,17 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import onnxruntime as ort
 
-from .camera import model_intrinsics
-from .confidence import ConfidenceCalibrationError, model_calibration, model_calibration_path
+from .camera import Intrinsics, model_intrinsics
+from .confidence import ConfidenceCalibrationError, model_calibration, model_calibration_path, std_confidence
 from .errors import ModelError, file_kind
+from .infer.method import DepthMethod, DepthOutput
 from .machine import bound_threads
 from .shipped import shipped_hint
-from .camera import Intrinsics
 
 REQUIRED_META = ("aat.kind", "aat.lens_name", "aat.focal_length_mm", "aat.f_number", "aat.sensor_px",
                  "aat.pixel_um", "aat.focus_range_m", "aat.stack_min", "aat.stack_max", "aat.size_multiple")
@@ -88,24 +87,15 @@ def _meta_pair(path: Path, meta: dict, key: str, integer: bool = False) -> tuple
     return tuple(out)
 
 
-@dataclass
-class DfFOutput:
-    """depth_m (H, W) metres, aif (3, H, W) normalised linear units, std_m (H, W) metres; all float32."""
-
-    depth_m: np.ndarray
-    aif: np.ndarray
-    std_m: np.ndarray
-
-
 CONTRACT_RANK = {"stack": (5, "(B, S, 3, H, W)"), "focus_m": (2, "(B, S)"), "field_xy": (4, "(B, 2, H, W)"),
                  "depth_m": (3, "(B, H, W)"), "aif": (4, "(B, 3, H, W)"), "std_m": (3, "(B, H, W)"),
                  "focus_diopters": (4, "(B, S, H, W)"), "defocus_px_per_d": (4, "(B, 1, H, W)")}
 
 
-class DfFModel:
-    """An aat DfF ONNX model on onnxruntime's CPU provider."""
+class DfFModel(DepthMethod):
+    """An aat DfF ONNX model on onnxruntime's CPU provider (a `DepthMethod`): its std_m becomes a calibrated
+    confidence when a `<stem>.confidence.json` lies beside it (`aat_deploy.confidence`)."""
 
-    kind = "model"  # what the pipeline calls it in messages (the classical method says "method")
     required_meta = REQUIRED_META
     inputs = ("stack", "focus_m")
 
@@ -172,6 +162,9 @@ class DfFModel:
             raise _bad_meta(self.path, m, "aat.lens_name", "a string")
         self.lens_name = str(name)
 
+    def describe(self) -> str:
+        return f"{self.path.name} is a lens-specific model"
+
     def summary(self) -> dict:
         """Path and the metadata subset worth recording with results."""
         cal = model_calibration_path(self.path) if self.confidence_calibration is not None else None
@@ -198,7 +191,7 @@ class DfFModel:
         return self.focal_length_mm / (self.pixel_um * 1e-3)
 
     # -- inference -------------------------------------------------------------------------------------------
-    def _run(self, stack: np.ndarray, focus_m: np.ndarray, field_xy: np.ndarray | None = None) -> DfFOutput:
+    def _run(self, stack: np.ndarray, focus_m: np.ndarray, field_xy: np.ndarray | None = None) -> DepthOutput:
         """One padded run: stack (S, 3, H, W) with H, W any size (field_xy (2, H, W) for field-aware models);
         crops back to H, W."""
         _, _, h, w = stack.shape
@@ -208,7 +201,7 @@ class DfFModel:
             mode = "reflect" if ph < h and pw < w else "symmetric"
             stack = np.pad(stack, ((0, 0), (0, 0), (0, ph), (0, pw)), mode=mode)
         depth, aif, std = self.session.run(["depth_m", "aif", "std_m"], self._feeds(stack, focus_m, field_xy, ph, pw))
-        return DfFOutput(depth[0, :h, :w], aif[0, :, :h, :w], std[0, :h, :w])
+        return DepthOutput(depth[0, :h, :w], aif[0, :, :h, :w], std[0, :h, :w])
 
     def _feeds(self, stack: np.ndarray, focus_m: np.ndarray, field_xy: np.ndarray | None, ph: int, pw: int) -> dict:
         """onnxruntime's inputs for one padded stack (S, 3, H + ph, W + pw); field_xy unpadded, padded here."""
@@ -219,8 +212,8 @@ class DfFModel:
         return feeds
 
     def infer(self, stack: np.ndarray, focus_m: np.ndarray, tile: int | None = None, overlap: int = 32,
-              progress=None, field_xy: np.ndarray | None = None) -> DfFOutput:
-        """Depth, all-in-focus and uncertainty for one normalised stack.
+              progress=None, field_xy: np.ndarray | None = None) -> DepthOutput:
+        """Depth, all-in-focus, uncertainty and (with a calibration) confidence for one normalised stack.
 
         stack: (S, 3, H, W) float32 normalised, frames sorted by focus (ascending); focus_m: (S,) metres.
         tile: tile side in pixels (rounded up to size_multiple); None or 0 = whole image at once.
@@ -240,7 +233,7 @@ class DfFModel:
 
             field_xy = np.stack(pixel_fields(h, w, (h, w))).astype(np.float32)
         if not tile or (h <= tile and w <= tile):
-            return self._run(stack, focus_m, field_xy)
+            return self._with_confidence(self._run(stack, focus_m, field_xy))
         m = self.size_multiple
         tile = int(math.ceil(tile / m) * m)
         overlap = min(int(overlap), tile // 4)
@@ -271,8 +264,15 @@ class DfFModel:
                 if progress:
                     progress(done, total)
         acc_w = np.maximum(acc_w, 1e-12)
-        return DfFOutput((acc_d / acc_w).astype(np.float32), (acc_a / acc_w).astype(np.float32),
-                         (acc_s / acc_w).astype(np.float32))
+        return self._with_confidence(DepthOutput((acc_d / acc_w).astype(np.float32),
+                                                 (acc_a / acc_w).astype(np.float32),
+                                                 (acc_s / acc_w).astype(np.float32)))
+
+    def _with_confidence(self, out: DepthOutput) -> DepthOutput:
+        """The std made a calibrated confidence when the model has a calibration (aat_deploy.confidence)."""
+        if self.confidence_calibration is not None:
+            out.confidence = std_confidence(self.confidence_calibration, out.depth_m, out.std_m)
+        return out
 
 
 def _pad_linear(field: np.ndarray, ph: int, pw: int) -> np.ndarray:

@@ -28,8 +28,8 @@ from .confidence import MIN_CONFIDENCE, mark_unknown
 from .errors import CaptureError
 from .gt.read import read_depth_file, units_problem
 from .io.atomic import atomic_folder, writing
+from .infer.method import DepthMethod
 from .io.guard import check_output_dir
-from .model import DfFModel
 from .normalise import DESCRIPTION as NORMALISATION
 from .outputs import DESCRIPTIONS, DepthMaps, RecordingInputs, write_outputs
 from .camera import camera_json
@@ -71,7 +71,7 @@ def _import_in_background(module: str) -> None:
     threading.Thread(target=work, name=f"import {module}", daemon=True).start()
 
 
-def identity_warnings(capture: Capture, model: DfFModel) -> list[str]:
+def identity_warnings(capture: Capture, model: DepthMethod) -> list[str]:
     """Differences between the capture's camera/lens (EXIF) and the lens the model was trained for."""
     out = []
     lenses = {f.meta.lens for f in capture.frames if f.meta.lens}
@@ -126,7 +126,7 @@ def check_output(out_dir: Path, force: bool, inputs: list[Path] = ()) -> None:
     check_output_dir(out_dir, inputs, force, tool="aat-infer")
 
 
-def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, opts: Options) -> dict:
+def run_capture(capture_dir: str | Path, model: DepthMethod, out_dir: str | Path, opts: Options) -> dict:
     """Process one capture folder; returns the summary written to out_dir/summary.json."""
     t_all = time.perf_counter()
     capture_dir, out_dir = Path(capture_dir), Path(out_dir)
@@ -143,7 +143,7 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
         clock = now
 
     cap = read_capture(capture_dir, use_exiftool=opts.use_exiftool, focus_m=opts.focus_m,
-                       equal_focus_ok=model.kind == "method",  # the focus method places tied frames itself
+                       equal_focus_ok=model.places_tied_frames,
                        max_megapixels=opts.max_megapixels, allow_outside_links=opts.allow_outside_links)
     warnings = list(cap.warnings)
     ident = identity_warnings(cap, model)
@@ -154,7 +154,7 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
     focus = np.array([f.focus_m for f in frames], np.float32)
     lo, hi = model.stack_range
     if not lo <= len(frames) <= hi:
-        raise CaptureError(f"{capture_dir}: {len(frames)} frames, the {model.kind} takes {lo}..{hi}")
+        raise CaptureError(f"{capture_dir}: {len(frames)} frames, the {model.noun} takes {lo}..{hi}")
     near, far = model.focus_range_m
     outside = [f"{f.path.name} ({f.focus_m:g} m)" for f in frames if not near * 0.999 <= f.focus_m <= far * 1.001]
     if outside:
@@ -181,9 +181,12 @@ def run_capture(capture_dir: str | Path, model: DfFModel, out_dir: str | Path, o
         return decode
 
     sources = [decoder(i, f.path) for i, f in enumerate(frames)]
-    if hasattr(model, "for_capture"):  # the any-camera model: told this capture's camera (EXIF or --camera)
-        first["img"] = sources[0]()  # the frames' size, before the others are decoded
-        model = model.for_capture(cap, first["hw"])
+
+    def first_hw() -> tuple[int, int]:  # the frames' size, before the others are decoded (kept for the run)
+        first["img"] = sources[0]()
+        return first["hw"]
+
+    model = model.for_capture(cap, first_hw)  # e.g. the any-camera model told this capture's camera
     res = depth_from_frames(sources, focus, model, align=opts.align,
                             tile=opts.tile, native=opts.native, name=cap.name, where=str(capture_dir),
                             labels=[f.path.name for f in frames], quiet=opts.quiet, lap=lap)

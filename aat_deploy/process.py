@@ -17,10 +17,9 @@ import numpy as np
 from tqdm import tqdm
 
 from .camera import Intrinsics
-from .confidence import std_confidence
 from .errors import CaptureError
 from .geometry import align_stack, equalise_exposure, fit_to_sensor, sensor_crop
-from .model import DfFModel
+from .infer.method import DepthMethod
 from .normalise import normalise_scale, normalise_stack
 from .outputs import DepthMaps
 from .upsample import native_maps
@@ -96,20 +95,20 @@ def _reduce(img: np.ndarray, size_wh: tuple[int, int]) -> np.ndarray:
     return cv2.resize(np.ascontiguousarray(img), tuple(size_wh), interpolation=cv2.INTER_AREA).astype(np.float32)
 
 
-def fitted_frames(images: list[Frame], model: DfFModel, *, native: bool = False, name: str = "stack",
+def fitted_frames(images: list[Frame], model: DepthMethod, *, native: bool = False, name: str = "stack",
                   labels: list[str] | None = None, quiet: bool = True) -> tuple[list, dict, tuple, list | None, dict]:
     """The frames at the method's working size, decoded one at a time so that no native-size stack is ever held.
 
     images: S frames (H, W, 3) float32 linear RGB, or functions returning them (decoded on demand). A DfF model
     (or the focus method with a fixed size) fixes the working size from the first frame: each frame is fitted as
-    it comes (`fit_to_sensor`). The focus method's automatic size (`FocusMethod.auto`) needs the stack's blur
-    step first (`aat_deploy.focus.scale`): tiles are cut from each native frame and the frame is kept reduced by
-    a factor the rule can only exceed (`FocusMethod.pre_reduction`); once the step is known the kept frames are
+    it comes (`fit_to_sensor`). A method's automatic size (`DepthMethod.auto`: the focus method's) needs the
+    stack's blur step first (`aat_deploy.focus.scale`): tiles are cut from each native frame and the frame is kept
+    reduced by a factor the rule can only exceed (`DepthMethod.pre_reduction`); once the step is known the kept frames are
     reduced to the chosen size (or, when the rule wants less reduction than that, decoded again).
     Returns (frames (h, w, 3) float32, geometry (fit_to_sensor's), native size (H, W), native frames as float16
     (the whole frames, for `native_frames`) when native=True else None, the resolution choice (focus method))."""
     labels = labels or [f"frame {i}" for i in range(len(images))]
-    auto = getattr(model, "auto", False)
+    auto = model.auto
     out, natives, regions, choice = [], [] if native else None, [], {}
     sampler = size0 = pre_wh = size_wh = None
     for i, img in _decoded(images, labels, name, quiet):
@@ -142,7 +141,7 @@ def fitted_frames(images: list[Frame], model: DfFModel, *, native: bool = False,
     return out, {"crop_xywh": [0, 0, int(w0), int(h0)], "scale": size_wh[0] / w0}, size0, natives, choice
 
 
-def depth_from_frames(images: list[Frame], focus_m: np.ndarray, model: DfFModel, *, align: bool = False,
+def depth_from_frames(images: list[Frame], focus_m: np.ndarray, model: DepthMethod, *, align: bool = False,
                       tile: int | None = None, native: bool = False, name: str = "stack",
                       where: str | None = None, labels: list[str] | None = None, quiet: bool = True,
                       lap: Callable[[str], None] = lambda stage: None) -> StackResult:
@@ -159,8 +158,7 @@ def depth_from_frames(images: list[Frame], focus_m: np.ndarray, model: DfFModel,
                                                                labels=labels, quiet=quiet)
     lap("decode")
     h_px, w_px = images[0].shape[:2]
-    if getattr(model, "kind", "model") == "method":
-        warnings += model.frame_warnings(size0, where)
+    warnings += model.frame_warnings(size0, where)
     if tuple(geometry["crop_xywh"][2:]) == (w_px, h_px):
         originals = None  # native: nothing to do when the frames are the working size
     if abs(size0[1] / size0[0] - w_px / h_px) > 0.01 * (w_px / h_px):
@@ -191,17 +189,13 @@ def depth_from_frames(images: list[Frame], focus_m: np.ndarray, model: DfFModel,
     say(quiet or tiled, f"{name}: inference, {s} frames of {w}x{h} px")
     bar = _TileBar(f"{name}: inference in tiles of {tile} px") if tiled and not quiet else None
     res = model.infer(stack, focus_m, tile=tile, progress=bar)
-    warnings += getattr(res, "warnings", [])
+    warnings += res.warnings
     lap("infer")
 
-    info = getattr(res, "info", None)
+    info = res.info
     if choice:
         info = {**(info or {}), "working_resolution": choice}
-    conf = getattr(res, "confidence", None)
-    cal = getattr(model, "confidence_calibration", None)
-    if conf is None and cal is not None:  # a model's std made a calibrated confidence (aat_deploy.confidence)
-        conf = std_confidence(cal, res.depth_m, res.std_m)
-    maps = working = DepthMaps(res.depth_m, res.aif, res.std_m, conf)
+    maps = working = DepthMaps(res.depth_m, res.aif, res.std_m, res.confidence)
     camera = model.intrinsics((w_px, h_px))
     if originals is not None:
         say(quiet, f"{name}: depth and all-in-focus at the capture's "

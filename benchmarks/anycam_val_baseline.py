@@ -5,7 +5,7 @@ validation curve (same items, same metrics, same mask as the run's validation).
         [--checkpoint RUN/last.pt ...] [--n 64]
 
 The validation items (training.data.anycam, fixed_subsets: each item's frames and camera processing fixed) carry
-per-pixel in-focus diopters; the classical method (`aat_deploy.focus.depth_from_focus`) is given the same map
+per-pixel in-focus diopters; the classical method (`aat_deploy.focus.classical_depth`) is given the same map
 (`frame_diopters`) and, for comparison, only the nominal focus distances. Metrics as the run's validation:
 aat_deploy.metrics over pixels inside each stack's focus range, averaged over items. Prints a markdown table.
 """
@@ -29,7 +29,7 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     import torch
 
-    from aat_deploy.focus import depth_from_focus
+    from aat_deploy.focus import classical_depth
     from aat_deploy.metrics import MetricAccumulator
     from training.nets.dfvaat import predict
     from training.train.config import load_config
@@ -51,8 +51,8 @@ def main(argv: list[str] | None = None) -> int:
         it = val[i]
         stack, fd = it["stack"].numpy(), it["focus_diopters"].numpy()
         focus, gt = it["focus_m"].numpy(), it["depth_m"].numpy()
-        preds = {"Classical, per-pixel map": depth_from_focus(stack, focus, frame_diopters=fd).depth_m,
-                 "Classical, nominal focus": depth_from_focus(stack, focus).depth_m}
+        preds = {"Classical, per-pixel map": classical_depth(stack, focus, frame_diopters=fd).depth_m,
+                 "Classical, nominal focus": classical_depth(stack, focus).depth_m}
         for label, model in nets.items():
             preds[label] = predict(model, it["stack"][None], it["focus_diopters"][None],
                                    it["defocus_px_per_d"][None])["depth_m"][0].numpy()

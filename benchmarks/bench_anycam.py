@@ -64,7 +64,7 @@ def methods(model_path: Path, lens_key: str, threads: int) -> dict:
     """{label: fn(item) -> (depth_m, aif)} for one lens."""
     from aat_deploy.anycam.maps import FocusMapping
     from aat_deploy.anycam.model import FocusMapModel, mapping_from_args
-    from aat_deploy.focus import depth_from_focus
+    from aat_deploy.focus import classical_depth
     from aat_deploy.focus.bestfocus import for_lens
     from aat_deploy.model import DfFModel
 
@@ -91,7 +91,7 @@ def methods(model_path: Path, lens_key: str, threads: int) -> dict:
 
     def classical(bf):
         def fn(it):
-            r = depth_from_focus(it.stack, it.focus_m, bf)
+            r = classical_depth(it.stack, it.focus_m, bf)
             return r.depth_m, r.aif
         return fn
 

@@ -22,7 +22,7 @@ a) **map**: the calibration's in-focus diopters against the truth over every pix
    0.5-10 m); beside it the nominal prescription's map and the thin lens (both fed the reported focus).
 b) **depth**: held-out scenes (`training.train.testsets`: procedural scenes with test-split photographs, their own
    seed, and Middlebury Motorcycle) rendered through the copy, 8 frames even in diopters 0.5-10 m, the classical
-   method (`aat_deploy.focus.depth_from_focus`, its defaults) with four mappings of the reported focus: thin lens,
+   method (`aat_deploy.focus.classical_depth`, its defaults) with four mappings of the reported focus: thin lens,
    the nominal prescription's map, the calibration, the oracle (the copy's truth per pixel). MAE over all valid
    pixels and in the outer field (normalised radius > 0.66), mean over scenes with 95 % bootstrap intervals;
    paired ratios calibration / oracle and calibration / prescription (scenes resampled).
@@ -282,7 +282,7 @@ def zone_scores(depth: np.ndarray, gt: np.ndarray) -> dict:
 
 
 def part_depth(rig: Rig, cal, n: int, log) -> dict:
-    from aat_deploy.focus import FocusConfig, depth_from_focus
+    from aat_deploy.focus import FocusConfig, classical_depth
     from aat_deploy.focus.measures import focus_volume
     from training.train.testsets import TestSetSpec, load_test_set
 
@@ -303,7 +303,7 @@ def part_depth(rig: Rig, cal, n: int, log) -> dict:
         runs = {"thin lens": dict(), "prescription map": dict(best_focus=rig.fmap),
                 "calibration": dict(calibration=cal), "oracle": dict(frame_diopters=oracle)}
         for k, kw in runs.items():
-            r = depth_from_focus(it.stack, rep, config=cfg, volume=vol, **kw)
+            r = classical_depth(it.stack, rep, config=cfg, volume=vol, **kw)
             per[k].append({"scene": it.name, **zone_scores(r.depth_m, it.depth_m)})
     out = {"scenes": len(items), "per_scene": per}
     for k, v in per.items():

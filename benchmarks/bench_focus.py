@@ -101,12 +101,12 @@ def table(rows: list[tuple[str, dict]]) -> str:
 
 
 def classical(items, cfg, fmap=None, volumes=None) -> list[tuple]:
-    """[(depth_m, aif)] of depth_from_focus on every item (volumes: precomputed focus volumes, same measure)."""
-    from aat_deploy.focus import depth_from_focus
+    """[(depth_m, aif)] of classical_depth on every item (volumes: precomputed focus volumes, same measure)."""
+    from aat_deploy.focus import classical_depth
 
     out = []
     for i, it in enumerate(items):
-        r = depth_from_focus(it.stack, it.focus_m, fmap, cfg, volume=None if volumes is None else volumes[i])
+        r = classical_depth(it.stack, it.focus_m, fmap, cfg, volume=None if volumes is None else volumes[i])
         out.append((r.depth_m, r.aif))
     return out
 
@@ -167,7 +167,7 @@ def run_models(items) -> list[tuple[str, list]]:
 def speed(items, fmap) -> list[str]:
     import cv2
 
-    from aat_deploy.focus import FocusConfig, depth_from_focus
+    from aat_deploy.focus import FocusConfig, classical_depth
 
     cv2.setNumThreads(2)
     it = items[0]
@@ -180,7 +180,7 @@ def speed(items, fmap) -> list[str]:
         runs = []
         for _ in range(5):
             t = time.perf_counter()
-            r = depth_from_focus(it.stack, it.focus_m, m, FocusConfig())
+            r = classical_depth(it.stack, it.focus_m, m, FocusConfig())
             runs.append((time.perf_counter() - t, r.info["timings_s"]))
         dt, tim = min(runs, key=lambda x: x[0])
         best[lab] = dt

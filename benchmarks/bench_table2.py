@@ -89,12 +89,12 @@ def classical_methods(lens_path: str):
     """[(label, fn(item) -> (depth, aif))] of the runtime's classical focus method (aat_deploy.focus, default
     settings): the thin-lens mapping, and the lens's calibrated best-focus map when
     `<lens folder>/best_focus/<lens stem>.json` exists (`aat-lens focus-map LENS`)."""
-    from aat_deploy.focus import depth_from_focus
+    from aat_deploy.focus import classical_depth
     from aat_deploy.focus.bestfocus import load_json, map_path_for_lens
 
     def run(fmap):
         def fn(it):
-            r = depth_from_focus(it.stack, it.focus_m, fmap)
+            r = classical_depth(it.stack, it.focus_m, fmap)
             return r.depth_m, r.aif
         return fn
 

@@ -85,7 +85,7 @@ def fit_focus(cells, n: int, cfg, tol: float):
     depth. Returns the calibration (its notes name the chosen score, `estimate_score`) and each score's Brier
     score."""
     from aat_deploy.confidence import Calibration, Curve, agreement, fit_curve, tolerance_steps
-    from aat_deploy.focus import depth_from_focus
+    from aat_deploy.focus import classical_depth
     from aat_deploy.focus.estimate import contrast
     from aat_deploy.focus.measures import focus_volume
 
@@ -95,7 +95,7 @@ def fit_focus(cells, n: int, cfg, tol: float):
         fmap = focus_map(cell[0])
         for it in stacks(cell, VAL_SEED, n):
             vol = focus_volume(it.stack, cfg.measure, cfg.window_px, prefilter_px=cfg.prefilter_px)
-            r = depth_from_focus(it.stack, it.focus_m, fmap, raw, volume=vol)
+            r = classical_depth(it.stack, it.focus_m, fmap, raw, volume=vol)
             v = sub(it.depth_m) > 0
             d = 1.0 / np.maximum(sub(r.diopters), 1e-3)
             m_max, m_min = vol.max(0), vol.min(0)
@@ -122,7 +122,7 @@ def fit_focus(cells, n: int, cfg, tol: float):
         fmap = focus_map(cell[0])
         for it in stacks(cell, VAL_SEED, n):
             vol = focus_volume(it.stack, cfg.measure, cfg.window_px, prefilter_px=cfg.prefilter_px)
-            r = depth_from_focus(it.stack, it.focus_m, fmap, cfg, volume=vol, confidence_calibration=interim)
+            r = classical_depth(it.stack, it.focus_m, fmap, cfg, volume=vol, confidence_calibration=interim)
             m = (sub(it.depth_m) > 0) & sub(r.filled)
             support.append(sub(r.fill_support)[m])
             steps2.append(sub(tolerance_steps(1.0 / r.depth_m, r.focus_m, tol))[m])
@@ -141,7 +141,7 @@ def assess_focus(cells, n: int, cfg, cal, thresholds):
     """The calibrated confidence against the final depth, per cell and pooled; beside it the confidence the method
     gave before the calibration (the raw contrast with the fill's floor, read as a probability)."""
     from aat_deploy.confidence import reliability
-    from aat_deploy.focus import depth_from_focus
+    from aat_deploy.focus import classical_depth
     from aat_deploy.focus.estimate import contrast
     from aat_deploy.focus.measures import focus_volume
 
@@ -151,7 +151,7 @@ def assess_focus(cells, n: int, cfg, cal, thresholds):
         conf, ok, rawc, filled = [], [], [], []
         for it in stacks(cell, ASSESS_SEED, n):
             vol = focus_volume(it.stack, cfg.measure, cfg.window_px, prefilter_px=cfg.prefilter_px)
-            r = depth_from_focus(it.stack, it.focus_m, fmap, cfg, volume=vol, confidence_calibration=cal)
+            r = classical_depth(it.stack, it.focus_m, fmap, cfg, volume=vol, confidence_calibration=cal)
             v = sub(it.depth_m) > 0
             conf.append(sub(r.confidence)[v])
             ok.append(within(sub(r.depth_m), sub(it.depth_m), cal.tolerance_rel)[v])

@@ -29,7 +29,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--lens", choices=sorted(LENSES), default="rf50")
     ap.add_argument("--n", type=int, default=12)
     a = ap.parse_args(argv)
-    from aat_deploy.focus import depth_from_focus
+    from aat_deploy.focus import classical_depth
     from aat_deploy.focus.bestfocus import load_json, map_path_for_lens
     from aat_deploy.focus.method import FocusConfig
     from training.train.testsets import TestSetSpec, load_test_set
@@ -51,7 +51,7 @@ def main(argv: list[str] | None = None) -> int:
     for name, cfg in variants:
         cells = []
         for items in sets.values():
-            mae = [np.abs(depth_from_focus(it.stack, it.focus_m, fmap, cfg).depth_m
+            mae = [np.abs(classical_depth(it.stack, it.focus_m, fmap, cfg).depth_m
                           - it.depth_m)[it.depth_m > 0].mean() for it in items]
             cells.append(f"{np.mean(mae):.3f}")
         print(f"| {name} | " + " | ".join(cells) + " |", flush=True)

@@ -76,7 +76,7 @@ def main(argv: list[str] | None = None) -> int:
     variants = [(e, s) for e in ESTIMATORS for s in sigmas]
     from tqdm import tqdm
 
-    from aat_deploy.focus import FocusConfig, depth_from_focus
+    from aat_deploy.focus import FocusConfig, classical_depth
     from aat_deploy.focus.bestfocus import load_json, map_path_for_lens
     from aat_deploy.focus.measures import focus_volume
     from aat_deploy.io.atomic import write_text_atomic
@@ -98,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
                     vol = focus_volume(it.stack, base.measure, base.window_px, prefilter_px=s)  # shared by estimators
                     for e in ESTIMATORS:
                         cfg = replace(base, prefilter_px=s, estimator=e)
-                        d = depth_from_focus(it.stack, it.focus_m, fmap, cfg, volume=vol).depth_m
+                        d = classical_depth(it.stack, it.focus_m, fmap, cfg, volume=vol).depth_m
                         per[(e, s)].append({"mae": float(np.abs(d - it.depth_m)[valid].mean())})
             cell = f"{lens} {cond}"
             table[cell] = {name(v): {"mae": list(bootstrap_mean([p["mae"] for p in per[v]],

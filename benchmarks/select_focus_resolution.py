@@ -53,15 +53,15 @@ def reduced_depth(stack: np.ndarray, focus_m: np.ndarray, fmap, k: float) -> np.
     """Depth (H, W) at the native grid of the classical method run on the stack reduced by k."""
     import cv2
 
-    from aat_deploy.focus import depth_from_focus
+    from aat_deploy.focus import classical_depth
 
     s, _, h, w = stack.shape
     if k <= 1:
-        return depth_from_focus(stack, focus_m, fmap).depth_m
+        return classical_depth(stack, focus_m, fmap).depth_m
     wh = (max(1, round(w / k)), max(1, round(h / k)))
     small = np.stack([cv2.resize(np.ascontiguousarray(f.transpose(1, 2, 0)), wh, interpolation=cv2.INTER_AREA)
                       .transpose(2, 0, 1) for f in stack])
-    d = depth_from_focus(small, focus_m, fmap).depth_m
+    d = classical_depth(small, focus_m, fmap).depth_m
     inv = cv2.resize((1.0 / d).astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
     return 1.0 / np.maximum(inv, 1e-3)
 

@@ -44,6 +44,11 @@ class FocusMapping:
         if self.kind not in KINDS:
             raise ValueError(f"focus mapping kind must be one of {KINDS}, got {self.kind!r}")
 
+    @property
+    def measured_blur(self) -> bool:
+        """A camera calibration that measured the blur growth: it gives the defocus scale without the optics."""
+        return self.kind == "calibration" and self.calibration.blur is not None
+
     def frame_diopters(self, focus_m, height: int, width: int) -> np.ndarray:
         """(S, H, W) float32 object diopters in best focus at every pixel of frames (spanning the sensor) whose
         reported focus distances are focus_m (S,) metres."""
@@ -62,7 +67,7 @@ class FocusMapping:
         has it, else the thin lens's at the middle of the sweep (in diopters)."""
         f = np.asarray(focus_m, np.float64).ravel()
         mid = 2.0 / (1.0 / f.min() + 1.0 / f.max())
-        if self.kind == "calibration" and getattr(self.calibration, "blur", None) is not None:
+        if self.measured_blur:
             from ..calibrate.format import defocus_scale_px_per_d
 
             return np.asarray(defocus_scale_px_per_d(self.calibration, height, width, mid), np.float32)[None]

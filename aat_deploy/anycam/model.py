@@ -71,15 +71,42 @@ class FocusMapModel(DfFModel):
         self.sensor_px = None
 
     # -- binding a camera -------------------------------------------------------------------------------------
-    def for_capture(self, capture, frame_hw: tuple[int, int] | None = None) -> FocusMapModel:
+    def describe(self) -> str:
+        return "the any-camera model"
+
+    def for_capture(self, capture, frame_hw=None) -> FocusMapModel:
         """A copy told this capture's camera: optics from --camera, else the mapping's lens or calibration, else
-        the frames' EXIF (CaptureError naming what is missing). frame_hw: the frames' size (default: EXIF's)."""
-        where = str(getattr(capture, "path", "capture"))
+        the frames' EXIF (CaptureError naming what is missing). frame_hw: the frames' (H, W), or a function
+        returning it (decodes the first frame); None: EXIF's width."""
+        where = str(capture.path)
         metas = [f.meta for f in capture.frames]
-        w = frame_hw[1] if frame_hw else next((m.width for m in metas if m.width), None)
+        hw = frame_hw() if callable(frame_hw) else frame_hw
+        w = hw[1] if hw else next((m.width for m in metas if m.width), None)
         optics = self._optics(metas, w, where)
         focus = np.array([f.focus_m for f in capture.frames], np.float64)
         return self.bound(optics, focus)
+
+    def for_arrays(self, frame_hw: tuple[int, int], focus_m, *, camera=None, lens=None, psf=None,
+                   calibration=None) -> FocusMapModel:
+        """A copy told the camera of frames given as arrays: optics from `camera` ((focal mm, f-number, pixel um)
+        or the text "F,N,PIXEL_UM") or the lens / PSF / calibration file, the focus mapping from that file (else a
+        thin lens). CaptureError (one line) when nothing gives the camera."""
+        from .optics import parse_camera
+
+        width = int(frame_hw[1])
+        net = copy.copy(self).configure(mapping_from_args(lens, psf, calibration), max_side=self.max_side)
+        if camera is not None:
+            text = camera if isinstance(camera, str) else ",".join(str(float(v)) for v in camera)
+            try:
+                optics = parse_camera(text, width)
+            except ValueError as e:
+                raise CaptureError(str(e)) from None
+        else:
+            optics = net.mapping_optics(width)
+        if optics is None and not net.mapping.measured_blur:
+            raise CaptureError("the any-camera model needs the camera: camera=(focal_mm, f_number, pixel_um) or a "
+                               "lens, psf or calibration file")
+        return net.bound(optics, focus_m)
 
     def bound(self, optics: CameraOptics | None, focus_m) -> FocusMapModel:
         """A copy with these optics (None: only a calibration's measured scale can serve) and sweep."""
@@ -110,7 +137,7 @@ class FocusMapModel(DfFModel):
 
     def mapping_optics(self, width_px: int) -> CameraOptics | None:
         """Optics from the mapping's lens / PSF / calibration file (frames taken to span its sensor)."""
-        src = getattr(self.mapping, "lens_optics", None)
+        src = self.mapping.lens_optics
         if src is None:
             return None
         focal, fno, sensor_w_mm, what = src
@@ -118,7 +145,7 @@ class FocusMapModel(DfFModel):
 
     # -- what the pipeline asks of a model --------------------------------------------------------------------
     def _k_native(self, width_px: int) -> float:
-        if self.mapping.kind == "calibration" and getattr(self.mapping.calibration, "blur", None) is not None:
+        if self.mapping.measured_blur:
             return float(np.median(self.mapping.defocus_px_per_d([self._focus_mid_m], 8, width_px)))
         if self.optics is None:
             raise CaptureError("the any-camera model has not been told the camera (focal length, f-number, pixels)")

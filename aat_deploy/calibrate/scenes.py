@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from ..focus.method import FocusConfig, depth_from_focus
+from ..focus.method import FocusConfig, classical_depth
 from .format import CameraCalibration, CameraIdentity, FieldPoly, FocusError, poly_terms
 
 MIN_INLIERS = 40
@@ -67,7 +67,7 @@ def estimate_scene(name: str, frames: np.ndarray, reported_m: np.ndarray,
     """frames (S, 3, H, W) linear, any order; reported_m (S,) the metadata's focus distances."""
     from .pose import to_u8
 
-    res = depth_from_focus(frames, reported_m, config=config)
+    res = classical_depth(frames, reported_m, config=config)
     return SceneEstimate(name, res.diopters.astype(np.float64), res.confidence, to_u8(res.aif),
                          np.sort(1.0 / np.asarray(reported_m, np.float64)))
 

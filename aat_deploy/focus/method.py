@@ -1,4 +1,6 @@
-"""Depth from focus without a trained model: `depth_from_focus(stack, focus_m) -> FocusResult`, numpy only.
+"""Depth from focus without a trained model: `classical_depth(stack (S, 3, H, W), focus_m) -> FocusResult`, numpy
+only (the capture-level method is `aat_deploy.focus.runner.FocusMethod`; frames as (S, H, W, 3): the Python API's
+`aat_deploy.api.depth_from_focus(..., method="focus")`).
 
 Steps (each a module of this package): focus measure per frame (`measures`) -> frames with equal reported focus
 placed from the images (`placement`) -> per-pixel peak of the focus curve in diopters with a confidence
@@ -131,7 +133,7 @@ def calibration_settings_mismatch(cal, config: FocusConfig) -> str:
     return "; ".join(diffs)
 
 
-def depth_from_focus(stack: np.ndarray, focus_m, best_focus: BestFocusMap | None = None,
+def classical_depth(stack: np.ndarray, focus_m, best_focus: BestFocusMap | None = None,
                      config: FocusConfig = FocusConfig(), volume: np.ndarray | None = None,
                      calibration=None, frame_diopters: np.ndarray | None = None,
                      confidence_calibration: Calibration | None = None) -> FocusResult:

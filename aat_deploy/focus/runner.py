@@ -1,5 +1,5 @@
-"""The classical method behind `aat-infer --method focus`: what `aat_deploy.pipeline.run_capture` needs of a model
-(`DfFModel`'s interface), for `depth_from_focus` at the capture's own resolution.
+"""The classical method behind `aat-infer --method focus` as a `DepthMethod` (`aat_deploy.infer.method`): the
+array function `classical_depth` at the capture's own resolution.
 
 - working size: by default chosen from the stack's blur step (`aat_deploy.focus.scale`: reduced while the blur
   between adjacent frames stays several pixels; `auto`, `pre_reduction`, `choose_size`); or reduced so the longer
@@ -21,11 +21,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import CaptureError
 from ..camera import Intrinsics
-from .bestfocus import BestFocusError, BestFocusMap, for_lens, from_psf
+from ..errors import CaptureError
+from ..infer.method import DepthMethod, DepthOutput
 from . import scale
-from .method import FocusConfig, FocusResult, depth_from_focus
+from .bestfocus import BestFocusError, BestFocusMap, for_lens, from_psf
+from .method import FocusConfig, classical_depth
 
 MAX_FRAMES = 10_000
 
@@ -36,10 +37,12 @@ def _scaled(frame_hw: tuple[int, int], k: float) -> tuple[int, int]:
     return max(1, round(w / k)), max(1, round(h / k))
 
 
-class FocusMethod:
-    """Duck-types `aat_deploy.model.DfFModel` for the pipeline."""
+class FocusMethod(DepthMethod):
+    """The classical focus method as a `DepthMethod`: it places frames with equal reported focus itself and, without
+    --max-side, chooses its working size from the stack's blur step."""
 
-    kind = "method"
+    noun = "method"
+    places_tied_frames = True
 
     def __init__(self, config: FocusConfig = FocusConfig(), lens: str | Path | None = None,
                  psf: str | Path | None = None, max_side: int | None = None, progress: bool = False,
@@ -97,7 +100,20 @@ class FocusMethod:
         self.f_number = efl / epd if np.isfinite(efl) and np.isfinite(epd) and epd > 0 else None
         self.sensor_mm = tuple(json.loads(meta["aat.sensor_mm"])) if "aat.sensor_mm" in meta else None
 
-    # -- what the pipeline asks of a model ---------------------------------------------------------------------
+    # -- what the pipeline asks of a depth method -------------------------------------------------------------
+    def describe(self) -> str:
+        return "the classical focus method"
+
+    def for_arrays(self, frame_hw, focus_m, *, camera=None, lens=None, psf=None, calibration=None) -> FocusMethod:
+        """With a lens, PSF or calibration: a copy mapping focus through it (aberration-aware); camera= is the
+        any-camera model's."""
+        if camera is not None:
+            raise CaptureError("the classical focus method takes no camera= (the any-camera model's): lens=, psf= "
+                               "or calibration= make it aberration-aware")
+        if lens is None and psf is None and calibration is None:
+            return self
+        return FocusMethod(self.config, lens=lens, psf=psf, max_side=self.max_side, calibration=calibration)
+
     @property
     def auto(self) -> bool:
         """The working size is chosen from the stack's blur step (no --max-side)."""
@@ -172,11 +188,11 @@ class FocusMethod:
                 "assumed: the longer side in px (no lens given)",
                 "config": {k: v for k, v in self.config.__dict__.items()}}
 
-    def infer(self, stack: np.ndarray, focus_m: np.ndarray, tile: int | None = None, progress=None) -> FocusResult:
+    def infer(self, stack: np.ndarray, focus_m: np.ndarray, tile: int | None = None, progress=None) -> DepthOutput:
         """stack (S, 3, H, W) normalised, focus_m (S,) metres; `tile` is not needed (memory is a few stacks)."""
         try:
-            res = depth_from_focus(stack, focus_m, self.best_focus, self.config, calibration=self.calibration)
+            r = classical_depth(stack, focus_m, self.best_focus, self.config, calibration=self.calibration)
         except ValueError as e:
             raise CaptureError(str(e)) from None
-        # the pipeline's arrays are in the input frame order; depth etc. are per pixel, so nothing to reorder
-        return res
+        # the maps are per pixel: nothing to reorder whatever order the method sorted the frames in
+        return DepthOutput(r.depth_m, r.aif, r.std_m, r.confidence, r.warnings, r.info)

@@ -11,7 +11,7 @@ import pytest
 from deploy_fixtures import write_dng_capture
 
 from aat_deploy import confidence as cf
-from aat_deploy.focus import FocusConfig, depth_from_focus
+from aat_deploy.focus import FocusConfig, classical_depth
 
 
 def test_pool_adjacent_violators_by_hand():
@@ -104,14 +104,14 @@ def _slanted_stack(h=64, w=96, s=7):
 def test_focus_method_uses_the_calibration_for_own_and_filled_pixels():
     stack, focus, gt = _slanted_stack()
     cal = cf.Calibration({"estimate": cf.Curve([0.0, 1.0], [0.0, 1.0]), "fill": cf.Curve([0.0, 1.0], [0.2, 0.6])})
-    r = depth_from_focus(stack, focus, config=FocusConfig(), confidence_calibration=cal)
+    r = classical_depth(stack, focus, config=FocusConfig(), confidence_calibration=cal)
     own = cal["estimate"](r.score)
     assert np.array_equal(r.filled, r.score < FocusConfig().c_full)  # the fill weighs by the raw contrast
     assert np.allclose(r.confidence[~r.filled], own[~r.filled])
     assert np.allclose(r.confidence[r.filled], 0.2 + 0.4 * r.fill_support[r.filled], atol=1e-6)
     assert r.filled[:4].mean() > 0.9 and r.filled[24:].mean() < 0.2  # the textureless band (beyond the window)
     assert r.info["confidence"]["calibrated"] and r.info["confidence"]["filled_share"] == pytest.approx(r.filled.mean())
-    raw = depth_from_focus(stack, focus, config=FocusConfig(confidence="raw"))
+    raw = classical_depth(stack, focus, config=FocusConfig(confidence="raw"))
     assert np.array_equal(raw.confidence, raw.score) and not raw.info["confidence"]["calibrated"]
     with pytest.raises(ValueError, match="confidence"):
         FocusConfig(confidence="other")

@@ -153,7 +153,7 @@ def test_infer_and_api_use_the_calibration(rig, tmp_path, capsys):
     assert maes["cal"] < 0.3 * maes["thin"], maes
     assert maes["thin"] > 0.05  # the copy's scaled reported focus: ~10 % of 1 m
     stack, focus = read_stack(rig / "sweep1")
-    res = depth_from_focus(stack, focus, "focus", calibration=cam)
+    res = depth_from_focus(stack, focus, method="focus", calibration=cam)
     assert float(np.nanmean(np.abs(res.depth_m - gt))) == pytest.approx(maes["cal"], rel=0.05)
     with pytest.raises(ValueError, match="lens-specific model"):
         depth_from_focus(stack[:8], focus[:8], model="rf50_dfvnet_aat", calibration=cam)

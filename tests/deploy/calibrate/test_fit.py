@@ -256,20 +256,20 @@ def test_too_few_textured_tiles_is_refused():
 
 
 def test_focus_method_takes_per_pixel_frame_diopters():
-    """`depth_from_focus(frame_diopters=...)` (the oracle's and the calibration's path): the nominal focus given
+    """`classical_depth(frame_diopters=...)` (the oracle's and the calibration's path): the nominal focus given
     per pixel gives the thin-lens mapping's depth exactly; a per-pixel shift moves the depth by it."""
-    from aat_deploy.focus import FocusConfig, depth_from_focus
+    from aat_deploy.focus import FocusConfig, classical_depth
 
     sweep, _, _, depth, _ = render_sweep(0.8, (18.0, -7.0, 4.0), "")
     stack, f = sweep.frames[::3], sweep.reported_m[::3]
-    thin = depth_from_focus(stack, f)
+    thin = classical_depth(stack, f)
     fd = np.broadcast_to((1 / f)[:, None, None], (len(f), H, W)).astype(np.float32)
-    same = depth_from_focus(stack, f, frame_diopters=fd)
+    same = classical_depth(stack, f, frame_diopters=fd)
     np.testing.assert_allclose(same.depth_m, thin.depth_m, rtol=1e-5)
     assert same.info["mapping"] == "per_pixel"
     raw = FocusConfig(fill="none")
-    shifted = depth_from_focus(stack, f, frame_diopters=fd + 0.05, config=raw)
-    plain = depth_from_focus(stack, f, config=raw)
+    shifted = classical_depth(stack, f, frame_diopters=fd + 0.05, config=raw)
+    plain = classical_depth(stack, f, config=raw)
     np.testing.assert_allclose(1 / shifted.depth_m, 1 / plain.depth_m + 0.05, atol=1e-4)
     with pytest.raises(ValueError, match="frame_diopters"):
-        depth_from_focus(stack, f, frame_diopters=fd[:, :10])
+        classical_depth(stack, f, frame_diopters=fd[:, :10])

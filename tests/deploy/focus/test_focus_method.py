@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from aat_deploy.focus import BestFocusMap, FocusConfig, depth_from_focus
+from aat_deploy.focus import BestFocusMap, FocusConfig, classical_depth
 from aat_deploy.focus.aif import blend_at, focus_weights, spread_m
 from aat_deploy.focus.bestfocus import BestFocusError, load_json
 from aat_deploy.focus.estimate import estimate_peak
@@ -89,7 +89,7 @@ def test_method_recovers_depth_of_a_synthetic_stack(measure):
     depth = np.full((64, 96), 2.5, np.float32)
     depth[:, :48] = 0.8
     stack, _ = _synthetic_stack(depth, focus)
-    r = depth_from_focus(stack[::-1], focus[::-1], config=FocusConfig(measure=measure))  # any frame order
+    r = classical_depth(stack[::-1], focus[::-1], config=FocusConfig(measure=measure))  # any frame order
     inner = np.zeros_like(depth, bool)
     inner[8:-8, 8:40] = inner[8:-8, 56:-8] = True  # away from the border and the step
     err_d = np.abs(1 / r.depth_m - 1 / depth)[inner]
@@ -121,7 +121,7 @@ def test_prefilter_rescues_the_method_under_noise():
     noisy = stack + np.random.default_rng(1).normal(0, 0.06, stack.shape).astype(np.float32)
     inner = np.zeros_like(depth, bool)
     inner[8:-8, 8:40] = inner[8:-8, 56:-8] = True
-    err = {s: np.median(np.abs(1 / depth_from_focus(noisy, focus, config=FocusConfig(prefilter_px=s, fill="none"))
+    err = {s: np.median(np.abs(1 / classical_depth(noisy, focus, config=FocusConfig(prefilter_px=s, fill="none"))
                                .depth_m - 1 / depth)[inner]) for s in (0.0, 1.0)}
     assert err[1.0] < 0.7 * err[0.0] and err[1.0] < 0.1, err
 
@@ -131,7 +131,7 @@ def test_aif_blend_is_sharper_than_any_frame():
     depth = np.full((48, 64), 2.5, np.float32)
     depth[:, :32] = 0.8
     stack, tex = _synthetic_stack(depth, focus)
-    r = depth_from_focus(stack, focus)
+    r = classical_depth(stack, focus)
     ref = tex.transpose(2, 0, 1)
     err_aif = np.abs(r.aif - ref)[:, 6:-6, 6:-6].mean()
     assert all(err_aif < np.abs(f - ref)[:, 6:-6, 6:-6].mean() for f in stack)
@@ -174,7 +174,7 @@ def test_tied_frames_are_placed_from_the_images():
     err = np.abs(1 / placed - 1 / focus_true)
     assert err[[3, 4]].max() < 0.1, err  # the frames are 0.24 D apart (measured: 0.075 and 0.067 D)
     assert placed[3] < placed[4]
-    r = depth_from_focus(stack, reported)
+    r = classical_depth(stack, reported)
     assert any("equal reported focus" in x for x in r.warnings)
 
 
@@ -222,12 +222,12 @@ def test_a_map_calibrated_for_other_measure_settings_is_named_in_a_warning():
     assert calibration_mismatch(replace(m, notes={}), replace(cfg, measure="sml")) == ""
     focus = 1.0 / np.linspace(1.6, 0.2, 5)
     stack, _ = _synthetic_stack(np.full((24, 32), 1.0, np.float32), focus)
-    warned = depth_from_focus(stack, focus, m, replace(cfg, window_px=9.0)).warnings
+    warned = classical_depth(stack, focus, m, replace(cfg, window_px=9.0)).warnings
     assert sum("calibrated with another focus measure" in w and "window_px 15.0 in the map, 9.0 here" in w
                for w in warned) == 1
-    assert not any("calibrated with another" in w for w in depth_from_focus(stack, focus, m, cfg).warnings)
+    assert not any("calibrated with another" in w for w in classical_depth(stack, focus, m, cfg).warnings)
     assert not any("calibrated with another" in w
-                   for w in depth_from_focus(stack, focus, m, replace(cfg, window_px=9.0, calibrated=False)).warnings)
+                   for w in classical_depth(stack, focus, m, replace(cfg, window_px=9.0, calibrated=False)).warnings)
 
 
 def test_radius_px_is_the_normalised_sensor_radius():

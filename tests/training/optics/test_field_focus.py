@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from conftest import ROOT
 
-from aat_deploy.focus import FocusConfig, depth_from_focus
+from aat_deploy.focus import FocusConfig, classical_depth
 from aat_deploy.focus.bestfocus import for_lens, from_psf, load_json, map_path_for_lens
 from aat_deploy.lens.io import load_lens
 from aat_deploy.optics.paraxial import paraxial_data
@@ -85,7 +85,7 @@ def _depth_on_sensor(frames, focus_m, fmap, origin, sensor_hw=(640, 960)):
         full_r = fmap.radius_px(*sensor_hw)
         crop_r = full_r[origin[0]:origin[0] + n, origin[1]:origin[1] + n]
         fmap = _CropMap(fmap, crop_r)
-    return depth_from_focus(frames, focus_m, fmap, replace(FocusConfig(), fill="none"))
+    return classical_depth(frames, focus_m, fmap, replace(FocusConfig(), fill="none"))
 
 
 class _CropMap:
