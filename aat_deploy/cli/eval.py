@@ -1,13 +1,15 @@
 """aat-eval: score DfF models on every capture folder with ground truth under a root, or on a public benchmark.
 
     aat-eval ROOT --model M.onnx --out DIR [--compare A.onnx B.onnx ...] [--align [MODE]] [--force] [--threads N]
-    aat-eval --dataset {ddff12,fod500,zedd,mobile_depth} PATH [--model M.onnx ...] [--method focus] --out DIR
-             [--split S] [--frames 0,2,4,...] [--aperture N] [--limit N]
+    aat-eval --dataset {ddff12,fod500,zedd,mobile_depth} PATH [--model M.onnx ...] [--method focus
+             [--calibration CAM.json]] --out DIR [--split S] [--frames 0,2,4,...] [--aperture N] [--limit N]
 
 Each capture is run through the runtime (as aat-infer does) and scored with the shared metrics against its
 ground truth (docs/contracts.md, "Ground truth"). DIR gets metrics.csv/.json/.md, error maps, error-versus-radius
 and error-versus-depth plots and eval.rrd. With --dataset the stacks are read from the benchmark as published
-(docs/datasets.md) and scored in its unit and by its conventions; --method focus adds the classical method. A
+(docs/datasets.md) and scored in its unit and by its conventions; --method focus adds the classical method, with
+--calibration mapping each frame's focus through a camera calibration (aat-calibrate fit) of the camera that shot
+the stacks (it is the one focus mapping aat-eval uses: the models scored on capture folders map focus their own way). A
 failing capture is reported on one line and the batch goes on; the exit status is 1 if any failed, 2 if nothing
 could be run.
 """
@@ -41,6 +43,9 @@ def _main(argv: list[str] | None) -> int:
                     "--dataset, the dataset's file or folder")
     ap.add_argument("--dataset", choices=DATASETS, help="read ROOT as this public benchmark (docs/datasets.md)")
     ap.add_argument("--method", choices=("focus",), help="--dataset: also score the classical method (no model)")
+    ap.add_argument("--calibration", type=Path, metavar="CAM.json",
+                    help="--dataset with --method focus: the classical method maps each frame's reported focus "
+                         "through this camera calibration (aat-calibrate fit; docs/calibration.md)")
     ap.add_argument("--split", help="--dataset: the split (ddff12: val|train|test, fod500: test|train, "
                     "zedd: val|test)")
     ap.add_argument("--frames", metavar="I,J,...", help="--dataset: indices of the slices to use, near to far "
@@ -73,6 +78,9 @@ def _main(argv: list[str] | None) -> int:
         return _dataset(ap, args, models)
     if args.method or args.split or args.frames or args.aperture is not None or args.limit is not None:
         ap.error("--method, --split, --frames, --aperture and --limit belong to --dataset")
+    if args.calibration is not None:
+        ap.error("--calibration belongs to --dataset with --method focus (the classical method's focus mapping; "
+                 "models scored on capture folders map focus their own way)")
     if not models:
         ap.error("give --model M.onnx and/or --compare A.onnx B.onnx ...")
     opts = EvalOptions(align=args.align, align_frames=args.align_frames, focus_range_mask=args.focus_range_mask,
@@ -115,6 +123,8 @@ def _dataset(ap, args, models: list[Path]) -> int:
         ap.error("--dataset: give --model M.onnx (and/or --compare ...) and/or --method focus")
     if args.align or args.align_frames or args.focus_range_mask:
         ap.error("--align, --align-frames and --focus-range-mask are not used with --dataset")
+    if args.calibration is not None and args.method != "focus":
+        ap.error("--calibration belongs to --method focus (the classical method's focus mapping)")
     if args.limit is not None and args.limit < 1:
         ap.error("--limit must be >= 1")
     try:
@@ -122,12 +132,14 @@ def _dataset(ap, args, models: list[Path]) -> int:
     except ValueError:
         ap.error(f"--frames must be indices separated by commas, got {args.frames!r}")
     try:
-        check_output_dir(args.out, [args.root, *models], args.force, tool="aat-eval")
+        check_output_dir(args.out, [args.root, *models, *([args.calibration] if args.calibration else [])],
+                         args.force, tool="aat-eval")
         ds = open_dataset(args.dataset, args.root, split=args.split, frames=frames, aperture=args.aperture)
         labels = model_labels(models)
         methods = [(lb, DfFModel(m, threads=args.threads)) for lb, m in zip(labels, models)]
         if args.method == "focus":
-            methods.append(("focus" if "focus" not in labels else "focus_method", FocusMethod()))
+            methods.append(("focus" if "focus" not in labels else "focus_method",
+                            FocusMethod(calibration=args.calibration)))  # a bad file: a CaptureError, one line
         rep = evaluate_dataset(ds, methods, args.out, DatasetEvalOptions(limit=args.limit, force=args.force,
                                                                          quiet=args.quiet))
     except CaptureError as e:

@@ -92,6 +92,52 @@ def test_ddff12_scored_in_disparity_by_aat_eval(tmp_path, capsys):
     assert "stack(s) (disparity)" in capsys.readouterr().out
 
 
+def _calibration(tmp_path, scale: float, size_px=(64, 48)) -> Path:
+    """A calibration with no field term whose reported focus distance is `scale` x the true one."""
+    from aat_deploy.calibrate import (CameraCalibration, CameraIdentity, FieldPoly, FocusError,
+                                      save_calibration)
+    from aat_deploy.calibrate.format import poly_terms
+
+    terms = poly_terms(2, constant=False)
+    cal = CameraCalibration(CameraIdentity("aat", "test", "lens", 6.0, 2.0), size_px,
+                            FocusError("scale", scale=scale) if scale != 1 else FocusError(),
+                            FieldPoly(terms, np.zeros((len(terms), 1)), (0.1, 2.5)), None, (6.4, 4.8),
+                            {"rms_d": 0.0}, {}, {"method": "test"})
+    return save_calibration(cal, tmp_path / f"cam_{scale:g}.json")
+
+
+def test_focus_method_on_a_dataset_takes_a_calibration(tmp_path, capsys):
+    """--calibration maps the stacks' focus: an identity calibration scores as the nominal focus does, one saying the
+    reported distances are 1.25 x the true ones makes every depth 1/1.25 (disparity 1.25 x: abs_rel about 0.25)."""
+    write_ddff(tmp_path / "ddff.h5")
+    scores = {}
+    for name, extra in (("nominal", []), ("identity", ["--calibration", str(_calibration(tmp_path, 1.0))]),
+                        ("scaled", ["--calibration", str(_calibration(tmp_path, 1.25))])):
+        out = tmp_path / name
+        assert main(["--dataset", "ddff12", str(tmp_path / "ddff.h5"), "--method", "focus", "--out", str(out), "-q",
+                     *extra]) == 0, capsys.readouterr().err
+        rep = json.loads((out / "metrics.json").read_text())
+        scores[name] = rep["overall"]["focus"]
+        assert rep["models"][0]["mapping"] == ("calibration" if extra else "thin_lens")
+    assert scores["identity"]["abs_rel"] == pytest.approx(scores["nominal"]["abs_rel"], abs=0.01), scores
+    assert scores["nominal"]["abs_rel"] < 0.08 and scores["scaled"]["abs_rel"] == pytest.approx(0.25, abs=0.06), scores
+    capsys.readouterr()
+    # refused in one line: without --method focus, on capture folders, a broken file
+    with pytest.raises(SystemExit):
+        main(["--dataset", "ddff12", str(tmp_path / "ddff.h5"), "--model", "rf50_dfvnet_aat", "--calibration",
+              str(tmp_path / "cam_1.json"), "--out", str(tmp_path / "x")])
+    assert "--calibration belongs to --method focus" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main([str(tmp_path), "--model", "rf50_dfvnet_aat", "--calibration", str(tmp_path / "cam_1.json"),
+              "--out", str(tmp_path / "y")])
+    assert "--calibration belongs to --dataset" in capsys.readouterr().err
+    (tmp_path / "bad.json").write_text("{}")
+    assert main(["--dataset", "ddff12", str(tmp_path / "ddff.h5"), "--method", "focus", "--calibration",
+                 str(tmp_path / "bad.json"), "--out", str(tmp_path / "z"), "-q"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not a camera calibration" in err[0] and not (tmp_path / "z").exists()
+
+
 def test_ddff12_errors_are_one_line(tmp_path):
     write_ddff(tmp_path / "a.h5", split="train")
     with pytest.raises(DatasetError, match=r"a\.h5: no dataset 'stack_val' \(stacks in this file: stack_train\)"):
