@@ -250,7 +250,7 @@ def test_calibration_corrects_depth_of_a_scene_the_right_way(rig, scene, tmp_pat
         assert abs(c - 1.0) < abs(t - 1.0) - 0.07 and abs(c - 1.0) < 0.05, ratio
     stack, focus = read_stack(cap)
     np.testing.assert_allclose(np.sort(focus), np.sort(1.1 / np.linspace(1 / 1.2, 1 / 0.55, 8)), rtol=1e-3)
-    api = depth_from_focus(stack, focus, "focus", calibration=cam).depth_m
+    api = depth_from_focus(stack, focus, method="focus", calibration=cam).depth_m
     np.testing.assert_allclose(np.nanmedian(api / gt), np.nanmedian(np.load(tmp_path / "cal" / "depth_m.npy") / gt),
                                rtol=0.01)
     # one mapping at a time: a calibration replaces the --lens map, it is not added to it
