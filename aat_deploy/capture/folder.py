@@ -188,10 +188,13 @@ def _read_capture(folder: Path, use_exiftool: bool, focus_m: list[float] | None,
         check_inside(folder, p, allow_outside_links)
     _same_files(files)
     frames = []
+    # exiftool is the focus distance's fallback (one process per frame, ~0.2 s each): not run when capture.json or
+    # --focus-m gives the distances (camera fields then come from the built-in EXIF reader alone)
+    ask_exiftool = use_exiftool and focus_m is None and not sidecar
     for i, p in enumerate(files):
         buf = read_input_bytes(p)
         frame_header(p, buf, max_megapixels)  # unknown content, or a size beyond the pixel limit: refused here
-        meta = read_metadata(p, use_exiftool=use_exiftool, buf=buf)
+        meta = read_metadata(p, use_exiftool=ask_exiftool, buf=buf)
         del buf
         if focus_m is not None:
             frames.append(Frame(p, float(focus_m[i]), "--focus-m", meta))
