@@ -134,7 +134,8 @@ def _dataset(ap, args, models: list[Path]) -> int:
     try:
         check_output_dir(args.out, [args.root, *models, *([args.calibration] if args.calibration else [])],
                          args.force, tool="aat-eval")
-        ds = open_dataset(args.dataset, args.root, split=args.split, frames=frames, aperture=args.aperture)
+        ds = open_dataset(args.dataset, args.root, split=args.split, frames=frames, aperture=args.aperture,
+                          max_megapixels=args.max_megapixels)
         labels = model_labels(models)
         methods = [(lb, DfFModel(m, threads=args.threads)) for lb, m in zip(labels, models)]
         if args.method == "focus":

@@ -21,9 +21,10 @@ __all__ = ["EXTRA", "Conventions", "Dataset", "DatasetError", "Item", "depth_uni
 
 
 def open_dataset(name: str, path, *, split: str | None = None, frames: list[int] | None = None,
-                 aperture: float | None = None) -> Dataset:
+                 aperture: float | None = None, max_megapixels: float | None = None) -> Dataset:
     """The reader of dataset `name` (one of NAMES) at `path`; split, frames (indices into each stack), aperture
-    (ZEDD's f-number) as that dataset takes them (docs/datasets.md)."""
+    (ZEDD's f-number) as that dataset takes them (docs/datasets.md); max_megapixels: the pixel limit of its image
+    files (default $AAT_MAX_MEGAPIXELS or 200, as every frame reader)."""
     from pathlib import Path
 
     from . import ddff12, fod500, mobile_depth, zedd
@@ -39,7 +40,9 @@ def open_dataset(name: str, path, *, split: str | None = None, frames: list[int]
         if name != "zedd":
             raise DatasetError("--aperture belongs to --dataset zedd")
         kw["aperture"] = aperture
-    return readers[name](Path(path), **kw)
+    ds = readers[name](Path(path), **kw)
+    ds.max_megapixels = max_megapixels
+    return ds
 
 
 NAMES = ("ddff12", "fod500", "zedd", "mobile_depth")

@@ -52,6 +52,14 @@ class Dataset:
 
     name = ""
     conventions: Conventions
+    max_megapixels: float | None = None  # the frame readers' pixel limit (aat-eval --max-megapixels), else the default
+
+    def frame_loader(self, path) -> Callable[[], np.ndarray]:
+        """A function that decodes the image file `path` as the runtime reads frames (kind from its content, the
+        pixel limit checked on its header first) to linear RGB (H, W, 3) float32."""
+        from ...capture.raw import load_frame
+
+        return lambda: load_frame(path, self.max_megapixels)[0]
 
     def items(self) -> Iterator[Item]:
         raise NotImplementedError

@@ -17,7 +17,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ...capture.raw import load_frame
 from .base import Conventions, Dataset, DatasetError, Item, depth_unit, need, select_frames
 
 FOCUS_M = np.array([0.1, 0.15, 0.3, 0.7, 1.5])
@@ -99,5 +98,5 @@ class FoD500(Dataset):
             if sid in self.depths:
                 gt = read_exr_depth(self.depths[sid])
                 gt = np.where(np.isfinite(gt) & (gt > 0), gt, np.nan).astype(np.float32)
-            yield Item(f"{sid:06d}", [lambda p=p: load_frame(p)[0] for p in files], FOCUS_M[self.frames], gt,
+            yield Item(f"{sid:06d}", [self.frame_loader(p) for p in files], FOCUS_M[self.frames], gt,
                        None, {"files": [p.name for p in files]})

@@ -7,7 +7,8 @@ Format (either layout, a folder per scene under the dataset folder, or one scene
   frame;
 - DfF-in-the-Wild's copy: frames `00.jpg, 01.jpg, ...` and `focus_distance.txt` (and `focal_length.txt`).
 The focus values are the dataset's own estimates in undocumented units (larger = farther in the published scenes;
-the first frame of "balls" is 7.2e6). The frames are ordered by them, near to far, and given placeholder focus
+the first frame of "balls" is 7.2e6), except "metals", whose estimates run the other way (smaller = farther; DFV's
+evaluation negates them too). The frames are ordered by them, near to far, and given placeholder focus
 distances even in diopters between 0.5 and 1 m: the depth maps show relative position in the sweep, not metres.
 """
 
@@ -17,11 +18,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ...capture.raw import load_frame
 from .base import Conventions, Dataset, DatasetError, Item, depth_unit, select_frames
 
 LAYOUTS = (("a", "focus_dpth.txt"), ("", "focus_distance.txt"))  # (frame name prefix, focus file)
 PLACEHOLDER_D = (2.0, 1.0)  # placeholder focus positions (diopters), near to far: 0.5 ... 1 m
+REVERSED = ("metals",)  # scenes whose focus values grow towards the camera
 
 CONVENTIONS = Conventions(
     unit="depth_m", to_unit=depth_unit, clip=None,
@@ -79,11 +80,11 @@ class MobileDepth(Dataset):
 
     def items(self):
         for folder, (files, values) in self.scenes:
-            order = np.argsort(values, kind="stable")  # near to far
+            order = np.argsort(-values if folder.name in REVERSED else values, kind="stable")  # near to far
             keep = select_frames(len(order), self.frames, str(folder))
             order = order[keep]
             s = len(order)
             focus = 1.0 / np.linspace(*PLACEHOLDER_D, s)
-            yield Item(folder.name, [lambda p=files[i]: load_frame(p)[0] for i in order], focus, None, None,
+            yield Item(folder.name, [self.frame_loader(files[i]) for i in order], focus, None, None,
                        {"focus": "placeholders even in diopters over 0.5-1 m (relative)",
                         "focus_values": values[order].tolist(), "files": [files[i].name for i in order]})

@@ -23,7 +23,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ...capture.raw import load_frame
 from .base import Conventions, Dataset, DatasetError, Item, depth_unit, select_frames
 
 SPLITS = ("val", "test")
@@ -118,5 +117,5 @@ class ZEDD(Dataset):
                 with np.errstate(invalid="ignore"):
                     ok = np.isfinite(gt) & (gt >= VALID_M[0]) & (gt <= VALID_M[1])
                 gt = np.where(ok, gt, np.nan).astype(np.float32)
-            yield Item(scene.name, [lambda p=p: load_frame(p)[0] for p in files], focus, gt, None,
+            yield Item(scene.name, [self.frame_loader(p) for p in files], focus, gt, None,
                        {"files": [p.name for p in files]})

@@ -22,9 +22,20 @@ from aat_deploy.eval.datasets import ddff12, fod500, zedd
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from deploy_fixtures import render_stack, synthetic_scene  # noqa: E402
 
-h5py = pytest.importorskip("h5py", reason="the datasets extra (h5py) is not installed")
-OpenEXR = pytest.importorskip("OpenEXR", reason="the datasets extra (OpenEXR) is not installed")
 SHARED_BALLS = Path(__file__).resolve().parents[3] / "../shared/data/focal_stack_mobiledepth_balls"
+
+
+def _extra(name: str):
+    """An optional reader package (the datasets extra, in dev too): only its dataset's tests skip without it."""
+    try:
+        return __import__(name)
+    except ImportError:
+        return None
+
+
+h5py, OpenEXR = _extra("h5py"), _extra("OpenEXR")
+needs_h5py = pytest.mark.skipif(h5py is None, reason="the datasets extra (h5py) is not installed")
+needs_exr = pytest.mark.skipif(OpenEXR is None, reason="the datasets extra (OpenEXR) is not installed")
 
 
 def srgb8(linear: np.ndarray) -> np.ndarray:
@@ -63,6 +74,7 @@ def write_ddff(path: Path, n: int = 2, split: str = "val", with_disp: bool = Tru
     return np.stack(disps)
 
 
+@needs_h5py
 def test_ddff12_reader_reads_the_published_layout(tmp_path):
     disp = write_ddff(tmp_path / "my_ddff_trainVal.h5")
     ds = open_dataset("ddff12", tmp_path / "my_ddff_trainVal.h5")
@@ -77,6 +89,7 @@ def test_ddff12_reader_reads_the_published_layout(tmp_path):
     assert np.allclose(next(five.items()).focus_m, it.focus_m[[0, 2, 4, 6, 9]])
 
 
+@needs_h5py
 def test_ddff12_scored_in_disparity_by_aat_eval(tmp_path, capsys):
     write_ddff(tmp_path / "ddff.h5")
     out = tmp_path / "out"
@@ -106,6 +119,7 @@ def _calibration(tmp_path, scale: float, size_px=(64, 48)) -> Path:
     return save_calibration(cal, tmp_path / f"cam_{scale:g}.json")
 
 
+@needs_h5py
 def test_focus_method_on_a_dataset_takes_a_calibration(tmp_path, capsys):
     """--calibration maps the stacks' focus: an identity calibration scores as the nominal focus does, one saying the
     reported distances are 1.25 x the true ones makes every depth 1/1.25 (disparity 1.25 x: abs_rel about 0.25)."""
@@ -138,6 +152,7 @@ def test_focus_method_on_a_dataset_takes_a_calibration(tmp_path, capsys):
     assert len(err) == 1 and "not a camera calibration" in err[0] and not (tmp_path / "z").exists()
 
 
+@needs_h5py
 def test_ddff12_errors_are_one_line(tmp_path):
     write_ddff(tmp_path / "a.h5", split="train")
     with pytest.raises(DatasetError, match=r"a\.h5: no dataset 'stack_val' \(stacks in this file: stack_train\)"):
@@ -150,6 +165,28 @@ def test_ddff12_errors_are_one_line(tmp_path):
     for e in ("x",):
         with pytest.raises(DatasetError, match="split"):
             open_dataset("ddff12", tmp_path / "a.h5", split=e)
+
+
+@needs_h5py
+def test_ddff12_float_stacks_and_the_test_split_without_ground_truth(tmp_path, capsys):
+    """DFV's file stores the 8-bit codes as floats 0-255: read as the same frames. stack_test has no disp_test (the
+    benchmark's server holds it): shown, not scored."""
+    write_ddff(tmp_path / "u8.h5", n=1)
+    with h5py.File(tmp_path / "u8.h5") as f, h5py.File(tmp_path / "f32.h5", "w") as g:
+        g["stack_val"] = f["stack_val"][()].astype(np.float32)
+        g["disp_val"] = f["disp_val"][()]
+        g["stack_test"] = f["stack_val"][()]
+    a = next(open_dataset("ddff12", tmp_path / "u8.h5").items())
+    b = next(open_dataset("ddff12", tmp_path / "f32.h5").items())
+    assert all(np.array_equal(fa, fb) for fa, fb in zip(a.frames, b.frames))
+    test = open_dataset("ddff12", tmp_path / "f32.h5", split="test")
+    it = next(test.items())
+    assert it.name == "test_0000" and it.gt is None and len(it.frames) == 10
+    out = tmp_path / "out"
+    assert main(["--dataset", "ddff12", str(tmp_path / "f32.h5"), "--split", "test", "--method", "focus", "--out",
+                 str(out), "-q"]) == 0
+    rep = json.loads((out / "metrics.json").read_text())
+    assert rep["shown_without_ground_truth"] == ["test_0000"] and rep["overall"]["focus"]["n_images"] == 0
 
 
 def test_a_missing_reader_package_names_the_extra(monkeypatch):
@@ -200,6 +237,7 @@ def write_fod(folder: Path, scenes=(10, 400, 401)) -> None:
         write_exr(folder / f"{sid:06d}Dpt.exr", depth)
 
 
+@needs_exr
 def test_fod500_reader_and_eval(tmp_path):
     write_fod(tmp_path / "fod")
     ds = open_dataset("fod500", tmp_path / "fod")
@@ -216,6 +254,7 @@ def test_fod500_reader_and_eval(tmp_path):
     assert rep["overall"]["focus"]["n_images"] == 2 and np.isfinite(rep["overall"]["focus"]["abs_rel"])
 
 
+@needs_exr
 def test_fod500_errors(tmp_path):
     write_fod(tmp_path / "fod", scenes=(400,))
     (tmp_path / "fod" / "00040004All.tif").unlink()
@@ -333,6 +372,28 @@ def test_mobile_depth_errors(tmp_path):
     (tmp_path / "none").mkdir()
     with pytest.raises(DatasetError, match="no Mobile Depth scene"):
         open_dataset("mobile_depth", tmp_path / "none")
+
+
+def test_mobile_depth_metals_runs_the_other_way(tmp_path):
+    """In "metals" the dataset's focus values grow towards the camera (DFV's evaluation negates them): ordered near
+    to far all the same."""
+    values = write_mobile(tmp_path / "md" / "metals", "dfv")
+    (tmp_path / "md" / "metals" / "focus_dpth.txt").write_text("\n".join(f"{-v:g}" for v in values) + "\n")
+    it = next(open_dataset("mobile_depth", tmp_path / "md").items())
+    assert it.info["files"][0] == "a4.jpg" and it.info["focus_values"] == [-v for v in sorted(values)]
+
+
+def test_dataset_frames_obey_the_pixel_limit(tmp_path, capsys):
+    """aat-eval --dataset reads image files with the frame reader's pixel limit (--max-megapixels): a stack beyond
+    it fails on one line naming the file (exit status 1)."""
+    write_zedd(tmp_path / "ZEDD")
+    out = tmp_path / "out"
+    assert main(["--dataset", "zedd", str(tmp_path / "ZEDD"), "--method", "focus", "--out", str(out), "-q",
+                 "--max-megapixels", "0.001"]) == 1
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert any("img_run_1_motor_6D3E_aperture_F2.8.jpg" in ln and "megapixels" in ln for ln in err), err
+    assert main(["--dataset", "zedd", str(tmp_path / "ZEDD"), "--method", "focus", "--out", str(tmp_path / "o2"),
+                 "-q", "--max-megapixels", "1"]) == 0
 
 
 @pytest.mark.skipif(not SHARED_BALLS.is_dir(), reason="../shared/data/focal_stack_mobiledepth_balls is absent")
