@@ -155,8 +155,8 @@ def main(argv: list[str] | None = None) -> int:
         if a.only_after:
             configs = {"after": CONFIGS["after"]}
         for rep in range(a.repeat):
-            for name, (code, extra) in configs.items():
-                r = run(roots[code], capture, Path(d) / f"out{len(best)}_{rep}", extra)
+            for i, (name, (code, extra)) in enumerate(configs.items()):  # a fresh output folder per run
+                r = run(roots[code], capture, Path(d) / f"out{i}_{rep}", extra)
                 print(f"  run {rep + 1}/{a.repeat} {name}: {r['wall_s']:.2f} s ({r['cpu_s']:.2f} s CPU, "
                       f"{r['cpu_wait_s']:.2f} s waiting for a CPU, load {r['load']:.1f}), {r['rss_mb']:.0f} MB",
                       file=sys.stderr, flush=True)
