@@ -17,8 +17,12 @@ user would pass `--focus-m`):
 Method columns (`METHODS`): each is a function (stack, frames, focus_m) -> `Column` (depth in the stack's focus
 units, all-in-focus, confidence or None) and a title. `focus` is the classical method as `aat-infer --method
 focus` runs it (the runtime's `depth_from_frames`: fit, optional alignment, normalisation, calibrated
-confidence; depth below the confidence threshold is unknown, grey). To add a method (a DfF model), write its
-column function and add it to METHODS; rows get one more group of panels, the page one more column.
+confidence; depth below the confidence threshold is unknown, grey). `dfv_aat` is the any-camera model
+(`models/dfv_aat.onnx`, `aat-infer --model dfv_aat`) told a thin lens: it needs each frame's focus in metres (or
+placeholders whose inverse is affine in defocus) and the blur growth in px per (placeholder) diopter; a stack
+that gives neither shows the reason instead of panels (`RealStack.defocus_px_per_d`). To add a method (a DfF
+model), write its column function (returning a Column, or one line saying why it cannot run on that stack) and
+add it to METHODS; rows get one more group of panels, the page one more column.
 """
 
 from __future__ import annotations
@@ -60,6 +64,10 @@ class RealStack:
     align: bool = False
     reference: np.ndarray | None = None
     notes: list[str] = field(default_factory=list)
+    # blur-disk diameter (px at the frames' size) per diopter of focus_m's inverse, where the stack's optics say it;
+    # else why not (the any-camera model needs it)
+    defocus_px_per_d: float | None = None
+    no_defocus_why: str = "its optics are unknown"
 
     def display(self, depth: np.ndarray) -> np.ndarray:
         """Depth in the method's (pseudo-)metres -> the quantity shown: metres, or frame index / disparity."""
@@ -90,7 +98,8 @@ def stack_balls() -> RealStack:
     return RealStack("mobiledepth_balls", "Mobile Depth \"balls\" (phone, 10 frames)",
                      "Suwajanakorn et al., CVPR 2015, via DfFintheWild", frames, values[order],
                      "the stack's own focus values (focus_distance.txt, units undocumented: 10 .. 208, and 7.2e6 for "
-                     "the frame focused at infinity); depth is in those units", unit="file units")  # kind "depth"
+                     "the frame focused at infinity); depth is in those units", unit="file units",  # kind "depth"
+                     no_defocus_why="its focus values' units are undocumented (no metric focus, no blur scale)")
 
 
 def stack_pcb() -> RealStack:
@@ -100,7 +109,7 @@ def stack_pcb() -> RealStack:
     return RealStack("pcb", "circuit board (focus sweep, 10 frames)", "PetteriAimonen/focus-stack", frames, f,
                      "none carried: frames placed one step apart in file order (the sweep's direction is not "
                      "documented); depth is the in-focus frame index", unit="frame", kind="position", offset=off, sign=sign,
-                     align=True)
+                     align=True, no_defocus_why="its frames carry no focus distances (placeholders: no blur scale)")
 
 
 def stack_lytro_refocus() -> RealStack:
@@ -111,7 +120,8 @@ def stack_lytro_refocus() -> RealStack:
     return RealStack("lytro_refocus", "Lytro Illum refocus sweep (EPFL #48, 9 slices)",
                      "EPFL light-field dataset via hosseinjavidnia/Depth-Focal-Stack", frames, f,
                      "none carried: slices placed one step apart near to far (Lytro Desktop's sweep); depth is "
-                     "the in-focus slice index", unit="slice", kind="position", offset=off, sign=sign, reference=ref)
+                     "the in-focus slice index", unit="slice", kind="position", offset=off, sign=sign, reference=ref,
+                     no_defocus_why="the refocus step between slices is not documented (no blur scale)")
 
 
 def stack_watanabe_nayar() -> RealStack:
@@ -120,11 +130,16 @@ def stack_watanabe_nayar() -> RealStack:
     return RealStack("watanabe_nayar", "Watanabe-Nayar \"breakfast\" (depth-from-defocus pair)",
                      "Watanabe & Nayar, IJCV 1998, via CrisDamian/BlurEqualisationTechnique", frames,
                      np.array([0.529, 0.869]), "0.529 and 0.869 m (readme.txt; telecentric lens, so distances are "
-                     "the lens's focus settings); two frames: depth only between them")
+                     "the lens's focus settings); two frames: depth only between them",
+                     no_defocus_why="two frames (the model takes 3 or more)")
 
 
 REFOCUS_D = np.linspace(-1.0, 1.5, 11)  # disparities (px) of the shift-and-add slices
 REFOCUS_OFFSET = 2.0  # placeholder diopters = disparity + 2 (> 0 over the range)
+# Shift-and-add over 9 views per axis: a point whose disparity is off the slice's by e px lands e (c - 4) px apart in
+# view column c = 0..8, so its blur spans 8 |e| px: 8 px per placeholder diopter (a 9 x 9 sampled square aperture,
+# not a disk: an approximation the model was not trained on)
+REFOCUS_BLUR_PX_PER_D = 8.0
 
 
 def refocus(views: np.ndarray, d: float) -> np.ndarray:
@@ -154,7 +169,7 @@ def stack_lytro_lightfield() -> RealStack:
                      "EPINET (chshin10/epinet), Lytro Illum", frames, 1.0 / x[order],
                      "none carried: slices made at disparities -1 .. 1.5 px (steps of 0.25); depth is the in-focus "
                      "disparity in px of the 9 x 9 views", unit="px disparity", kind="position", offset=REFOCUS_OFFSET, sign=1.0,
-                     reference=views[4, 4])
+                     reference=views[4, 4], defocus_px_per_d=REFOCUS_BLUR_PX_PER_D)
 
 
 STACKS: dict[str, Callable[[], RealStack]] = {
@@ -192,8 +207,42 @@ def focus_column(stack: RealStack, max_side: int) -> Column:
                   unknown["unknown_share"])
 
 
-METHODS: dict[str, tuple[str, Callable[[RealStack, int], Column]]] = {
+DFV_AAT = ROOT / "models" / "dfv_aat.onnx"
+DFV_FOCAL_MM, DFV_F_NUMBER = 10.0, 2.0  # any thin lens: the pixel pitch is solved so its blur growth is the stack's
+
+
+def camera_for_blur(px_per_d: float, focus_m: np.ndarray) -> tuple[float, float, float]:
+    """(focal mm, f-number, pixel um) of a thin lens whose blur grows by px_per_d px per diopter at the middle of the
+    sweep (in diopters), as the any-camera model computes it (`CameraOptics.defocus_px_per_d`); the blur growth is
+    inversely proportional to the pixel pitch."""
+    from aat_deploy.calibrate.format import thin_lens_defocus_scale_px_per_d
+
+    mid_m = 2.0 / (1.0 / float(np.min(focus_m)) + 1.0 / float(np.max(focus_m)))
+    k_at_1um = thin_lens_defocus_scale_px_per_d(DFV_FOCAL_MM, DFV_F_NUMBER, 1.0, mid_m)
+    return DFV_FOCAL_MM, DFV_F_NUMBER, k_at_1um / px_per_d
+
+
+def dfv_aat_column(stack: RealStack, max_side: int, model: Path | None = None) -> Column | str:
+    """The any-camera model as `aat-infer --model dfv_aat --camera F,N,PIXEL_UM` runs it (thin-lens map), or why not."""
+    from aat_deploy import api
+
+    model = DFV_AAT if model is None else model
+    if not model.is_file():
+        return f"{model.name} not present (scripts/train_dfv_aat.sh, then export)"
+    if stack.defocus_px_per_d is None:
+        return f"not run: {stack.no_defocus_why}"
+    t0 = time.perf_counter()
+    net = api.load_model(model, threads=2)
+    net.max_side = max_side
+    camera = camera_for_blur(stack.defocus_px_per_d, stack.focus_m)
+    res = api.depth_from_focus(stack.frames, stack.focus_m, net, camera=camera, align=stack.align)
+    return Column(res.depth_m, res.aif.transpose(2, 0, 1), res.confidence, time.perf_counter() - t0, res.warnings,
+                  res.unknown["unknown_share"] if res.unknown else None)
+
+
+METHODS: dict[str, tuple[str, Callable[[RealStack, int], Column | str]]] = {
     "focus": ("classical (--method focus)", focus_column),
+    "dfv_aat": ("dfv_aat (any-camera model, thin lens)", dfv_aat_column),
 }
 
 
@@ -229,7 +278,7 @@ def depth_panel(stack: RealStack, col: Column) -> np.ndarray:
     return linear_preview(v, float(lo), float(hi), stack.unit, "", DEPTH_COLORMAP)
 
 
-def row_picture(stack: RealStack, cols: dict[str, Column]) -> np.ndarray:
+def row_picture(stack: RealStack, cols: dict[str, Column | str]) -> np.ndarray:
     from aat_deploy.io.colorize import linear_preview
 
     s = len(stack.frames)
@@ -239,6 +288,8 @@ def row_picture(stack: RealStack, cols: dict[str, Column]) -> np.ndarray:
                             srgb8(stack.reference)))
     for key, col in cols.items():
         title = METHODS[key][0]
+        if isinstance(col, str):  # the method cannot run on this stack: said on the page, no panels
+            continue
         panels.append(panel(f"{title}: all-in-focus", srgb8(col.aif)))
         unk = "" if col.unknown_share is None else f" ({col.unknown_share:.0%} unknown, grey)"
         panels.append(panel(f"depth{unk}", depth_panel(stack, col)))
@@ -247,7 +298,7 @@ def row_picture(stack: RealStack, cols: dict[str, Column]) -> np.ndarray:
     return np.concatenate(panels, 1)
 
 
-def page(rows: list[tuple[RealStack, dict[str, Column], str]], max_side: int) -> str:
+def page(rows: list[tuple[RealStack, dict[str, Column | str], str]], max_side: int) -> str:
     lines = ["# Real focal stacks: depth, all-in-focus and confidence (shown, not scored)", "",
              "Made by `python scripts/make_real_gallery.py` from every real stack in `../shared/data` (not in the "
              "repository: research data of others, see each folder's MANIFEST.md). None has ground truth, so "
@@ -261,8 +312,8 @@ def page(rows: list[tuple[RealStack, dict[str, Column], str]], max_side: int) ->
                                                               for k in METHODS) + " |",
               "|---|---|---|" + "---|" * len(METHODS)]
     for st, cols, _ in rows:
-        cells = [f"{c.seconds:.2f} s, {c.unknown_share:.0%}" if c.unknown_share is not None else f"{c.seconds:.2f} s"
-                 for c in cols.values()]
+        cells = [c if isinstance(c, str) else f"{c.seconds:.2f} s, {c.unknown_share:.0%}"
+                 if c.unknown_share is not None else f"{c.seconds:.2f} s" for c in cols.values()]
         lines.append(f"| {st.title} | {len(st.frames)} × {st.frames.shape[2]}×{st.frames.shape[1]} px | "
                      f"{st.focus_note} | " + " | ".join(cells) + " |")
     lines.append("")
@@ -270,9 +321,9 @@ def page(rows: list[tuple[RealStack, dict[str, Column], str]], max_side: int) ->
         lines += [f"## {st.title}", "", f"Source: {st.source}. Focus: {st.focus_note}."
                   + (" Frames aligned and exposure-equalised (`--align`)." if st.align else ""), ""]
         for k, c in cols.items():
-            for n in dict.fromkeys(c.notes):
+            for n in [c] if isinstance(c, str) else dict.fromkeys(c.notes):
                 lines.append(f"- {METHODS[k][0]}: {n}")
-        if any(c.notes for c in cols.values()):
+        if any(isinstance(c, str) or c.notes for c in cols.values()):
             lines.append("")
         lines += [f"![{st.name}](gallery/{png})", ""]
     return "\n".join(lines)
@@ -306,7 +357,8 @@ def main(argv: list[str] | None = None) -> int:
         with atomic_file(a.out / "gallery" / png) as tmp:
             cv2.imwrite(str(tmp), row_picture(st, cols)[..., ::-1], [cv2.IMWRITE_PNG_COMPRESSION, 9])
         rows.append((st, cols, png))
-        print(f"{name}: {len(st.frames)} frames; " + ", ".join(f"{m} {c.seconds:.2f} s" for m, c in cols.items()),
+        print(f"{name}: {len(st.frames)} frames; " + ", ".join(f"{m} {c if isinstance(c, str) else f'{c.seconds:.2f} s'}"
+                                                           for m, c in cols.items()),
               file=sys.stderr)
     write_text_atomic(a.out / "real_stacks.md", page(rows, a.max_side) + "\n")
     print(f"wrote {a.out / 'real_stacks.md'} and {len(rows)} pictures in {a.out / 'gallery'}")

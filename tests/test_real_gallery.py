@@ -64,3 +64,39 @@ def test_the_script_on_a_shared_stack(gallery, tmp_path):
     assert (tmp_path / "gallery" / "watanabe_nayar.png").is_file()
     text = (tmp_path / "real_stacks.md").read_text()
     assert "0.529 and 0.869 m" in text and "two frames" in text
+
+
+def test_camera_for_blur_gives_the_models_blur_growth(gallery):
+    from aat_deploy.anycam.optics import CameraOptics
+
+    focus = np.array([0.29, 0.4, 0.6, 1.0])
+    f, n, pixel_um = gallery.camera_for_blur(8.0, focus)
+    mid = 2.0 / (1 / focus.min() + 1 / focus.max())
+    assert CameraOptics(f, n, pixel_um, 552, "test").defocus_px_per_d(mid, 552) == pytest.approx(8.0, rel=1e-9)
+    # the pitch halves when the blur growth doubles
+    assert gallery.camera_for_blur(16.0, focus)[2] == pytest.approx(pixel_um / 2, rel=1e-9)
+
+
+def test_the_any_camera_column_runs_or_says_why(gallery, tmp_path):
+    torch = pytest.importorskip("torch")
+    from training.nets.dfvaat import build
+    from training.nets.export import export_focus_map_onnx, focus_map_metadata
+
+    torch.manual_seed(0)
+    net = build()
+    path = tmp_path / "dfv_aat.onnx"
+    export_focus_map_onnx(net, path, focus_map_metadata(net, effects=[], stack_range=(3, 16), config_hash="test",
+                                                        k_range=(0.3, 64)), check_shapes=[(1, 3, 32, 64)])
+    st = toy_stack(gallery)
+    assert gallery.dfv_aat_column(st, 640, path) == "not run: its optics are unknown"
+    assert "not present" in gallery.dfv_aat_column(st, 640, tmp_path / "missing.onnx")
+    st.defocus_px_per_d = 3.0
+    col = gallery.dfv_aat_column(st, 640, path)
+    assert isinstance(col, gallery.Column)
+    assert col.depth.shape == col.aif.shape[1:] and col.aif.shape[0] == 3
+    known = col.depth[np.isfinite(col.depth)]
+    # an untrained net, but its depth is a blend of the frames' in-focus distances: inside the sweep
+    assert known.size and known.min() >= st.focus_m.min() * 0.99 and known.max() <= st.focus_m.max() * 1.01
+    cols = {"focus": gallery.focus_column(st, 640), "dfv_aat": "not run: two frames (the model takes 3 or more)"}
+    assert gallery.row_picture(st, cols).shape[0] > 0
+    assert "not run: two frames" in gallery.page([(st, cols, "toy.png")], 640)
