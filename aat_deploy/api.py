@@ -11,7 +11,7 @@
     result.depth_m, result.aif, result.std_m, result.confidence, result.camera
     result.save("out/sample")                               # the files aat-infer writes
 
-The same code as `aat-infer` (aat_deploy.process), without the capture folder: frames from anywhere (a camera
+The same code as `aat-infer` (aat_deploy.infer.process), without the capture folder: frames from anywhere (a camera
 SDK, a simulator, a video) as numpy arrays. Errors are ValueError with one line saying what is wrong.
 """
 
@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from .anycam.model import open_model
-from .camera import Intrinsics, camera_json
+from .optics.camera import Intrinsics, camera_json
 from .capture.folder import focus_problem, read_capture
 from .capture.raw import load_frame, srgb_to_linear
 from .confidence import MIN_CONFIDENCE, mark_unknown
@@ -34,9 +34,9 @@ from .errors import CaptureError
 from .infer.method import DepthMethod
 from .io.atomic import atomic_folder, writing
 from .io.guard import check_output_dir
-from .model import DfFModel
-from .outputs import DepthMaps, RecordingInputs, to_srgb8, write_outputs
-from .process import depth_from_frames
+from .infer.model import DfFModel
+from .infer.outputs import DepthMaps, RecordingInputs, to_srgb8, write_outputs
+from .infer.process import depth_from_frames
 from .shipped import resolve
 
 DEFAULT_MODEL = "rf50_dfvnet_aat_field"
@@ -47,7 +47,7 @@ METHODS = ("model", "focus")  # a trained model (model=), or the classical focus
 class DepthResult:
     """depth_m (H, W) float32 metres from the sensor plane; aif (H, W, 3) float32 linear RGB in the stack's
     normalised units (about [0, 1]); std_m (H, W) float32 metres (uncertainty); camera: the maps' pinhole
-    intrinsics (aat_deploy.camera); focus_m (S,) the focus distances used, near to far; warnings: one line each;
+    intrinsics (aat_deploy.optics.camera); focus_m (S,) the focus distances used, near to far; warnings: one line each;
     confidence (H, W) float32, the chance that the depth is within 10 % of the truth (aat_deploy.confidence), or
     None for a model without a calibration; unknown: the unknown share and threshold (NaN in depth_m)."""
 

@@ -66,7 +66,7 @@ def methods(model_path: Path, lens_key: str, threads: int) -> dict:
     from aat_deploy.anycam.model import FocusMapModel, mapping_from_args
     from aat_deploy.focus import classical_depth
     from aat_deploy.focus.bestfocus import for_lens
-    from aat_deploy.model import DfFModel
+    from aat_deploy.infer.model import DfFModel
 
     spec = LENSES[lens_key]
     lens = ROOT / spec["lens"]

@@ -214,7 +214,7 @@ def main() -> None:
     if any(n.startswith("lens_tolerance") for _, w, _ in plan for n in w):
         tolerance_table(lens_path, psf_path)
     order = rng.permutation(len(plan))  # sets in random order; the diagnosis never sees the plan
-    from aat_deploy.model import DfFModel
+    from aat_deploy.infer.model import DfFModel
 
     width = DfFModel(models["aat"]).sensor_px[0]  # misalignment is drawn as a fraction of the frame
     if args.verify_sets:
@@ -394,7 +394,7 @@ def load_model(model_path: Path, lens_path: Path, psf_path: Path, torch_free: bo
     """(model, lens, PSF surrogate source, twin renderer) as the diagnosis uses them (torch_free: as a runtime-only
     install does)."""
     from aat_deploy.diagnose.session import make_renderer
-    from aat_deploy.model import DfFModel
+    from aat_deploy.infer.model import DfFModel
     from aat_deploy.diagnose.lookup import find_lens, find_surrogate
 
     m = DfFModel(model_path, threads=2)

@@ -236,7 +236,7 @@ def main() -> None:
     from aat_deploy.diagnose.lookup import find_lens, find_surrogate
     from aat_deploy.diagnose.search import DiagnoseConfig, diagnose
     from aat_deploy.diagnose.session import make_renderer
-    from aat_deploy.model import DfFModel
+    from aat_deploy.infer.model import DfFModel
 
     names = a.kinds.split(",") if a.kinds else list(kinds())
     unknown = set(names) - set(kinds())

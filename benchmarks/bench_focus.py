@@ -151,7 +151,7 @@ def run_variants(items) -> list[tuple[str, dict]]:
 
 
 def run_models(items) -> list[tuple[str, list]]:
-    from aat_deploy.model import DfFModel
+    from aat_deploy.infer.model import DfFModel
 
     out = []
     for name in ("dff_dfvnet_aat", "dff_dfvnet_thin"):

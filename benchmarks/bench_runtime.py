@@ -5,7 +5,7 @@
 
 For each net, a freshly built model (weights do not change the speed) is exported exactly as the shipped
 models are (training.nets.export), then one normalised (S, 3, H, W) stack is run by torch (`predict`, eager,
-no grad) and by the runtime (`aat_deploy.model.DfFModel.infer`), both on 2 threads; best of 3, one run.
+no grad) and by the runtime (`aat_deploy.infer.model.DfFModel.infer`), both on 2 threads; best of 3, one run.
 Prints a table: seconds per stack each way, the ratio, and the max |difference| of the depths. The any-camera net
 (`dfvaat`, the small DFVNet told per-pixel focus maps) runs as `aat-infer --model dfv_aat` runs it: its runtime time
 includes making the maps (thin lens, a 50 mm f/1.8 camera).
@@ -36,7 +36,7 @@ def main() -> None:
     h, w = (int(v) for v in args.hw.split("x"))
     torch.set_num_threads(2)
     from aat_deploy.lens.io import load_lens
-    from aat_deploy.model import DfFModel
+    from aat_deploy.infer.model import DfFModel
     from training.nets.export import dff_metadata, export_dff_onnx
     from training.nets.model import build_model, predict
 

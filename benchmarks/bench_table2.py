@@ -7,7 +7,7 @@ lens, tested on held-out stacks rendered through that lens (training/train/tests
     ... --effects noise,vignetting,raw_pipeline     (capture effects on the test stacks; the nets never saw them)
 
 Models default to `models/<lens>_{dfvnet,aifnet}_{aat,thin}[_field].onnx` that exist. They run with onnxruntime
-exactly as `aat-infer` runs them (aat_deploy.model.DfFModel; a field-aware model gets each pixel's sensor position).
+exactly as `aat-infer` runs them (aat_deploy.infer.model.DfFModel; a field-aware model gets each pixel's sensor position).
 Beside them, the simplest honest baseline on the same stacks: the runtime's classical focus-measure method
 (aat_deploy.focus, when present), with the nominal (thin-lens) focus mapping and with the lens's best-focus map.
 
@@ -73,7 +73,7 @@ def field_figures(maps: dict[str, np.ndarray], path: Path, title: str) -> None:
 
 
 def run_model(path: Path, items, threads: int, tile: int | None = None) -> tuple[list[dict], np.ndarray, dict]:
-    from aat_deploy.model import DfFModel
+    from aat_deploy.infer.model import DfFModel
 
     model = DfFModel(path, threads=threads)
     per, err = [], []

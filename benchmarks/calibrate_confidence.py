@@ -284,7 +284,7 @@ def main(argv: list[str] | None = None) -> int:
     from aat_deploy.confidence import FOCUS_CALIBRATION, MIN_CONFIDENCE, TOLERANCE_REL, model_calibration_path
     from aat_deploy.focus import FocusConfig
     from aat_deploy.io.atomic import write_text_atomic
-    from aat_deploy.model import DfFModel
+    from aat_deploy.infer.model import DfFModel
     from aat_deploy.shipped import resolve
 
     thresholds = (0.3, MIN_CONFIDENCE, 0.7)

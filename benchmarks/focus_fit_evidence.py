@@ -78,7 +78,7 @@ def with_frames(data, frames: np.ndarray, factor: int):
     from aat_deploy.diagnose import focusfit as ff
     from aat_deploy.diagnose.binned import bin_frames
     from aat_deploy.diagnose.compare import focus_curves, region_brightness
-    from aat_deploy.normalise import normalise_stack
+    from aat_deploy.infer.normalise import normalise_stack
 
     st = normalise_stack(bin_frames(frames, factor))
     return dataclasses.replace(data, capture=focus_curves(st, ff.FIT_GRID).mean(-1)[None],
@@ -117,7 +117,7 @@ def main() -> None:
     from aat_deploy.diagnose.inputs import load_capture_data
     from aat_deploy.diagnose.lookup import find_lens, find_surrogate
     from aat_deploy.diagnose.session import make_renderer
-    from aat_deploy.model import DfFModel
+    from aat_deploy.infer.model import DfFModel
     from aat_deploy.render import effects as fx
     from bench_diagnose_focus import make_copy
 

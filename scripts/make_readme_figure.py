@@ -19,7 +19,7 @@ sys.path.insert(0, str(ROOT))
 from aat_deploy.api import depth_from_focus, read_stack  # noqa: E402
 from aat_deploy.io.atomic import atomic_file  # noqa: E402
 from aat_deploy.io.colorize import depth_preview  # noqa: E402
-from aat_deploy.outputs import to_srgb8  # noqa: E402
+from aat_deploy.infer.outputs import to_srgb8  # noqa: E402
 
 SAMPLE = ROOT / "captures" / "sample_rf50"
 

@@ -197,7 +197,7 @@ def focus_column(stack: RealStack, max_side: int) -> Column:
     """The classical method as aat-infer runs it (thin-lens mapping: no lens given)."""
     from aat_deploy.confidence import MIN_CONFIDENCE, mark_unknown
     from aat_deploy.focus.runner import FocusMethod
-    from aat_deploy.process import depth_from_frames
+    from aat_deploy.infer.process import depth_from_frames
 
     t0 = time.perf_counter()
     res = depth_from_frames(list(stack.frames), stack.focus_m.astype(np.float32), FocusMethod(max_side=max_side),

@@ -9,7 +9,7 @@ import torch
 import torch.nn.functional as F
 from torch.utils.data import Dataset
 
-from aat_deploy.normalise import normalise_stack
+from aat_deploy.infer.normalise import normalise_stack
 from training.train.config import TrainConfig
 
 

@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 import onnxruntime as ort
 
-from ..camera import Intrinsics
+from ..optics.camera import Intrinsics
 from ..errors import CaptureError, ModelError
-from ..model import DfFModel, _meta_int
+from ..infer.model import DfFModel, _meta_int
 from .maps import FocusMapping
 from .optics import CameraOptics, from_exif
 
@@ -191,7 +191,7 @@ class FocusMapModel(DfFModel):
 
     def _feeds(self, stack: np.ndarray, focus_m: np.ndarray, field_xy: np.ndarray | None, ph: int, pw: int) -> dict:
         """field_xy carries the maps (S + 1, H, W) (`maps`), padded by continuing them linearly."""
-        from ..model import _pad_linear
+        from ..infer.model import _pad_linear
 
         maps = _pad_linear(np.asarray(field_xy, np.float32), ph, pw)
         return {"stack": np.ascontiguousarray(stack[None], dtype=np.float32),
@@ -201,8 +201,8 @@ class FocusMapModel(DfFModel):
 
 def open_model(path: str | Path, threads: int | None = None) -> DfFModel:
     """A DfF model file as the right class: the any-camera model (metadata aat.inputs = focus_map,
-    `FocusMapModel`, not yet told its camera) or a lens-specific `DfFModel` (`aat_deploy.model`). It lives here,
-    above both classes, so that `aat_deploy.model` does not import this module back."""
+    `FocusMapModel`, not yet told its camera) or a lens-specific `DfFModel` (`aat_deploy.infer.model`). It lives here,
+    above both classes, so that `aat_deploy.infer.model` does not import this module back."""
     path = Path(path)
     if path.is_file():
         try:

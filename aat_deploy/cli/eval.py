@@ -117,7 +117,7 @@ def _dataset(ap, args, models: list[Path]) -> int:
     from ..eval.datasets import open_dataset
     from ..focus.runner import FocusMethod
     from ..io.guard import check_output_dir
-    from ..model import DfFModel
+    from ..infer.model import DfFModel
 
     if not models and not args.method:
         ap.error("--dataset: give --model M.onnx (and/or --compare ...) and/or --method focus")

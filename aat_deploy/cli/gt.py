@@ -27,7 +27,7 @@ import numpy as np
 
 from ..errors import CaptureError, check_inside, one_line, safe_output_streams
 from ..gt.read import check_aspect, check_units, find_gt, load_ground_truth
-from ..camera import load_intrinsics
+from ..optics.camera import load_intrinsics
 from ..gt.raycast import load_mesh, load_pose, render_depth
 from ..io.atomic import atomic_files
 from ..io.depth_png import encode_mm16
@@ -133,7 +133,7 @@ def cmd_check(a) -> int:
 
     focus_range = None
     if a.model:
-        from ..model import DfFModel
+        from ..infer.model import DfFModel
         from ..shipped import resolve
 
         focus_range = DfFModel(resolve(a.model, "models"), threads=1).focus_range_m  # a path or a shipped name

@@ -50,7 +50,7 @@ def _main(argv: list[str] | None) -> int:
     from ..focus.runner import FocusMethod
     from ..anycam.model import DEFAULT_MAX_SIDE, FocusMapModel, mapping_from_args
     from ..anycam.model import open_model
-    from ..pipeline import Options, check_output, output_dir_for, output_dirs, run_capture
+    from ..infer.pipeline import Options, check_output, output_dir_for, output_dirs, run_capture
     from ..shipped import resolve
 
     safe_output_streams()

@@ -21,7 +21,7 @@ import numpy as np
 from aat_deploy.diagnose import focusfit as ff
 from aat_deploy.diagnose.binned import bin_frames
 from aat_deploy.diagnose.compare import focus_curves
-from aat_deploy.normalise import normalise_stack
+from aat_deploy.infer.normalise import normalise_stack
 
 REANCHOR_D = 0.01  # re-anchor when some frame's estimate is this far (diopters) from the twin's focus
 

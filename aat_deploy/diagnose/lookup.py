@@ -6,7 +6,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-from aat_deploy.model import DfFModel
+from aat_deploy.infer.model import DfFModel
 from aat_deploy.shipped import shipped_dir
 from aat_deploy.diagnose.twin import TwinError
 from aat_deploy.render.sources import OnnxSource

@@ -28,8 +28,8 @@ from aat_deploy.diagnose import fitters
 from aat_deploy.diagnose.bootstrap import binned_bootstrap, capture_bootstrap, ratio_bootstrap
 from aat_deploy.diagnose.compare import distances, focus_curves, image_distances
 from aat_deploy.diagnose.inputs import CaptureData
-from aat_deploy.model import DfFModel
-from aat_deploy.normalise import normalise_stack
+from aat_deploy.infer.model import DfFModel
+from aat_deploy.infer.normalise import normalise_stack
 from aat_deploy.render import effects as fx
 
 

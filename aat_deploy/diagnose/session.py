@@ -24,7 +24,7 @@ from aat_deploy.diagnose.search import Diagnosis, DiagnoseConfig, diagnose
 from aat_deploy.errors import AatError, CaptureError, ModelError
 from aat_deploy.io.atomic import atomic_folder
 from aat_deploy.io.guard import check_no_overlap
-from aat_deploy.model import DfFModel
+from aat_deploy.infer.model import DfFModel
 from aat_deploy.diagnose.lookup import find_lens, find_surrogate
 from aat_deploy.diagnose.twin import TwinError, TwinRenderer, model_effects
 from aat_deploy.render.sources import OnnxSource

@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from aat_deploy.diagnose.inputs import CaptureData
-from aat_deploy.model import DfFModel
-from aat_deploy.normalise import normalise_stack
+from aat_deploy.infer.model import DfFModel
+from aat_deploy.infer.normalise import normalise_stack
 from aat_deploy.render.layered import LayeredConfig
 from aat_deploy.render.optical import optical_stack
 from aat_deploy.render.sources import GaussianSource, OnnxSource

@@ -2,7 +2,7 @@
 `aat_deploy.eval.datasets` and score them against its ground truth as the field does (its unit, valid pixels, clip;
 per stack, then the mean over stacks).
 
-Each stack goes through the runtime's array path (`aat_deploy.process.depth_from_frames`, as `aat-infer` and the
+Each stack goes through the runtime's array path (`aat_deploy.infer.process.depth_from_frames`, as `aat-infer` and the
 Python API): fitted to the model's sensor (or the focus method's working size), normalised, inferred. The ground
 truth is brought to that working grid by nearest sampling (docs/contracts.md, "Ground truth"), the prediction
 converted to the dataset's unit. Output folder (written whole or not at all; replaced only with force):
@@ -25,7 +25,7 @@ from ..errors import CaptureError
 from ..io.atomic import atomic_folder, writing
 from ..io.colorize import colorize
 from ..metrics import depth_metrics
-from ..process import depth_from_frames
+from ..infer.process import depth_from_frames
 from . import plots, report
 from .batch import Progress
 from .datasets import Dataset

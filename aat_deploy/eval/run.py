@@ -1,5 +1,5 @@
 """`aat-eval`'s batch: find the capture folders with ground truth under a root, run every model on each through
-the runtime pipeline (`aat_deploy.pipeline.run_capture`, the same code as `aat-infer`), score the predictions with
+the runtime pipeline (`aat_deploy.infer.pipeline.run_capture`, the same code as `aat-infer`), score the predictions with
 the shared metrics and write the tables, maps, plots and a rerun recording into one output folder.
 
 Output folder (written to a temporary sibling and renamed at the end; an existing one is replaced only with
@@ -24,15 +24,15 @@ import numpy as np
 
 from ..capture.raw import load_frame
 from ..errors import CaptureError, one_line
-from ..geometry import fit_to_sensor
+from ..infer.geometry import fit_to_sensor
 from ..metrics import MetricAccumulator, valid_mask
-from ..model import DfFModel
+from ..infer.model import DfFModel
 from ..io.atomic import atomic_folder, writing
 from ..io.colorize import colorize
 from ..io.guard import check_no_overlap, check_output_dir
 from ..io.images import imread
-from ..pipeline import Options
-from ..pipeline import run_capture as infer_capture
+from ..infer.pipeline import Options
+from ..infer.pipeline import run_capture as infer_capture
 from . import plots, report
 from .batch import Progress, capture_name, find_captures, model_labels
 from ..gt.read import (

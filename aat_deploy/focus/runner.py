@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import Intrinsics
+from ..optics.camera import Intrinsics
 from ..errors import CaptureError
 from ..infer.method import DepthMethod, DepthOutput
 from . import scale
@@ -128,6 +128,10 @@ class FocusMethod(DepthMethod):
             return max(1, round(w * s)), max(1, round(h * s))
         return w, h
 
+    def tile_sampler(self, frame_hw: tuple[int, int]) -> scale.TileSampler:
+        """The tiles the blur step is measured on (`aat_deploy.focus.scale.TileSampler`)."""
+        return scale.TileSampler.for_size(frame_hw)
+
     def pre_reduction(self, frame_hw: tuple[int, int]) -> tuple[int, int]:
         """(W, H) to keep each frame at while the blur step is not yet known: reduced by the largest whole factor
         the rule allows whatever the step (its size floor), so the chosen size can be reached without decoding
@@ -147,7 +151,7 @@ class FocusMethod(DepthMethod):
                                                                "with a focus peak): the frames' own size"})}
 
     def intrinsics(self, size_wh: tuple[int, int]) -> Intrinsics:
-        """Pinhole intrinsics at the working size (aat_deploy.camera): the focal length from the lens, else the
+        """Pinhole intrinsics at the working size (aat_deploy.optics.camera): the focal length from the lens, else the
         assumed one (focal_length_px_at); the pinhole a focal length in front of the sensor (thin lens at infinity),
         at the sensor when the focal length in mm is unknown."""
         w, h = int(size_wh[0]), int(size_wh[1])

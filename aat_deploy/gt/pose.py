@@ -3,7 +3,7 @@
 A user clicks a few points in a frame (pixel u, v) and the same points on the mesh (world x, y, z, in the mesh's
 units times --mesh-scale, metres). The pose is the camera-to-world transform that reprojects the world points
 onto the clicked pixels with the least squared error, through the same pinhole as the ground-truth renderer
-(`aat_deploy.camera.Intrinsics`: projection centre at the entrance pupil, OpenCV's pixel convention, camera axes x right,
+(`aat_deploy.optics.camera.Intrinsics`: projection centre at the entrance pupil, OpenCV's pixel convention, camera axes x right,
 y down, z forward). Without a starting pose it needs 4 points not all on a line and solves globally (OpenCV's
 SQPnP); with one (`init`, e.g. a phone's own camera transform) it refines it, and 3 points are enough.
 Then Levenberg-Marquardt on all points. The residual of every point is reported, so a mis-click shows.
@@ -20,7 +20,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..camera import Intrinsics
+from ..optics.camera import Intrinsics
 from .raycast import GTRenderError
 
 

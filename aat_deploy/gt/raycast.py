@@ -6,7 +6,7 @@ axes x right, y down, z forward. The ray cast gives the z-depth from the project
 metres from the **sensor plane** (README, Conventions), so the entrance pupil's distance in front of the sensor,
 `pupil_to_sensor_mm`, is added: depth_m = z_m + pupil_to_sensor_mm / 1000.
 
-Intrinsics (`aat_deploy.camera.load_intrinsics`) come from a DfF model (.onnx metadata `aat.focal_length_mm`,
+Intrinsics (`aat_deploy.optics.camera.load_intrinsics`) come from a DfF model (.onnx metadata `aat.focal_length_mm`,
 `aat.pixel_um`, `aat.sensor_px`) or a small JSON; `aat-lens info LENS --json` writes one, with the pupil position.
 """
 
@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import Intrinsics
+from ..optics.camera import Intrinsics
 from ..errors import CaptureError
 
 ORTHO_TOL = 1e-3

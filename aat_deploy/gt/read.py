@@ -10,7 +10,7 @@ Files (docs/contracts.md, "Ground truth"), first found wins:
 Depth is in metres from the sensor plane along the optical axis; 0, negative, NaN and inf are invalid.
 
 Resampling: the frames are centre-cropped to the model's sensor aspect and resized to `aat.sensor_px`
-(`aat_deploy.geometry.fit_to_sensor`). The ground truth covers the frames' field of view (same aspect ratio,
+(`aat_deploy.infer.geometry.fit_to_sensor`). The ground truth covers the frames' field of view (same aspect ratio,
 any size); each output pixel takes the ground-truth sample under its centre (nearest, never blended).
 """
 

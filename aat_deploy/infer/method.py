@@ -1,8 +1,8 @@
 """What a depth method is to the runtime: `DepthMethod`, the one interface of the classical focus method
-(`aat_deploy.focus.runner.FocusMethod`), the lens-specific ONNX DfF model (`aat_deploy.model.DfFModel`) and the
+(`aat_deploy.focus.runner.FocusMethod`), the lens-specific ONNX DfF model (`aat_deploy.infer.model.DfFModel`) and the
 any-camera model (`aat_deploy.anycam.model.FocusMapModel`); `DepthOutput`, what each returns for one stack.
 
-The capture pipeline (`aat_deploy.pipeline.run_capture`), the array part (`aat_deploy.process.depth_from_frames`),
+The capture pipeline (`aat_deploy.infer.pipeline.run_capture`), the array part (`aat_deploy.infer.process.depth_from_frames`),
 the Python API (`aat_deploy.api.depth_from_focus`) and aat-eval's datasets ask a method only what is declared here;
 a method says what it does differently through these attributes and methods, never through its class or kind.
 Distances in metres from the sensor plane; sizes (W, H) or (H, W) in pixels as named.
@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..camera import Intrinsics
+from ..optics.camera import Intrinsics
 from ..errors import CaptureError
 
 
@@ -44,7 +44,7 @@ class DepthMethod(ABC):
 
     noun = "model"  # what one-line messages call it ("the model takes 2..16 frames")
     places_tied_frames = False  # frames with equal reported focus are placed by the method (else refused)
-    auto = False  # the working size is chosen from the stack itself (pre_reduction, then choose_size)
+    auto = False  # the working size is chosen from the stack itself (tile_sampler, pre_reduction, choose_size)
     stack_range: tuple[int, int]
     focus_range_m: tuple[float, float]
     lens_name: str | None = None
@@ -81,6 +81,11 @@ class DepthMethod(ABC):
     def working_size(self, frame_hw: tuple[int, int]) -> tuple[int, int]:
         """(W, H) the frames of (H, W) are brought to (when not `auto`)."""
 
+    def tile_sampler(self, frame_hw: tuple[int, int]):
+        """What cuts the tiles choose_size reads from each native frame of (H, W): `.sample(frame)` -> a list over
+        pyramid levels of (N, R, R) arrays (`auto` methods only)."""
+        raise NotImplementedError(f"{type(self).__name__} chooses no working size from the stack")
+
     def pre_reduction(self, frame_hw: tuple[int, int]) -> tuple[int, int]:
         """(W, H) to keep frames at until choose_size has seen them (`auto` methods only)."""
         raise NotImplementedError(f"{type(self).__name__} chooses no working size from the stack")
@@ -98,7 +103,7 @@ class DepthMethod(ABC):
 
     @abstractmethod
     def intrinsics(self, size_wh: tuple[int, int]) -> Intrinsics:
-        """Pinhole intrinsics of maps of size_wh = (W, H) (`aat_deploy.camera`)."""
+        """Pinhole intrinsics of maps of size_wh = (W, H) (`aat_deploy.optics.camera`)."""
 
     @abstractmethod
     def summary(self) -> dict:

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-DEPTH_COLORMAP = "turbo"        # names shared with rerun's colormaps (aat_deploy.recording)
+DEPTH_COLORMAP = "turbo"        # names shared with rerun's colormaps (aat_deploy.infer.recording)
 UNCERTAINTY_COLORMAP = "inferno"
 _CV2_MAPS = {"turbo": cv2.COLORMAP_TURBO, "inferno": cv2.COLORMAP_INFERNO, "viridis": cv2.COLORMAP_VIRIDIS}
 UNKNOWN_RGB = (128, 128, 128)

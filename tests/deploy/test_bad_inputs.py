@@ -48,7 +48,7 @@ from aat_deploy.cli import view as view_cli
 from aat_deploy.errors import CaptureError
 from aat_deploy.gt.read import find_gt, load_ground_truth
 from aat_deploy.io import marker
-from aat_deploy.model import DfFModel
+from aat_deploy.infer.model import DfFModel
 
 FOCUS = [0.6, 1.0, 2.0]
 FUZZ = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
@@ -122,7 +122,7 @@ def test_output_overlapping_an_input_is_refused_before_any_work(case, model_path
         monkeypatch.chdir(earlier)
     before = tree_hash(tmp_path / "parent", cap, earlier)
     calls = []
-    import aat_deploy.pipeline as pipeline
+    import aat_deploy.infer.pipeline as pipeline
 
     real = pipeline.load_frame
     monkeypatch.setattr(pipeline, "load_frame", lambda p: calls.append(Path(p)) or real(p))
@@ -693,7 +693,7 @@ def test_unexpected_exception_is_one_line_with_its_type(model_path, good, tmp_pa
     line naming the capture and the exception type, and the batch goes on."""
     cap, earlier = good
     bad = write_dng_capture(tmp_path / "bad", FOCUS)
-    import aat_deploy.pipeline as pipeline
+    import aat_deploy.infer.pipeline as pipeline
 
     real = pipeline.read_capture
 
@@ -715,7 +715,7 @@ def test_unwritable_output_fails_before_decoding(model_path, good, tmp_path, cap
     blocker = tmp_path / "file"
     blocker.write_text("a file where a folder should be")
     calls = []
-    import aat_deploy.pipeline as pipeline
+    import aat_deploy.infer.pipeline as pipeline
 
     real = pipeline.load_frame
     monkeypatch.setattr(pipeline, "load_frame", lambda p: calls.append(Path(p)) or real(p))
@@ -842,7 +842,7 @@ def test_a_signal_while_outputs_are_written_leaves_no_temporary_folder(sig, stat
     cap, earlier = good
     out = tmp_path / "runs" / "o"
     before = tree_hash(cap, earlier)
-    rc, err = _run_until(tmp_path, "aat_deploy.pipeline", "write_outputs", True,
+    rc, err = _run_until(tmp_path, "aat_deploy.infer.pipeline", "write_outputs", True,
                          [cap, "--model", model_path, "--out", out, "-q", "--threads", "1"], sig)
     assert rc == status and err == [f"aat-infer: {'terminated' if sig == 'SIGTERM' else 'interrupted'} ({sig})"], err
     assert not out.exists() and list(out.parent.iterdir()) == []  # no .o.tmp-PID left behind
@@ -852,7 +852,7 @@ def test_a_signal_while_outputs_are_written_leaves_no_temporary_folder(sig, stat
 def test_ctrl_c_during_start_up_is_one_line_and_exit_130(model_path, good, tmp_path):
     """Before: Ctrl-C while the command was starting printed a 30-line traceback."""
     cap, earlier = good
-    for module, name in (("aat_deploy.shipped", "resolve"), ("aat_deploy.model", "DfFModel.__init__")):
+    for module, name in (("aat_deploy.shipped", "resolve"), ("aat_deploy.infer.model", "DfFModel.__init__")):
         rc, err = _run_until(tmp_path, module, name, False, [cap, "--model", model_path, "--out", tmp_path / "o", "-q"],
                              "SIGINT")
         assert rc == 130 and err == ["aat-infer: interrupted (SIGINT)"], err
@@ -888,7 +888,7 @@ def test_threads_beyond_the_machine_are_bounded_and_said(model_path, good, tmp_p
     cap, earlier = good
     monkeypatch.setattr(machine.os, "sched_getaffinity", lambda pid: {0, 1})  # a 2-core machine, whatever runs this
     made = []
-    import aat_deploy.model as model_mod
+    import aat_deploy.infer.model as model_mod
 
     real = model_mod.ort.InferenceSession
     monkeypatch.setattr(model_mod.ort, "InferenceSession",
@@ -933,7 +933,7 @@ def test_a_full_disk_is_one_line_naming_the_output_and_leaves_nothing(model_path
                                                                         monkeypatch):
     """Before: "unexpected OSError: 614400 requested and 524256 written" (numpy's short write on a full disk)."""
     cap, earlier = good
-    import aat_deploy.outputs as outputs
+    import aat_deploy.infer.outputs as outputs
 
     def short_write(*a, **k):
         raise OSError("614400 requested and 524256 written")
@@ -959,7 +959,7 @@ def test_out_on_a_mount_point_is_refused_before_any_work(model_path, good, tmp_p
     mnt = _full_tmpfs(tmp_path / "mnt", "4m")
     try:
         calls = []
-        import aat_deploy.pipeline as pipeline
+        import aat_deploy.infer.pipeline as pipeline
 
         real = pipeline.load_frame
         monkeypatch.setattr(pipeline, "load_frame", lambda p, *a: calls.append(p) or real(p, *a))

@@ -18,8 +18,8 @@ from deploy_fixtures import tiny_model_path, write_dng_capture
 
 from aat_deploy.cli import capture as capture_cli
 from aat_deploy.cli import view as view_cli
-from aat_deploy.model import DfFModel
-from aat_deploy.pipeline import Options, run_capture
+from aat_deploy.infer.model import DfFModel
+from aat_deploy.infer.pipeline import Options, run_capture
 
 
 def _free_port() -> int:

@@ -200,8 +200,8 @@ def recording(tmp_path_factory) -> Path:
     takes minutes to draw with SwiftShader on a busy 2-core machine)."""
     from deploy_fixtures import tiny_model_path, write_dng_capture
 
-    from aat_deploy.model import DfFModel
-    from aat_deploy.pipeline import Options, run_capture
+    from aat_deploy.infer.model import DfFModel
+    from aat_deploy.infer.pipeline import Options, run_capture
 
     tmp = tmp_path_factory.mktemp("browser")
     cap = write_dng_capture(tmp / "cap", [0.7, 1.2, 2.5])
@@ -242,7 +242,7 @@ def test_viewer_shows_the_recordings_entities(browser, recording):
     shown, views = _look(browser, recording, expected)
     assert expected <= shown, f"not shown in the viewer: {sorted(expected - shown)}; shown: {sorted(shown)}"
     assert shown <= expected | {"/world"}, f"shown but not in the recording: {sorted(shown - expected)}"
-    # the viewer opened on the recording's own layout (aat_deploy.recording.blueprint): its views by name
+    # the viewer opened on the recording's own layout (aat_deploy.infer.recording.blueprint): its views by name
     layout = {"focal stack", "depth (m from sensor)", "all-in-focus", "3-D points", "uncertainty (m)",
               "ground truth depth", "focus distance (m)"}
     assert layout <= set(views), f"the recording's blueprint is not the viewer's layout: {views}"

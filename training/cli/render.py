@@ -70,7 +70,7 @@ def run(args) -> Path:
     import torch
 
     from aat_deploy.errors import OutputError
-    from aat_deploy.geometry import fit_rgbd_to_sensor
+    from aat_deploy.infer.geometry import fit_rgbd_to_sensor
     from aat_deploy.gt.holes import fill_holes
     from aat_deploy.io.guard import check_output_dir
     from aat_deploy.lens.io import LensFileError, load_lens

@@ -35,7 +35,7 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from aat_deploy.normalise import normalise_scale, scaled
+from aat_deploy.infer.normalise import normalise_scale, scaled
 from training.data import cameras as cams
 from training.data.cache import item_path, save_item
 from training.data.rooms import RoomConfig, room_scene

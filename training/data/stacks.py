@@ -20,7 +20,7 @@ from torch.utils.data import Dataset
 
 from aat_deploy.gt.holes import fill_holes
 from aat_deploy.lens.io import load_lens
-from aat_deploy.normalise import normalise_scale, scaled
+from aat_deploy.infer.normalise import normalise_scale, scaled
 from aat_deploy.render.fields import pixel_fields
 from training.data.cache import item_path, save_item
 from training.data.rgbd import load_middlebury_motorcycle

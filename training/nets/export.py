@@ -1,6 +1,6 @@
 """Export a trained DfF model to ONNX with the metadata of docs/contracts.md ("DfF model").
 
-Graph: inputs `stack` (B, S, 3, H, W) float32 normalised by aat_deploy.normalise.normalise_stack, frames sorted
+Graph: inputs `stack` (B, S, 3, H, W) float32 normalised by aat_deploy.infer.normalise.normalise_stack, frames sorted
 near to far, H and W multiples of `aat.size_multiple`; `focus_m` (B, S) float32 metres from the sensor plane.
 Field-aware models (`aat.field_channels` = 2) take a third input `field_xy` (B, 2, H, W) float32: each pixel's
 normalised sensor position (x right, y up, +-1 at the sensor edges; padded pixels continue the ramp).
@@ -22,7 +22,7 @@ import torch
 
 from aat_deploy.io.atomic import atomic_file
 from aat_deploy.lens.schema import Lens
-from aat_deploy.normalise import DESCRIPTION as NORMALISATION
+from aat_deploy.infer.normalise import DESCRIPTION as NORMALISATION
 from training.nets.model import DfFNet
 
 DISTANCES = "metres from the sensor plane along the optical axis"

@@ -3,7 +3,7 @@ the lens-to-model chain (`aat-train --lens`, training/chain).
 
 Test stacks are whole-sensor renders of scenes never seen in training (procedural scenes from their own seed, or
 a real RGB-D scene scaled to cover the sensor), normalised as the runtime normalises. Models run with
-onnxruntime exactly as `aat-infer` runs them (aat_deploy.model.DfFModel). Metrics per image, then averaged
+onnxruntime exactly as `aat-infer` runs them (aat_deploy.infer.model.DfFModel). Metrics per image, then averaged
 (aat_deploy.metrics), depth in metres from the sensor; MAE by field zone and MAE per bin of the field radius (error
 vs field radius), both as `aat_deploy.eval.stats` defines them (circular radius, 1 = sensor corner; centre < 0.33,
 outer > 0.66).
@@ -18,7 +18,7 @@ import numpy as np
 
 from aat_deploy.eval.stats import ZONES, field_radius, zone_masks
 from aat_deploy.io.atomic import atomic_file
-from aat_deploy.normalise import normalise_stack
+from aat_deploy.infer.normalise import normalise_stack
 
 COLS = ("mae", "mse", "rmse", "abs_rel", "sq_rel", "delta1", "delta2", "delta3")
 HEADER = ("| model | MAE | MSE | RMSE | AbsRel | SqRel | δ1 | δ2 | δ3 | MAE centre | MAE outer |\n"
@@ -44,7 +44,7 @@ def rgbd_item(dataset, rgb: np.ndarray, gt_m: np.ndarray) -> Item:
     dataset's sensor, rendered with its simulator and fixed schedule."""
     import torch
 
-    from aat_deploy.geometry import fit_rgbd_to_sensor
+    from aat_deploy.infer.geometry import fit_rgbd_to_sensor
     from aat_deploy.gt.holes import fill_holes
 
     rgb, gt = fit_rgbd_to_sensor(rgb, gt_m, dataset.sensor_hw)
@@ -79,7 +79,7 @@ def evaluate_model(path, items: list[Item], threads: int = 2, n_bins: int = 10, 
                    ) -> ModelResult:
     """Run the ONNX model at `path` on `items` with onnxruntime; metrics, zone MAE and error vs field radius."""
     from aat_deploy.metrics import MetricAccumulator
-    from aat_deploy.model import DfFModel
+    from aat_deploy.infer.model import DfFModel
 
     path = Path(path)
     model = DfFModel(path, threads=threads)

@@ -12,7 +12,7 @@ torch = pytest.importorskip("torch")
 
 from aat_deploy.anycam.model import K_MAX_PX_PER_D, FocusMapModel, mapping_from_args, open_model  # noqa: E402
 from aat_deploy.errors import CaptureError  # noqa: E402
-from aat_deploy.model import DfFModel  # noqa: E402
+from aat_deploy.infer.model import DfFModel  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[3]
 RF50 = ROOT / "lenses" / "canon_rf50mm_f1.8.json"

@@ -15,8 +15,8 @@ from aat_deploy.capture.exif import read_metadata
 from aat_deploy.capture.folder import read_capture
 from aat_deploy.capture.raw import load_frame
 from aat_deploy.errors import CaptureError
-from aat_deploy.model import DfFModel
-from aat_deploy.pipeline import Options, run_capture
+from aat_deploy.infer.model import DfFModel
+from aat_deploy.infer.pipeline import Options, run_capture
 
 
 def _need(sub: str):

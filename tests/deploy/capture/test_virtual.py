@@ -65,7 +65,7 @@ def test_aat_render_writes_a_capture_the_runtime_reads(scene, tmp_path, capsys):
     sim = Simulator(lens, OnnxPSF(ROOT / "models/psf_rf50.onnx", lens), fx.parse(["aberrations"]))
     srgb = cv2.imread(str(scene / "rgb.png"))[..., ::-1].astype(np.float32) / 255
     from aat_deploy.capture.raw import srgb_to_linear
-    from aat_deploy.geometry import fit_rgbd_to_sensor
+    from aat_deploy.infer.geometry import fit_rgbd_to_sensor
     from aat_deploy.gt.holes import fill_holes
 
     rgb, depth = fit_rgbd_to_sensor(srgb_to_linear(srgb), np.load(scene / "depth.npy"), (640, 960))

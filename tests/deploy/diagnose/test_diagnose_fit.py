@@ -36,7 +36,7 @@ def render_set(world, name: str, effects, n: int = 2, focus_m=FOCUS_M, frame_for
     frames as float TIFFs or DNGs (`frame_format`: a RAW the runtime develops); their CaptureData and a renderer."""
     from aat_deploy.diagnose.inputs import load_capture_data
     from aat_deploy.diagnose.session import make_renderer
-    from aat_deploy.model import DfFModel
+    from aat_deploy.infer.model import DfFModel
     from aat_deploy.diagnose.lookup import find_lens
     from aat_deploy.capture.virtual import write_capture
     from training.data.scenes import SceneConfig, procedural_scene

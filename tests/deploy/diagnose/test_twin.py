@@ -211,7 +211,7 @@ def test_export_metadata_and_stamping(tiny, tmp_path):
 def test_paraxial_fallback_warns(tiny, tmp_path):
     import onnx
 
-    from aat_deploy.model import DfFModel
+    from aat_deploy.infer.model import DfFModel
     from aat_deploy.diagnose.twin import TwinRenderer
 
     tmp, lens, model = tiny
@@ -228,7 +228,7 @@ def test_paraxial_fallback_warns(tiny, tmp_path):
 
 
 def test_what_needs_torch(tiny):
-    from aat_deploy.model import DfFModel
+    from aat_deploy.infer.model import DfFModel
     from aat_deploy.diagnose.twin import TwinRenderer
 
     tmp, lens, model = tiny
@@ -246,14 +246,14 @@ def test_what_needs_torch(tiny):
 
 def test_tiny_twin_without_torch_equals_torch(tiny, tmp_path):
     from aat_deploy.diagnose.inputs import load_capture_data
-    from aat_deploy.model import DfFModel
+    from aat_deploy.infer.model import DfFModel
     from training.render.torch_twin import TorchTwinRenderer
 
     tmp, lens, model_path = tiny
     r = run_without_torch(f"""
         import sys, numpy as np
         from aat_deploy.diagnose.inputs import load_capture_data
-        from aat_deploy.model import DfFModel
+        from aat_deploy.infer.model import DfFModel
         from aat_deploy.diagnose.twin import TwinRenderer
         from aat_deploy.lens.io import load_lens
         from aat_deploy.render import effects as fx

@@ -23,8 +23,8 @@ from deploy_fixtures import (
 
 from aat_deploy.cli import eval as eval_cli
 from aat_deploy.eval.score import aif_pair, fit_alignment
-from aat_deploy.model import DfFModel
-from aat_deploy.pipeline import Options, run_capture
+from aat_deploy.infer.model import DfFModel
+from aat_deploy.infer.pipeline import Options, run_capture
 
 FOCUS = [0.6, 0.8, 1.2, 2.0, 3.0, 4.5]
 

@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from aat_deploy.capture.focuslist import MAX_FOCUS_M, parse_focus_list
 from aat_deploy.cli.infer import main
 from aat_deploy.errors import CaptureError
-from aat_deploy.pipeline import OUTPUT_FILES
+from aat_deploy.infer.pipeline import OUTPUT_FILES
 
 FOCUS = [0.6, 0.75, 0.95, 1.3, 1.9, 3.0, 5.0]
 

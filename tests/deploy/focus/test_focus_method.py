@@ -13,7 +13,7 @@ from aat_deploy.focus.estimate import estimate_peak
 from aat_deploy.focus.fill import fill_depth
 from aat_deploy.focus.measures import MEASURES, focus_volume, prefilter
 from aat_deploy.focus.placement import place_equal_focus, tied_groups
-from aat_deploy.geometry import equalise_exposure
+from aat_deploy.infer.geometry import equalise_exposure
 
 
 def _volume(curve_fn, x: np.ndarray, d_true: np.ndarray) -> np.ndarray:

@@ -1,5 +1,5 @@
 """--method focus's automatic working resolution (aat_deploy.focus.scale) and the streaming decode that feeds it
-(aat_deploy.process.fitted_frames): the blur step measured from the frames against the step the test rendered,
+(aat_deploy.infer.process.fitted_frames): the blur step measured from the frames against the step the test rendered,
 the rule's hand cases, and that no frame is decoded more often than the rule needs."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import pytest
 
 from aat_deploy.focus import scale
 from aat_deploy.focus.runner import FocusMethod
-from aat_deploy.process import depth_from_frames, fitted_frames
+from aat_deploy.infer.process import depth_from_frames, fitted_frames
 
 
 def stack_with_step(sigma_step: float, h: int = 480, w: int = 640, s: int = 6, seed: int = 0) -> list[np.ndarray]:

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from aat_deploy.camera import intrinsics_from_dict
+from aat_deploy.optics.camera import intrinsics_from_dict
 from aat_deploy.cli import gt as gt_cli
 from aat_deploy.gt.pose import (
     Correspondences,

@@ -13,7 +13,7 @@ from conftest import ROOT
 
 trimesh = pytest.importorskip("trimesh")
 
-from aat_deploy.camera import CameraError, Intrinsics, intrinsics_from_dict, load_intrinsics
+from aat_deploy.optics.camera import CameraError, Intrinsics, intrinsics_from_dict, load_intrinsics
 from aat_deploy.cli import gt as gt_cli
 from aat_deploy.gt.raycast import GTRenderError, load_pose, pixel_rays, render_depth
 

@@ -11,7 +11,7 @@ import pytest
 from deploy_fixtures import tiny_model_path, write_pfm
 
 from aat_deploy.cli import gt as gt_cli
-from aat_deploy.geometry import fit_to_sensor
+from aat_deploy.infer.geometry import fit_to_sensor
 from aat_deploy.gt.read import (
     GTError,
     check_units,

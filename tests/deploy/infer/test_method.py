@@ -13,13 +13,13 @@ from deploy_fixtures import render_stack, synthetic_scene, write_dng_capture
 
 from aat_deploy.anycam.model import FocusMapModel
 from aat_deploy.api import depth_from_focus, read_stack
-from aat_deploy.camera import Intrinsics
+from aat_deploy.optics.camera import Intrinsics
 from aat_deploy.focus import FocusConfig, classical_depth
 from aat_deploy.focus.runner import FocusMethod
 from aat_deploy.infer.method import DepthMethod, DepthOutput
-from aat_deploy.model import DfFModel
-from aat_deploy.pipeline import Options, run_capture
-from aat_deploy.process import depth_from_frames
+from aat_deploy.infer.model import DfFModel
+from aat_deploy.infer.pipeline import Options, run_capture
+from aat_deploy.infer.process import depth_from_frames
 from conftest import ROOT
 
 FOCUS = [0.6, 0.8, 1.2, 2.0, 3.0, 4.5]
@@ -34,7 +34,7 @@ def test_every_estimator_is_a_depth_method():
 
 def test_the_runtime_asks_no_kind_and_probes_no_attribute():
     """Where a depth method is driven (pipeline, process, api), no `.kind` comparison, hasattr or getattr on it."""
-    for rel in ("aat_deploy/pipeline.py", "aat_deploy/process.py", "aat_deploy/api.py"):
+    for rel in ("aat_deploy/infer/pipeline.py", "aat_deploy/infer/process.py", "aat_deploy/api.py"):
         tree = ast.parse((ROOT / rel).read_text())
         for node in ast.walk(tree):
             if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in ("hasattr",

@@ -19,8 +19,8 @@ import torch
 from conftest import ROOT
 
 from aat_deploy.errors import CaptureError
-from aat_deploy.model import DfFModel
-from aat_deploy.pipeline import Options, run_capture
+from aat_deploy.infer.model import DfFModel
+from aat_deploy.infer.pipeline import Options, run_capture
 from training.cli.train import main
 from training.nets.export import PARITY_TOL, read_metadata
 

@@ -129,7 +129,7 @@ def test_normalise_by_hand(shape):
     """The contract's rule computed by hand: the 99.5th percentile interpolated linearly between the two order
     statistics around rank 0.995 (n - 1), the stack divided by it and clipped; an image in the stack's units (its
     all-in-focus image) scaled alike."""
-    from aat_deploy.normalise import normalise_scale, normalise_stack, scaled
+    from aat_deploy.infer.normalise import normalise_scale, normalise_stack, scaled
 
     rng = np.random.default_rng(sum(shape))
     x = (rng.random(shape) ** 3 * rng.uniform(0.1, 1000)).astype(np.float32)
@@ -147,7 +147,7 @@ def test_normalise_by_hand(shape):
 
 
 def test_normalise_edge_cases():
-    from aat_deploy.normalise import normalise_stack as normalise_np
+    from aat_deploy.infer.normalise import normalise_stack as normalise_np
 
     assert (normalise_np(np.zeros((2, 3, 4, 4))) == 0).all()
     with pytest.raises(ValueError, match="NaN"):

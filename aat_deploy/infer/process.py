@@ -1,9 +1,9 @@
 """Decoded frames -> depth maps: the part of aat-infer that works on arrays, shared by the capture pipeline
-(aat_deploy.pipeline) and the Python API (aat_deploy.api).
+(aat_deploy.infer.pipeline) and the Python API (aat_deploy.api).
 
 Steps: fit every frame to the model's sensor (centre crop to its aspect, resize), optional alignment against
 focus breathing, normalisation (docs/contracts.md), inference (tiled if asked), and, with native=True, depth and
-all-in-focus at the frames' own resolution (aat_deploy.upsample).
+all-in-focus at the frames' own resolution (aat_deploy.infer.upsample).
 """
 
 from __future__ import annotations
@@ -16,10 +16,10 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from .camera import Intrinsics
-from .errors import CaptureError
+from ..optics.camera import Intrinsics
+from ..errors import CaptureError
 from .geometry import align_stack, equalise_exposure, fit_to_sensor, sensor_crop
-from .infer.method import DepthMethod
+from .method import DepthMethod
 from .normalise import normalise_scale, normalise_stack
 from .outputs import DepthMaps
 from .upsample import native_maps
@@ -115,9 +115,7 @@ def fitted_frames(images: list[Frame], model: DepthMethod, *, native: bool = Fal
         if size0 is None:
             size0 = img.shape[:2]
             if auto:
-                from .focus.scale import TileSampler
-
-                sampler = TileSampler.for_size(size0)
+                sampler = model.tile_sampler(size0)
                 pre_wh = model.pre_reduction(size0)
             else:
                 size_wh = model.working_size(size0)

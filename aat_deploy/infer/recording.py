@@ -1,13 +1,13 @@
 """Write a capture's results as a rerun recording (.rrd) for `aat-view` / the rerun viewer.
 
 Entities (all under `world/camera`, a pinhole at the origin looking along +z, RDF axes):
-- `world/camera` Pinhole with the output camera's intrinsics (aat_deploy.camera).
+- `world/camera` Pinhole with the output camera's intrinsics (aat_deploy.optics.camera).
 - `world/camera/frames` Image of each input frame on the `focus` timeline (sequence = frame index, near to far),
   with `focus_m` Scalars beside it.
 - `world/camera/depth` DepthImage in metres from the sensor (meter = 1) with an explicit colour map and range,
   `world/camera/aif` the all-in-focus image, `world/camera/std_m` the uncertainty (metres, a DepthImage so the
   viewer colours it), `world/camera/gt_depth` ground truth if known (the depth's colour map and range).
-- `world/points` the depth back-projected through the pinhole (camera frame, aat_deploy.camera), coloured by the
+- `world/points` the depth back-projected through the pinhole (camera frame, aat_deploy.optics.camera), coloured by the
   all-in-focus image: the points of points.ply.
 The recording carries a default blueprint: focal stack, depth, all-in-focus, the 3-D view, uncertainty and the
 focus distances side by side. The 3-D view shows the points and the camera, not the depth images (rerun would
@@ -23,8 +23,8 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from .camera import Intrinsics
-from .io.colorize import ColorScale
+from ..optics.camera import Intrinsics
+from ..io.colorize import ColorScale
 
 MAX_POINTS = 200_000
 

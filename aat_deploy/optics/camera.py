@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import CaptureError
+from ..errors import CaptureError
 
 DEPTH_ORIGIN = "sensor plane"
 POINT_FROM_PIXEL = ("z = depth_m - pupil_to_sensor_mm / 1000; x = (u - cx_px) / fx_px * z; "

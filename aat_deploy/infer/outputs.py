@@ -8,9 +8,9 @@ Files (all maps the same size H x W, the camera's; docs/contracts.md, "Runtime o
 - `aif.png` the all-in-focus image, 8-bit sRGB;
 - `std_m.npy`, `std_mm.png`, `std_color.png` the uncertainty (metres; mm; colour preview), when given;
   `confidence.npy` / `confidence.png` a per-pixel confidence in [0, 1], when the method gives one;
-- `points.ply` the depth as a coloured point cloud (binary PLY, metres, camera frame: aat_deploy.camera);
+- `points.ply` the depth as a coloured point cloud (binary PLY, metres, camera frame: aat_deploy.optics.camera);
 - `camera.json` the intrinsics of these maps in pixels and where depth is measured from;
-- `recording.rrd` a rerun recording with a default layout (aat_deploy.recording), when asked.
+- `recording.rrd` a rerun recording with a default layout (aat_deploy.infer.recording), when asked.
 """
 
 from __future__ import annotations
@@ -24,14 +24,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .camera import CAMERA_FRAME, POINT_FROM_PIXEL, camera_json, points_from_depth
-from .capture.raw import linear_to_srgb
-from .errors import OutputError
-from .camera import Intrinsics
-from .io.depth_png import encode_mm16
-from .io.colorize import depth_preview, depth_range, uncertainty_preview, uncertainty_range
-from .io.images import imwrite
-from .io.ply import write_ply
+from ..optics.camera import CAMERA_FRAME, POINT_FROM_PIXEL, camera_json, points_from_depth
+from ..capture.raw import linear_to_srgb
+from ..errors import OutputError
+from ..optics.camera import Intrinsics
+from ..io.depth_png import encode_mm16
+from ..io.colorize import depth_preview, depth_range, uncertainty_preview, uncertainty_range
+from ..io.images import imwrite
+from ..io.ply import write_ply
 
 MAX_PLY_POINTS = 4_000_000   # every pixel up to this; more are subsampled on a regular grid (stride)
 MAX_RRD_POINTS = 200_000
@@ -100,7 +100,7 @@ def write_outputs(folder: str | Path, maps: DepthMaps, camera: Intrinsics,
                   recording: RecordingInputs | None = None, max_points: int = MAX_PLY_POINTS) -> dict:
     """Write every output file of one capture into `folder` (which exists; the caller makes it atomic).
 
-    camera: intrinsics of the maps' H x W (aat_deploy.camera). Returns {"outputs": {file: description},
+    camera: intrinsics of the maps' H x W (aat_deploy.optics.camera). Returns {"outputs": {file: description},
     "color_scales": {...}, "points": {...}, "timings_s": {"write": s, "record": s}} for summary.json; a *_mm.png
     that clipped values beyond 65.535 m says how many pixels in its description (aat_deploy.io.depth_png)."""
     t0 = time.perf_counter()

@@ -1,10 +1,10 @@
 """One capture folder → depth, all-in-focus, uncertainty, summary and a rerun recording.
 
 Stages (each timed in summary.json): metadata (focus distances, identity check), decode (RAW/images to linear
-RGB, each frame fitted to the working size as it is decoded: aat_deploy.process.fitted_frames), geometry (the
+RGB, each frame fitted to the working size as it is decoded: aat_deploy.infer.process.fitted_frames), geometry (the
 working size's checks), align (optional), normalise, infer (onnxruntime, padded,
-tiled if asked), native (--native-res: depth and all-in-focus at the capture's resolution, aat_deploy.upsample),
-write (files, aat_deploy.outputs: the one writer every depth method uses), record (.rrd). The output folder is checked before any work
+tiled if asked), native (--native-res: depth and all-in-focus at the capture's resolution, aat_deploy.infer.upsample),
+write (files, aat_deploy.infer.outputs: the one writer every depth method uses), record (.rrd). The output folder is checked before any work
 (aat_deploy.io.guard) and written to a temporary sibling renamed into place at the end (aat_deploy.io.atomic), so a
 failed run never leaves a half-written output folder.
 """
@@ -22,17 +22,17 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .capture.folder import Capture, read_capture
-from .capture.raw import load_frame
-from .confidence import MIN_CONFIDENCE, mark_unknown
-from .errors import CaptureError
-from .gt.read import read_depth_file, units_problem
-from .io.atomic import atomic_folder, writing
-from .infer.method import DepthMethod
-from .io.guard import check_output_dir
+from ..capture.folder import Capture, read_capture
+from ..capture.raw import load_frame
+from ..confidence import MIN_CONFIDENCE, mark_unknown
+from ..errors import CaptureError
+from ..gt.read import read_depth_file, units_problem
+from ..io.atomic import atomic_folder, writing
+from .method import DepthMethod
+from ..io.guard import check_output_dir
 from .normalise import DESCRIPTION as NORMALISATION
 from .outputs import DESCRIPTIONS, DepthMaps, RecordingInputs, write_outputs
-from .camera import camera_json
+from ..optics.camera import camera_json
 from .process import depth_from_frames, say
 # every capture's files (confidence.* only from methods that give one)
 OUTPUT_FILES = tuple(k for k in DESCRIPTIONS if not k.startswith("confidence")) + ("summary.json",)
@@ -52,7 +52,7 @@ class Options:
     focus_m: list[float] | None = None  # --focus-m: focus distances (m) of the frames in file-name order
     record: bool = True
     quiet: bool = False
-    native: bool = False  # depth and all-in-focus at the capture's resolution (aat_deploy.upsample)
+    native: bool = False  # depth and all-in-focus at the capture's resolution (aat_deploy.infer.upsample)
     max_megapixels: float | None = None  # the pixel limit of frame headers (None: $AAT_MAX_MEGAPIXELS or 200)
     allow_outside_links: bool = False  # follow symlinks leading out of the capture folder
     min_confidence: float = MIN_CONFIDENCE  # below it depth is unknown (NaN; aat_deploy.confidence)
@@ -132,7 +132,7 @@ def run_capture(capture_dir: str | Path, model: DepthMethod, out_dir: str | Path
     capture_dir, out_dir = Path(capture_dir), Path(out_dir)
     check_output(out_dir, opts.force, [capture_dir])
     if opts.record:
-        _import_in_background("aat_deploy.recording")  # rerun takes ~1 s to import: meanwhile frames decode
+        _import_in_background("aat_deploy.infer.recording")  # rerun takes ~1 s to import: meanwhile frames decode
     timings: dict[str, float] = {}
     clock = time.perf_counter()
 
