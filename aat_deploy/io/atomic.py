@@ -2,8 +2,8 @@
 
 Files: `atomic_file(path)` yields a hidden temporary sibling `.NAME.tmp-PID-N-TAG.SUFFIX` (the suffix kept, so
 writers that pick the format by extension or add one, as cv2.imwrite, savefig and np.savez do, write the file as
-asked; TAG is a hash of NAME, PID and N, so a file of that name is provably one of ours, not a user's file of a
-similar name); when the block ends it replaces `path` with one rename, on an exception it is deleted and `path` is
+asked; TAG is a hash of the host, NAME, PID and N, so a file of that name is provably one of ours, written on this
+host, not a user's file of a similar name); when the block ends it replaces `path` with one rename, on an exception it is deleted and `path` is
 left as it was. `atomic_files` does the same for files that belong together; `write_text_atomic` /
 `write_bytes_atomic` for text and bytes.
 
@@ -15,8 +15,9 @@ killed outright leaves it behind, and the next run writing into the same parent 
 siblings whose process is gone (never a folder without our marker).
 
 Stale temporaries (clean_stale): the first write of a process into a folder deletes the temporaries there of
-processes that are gone (SIGKILL, power cut): folders with our marker, files whose name carries our tag. Nothing
-else is touched: not a symlink, not a name without a valid tag, not a live process's temporary.
+processes of this host that are gone (SIGKILL, power cut): folders with our marker, files whose name carries our
+tag. Nothing else is touched: not a symlink, not a name without a valid tag, not a live process's temporary, not
+another host's (a shared folder).
 """
 
 from __future__ import annotations
@@ -24,10 +25,11 @@ from __future__ import annotations
 import errno
 import hashlib
 import itertools
-import threading
 import os
 import re
 import shutil
+import socket
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -68,9 +70,12 @@ def writing(folder: str | Path) -> Iterator[None]:
         raise write_error(folder, e) from None
 
 
-def _tag(name: str, pid: int, n: int) -> str:
-    """The 8 hex digits that prove `.NAME.tmp-PID-N-TAG.SUFFIX` was named by temp_file."""
-    return hashlib.sha256(f"aat-temporary:{name}:{pid}:{n}".encode("utf-8", "surrogateescape")).hexdigest()[:8]
+def _tag(name: str, pid: int, n: int, host: str | None = None) -> str:
+    """The 8 hex digits that prove `.NAME.tmp-PID-N-TAG.SUFFIX` was named by temp_file on this host (host: another
+    one's): a process id only says something on the host of its process, so other hosts' temporaries in a shared
+    folder never match and are never swept here."""
+    host = socket.gethostname() if host is None else host
+    return hashlib.sha256(f"aat-temporary:{host}:{name}:{pid}:{n}".encode("utf-8", "surrogateescape")).hexdigest()[:8]
 
 
 def temp_file(path: str | Path) -> Path:
@@ -186,6 +191,8 @@ def sweep_folder(parent: Path) -> list[Path]:
                     pass
             continue
         if not m or int(m["pid"]) == os.getpid() or pid_alive(int(m["pid"])) or not marker.is_ours(p):
+            continue
+        if not marker.written_here(marker.read(p)):  # another host's run in a shared folder: its pid means nothing here
             continue
         if ".old-" in p.name and marker.replace_problem(p, marker.read(p)["tool"]) is not None:
             continue

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import os
+import socket
 import stat
 from pathlib import Path
 
@@ -47,7 +48,7 @@ def write(folder: Path, tool: str, complete: bool) -> None:
     """Write folder's marker: the tool, and when complete the content list of what is in the folder now."""
     from .. import __version__
 
-    doc = {"format": FORMAT, "tool": tool, "version": __version__, "complete": complete,
+    doc = {"format": FORMAT, "tool": tool, "version": __version__, "complete": complete, "host": socket.gethostname(),
            "entries": entries(folder) if complete else {}}
     (Path(folder) / MARKER).write_text(json.dumps(doc, indent=0, sort_keys=True) + "\n")
 
@@ -107,6 +108,12 @@ def refusal(out: Path, tool: str, folder: Path | None = None) -> str | None:
         return None
     return (f"{out}: {why}; --force replaces only a folder proven to be an earlier {tool} output, so nothing was "
             "deleted: choose another output folder, or rename this one and run again")
+
+
+def written_here(doc: dict) -> bool:
+    """True if the marker `doc` was written on this host (or is older than the host field): a process id in a name
+    says something only on the host whose process it was (a shared or network folder has other hosts' runs)."""
+    return doc.get("host") in (None, socket.gethostname())
 
 
 def is_ours(folder: Path) -> bool:

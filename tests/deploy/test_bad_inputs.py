@@ -787,12 +787,15 @@ def test_stale_partial_folders_of_dead_runs_are_cleaned(model_path, good, tmp_pa
     out = tmp_path / "o"
     dead, alive = dead_pid(), os.getppid()
     stale = [tmp_path / f".o.tmp-{dead}", tmp_path / f".o.old-{dead}", tmp_path / f".other.tmp-{dead}"]
-    keep = [tmp_path / f".o.tmp-{alive}", tmp_path / f".users.tmp-{dead}"]  # running; not ours (no marker)
+    keep = [tmp_path / f".o.tmp-{alive}", tmp_path / f".users.tmp-{dead}",  # running; not ours (no marker)
+            tmp_path / f".shared.tmp-{dead}"]  # another host's run in a shared folder: its pid means nothing here
     for d in stale + keep:
         d.mkdir()
         (d / "depth_m.npy").write_bytes(b"partial")
         if d != keep[1]:
             marker.write(d, "aat-infer", complete=".old-" in d.name)
+    doc = json.loads((keep[2] / marker.MARKER).read_text())
+    (keep[2] / marker.MARKER).write_text(json.dumps({**doc, "host": "another-host"}))
     rc, lines, _ = infer([cap, "--model", model_path, "--out", out], capsys)
     assert rc == 0 and not lines
     assert not any(d.exists() for d in stale) and all(d.exists() for d in keep)

@@ -103,7 +103,8 @@ def _dead_pid() -> int:
 def test_temporary_files_of_killed_processes_are_swept_and_nothing_else(tmp_path):
     """Issue 31 leftover: a process killed (SIGKILL) inside atomic_file left its `.NAME.tmp-PID-...` file for ever
     (only temporary folders were swept). The next write into that folder deletes it; a name without our tag, a live
-    process's temporary, and a link or folder that has a tagged name are kept."""
+    process's temporary, another host's (a shared folder: its pid means nothing here), and a link or folder that has
+    a tagged name are kept."""
     root = str(Path(__file__).resolve().parents[3])
     proc = subprocess.run([sys.executable, "-c", KILLED_WHILE_WRITING.format(root=root), str(tmp_path / "cache.npz")])
     assert proc.returncode == -signal.SIGKILL
@@ -119,7 +120,8 @@ def test_temporary_files_of_killed_processes_are_swept_and_nothing_else(tmp_path
     keep = [tmp_path / f".a.png.tmp-{dead}-0.png",  # no tag (a user's name, or written before tags)
             tmp_path / f".a.png.tmp-{dead}-0-00000000.png",  # a wrong tag
             tagged("a.png", alive),  # a running process's
-            tagged("a.png", dead, 1, ".jpg")]  # a tag, but not the suffix temp_file gives
+            tagged("a.png", dead, 1, ".jpg"),  # a tag, but not the suffix temp_file gives
+            tmp_path / f".e.png.tmp-{dead}-0-{atomic._tag('e.png', dead, 0, host='elsewhere')}.png"]  # another host's
     for q in keep:
         q.write_bytes(b"keep")
     link, folder = tagged("b.png", dead), tagged("c.png", dead)
@@ -129,6 +131,7 @@ def test_temporary_files_of_killed_processes_are_swept_and_nothing_else(tmp_path
     gone = tagged("d.npz", dead, 7)
     gone.write_bytes(b"stale")
     assert atomic.temp_file_pid(gone.name) == dead and atomic.temp_file_pid(keep[1].name) is None
+    assert atomic.temp_file_pid(keep[-1].name) is None
 
     write_text_atomic(tmp_path / "other.json", "{}\n")  # the first write of this process into the folder sweeps it
     assert not stale[0].exists() and not gone.exists()
