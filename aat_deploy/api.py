@@ -28,7 +28,8 @@ import numpy as np
 from .anycam.model import open_model
 from .optics.camera import Intrinsics, camera_json
 from .capture.folder import focus_problem, read_capture
-from .capture.raw import load_frame, srgb_to_linear
+from .capture.raw import load_frame
+from .io.color import srgb_to_linear
 from .confidence import MIN_CONFIDENCE, mark_unknown
 from .errors import CaptureError
 from .infer.method import DepthMethod

@@ -25,7 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import CaptureError, load_json
+from .errors import CaptureError
+from .io.files import load_json
 from .io.atomic import write_text_atomic
 
 FORMAT = "aat-confidence-calibration-v1"

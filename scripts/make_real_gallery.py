@@ -249,7 +249,7 @@ METHODS: dict[str, tuple[str, Callable[[RealStack, int], Column | str]]] = {
 # --- pictures ---------------------------------------------------------------------------------------------------
 def srgb8(img: np.ndarray) -> np.ndarray:
     """(3, H, W) or (H, W, 3) linear, any scale -> (H, W, 3) uint8 sRGB, white at the 99.5th percentile."""
-    from aat_deploy.capture.raw import linear_to_srgb
+    from aat_deploy.io.color import linear_to_srgb
 
     x = img.transpose(1, 2, 0) if img.ndim == 3 and img.shape[0] == 3 else img
     x = x / max(float(np.percentile(x, 99.5)), 1e-6)

@@ -26,7 +26,7 @@ def main() -> None:
     ap.add_argument("--scene-seed", type=int, default=2026, help="the procedural scene (2026: the shipped sample)")
     ap.add_argument("--seed", type=int, default=1, help="the noise draw (1: the shipped sample)")
     args = ap.parse_args()
-    from aat_deploy.capture.raw import linear_to_srgb
+    from aat_deploy.io.color import linear_to_srgb
     from training.cli.render import main as render
     from training.data.scenes import SceneConfig, procedural_scene
     from training.render.schedule import FocusSchedule

@@ -135,7 +135,7 @@ def write_png_capture(folder: Path, focus_m: list[float], *, h: int = 48, w: int
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     tex, depth = synthetic_scene(h, w)
-    from aat_deploy.capture.raw import linear_to_srgb
+    from aat_deploy.io.color import linear_to_srgb
 
     frames = []
     for i, (f, img) in enumerate(zip(focus_m, render_stack(tex, depth, focus_m))):
@@ -153,7 +153,7 @@ def write_jpeg_capture(folder: Path, focus_m: list[float], *, h: int = 48, w: in
                        names: list[str] | None = None) -> Path:
     """A capture folder of 8-bit sRGB JPEG frames (quality 95; names default img_I.jpg, any name may be given, e.g.
     a JPEG misnamed .png) with a capture.json sidecar giving the focus distances."""
-    from aat_deploy.capture.raw import linear_to_srgb
+    from aat_deploy.io.color import linear_to_srgb
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)

@@ -22,7 +22,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..errors import CaptureError, load_json
+from ..errors import CaptureError
+from ..io.files import load_json
 
 FORMAT = "aat-chart-v1"
 DICTIONARY = "DICT_4X4_250"

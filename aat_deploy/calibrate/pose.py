@@ -114,7 +114,7 @@ class ChartView:
 def to_u8(frame_linear: np.ndarray) -> np.ndarray:
     """(3, H, W) or (H, W, 3) or (H, W) linear -> (H, W) uint8 sRGB-encoded grey, exposure-normalised (99.5th
     percentile to 1), what the marker detector sees."""
-    from ..capture.raw import linear_to_srgb
+    from ..io.color import linear_to_srgb
 
     x = np.asarray(frame_linear, np.float32)
     if x.ndim == 3:

@@ -10,7 +10,7 @@ import math
 import cv2
 import numpy as np
 
-from ..capture.raw import srgb_to_linear
+from ..io.color import srgb_to_linear
 from .chart import ChartLayout
 from .pose import ChartPose, homography_from_pose, intrinsics_matrix, plane_depth_mm
 

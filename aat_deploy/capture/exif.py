@@ -21,7 +21,7 @@ import struct
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from ..errors import read_input_bytes
+from ..io.files import read_input_bytes
 from . import exiftool, makernotes
 from .containers import Blocks, find_blocks
 from .imagefile import claimed_size

@@ -15,7 +15,8 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..errors import CaptureError, check_inside, file_kind, load_json, member_path, read_input_bytes
+from ..errors import CaptureError
+from ..io.files import check_inside, file_kind, load_json, member_path, read_input_bytes
 from . import exiftool
 from .exif import FrameMeta, read_metadata
 from .imagefile import FRAME_EXTENSIONS, frame_header

@@ -15,7 +15,6 @@ Values are in [0, 1] relative to the file's white level (the stack is normalised
 
 from __future__ import annotations
 
-import functools
 import io
 import re
 from pathlib import Path
@@ -25,42 +24,13 @@ import numpy as np
 import rawpy
 import simplejpeg
 
-from ..errors import AatError, CaptureError, read_input_bytes
+from ..errors import AatError, CaptureError
+from ..io.color import srgb_codes_to_linear
+from ..io.files import read_input_bytes
 from .containers import container_of, find_blocks
 from .imagefile import FRAME_EXTENSIONS, IMAGE_EXTENSIONS, RAW_EXTENSIONS, check_pixels, claimed_size, frame_header
 
-__all__ = ["FRAME_EXTENSIONS", "IMAGE_EXTENSIONS", "RAW_EXTENSIONS", "linear_to_srgb", "load_frame", "load_raw",
-           "srgb_to_linear"]
-
-
-def srgb_to_linear(x: np.ndarray) -> np.ndarray:
-    """sRGB-encoded values in [0, 1] → linear (IEC 61966-2-1)."""
-    x = np.asarray(x, dtype=np.float32)
-    return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4).astype(np.float32)
-
-
-@functools.cache
-def _srgb_lut(dtype) -> np.ndarray:
-    """srgb_to_linear of every code of an 8- or 16-bit image (the same float32 values, about 15x faster to apply
-    to a 12-MP frame than the formula)."""
-    top = np.iinfo(dtype).max
-    return srgb_to_linear(np.arange(top + 1, dtype=np.float32) / np.float32(top))
-
-
-def srgb_codes_to_linear(img: np.ndarray) -> np.ndarray:
-    """8- or 16-bit sRGB-encoded values (any shape) -> linear float32 in [0, 1] (the same values as
-    srgb_to_linear(img / max code), by table lookup)."""
-    if img.dtype == np.uint8 and img.ndim <= 3 and (img.ndim < 3 or img.shape[2] <= 4):
-        return cv2.LUT(np.ascontiguousarray(img), _srgb_lut(img.dtype))  # OpenCV's lookup: 3x numpy's at 12 MP
-    if img.dtype in (np.uint8, np.uint16):
-        return np.take(_srgb_lut(img.dtype), img)
-    raise TypeError(f"srgb_codes_to_linear: 8- or 16-bit codes expected, got {img.dtype}")
-
-
-def linear_to_srgb(x: np.ndarray) -> np.ndarray:
-    """Linear values (clipped to [0, 1]) → sRGB encoding in [0, 1]."""
-    x = np.clip(np.asarray(x, dtype=np.float32), 0.0, 1.0)
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055).astype(np.float32)
+__all__ = ["FRAME_EXTENSIONS", "IMAGE_EXTENSIONS", "RAW_EXTENSIONS", "load_frame", "load_raw"]
 
 
 _BENIGN_JPEG = re.compile(r"extraneous bytes before marker")  # libjpeg warnings that lose no image data

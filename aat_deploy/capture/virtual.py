@@ -13,7 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from aat_deploy.capture.raw import linear_to_srgb
+from aat_deploy.io.color import linear_to_srgb
 from aat_deploy.io.atomic import atomic_folder
 from aat_deploy.io.depth_png import encode_mm16
 from aat_deploy.lens.schema import Lens

@@ -27,7 +27,8 @@ from ..capture.exif import read_metadata
 from ..capture.focuslist import parse_focus_list
 from ..capture.folder import SIDECAR, _sidecar, focus_problem, frame_files, read_capture
 from ..capture.imagefile import frame_header
-from ..errors import CaptureError, check_inside, one_line, read_input_bytes, safe_output_streams
+from ..errors import CaptureError, one_line, safe_output_streams
+from ..io.files import check_inside, read_input_bytes
 from ..io.atomic import atomic_file
 from .common import (EXIT_FAILED, EXIT_OK, EXIT_USAGE, add_reader_options, check_reader_options, parser, run_guarded,
                      subparser)

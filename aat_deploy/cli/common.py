@@ -79,7 +79,7 @@ def subparser(sub, name: str, help: str, **kw) -> argparse.ArgumentParser:
 def add_reader_options(ap: argparse.ArgumentParser) -> None:
     """The options of commands that read capture folders: the pixel limit and following links out of a folder."""
     from ..capture.imagefile import DEFAULT_MAX_MEGAPIXELS, ENV_MAX_MEGAPIXELS
-    from ..errors import OUTSIDE_LINKS_FLAG
+    from ..io.files import OUTSIDE_LINKS_FLAG
 
     ap.add_argument("--max-megapixels", type=float, default=None, metavar="MP",
                     help="refuse frames whose header claims more pixels than this, before decoding (default "

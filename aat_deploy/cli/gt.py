@@ -25,7 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import CaptureError, check_inside, one_line, safe_output_streams
+from ..errors import CaptureError, one_line, safe_output_streams
+from ..io.files import check_inside
 from ..gt.read import check_aspect, check_units, find_gt, load_ground_truth
 from ..optics.camera import load_intrinsics
 from ..gt.raycast import load_mesh, load_pose, render_depth
@@ -103,7 +104,8 @@ def cmd_pose(a) -> int:
     notes = fit_notes(fit, points, intr)
     picture = None
     if a.image:
-        from ..capture.raw import linear_to_srgb, load_frame
+        from ..capture.raw import load_frame
+        from ..io.color import linear_to_srgb
 
         rgb, _ = load_frame(a.image)
         if rgb.shape[:2] != (intr.height, intr.width):  # the clicks are taken in the intrinsics' pixels

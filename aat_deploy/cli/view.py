@@ -41,7 +41,7 @@ def _check_rrd(path: Path) -> str | None:
     a file with the right magic and garbage after it was served before, to a blank viewer)."""
     import warnings
 
-    from ..errors import file_kind
+    from ..io.files import file_kind
 
     kind = file_kind(path)
     if kind is not None:

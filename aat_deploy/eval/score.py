@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..capture.raw import linear_to_srgb, srgb_to_linear
+from ..io.color import linear_to_srgb, srgb_to_linear
 from ..metrics import depth_metrics, psnr, ssim
 from .stats import zone_masks
 

@@ -26,7 +26,8 @@ import numpy as np
 
 from ..capture.containers import container_of
 from ..capture.imagefile import FRAME_EXTENSIONS, check_pixels, claimed_size
-from ..errors import CaptureError, check_inside, file_kind, load_json, member_path, read_input_bytes
+from ..errors import CaptureError
+from ..io.files import check_inside, file_kind, load_json, member_path, read_input_bytes
 
 GT_JSON = "gt.json"
 DEFAULT_FILES = (("gt_depth_m.npy", 1.0), ("gt_depth_m.pfm", 1.0), ("gt_depth_m.tif", 1.0),

@@ -18,7 +18,8 @@ import onnxruntime as ort
 
 from ..optics.camera import Intrinsics, model_intrinsics
 from ..confidence import ConfidenceCalibrationError, model_calibration, model_calibration_path, std_confidence
-from ..errors import ModelError, file_kind
+from ..errors import ModelError
+from ..io.files import file_kind
 from .method import DepthMethod, DepthOutput
 from ..machine import bound_threads
 from ..shipped import shipped_hint

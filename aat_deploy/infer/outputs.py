@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from ..optics.camera import CAMERA_FRAME, POINT_FROM_PIXEL, camera_json, points_from_depth
-from ..capture.raw import linear_to_srgb
+from ..io.color import linear_to_srgb
 from ..errors import OutputError
 from ..optics.camera import Intrinsics
 from ..io.depth_png import encode_mm16

@@ -561,7 +561,8 @@ def test_unknown_content_is_one_line_naming_the_file(content, expect, model_path
 def test_jpeg_orientation_is_applied_as_opencv_applies_it(orientation, tmp_path):
     """JPEG frames are decoded by libjpeg-turbo in strict mode (simplejpeg), which leaves the EXIF orientation
     to us: the same upright pixels as OpenCV's decoder (the one used before), for each of the eight values."""
-    from aat_deploy.capture.raw import load_frame, srgb_to_linear
+    from aat_deploy.capture.raw import load_frame
+    from aat_deploy.io.color import srgb_to_linear
 
     img = np.random.default_rng(orientation).integers(0, 256, (24, 40, 3), np.uint8)
     jpg = cv2.imencode(".jpg", cv2.GaussianBlur(img, (0, 0), 1.5), [cv2.IMWRITE_JPEG_QUALITY, 95])[1].tobytes()

@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 
 from aat_deploy.errors import AatError
-from aat_deploy.capture.raw import srgb_to_linear
+from aat_deploy.io.color import srgb_to_linear
 
 SHARED_MIDDLEBURY = Path(__file__).resolve().parents[3] / "shared" / "data" / "middlebury2014_motorcycle"
 # Calibration of the x4-downsampled Motorcycle images that scikit-image ships (Middlebury calib.txt / 4).

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ...capture.raw import srgb_codes_to_linear, srgb_to_linear
+from ...io.color import srgb_codes_to_linear, srgb_to_linear
 from .base import Conventions, Dataset, DatasetError, Item, need, select_frames
 
 BF = 0.14124  # disparity x depth (m) of DDFF-12's light-field camera

@@ -5,7 +5,7 @@ the highlights locally, smooths away low-contrast detail and noise, sharpens edg
 focus measure (a high-pass energy) reads the sharpening as texture and the denoising as blur, so a stack that went
 through this has other focus curves than the simulator's linear frames. The effect runs on the sensor's linear
 frame (after `noise` and `raw_pipeline`), and gives back what the runtime reads from the JPEG: the decoded 8-bit
-sRGB values made linear again (`aat_deploy.capture.raw.srgb_to_linear`, as `load_image` does). In order:
+sRGB values made linear again (`aat_deploy.io.color.srgb_to_linear`, as `load_image` does). In order:
 
 1. **Local tone mapping** (`tone`, 0 = off): every pixel's linear RGB is multiplied by (B / 0.18)^-tone, B the
    local mean luminance (geometric mean over a Gaussian of standard deviation `tone_scale` x the sensor's longer
@@ -35,7 +35,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from aat_deploy.capture.raw import linear_to_srgb, srgb_to_linear
+from aat_deploy.io.color import linear_to_srgb, srgb_to_linear
 from aat_deploy.focus.measures import LUMA  # Rec. 709 luminance of linear RGB
 from aat_deploy.render.effects import Effect, SimContext, register
 

@@ -12,7 +12,7 @@ from conftest import ROOT
 
 from aat_deploy.capture.folder import read_capture
 from aat_deploy.capture.raw import load_raw
-from aat_deploy.capture.raw import linear_to_srgb
+from aat_deploy.io.color import linear_to_srgb
 from aat_deploy.lens.io import load_lens
 from aat_deploy.capture.virtual import BLACK_LEVEL, WHITE_LEVEL, mosaic_rggb, to_dn
 from training.cli.render import main as render_main
@@ -64,7 +64,7 @@ def test_aat_render_writes_a_capture_the_runtime_reads(scene, tmp_path, capsys):
     lens = load_lens(ROOT / "lenses/canon_rf50mm_f1.8.json")
     sim = Simulator(lens, OnnxPSF(ROOT / "models/psf_rf50.onnx", lens), fx.parse(["aberrations"]))
     srgb = cv2.imread(str(scene / "rgb.png"))[..., ::-1].astype(np.float32) / 255
-    from aat_deploy.capture.raw import srgb_to_linear
+    from aat_deploy.io.color import srgb_to_linear
     from aat_deploy.infer.geometry import fit_rgbd_to_sensor
     from aat_deploy.gt.holes import fill_holes
 

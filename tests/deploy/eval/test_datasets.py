@@ -13,7 +13,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from aat_deploy.capture.raw import linear_to_srgb
+from aat_deploy.io.color import linear_to_srgb
 from aat_deploy.cli.eval import main
 from aat_deploy.eval.dataset_run import score_stack
 from aat_deploy.eval.datasets import DatasetError, need, open_dataset

@@ -227,7 +227,7 @@ def test_fit_alignment_and_aif_pair_units():
     g[0, 0] = np.nan
     assert fit_alignment(p, g, "scale-shift") == pytest.approx((2.0, -0.3))
     ref = rng.uniform(0.02, 0.9, (16, 16, 3)).astype(np.float32)
-    from aat_deploy.capture.raw import linear_to_srgb
+    from aat_deploy.io.color import linear_to_srgb
 
     half = np.rint(linear_to_srgb(ref * 0.5) * 255).astype(np.uint8)  # the same picture, one stop darker
     p8, r8, gain = aif_pair(half, ref)

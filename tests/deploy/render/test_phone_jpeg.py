@@ -5,7 +5,7 @@ tone mapping's fixed point and power law, denoising that keeps edges, the sensor
 import numpy as np
 import pytest
 
-from aat_deploy.capture.raw import linear_to_srgb, srgb_to_linear
+from aat_deploy.io.color import linear_to_srgb, srgb_to_linear
 from aat_deploy.lens.io import load_lens
 from aat_deploy.render import effects as fx
 from aat_deploy.render.effects.phone_jpeg import RANGES, random_settings
