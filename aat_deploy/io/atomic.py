@@ -3,9 +3,9 @@
 Files: `atomic_file(path)` yields a hidden temporary sibling `.NAME.tmp-PID-N-TAG.SUFFIX` (the suffix kept, so
 writers that pick the format by extension or add one, as cv2.imwrite, savefig and np.savez do, write the file as
 asked; TAG is a hash of the host, NAME, PID and N, so a file of that name is provably one of ours, written on this
-host, not a user's file of a similar name); when the block ends it replaces `path` with one rename, on an exception it is deleted and `path` is
-left as it was. `atomic_files` does the same for files that belong together; `write_text_atomic` /
-`write_bytes_atomic` for text and bytes.
+host, not a user's file of a similar name); when the block ends it replaces `path` with one rename, on an exception
+it is deleted and `path` is left as it was. `atomic_files` does the same for files that belong together;
+`write_text_atomic` / `write_bytes_atomic` for text and bytes.
 
 Folders: a folder is filled under a hidden temporary sibling `.NAME.tmp-PID` and renamed into place, carrying
 the marker of its tool and its content list (aat_deploy.io.marker); an existing folder (replaced only with force, and
