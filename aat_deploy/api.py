@@ -17,7 +17,6 @@ SDK, a simulator, a video) as numpy arrays. Errors are ValueError with one line 
 
 from __future__ import annotations
 
-import json
 import warnings as _warnings
 from dataclasses import dataclass, field
 from functools import lru_cache
@@ -26,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from .anycam.model import open_model
-from .optics.camera import Intrinsics, camera_json
+from .optics.camera import Intrinsics
 from .capture.folder import focus_problem, read_capture
 from .capture.raw import load_frame
 from .io.color import srgb_to_linear
@@ -36,7 +35,7 @@ from .infer.method import DepthMethod
 from .io.atomic import atomic_folder, writing
 from .io.guard import check_output_dir
 from .infer.model import DfFModel
-from .infer.outputs import DepthMaps, RecordingInputs, to_srgb8, write_outputs
+from .infer.outputs import DepthMaps, RecordingInputs, summary_fields, to_srgb8, write_outputs, write_summary
 from .infer.process import depth_from_frames
 from .shipped import resolve
 
@@ -80,12 +79,8 @@ class DepthResult:
         rec = RecordingInputs(self.frames, self.focus_m) if recording and self.frames is not None else None
         with writing(folder), atomic_folder(folder, force, "aat-infer") as tmp:
             info = write_outputs(tmp, maps, self.camera, rec)
-            summary = {"source": "aat_deploy.api", "focus_m": [float(f) for f in self.focus_m], "model": self.model,
-                       "output_size_px": [self.camera.width, self.camera.height], "camera": camera_json(self.camera),
-                       "color_scales": info["color_scales"], "points": info["points"],
-                       "outputs": {**info["outputs"], "summary.json": "this file"}, "unknown": self.unknown,
-                       "warnings": self.warnings}
-            (tmp / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=False))
+            write_summary(tmp, {"source": "aat_deploy.api", **summary_fields(info, self.camera, self.focus_m, self.model,
+                                                                            self.unknown, self.warnings)})
         return folder
 
 

@@ -19,7 +19,6 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from ..capture.raw import load_frame
@@ -30,9 +29,9 @@ from ..infer.model import DfFModel
 from ..io.atomic import atomic_folder, writing
 from ..io.colorize import colorize
 from ..io.guard import check_no_overlap, check_output_dir
-from ..io.images import imread
 from ..infer.pipeline import Options
-from ..infer.pipeline import run_capture as infer_capture
+from ..infer.outputs import to_srgb8
+from ..infer.pipeline import infer_capture
 from . import plots, report
 from .batch import Progress, capture_name, find_captures, model_labels
 from ..gt.read import (
@@ -85,12 +84,13 @@ def _score_one(cap: Path, gt: GroundTruth, model: DfFModel, label: str, run_dir:
     """Run one model on one capture and score it. CaptureError (incl. GTError) on failure."""
     check_units(gt, model.focus_range_m)
     # every pixel is scored (min_confidence 0: no depth marked unknown), as before the confidence was calibrated
-    summary = infer_capture(cap, model, run_dir, Options(align=opts.align_frames, quiet=True, record=False,
-                                                         use_exiftool=opts.use_exiftool,
-                                                         max_megapixels=opts.max_megapixels,
-                                                         allow_outside_links=opts.allow_outside_links,
-                                                         min_confidence=0.0))
-    pred = np.load(run_dir / "depth_m.npy").astype(np.float64)
+    run = infer_capture(cap, model, run_dir, Options(align=opts.align_frames, quiet=True, record=False,
+                                                     use_exiftool=opts.use_exiftool,
+                                                     max_megapixels=opts.max_megapixels,
+                                                     allow_outside_links=opts.allow_outside_links,
+                                                     min_confidence=0.0))
+    summary = run.summary
+    pred = np.asarray(run.maps.depth_m, np.float32).astype(np.float64)  # the values depth_m.npy holds
     frame_wh = tuple(summary["input_size_px"])
     crop = tuple(summary["geometry"]["crop_xywh"])
     gt_s = to_sensor(gt.depth_m, frame_wh, crop, model.sensor_px, gt.source.depth).astype(np.float64)
@@ -104,7 +104,7 @@ def _score_one(cap: Path, gt: GroundTruth, model: DfFModel, label: str, run_dir:
     pred_a = scale * pred + shift
     aif_p = aif_r = None
     gain = None
-    warnings = [w for w in summary["warnings"] if ": ground truth " not in w]  # the pipeline's own GT check
+    warnings = [w for w in summary["warnings"] if w not in run.ground_truth_warnings]  # scored here, not there
     if gt.source.aif is not None:
         ref, _ = load_frame(gt.source.aif, opts.max_megapixels)
         rh, rw = ref.shape[:2]
@@ -113,7 +113,7 @@ def _score_one(cap: Path, gt: GroundTruth, model: DfFModel, label: str, run_dir:
                             "a different aspect ratio; AiF not scored")
         else:
             ref_fit, _ = fit_to_sensor(ref, model.sensor_px)
-            aif8 = imread(run_dir / "aif.png", cv2.IMREAD_COLOR)[..., ::-1]
+            aif8 = to_srgb8(run.maps.aif)  # the pixels aif.png holds
             aif_p, aif_r, gain = aif_pair(aif8, ref_fit)
     row = acc.add(pred_a, gt_s, aif_p, aif_r, focus_m=focus)
     err = np.where(mask, pred_a - np.where(mask, gt_s, 0), np.nan)

@@ -24,10 +24,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..optics.camera import CAMERA_FRAME, POINT_FROM_PIXEL, camera_json, points_from_depth
-from ..io.color import linear_to_srgb
 from ..errors import OutputError
-from ..optics.camera import Intrinsics
+from ..io.color import linear_to_srgb
+from ..optics.camera import CAMERA_FRAME, POINT_FROM_PIXEL, Intrinsics, camera_json, points_from_depth
 from ..io.depth_png import encode_mm16
 from ..io.colorize import depth_preview, depth_range, uncertainty_preview, uncertainty_range
 from ..io.images import imwrite
@@ -77,6 +76,28 @@ class RecordingInputs:
     focus_m: np.ndarray
     gt_depth_m: np.ndarray | None = None
     name: str = "aat"
+
+
+def summary_fields(written: dict, camera: Intrinsics, focus_m, model: dict, unknown: dict | None,
+                   warnings: list[str]) -> dict:
+    """The summary.json keys of every depth run (aat-infer's per capture and the Python API's): written =
+    write_outputs' result; focus_m (S,) metres as used; model: the method's summary; unknown: mark_unknown's."""
+    return {"focus_m": [float(f) for f in focus_m], "model": model,
+            "output_size_px": [int(camera.width), int(camera.height)], "camera": camera_json(camera),
+            "color_scales": written["color_scales"], "points": written["points"],
+            "outputs": {**written["outputs"], "summary.json": "this file"}, "unknown": unknown, "warnings": warnings}
+
+
+def write_summary(folder: Path, summary: dict) -> None:
+    """folder/summary.json (docs/contracts.md, "Runtime outputs"): the one writer of the file, for aat-infer's
+    runs and the Python API's `DepthResult.save` (numpy scalars as numbers; NaN refused: absent values are null)."""
+    (Path(folder) / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=False, default=_json_default))
+
+
+def _json_default(v):
+    if isinstance(v, (np.floating, np.integer)):
+        return v.item()
+    raise TypeError(f"not JSON serialisable: {type(v).__name__}")
 
 
 def to_srgb8(linear: np.ndarray) -> np.ndarray:

@@ -12,27 +12,24 @@ failed run never leaves a half-written output folder.
 from __future__ import annotations
 
 import importlib
-import json
 import math
 import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from ..capture.folder import Capture, read_capture
 from ..capture.raw import load_frame
 from ..confidence import MIN_CONFIDENCE, mark_unknown
 from ..errors import CaptureError
-from ..gt.read import read_depth_file, units_problem
+from ..gt.read import check_units, find_gt, load_ground_truth, to_sensor
 from ..io.atomic import atomic_folder, writing
 from .method import DepthMethod
 from ..io.guard import check_output_dir
 from .normalise import DESCRIPTION as NORMALISATION
-from .outputs import DESCRIPTIONS, DepthMaps, RecordingInputs, write_outputs
-from ..optics.camera import camera_json
+from .outputs import DESCRIPTIONS, DepthMaps, RecordingInputs, summary_fields, write_outputs, write_summary
 from .process import depth_from_frames, say
 # every capture's files (confidence.* only from methods that give one)
 OUTPUT_FILES = tuple(k for k in DESCRIPTIONS if not k.startswith("confidence")) + ("summary.json",)
@@ -126,8 +123,29 @@ def check_output(out_dir: Path, force: bool, inputs: list[Path] = ()) -> None:
     check_output_dir(out_dir, inputs, force, tool="aat-infer")
 
 
+@dataclass
+class CaptureRun:
+    """What one capture's run made: summary (as written to summary.json); maps at the output size, as written
+    (depth_m NaN where unknown, aif (3, H, W) linear, std_m, confidence); working: the method's maps at its working
+    size; geometry: the frames' crop and scale (fit_to_sensor's); ground_truth (h, w) at the working size or None,
+    and the warnings about it (also in summary["warnings"])."""
+
+    summary: dict
+    maps: DepthMaps
+    working: DepthMaps
+    geometry: dict
+    ground_truth: np.ndarray | None
+    ground_truth_warnings: list[str]
+
+
 def run_capture(capture_dir: str | Path, model: DepthMethod, out_dir: str | Path, opts: Options) -> dict:
-    """Process one capture folder; returns the summary written to out_dir/summary.json."""
+    """Process one capture folder; returns the summary written to out_dir/summary.json (`infer_capture`: the
+    maps too)."""
+    return infer_capture(capture_dir, model, out_dir, opts).summary
+
+
+def infer_capture(capture_dir: str | Path, model: DepthMethod, out_dir: str | Path, opts: Options) -> CaptureRun:
+    """Process one capture folder into out_dir; returns the summary and the maps (`CaptureRun`)."""
     t_all = time.perf_counter()
     capture_dir, out_dir = Path(capture_dir), Path(out_dir)
     check_output(out_dir, opts.force, [capture_dir])
@@ -198,7 +216,9 @@ def run_capture(capture_dir: str | Path, model: DepthMethod, out_dir: str | Path
     w_px, h_px = res.working_size
 
     with writing(out_dir), atomic_folder(out_dir, opts.force, "aat-infer") as tmp:  # OSError: one line, no tmp
-        gt = _ground_truth(cap, size0, (w_px, h_px), warnings, model.focus_range_m)
+        gt, gt_warnings = ground_truth_at(capture_dir, size0, res.geometry["crop_xywh"], (w_px, h_px),
+                                          model.focus_range_m, opts)
+        warnings += gt_warnings
         rec = RecordingInputs(stack, focus, gt, cap.name) if opts.record else None
         say(opts.quiet, f"{cap.name}: writing outputs" + (" and the recording" if rec else ""))
         written = write_outputs(tmp, maps, camera, rec)
@@ -209,11 +229,9 @@ def run_capture(capture_dir: str | Path, model: DepthMethod, out_dir: str | Path
                         "make": f.meta.make, "model": f.meta.model, "lens": f.meta.lens,
                         "focal_length_mm": f.meta.focal_length_mm, "f_number": f.meta.f_number,
                         **({"decode": decode_info[i]} if decode_info.get(i) else {})} for i, f in enumerate(frames)],
-            "focus_m": [float(f.focus_m) for f in frames],
-            "model": model.summary(),
+            **summary_fields(written, camera, [f.focus_m for f in frames], model.summary(), unknown, warnings),
             "input_size_px": [int(size0[1]), int(size0[0])],
             "working_size_px": [int(w_px), int(h_px)],
-            "output_size_px": [int(camera.width), int(camera.height)],
             "native_resolution": (camera.width, camera.height) != (w_px, h_px),
             "geometry": res.geometry,
             "align": res.align_info,
@@ -221,58 +239,32 @@ def run_capture(capture_dir: str | Path, model: DepthMethod, out_dir: str | Path
             "tile": opts.tile,
             "depth_m_range": ([float(np.nanmin(maps.depth_m)), float(np.nanmax(maps.depth_m))]
                               if np.isfinite(maps.depth_m).any() else None),
-            "unknown": unknown,
             "ground_truth": _gt_stats(gt, res.working.depth_m),  # at the model's size, as the GT is
-            "camera": camera_json(camera),
             **({"method_info": res.info} if res.info else {}),
-            "color_scales": written["color_scales"],
-            "points": written["points"],
-            "outputs": {**written["outputs"], "summary.json": "this file"},
             "timings_s": timings,
-            "warnings": warnings,
         }
         summary["timings_s"]["total"] = round(time.perf_counter() - t_all, 4)
-        (tmp / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=False, default=_json_default))
-    return summary
+        write_summary(tmp, summary)
+    return CaptureRun(summary, maps, res.working, res.geometry, gt, gt_warnings)
 
 
-def _json_default(v):
-    if isinstance(v, (np.floating, np.integer)):
-        return v.item()
-    raise TypeError(f"not JSON serialisable: {type(v).__name__}")
-
-
-def _ground_truth(cap: Capture, size0: tuple[int, int], size_wh: tuple[int, int], warnings: list[str],
-                  focus_range_m: tuple[float, float]):
-    """gt_depth_m.npy (or gt_depth_mm.png) brought to the output geometry (nearest), NaN = unknown; or None.
-    Ground truth in the wrong units for the model's focus range (as aat-eval checks) is ignored with a warning."""
-    src = cap.gt_depth_m if cap.gt_depth_m is not None else cap.gt_depth_mm
-    if src is None:
-        return None
-    try:  # the one depth-file reader (aat-eval's): header sizes checked before anything is allocated
-        gt = read_depth_file(src).astype(np.float32) * (1.0 if cap.gt_depth_m is not None else 0.001)
+def ground_truth_at(capture_dir: Path, frame_hw: tuple[int, int], crop_xywh, size_wh: tuple[int, int],
+                    focus_range_m: tuple[float, float], opts: Options) -> tuple[np.ndarray | None, list[str]]:
+    """The capture's ground truth in any form `aat_deploy.gt.read` reads (gt.json, gt_depth_m.npy/.pfm/.tif,
+    gt_depth_mm.png, a mask), brought to the working size as the frames were (`to_sensor`: crop_xywh of the
+    frames' (H, W) = frame_hw, nearest samples), NaN = unknown; and warnings. Ground truth that cannot be used here
+    (unreadable, another aspect ratio, wrong units for the method's focus range) is ignored with a warning:
+    aat-infer does not score, aat-eval refuses it."""
+    try:
+        src = find_gt(capture_dir, opts.allow_outside_links)
+        if src is None:
+            return None, []
+        truth = load_ground_truth(src, opts.max_megapixels)
+        check_units(truth, focus_range_m)
+        gt = to_sensor(truth.depth_m, (frame_hw[1], frame_hw[0]), tuple(crop_xywh), size_wh, src.depth)
     except CaptureError as e:
-        warnings.append(f"{cap.path}: ground truth unreadable ({e}); ignored")
-        return None
-    if gt.ndim != 2 or gt.shape != tuple(size0):
-        warnings.append(f"{cap.path}: ground truth is {gt.shape}, frames are {tuple(size0)}; ignored")
-        return None
-    with np.errstate(invalid="ignore"):
-        gt = np.where(np.isfinite(gt) & (gt > 0), gt, np.nan).astype(np.float32)
-    if not np.isfinite(gt).any():
-        return None
-    why = units_problem(float(np.nanmedian(gt)), focus_range_m, src, 1.0 if cap.gt_depth_m is not None else 0.001)
-    if why is not None:
-        warnings.append(f"{why}; ground truth ignored")
-        return None
-    if (gt.shape[1], gt.shape[0]) != tuple(size_wh):
-        tw, th = size_wh
-        h, w = gt.shape
-        target = tw / th
-        cw, ch = (round(h * target), h) if w / h > target else (w, round(w / target))
-        x0, y0 = (w - cw) // 2, (h - ch) // 2
-        gt = cv2.resize(np.ascontiguousarray(gt[y0:y0 + ch, x0:x0 + cw]), (tw, th), interpolation=cv2.INTER_NEAREST)
-    return gt
+        return None, [f"{e}; ground truth ignored"]
+    return gt.astype(np.float32), list(truth.warnings)
 
 
 def _gt_stats(gt: np.ndarray | None, depth_m: np.ndarray) -> dict | None:

@@ -768,7 +768,7 @@ def test_damaged_npy_header_is_a_clean_error(model_path, tmp_path, capsys):
         load_ground_truth(find_gt(cap))
     rc, lines, _ = infer([cap, "--model", model_path, "--out", tmp_path / "o"], capsys)
     s = json.loads((tmp_path / "o" / "summary.json").read_text())
-    assert rc == 0 and any("ground truth unreadable" in w for w in s["warnings"])
+    assert rc == 0 and any("gt_depth_m.npy: unreadable" in w and "ground truth ignored" in w for w in s["warnings"])
 
 
 # -- 9: ports and stale temporary folders --------------------------------------------------------------------------
