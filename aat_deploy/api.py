@@ -27,10 +27,10 @@ import numpy as np
 from .anycam.model import open_model
 from .optics.camera import Intrinsics
 from .capture.folder import focus_problem, read_capture
-from .capture.raw import load_frame
 from .io.color import srgb_to_linear
 from .confidence import MIN_CONFIDENCE, mark_unknown
 from .errors import CaptureError
+from .infer.frames import FrameReader
 from .infer.method import DepthMethod
 from .io.atomic import atomic_folder, writing
 from .io.guard import check_output_dir
@@ -125,10 +125,8 @@ def read_stack(folder: str | Path, use_exiftool: bool = True, *, max_megapixels:
         cap = read_capture(folder, use_exiftool=use_exiftool, max_megapixels=max_megapixels,
                            allow_outside_links=allow_outside_links)
         frames = sorted(cap.frames, key=lambda f: f.focus_m)
-        images = [load_frame(f.path, max_megapixels)[0] for f in frames]
-        if len({im.shape for im in images}) > 1:
-            raise CaptureError(f"{folder}: frames of different sizes")
-        return np.stack(images), np.array([f.focus_m for f in frames], np.float64)
+        images = FrameReader([f.path for f in frames], max_megapixels).read_all()  # aat-infer's reader
+        return images, np.array([f.focus_m for f in frames], np.float64)
     except CaptureError as e:
         raise ValueError(str(e)) from None
     except MemoryError:

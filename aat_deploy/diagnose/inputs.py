@@ -11,6 +11,7 @@ import numpy as np
 from aat_deploy.capture.folder import read_capture
 from aat_deploy.capture.raw import load_frame
 from aat_deploy.errors import CaptureError
+from aat_deploy.infer.frames import FrameReader
 from aat_deploy.infer.geometry import fit_to_sensor
 from aat_deploy.infer.model import DfFModel
 from aat_deploy.eval import batch
@@ -42,15 +43,12 @@ def load_capture_data(folder: str | Path, model: DfFModel, use_exiftool: bool = 
                        allow_outside_links=allow_outside_links)
     frames = sorted(cap.frames, key=lambda f: f.focus_m)
     w_px, h_px = model.sensor_px
-    images, size0 = [], None
-    for f in frames:
-        img, _ = load_frame(f.path, max_megapixels)
-        if size0 is None:
-            size0 = img.shape[:2]
-        elif img.shape[:2] != size0:
-            raise CaptureError(f"{f.path}: frame size differs from {frames[0].path.name}")
+    reader = FrameReader([f.path for f in frames], max_megapixels)  # aat-infer's frame reader (sizes checked)
+    images = []
+    for img in reader.frames():
         fitted, geometry = fit_to_sensor(img, (w_px, h_px))
         images.append(fitted.transpose(2, 0, 1))
+    size0 = reader.first_hw()
     warnings = list(cap.warnings)
     src = find_gt(folder, allow_outside_links)
     if src is None:

@@ -21,13 +21,13 @@ from pathlib import Path
 import numpy as np
 
 from ..capture.folder import Capture, read_capture
-from ..capture.raw import load_frame
 from ..confidence import MIN_CONFIDENCE, mark_unknown
 from ..errors import CaptureError
 from ..gt.read import check_units, find_gt, load_ground_truth, to_sensor
 from ..io.atomic import atomic_folder, writing
 from .method import DepthMethod
 from ..io.guard import check_output_dir
+from .frames import FrameReader
 from .normalise import DESCRIPTION as NORMALISATION
 from .outputs import DESCRIPTIONS, DepthMaps, RecordingInputs, summary_fields, write_outputs, write_summary
 from .process import depth_from_frames, say
@@ -180,35 +180,12 @@ def infer_capture(capture_dir: str | Path, model: DepthMethod, out_dir: str | Pa
                         + ", ".join(outside))
     lap("metadata")
 
-    decode_info: dict[int, dict] = {}
-    first: dict = {}
-
-    def decoder(i: int, path: Path):
-        def decode() -> np.ndarray:  # called once per frame (twice when the focus method's size needs it)
-            if i == 0 and "img" in first:  # decoded already, for the any-camera model's camera
-                return first.pop("img")
-            img, info = load_frame(path, opts.max_megapixels)
-            if not first:
-                first.update(hw=img.shape[:2], name=path.name)
-            elif img.shape[:2] != first["hw"]:
-                h0, w0 = first["hw"]
-                raise CaptureError(f"{path}: frame is {img.shape[1]}x{img.shape[0]} px, {first['name']} is "
-                                   f"{w0}x{h0}: frames of different sizes")
-            decode_info.setdefault(i, info)
-            return img
-        return decode
-
-    sources = [decoder(i, f.path) for i, f in enumerate(frames)]
-
-    def first_hw() -> tuple[int, int]:  # the frames' size, before the others are decoded (kept for the run)
-        first["img"] = sources[0]()
-        return first["hw"]
-
-    model = model.for_capture(cap, first_hw)  # e.g. the any-camera model told this capture's camera
-    res = depth_from_frames(sources, focus, model, align=opts.align,
+    reader = FrameReader([f.path for f in frames], opts.max_megapixels)  # decodes on demand, sizes checked
+    model = model.for_capture(cap, reader.first_hw)  # e.g. the any-camera model told this capture's camera
+    res = depth_from_frames(reader.decoders(), focus, model, align=opts.align,
                             tile=opts.tile, native=opts.native, name=cap.name, where=str(capture_dir),
                             labels=[f.path.name for f in frames], quiet=opts.quiet, lap=lap)
-    size0 = first["hw"]
+    size0 = reader.first_hw()
     warnings += res.warnings
     maps, camera, stack = res.maps, res.camera, res.stack
     depth_known, unknown = mark_unknown(maps.depth_m, maps.confidence, opts.min_confidence)
@@ -228,7 +205,7 @@ def infer_capture(capture_dir: str | Path, model: DepthMethod, out_dir: str | Pa
             "frames": [{"file": f.path.name, "focus_m": float(f.focus_m), "focus_source": f.focus_source,
                         "make": f.meta.make, "model": f.meta.model, "lens": f.meta.lens,
                         "focal_length_mm": f.meta.focal_length_mm, "f_number": f.meta.f_number,
-                        **({"decode": decode_info[i]} if decode_info.get(i) else {})} for i, f in enumerate(frames)],
+                        **({"decode": reader.info[i]} if reader.info.get(i) else {})} for i, f in enumerate(frames)],
             **summary_fields(written, camera, [f.focus_m for f in frames], model.summary(), unknown, warnings),
             "input_size_px": [int(size0[1]), int(size0[0])],
             "working_size_px": [int(w_px), int(h_px)],

@@ -122,10 +122,10 @@ def test_output_overlapping_an_input_is_refused_before_any_work(case, model_path
         monkeypatch.chdir(earlier)
     before = tree_hash(tmp_path / "parent", cap, earlier)
     calls = []
-    import aat_deploy.infer.pipeline as pipeline
+    import aat_deploy.infer.frames as frames_mod  # the one frame reader
 
-    real = pipeline.load_frame
-    monkeypatch.setattr(pipeline, "load_frame", lambda p: calls.append(Path(p)) or real(p))
+    real = frames_mod.load_frame
+    monkeypatch.setattr(frames_mod, "load_frame", lambda p: calls.append(Path(p)) or real(p))
     rc, bad_lines, _ = infer([bad, "--model", model, "--out", out, *force], capsys)
     assert rc == 1
     assert len(bad_lines) == 2 and "1 of 1" in bad_lines[1]  # one line for the capture, then the count
@@ -716,10 +716,10 @@ def test_unwritable_output_fails_before_decoding(model_path, good, tmp_path, cap
     blocker = tmp_path / "file"
     blocker.write_text("a file where a folder should be")
     calls = []
-    import aat_deploy.infer.pipeline as pipeline
+    import aat_deploy.infer.frames as frames_mod  # the one frame reader
 
-    real = pipeline.load_frame
-    monkeypatch.setattr(pipeline, "load_frame", lambda p: calls.append(Path(p)) or real(p))
+    real = frames_mod.load_frame
+    monkeypatch.setattr(frames_mod, "load_frame", lambda p: calls.append(Path(p)) or real(p))
     outs = [blocker / "out"]
     if os.geteuid() != 0:  # root writes into a read-only folder anyway
         ro = tmp_path / "ro"
@@ -963,10 +963,10 @@ def test_out_on_a_mount_point_is_refused_before_any_work(model_path, good, tmp_p
     mnt = _full_tmpfs(tmp_path / "mnt", "4m")
     try:
         calls = []
-        import aat_deploy.infer.pipeline as pipeline
+        import aat_deploy.infer.frames as frames_mod  # the one frame reader
 
-        real = pipeline.load_frame
-        monkeypatch.setattr(pipeline, "load_frame", lambda p, *a: calls.append(p) or real(p, *a))
+        real = frames_mod.load_frame
+        monkeypatch.setattr(frames_mod, "load_frame", lambda p, *a: calls.append(p) or real(p, *a))
         rc, lines, _ = infer([cap, "--model", model_path, "--out", mnt, "--force"], capsys)
         assert rc == 1 and f"{mnt}: is a mount point, which cannot be replaced; choose a folder inside it" in lines[0]
         assert not calls
