@@ -495,7 +495,18 @@ def main(argv=None) -> int:
     ap.add_argument("--boot", type=int, default=100)
     ap.add_argument("--worlds", type=int, default=3, help="blind: worlds of 9 turned views each")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "calibrate.json"))
+    ap.add_argument("--tables", nargs="+", metavar="RESULT.json",
+                    help="only print the tables of earlier runs' results, merged (BENCHMARKS.md's)")
     a = ap.parse_args(argv)
+    if a.tables:
+        merged: dict = {"map": [], "depth": {}, "needs": {}, "blind": {}}
+        for f in a.tables:
+            r = json.loads(Path(f).read_text())
+            merged["map"] += r.get("map", [])
+            for k in ("depth", "needs", "blind"):
+                merged[k].update(r.get(k, {}))
+        print(tables(merged))
+        return 0
     parts = set(a.parts.split(","))
     log = lambda m: print(m, file=sys.stderr, flush=True)
     res: dict = {"map": [], "depth": {}, "needs": {}, "blind": {}}
