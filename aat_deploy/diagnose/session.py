@@ -12,7 +12,6 @@ from __future__ import annotations
 import dataclasses
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +21,7 @@ from aat_deploy.diagnose import report
 from aat_deploy.diagnose.inputs import find_captures, load_capture_data
 from aat_deploy.diagnose.search import Diagnosis, DiagnoseConfig, diagnose
 from aat_deploy.errors import AatError, CaptureError, ModelError
+from aat_deploy.progress import say
 from aat_deploy.io.atomic import atomic_folder
 from aat_deploy.io.guard import check_no_overlap
 from aat_deploy.infer.model import DfFModel
@@ -37,7 +37,7 @@ class DiagnoseError(AatError, RuntimeError):
 
 
 def _say(quiet: bool):
-    return (lambda msg: None) if quiet else (lambda msg: print(f"  {msg}", file=sys.stderr, flush=True))
+    return lambda msg: say(quiet, msg)  # the runtime's progress lines (aat_deploy.progress)
 
 
 def make_renderer(model: DfFModel, lens: Lens, surrogate: OnnxSource | None, torch_free: bool = False):

@@ -4,41 +4,19 @@ progress bar."""
 from __future__ import annotations
 
 import os
-import sys
 from pathlib import Path
 
 from ..capture.raw import FRAME_EXTENSIONS
 from ..errors import CaptureError, one_line
 from ..gt.read import has_ground_truth
+from ..progress import Progress as BaseProgress
 
 
-class Progress:
-    """A progress bar over the batch's (capture, model) jobs: tqdm when installed, else a line per job;
-    `note` prints a line without breaking the bar."""
+class Progress(BaseProgress):
+    """The reporter (`aat_deploy.progress`) over the batch's (capture, model) runs, which also records failures."""
 
     def __init__(self, total: int, quiet: bool):
-        self.total, self.done, self.quiet, self.bar = total, 0, quiet, None
-        if not quiet:
-            try:
-                from tqdm import tqdm
-
-                self.bar = tqdm(total=total, desc="aat-eval", unit="run", file=sys.stderr, dynamic_ncols=True)
-            except ImportError:
-                pass
-
-    def step(self, what: str) -> None:
-        self.done += 1
-        if self.bar is not None:
-            self.bar.set_postfix_str(what[-40:], refresh=False)
-            self.bar.update(1)
-        elif not self.quiet:
-            print(f"aat-eval [{self.done}/{self.total}] {what}", file=sys.stderr, flush=True)
-
-    def note(self, line: str) -> None:
-        if self.bar is not None:
-            self.bar.write(line, file=sys.stderr)
-        else:
-            print(line, file=sys.stderr, flush=True)
+        super().__init__(total, "aat-eval", "run", quiet)
 
     def fail(self, rows: list[dict], messages: list[str], name: str, label: str, msg: str) -> None:
         """Record that `label` failed on `name`: a failed row, the message, and a line under the bar."""
@@ -46,10 +24,6 @@ class Progress:
         line = one_line(f"aat-eval: FAILED {name} ({label}): {msg}")
         messages.append(line)
         self.note(line)
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
 
 
 def find_captures(root: Path, exclude: list[Path] = ()) -> tuple[list[Path], list[Path]]:

@@ -30,7 +30,8 @@ from ..io.guard import check_output_dir
 from .frames import FrameReader
 from .normalise import DESCRIPTION as NORMALISATION
 from .outputs import DESCRIPTIONS, DepthMaps, RecordingInputs, summary_fields, write_outputs, write_summary
-from .process import depth_from_frames, say
+from ..progress import say
+from .process import depth_from_frames
 # every capture's files (confidence.* only from methods that give one)
 OUTPUT_FILES = tuple(k for k in DESCRIPTIONS if not k.startswith("confidence")) + ("summary.json",)
 FOCAL_TOLERANCE = 0.02  # relative difference of focal length that counts as another lens

@@ -8,17 +8,16 @@ all-in-focus at the frames' own resolution (aat_deploy.infer.upsample).
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-from tqdm import tqdm
 
 from ..optics.camera import Intrinsics
 from ..errors import CaptureError
 from .geometry import align_stack, equalise_exposure, fit_to_sensor, sensor_crop
+from ..progress import Progress, say, track
 from .method import DepthMethod
 from .normalise import normalise_scale, normalise_stack
 from .outputs import DepthMaps
@@ -47,26 +46,6 @@ class StackResult:
         return self.working.depth_m.shape[1], self.working.depth_m.shape[0]
 
 
-class _TileBar:
-    """progress(done, total) for DfFModel.infer's tiles as a tqdm bar (created at the first tile)."""
-
-    def __init__(self, desc: str):
-        self.desc, self.bar = desc, None
-
-    def __call__(self, done: int, total: int) -> None:
-        if self.bar is None:
-            self.bar = tqdm(total=total, desc=f"  {self.desc}", unit="tile", leave=False, file=sys.stderr)
-        self.bar.update(done - self.bar.n)
-        if done >= total:
-            self.bar.close()
-
-
-def say(quiet: bool, msg: str) -> None:
-    """A progress line on stderr for a stage without steps to count (one onnxruntime call, writing files)."""
-    if not quiet:
-        print(f"  {msg}", file=sys.stderr, flush=True)
-
-
 Frame = np.ndarray | Callable[[], np.ndarray]  # a frame, or a function that decodes it (the pipeline: its file)
 
 
@@ -76,8 +55,8 @@ def _decoded(images: list[Frame], labels: list[str], name: str, quiet: bool):
     size0 = None
     decoding = any(callable(im) for im in images)
     items = enumerate(images)
-    if decoding and not quiet:
-        items = tqdm(items, total=len(images), desc=f"  {name}: decode", leave=False, file=sys.stderr)
+    if decoding:
+        items = track(items, len(images), f"  {name}: decode", "frame", quiet)
     for i, im in items:
         img = im() if callable(im) else im
         if size0 is None:
@@ -185,7 +164,7 @@ def depth_from_frames(images: list[Frame], focus_m: np.ndarray, model: DepthMeth
     s, _, h, w = stack.shape
     tiled = bool(tile) and max(h, w) > tile
     say(quiet or tiled, f"{name}: inference, {s} frames of {w}x{h} px")
-    bar = _TileBar(f"{name}: inference in tiles of {tile} px") if tiled and not quiet else None
+    bar = Progress(None, f"  {name}: inference in tiles of {tile} px", "tile", leave=False) if tiled and not quiet else None
     res = model.infer(stack, focus_m, tile=tile, progress=bar)
     warnings += res.warnings
     lap("infer")
