@@ -1,6 +1,6 @@
 """`aat-eval`'s batch: find the capture folders with ground truth under a root, run every model on each through
-the runtime pipeline (`aat_deploy.infer.pipeline.run_capture`, the same code as `aat-infer`), score the predictions with
-the shared metrics and write the tables, maps, plots and a rerun recording into one output folder.
+the runtime pipeline (`aat_deploy.infer.pipeline.infer_capture`, the same code as `aat-infer`; its maps are scored
+in memory), score the predictions with the shared metrics and write the tables, maps, plots and a rerun recording into one output folder.
 
 Output folder (written to a temporary sibling and renamed at the end; an existing one is replaced only with
 force):
@@ -29,9 +29,8 @@ from ..infer.model import DfFModel
 from ..io.atomic import atomic_folder, writing
 from ..io.colorize import colorize
 from ..io.guard import check_no_overlap, check_output_dir
-from ..infer.pipeline import Options
 from ..infer.outputs import to_srgb8
-from ..infer.pipeline import infer_capture
+from ..infer.pipeline import Options, infer_capture
 from . import plots, report
 from .batch import Progress, capture_name, find_captures, model_labels
 from ..gt.read import (
