@@ -12,7 +12,6 @@ Intrinsics (`aat_deploy.optics.camera.load_intrinsics`) come from a DfF model (.
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
@@ -20,6 +19,7 @@ import numpy as np
 
 from ..optics.camera import Intrinsics
 from ..errors import CaptureError
+from ..io.files import load_json
 
 ORTHO_TOL = 1e-3
 
@@ -38,10 +38,7 @@ def load_pose(path: str | Path) -> np.ndarray:
     "axes": "RDF" (default; OpenCV) or "RUB" (x right, y up, z backward; ARKit, OpenGL). World units = the mesh's
     (scaled to metres by --mesh-scale)."""
     path = Path(path)
-    try:
-        d = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise GTRenderError(f"{path}: not valid JSON ({e})") from None
+    d = load_json(path, GTRenderError)  # the one reader of users' JSON (BOM, depth, size limits)
     if not isinstance(d, dict):
         raise GTRenderError(f"{path}: expected a JSON object")
     axes = d.get("axes", "RDF")

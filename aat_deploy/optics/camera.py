@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import CaptureError
+from ..io.files import load_json
 
 DEPTH_ORIGIN = "sensor plane"
 POINT_FROM_PIXEL = ("z = depth_m - pupil_to_sensor_mm / 1000; x = (u - cx_px) / fx_px * z; "
@@ -148,10 +149,7 @@ def load_intrinsics(path: str | Path, width: int | None = None, height: int | No
                     d[k[4:]] = v
         intr = intrinsics_from_dict(d, str(path))
     else:
-        try:
-            d = json.loads(path.read_text())
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-            raise CameraError(f"{path}: not valid JSON ({e})") from None
+        d = load_json(path, CameraError)  # the one reader of users' JSON (BOM, depth, size limits)
         if not isinstance(d, dict):
             raise CameraError(f"{path}: expected a JSON object")
         intr = intrinsics_from_dict(d, str(path))
