@@ -55,6 +55,7 @@ sys.path.insert(0, str(ROOT))
 
 from aat_deploy.eval.stats import N_BOOT, bootstrap_mean, paired_ratio, zone_masks  # noqa: E402 (every DfF table's)
 from aat_deploy.eval.stats import fmt_interval as fmt  # noqa: E402
+from aat_deploy.optics.focus_table import diopter_grid  # noqa: E402 (the one even-in-diopters schedule)
 
 CACHE = ROOT / "cache" / "calibrate"
 SCALE = 1.1  # the copy's reported distance / true distance
@@ -260,9 +261,8 @@ def fit(rig: Rig, variant: str, sweeps: list[dict], n_boot: int, keep_every: int
 def part_map(rig: Rig, n_boot: int, log) -> tuple[list, dict]:
     rows, fits = [], {}
     s = rig.setup
-    lo_d, hi_d = 1.0 / max(s.distances_m), 1.0 / min(s.distances_m)
-    inside = 1.0 / np.linspace(lo_d, hi_d, 10)
-    schedule = 1.0 / np.linspace(1 / 10.0, 1 / 0.5, 8)
+    inside = diopter_grid(max(s.distances_m), min(s.distances_m), 10)
+    schedule = diopter_grid(10.0, 0.5, 8)
     for variant in ("nominal", "copy"):
         sw = [sweep(rig, variant, i, log) for i in range(len(s.distances_m))]
         t0 = time.time()
@@ -331,9 +331,8 @@ def part_needs(rig: Rig, sweeps: list[dict], log) -> list[dict]:
     """Map RMS (inside the full calibrated range and on the schedule) with subsets of distances and frames."""
     s = rig.setup
     eff = effects_for(s, "copy")
-    lo_d, hi_d = 1.0 / max(s.distances_m), 1.0 / min(s.distances_m)
-    inside = 1.0 / np.linspace(lo_d, hi_d, 10)
-    schedule = 1.0 / np.linspace(1 / 10.0, 1 / 0.5, 8)
+    inside = diopter_grid(max(s.distances_m), min(s.distances_m), 10)
+    schedule = diopter_grid(10.0, 0.5, 8)
     rows = []
     subsets = [(1,), (0, 2), (0, 1, 2)]
     for sub in subsets:
@@ -370,7 +369,7 @@ def world_views(rig: Rig, k: int, log) -> list[tuple[np.ndarray, np.ndarray]]:
     rgb, depth = procedural_scene(SceneConfig(height=hp, width=wp, near_m=0.5, far_m=10.0, photo_fraction=0.5,
                                               photo_split="test"), np.random.default_rng([424242, k]))
     z_mm = depth * 1000.0 - rig.pupil
-    true_m = 1.0 / np.linspace(1 / 10.0, 1 / 0.5, 8)
+    true_m = diopter_grid(10.0, 0.5, 8)
     out = []
     t0 = time.time()
     for i, (yaw, pitch) in enumerate([(a, b) for a in (-6, 0, 6) for b in (-6, 0, 6)]):
@@ -402,7 +401,7 @@ def part_blind(rig: Rig, chart_cal, n_worlds: int, log) -> list[dict]:
 
     s = rig.setup
     eff = effects_for(s, "copy")
-    true_m = 1.0 / np.linspace(1 / 10.0, 1 / 0.5, 8)
+    true_m = diopter_grid(10.0, 0.5, 8)
     rep = true_m * SCALE
     truth = rig.truth(eff, true_m)
     r = rig.fmap.radius_px(rig.h, rig.w)

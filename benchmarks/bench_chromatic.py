@@ -53,6 +53,7 @@ def main() -> None:
     torch.set_num_threads(2)
 
     from aat_deploy.lens.io import load_lens
+    from aat_deploy.optics.focus_table import diopter_grid
     from aat_deploy.psf.surrogate import PSFSurrogate
     from training.data.scenes import SceneConfig, procedural_scene
     from aat_deploy.render import effects as fx
@@ -105,7 +106,7 @@ def main() -> None:
     rgb, dep = procedural_scene(SceneConfig(height=128, width=128, near_m=0.6, far_m=8.0), np.random.default_rng(1))
     rgb_t = torch.from_numpy(np.ascontiguousarray(rgb.transpose(2, 0, 1))).float()
     dep_t = torch.from_numpy(dep).float()
-    focus_stack = 1.0 / np.linspace(1 / 0.5, 1 / 10.0, 8)
+    focus_stack = diopter_grid(0.5, 10.0, 8)
     origin = ((s.height_px - 128) // 2, (s.width_px - 128) // 2)
     times = {}
     for name, spec in (("per-wavelength surrogates", "chromatic"), ("ray traced, 1024 rays", "chromatic:psfs=trace")):

@@ -101,6 +101,7 @@ def bench_trace(dev, a) -> None:
 
 def bench_render(dev, a) -> None:
     from aat_deploy.lens.io import load_lens
+    from aat_deploy.optics.focus_table import diopter_grid
     from aat_deploy.render import effects as fx
     from training.data.scenes import SceneConfig, procedural_scene
     from training.render.layered import LayeredConfig
@@ -109,7 +110,7 @@ def bench_render(dev, a) -> None:
 
     lens = load_lens(LENS)
     src = OnnxPSF(PSF, lens)
-    focus = 1 / np.linspace(2.0, 0.1, 8)
+    focus = diopter_grid(0.5, 10.0, 8)
     rows = []
     sizes = [(192, 192)] if a.quick else [(192, 192), (lens.sensor.height_px, lens.sensor.width_px)]
     for h, w in sizes:

@@ -37,13 +37,14 @@ def main() -> None:
     torch.set_num_threads(2)
     from aat_deploy.lens.io import load_lens
     from aat_deploy.infer.model import DfFModel
+    from aat_deploy.optics.focus_table import diopter_grid
     from training.nets.export import dff_metadata, export_dff_onnx
     from training.nets.model import build_model, predict
 
     lens = load_lens(ROOT / "lenses/canon_rf50mm_f1.8.json")
     rng = np.random.default_rng(0)
     stack = rng.random((args.stack, 3, h, w), dtype=np.float32)
-    focus = np.sort(1 / np.linspace(2.0, 0.1, args.stack)).astype(np.float32)
+    focus = np.sort(diopter_grid(0.5, 10.0, args.stack)).astype(np.float32)
     rows = []
     for size in args.sizes.split(","):
         for net in args.nets.split(","):

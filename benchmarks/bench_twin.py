@@ -38,6 +38,7 @@ def main() -> None:
     torch.set_num_threads(args.threads)
 
     from aat_deploy.lens.io import load_lens
+    from aat_deploy.optics.focus_table import diopter_grid
     from aat_deploy.render.layered import LayeredConfig
     from aat_deploy.render.optical import optical_stack
     from aat_deploy.render.sources import GaussianSource
@@ -52,7 +53,7 @@ def main() -> None:
     rgb, depth = procedural_scene(SceneConfig(height=h, width=w, near_m=0.5, far_m=10.0), np.random.default_rng(0))
     rgb = np.ascontiguousarray(rgb.transpose(2, 0, 1), dtype=np.float32)
     depth = depth.astype(np.float32)
-    focus = 1.0 / np.linspace(1 / 0.5, 1 / 8.0, n)  # tilted corners focus farther: stay in the surrogate's range
+    focus = diopter_grid(0.5, 8.0, n)  # tilted corners focus farther: stay in the surrogate's range
     cfg, origin, sensor = LayeredConfig(cell_px=64), (0, 0), (lens.sensor.height_px, lens.sensor.width_px)
     src = onnx.numpy
     rows = []

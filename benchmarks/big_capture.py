@@ -54,6 +54,7 @@ def make_capture(out: Path, width: int = PHONE["width_px"], height: int = PHONE[
     import cv2
 
     from aat_deploy.io.atomic import atomic_folder
+    from aat_deploy.optics.focus_table import diopter_grid
     from aat_deploy.render import effects as fx
     from aat_deploy.render.effects.phone_jpeg import PhoneJpeg, jpeg_bytes, processed_srgb8
     from aat_deploy.render.layered import LayeredConfig
@@ -79,7 +80,7 @@ def make_capture(out: Path, width: int = PHONE["width_px"], height: int = PHONE[
                                               photo_fraction=0.5, photo_split="train"), rng)
     rgb = np.ascontiguousarray(rgb.transpose(2, 0, 1), np.float32)
     say("scene")
-    focus = 1.0 / np.linspace(1 / NEAR_M, 1 / FAR_M, frames)
+    focus = diopter_grid(NEAR_M, FAR_M, frames)
     ctx = fx.SimContext(lens, (rh, rw), (0, 0), None, None, 0.0)
     src = GaussianSource(lens)
     # a layer every 3 px of blur at 12 MP (the blur reaches ~100 px); cells only matter for field-varying PSFs

@@ -18,9 +18,17 @@ from aat_deploy.lens.schema import Lens
 from aat_deploy.optics.paraxial import paraxial_focus_z_mm
 
 
+def even_diopters(near_m: float, far_m: float, n: int) -> np.ndarray:
+    """The project's one "even in diopters" schedule, shape (n,): n focus settings in diopters (1/m, from the sensor
+    plane) evenly spaced from 1/near_m to 1/far_m, both included (defocus blur is linear in diopters). In diopters
+    for callers that jitter or bin the settings; `diopter_grid` gives the same schedule in metres."""
+    return np.linspace(1.0 / near_m, 1.0 / far_m, n)
+
+
 def diopter_grid(near_m: float, far_m: float, n: int) -> np.ndarray:
-    """n distances (m) evenly spaced in diopters from near to far (inclusive)."""
-    return 1.0 / np.linspace(1.0 / near_m, 1.0 / far_m, n)
+    """n distances (m, from the sensor plane) evenly spaced in diopters from near_m to far_m (inclusive), shape
+    (n,): `1 / even_diopters(near_m, far_m, n)`."""
+    return 1.0 / even_diopters(near_m, far_m, n)
 
 
 @dataclass(frozen=True)

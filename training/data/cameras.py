@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from aat_deploy.optics.focus_table import even_diopters
 from training.render.parametric import Aberrations, Camera
 
 K_MAX_PX_PER_D = 64.0  # blur growth the net is trained for at most (px of blur diameter per diopter)
@@ -107,7 +108,7 @@ def dense_schedule(rng: np.random.Generator, near_m: float, far_m: float, n: int
     kind = kind or str(rng.choice(["even", "random", "depth"], p=[0.55, 0.25, 0.2]))
     dn, df = 1.0 / near_m, 1.0 / far_m
     if kind == "even":
-        d = np.linspace(dn, df, n)
+        d = even_diopters(near_m, far_m, n)
         d = d + rng.uniform(-0.2, 0.2, n) * (dn - df) / (n - 1)
     elif kind == "random":
         d = np.sort(rng.uniform(df, dn, n))[::-1]

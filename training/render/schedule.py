@@ -13,6 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from aat_deploy.optics.focus_table import even_diopters
+
 
 @dataclass(frozen=True)
 class FocusSchedule:
@@ -35,7 +37,7 @@ class FocusSchedule:
 
     def distances(self, rng: np.random.Generator | None = None) -> np.ndarray:
         """Focus distances (m), near -> far. With `rng` and jitter_d > 0: jittered (training)."""
-        inv = np.linspace(1.0 / self.near_m, 1.0 / self.far_m, self.n)
+        inv = even_diopters(self.near_m, self.far_m, self.n)
         if rng is not None and self.jitter_d > 0:
             inv = inv + rng.uniform(-1, 1, self.n) * self.jitter_d * self.spacing_d
             inv = np.clip(inv, 1.0 / self.far_m * 0.5, None)

@@ -18,10 +18,12 @@ from pathlib import Path
 
 import numpy as np
 
+from aat_deploy.optics.focus_table import diopter_grid
+
 from .base import Conventions, Dataset, DatasetError, Item, depth_unit, select_frames
 
 LAYOUTS = (("a", "focus_dpth.txt"), ("", "focus_distance.txt"))  # (frame name prefix, focus file)
-PLACEHOLDER_D = (2.0, 1.0)  # placeholder focus positions (diopters), near to far: 0.5 ... 1 m
+PLACEHOLDER_M = (0.5, 1.0)  # placeholder focus distances (m), near to far, even in diopters (2 ... 1 D)
 REVERSED = ("metals",)  # scenes whose focus values grow towards the camera
 
 CONVENTIONS = Conventions(
@@ -84,7 +86,7 @@ class MobileDepth(Dataset):
             keep = select_frames(len(order), self.frames, str(folder))
             order = order[keep]
             s = len(order)
-            focus = 1.0 / np.linspace(*PLACEHOLDER_D, s)
+            focus = diopter_grid(*PLACEHOLDER_M, s)
             yield Item(folder.name, [self.frame_loader(files[i]) for i in order], focus, None, None,
                        {"focus": "placeholders even in diopters over 0.5-1 m (relative)",
                         "focus_values": values[order].tolist(), "files": [files[i].name for i in order]})

@@ -134,3 +134,18 @@ def test_only_cached_reads_the_cached_items(ds):
     cached = [i for i in range(6) if ds.is_cached(i)]
     assert part.items == cached and len(part) == len(cached) and 5 in cached
     assert part.cfg.key() == ds.cfg.key()  # the same renders
+
+
+def test_even_sweeps_are_the_one_diopter_grid_bit_for_bit():
+    # dense_schedule's "even" kind draws on optics.focus_table.even_diopters; the same random draws give the same
+    # sweep as the inline np.linspace(1 / near, 1 / far, n) it replaced.
+    for seed, (near, far, n) in enumerate(((0.3, 4.0, 16), (0.5, 10.0, 8), (1.2, 30.0, 5))):
+        got, kind = cams.dense_schedule(np.random.default_rng(seed), near, far, n, kind="even")
+        rng = np.random.default_rng(seed)
+        dn, df = 1.0 / near, 1.0 / far
+        d = np.linspace(dn, df, n) + rng.uniform(-0.2, 0.2, n) * (dn - df) / (n - 1)
+        d = np.sort(np.clip(d, df * 0.5, None))[::-1]
+        gap = (d[0] - d[-1]) / (n - 1) * 0.01
+        for i in range(1, n):
+            d[i] = min(d[i], d[i - 1] - gap)
+        assert kind == "even" and np.array_equal(got, 1.0 / np.maximum(d, 1e-3))

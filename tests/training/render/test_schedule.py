@@ -50,3 +50,26 @@ def test_scene_range_protocol_spreads_over_the_depth_range():
     assert np.all(np.diff(f) > 0) and np.all(np.abs(f - [2.0, 3.0, 4.0, 5.0]) <= 0.25 + 1e-12)
     with pytest.raises(ValueError, match="no valid depth"):
         scene_range_distances(np.zeros((2, 2)), 4)
+
+
+
+def _inline_schedule(near, far, n, jitter_d, rng):
+    """The copy FocusSchedule.distances held before it drew on even_diopters (kept here as the reference)."""
+    inv = np.linspace(1.0 / near, 1.0 / far, n)
+    if rng is not None and jitter_d > 0:
+        inv = inv + rng.uniform(-1, 1, n) * jitter_d * (1.0 / near - 1.0 / far) / (n - 1)
+        inv = np.clip(inv, 1.0 / far * 0.5, None)
+    return 1.0 / inv
+
+
+def test_schedule_is_the_one_even_in_diopters_grid_bit_for_bit():
+    # FocusSchedule draws on optics.focus_table.even_diopters; its output is the inline formula it replaced, jitter
+    # included (same random draws), so rendered training stacks are unchanged.
+    from aat_deploy.optics.focus_table import diopter_grid
+
+    for near, far, n, jit in ((0.5, 5.0, 8, 0.0), (0.4, 10.0, 10, 0.45), (0.3, 20.0, 5, 0.2)):
+        s = FocusSchedule(near, far, n, jitter_d=jit)
+        assert np.array_equal(s.distances(), diopter_grid(near, far, n))
+        for seed in range(5):
+            got = s.distances(np.random.default_rng(seed))
+            assert np.array_equal(got, _inline_schedule(near, far, n, jit, np.random.default_rng(seed)))
