@@ -1,7 +1,7 @@
 """The any-camera run's validation set scored by the classical method beside the net: the reference line of its
 validation curve (same items, same metrics, same mask as the run's validation).
 
-    OMP_WAIT_POLICY=PASSIVE python benchmarks/anycam_val_baseline.py [--config configs/anycam/dfv_aat.json]
+    OMP_WAIT_POLICY=PASSIVE python -m benchmarks.anycam_val_baseline [--config configs/anycam/dfv_aat.json]
         [--checkpoint RUN/last.pt ...] [--n 64]
 
 The validation items (training.data.anycam, fixed_subsets: each item's frames and camera processing fixed) carry
@@ -18,7 +18,6 @@ from pathlib import Path
 
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 
 def main(argv: list[str] | None = None) -> int:

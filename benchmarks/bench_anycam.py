@@ -1,7 +1,7 @@
 """The any-camera model (`models/dfv_aat.onnx`, issue 35) on lenses it never saw, against the lens-specific nets and
 the classical method given the same focus map.
 
-    OMP_WAIT_POLICY=PASSIVE python benchmarks/bench_anycam.py [--lenses paper50 ef50 z35 rf50] [--protocol fixed paper]
+    OMP_WAIT_POLICY=PASSIVE python -m benchmarks.bench_anycam [--lenses paper50 ef50 z35 rf50] [--protocol fixed paper]
         [--n 24] [--model models/dfv_aat.onnx] [--tables] [--out benchmarks/results]
 
 Test stacks (training/train/testsets.py, cached in cache/heldout): whole-sensor renders through each lens with its
@@ -35,15 +35,12 @@ from pathlib import Path
 
 import numpy as np
 
+from aat_deploy.eval.score import scene_scores as score  # one scoring for every DfF table
+from aat_deploy.eval.stats import fmt_interval as fmt
+from aat_deploy.eval.stats import paired_ratio, summarise
+from aat_deploy.io.atomic import write_text_atomic
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
-
-from aat_deploy.eval.score import scene_scores as score  # noqa: E402 (one scoring for every DfF table)
-from aat_deploy.eval.stats import fmt_interval as fmt  # noqa: E402
-from aat_deploy.eval.stats import paired_ratio, summarise  # noqa: E402
-
-from aat_deploy.io.atomic import write_text_atomic  # noqa: E402
 
 LENSES = {
     "paper50": {"lens": "lenses/paper_50mm_f2.8.json", "psf": "models/psf_paper50.onnx", "stack_size": 10,
@@ -224,7 +221,7 @@ def main(argv: list[str] | None = None) -> int:
                 "summary": {lab: {k: summarise(v) if k == "procedural" else v for k, v in r.items()}
                             for lab, r in res.items()}, "ratios": ratios}
             if maps:
-                from bench_table2 import field_figures
+                from benchmarks.bench_table2 import field_figures
 
                 field_figures(maps, a.out / "figures" / f"anycam_{lens_key}_{protocol}.png",
                               f"{lens_key}, {protocol} protocol: MAE against field radius")

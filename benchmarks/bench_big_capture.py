@@ -1,7 +1,7 @@
 """Big captures: `aat-infer --method focus` on a 12-MP 5-frame phone stack, before and after issue 34's speed work,
 in one run.
 
-    OMP_WAIT_POLICY=PASSIVE python benchmarks/bench_big_capture.py [--repeat 3] [--reference c861edf] [--native-working]
+    OMP_WAIT_POLICY=PASSIVE python -m benchmarks.bench_big_capture [--repeat 3] [--reference c861edf] [--native-working]
                                                                    [--no-native-res] [--no-reference] [--only-after]
 
 Input: the synthetic 12.5-MP phone capture of `benchmarks/big_capture.py` (five 4080 x 3072 JPEGs with ground
@@ -36,10 +36,9 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.big_capture import make_capture
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from big_capture import make_capture  # noqa: E402
 
 REFERENCE = "c861edf778f2e1c7376ef0bffe0d80dd94bfb960"  # main before issue 34's big-capture work
 EXIFTOOL_REFERENCE = "4b659f888866ee8ac9831ba6e998fae8fc028204"  # main before exiftool was skipped with capture.json

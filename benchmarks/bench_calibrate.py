@@ -1,6 +1,6 @@
 """Calibrating a camera from chart sweeps (aat-calibrate, aat_deploy/calibrate) against the truth of a rendered copy.
 
-    OMP_WAIT_POLICY=PASSIVE flock /work/heavy.lock nice -n 10 python benchmarks/bench_calibrate.py \
+    OMP_WAIT_POLICY=PASSIVE flock /work/heavy.lock nice -n 10 python -m benchmarks.bench_calibrate \
         [--lenses rf50,paper50,ef50] [--n 24] [--parts map,depth,needs] [--boot 100]
 
 Lenses: rf50, paper50, ef50 (the 50 mm lenses with PSF surrogates and best-focus maps) and z35 (the phone-sized
@@ -50,12 +50,11 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from aat_deploy.eval.stats import N_BOOT, bootstrap_mean, paired_ratio, zone_masks  # every DfF table's
+from aat_deploy.eval.stats import fmt_interval as fmt
+from aat_deploy.optics.focus_table import diopter_grid  # the one even-in-diopters schedule
 
-from aat_deploy.eval.stats import N_BOOT, bootstrap_mean, paired_ratio, zone_masks  # noqa: E402 (every DfF table's)
-from aat_deploy.eval.stats import fmt_interval as fmt  # noqa: E402
-from aat_deploy.optics.focus_table import diopter_grid  # noqa: E402 (the one even-in-diopters schedule)
+ROOT = Path(__file__).resolve().parents[1]
 
 CACHE = ROOT / "cache" / "calibrate"
 SCALE = 1.1  # the copy's reported distance / true distance

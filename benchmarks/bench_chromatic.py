@@ -1,7 +1,7 @@
 """`chromatic` from per-wavelength surrogates against ray tracing at three wavelengths: kernel agreement and the
 time to render one training stack, in one run.
 
-    OMP_WAIT_POLICY=PASSIVE python benchmarks/bench_chromatic.py RUN_DIR [--n 256] [--reference-rays 16384]
+    OMP_WAIT_POLICY=PASSIVE python -m benchmarks.bench_chromatic RUN_DIR [--n 256] [--reference-rays 16384]
 
 RUN_DIR: a lens-to-model run made with `aat-train --lens ... --effects chromatic` (lens.json, psf.onnx and the
 psf_<w>nm.onnx that its stage psf_colour fitted), e.g. the chromatic retraining folder of the diagnosis
@@ -22,15 +22,14 @@ simulator with `chromatic` (surrogates, then `psfs=trace`), best of --repeat; ra
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from benchmarks.timing import best_of
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from timing import best_of  # noqa: E402
 
 
 def centroid_px(k: np.ndarray, scale: np.ndarray) -> np.ndarray:

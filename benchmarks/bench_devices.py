@@ -1,9 +1,9 @@
 """Training where users train (issue 38): the GPU paths against the CPU, in one run, on the same inputs.
 
-    python benchmarks/bench_devices.py --device cuda                       # one GPU vs this machine's CPU
-    python benchmarks/bench_devices.py --device cuda --sections train --nets aifnet:full,dfvnet:full
+    python -m benchmarks.bench_devices --device cuda                       # one GPU vs this machine's CPU
+    python -m benchmarks.bench_devices --device cuda --sections train --nets aifnet:full,dfvnet:full
     torchrun --standalone --nproc_per_node=gpu benchmarks/bench_devices.py --sections ddp   # NCCL, all GPUs
-    python benchmarks/bench_devices.py --device cpu --quick                # smoke run of the script itself
+    python -m benchmarks.bench_devices --device cpu --quick                # smoke run of the script itself
 
 Sections (each prints a table; times are wall clock, best of --repeat, the ratio is CPU time / device time):
 - trace: ray-traced PSFs (training.psf.raytrace, RF50, 1024 rays, 11 x 11): the kernels' largest difference
@@ -37,10 +37,9 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
+from benchmarks.timing import best_of
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from timing import best_of  # noqa: E402
 
 LENS = ROOT / "lenses" / "canon_rf50mm_f1.8.json"
 PSF = ROOT / "models" / "psf_rf50.onnx"

@@ -1,6 +1,6 @@
 """The paper's Table 2 on our models: AAT vs thin-lens training, tested on stacks rendered through the real lens.
 
-    OMP_WAIT_POLICY=PASSIVE python benchmarks/bench_dff.py [--n 12] [--figures DIR] [MODEL.onnx ...]
+    OMP_WAIT_POLICY=PASSIVE python -m benchmarks.bench_dff [--n 12] [--figures DIR] [MODEL.onnx ...]
 
 Test sets (never seen in training; all rendered with the RF50's PSFs, the `aat` simulator; fixed schedule of
 8 focus distances even in diopters over 0.5-10 m, the training schedule, never derived from the depth):

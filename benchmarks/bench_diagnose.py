@@ -13,16 +13,16 @@ frame at 125 um pixels is the default; `chromatic` is sub-pixel there and runs o
 `--variant shipped` takes the shipped full-sensor models at 960 x 640 (models/reproduce/dff_dfvnet_{aat,thin}.onnx, the
 RF50's surrogate), or any model files given with --model-aat / --model-thin / --lens / --psf:
 
-    python benchmarks/diagnose_setup.py [--variant crop4]
-    python benchmarks/bench_diagnose.py [--sets-per-effect 3] [--captures 3] [--retrain-steps 0]
-    python benchmarks/bench_diagnose.py --variant crop4 --effects chromatic
-    python benchmarks/bench_diagnose.py --variant shipped [--model-aat M.onnx --model-thin T.onnx] --hidden
+    python -m benchmarks.diagnose_setup [--variant crop4]
+    python -m benchmarks.bench_diagnose [--sets-per-effect 3] [--captures 3] [--retrain-steps 0]
+    python -m benchmarks.bench_diagnose --variant crop4 --effects chromatic
+    python -m benchmarks.bench_diagnose --variant shipped [--model-aat M.onnx --model-thin T.onnx] --hidden
 
 The v3 run at the shipped scale (BENCHMARKS.md): every effect once, every focus-error shape, the hidden sets, one
 capture per set, torch-free twins as a runtime-only install has them; then (the same command again) the
 retraining of the first 8 sets, in the run's order, with a named cause:
 
-    python benchmarks/bench_diagnose.py --variant shipped --torch-free --hidden --sets-per-effect 1 --captures 1 \
+    python -m benchmarks.bench_diagnose --variant shipped --torch-free --hidden --sets-per-effect 1 --captures 1 \
         --rounds 1 --effects aberrations,chromatic,exposure,focus_breathing,focus_metadata,lens_tolerance,\
     misalignment,noise,raw_pipeline,sensor_tilt,vignetting --out benchmarks/results/diagnose_v3_shipped.jsonl \
         [--retrain-steps 150 --retrain-max 8]
@@ -54,7 +54,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from diagnose_setup import VARIANTS, setup_dir
+from benchmarks.diagnose_setup import VARIANTS, setup_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 FOCUS = (0.5, 10.0, 8)
@@ -210,7 +210,7 @@ def main() -> None:
     plan = make_plan(names, args.sets_per_effect, not args.effects or args.pairs, args.hidden)
     for p in {lens_path, psf_path, *(models[k] for k, _, _ in plan)}:
         if not p.exists():
-            raise SystemExit(f"{p}: missing; run python benchmarks/diagnose_setup.py --variant {args.variant} first")
+            raise SystemExit(f"{p}: missing; run python -m benchmarks.diagnose_setup --variant {args.variant} first")
     if any(n.startswith("lens_tolerance") for _, w, _ in plan for n in w):
         tolerance_table(lens_path, psf_path)
     order = rng.permutation(len(plan))  # sets in random order; the diagnosis never sees the plan

@@ -16,9 +16,9 @@ corrected focus against the truth (diopters; the corrected distances are the rep
 `none`), the per-frame estimates (`focus.frame_focus_d`) and whether any sits on its search bound (+-0.4 D around
 the reported value) while the truth does not.
 
-    python benchmarks/bench_diagnose_focus.py [--captures 3] [--kinds scale_1.1,none] [--out RESULTS.jsonl]
-    flock /work/heavy.lock nice -n 10 python benchmarks/bench_diagnose_focus.py        # the whole benchmark
-    python benchmarks/bench_diagnose_focus.py --table [RESULTS.jsonl ...]               # the table only
+    python -m benchmarks.bench_diagnose_focus [--captures 3] [--kinds scale_1.1,none] [--out RESULTS.jsonl]
+    flock /work/heavy.lock nice -n 10 python -m benchmarks.bench_diagnose_focus        # the whole benchmark
+    python -m benchmarks.bench_diagnose_focus --table [RESULTS.jsonl ...]               # the table only
 
 Captures are rendered once into --cache (git-ignored), the copies hard-link their frames; results are appended to
 --out, one JSON line per set, and sets already there are skipped (a stopped run continues where it stopped). Each

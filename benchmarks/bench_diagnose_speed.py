@@ -2,7 +2,7 @@
 replaced (every candidate setting of every effect rendered at full resolution), in one run on the same captures
 and model.
 
-    python benchmarks/bench_diagnose_speed.py [ROOT] [--model M.onnx] [--psf PSF.onnx] [--rounds 3]
+    python -m benchmarks.bench_diagnose_speed [ROOT] [--model M.onnx] [--psf PSF.onnx] [--rounds 3]
         [--grid-rounds 1]
 
 Three timings, torch-free (as a runtime-only install; `chromatic` has no per-wavelength surrogates for the

@@ -1,6 +1,6 @@
 """aat-eval over the shipped captures: the shipped RF50 DfF models (AAT vs thin lens) in one table.
 
-    OMP_WAIT_POLICY=PASSIVE python benchmarks/bench_eval.py [--root captures] [--out DIR] [--threads 2]
+    OMP_WAIT_POLICY=PASSIVE python -m benchmarks.bench_eval [--root captures] [--out DIR] [--threads 2]
                                                             [--models NAME ...]
 
 Runs `aat_deploy.eval.run.evaluate` exactly as `aat-eval ROOT --compare M1 M2 ...` does (metric depth, no
@@ -11,7 +11,6 @@ time of the batch. The full output (per-capture tables, maps, plots, eval.rrd) s
 from __future__ import annotations
 
 import argparse
-import sys
 import tempfile
 from pathlib import Path
 
@@ -28,7 +27,6 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--models", nargs="+", default=list(MODELS), help="names under models/ (default: the RF50 ones)")
     args = ap.parse_args()
-    sys.path.insert(0, str(ROOT))
     from aat_deploy.eval.run import EvalOptions, evaluate
 
     out = args.out or Path(tempfile.mkdtemp(prefix="bench_eval_")) / "eval"

@@ -1,8 +1,8 @@
 """Classical depth from focus (aat_deploy.focus, `aat-infer --method focus`) on held-out stacks: which focus measure
 and estimator, thin-lens vs aberration-aware focus mapping, next to the shipped learned models, and its speed.
 
-    OMP_WAIT_POLICY=PASSIVE python benchmarks/bench_focus.py --lens rf50 [--n 32] [--variants] [--speed]
-    OMP_WAIT_POLICY=PASSIVE python benchmarks/bench_focus.py --lens paper50 [--n 32]
+    OMP_WAIT_POLICY=PASSIVE python -m benchmarks.bench_focus --lens rf50 [--n 32] [--variants] [--speed]
+    OMP_WAIT_POLICY=PASSIVE python -m benchmarks.bench_focus --lens paper50 [--n 32]
 
 Test stacks: `training.train.testsets` (the cache every DfF benchmark shares), the "fixed" protocol: 8 frames even in
 diopters over 0.5-10 m, never looking at the scene; `--n` held-out procedural scenes (photo textures of the test
@@ -35,11 +35,8 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from aat_deploy.io.atomic import write_text_atomic  # noqa: E402
-from aat_deploy.eval.stats import (  # noqa: E402 (the statistics of every DfF table)
+from aat_deploy.io.atomic import write_text_atomic
+from aat_deploy.eval.stats import (  # the statistics of every DfF table
     N_BOOT,
     bootstrap_mean,
     fmt_interval,
@@ -48,7 +45,9 @@ from aat_deploy.eval.stats import (  # noqa: E402 (the statistics of every DfF t
     summarise,
     zone_masks,
 )
-from training.train.testsets import LENSES  # noqa: E402
+from training.train.testsets import LENSES
+
+ROOT = Path(__file__).resolve().parents[1]
 
 ZONES = ("all", "centre", "outer")
 KEYS = ("mae", "abs_rel", "delta1")

@@ -1,7 +1,7 @@
 """Float agreement between kernels: the relative differences the `numerics` tests and the export parity checks bound,
 measured under the settings .ci/run uses, next to the tolerance each check states.
 
-    OMP_WAIT_POLICY=PASSIVE python benchmarks/bench_numerics.py
+    OMP_WAIT_POLICY=PASSIVE python -m benchmarks.bench_numerics
 
 Each setting runs in its own interpreter (thread counts and kernel choices are fixed at import): the default, the
 CI's second pass (OMP_NUM_THREADS=1, torch's deterministic algorithms) and, on an AVX-512 CPU, that pass with torch's

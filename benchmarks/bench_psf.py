@@ -1,6 +1,6 @@
 """PSF surrogates on the paper's evaluation grid, and ray-traced PSF throughput.
 
-    OMP_WAIT_POLICY=PASSIVE python benchmarks/bench_psf.py [--config configs/psf_rf50.json] [--figures DIR]
+    OMP_WAIT_POLICY=PASSIVE python -m benchmarks.bench_psf [--config configs/psf_rf50.json] [--figures DIR]
 
 Evaluation: 20 focus distances x 40 depths (both even in diopters over 0.3..20 m from the sensor) x 8 x 10 field
 positions, ground truth ray-traced with 4096 rays. Error definition: for every PSF, kernels in the common

@@ -1,6 +1,6 @@
 """Focal-stack rendering: the fast layered renderer against the exact per-pixel renderer, one 480 x 640 frame.
 
-    OMP_WAIT_POLICY=PASSIVE python benchmarks/bench_render.py [--figures DIR] [--quick]
+    OMP_WAIT_POLICY=PASSIVE python -m benchmarks.bench_render [--figures DIR] [--quick]
 
 Scene: a procedural RGB-D scene (0.5-10 m), 480 x 640 crops of the Canon RF50's 640 x 960 sensor at its centre
 and at its top-left corner, focused at 1 m. For each PSF source (the RF50 surrogate models/psf_rf50.onnx and
@@ -14,15 +14,14 @@ is the reference way's time over ours. Also writes the thin-lens vs aberrated st
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from benchmarks.timing import best_of
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from timing import best_of  # noqa: E402
 
 
 def main() -> None:

@@ -1,6 +1,6 @@
 """Runtime inference: onnxruntime (what `aat-infer` runs) vs torch eager on the same net and input.
 
-    OMP_WAIT_POLICY=PASSIVE python benchmarks/bench_runtime.py [--sizes small] [--hw 640x960] [--stack 8]
+    OMP_WAIT_POLICY=PASSIVE python -m benchmarks.bench_runtime [--sizes small] [--hw 640x960] [--stack 8]
                                                                [--nets dfvnet,aifnet,dfvaat]
 
 For each net, a freshly built model (weights do not change the speed) is exported exactly as the shipped
@@ -14,16 +14,15 @@ includes making the maps (thin lens, a 50 mm f/1.8 camera).
 from __future__ import annotations
 
 import argparse
-import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from benchmarks.timing import best_of
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from timing import best_of  # noqa: E402
 
 
 def main() -> None:

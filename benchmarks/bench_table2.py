@@ -1,8 +1,8 @@
 """The paper's Table 2 (and its Table 3, the all-in-focus image), with intervals: AAT vs thin-lens training on one
 lens, tested on held-out stacks rendered through that lens (training/train/testsets.py).
 
-    OMP_WAIT_POLICY=PASSIVE python benchmarks/bench_table2.py --lens paper50 --protocol paper fixed [--n 32]
-    OMP_WAIT_POLICY=PASSIVE python benchmarks/bench_table2.py --lens rf50 --protocol fixed
+    OMP_WAIT_POLICY=PASSIVE python -m benchmarks.bench_table2 --lens paper50 --protocol paper fixed [--n 32]
+    OMP_WAIT_POLICY=PASSIVE python -m benchmarks.bench_table2 --lens rf50 --protocol fixed
     ... [--models A.onnx B.onnx ...] [--no-classical] [--tile 192] [--out benchmarks/results]
     ... --effects noise,vignetting,raw_pipeline     (capture effects on the test stacks; the nets never saw them)
 
@@ -32,20 +32,20 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from aat_deploy.eval.score import scene_scores as score  # noqa: E402,F401 (re-exported, below)
-from aat_deploy.eval.stats import (  # noqa: E402
+from aat_deploy.eval.score import scene_scores as score  # noqa: F401 (re-exported, below)
+from aat_deploy.eval.stats import (
     N_BOOT,  # noqa: F401
     field_radius,
     paired_diff,
     paired_ratio,
     summarise,
 )
-from aat_deploy.eval.stats import fmt_interval as fmt  # noqa: E402
-from aat_deploy.io.atomic import write_text_atomic  # noqa: E402
-from training.train.testsets import LENSES  # noqa: E402
+from aat_deploy.eval.stats import fmt_interval as fmt
+from aat_deploy.io.atomic import write_text_atomic
+from training.train.testsets import LENSES
+
+ROOT = Path(__file__).resolve().parents[1]
+
 
 # score, summarise, paired_ratio, paired_diff, fmt, N_BOOT and LENSES stay importable from here (as the scripts of work in
 # progress import them) until benchmarks/ becomes a package; new code imports aat_deploy.eval.stats / .score and training.train.testsets.

@@ -1,6 +1,6 @@
 """Traced rays per second through the RF50 (12 surfaces, 2 aspheres) on one and on two threads.
 
-    OMP_WAIT_POLICY=PASSIVE python benchmarks/bench_trace.py [--rays 262144] [--repeats 5]
+    OMP_WAIT_POLICY=PASSIVE python -m benchmarks.bench_trace [--rays 262144] [--repeats 5]
 
 Prints a markdown table (paste into BENCHMARKS.md). Each configuration runs in a fresh process so the
 thread count is really applied; the ratio column compares with one thread in the same run.

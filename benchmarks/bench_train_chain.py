@@ -1,7 +1,7 @@
 """Wall time of `aat-train --lens` per stage, for the presets (the "Train for your own lens" numbers in
 BENCHMARKS.md).
 
-    OMP_WAIT_POLICY=PASSIVE nice -n 10 python benchmarks/bench_train_chain.py [--preset tiny small]
+    OMP_WAIT_POLICY=PASSIVE nice -n 10 python -m benchmarks.bench_train_chain [--preset tiny small]
         [--lens lenses/canon_ef50mm_f1.8.json] [--out DIR] [--timeout-min 25]
 
 Each preset runs as its own `aat-train` process in a fresh folder (DIR/<preset>, default a temporary folder):

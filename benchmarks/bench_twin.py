@@ -1,6 +1,6 @@
 """Digital-twin rendering: the torch-free renderer (`aat_deploy.diagnose.twin`, numpy) against the training simulator (torch).
 
-    OMP_WAIT_POLICY=PASSIVE python benchmarks/bench_twin.py [--threads 1] [--repeat 1] [--quick]
+    OMP_WAIT_POLICY=PASSIVE python -m benchmarks.bench_twin [--threads 1] [--repeat 1] [--quick]
 
 The same twin stack both ways: a procedural RGB-D scene (0.5-10 m), a 192 x 288 crop at the top-left corner of
 the Canon RF50's 640 x 960 sensor (where its aberrations are strongest), 8 frames focused 0.5-8 m evenly in
@@ -20,9 +20,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from benchmarks.timing import best_of
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from timing import best_of  # noqa: E402
 
 SETUPS = {"thin lens": [], "AAT (aberrations)": ["aberrations"],
           "AAT + vignetting + sensor_tilt + focus_breathing": ["aberrations", "vignetting",

@@ -1,6 +1,6 @@
 """A synthetic 12-MP phone focal stack as a capture folder: the input of `benchmarks/bench_big_capture.py`.
 
-    python benchmarks/big_capture.py [--out cache/big_capture/phone12mp] [--width 4080 --height 3072]
+    python -m benchmarks.big_capture [--out cache/big_capture/phone12mp] [--width 4080 --height 3072]
 
 What a phone's main camera writes when it sweeps focus: five 4080 x 3072 JPEGs (12.5 MP, 4:2:0, quality 90) of a
 procedural scene (`training.data.scenes`, photographs of the *training* split) at 0.2-2.5 m, rendered with the
@@ -27,7 +27,6 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 # Pixel 6 Pro main camera (first-order facts: focal length, f-number, binned pixel pitch, 12.5-MP output)
 PHONE = {"focal_length_mm": 6.81, "f_number": 1.85, "pixel_um": 1.2, "width_px": 4080, "height_px": 3072}

@@ -1,7 +1,7 @@
 """Calibrate the confidence of the classical focus method and of DfF models on held-out validation stacks, then
 measure how well it predicts on other held-out validation stacks (reliability diagram).
 
-    OMP_WAIT_POLICY=PASSIVE python benchmarks/calibrate_confidence.py [--n-fit 20] [--n-assess 12] [--write]
+    OMP_WAIT_POLICY=PASSIVE python -m benchmarks.calibrate_confidence [--n-fit 20] [--n-assess 12] [--write]
         [--models rf50_dfvnet_aat_field,paper50_dfvnet_aat]
 
 What confidence means (aat_deploy/confidence.py): the chance that the pixel's depth is within 10 % of the truth.
@@ -39,11 +39,10 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.bench_table2 import LENSES
+from benchmarks.select_focus_noise import CONDITIONS, VAL_SEED
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
-from bench_table2 import LENSES  # noqa: E402
-from select_focus_noise import CONDITIONS, VAL_SEED  # noqa: E402
 
 ASSESS_SEED = 434343  # validation stacks apart from the fit's (424242), the test sets' (777777) and training seeds
 STRIDE = 4

@@ -1,10 +1,10 @@
 """Every effect's best fit, closeness and share, round by round, for one capture set of the diagnosis benchmark
 (`bench_diagnose.py`): what BENCHMARKS.md quotes for the two-effect set.
 
-    python benchmarks/diagnose_one_set.py cache/bench_diagnose/sets_v2/set21 [--model aat|thin] [--rounds 3]
-    python benchmarks/diagnose_one_set.py cache/bench_diagnose/sets_v2/set21 --stored   # the benchmark's own answer
-    python benchmarks/diagnose_one_set.py cache/bench_diagnose_shipped/sets_v3/set20 --stored   # v3: verdicts too
-    python benchmarks/diagnose_one_set.py cache/bench_diagnose_shipped/sets_v3/set03 --variant shipped --torch-free \
+    python -m benchmarks.diagnose_one_set cache/bench_diagnose/sets_v2/set21 [--model aat|thin] [--rounds 3]
+    python -m benchmarks.diagnose_one_set cache/bench_diagnose/sets_v2/set21 --stored   # the benchmark's own answer
+    python -m benchmarks.diagnose_one_set cache/bench_diagnose_shipped/sets_v3/set20 --stored   # v3: verdicts too
+    python -m benchmarks.diagnose_one_set cache/bench_diagnose_shipped/sets_v3/set03 --variant shipped --torch-free \
         --rounds 1   # diagnose a v3 set again with the current code
 
 --stored prints the `diagnosis.json` that `bench_diagnose.py` left in the set's folder instead of diagnosing again.

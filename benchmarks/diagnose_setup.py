@@ -1,8 +1,8 @@
 """Models for the diagnosis benchmark (`bench_diagnose.py`): the RF50 on a 288x192 working resolution, its PSF
 surrogate, and small DFVNets trained with the AAT and the thin-lens simulators. Resumable:
 
-    python benchmarks/diagnose_setup.py                  # full frame, 125 um pixels: ~25 min on 2 cores
-    python benchmarks/diagnose_setup.py --variant crop4  # centre 9 x 6 mm crop, 31.25 um pixels: ~15 min
+    python -m benchmarks.diagnose_setup                  # full frame, 125 um pixels: ~25 min on 2 cores
+    python -m benchmarks.diagnose_setup --variant crop4  # centre 9 x 6 mm crop, 31.25 um pixels: ~15 min
 
 Variants (`VARIANTS`): `full` images the whole 36 x 24 mm frame with 125 um pixels, so that hundreds of twins
 render in minutes; there the RF50's colour is sub-pixel (about 0.04 D of focus between red and blue, half a

@@ -1,6 +1,6 @@
 """Which cameras' files give a focus distance, without and with ExifTool: the tables in docs/shooting.md.
 
-    python benchmarks/exif_focus_table.py [FOLDER]      (default ../shared/data/raw_exif_makernotes_exiftool)
+    python -m benchmarks.exif_focus_table [FOLDER]      (default ../shared/data/raw_exif_makernotes_exiftool)
 
 Reads every sample file with the runtime's own reader (`aat_deploy.capture.exif.read_metadata`, no ExifTool) and
 with ExifTool (`exiftool -j -n`, as the runtime's fallback asks it), and prints two Markdown tables: per brand
@@ -16,13 +16,12 @@ import sys
 from collections import defaultdict
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from aat_deploy.capture import exiftool
+from aat_deploy.capture.exif import read_metadata
+from aat_deploy.capture.folder import focus_problem
+from aat_deploy.capture.raw import FRAME_EXTENSIONS
 
-from aat_deploy.capture import exiftool  # noqa: E402
-from aat_deploy.capture.exif import read_metadata  # noqa: E402
-from aat_deploy.capture.folder import focus_problem  # noqa: E402
-from aat_deploy.capture.raw import FRAME_EXTENSIONS  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 DEFAULT = ROOT.parent / "shared" / "data" / "raw_exif_makernotes_exiftool"
 BRANDS = (("CANON", "Canon"), ("NIKON", "Nikon"), ("OLYMPUS", "Olympus"), ("OM DIGITAL", "Olympus"),

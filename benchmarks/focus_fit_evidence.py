@@ -1,7 +1,7 @@
 """Why per-frame focus estimation failed on the shipped sample, and what each fix does (issue 32; the numbers and
 the figure in docs/diagnosis.md, "Why the focus fit failed on the sample").
 
-    python benchmarks/focus_fit_evidence.py [CAPTURE] [--scale 1.1] [--figure docs/diagnosis_focus.png]
+    python -m benchmarks.focus_fit_evidence [CAPTURE] [--scale 1.1] [--figure docs/diagnosis_focus.png]
 
 1. Brightness: every frame's mean as recorded (the DNG's mosaic, black level removed, over the white level) and
    as developed by LibRaw with its default `adjust_maximum_thr` (what the runtime did before) and as the runtime
@@ -119,7 +119,7 @@ def main() -> None:
     from aat_deploy.diagnose.session import make_renderer
     from aat_deploy.infer.model import DfFModel
     from aat_deploy.render import effects as fx
-    from bench_diagnose_focus import make_copy
+    from benchmarks.bench_diagnose_focus import make_copy
 
     cap_dir = Path(a.capture)
     files = sorted(cap_dir.glob("frame_*.dng"))

@@ -1,10 +1,10 @@
 """Choose the classical focus method's pre-filter (`FocusConfig.prefilter_px`) and peak estimator together, on
 validation stacks, not test ones.
 
-    OMP_WAIT_POLICY=PASSIVE python benchmarks/select_focus_noise.py [--n 20] [--sigmas 0,0.5,0.75,1,1.5,2,3]
+    OMP_WAIT_POLICY=PASSIVE python -m benchmarks.select_focus_noise [--n 20] [--sigmas 0,0.5,0.75,1,1.5,2,3]
 
 Why: the focus measures are high-pass, so sensor noise dominates them wherever a frame is out of focus
-(benchmarks/probe_classical_noise.py looked at it on test scenes; this script is the one that chooses). A
+(benchmarks/probes/classical_noise.py looked at it on test scenes; this script is the one that chooses). A
 pre-filter also changes the shape of the focus curve near its peak, which the sub-frame estimators model (the
 `ratio` estimator assumes power-law tails, `gauss` a Gaussian peak), so the two are chosen jointly.
 
@@ -34,10 +34,10 @@ from pathlib import Path
 
 import numpy as np
 
+from aat_deploy.eval.stats import N_BOOT, bootstrap_mean, paired_ratio
+from training.train.testsets import LENSES
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-from aat_deploy.eval.stats import N_BOOT, bootstrap_mean, paired_ratio  # noqa: E402
-from training.train.testsets import LENSES  # noqa: E402
 
 VAL_SEED = 424242  # apart from the test sets' 777777 and from every training seed
 CONDITIONS = {"clean": (), "noise": ("noise",), "phone": ("noise", "phone_jpeg")}

@@ -1,7 +1,7 @@
 """Choose the classical focus method's automatic working resolution (`aat_deploy.focus.scale`: STEP_MIN_PX and
 SIDE_MIN_PX) on validation stacks, so that reducing the frames loses no accuracy.
 
-    flock /work/heavy.lock nice -n 10 env OMP_WAIT_POLICY=PASSIVE python benchmarks/select_focus_resolution.py [--n 20]
+    flock /work/heavy.lock nice -n 10 env OMP_WAIT_POLICY=PASSIVE python -m benchmarks.select_focus_resolution [--n 20]
 
 Validation sets (never test stacks): procedural scenes textured with the *training* photographs, seeded apart
 from every test set (the seed of benchmarks/select_focus_noise.py), each without and with sensor noise (8000 e- full
@@ -32,10 +32,11 @@ from pathlib import Path
 
 import numpy as np
 
+from aat_deploy.eval.stats import N_BOOT, bootstrap_mean, paired_ratio
+from benchmarks.select_focus_noise import CONDITIONS, VAL_SEED
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-from aat_deploy.eval.stats import N_BOOT, bootstrap_mean, paired_ratio  # noqa: E402
-from select_focus_noise import CONDITIONS, VAL_SEED  # noqa: E402
+
 
 # (label, lens, PSF surrogate, simulator, frames, aberration-aware): the RF50 at its 960 x 640 working size through
 # its PSFs, and a thin lens with the RF50's optics on a sensor of twice the pixels (1920 x 1280), thin-lens mapping

@@ -2,7 +2,7 @@
 depth error on it is. For checking what `aat-diagnose`'s one-effect-at-a-time search cannot see, e.g. effects
 that only matter together (BENCHMARKS.md, the shipped sample).
 
-    python benchmarks/twin_combinations.py captures/sample_rf50 --model models/reproduce/dff_dfvnet_aat.onnx \\
+    python -m benchmarks.twin_combinations captures/sample_rf50 --model models/reproduce/dff_dfvnet_aat.onnx \\
         --combos ",noise,vignetting,noise+vignetting,noise+raw_pipeline,noise+vignetting+raw_pipeline" --seeds 1,2
 
 Per combination (effects joined by '+', settings as name:k=v; '' = the model's own simulator) and noise seed:

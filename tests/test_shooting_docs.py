@@ -28,10 +28,10 @@ def test_brand_tables_are_the_scripts_output():
         pytest.skip(f"{folder} not present (a user's clone has no ../shared/data)")
     if not exiftool.available():
         pytest.skip("exiftool not installed (Debian libimage-exiftool-perl; .ci/run installs it)")
-    m = re.search(r"<!-- begin: python benchmarks/exif_focus_table.py -->\n(.*?)\n<!-- end", DOC.read_text(), re.S)
+    m = re.search(r"<!-- begin: python -m benchmarks.exif_focus_table -->\n(.*?)\n<!-- end", DOC.read_text(), re.S)
     assert m, "the generated block is missing from docs/shooting.md"
     assert m.group(1) == _table_module().tables(folder), \
-        "docs/shooting.md is out of date: paste the output of python benchmarks/exif_focus_table.py"
+        "docs/shooting.md is out of date: paste the output of python -m benchmarks.exif_focus_table"
 
 
 def test_brands_without_a_recorded_focus_distance_are_as_the_docs_say():

@@ -4,7 +4,7 @@ The matrix: each case runs a command on a bad input next to a good capture and c
 error line naming the file, that the batch went on, and that the inputs and earlier outputs are byte-identical
 afterwards (the trees are hashed before and after). Then property-based tests (hypothesis) for the readers users
 feed: mutated DNG/TIFF headers, capture.json, gt.json and maker-note blocks, where any exception other than the
-project's own error types is a bug. `benchmarks/fuzz_readers.py` runs the long sweep (BENCHMARKS.md).
+project's own error types is a bug. `tests/fuzz_readers.py` runs the long sweep (BENCHMARKS.md).
 """
 
 from __future__ import annotations
@@ -758,7 +758,7 @@ def test_infer_checks_ground_truth_units(model_path, tmp_path, capsys):
 
 
 def test_damaged_npy_header_is_a_clean_error(model_path, tmp_path, capsys):
-    """Found by benchmarks/fuzz_readers.py: np.load parses a .npy header with Python's tokenizer, and an
+    """Found by tests/fuzz_readers.py: np.load parses a .npy header with Python's tokenizer, and an
     unbalanced bracket raised tokenize.TokenError (not a ValueError) out of aat-eval's reader and aat-infer."""
     cap = write_dng_capture(tmp_path / "cap", FOCUS)
     raw = bytearray((cap / "gt_depth_m.npy").read_bytes())

@@ -5,7 +5,7 @@ exit status 1 with one line naming a file in the folder), other exceptions (bugs
 broken promise: inputs changed, a temporary left behind, a message that names no file, an unexpected exception),
 crashes (the worker process died) and hangs (no answer within --timeout).
 
-    python benchmarks/fuzz_readers.py [--cases 1000] [--seed 0] [--timeout 10] [--readers frame,capture_folder,...]
+    python tests/fuzz_readers.py [--cases 1000] [--seed 0] [--timeout 10] [--readers frame,capture_folder,...]
 
 Each case runs in a worker subprocess (restarted after a crash or hang), so a segfault in a decoder is counted, not
 fatal. Seeds: a virtual-camera DNG, a Canon maker-note JPEG and a 16-bit PNG made here, plus the real files in
@@ -45,7 +45,6 @@ def run_folder_case(case: Path) -> dict:
     import contextlib
     import io
 
-    sys.path.insert(0, str(ROOT / "tests"))
     from deploy_fixtures import GOOD_KINDS, SKIPPED_UNLISTED, tree_hash
 
     from aat_deploy.cli import infer
@@ -247,7 +246,6 @@ def makernote_jpeg(base: bytes, rng: np.random.Generator) -> bytes:
 
 
 def seeds(tmp: Path) -> dict[str, bytes]:
-    sys.path.insert(0, str(ROOT / "tests"))
     from deploy_fixtures import canon_jpeg, fuzz_seeds, write_dng_capture, write_png_capture
 
     cap = write_dng_capture(tmp / "seed_dng", [0.7, 1.4], h=24, w=32, gt=False)

@@ -6,7 +6,7 @@ focus schedule; the Table 2 test set (training/train/testsets.py) is whole-senso
 one factor changed at a time (photo pool: train / test; schedule: mixed / fixed / scene) and scores the given
 ONNX models on every variant, through onnxruntime as `aat-infer` runs them:
 
-    OMP_WAIT_POLICY=PASSIVE python benchmarks/probe_generalisation.py configs/table2/paper50_aifnet_aat.json \
+    OMP_WAIT_POLICY=PASSIVE python -m benchmarks.probes.generalisation configs/table2/paper50_aifnet_aat.json \
         --models models/reproduce/paper50_aifnet_aat.onnx models/paper50_dfvnet_aat.onnx [--n 48] [--out R.json]
 
 A gap that opens with the held-out photographs (same schedule) is texture over-fitting; one that opens with the
@@ -23,8 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+ROOT = Path(__file__).resolve().parents[2]
 
 VARIANTS = {  # name: overrides of the config's val_data
     "val (train photos, mixed)": {},

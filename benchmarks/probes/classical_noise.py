@@ -1,6 +1,6 @@
 """Why the classical focus method collapses under sensor noise, and what a pre-filter would buy (exploratory).
 
-    OMP_WAIT_POLICY=PASSIVE python benchmarks/probe_classical_noise.py [--lens rf50] [--n 12]
+    OMP_WAIT_POLICY=PASSIVE python -m benchmarks.probes.classical_noise [--lens rf50] [--n 12]
 
 Scores the runtime's classical method (aat_deploy.focus, aberration-aware mapping) on the first --n stacks of the
 fixed-schedule held-out set (training/train/testsets.py, the ones bench_table2 scores), without and with the
@@ -19,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-from training.train.testsets import LENSES  # noqa: E402
+from training.train.testsets import LENSES
+
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,0 +1,50 @@
+"""benchmarks/ holds code only and runs as `python -m benchmarks.NAME`: no module edits sys.path to find the
+repository or its siblings, each imports as part of the `benchmarks` package, and what they write lives under
+results/ (issue 36)."""
+
+from __future__ import annotations
+
+import ast
+import importlib
+import subprocess
+import sys
+
+import pytest
+from conftest import ROOT
+
+MODULES = sorted(".".join(p.relative_to(ROOT).with_suffix("").parts) for p in (ROOT / "benchmarks").rglob("*.py")
+                 if p.name != "__init__.py")
+
+
+def _path_edits(source: str) -> list[int]:
+    """Lines that call sys.path.insert / append."""
+    return [n.lineno for n in ast.walk(ast.parse(source)) if isinstance(n, ast.Call)
+            and isinstance(n.func, ast.Attribute) and n.func.attr in ("insert", "append")
+            and ast.unparse(n.func.value) == "sys.path"]
+
+
+def test_the_detector_finds_a_path_edit():
+    assert _path_edits("import sys\nsys.path.insert(0, 'x')\nsys.path.append('y')\nl = []\nl.insert(0, 1)\n") == [2, 3]
+
+
+def test_no_benchmark_edits_sys_path_except_to_read_the_tests_tolerances():
+    bad = {}
+    for p in (ROOT / "benchmarks").rglob("*.py"):
+        src = p.read_text().splitlines()
+        # bench_numerics imports the tolerances tests/ state (conftest, test_twin ...): its one edit adds tests/ dirs
+        lines = [n for n in _path_edits("\n".join(src))
+                 if not (p.name == "bench_numerics.py" and "ROOT / d" in src[n - 1])]
+        if lines:
+            bad[str(p.relative_to(ROOT))] = lines
+    assert not bad, f"sys.path edits in benchmarks/ (run them as python -m benchmarks.NAME instead): {bad}"
+
+
+@pytest.mark.parametrize("name", MODULES)
+def test_every_benchmark_imports_as_a_module(name):
+    importlib.import_module(name)  # module level only: every benchmark parses its arguments in main()
+
+
+def test_a_benchmark_runs_with_python_m_from_the_root():
+    r = subprocess.run([sys.executable, "-m", "benchmarks.bench_calibrate", "--help"], cwd=ROOT,
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and "usage:" in r.stdout, r.stderr[-2000:]
