@@ -2,7 +2,7 @@
 the classical method given the same focus map.
 
     OMP_WAIT_POLICY=PASSIVE python -m benchmarks.bench_anycam [--lenses paper50 ef50 z35 rf50] [--protocol fixed paper]
-        [--n 24] [--model models/dfv_aat.onnx] [--tables] [--out benchmarks/results]
+        [--n 24] [--model models/dfv_aat.onnx] [--tables] [--out results]
 
 Test stacks (training/train/testsets.py, cached in cache/heldout): whole-sensor renders through each lens with its
 PSF surrogate, procedural scenes textured with the held-out photographs (n per lens and protocol) plus the real RGB-D
@@ -39,6 +39,7 @@ from aat_deploy.eval.score import scene_scores as score  # one scoring for every
 from aat_deploy.eval.stats import fmt_interval as fmt
 from aat_deploy.eval.stats import paired_ratio, summarise
 from aat_deploy.io.atomic import write_text_atomic
+from benchmarks import RESULTS
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -196,7 +197,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--tables", action="store_true", help="also the stack-size and schedule tables (paper lens)")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--cache", default=str(ROOT / "cache" / "heldout"))
-    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
+    ap.add_argument("--out", type=Path, default=RESULTS)
     a = ap.parse_args(argv)
     from training.train.testsets import load_test_set
 

@@ -53,6 +53,7 @@ import numpy as np
 from aat_deploy.eval.stats import N_BOOT, bootstrap_mean, paired_ratio, zone_masks  # every DfF table's
 from aat_deploy.eval.stats import fmt_interval as fmt
 from aat_deploy.optics.focus_table import diopter_grid  # the one even-in-diopters schedule
+from benchmarks import RESULTS
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -492,7 +493,7 @@ def main(argv=None) -> int:
     ap.add_argument("--n", type=int, default=24, help="procedural held-out scenes per lens (plus Middlebury)")
     ap.add_argument("--boot", type=int, default=100)
     ap.add_argument("--worlds", type=int, default=3, help="blind: worlds of 9 turned views each")
-    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "calibrate.json"))
+    ap.add_argument("--out", default=str(RESULTS / "calibrate.json"))
     ap.add_argument("--tables", nargs="+", metavar="RESULT.json",
                     help="only print the tables of earlier runs' results, merged (BENCHMARKS.md's)")
     a = ap.parse_args(argv)

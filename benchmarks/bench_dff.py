@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from benchmarks import FIGURES
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT = ["dff_aifnet_thin", "dff_aifnet_aat", "dff_dfvnet_thin", "dff_dfvnet_aat"]  # in models/reproduce/
@@ -36,7 +37,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("models", nargs="*")
     ap.add_argument("--n", type=int, default=12)
-    ap.add_argument("--figures", default=str(ROOT / "benchmarks/figures"))
+    ap.add_argument("--figures", default=str(FIGURES))
     args = ap.parse_args()
     from training.train.heldout import evaluate_model, plot_error_over_field, table
 

@@ -24,7 +24,7 @@ retraining of the first 8 sets, in the run's order, with a named cause:
 
     python -m benchmarks.bench_diagnose --variant shipped --torch-free --hidden --sets-per-effect 1 --captures 1 \
         --rounds 1 --effects aberrations,chromatic,exposure,focus_breathing,focus_metadata,lens_tolerance,\
-    misalignment,noise,raw_pipeline,sensor_tilt,vignetting --out benchmarks/results/diagnose_v3_shipped.jsonl \
+    misalignment,noise,raw_pipeline,sensor_tilt,vignetting --out results/diagnose_v3_shipped.jsonl \
         [--retrain-steps 150 --retrain-max 8]
 
 v3 plan (this version): the effects real cameras add (exposure, misalignment, lens_tolerance), focus-metadata
@@ -188,7 +188,7 @@ def main() -> None:
     if args.table is not None:
         rows = []
         for f in args.table or [args.out]:
-            # the variant's cache folder, or its name in the file name (benchmarks/results/diagnose_v2_crop4.jsonl)
+            # the variant's cache folder, or its name in the file name (results/archive/diagnose_v2_crop4.jsonl)
             var = next((k for k, v in VARIANTS.items() if k != "full" and (v.folder == Path(f).resolve().parent.name
                                                                           or k in Path(f).stem)), "full")
             rows += [dict(json.loads(x), variant=var, source=f) for x in Path(f).read_text().splitlines()]

@@ -38,10 +38,11 @@ import time
 from pathlib import Path
 
 import numpy as np
+from benchmarks import RESULTS
 
 ROOT = Path(__file__).resolve().parents[1]
 CACHE = ROOT / "cache" / "bench_diagnose_focus"
-RESULTS = ROOT / "benchmarks" / "results" / "diagnose_focus.jsonl"
+RESULTS_FILE = RESULTS / "diagnose_focus.jsonl"
 SCENES = ((2026, 1), (2027, 2), (2028, 3))  # (scene seed, noise seed); 2026/1 = the shipped sample
 QUANT_STEP_D = 0.1
 BOUND_TOL_D = 0.002
@@ -220,7 +221,7 @@ def main() -> None:
     ap.add_argument("--model", default=str(ROOT / "models" / "rf50_dfvnet_aat_field.onnx"))
     ap.add_argument("--rounds", type=int, default=3, help="greedy rounds (aat-diagnose's default: 3)")
     ap.add_argument("--cache", default=str(CACHE), help="rendered captures and the sets' copies")
-    ap.add_argument("--out", default=str(RESULTS), help="results, one JSON line per set (resumable)")
+    ap.add_argument("--out", default=str(RESULTS_FILE), help="results, one JSON line per set (resumable)")
     ap.add_argument("--fit-only", action="store_true", help="only the focus fit of the first round (the twin "
                     "without extra effects), not the whole diagnosis: minutes instead of a quarter hour per set, "
                     "for development; its rows are marked fit_only")

@@ -46,6 +46,7 @@ from aat_deploy.eval.stats import (  # the statistics of every DfF table
     zone_masks,
 )
 from training.train.testsets import LENSES
+from benchmarks import RESULTS
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -213,7 +214,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--variants", action="store_true")
     ap.add_argument("--speed", action="store_true")
     ap.add_argument("--calibration", action="store_true", help="print the stored calibration only")
-    ap.add_argument("--out", default=str(ROOT / "benchmarks/results"))
+    ap.add_argument("--out", default=str(RESULTS))
     a = ap.parse_args(argv)
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     from aat_deploy.focus import FocusConfig

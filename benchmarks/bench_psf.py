@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from benchmarks import FIGURES
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -44,7 +45,7 @@ def throughput(lens, n_psf: int = 4096, n_rays: int = 1024) -> list[tuple[str, f
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--config", default=str(ROOT / "configs/psf_rf50.json"))
-    ap.add_argument("--figures", default=str(ROOT / "benchmarks/figures"))
+    ap.add_argument("--figures", default=str(FIGURES))
     ap.add_argument("--cache", default=None)
     ap.add_argument("--skip-throughput", action="store_true")
     a = ap.parse_args()

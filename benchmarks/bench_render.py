@@ -20,13 +20,14 @@ import numpy as np
 import torch
 
 from benchmarks.timing import best_of
+from benchmarks import FIGURES
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--figures", default=str(ROOT / "benchmarks/figures"))
+    ap.add_argument("--figures", default=str(FIGURES))
     ap.add_argument("--quick", action="store_true", help="240 x 320 instead of 480 x 640 (smoke run)")
     ap.add_argument("--figure-only", action="store_true")
     args = ap.parse_args()

@@ -3,7 +3,7 @@ lens, tested on held-out stacks rendered through that lens (training/train/tests
 
     OMP_WAIT_POLICY=PASSIVE python -m benchmarks.bench_table2 --lens paper50 --protocol paper fixed [--n 32]
     OMP_WAIT_POLICY=PASSIVE python -m benchmarks.bench_table2 --lens rf50 --protocol fixed
-    ... [--models A.onnx B.onnx ...] [--no-classical] [--tile 192] [--out benchmarks/results]
+    ... [--models A.onnx B.onnx ...] [--no-classical] [--tile 192] [--out results]
     ... --effects noise,vignetting,raw_pipeline     (capture effects on the test stacks; the nets never saw them)
 
 Models default to `models/<lens>_{dfvnet,aifnet}_{aat,thin}[_field].onnx` that exist. They run with onnxruntime
@@ -43,6 +43,7 @@ from aat_deploy.eval.stats import (
 from aat_deploy.eval.stats import fmt_interval as fmt
 from aat_deploy.io.atomic import write_text_atomic
 from training.train.testsets import LENSES
+from benchmarks import FIGURES, RESULTS
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -138,8 +139,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--effects", default="",
                     help="capture effects rendered on top of the test stacks (comma-separated, as aat-render "
                          "--effects), e.g. noise,vignetting,raw_pipeline; results get a _fx-<names> suffix")
-    ap.add_argument("--out", default=str(ROOT / "benchmarks/results"))
-    ap.add_argument("--figures", default=str(ROOT / "benchmarks/figures"))
+    ap.add_argument("--out", default=str(RESULTS))
+    ap.add_argument("--figures", default=str(FIGURES))
     a = ap.parse_args(argv)
     from training.train.testsets import TestSetSpec, load_test_set
 

@@ -24,8 +24,8 @@ phone-like 5-frame RF50 stack with the phone processing. The focus method runs a
 (aberration-aware, the lens's map): the confidence speaks for the image evidence under the right mapping.
 Pixels: every 4th row and column of each stack (the fit has millions; neighbours are not independent anyway).
 
-Prints the tables of BENCHMARKS.md ("Calibrated confidence"), writes benchmarks/results/confidence_calibration.json
-and benchmarks/figures/confidence_reliability.png; with --write also the calibrations themselves
+Prints the tables of BENCHMARKS.md ("Calibrated confidence"), writes results/confidence_calibration.json
+and results/figures/confidence_reliability.png; with --write also the calibrations themselves
 (aat_deploy/focus/data/confidence.json, models/<model>.confidence.json).
 """
 
@@ -41,6 +41,7 @@ import numpy as np
 
 from benchmarks.bench_table2 import LENSES
 from benchmarks.select_focus_noise import CONDITIONS, VAL_SEED
+from benchmarks import FIGURES, RESULTS
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -275,8 +276,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--models", default="rf50_dfvnet_aat_field,paper50_dfvnet_aat",
                     help="shipped model names or paths to calibrate ('' for none)")
     ap.add_argument("--write", action="store_true", help="write the calibrations the runtime reads")
-    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/confidence_calibration.json")
-    ap.add_argument("--figure", type=Path, default=ROOT / "benchmarks/figures/confidence_reliability.png")
+    ap.add_argument("--out", type=Path, default=RESULTS / "confidence_calibration.json")
+    ap.add_argument("--figure", type=Path, default=FIGURES / "confidence_reliability.png")
     a = ap.parse_args(argv)
     if a.n_fit < 1 or a.n_assess < 1:
         ap.error("--n-fit and --n-assess must be >= 1")

@@ -21,7 +21,7 @@ paired over scenes.
 
 Choice: the (estimator, sigma) with the lowest geometric mean, over the six (lens, condition) cells, of the MAE ratio
 to the reference (scale-free, so each lens and condition weighs alike). Writes
-benchmarks/results/focus_noise_selection.json.
+results/focus_noise_selection.json.
 """
 
 from __future__ import annotations
@@ -36,6 +36,7 @@ import numpy as np
 
 from aat_deploy.eval.stats import N_BOOT, bootstrap_mean, paired_ratio
 from training.train.testsets import LENSES
+from benchmarks import RESULTS
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -62,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--n", type=int, default=20, help="validation scenes per lens and condition")
     ap.add_argument("--sigmas", default="0,0.5,0.75,1,1.5,2,3", help="pre-filter sigmas (px), comma-separated")
     ap.add_argument("--lenses", default="rf50,paper50")
-    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/focus_noise_selection.json")
+    ap.add_argument("--out", type=Path, default=RESULTS / "focus_noise_selection.json")
     a = ap.parse_args(argv)
     try:
         sigmas = sorted({float(s) for s in a.sigmas.split(",")} | {0.0})

@@ -20,7 +20,7 @@ and scored against the ground truth there (MAE, metres), so detail lost to the r
    the paired MAE ratio to the native size over every validation stack. Chosen: among the candidates whose ratio
    is at most 1 + TOLERANCE in every (set, noise) cell, the one that reduces the most (largest mean k), and
    among equals the larger thresholds (where these sets do not decide, the more cautious rule).
-Writes benchmarks/results/focus_resolution_selection.json.
+Writes results/focus_resolution_selection.json.
 """
 
 from __future__ import annotations
@@ -34,6 +34,7 @@ import numpy as np
 
 from aat_deploy.eval.stats import N_BOOT, bootstrap_mean, paired_ratio
 from benchmarks.select_focus_noise import CONDITIONS, VAL_SEED
+from benchmarks import RESULTS
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -82,7 +83,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--n", type=int, default=16, help="validation scenes per set and condition (half for "
                     "the 1920 x 1280 set)")
     ap.add_argument("--sets", default="", help="only these sets, e.g. 'rf50 960 8,thin 1920 8' (default all)")
-    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/focus_resolution_selection.json")
+    ap.add_argument("--out", type=Path, default=RESULTS / "focus_resolution_selection.json")
     a = ap.parse_args(argv)
     from tqdm import tqdm
 

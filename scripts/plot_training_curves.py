@@ -1,7 +1,7 @@
 """Training and validation curves of DfF runs (their `log.jsonl`), one figure, so convergence can be seen.
 
     python scripts/plot_training_curves.py runs/table2/paper50_dfvnet_aat runs/table2/paper50_dfvnet_thin \
-        --out benchmarks/figures/curves_paper50_dfvnet.png [--force]
+        --out results/figures/curves_paper50_dfvnet.png [--force]
 
 Left: the training loss (mean over windows of 200 steps); right: validation MAE (m) on the run's held-out
 validation items, both against the optimizer step. The legend gives each run's steps, wall time and the relative
@@ -12,6 +12,7 @@ table.
 from __future__ import annotations
 
 import argparse
+import gzip
 import json
 import sys
 from pathlib import Path
@@ -20,12 +21,16 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
 def read_log(run: Path) -> tuple[list[dict], list[dict]]:
-    """(training rows, validation rows) of a run's log.jsonl."""
+    """(training rows, validation rows) of a run's log.jsonl (or log.jsonl.gz: the finished runs' logs kept in
+    results/training/ are compressed)."""
     train, val = [], []
     f = run / "log.jsonl"
+    if not f.is_file() and f.with_suffix(".jsonl.gz").is_file():
+        f = f.with_suffix(".jsonl.gz")
     if not f.is_file():
         raise SystemExit(f"{f}: no training log")
-    for line in f.read_text().splitlines():
+    text = gzip.decompress(f.read_bytes()).decode() if f.suffix == ".gz" else f.read_text()
+    for line in text.splitlines():
         try:
             row = json.loads(line)
         except json.JSONDecodeError:

@@ -1,19 +1,15 @@
 """bench_table2: labels, and the statistics it uses are the project's (tests/deploy/eval/test_stats.py)."""
 
-import importlib.util
 from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location("bench_table2", ROOT / "benchmarks/bench_table2.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    from benchmarks import bench_table2
+
+    return bench_table2
 
 
 def test_the_statistics_are_the_projects(bench):

@@ -39,6 +39,12 @@ def test_no_benchmark_edits_sys_path_except_to_read_the_tests_tolerances():
     assert not bad, f"sys.path edits in benchmarks/ (run them as python -m benchmarks.NAME instead): {bad}"
 
 
+def test_benchmarks_holds_code_only():
+    other = [str(p.relative_to(ROOT)) for p in (ROOT / "benchmarks").rglob("*")
+             if p.is_file() and p.suffix not in (".py", ".pyc") and "__pycache__" not in p.parts]
+    assert not other, f"results and figures belong under results/, not benchmarks/: {other[:10]}"
+
+
 @pytest.mark.parametrize("name", MODULES)
 def test_every_benchmark_imports_as_a_module(name):
     importlib.import_module(name)  # module level only: every benchmark parses its arguments in main()

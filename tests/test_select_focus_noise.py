@@ -1,20 +1,14 @@
 """The rule that chose the classical method's pre-filter and estimator (benchmarks/select_focus_noise.py), on
 hand-computed cases."""
 
-import importlib.util
-from pathlib import Path
-
 import pytest
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
 def select():
-    spec = importlib.util.spec_from_file_location("select_focus_noise", ROOT / "benchmarks/select_focus_noise.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    from benchmarks import select_focus_noise
+
+    return select_focus_noise
 
 
 def test_geometric_mean_weighs_cells_alike(select):

@@ -3,7 +3,6 @@ benchmarks/exif_focus_table.py (not typed by hand) and the stack plan is aat-cap
 
 from __future__ import annotations
 
-import importlib.util
 import re
 
 import pytest
@@ -16,10 +15,9 @@ DOC = ROOT / "docs" / "shooting.md"
 
 
 def _table_module():
-    spec = importlib.util.spec_from_file_location("exif_focus_table", ROOT / "benchmarks" / "exif_focus_table.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    from benchmarks import exif_focus_table
+
+    return exif_focus_table
 
 
 def test_brand_tables_are_the_scripts_output():
