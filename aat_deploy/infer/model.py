@@ -17,6 +17,7 @@ import numpy as np
 import onnxruntime as ort
 
 from ..optics.camera import Intrinsics, model_intrinsics
+from ..optics.field import pixel_fields
 from ..confidence import ConfidenceCalibrationError, model_calibration, model_calibration_path, std_confidence
 from ..errors import ModelError
 from ..io.files import file_kind
@@ -230,8 +231,6 @@ class DfFModel(DepthMethod):
             raise ModelError(f"{self.path}: the model takes {lo}..{hi} frames, the capture has {s}")
         h, w = stack.shape[2:]
         if self.field_aware and field_xy is None:
-            from ..render.fields import pixel_fields
-
             field_xy = np.stack(pixel_fields(h, w, (h, w))).astype(np.float32)
         if not tile or (h <= tile and w <= tile):
             return self._with_confidence(self._run(stack, focus_m, field_xy))

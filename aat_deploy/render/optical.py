@@ -10,7 +10,7 @@ import numpy as np
 
 from aat_deploy.backend import namespace
 from aat_deploy.render import effects as fx
-from aat_deploy.render.fields import field_of
+from aat_deploy.optics.field import field_of
 from aat_deploy.render.layered import LayeredConfig, render_layered
 
 

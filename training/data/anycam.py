@@ -137,7 +137,7 @@ class AnyCamDataset(Dataset):
         aif (3, h, w) linear, origin (row, col) on the sensor, sensor_hw, and what defines its focus map."""
         import torch as _torch
 
-        from aat_deploy.render.fields import field_of
+        from aat_deploy.optics.field import field_of
         from aat_deploy.render.layered import LayeredConfig, render_layered
 
         c = self.cfg
@@ -235,7 +235,7 @@ class AnyCamDataset(Dataset):
                      Aberrations(**cam_d["aberrations"]))
         k = cam.defocus_px_per_diopter(float(np.sqrt(focus[0] * focus[-1])))
         if cam_d.get("traced"):
-            from aat_deploy.render.fields import pixel_fields
+            from aat_deploy.optics.field import pixel_fields
 
             _, _, fmap = self._traced_lens(cam_d["traced"])
             x, y = pixel_fields(h, w, sensor_hw, origin)

@@ -21,7 +21,7 @@ from torch.utils.data import Dataset
 from aat_deploy.gt.holes import fill_holes
 from aat_deploy.lens.io import load_lens
 from aat_deploy.infer.normalise import normalise_scale, scaled
-from aat_deploy.render.fields import pixel_fields
+from aat_deploy.optics.field import pixel_fields
 from training.data.cache import item_path, save_item
 from training.data.rgbd import load_middlebury_motorcycle
 from training.data.scenes import SceneConfig, procedural_scene
@@ -51,7 +51,7 @@ class StackDataConfig:
     scene_schedule_fraction). crop_height, crop_width: when set, __getitem__ returns a random crop of that size
     from the rendered (cached) item, mirrored at random when `flips` (its field coordinates mirrored with it, as
     a rotationally symmetric lens's PSFs are). Every item carries "field_xy" (2, H, W): the normalised sensor
-    position of each pixel (x right, y up, +-1 at the sensor edges; aat_deploy.render.fields)."""
+    position of each pixel (x right, y up, +-1 at the sensor edges; aat_deploy.optics.field)."""
 
     simulator: str = "aat"
     lens: str = "lenses/canon_rf50mm_f1.8.json"

@@ -32,7 +32,7 @@ DISTANCES = "metres from the sensor plane along the optical axis"
 # DFVNet at 960x640, BENCHMARKS.md). 1e-3 (1 cm at 10 m; the nets err by dm) keeps a margin; a wrong weight: > 1e-1.
 PARITY_TOL = 1e-3
 FIELD_CONVENTION = ("input field_xy (B, 2, H, W): normalised sensor position of each pixel centre, x right, y up, "
-                    "-1..1 from edge to edge of the sensor (aat_deploy.render.fields.pixel_fields); padding continues it")
+                    "-1..1 from edge to edge of the sensor (aat_deploy.optics.field.pixel_fields); padding continues it")
 
 
 def config_hash(config: dict) -> str:

@@ -50,7 +50,7 @@ def render_frame_exact(image: torch.Tensor, depth_m: torch.Tensor, focus_m: floa
                        origin=(0, 0)) -> torch.Tensor:
     """One focal-stack frame the exact way: a PSF query per pixel (its field position and depth), resampled to
     pixels, scattered with true convolution. image (C, H, W) linear; depth_m (H, W) metres from the sensor."""
-    from training.render.sources import pixel_fields
+    from aat_deploy.optics.field import pixel_fields
 
     _, h, w = image.shape
     x, y = pixel_fields(h, w, sensor_hw, origin)

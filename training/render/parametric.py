@@ -94,7 +94,7 @@ class Camera:
     def frame_diopters(self, focus_m, h: int, w: int, origin=(0, 0)) -> np.ndarray:
         """(S, h, w) float32: object diopters in best focus at every pixel of an h x w window at `origin` (row,
         col) of the sensor, for frames focused at focus_m (S,)."""
-        from aat_deploy.render.fields import pixel_fields
+        from aat_deploy.optics.field import pixel_fields
 
         x, y = pixel_fields(h, w, self.sensor_hw, origin)
         f = np.asarray(focus_m, np.float64).reshape(-1, 1, 1)

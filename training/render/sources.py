@@ -14,7 +14,6 @@ import torch
 # Backend-neutral pieces live with the runtime's renderer (aat_deploy.render) and are shared from there.
 from aat_deploy.lens.schema import Lens
 from aat_deploy.psf.kernel import KernelSpec
-from aat_deploy.render.fields import field_of, pixel_fields  # noqa: F401 (re-exported)
 from aat_deploy.render.sources import LensGeometry as _LensGeometry
 from aat_deploy.render.sources import OnnxSource
 from aat_deploy.render.sources import UnitEnergy  # noqa: F401 (re-exported)

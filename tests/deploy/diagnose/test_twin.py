@@ -14,6 +14,7 @@ from conftest import ROOT, rel_err
 from deploy_fixtures import build_tiny_dff, run_without_torch
 
 from aat_deploy.lens.io import load_lens, save_lens
+from aat_deploy.optics.field import field_of
 from aat_deploy.optics.paraxial import paraxial_data
 from aat_deploy.render.layered import LayeredConfig, render_layered
 from aat_deploy.render.optical import optical_stack
@@ -22,7 +23,7 @@ from training.psf.geometry import focus_table
 from aat_deploy.render import effects as fx
 from training.render.layered import render_layered as render_layered_torch
 from training.render.simulator import Simulator
-from training.render.sources import OnnxPSF, field_of, thin_lens_source
+from training.render.sources import OnnxPSF, thin_lens_source
 
 LENS = load_lens(ROOT / "lenses/canon_rf50mm_f1.8.json")
 SENSOR = (LENS.sensor.height_px, LENS.sensor.width_px)

@@ -119,7 +119,7 @@ def test_field_aware_export_runs_in_the_runtime(tmp_path, lens, net):
     """A field-aware model exports with a third input `field_xy`; the runtime feeds each pixel's sensor position
     (the whole sensor by default, tiles their own part) and matches torch's predict on an unpadded size."""
     from aat_deploy.infer.model import DfFModel as RuntimeModel
-    from aat_deploy.render.fields import pixel_fields
+    from aat_deploy.optics.field import pixel_fields
     from training.nets.model import predict
 
     torch.manual_seed(3)

@@ -68,7 +68,8 @@ def test_frame_with_thin_lens_gaussian_and_orientation_of_field():
     from aat_deploy.psf.kernel import KernelSpec
     from training.psf.surrogates import GaussianPSF
     from training.render.exact import render_frame_exact
-    from training.render.sources import ModelPSF, pixel_fields
+    from aat_deploy.optics.field import pixel_fields
+    from training.render.sources import ModelPSF
 
     lens = load_lens(LENSES / "canon_rf50mm_f1.8.json")
     x, y = pixel_fields(2, 3, (640, 960))

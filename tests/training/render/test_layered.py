@@ -8,7 +8,7 @@ import torch
 
 from training.render.exact import render_frame_exact
 from training.render.layered import LayeredConfig, layer_diopters, render_layered
-from training.render.sources import field_of
+from aat_deploy.optics.field import field_of
 
 SENSOR = (96, 128)  # rows, cols of a toy sensor
 pytestmark = pytest.mark.numerics  # float32 FFT convolution vs direct sums and analytic values

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from aat_deploy.focus.measures import focus_volume
-from aat_deploy.render.fields import field_of
+from aat_deploy.optics.field import field_of
 from aat_deploy.render.layered import LayeredConfig, render_layered
 from training.data.scenes import texture
 from training.render.parametric import Aberrations, Camera, ParametricSource
