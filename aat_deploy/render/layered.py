@@ -105,9 +105,6 @@ class LayeredBackend:
     def astype(self, x, dtype):
         return x.astype(dtype, copy=False)
 
-    def full(self, n: int, value: float, dtype):
-        return np.full(n, value, dtype=dtype)
-
     def to_numpy(self, x) -> np.ndarray:
         return np.asarray(x)
 
@@ -265,11 +262,14 @@ def _render_layer(be: LayeredBackend, img, w, m: int, anchors_field_fn, kernel_f
     kernels = be.asarray(kernels)
     if kernels.ndim == 3:
         kernels = kernels[:, None]  # (U, Ck, k, k)
-    s = float(be.asarray(scale).reshape(-1)[0])  # one depth and focus per layer: one cell size
-    size = pixel_kernel_size(kernels.shape[-1], s / m)
     u, ck, k, _ = kernels.shape
-    px = cells_to_pixels(be.astype(kernels.reshape(u * ck, k, k), dt), be.full(u * ck, s / m, dt), size,
-                         be).reshape(u, ck, size, size)
+    # each anchor's own cell size: one depth per layer, but the focus varies over the field with a tilted sensor
+    # or a decentred element (focus_at), and so does the cell size (the first anchor's for all of them drew the
+    # other anchors' PSFs too wide or too narrow)
+    sc = be.astype(be.asarray(scale), dt).reshape(u, 1) / m
+    size = pixel_kernel_size(k, float(sc.max()))
+    px = cells_to_pixels(be.astype(kernels.reshape(u * ck, k, k), dt), be.broadcast_to(sc, (u, ck)).reshape(-1),
+                         size, be).reshape(u, ck, size, size)
     if ck == 1:
         px = be.broadcast_to(px, (u, c, size, size))
     if extra_channels is not None:

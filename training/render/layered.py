@@ -26,9 +26,6 @@ class TorchLayered(LayeredBackend):
     def astype(self, x, dtype):
         return x.to(dtype)
 
-    def full(self, n: int, value: float, dtype):
-        return torch.full((n,), value, dtype=dtype)  # on the default device (Simulator's device context)
-
     def to_numpy(self, x) -> np.ndarray:
         return x.cpu().numpy()
 
