@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from aat_deploy.render.fields import field_of
+from aat_deploy.optics.field import field_of
 from aat_deploy.render.layered import LayeredConfig, render_layered
 
 SENSOR = (64, 128)  # rows, cols
