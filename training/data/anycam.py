@@ -47,6 +47,9 @@ TRACED = {"rf50": ("lenses/canon_rf50mm_f1.8.json", "models/psf_rf50.onnx")}
 MAX_BLUR_PX = 1000.0  # largest thin-lens blur diameter an item may have (kernels and memory grow with it)
 NEAREST_SCENE = 0.85  # scene depths are at least this fraction of the sweep's nearest focus distance
 HELD_OUT_LENSES = ("paper_50mm_f2.8", "canon_ef50mm_f1.8", "nikon_z35")  # never in training (TEAM.md)
+# 2: parametric PSFs blur about a best focus beyond infinity as the map says (training.render.parametric.FAR_D);
+# renders without this number whose map passes FAR_D somewhere (about one in ten) are rendered again
+RENDER_VERSION = 2
 
 
 @dataclass(frozen=True)
@@ -73,11 +76,12 @@ class AnyCamConfig:
     fixed_subsets: bool = False
     cache_dir: str | None = None
     only_cached: bool = False  # read only the items already in the cache (a run started before its data is rendered)
+    mosaic: float = 0.0  # chance that a batch's items are laid out 2 x 2 into one image (`collate`)
 
     def key(self) -> str:
         """Hash of what defines the renders (not how they are read)."""
         d = asdict(self)
-        for k in ("n_items", "crop", "flips", "camera_effects", "fixed_subsets", "cache_dir", "only_cached"):
+        for k in ("n_items", "crop", "flips", "camera_effects", "fixed_subsets", "cache_dir", "only_cached", "mosaic"):
             d.pop(k)
         if d["max_layers"] == 128:
             d.pop("max_layers")  # the layered renderer's default (renders made before the field hash as before)
@@ -194,12 +198,43 @@ class AnyCamDataset(Dataset):
         return {"frames": frames[:, :, sl[0], sl[1]].astype(np.float32), "focus_m": focus.astype(np.float64),
                 "depth_m": depth[sl].astype(np.float32), "aif": img[:, sl[0], sl[1]],
                 "origin": np.array(origin, np.int64), "sensor_hw": np.array(sensor_hw, np.int64),
+                "render_version": np.int64(RENDER_VERSION),
                 "camera": json.dumps({"focal_mm": cam.focal_mm, "f_number": cam.f_number,
                                       "pixel_mm": cam.pixel_mm, "aberrations": cam.aberrations.to_dict(),
                                       "traced": info.get("lens"), "info": info})}
 
     def is_cached(self, index: int) -> bool:
-        return self.cache is not None and item_path(self.cache, index).is_file()
+        """The item's render is in the cache and still valid (`stale`)."""
+        if self.cache is None or not item_path(self.cache, index).is_file():
+            return False
+        try:
+            with np.load(item_path(self.cache, index)) as z:
+                return not self.stale(z)
+        except Exception:  # noqa: BLE001 (a torn write: render again)
+            return False
+
+    def stale(self, z) -> bool:
+        """A cached render (an open .npz) made before RENDER_VERSION that the current renderer draws otherwise:
+        a parametric camera whose best focus (tangential or sagittal) passes parametric.FAR_D in the rendered
+        window (margin included), where the old renderer focused at 10 km instead of beyond infinity."""
+        if "render_version" in z.files and int(z["render_version"]) >= RENDER_VERSION:
+            return False
+        from training.render.parametric import FAR_D, Aberrations
+
+        cam_d = json.loads(str(z["camera"]))
+        if cam_d.get("traced"):
+            return False
+        m = self.cfg.margin_px
+        h, w = z["depth_m"].shape
+        cam = Camera(cam_d["focal_mm"], cam_d["f_number"], tuple(int(v) for v in z["sensor_hw"]),
+                     cam_d["pixel_mm"], Aberrations(**cam_d["aberrations"]))
+        origin = (int(z["origin"][0]) - m, int(z["origin"][1]) - m)
+        from aat_deploy.optics.field import pixel_fields
+
+        fd = cam.frame_diopters(z["focus_m"], h + 2 * m, w + 2 * m, origin)
+        x, y = pixel_fields(h + 2 * m, w + 2 * m, cam.sensor_hw, origin)
+        half = np.abs(0.5 * cam.aberrations.a2 * cam.radius(x, y) ** 2)
+        return bool((fd - half[None]).min() < FAR_D)
 
     def load_or_render(self, index: int) -> dict:
         """Item `index` whole (numpy): from the cache, else rendered and cached (frames as float16; the cache's
@@ -208,10 +243,11 @@ class AnyCamDataset(Dataset):
         if f is not None and f.is_file():
             try:
                 with np.load(f) as z:
-                    item = {k: z[k] for k in z.files}
-                item["frames"] = item["frames"].astype(np.float32)
-                item["camera"] = str(item["camera"])
-                return item
+                    item = None if self.stale(z) else {k: z[k] for k in z.files}
+                if item is not None:
+                    item["frames"] = item["frames"].astype(np.float32)
+                    item["camera"] = str(item["camera"])
+                    return item
             except Exception:  # noqa: BLE001 (a torn write: render again)
                 pass
         item = self.render(index)
@@ -280,7 +316,9 @@ class AnyCamDataset(Dataset):
 
     def collate(self, items: list[dict]) -> dict:
         """One training batch: the same S for every item (drawn here), each item's frames a subset of its sweep,
-        its camera's processing applied, normalised; see the module docstring for the keys."""
+        its camera's processing applied, normalised; see the module docstring for the keys. With chance
+        cfg.mosaic (and a multiple of 4 items of one size) each 4 items become one image of twice the side
+        (`mosaic`)."""
         rng = np.random.default_rng(items[0]["seed"])
         cap = cams.max_frames(float(np.median([_span_px(it) for it in items])))  # sweeps of little blur: few frames
         s = int(rng.integers(cams.S_RANGE[0], cap + 1))
@@ -290,7 +328,24 @@ class AnyCamDataset(Dataset):
             kind = str(r.choice(["stride", "random", "near"], p=[0.5, 0.3, 0.2]))
             idx, _ = cams.subset(r, len(it["focus_m"]), kind, s)
             out.append(finish(it, r, self.cfg.camera_effects, idx))
+        if (self.cfg.mosaic > 0 and len(out) % 4 == 0 and len({o["depth_m"].shape for o in out}) == 1
+                and rng.random() < self.cfg.mosaic):
+            out = [mosaic(out[i:i + 4]) for i in range(0, len(out), 4)]
         return {k: torch.stack([torch.from_numpy(np.ascontiguousarray(o[k])) for o in out]) for k in out[0]}
+
+
+def mosaic(parts: list[dict]) -> dict:
+    """Four finished stacks of one size and S (`finish`) laid out 2 x 2 as one stack of twice the side: every map is
+    per pixel, so each quadrant keeps its own camera. The net trains on small renders; laid out like this its
+    pixels also lie far from the image's border, as in a whole frame (the first run's net, trained on 128 px images
+    only, was 2.4x worse on whole 640 x 480 frames than on 128 px tiles of them). "focus_m" has no single value
+    for a mosaic: NaN (the training loss does not read it)."""
+    a, b, c, d = parts
+    out = {}
+    for k in ("stack", "focus_diopters", "defocus_px_per_d", "depth_m", "aif"):
+        out[k] = np.concatenate([np.concatenate([a[k], b[k]], -1), np.concatenate([c[k], d[k]], -1)], -2)
+    out["focus_m"] = np.full_like(np.asarray(a["focus_m"]), np.nan)
+    return out
 
 
 def _span_px(it: dict) -> float:

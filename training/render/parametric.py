@@ -27,6 +27,8 @@ import numpy as np
 from aat_deploy.optics.thin_lens import blur_diameter_px
 from aat_deploy.psf.kernel import KernelSpec
 
+FAR_D = 1e-3  # object diopters (1 km): best foci beyond it are extrapolated linearly (`Camera.blur_about_px`)
+
 
 @dataclass(frozen=True)
 class Aberrations:
@@ -71,6 +73,17 @@ class Camera:
         """Thin-lens blur-disk diameter (px) at depth_m for focus focus_m (metres from the sensor)."""
         return blur_diameter_px(np.asarray(depth_m, np.float64), np.asarray(focus_m, np.float64), self.focal_mm,
                                 self.epd_mm, self.pixel_mm)
+
+    def blur_about_px(self, depth_m, best_d) -> np.ndarray:
+        """Thin-lens blur-disk diameter (px) at depth_m about a best focus of best_d object diopters, any sign: a
+        best focus at or beyond infinity (best_d <= FAR_D, the far end of a field-curved sweep) is the lens at
+        FAR_D plus the blur growth there times the diopters beyond it (first order), so that blur keeps growing
+        with |1/depth - best_d| as the map the net is told says (focusing at FAR_D instead left objects at
+        infinity sharp in frames whose map put best focus beyond it)."""
+        b = np.asarray(best_d, np.float64)
+        at = self.blur_px(depth_m, 1.0 / np.maximum(b, FAR_D))
+        beyond = np.maximum(FAR_D - b, 0.0)
+        return at + self.defocus_px_per_diopter(1.0 / FAR_D) * beyond
 
     def defocus_px_per_diopter(self, focus_m: float) -> float:
         """Blur growth (px of blur diameter per diopter of defocus) near focus_m: the defocus scale a net is given,
@@ -134,8 +147,8 @@ class ParametricSource:
         best = 1.0 / f + cam.shift_diopters(x, y, f)
         half = 0.5 * ab.a2 * cam.radius(x, y) ** 2
         # blur about the tangential (radial extent) and sagittal (azimuthal extent) foci, floored by b0
-        b_r = np.hypot(cam.blur_px(d, 1.0 / np.maximum(best + half, 1e-4)), ab.b0_px)
-        b_t = np.hypot(cam.blur_px(d, 1.0 / np.maximum(best - half, 1e-4)), ab.b0_px)
+        b_r = np.hypot(cam.blur_about_px(d, best + half), ab.b0_px)
+        b_t = np.hypot(cam.blur_about_px(d, best - half), ab.b0_px)
         s = self.scale(d, f)
         k = self.spec.size
         off = (np.arange(k) - k // 2, )[0]

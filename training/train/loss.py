@@ -68,7 +68,7 @@ def dff_loss(levels: list[tuple[Tensor, Tensor | None, Tensor]], batch: dict[str
 
 
 def focus_map_loss(levels: list[tuple], batch: dict[str, Tensor], cfg: LossConfig) -> tuple[Tensor, dict[str, float]]:
-    """The any-camera net's loss (training.nets.dfvaat): L1 of the interpolated diopters in units of each stack's
+    """The any-camera net's loss (training.nets.dfvaat): L1 of the interpolated diopters in units of each pixel's
     mean frame spacing (so a phone's 10-diopter sweep and a full-frame camera's 2-diopter one weigh alike: the
     error is in frames). Its optimum, the median, is the same in diopters as in metres; a loss in metres is not
     bounded here (a sweep ending near infinity puts some frames' diopters at or past 0, where depth is 1 km), and
@@ -80,8 +80,8 @@ def focus_map_loss(levels: list[tuple], batch: dict[str, Tensor], cfg: LossConfi
     mask = depth_mask(gt)
     fd = batch["focus_diopters"]
     s = fd.shape[1]
-    mean_d = fd.mean((2, 3))
-    spacing = ((mean_d.max(1).values - mean_d.min(1).values) / max(s - 1, 1)).clamp_min(1e-3)[:, None, None]
+    # per pixel (a mosaic's quadrants are different cameras; within one camera the field changes it little)
+    spacing = ((fd.max(1).values - fd.min(1).values) / max(s - 1, 1)).clamp_min(1e-3)
     inv_gt = 1.0 / torch.where(mask, gt, torch.ones_like(gt))
     med = torch.stack([g[m].median() if m.any() else g.new_tensor(1.0) for g, m in zip(gt, mask)])[:, None, None]
     weights = list(cfg.level_weights)[: len(levels)]

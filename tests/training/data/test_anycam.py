@@ -149,3 +149,58 @@ def test_even_sweeps_are_the_one_diopter_grid_bit_for_bit():
         for i in range(1, n):
             d[i] = min(d[i], d[i - 1] - gap)
         assert kind == "even" and np.array_equal(got, 1.0 / np.maximum(d, 1e-3))
+
+
+def test_renders_older_than_the_beyond_infinity_fix_are_rendered_again_only_where_it_matters(ds, tmp_path):
+    """A cached render without RENDER_VERSION whose camera's best focus passes infinity (parametric.FAR_D) in its
+    window is stale (is_cached False, load_or_render renders it again); one whose map stays this side is kept."""
+    from dataclasses import replace
+
+    from training.data.anycam import RENDER_VERSION
+    from training.data.cache import item_path, save_item
+
+    d = AnyCamDataset(replace(ds.cfg, cache_dir=str(tmp_path)))
+    index = next(i for i in range(6) if not json.loads(d.render(i)["camera"])["traced"])
+    item = d.load_or_render(index)
+    assert int(item["render_version"]) == RENDER_VERSION and d.is_cached(index)
+    path = item_path(d.cache, index)
+    old = {k: v for k, v in item.items() if k != "render_version"}
+    cam = json.loads(old["camera"])
+    far = 1.0 / float(item["focus_m"][-1])
+    from aat_deploy.optics.field import pixel_fields
+    from training.render.parametric import Camera
+
+    h, w = item["depth_m"].shape
+    sensor = tuple(int(v) for v in item["sensor_hw"])
+    x, y = pixel_fields(h, w, sensor, tuple(int(v) for v in item["origin"]))
+    r2 = float((Camera(1.0, 1.0, sensor, 1.0).radius(x, y) ** 2).max())  # the window's outermost field (r^2)
+    for c2, stale in ((-(far + 0.05) / r2, True), (0.5 * far, False)):  # best focus past infinity there / nowhere
+        cam["aberrations"].update(c2=c2, c4=0.0, tx=0.0, ty=0.0, a2=0.0, g=0.0)
+        save_item(path, {**old, "frames": old["frames"].astype(np.float16), "camera": np.asarray(json.dumps(cam))})
+        assert d.is_cached(index) is (not stale)
+        again = d.load_or_render(index)
+        assert ("render_version" in again) is stale  # rendered again (and cached) only when stale
+        if stale:
+            assert d.is_cached(index)
+
+
+def test_mosaic_batches_lay_four_stacks_out_2x2_each_quadrant_its_own_camera(ds):
+    """cfg.mosaic = 1: a batch of 4 items is one image of twice the side whose quadrants are those items' stacks,
+    maps, defocus scales and depths (as the same batch without mosaic); the training loss runs on it."""
+    from dataclasses import replace
+
+    from training.nets.dfvaat import build, train_levels
+    from training.train.config import LossConfig
+    from training.train.loss import focus_map_loss
+
+    torch.manual_seed(1)
+    items = [ds[i] for i in range(4)]
+    plain = ds.collate(items)
+    mos = AnyCamDataset(replace(ds.cfg, mosaic=1.0)).collate(items)
+    assert mos["stack"].shape[0] == 1 and mos["stack"].shape[-2:] == (64, 64)
+    assert torch.isnan(mos["focus_m"]).all()
+    for q, (r, c) in enumerate(((0, 0), (0, 32), (32, 0), (32, 32))):
+        for k in ("stack", "focus_diopters", "defocus_px_per_d", "depth_m", "aif"):
+            assert torch.equal(mos[k][0, ..., r:r + 32, c:c + 32], plain[k][q]), k
+    loss, parts = focus_map_loss(train_levels(build(), mos), mos, LossConfig(level_weights=(8.0, 4.0)))
+    assert torch.isfinite(loss) and np.isfinite(parts["frames_l1"])

@@ -75,3 +75,22 @@ def test_sweep_of_a_flat_plane_peaks_where_the_map_says(c2):
     nominal = int(np.argmin(np.abs(diopters - 0.5)))
     assert abs(expected - nominal) >= 5  # the curvature moves best focus by several frames here
     assert abs(sharpest - expected) <= 1
+
+
+
+@pytest.mark.parametrize("focus_m", [2.0, 5.0, 20.0])
+def test_blur_grows_with_the_diopters_from_the_maps_best_focus_even_beyond_infinity(focus_m):
+    """Field curvature of -0.3 D at the corner: frames focused at 5 m and 20 m put the corner's best focus beyond
+    infinity (-0.1 D, -0.25 D; as a real field-curved lens focused far does). An object at 40 m (0.025 D) is then
+    blurred by its distance to that focus, as the map the net is told says; the renderer used to focus such frames
+    at 10 km instead, which rendered the object nearly sharp (one render in ten disagreed with its own map)."""
+    cam = Camera(35.0, 1.8, (400, 600), 0.02, Aberrations(c2=-0.3, b0_px=0.0, shape_p=2.0))
+    x, y = 1.0, 1.0  # the corner: r = 1
+    best = float(cam.frame_diopters([focus_m], 1, 1, (0, 599))[0, 0, 0])
+    assert best == pytest.approx(1 / focus_m - 0.3, abs=0.01)
+    src = ParametricSource(cam, [focus_m], size=41)
+    ker, s = src(np.array([x]), np.array([y]), np.array([40.0]), np.array([focus_m]))
+    vx, vy, _ = _moments(ker[0], float(s[0]))
+    blur = 4 * np.sqrt(0.5 * (vx + vy) - s[0] ** 2 / 16)  # sigma = blur / 4, minus the half-cell floor
+    expected = cam.defocus_px_per_diopter(1e3) * abs(0.025 - (1 / focus_m - 0.3))
+    assert blur == pytest.approx(expected, rel=0.08)
