@@ -65,6 +65,8 @@ class FocusMapModel(DfFModel):
         self.stack_range = (_meta_int(self.path, m, "aat.stack_min", 1, 4096),
                             _meta_int(self.path, m, "aat.stack_max", 1, 4096))
         self.focus_range_m = (0.02, 1.0e4)  # any camera: the capture's own sweep
+        # the largest images it trained on: larger frames run as overlapping tiles of this side (0: whole frames)
+        self.tile_px = _meta_int(self.path, m, "aat.tile_px", 0, 1 << 20) if "aat.tile_px" in m else 0
         self.lens_name = None  # set by for_capture when a lens file gives the map
         self.focal_length_mm = self.f_number = None
         self.pixel_um = None
@@ -187,6 +189,8 @@ class FocusMapModel(DfFModel):
               progress=None, field_xy: np.ndarray | None = None):
         h, w = stack.shape[2:]
         maps = self.maps(focus_m, h, w) if field_xy is None else field_xy
+        if tile is None and self.tile_px:  # the net's own tile size (aat.tile_px), a quarter of it overlapping
+            tile, overlap = self.tile_px, max(int(overlap), self.tile_px // 4)
         return super().infer(stack, focus_m, tile, overlap, progress, field_xy=maps)
 
     def _feeds(self, stack: np.ndarray, focus_m: np.ndarray, field_xy: np.ndarray | None, ph: int, pw: int) -> dict:

@@ -11,6 +11,14 @@ from training.train.data import resolve_lens_path
 from training.train.loop import load_trained
 
 
+def largest_training_image_px(data: dict) -> int:
+    """Side (px) of the largest images an any-camera run trained on: its crops (or whole renders), twice that with
+    mosaic batches (`training.data.anycam.mosaic`). The runtime runs the net on tiles of this size (aat.tile_px):
+    the first run's net, trained on 128 px images, was 2.4x worse on whole 640 x 480 frames than on 128 px tiles."""
+    side = int(data.get("crop") or min(data.get("height", 160), data.get("width", 160)))
+    return 2 * side if float(data.get("mosaic", 0.0)) > 0 else side
+
+
 def export_checkpoint(checkpoint, out, *, force: bool = False, extra: dict | None = None,
                       ) -> tuple[dict[str, str], float]:
     """checkpoint: a run's model.pt (or last.pt). Writes `out` (atomic, no overwrite unless force) and returns
@@ -23,7 +31,8 @@ def export_checkpoint(checkpoint, out, *, force: bool = False, extra: dict | Non
 
         md = focus_map_metadata(model, effects=["camera_processing"], stack_range=cfg.stack_range,
                                 config_hash=cfg.hash(), k_range=(0.3, K_MAX_PX_PER_D),
-                                extra={"train_steps": cfg.steps, "config_name": cfg.name, **(extra or {})})
+                                extra={"train_steps": cfg.steps, "config_name": cfg.name,
+                                       "tile_px": str(largest_training_image_px(cfg.data)), **(extra or {})})
         return md, export_focus_map_onnx(model, out, md, force=force)
     lens = load_lens(resolve_lens_path(cfg.lens))
     md = dff_metadata(model, lens, simulator=cfg.simulator, effects=list(cfg.effects),

@@ -126,3 +126,29 @@ def test_mapping_errors_are_one_line(tmp_path):
     with pytest.raises(CaptureError) as e:
         mapping_from_args(lens=tmp_path / "missing.json")
     assert "\n" not in str(e.value)
+
+
+def test_frames_larger_than_the_training_images_run_as_tiles_of_that_size(tmp_path):
+    """aat.tile_px (the largest images the net trained on, training.train.export): a larger frame runs as overlapping
+    tiles of that side, exactly as infer(tile=...) does; a frame no larger runs whole; tile=0 asks for whole frames."""
+    from training.nets.dfvaat import build
+    from training.nets.export import export_focus_map_onnx, focus_map_metadata
+    from training.train.export import largest_training_image_px
+
+    assert largest_training_image_px({"height": 128, "width": 128, "crop": 0}) == 128
+    assert largest_training_image_px({"height": 160, "width": 160, "crop": 128, "mosaic": 0.6}) == 256
+    torch.manual_seed(0)
+    path = tmp_path / "tiled.onnx"
+    md = focus_map_metadata(build(), effects=[], stack_range=(3, 16), config_hash="test", k_range=(0.3, 64),
+                            extra={"tile_px": "64"})
+    export_focus_map_onnx(build(), path, md, check_shapes=[(1, 3, 32, 64)])
+    model = FocusMapModel(path, mapping=mapping_from_args(lens=RF50))
+    assert model.tile_px == 64
+    focus = np.array([0.6, 1.0, 2.0, 5.0], np.float32)
+    model = model.bound(model.mapping_optics(128), focus)
+    stack = np.random.default_rng(1).random((4, 3, 96, 128), dtype=np.float32)
+    auto = model.infer(stack, focus).depth_m
+    assert np.array_equal(auto, model.infer(stack, focus, tile=64, overlap=16).depth_m)
+    assert not np.array_equal(auto, model.infer(stack, focus, tile=0).depth_m)
+    small = stack[:, :, :64, :64]
+    assert np.array_equal(model.infer(small, focus).depth_m, model.infer(small, focus, tile=0).depth_m)
