@@ -173,7 +173,7 @@ def _share_txt(v, lo, hi) -> str:
 
 
 def _share_cell(e: dict, notes: list[str]) -> str:
-    """A share as shown (clipped or withheld, `search.share_view`) with a numbered note when it was changed."""
+    """A share as shown (clipped or withheld, `verdict.share_view`) with a numbered note when it was changed."""
     shown = e.get("share_shown", e.get("share_of_gap"))
     note = e.get("share_note")
     if e.get("share_of_gap") is None:
@@ -249,7 +249,7 @@ def figures(d: dict, out: Path) -> None:
         ax.errorbar(x - 0.2, m, yerr=[m - [e["closeness_ci"][0] for e in ev], [e["closeness_ci"][1] for e in ev] - m],
                     fmt="none", ecolor="k", capsize=2)
         if ev[0]["share_of_gap"] is not None:  # no significant gap: no shares
-            # shares as people should read them (search.share_view): clipped to 0..1, withheld (x) when the
+            # shares as people should read them (verdict.share_view): clipped to 0..1, withheld (x) when the
             # effect's images moved away; intervals clipped to 0..1 as well
             shown = np.array([np.nan if e.get("share_shown", e["share_of_gap"]) is None
                               else e.get("share_shown", e["share_of_gap"]) for e in ev], float)

@@ -1,17 +1,16 @@
 """`aat-diagnose` step by step: where the sim-to-real gap lies, which unmodelled effect causes it, how far it
-shrinks once that effect is simulated.
+shrinks once that effect is simulated. This module holds step 2 and the entry point, `diagnose`.
 
-1. Each capture with ground truth is run through the model; its digital twin (same depth, all-in-focus image
-   and reported focus distances, rendered by the model's own simulator) is run too. gap = |error| on the
-   capture - |error| on the twin, per pixel, broken down by field position, depth, defocus, stack position and
-   texture with bootstrap intervals over captures and pixel tiles.
-2. Every registered effect the model's simulator lacks is added to the twin, each of its candidate settings
-   tried; the setting whose images come closest to the capture's is kept (fit on the images, not on the gap).
-   An effect scores by how much closer the twin comes, in the images (focus-measure curves, geometry) and in
+1. Where (`gap.py`): each capture with ground truth against its digital twin; gap = |error| on the capture -
+   |error| on the twin, broken down by field position, depth, defocus, stack position and texture.
+2. Which (here): every registered effect the model's simulator lacks is added to the twin, each of its candidate
+   settings tried; the setting whose images come closest to the capture's is kept (fit on the images, not on the
+   gap). An effect scores by how much closer the twin comes, in the images (focus-measure curves, geometry) and in
    the model's error pattern. The best is added for good and the rest tried again (greedy), while the gain is
-   significant (`is_named`).
-3. share_of_gap = how much of the gap the effect closes when added to the twin (predicted shrink); the
-   realised shrink comes from retraining with it (`session.py`).
+   significant (`is_named`). Every effect tried in a round is one `EffectEntry`.
+3. How much (`verdict.py`): share_of_gap = how much of the gap the effect closes when added to the twin
+   (predicted shrink), whether the named effects explain the gap, and the verdict; the realised shrink comes from
+   retraining with it (`session.py`).
 
 Torch-free: twins come from any renderer with `render(capture, aif, extra_effects, seed)`; an effect the
 renderer cannot render without torch (`NeedsTorch`) is skipped and listed, not guessed.
@@ -19,68 +18,67 @@ renderer cannot render without torch (`NeedsTorch`) is skipped and listed, not g
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 
-from aat_deploy.diagnose import bins as B
 from aat_deploy.diagnose import fitters
-from aat_deploy.diagnose.bootstrap import binned_bootstrap, capture_bootstrap, ratio_bootstrap
-from aat_deploy.diagnose.compare import distances, focus_curves, image_distances
+from aat_deploy.diagnose.bootstrap import capture_bootstrap, ratio_bootstrap
+from aat_deploy.diagnose.compare import image_distances
+from aat_deploy.diagnose.gap import DiagnoseConfig, GapAnalysis, Scored
 from aat_deploy.diagnose.inputs import CaptureData
+from aat_deploy.diagnose.verdict import (
+    VERDICTS,
+    annotate_shares,
+    focus_summary,
+    shrink_summary,
+    unexplained_share,
+    verdict,
+)
 from aat_deploy.infer.model import DfFModel
-from aat_deploy.infer.normalise import normalise_stack
 from aat_deploy.render import effects as fx
 
 
-@dataclass
-class DiagnoseConfig:
-    n_boot: int = 400
-    seed: int = 0
-    min_rel_gap: float = 0.05  # a gap smaller than this fraction of the twin's MAE is not worth naming
-    min_score: float = 0.05  # an effect must bring the twin this much closer (fraction, CI low) to be named
-    min_bin_pixels: int = 200  # smaller bins are reported but never called significant
-    max_effects: int = 3  # greedy rounds
-    # floors of the three distances (capture vs twin): below these, differences are noise
-    floor_focus_curves: float = 0.02
-    floor_geometry_px: float = 0.2
-    floor_error_m: float = 0.005
-    floor_brightness: float = 0.01  # natural-log units (1 %)
-    effects: list[str] | None = None  # restrict the search (None = every registered effect)
-    image_search: bool = True  # without a significant gap, still search the effects the images show
-    search: str = "fit"  # "fit": settings fitted at reduced resolution, survivors scored at full; "grid": every
-    # candidate setting of every effect rendered at full resolution (the method before fitting; slow)
-    search_px: int = 240  # the reduced-resolution search bins the sensor to about this many pixels across
-    fit_boot: int = 100  # bootstrap replicates of the fits' intervals
-    min_share: float = 0.1  # a named effect explains the gap when its share is >= this and its interval > 0
-    min_image_explained: float = 0.25  # ... and its twin's images (or lighting) came at least this much closer
-    max_unexplained: float = 1 / 3  # more of the gap left than this (point estimate): "partly explained"
+class _Absent:
+    """A field an effect entry does not have: left out of its dict (and diagnosis.json), unlike None (null)."""
+
+    def __repr__(self) -> str:
+        return "ABSENT"
+
+
+ABSENT = _Absent()
 
 
 @dataclass
-class Scored:
-    """One twin variant evaluated on every capture."""
+class EffectEntry:
+    """One effect tried in one round of the search, as diagnosis.json's `effects_evaluated` and `ranked_effects`
+    list it (docs/diagnosis.md). Three kinds: scored at full resolution (closeness and its parts with intervals,
+    the share of the gap, per-capture distances), screened out at reduced resolution (`screened_out`, `note`: its
+    images did not come closer), or with no setting the images support (`screened_out`, `note`, no intervals).
+    Closeness values are fractions (how much closer the twin with it comes to the captures), shares fractions of
+    the gap. Fields left ABSENT are not in `as_dict()`; the search and `verdict.py` add `alternatives`,
+    `share_shown`, `share_note` and `explains_gap` to that dict."""
 
-    effects: list[fx.Effect]
-    pred: list[np.ndarray]  # per capture predicted depth on the twin (H, W), m
-    err: list[np.ndarray]  # per capture |pred - gt| on the twin (H, W), NaN = unknown
-    dist: list  # per capture compare.Distances
-    fit_curves: list | None = None  # per capture (R, S): the twin's focus measures for the fits (fitters.fit_curves)
+    effect: str
+    params: dict | None
+    round: int
+    closeness: float | None
+    closeness_ci: list | _Absent = ABSENT
+    image_closeness: float | _Absent = ABSENT
+    image_closeness_ci: list | _Absent = ABSENT
+    brightness_closeness: float | _Absent = ABSENT
+    brightness_closeness_ci: list | _Absent = ABSENT
+    share_of_gap: float | None = None
+    ci_low: float | None = None
+    ci_high: float | None = None
+    screened_out: bool | _Absent = ABSENT
+    distances: list | _Absent = ABSENT
+    fit: dict | _Absent = ABSENT  # the fitter's report (fitted search)
+    note: str | _Absent = ABSENT
 
-
-@dataclass
-class CaptureRun:
-    data: CaptureData
-    stack: np.ndarray  # normalised capture stack
-    curves: np.ndarray
-    pred_m: np.ndarray
-    err: np.ndarray
-    aif_linear: np.ndarray
-    binnings: list = field(default_factory=list)
-
-
-def abs_error(pred_m: np.ndarray, gt_m: np.ndarray) -> np.ndarray:
-    return np.where(np.isfinite(gt_m) & (gt_m > 0), np.abs(pred_m - gt_m), np.nan).astype(np.float32)
+    def as_dict(self) -> dict:
+        """The JSON-ready dict, keys in the fields' order, ABSENT fields left out."""
+        return {f.name: getattr(self, f.name) for f in fields(self) if getattr(self, f.name) is not ABSENT}
 
 
 def effect_label(e: fx.Effect) -> str:
@@ -88,45 +86,8 @@ def effect_label(e: fx.Effect) -> str:
     return e.name + ("(" + ", ".join(f"{k}={v}" for k, v in e.params.items()) + ")" if e.params else "")
 
 
-class Diagnosis:
-    def __init__(self, model: DfFModel, twins, captures: list[CaptureData], cfg: DiagnoseConfig = DiagnoseConfig(),
-                 progress=None):
-        self.model, self.twins, self.cfg = model, twins, cfg
-        self.progress = progress or (lambda msg: None)
-        self.skipped: list[dict] = []  # effects the renderer could not render (torch-only), with the reason
-        self.runs: list[CaptureRun] = []
-        for cap in captures:
-            stack = normalise_stack(cap.frames)
-            out = model.infer(stack, cap.focus_m.astype(np.float32))
-            aif = cap.aif_linear if cap.aif_linear is not None else out.aif
-            self.runs.append(CaptureRun(cap, stack, focus_curves(stack), out.depth_m, abs_error(out.depth_m, cap.gt_m), aif))
-        d_edges, t_edges = B.shared_edges([r.data.gt_m for r in self.runs], [r.aif_linear for r in self.runs])
-        self.depth_edges_m, self.texture_edges = d_edges, t_edges
-        for r in self.runs:
-            r.binnings = B.make_binnings(r.data.gt_m, r.data.focus_m, r.aif_linear, d_edges, t_edges)
-        # error-pattern bins: field radius x depth
-        n_d = len(d_edges) - 1
-        self.pattern = [np.where((b[0].index >= 0) & (b[2].index >= 0), b[0].index * n_d + b[2].index, -1)
-                        for b in (r.binnings for r in self.runs)]
-        self.n_pattern = (len(B.RADIUS_EDGES) - 1) * n_d
-        w = self.runs[0].stack.shape[-1] if self.runs else 1
-        self.factor = max(1, min(8, w // max(cfg.search_px, 1)))  # the search's binning
-        self._binned = None  # (binned renderer) made on first use, shared by the rounds
-        self.sweep_cache: dict = {}
-
-    # --- twins -------------------------------------------------------------------------------------------
-    def score_twin(self, extra: list[fx.Effect]) -> Scored:
-        preds, errs, dists, curves = [], [], [], []
-        for i, r in enumerate(self.runs):
-            twin = self.twins.render(r.data, r.aif_linear, extra, seed=self.cfg.seed + i)
-            pred = self.model.infer(twin, r.data.focus_m.astype(np.float32)).depth_m
-            e = abs_error(pred, r.data.gt_m)
-            preds.append(pred)
-            errs.append(e)
-            dists.append(distances(r.stack, r.curves, twin, r.err, e, self.pattern[i], self.n_pattern))
-            if self.cfg.search == "fit":
-                curves.append(fitters.fit_curves(twin, self.factor))
-        return Scored(list(extra), preds, errs, dists, curves or None)
+class Diagnosis(GapAnalysis):
+    """Steps 1 and 2: the gap (`GapAnalysis`) and the greedy search over effects."""
 
     def fit_state(self, cur: Scored) -> fitters.FitState:
         """What the fitters see in a round whose twin is `cur` (the binned renderer and sweeps kept across rounds)."""
@@ -135,36 +96,6 @@ class Diagnosis:
         return fitters.FitState(self.twins, [r.data for r in self.runs], [r.aif_linear for r in self.runs],
                                 list(cur.effects), fx.make, self.factor, self.cfg.fit_boot, self.cfg.seed,
                                 self.sweep_cache, cur.fit_curves, tb=self._binned)
-
-    # --- where -------------------------------------------------------------------------------------------
-    def gap_maps(self, twin: Scored) -> list[np.ndarray]:
-        return [r.err - e for r, e in zip(self.runs, twin.err)]
-
-    def where(self, twin: Scored) -> dict:
-        gaps = self.gap_maps(twin)
-        cfg = self.cfg
-        overall = binned_bootstrap(gaps, [np.where(np.isfinite(g), 0, -1) for g in gaps], 1, cfg.n_boot, cfg.seed)
-        twin_mae = float(np.nanmean(np.concatenate([e.ravel() for e in twin.err])))
-        real_mae = float(np.nanmean(np.concatenate([r.err.ravel() for r in self.runs])))
-        thresh = cfg.min_rel_gap * twin_mae
-        sig = bool((overall.ci_low[0] > 0 or overall.ci_high[0] < 0) and abs(overall.mean[0]) >= thresh)
-        breakdown, where = {}, []
-        for k, name in enumerate(b.name for b in self.runs[0].binnings):
-            bn = self.runs[0].binnings[k]
-            st = binned_bootstrap(gaps, [r.binnings[k].index for r in self.runs], len(bn.labels), cfg.n_boot, cfg.seed)
-            rows = []
-            for j, lab in enumerate(bn.labels):
-                s = bool(st.pixels[j] >= cfg.min_bin_pixels and (st.ci_low[j] > 0 or st.ci_high[j] < 0) and abs(st.mean[j]) >= thresh)
-                rows.append({"bin": lab, "gap_m": _f(st.mean[j]), "ci_low": _f(st.ci_low[j]), "ci_high": _f(st.ci_high[j]),
-                             "pixels": int(st.pixels[j]), "significant": s})
-                if s and sig:
-                    where.append({"by": name, "bin": lab, "gap_m": _f(st.mean[j]), "ci_low": _f(st.ci_low[j]),
-                                  "ci_high": _f(st.ci_high[j])})
-            breakdown[name] = {"unit": bn.unit, "bins": rows}
-        where.sort(key=lambda w: -abs(w["gap_m"]))
-        return {"gap_m": _f(overall.mean[0]), "ci_low": _f(overall.ci_low[0]), "ci_high": _f(overall.ci_high[0]),
-                "real_mae_m": real_mae, "twin_mae_m": twin_mae, "threshold_m": thresh, "significant": sig,
-                "where": where, "breakdown": breakdown}
 
     # --- which -------------------------------------------------------------------------------------------
     def _closeness(self, base: Scored, cand: Scored, image_only: bool = False) -> np.ndarray:
@@ -210,20 +141,19 @@ class Diagnosis:
             return self._which_grid(base, candidates, image_only)
         return self._which_fit(base, candidates, image_only)
 
-    def _entry(self, name: str, rnd: int, cur: Scored, fit: Scored, gap0, image_only: bool) -> dict:
-        """A full-resolution evaluation of `fit` (the twin with the effect) against the round's twin `cur`."""
+    def _entry(self, name: str, rnd: int, cur: Scored, fit: Scored, gap0, image_only: bool,
+               fit_report: dict | _Absent = ABSENT) -> dict:
+        """A full-resolution evaluation of `fit` (the twin with the effect) against the round's twin `cur`, as an
+        `EffectEntry`'s dict (with the fitter's report, in the fitted search)."""
         cfg = self.cfg
         score = capture_bootstrap(self._closeness(cur, fit, image_only), n_boot=cfg.n_boot, seed=cfg.seed)
         img = score if image_only else capture_bootstrap(self._closeness(cur, fit, True), n_boot=cfg.n_boot,
                                                           seed=cfg.seed)
         share = (None, None, None) if image_only else self._share(gap0, cur, fit)
         bri = capture_bootstrap(self._brightness_closeness(cur, fit), n_boot=cfg.n_boot, seed=cfg.seed)
-        return {"effect": name, "params": fit.effects[-1].params, "round": rnd,
-                "closeness": score[0], "closeness_ci": [score[1], score[2]],
-                "image_closeness": img[0], "image_closeness_ci": [img[1], img[2]],
-                "brightness_closeness": bri[0], "brightness_closeness_ci": [bri[1], bri[2]],
-                "share_of_gap": share[0], "ci_low": share[1], "ci_high": share[2],
-                "distances": [asdict(d) for d in fit.dist]}
+        return EffectEntry(name, fit.effects[-1].params, rnd, score[0], [score[1], score[2]], img[0], [img[1], img[2]],
+                           bri[0], [bri[1], bri[2]], share[0], share[1], share[2],
+                           distances=[asdict(d) for d in fit.dist], fit=fit_report).as_dict()
 
     def _pick(self, best: list, cfg: DiagnoseConfig):
         """The round's named effect among (entry, twin) pairs, or None (`is_named`, then `named_by_brightness`).
@@ -302,30 +232,26 @@ class Diagnosis:
             else:
                 proposals = list(fx.make(name).candidates)
             if not proposals:  # the fit found nothing: no twin to score
-                evaluated.append({"effect": name, "params": None, "round": rnd + 1, "closeness": None,
-                                  "share_of_gap": None, "ci_low": None, "ci_high": None, "screened_out": True,
-                                  "fit": report, "note": "the fit found no setting the images support"})
+                evaluated.append(EffectEntry(name, None, rnd + 1, None, screened_out=True, fit=report,
+                                             note="the fit found no setting the images support").as_dict())
                 continue
             screen = self._screen(state, cur_b, name, proposals)
             if screen is not None:
                 params, img, bri = screen
                 if not (img.mean() > 0 or bri.mean() >= cfg.min_score):
                     sc = capture_bootstrap(img, n_boot=cfg.n_boot, seed=cfg.seed)
-                    evaluated.append({"effect": name, "params": fx.make(name, **params).params, "round": rnd + 1,
-                                      "closeness": sc[0], "closeness_ci": [sc[1], sc[2]],
-                                      "image_closeness": sc[0], "image_closeness_ci": [sc[1], sc[2]],
-                                      "brightness_closeness": float(bri.mean()), "share_of_gap": None,
-                                      "ci_low": None, "ci_high": None, "screened_out": True, "fit": report,
-                                      "note": f"not scored at full resolution: its images did not come closer at "
-                                              f"1/{self.factor} resolution"})
+                    evaluated.append(EffectEntry(
+                        name, fx.make(name, **params).params, rnd + 1, sc[0], [sc[1], sc[2]], sc[0], [sc[1], sc[2]],
+                        float(bri.mean()), screened_out=True, fit=report,
+                        note=f"not scored at full resolution: its images did not come closer at 1/{self.factor} "
+                             f"resolution").as_dict())
                     continue
                 proposals = [params]
             fit = self._best_of(name, proposals, cur, rnd)
             if fit is None:
                 remaining.remove(name)
                 continue
-            entry = self._entry(name, rnd + 1, cur, fit, gap0, image_only)
-            entry["fit"] = report
+            entry = self._entry(name, rnd + 1, cur, fit, gap0, image_only, fit_report=report)
             best.append((entry, fit))
             evaluated.append(entry)
         return best
@@ -377,6 +303,7 @@ class Diagnosis:
             remaining.remove(top[0]["effect"])
         return ranked, chain, evaluated
 
+
 def is_named(entry: dict, min_score: float) -> bool:
     """Whether the round's best effect is named: its twin comes closer to the captures, significantly (interval
     low >= min_score) in images and errors together, or else significantly in the images alone with a mean gain
@@ -401,127 +328,6 @@ def named_by_brightness(entry: dict, min_score: float) -> bool:
     if bri is None or img is None or low is None:
         return False
     return bri[0] >= min_score and (2 * img[0] + bri[0]) / 3 >= min_score and low > 0
-
-
-def share_view(entry: dict, min_image: float = 0.25) -> tuple[float | None, str | None]:
-    """The share of the gap as people should read it: (value to show, note) from an entry's `share_of_gap`,
-    its interval and its image closeness. A share is a ratio of sums: it means "this much of the gap closes"
-    only when the effect's twin resembles the captures and the ratio lies in 0..1. Otherwise the value shown
-    is clipped to 0..1 or withheld, and the note says why (the raw number stays in `share_of_gap`)."""
-    share = entry.get("share_of_gap")
-    if entry.get("screened_out"):
-        return None, entry.get("note")
-    if share is None:
-        return None, "no significant gap: no share" if entry.get("closeness") is not None else None
-    img, bri = entry.get("image_closeness"), entry.get("brightness_closeness")
-    if img is not None and img < 0 and (bri is None or bri < min_image):  # nor did its lighting come closer
-        return None, (f"not shown: its images moved away from the captures (closeness {img:.2f}), so its twin "
-                      f"does not resemble them and its share ({share:.2f}) says nothing about the cause")
-    if share > 1:
-        return 1.0, f"clipped to 1: the twin with it does better than the captures (raw share {share:.2f})"
-    if share < 0:
-        return 0.0, f"clipped to 0: adding it widens the gap (raw share {share:.2f})"
-    lo = entry.get("ci_low")
-    if lo is not None and lo <= 0:
-        return share, "not significant: the interval includes 0"
-    return share, None
-
-
-def explains_gap(entry: dict, min_share: float, min_image: float = 0.25) -> bool:
-    """Whether a named effect explains part of the gap: it closes a significant part of the gap (share >=
-    min_share, interval above 0) AND its twin resembles the captures: its images came closer by at least
-    `min_image` (fraction of the image distance), or its lighting did (vignetting, which the shape measures
-    barely see). The second condition keeps a stand-in from being blamed: with a cause the registry lacks, a
-    flexible effect can move the model's errors towards the captures' (weak noise raises the focus-curve floor
-    a hidden focus bias also changes) while the images stay almost as far from the captures as before."""
-    share, lo = entry.get("share_of_gap"), entry.get("ci_low")
-    img, bri = entry.get("image_closeness"), entry.get("brightness_closeness")
-    if share is None or lo is None or lo <= 0 or share < min_share or (img is not None and img < 0 and
-                                                                          (bri is None or bri < min_image)):
-        return False
-    return img is None or img >= min_image or (bri is not None and bri >= min_image)
-
-
-VERDICTS = {
-    "no_gap": "The gap is not significant: nothing to explain.",
-    "unexplained": ("The gap is real, but no registered effect explains it: none closes a significant part of it "
-                    "with its images moving closer to the captures. The cause is something the simulator does "
-                    "not model (yet)."),
-    "partly_explained": "The named effects explain part of the gap; a significant part remains unexplained.",
-    "explained": "The named effects explain the gap.",
-}
-
-
-def verdict(gap_significant: bool, ranked: list[dict], unexplained_share: float | None, cfg: DiagnoseConfig) -> str:
-    """One of VERDICTS' keys: no_gap, unexplained (a significant gap and no named effect explains part of it),
-    partly_explained (some do, but more than cfg.max_unexplained of the gap is left), explained."""
-    if not gap_significant:
-        return "no_gap"
-    if not any(explains_gap(e, cfg.min_share, cfg.min_image_explained) for e in ranked):
-        return "unexplained"
-    return "partly_explained" if unexplained_share is not None and unexplained_share > cfg.max_unexplained \
-        else "explained"
-
-
-def unexplained_share(diag: Diagnosis, base: Scored, chain: list[Scored], explaining: list[bool]) -> dict:
-    """The part of the gap that the effects which explain it (`explaining`, one flag per named effect, in the
-    chain's order) leave: 1 - the sum of their shares, i.e. sum(gap - what each of them closes in its round) /
-    sum(gap), with its two-level interval; 1 exactly when none does. Named effects that do not explain the gap
-    (present in the images, but closing no significant part of it) are not credited. The value shown is
-    clipped to 0..1 with a note when it falls outside (the twins overshooting the captures)."""
-    gap0 = diag.gap_maps(base)
-    if not any(explaining):
-        est = lo = hi = 1.0
-    else:
-        left = [g.copy() for g in gap0]
-        for k, ok in enumerate(explaining, 1):
-            if ok:
-                for i, (a, b) in enumerate(zip(chain[k].err, chain[k - 1].err)):
-                    left[i] -= a - b
-        est, lo, hi = ratio_bootstrap(left, gap0, diag.cfg.n_boot, diag.cfg.seed)
-    shown, note = est, None
-    if est < 0:
-        shown, note = 0.0, f"clipped to 0: the twin with the named effects does better than the captures (raw {est:.2f})"
-    elif est > 1:
-        shown, note = 1.0, f"clipped to 1: the named effects together widen the gap (raw {est:.2f})"
-    return {"share": _f(est), "ci_low": _f(lo), "ci_high": _f(hi), "shown": _f(shown), "note": note}
-
-
-def annotate_shares(entries: list[dict], ranked: list[dict], cfg: DiagnoseConfig) -> None:
-    """Add `share_shown` and `share_note` to every entry, and `explains_gap` (None for effects not named), in
-    place."""
-    named = {id(e) for e in ranked}
-    for e in entries:
-        e["share_shown"], e["share_note"] = share_view(e, cfg.min_image_explained)
-        e["explains_gap"] = explains_gap(e, cfg.min_share, cfg.min_image_explained) if id(e) in named else None
-
-
-def _f(x) -> float | None:
-    x = float(x)
-    return x if np.isfinite(x) else None
-
-
-def focus_summary(evaluated: list[dict], ranked: list[dict]) -> dict | None:
-    """What the images say about the focus metadata (docs/diagnosis.md, "Focus errors"): the error family the fit
-    chose with its settings, intervals and support, and every capture's corrected focus distances, from the
-    round in which `focus_metadata` was named (else its first fit); whether it was named and explains the gap."""
-    fits = [e for e in evaluated if e["effect"] == "focus_metadata" and e.get("fit", {}).get("focus_fit")]
-    if not fits:
-        return None
-    named = next((e for e in ranked if e["effect"] == "focus_metadata"), None)
-    e = named if named is not None and named.get("fit", {}).get("focus_fit") else fits[0]
-    return {**e["fit"]["focus_fit"], "corrected_focus": e["fit"]["corrected_focus"], "round": e["round"],
-            "named": named is not None, "explains_gap": bool(named and named.get("explains_gap"))}
-
-
-def shrink_summary(diag: Diagnosis, base: Scored, ranked: list[dict], chain: list[Scored]) -> dict | None:
-    """Gap before and predicted after (twin with the named effects)."""
-    if not ranked:
-        return None
-    before = float(np.nanmean(np.concatenate([g.ravel() for g in diag.gap_maps(base)])))
-    after = float(np.nanmean(np.concatenate([g.ravel() for g in diag.gap_maps(chain[-1])])))
-    return {"effects": [e.training_spec() for e in chain[-1].effects], "gap_before_m": before, "gap_predicted_m": after,
-            "real_mae_before_m": float(np.nanmean(np.concatenate([r.err.ravel() for r in diag.runs])))}
 
 
 def diagnose(model: DfFModel, twins, captures: list[CaptureData], cfg: DiagnoseConfig, progress=None) -> tuple[dict, Diagnosis, list[Scored]]:

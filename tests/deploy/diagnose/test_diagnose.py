@@ -269,7 +269,7 @@ def test_hidden_cause_is_unexplained_not_blamed(setup):
 def test_shares_shown_only_when_meaningful():
     """share_view on the cases the issue met: a share of 8.75 from an effect whose images moved away is withheld
     with the reason; shares past 0..1 are clipped with a note; a plain one is shown as is."""
-    from aat_deploy.diagnose.search import share_view
+    from aat_deploy.diagnose.verdict import share_view
 
     away = {"share_of_gap": 8.75, "ci_low": 2.0, "ci_high": 15.0, "closeness": -1.18, "image_closeness": -1.18}
     shown, note = share_view(away)
@@ -286,7 +286,8 @@ def test_shares_shown_only_when_meaningful():
 
 def test_verdict_by_hand():
     """no_gap / unexplained / partly_explained / explained from hand-made ranked effects."""
-    from aat_deploy.diagnose.search import DiagnoseConfig, explains_gap, verdict
+    from aat_deploy.diagnose.gap import DiagnoseConfig
+    from aat_deploy.diagnose.verdict import explains_gap, verdict
 
     cfg = DiagnoseConfig()
     # the shipped sample: noise named first (share -0.20), then vignetting on its lighting
@@ -324,3 +325,27 @@ def test_alternatives_are_the_effects_the_images_cannot_tell_apart():
     top = Diagnosis._pick(None, best, DiagnoseConfig())
     assert top[1] == "sensor_tilt" and top[0]["alternatives"] == ["lens_tolerance"]
     assert Diagnosis._pick(None, [e("exposure", 0.02, [-0.1, 0.1])], DiagnoseConfig()) is None
+
+
+def test_effect_entries_have_one_typed_constructor():
+    """The search builds every entry of `effects_evaluated` through search.EffectEntry: the three kinds keep the
+    keys (and their order) diagnosis.json has always had; fields never set are left out, None stays null."""
+    from aat_deploy.diagnose.search import EffectEntry
+
+    scored = EffectEntry("noise", {"sigma": 0.01}, 1, 0.3, [0.2, 0.4], 0.25, [0.1, 0.3], 0.05, [0.0, 0.1], 0.5,
+                         0.4, 0.6, distances=[{"focus_curves": 0.1}], fit={"r": 1}).as_dict()
+    assert list(scored) == ["effect", "params", "round", "closeness", "closeness_ci", "image_closeness",
+                            "image_closeness_ci", "brightness_closeness", "brightness_closeness_ci", "share_of_gap",
+                            "ci_low", "ci_high", "distances", "fit"]
+    screened = EffectEntry("vignetting", {}, 2, -0.1, [-0.2, 0.0], -0.1, [-0.2, 0.0], 0.0, screened_out=True,
+                           fit={}, note="not scored").as_dict()
+    assert list(screened) == ["effect", "params", "round", "closeness", "closeness_ci", "image_closeness",
+                              "image_closeness_ci", "brightness_closeness", "share_of_gap", "ci_low", "ci_high",
+                              "screened_out", "fit", "note"]
+    assert screened["share_of_gap"] is None and screened["ci_low"] is None
+    none_found = EffectEntry("focus_metadata", None, 1, None, screened_out=True, fit={}, note="no setting").as_dict()
+    assert list(none_found) == ["effect", "params", "round", "closeness", "share_of_gap", "ci_low", "ci_high",
+                                "screened_out", "fit", "note"]
+    grid = EffectEntry("noise", {}, 1, 0.3, [0.2, 0.4], 0.3, [0.2, 0.4], 0.0, [0.0, 0.0], None, None, None,
+                       distances=[]).as_dict()
+    assert "fit" not in grid and "screened_out" not in grid and grid["share_of_gap"] is None
