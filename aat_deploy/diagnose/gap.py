@@ -47,7 +47,6 @@ class DiagnoseConfig:
     max_unexplained: float = 1 / 3  # more of the gap left than this (point estimate): "partly explained"
 
 
-
 @dataclass
 class Scored:
     """One twin variant evaluated on every capture."""
@@ -68,6 +67,7 @@ class CaptureRun:
     err: np.ndarray
     aif_linear: np.ndarray
     binnings: list = field(default_factory=list)
+
 
 def abs_error(pred_m: np.ndarray, gt_m: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(gt_m) & (gt_m > 0), np.abs(pred_m - gt_m), np.nan).astype(np.float32)
