@@ -33,6 +33,7 @@ from dataclasses import dataclass
 from types import ModuleType
 
 import numpy as np
+import scipy.fft
 
 from aat_deploy.backend import is_torch
 
@@ -95,9 +96,13 @@ def pixel_kernel_size(k: int, scale: float) -> int:
 
 class LayeredBackend:
     """The array operations of the layered renderer, numpy's spelling (the torch backend overrides them). `xp` is
-    the namespace for what both libraries spell alike (arange, stack, clip, abs, round, zeros, fft.rfft2, ...)."""
+    the namespace for what both libraries spell alike (arange, stack, clip, abs, round, zeros, ...); `fft` the FFT
+    module (rfft2, irfft2)."""
 
     xp: ModuleType = np
+    # numpy arrays' FFTs: scipy's pocketfft, which vectorises the batch of small blocks (a 960 x 640 stack renders
+    # 1.4 x faster than with numpy.fft; the two agree to float32 rounding: tests/deploy/render/test_layered_fft.py)
+    fft: ModuleType = scipy.fft
 
     def asarray(self, x):
         return np.asarray(x)
@@ -283,10 +288,10 @@ def _render_layer(be: LayeredBackend, img, w, m: int, anchors_field_fn, kernel_f
     t = _tent_weights(xp, cc, dt)
     wgt = xp.stack([t[a][:, None] * t[b][None, :] for a in (0, 1) for b in (0, 1)])  # (4, cc, cc)
     x = cells[idx[:, 0], idx[:, 1]][:, None] * wgt[None, :, None]  # (Na, 4, C, cc, cc)
-    xf = xp.fft.rfft2(x, s=(n_fft, n_fft))
-    kf = xp.fft.rfft2(px, s=(n_fft, n_fft))  # (U, C, n, n/2+1)
+    xf = be.fft.rfft2(x, s=(n_fft, n_fft))
+    kf = be.fft.rfft2(px, s=(n_fft, n_fft))  # (U, C, n, n/2+1)
     yf = (xf * kf[inv].reshape(na, 4, ctot, n_fft, -1)).sum(1)
-    y = be.astype(xp.fft.irfft2(yf, s=(n_fft, n_fft))[..., :cc + 2 * r, :cc + 2 * r], dt)  # (Na, C, cc+2r, cc+2r)
+    y = be.astype(be.fft.irfft2(yf, s=(n_fft, n_fft))[..., :cc + 2 * r, :cc + 2 * r], dt)  # (Na, C, cc+2r, cc+2r)
     # Overlap-add the cells' spread light (blocks of cc + 2r laid out with stride cc).
     out = be.overlap_add(y, idx, ny, nx, cc, r)[:, r:r + hc, r:r + wc]
     if m > 1:

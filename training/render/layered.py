@@ -19,6 +19,7 @@ class TorchLayered(LayeredBackend):
     torch.nn.functional)."""
 
     xp = torch
+    fft = torch.fft
 
     def asarray(self, x):
         return torch.as_tensor(x)
