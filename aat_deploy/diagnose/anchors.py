@@ -30,18 +30,19 @@ def _curves(stack: np.ndarray, factor: int = 1) -> np.ndarray:
     return focus_curves(normalise_stack(bin_frames(np.clip(stack, 0, None), factor)), ff.FIT_GRID).mean(-1)
 
 
-def anchor_deltas(state, chain: list, focus_d: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
+def anchor_deltas(state, chain: list, focus_m: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
     """Per capture, (focus (S,) diopters, delta (R, S)): the binned full-resolution twin's curves minus the binned
-    render's, both with `chain` at those focus distances. The full-resolution optics are cached by the renderer:
-    at the twin's own focus this costs no new optical render."""
+    render's, both with `chain` at the focus distances focus_m (S,) metres. The optics are cached by the renderers
+    (keyed by the focus's bits): at the twin's own focus, given as the twin has it (`true_focus`, not the inverse of
+    its diopters), this costs no new optical render."""
     out = []
-    for i, (c, cb, a, ab, d) in enumerate(zip(state.caps, state.caps_b, state.aifs, state.aifs_b, focus_d)):
-        full = state.twins.linear(c, a, chain, state.seed + i, focus_true_m=1.0 / d)
-        own = state.tb.linear(cb, ab, chain, state.seed + i, focus_true_m=1.0 / d)
+    for i, (c, cb, a, ab, f) in enumerate(zip(state.caps, state.caps_b, state.aifs, state.aifs_b, focus_m)):
+        full = state.twins.linear(c, a, chain, state.seed + i, focus_true_m=f)
+        own = state.tb.linear(cb, ab, chain, state.seed + i, focus_true_m=f)
         # the full-resolution twin is normalised as a stack, then binned, as `fitters.fit_curves` does
         full_curves = focus_curves(normalise_stack(bin_frames(normalise_stack(np.clip(full, 0, None)), state.factor)),
                                    ff.FIT_GRID).mean(-1)
-        out.append((np.asarray(d, np.float64), full_curves - _curves(own)))
+        out.append((1.0 / np.asarray(f, np.float64), full_curves - _curves(own)))
     return out
 
 
@@ -65,13 +66,15 @@ def reanchored_sweep(state, raw: ff.SweepData, estimate) -> tuple[ff.SweepData, 
     chain = [e for e in state.chain if not state.tb.has_stack_hook(e)]
     s_n = [len(c.focus_m) for c in state.caps]
     base = [raw.base_d[i, :s] for i, s in enumerate(s_n)]
-    anchors = [[a] for a in anchor_deltas(state, chain, base)]
+    own = [np.asarray(state.twins.true_focus(c, state.chain, state.seed + i), np.float64).ravel()
+           for i, c in enumerate(state.caps)]  # the full-resolution twin's own focus, bit for bit (its render cached)
+    anchors = [[a] for a in anchor_deltas(state, chain, own)]
     data = raw.with_twin(raw.twin + correction(raw.grid_d, anchors))
     est = np.asarray(estimate(data), np.float64)
     rep = {"anchors_d": [b.round(4).tolist() for b in base]}
     moved = [np.max(np.abs(est[i, :s] - base[i])) for i, s in enumerate(s_n)]
     if max(moved) >= REANCHOR_D:
-        extra = anchor_deltas(state, chain, [np.clip(est[i, :s], raw.grid_d[0], raw.grid_d[-1])
+        extra = anchor_deltas(state, chain, [1.0 / np.clip(est[i, :s], raw.grid_d[0], raw.grid_d[-1])
                                              for i, s in enumerate(s_n)])
         anchors = [a + [x] for a, x in zip(anchors, extra)]
         data = raw.with_twin(raw.twin + correction(raw.grid_d, anchors))

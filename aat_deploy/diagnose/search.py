@@ -122,10 +122,17 @@ class Diagnosis(GapAnalysis):
         f = self.cfg.floor_brightness
         return np.array([(db.brightness - dc.brightness) / (db.brightness + f) for db, dc in zip(base.dist, cand.dist)])
 
-    def _image_distance(self, s: Scored) -> float:
+    def _image_distance(self, dist: list) -> float:
+        """One number for a twin's per-capture `compare.Distances` (focus curves and geometry): which candidate
+        setting of an effect comes closest."""
         c = self.cfg
         return float(sum(d.focus_curves / (1 + c.floor_focus_curves) + d.geometry_px * c.floor_focus_curves / c.floor_geometry_px
-                         for d in s.dist))
+                         for d in dist))
+
+    def _twin_image_distances(self, extra: list[fx.Effect]) -> list:
+        """Per capture, the image part of `score_twin`'s distances (the model not run)."""
+        return [image_distances(r.stack, r.curves, self.twins.render(r.data, r.aif_linear, extra, seed=self.cfg.seed + i))
+                for i, r in enumerate(self.runs)]
 
     def _share(self, gap0: list[np.ndarray], base: Scored, cand: Scored) -> tuple[float, float, float]:
         """Fraction of the original gap closed by going from `base` to `cand` twins, with its interval
@@ -258,18 +265,23 @@ class Diagnosis(GapAnalysis):
 
     def _best_of(self, name: str, settings: list[dict], cur: Scored, rnd: int) -> Scored | None:
         """The twin (current chain + effect `name` at each of `settings`, full resolution) whose images come
-        closest to the capture's; None, with the reason kept in `skipped`, when the effect needs torch."""
-        fits = []
+        closest to the capture's, scored; None, with the reason kept in `skipped`, when the effect needs torch.
+        The settings are compared on their images alone, so the model runs on the closest one only (the twins'
+        optics are cached: scoring it renders no new optics)."""
         try:
-            for params in settings:
-                eff = fx.make(name, **params)
+            effs = [fx.make(name, **params) for params in settings]
+            best, best_d = effs[0], None
+            for eff in effs:
                 self.progress(f"round {rnd + 1}: {effect_label(eff)}")
-                fits.append(self.score_twin(cur.effects + [eff]))
+                if len(effs) > 1:
+                    d = self._image_distance(self._twin_image_distances(cur.effects + [eff]))
+                    if best_d is None or d < best_d:  # the first of equals, as min() took it
+                        best, best_d = eff, d
+            return self.score_twin(cur.effects + [best])
         except fx.NeedsTorch as e:
             self.skipped.append({"effect": name, "reason": str(e)})
             self.progress(f"skipped {name}: {e}")
             return None
-        return min(fits, key=self._image_distance)
 
     def _which_grid(self, base: Scored, candidates: list[str], image_only: bool = False):
         """The greedy search over every effect's candidate settings, each rendered at full resolution."""

@@ -277,3 +277,22 @@ def test_noisy_raw_captures_keep_per_frame_focus_off_its_bounds(world):
     assert np.abs(np.array(f["frame_focus_d"]) - true_d).max() < 0.05
     plain = ff.fit_metadata(F.focus_sweep(state), n_boot=5)
     assert plain.on_bound.any()
+
+
+@pytest.mark.filterwarnings("ignore:.*real-ray focus table")
+def test_binning_correction_at_the_twins_own_focus_renders_no_new_optics(world):
+    """The binning correction's anchors at the twin's own focus (`anchors.anchor_deltas`) reuse the twin's cached
+    optics: given as the twin has it, not as the inverse of its diopters (which differs in the last bit and cost
+    one more full-resolution optical render per round, issue 32's speed). Anchors elsewhere still render."""
+    from aat_deploy.diagnose import anchors as A
+
+    caps, twins = render_set(world, "clean", [])
+    state = state_for(caps, twins)
+    before = twins.renders
+    own = [twins.true_focus(c, [], seed=i) for i, c in enumerate(caps)]
+    deltas = A.anchor_deltas(state, [], own)
+    assert twins.renders == before
+    for (d, delta), f in zip(deltas, own):
+        assert np.array_equal(d, 1.0 / f) and delta.shape[1] == len(f) and np.isfinite(delta).all()
+    A.anchor_deltas(state, [], [f * 1.01 for f in own])
+    assert twins.renders == before + len(caps)
