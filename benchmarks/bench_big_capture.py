@@ -31,12 +31,12 @@ import shutil
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
 from benchmarks.big_capture import make_capture
+from benchmarks.timing import timed_process
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -90,21 +90,12 @@ def run(code_root: Path, capture: Path, out: Path, extra: list[str]) -> dict:
     wait_file = out.with_name(out.name + ".wait")
     env = {**os.environ, "PYTHONPATH": str(code_root), "OMP_WAIT_POLICY": "PASSIVE", "AAT_BENCH_WAIT": str(wait_file)}
     cmd = [sys.executable, "-c", INFER, str(capture), "--method", "focus", "--out", str(out), "--force", "-q", *extra]
-    load = os.getloadavg()[0]
-    t0 = time.perf_counter()
-    proc = subprocess.Popen(cmd, cwd=code_root, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    _, status, usage = os.wait4(proc.pid, 0)
-    wall = time.perf_counter() - t0
-    err = proc.stderr.read().decode(errors="replace")
-    proc.returncode = os.waitstatus_to_exitcode(status)
-    if proc.returncode != 0:
-        raise RuntimeError(f"{' '.join(cmd)} failed ({proc.returncode}): {err[-500:]}")
+    t = timed_process(cmd, code_root, env)
     try:
         cpu_wait = int(wait_file.read_text()) / 1e9
     except (OSError, ValueError):
         cpu_wait = float("nan")
-    return {"wall_s": wall, "cpu_s": usage.ru_utime + usage.ru_stime, "rss_mb": usage.ru_maxrss / 1024, "load": load,
-            "cpu_wait_s": cpu_wait,
+    return {**{k: t[k] for k in ("wall_s", "cpu_s", "rss_mb", "load")}, "cpu_wait_s": cpu_wait,
             "summary": json.loads((out / "summary.json").read_text()),
             "disk_mb": sum(f.stat().st_size for f in out.iterdir()) / 1e6, "depth": np.load(out / "depth_m.npy")}
 

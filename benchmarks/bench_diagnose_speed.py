@@ -13,12 +13,25 @@ shipped model and is skipped in all three):
   search; their ratio is the speed-up (the grid search takes about 5 minutes a round for one 960 x 640 capture,
   so by default it runs one round). `--grid-rounds 0` skips it.
 Prints the load average at the start and the end: the machine is shared, and the times are wall clock.
+
+    python -m benchmarks.bench_diagnose_speed --against COMMIT [ROOT] [--model M.onnx] [--repeat 2]
+
+Before/after (issue 32's speed work): the whole `aat-diagnose ROOT --model M --torch-free` (every effect, 3 rounds) as
+it ran at COMMIT (its `aat_deploy/` exported with `git archive` into cache/bench_ref/<commit>/,
+`bench_big_capture.reference_tree`) and as this checkout runs it, each in a fresh process exactly as a user runs
+it, `--repeat` times interleaved (before, after, before, ...). The table gives each run's wall time, CPU time
+(user + system, all threads: less sensitive to other jobs) and the load average at its start and end, and the
+ratios of the best runs; then whether the two diagnoses agree (verdict, named effects and their settings, the focus
+family, every evaluated effect's settings, closeness and share).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import math
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -39,6 +52,91 @@ def timed(root: Path, model: Path, psf: Path | None, search: str, rounds: int, e
             "evaluated": len(res["effects_evaluated"])}
 
 
+# `python -m aat_deploy.cli.diagnose ARGS` as a user runs it
+DIAGNOSE = """import runpy, sys
+sys.argv[0] = "aat-diagnose"
+runpy.run_module("aat_deploy.cli.diagnose", run_name="__main__", alter_sys=True)
+"""
+
+
+def diagnose_process(code_root: Path, root: Path, model: Path, lens: Path, psf: Path, out: Path) -> dict:
+    """One `aat-diagnose` process running the code under code_root: wall and CPU seconds (the process's, all its
+    threads), the load average at its start and end, and its diagnosis.json."""
+    from benchmarks.timing import timed_process
+
+    env = {**os.environ, "PYTHONPATH": str(code_root), "OMP_WAIT_POLICY": "PASSIVE"}
+    cmd = [sys.executable, "-c", DIAGNOSE, str(root), "--model", str(model), "--lens", str(lens), "--psf", str(psf),
+           "--out", str(out), "--torch-free", "--force"]
+    return {**timed_process(cmd, code_root, env), "result": json.loads((out / "diagnosis.json").read_text())}
+
+
+def _round(x, digits: int = 6):
+    """Numbers to `digits` significant digits inside nested lists and dicts (float32-rounding differences of the
+    renderer's FFTs must not count as a different diagnosis)."""
+    if isinstance(x, float):
+        return float(f"{x:.{digits}g}") if math.isfinite(x) else x
+    if isinstance(x, dict):
+        return {k: _round(v, digits) for k, v in x.items()}
+    if isinstance(x, list):
+        return [_round(v, digits) for v in x]
+    return x
+
+
+def compare(a: dict, b: dict) -> list[tuple[str, str]]:
+    """(what, "same" or the two values) of the parts of two diagnoses a user reads."""
+    def named(r):
+        return [(e["effect"], e["params"]) for e in r["ranked_effects"] or r["image_effects"]]
+
+    def evaluated(r, key):
+        return [(e["effect"], e["round"], _round(e.get(key), 3)) for e in r["effects_evaluated"]]
+
+    focus = (lambda r: (r["focus"] or {}).get("family"), lambda r: _round((r["focus"] or {}).get("params"), 4))
+    rows = [("verdict", lambda r: r["verdict"]), ("causes", lambda r: r["causes"]), ("named effects and settings", named),
+            ("focus family", focus[0]), ("focus settings", focus[1]),
+            ("evaluated effects' settings", lambda r: evaluated(r, "params")),
+            ("evaluated effects' closeness (3 digits)", lambda r: evaluated(r, "closeness")),
+            ("evaluated effects' share of the gap (3 digits)", lambda r: evaluated(r, "share_of_gap")),
+            ("gap (m, 3 digits)", lambda r: _round(r["gap"]["gap_m"], 3))]
+    return [(what, "same" if f(a) == f(b) else f"{f(a)} -> {f(b)}") for what, f in rows]
+
+
+def against(a) -> None:
+    """Before (a.against's code) and after (this checkout), interleaved, `a.repeat` times each."""
+    from aat_deploy.diagnose.lookup import find_lens, find_surrogate
+    from aat_deploy.infer.model import DfFModel
+    from benchmarks.bench_big_capture import reference_tree
+
+    model = Path(a.model).resolve()
+    lens_obj, lens = find_lens(DfFModel(model), None)
+    psf = Path(a.psf) if a.psf else find_surrogate(lens_obj, None).path
+    ref = reference_tree(a.against)
+    out = Path(a.out) / "against"
+    runs: dict[str, list] = {"before": [], "after": []}
+    for k in range(a.repeat):
+        for name, code in (("before", ref), ("after", ROOT)):
+            r = diagnose_process(code, Path(a.root).resolve(), model, lens.resolve(), Path(psf).resolve(),
+                                 out / f"{name}_{k}")
+            runs[name].append(r)
+            print(f"{name} #{k + 1}: {r['wall_s']:.0f} s wall, {r['cpu_s']:.0f} s CPU, load {r['load']:.1f} -> "
+                  f"{r['load_end']:.1f}", flush=True)
+    best = {k: min(v, key=lambda r: r["wall_s"]) for k, v in runs.items()}
+    print(f"\n{a.root}, model {model.name}, torch-free, every effect, 3 rounds; before = {ref.name[:7]}, after = "
+          f"this checkout; 2 cores\n")
+    print("| code | run | wall time (s) | CPU time (s) | load average at start -> end |")
+    print("|---|---|---|---|---|")
+    for name, rs in runs.items():
+        for k, r in enumerate(rs):
+            print(f"| {name} | {k + 1} | {r['wall_s']:.0f} | {r['cpu_s']:.0f} | {r['load']:.1f} -> "
+                  f"{r['load_end']:.1f} |")
+    b, f = best["before"], best["after"]
+    print(f"\nbest runs: wall {b['wall_s']:.0f} s -> {f['wall_s']:.0f} s ({b['wall_s'] / f['wall_s']:.2f}x faster), "
+          f"CPU {b['cpu_s']:.0f} s -> {f['cpu_s']:.0f} s ({b['cpu_s'] / f['cpu_s']:.2f}x less)\n")
+    print("| part of the diagnosis (last runs) | before -> after |")
+    print("|---|---|")
+    for what, verdict in compare(runs["before"][-1]["result"], runs["after"][-1]["result"]):
+        print(f"| {what} | {verdict} |")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("root", nargs="?", default=str(ROOT / "captures" / "sample_rf50"))
@@ -46,9 +144,14 @@ def main() -> None:
     ap.add_argument("--psf", default=None)
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--grid-rounds", type=int, default=1)
+    ap.add_argument("--against", metavar="COMMIT", help="before/after: the whole diagnosis at COMMIT and here")
+    ap.add_argument("--repeat", type=int, default=2, help="with --against: runs of each, interleaved")
     ap.add_argument("--out", default=str(ROOT / "cache" / "bench_diagnose_speed"))
     a = ap.parse_args()
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    if a.against:
+        against(a)
+        return
     out = Path(a.out)
     load0 = os.getloadavg()
     rows = [("fit (all effects)", timed(Path(a.root), Path(a.model), a.psf, "fit", a.rounds, None, out / "fit_all"),

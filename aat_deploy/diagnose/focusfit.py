@@ -291,16 +291,17 @@ def fit_families(data: SweepData, weight: np.ndarray | None = None, frames: np.n
     return fits
 
 
-def score_families(fits: dict[str, FamilyFit], frame_sd: np.ndarray, frames: np.ndarray) -> None:
+def score_families(fits: dict[str, FamilyFit], frame_sd: np.ndarray, frames: np.ndarray,
+                   systematic_d: float = SYSTEMATIC_D) -> None:
     """Every family's BIC (`FamilyFit.bic`) from the per-frame estimates: chi2 + k log n, where chi2 sums over the
     frames (n of them) the squared distance of the family's focus from the `per_frame` estimates, each over its
-    variance: frame_sd (n, S) (the bootstrap's spread) squared plus SYSTEMATIC_D squared. The regions of one frame
+    variance: frame_sd (n, S) (the bootstrap's spread) squared plus systematic_d squared. The regions of one frame
     share its focus error and the twin's misfit, so the frames are the observations; their estimates' precision
     says how far a family may miss them. `per_frame` pays one extra log n against `quantisation`, its bounded
     special case."""
     n_f = max(float(frames.sum()), 2.0)
     e = fits["per_frame"].true_d
-    var = np.asarray(frame_sd, np.float64) ** 2 + SYSTEMATIC_D ** 2
+    var = np.asarray(frame_sd, np.float64) ** 2 + systematic_d ** 2
     for f in fits.values():
         chi2 = float(np.sum(np.where(frames > 0, (f.true_d - e) ** 2 / var, 0.0)))
         f.bic = chi2 + f.k * math.log(n_f)
@@ -332,7 +333,8 @@ class MetadataFit:
                 "frame_focus_d": self.fits["per_frame"].true_d.tolist(),
                 "frames_on_bound": [] if self.on_bound is None else self.on_bound.tolist(),
                 "frame_focus_sd_d": [] if self.frame_sd is None else np.round(self.frame_sd, 5).tolist(),
-                "families": [{"family": f.name, "k": f.k, "ss": f.ss, "bic": f.bic, **f.detail}
+                "families": [{"family": f.name, "k": f.k, "ss": f.ss, "bic": f.bic, "true_d": f.true_d.tolist(),
+                              **f.detail}
                              for f in self.fits.values()], **b.detail}
 
 
