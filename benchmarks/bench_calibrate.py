@@ -4,8 +4,8 @@
         [--lenses rf50,paper50,ef50] [--n 24] [--parts map,depth,needs] [--boot 100]
 
 Lenses: rf50, paper50, ef50 (the 50 mm lenses with PSF surrogates and best-focus maps) and z35 (the phone-sized
-Z35 as DiffOptics scaled it; cellphone_asphere has no surrogate). The z35's chart sweeps are refused by the fit
-(about 1.2 px of blur per diopter: its focus curves do not fall by half inside the sweep): see docs/calibration.md.
+Z35 as DiffOptics scaled it; cellphone_asphere has no surrogate). The z35's sweeps are designed from its blur per
+diopter (`sweep_diopters`: about 1.2 px/D, so they span its surrogate's whole focus range, 0.2-5 m).
 
 Setup, per lens (its PSF surrogate, its best-focus map in lenses/best_focus/, its tolerance table):
 - **nominal**: the lens as its prescription says, sensor noise on (8000 e- full well);
@@ -71,8 +71,8 @@ class LensSetup:
     tilts: tuple  # per distance (tilt_x, tilt_y) deg
     copy_effects: tuple
     tolerance_table: str | None = None  # None: next to the surrogate (models/)
-    step_d: float = 0.04  # the chart sweeps' focus step and how far they reach beyond the chart (D)
-    margin_d: float = 0.3
+    step_d: float | None = 0.04  # the chart sweeps' focus step and how far they reach beyond the chart (D);
+    margin_d: float | None = 0.3  # None: from the lens's blur per diopter (`sweep_diopters`)
     marker_frac: float | None = None  # marker side / grid spacing (None: the chart's default, a quarter)
 
 
@@ -93,14 +93,33 @@ LENSES = {
                       tolerance_table="cache/tolerance/auto"),
     # the phone-sized lens (EFL 2.29 mm, 1.2 px of blur per diopter: the cellphone_asphere has no PSF surrogate);
     # its tolerances scaled to its size (3 um decentre, 0.1 deg tilt: each about 0.3-0.5 D at the edge), the charts
-    # nearer and the sweeps coarser in diopters (a 0.04 D step moves its blur by 0.05 px)
+    # nearer and the sweeps designed in pixels of blur (a 0.04 D step would move its blur by 0.05 px)
     "z35": LensSetup("z35", "lenses/nikon_z35_f1.8_diffoptics.json", "models/psf_z35.onnx", (0.3, 0.6, 1.5),
                      ((12, 4), (-9, -3), (8, 0)),
                      ("lens_tolerance:element=3:decentre_x_mm=0.003", "sensor_tilt:tilt_x_deg=0.1:tilt_y_deg=-0.06",
                       f"focus_metadata:bias_d=0:scale={SCALE}", "noise"),
-                     tolerance_table="cache/tolerance/auto", step_d=0.2, margin_d=1.2, marker_frac=0.45),
+                     tolerance_table="cache/tolerance/auto", step_d=None, margin_d=None, marker_frac=0.45),
 }
 NOMINAL = ("noise",)
+# Sweeps designed in pixels of blur (setups without step_d / margin_d): the RF50's sweeps are 1.4 px of thin-lens
+# blur per step and reach 10 px beyond the chart; their tiles' focus curves fall to half 3.4-4.0 px from the peak
+# (90 % within 4.1-4.8 px, all within 6.1 px). At least MIN_SWEEP_FRAMES frames; never beyond the PSF surrogate's
+# focus range (it clamps there: the frame would be rendered at another focus than its metadata says).
+SWEEP_STEP_PX, SWEEP_MARGIN_PX, MIN_SWEEP_FRAMES = 1.4, 10.0, 15
+
+
+def sweep_diopters(rig, near_d: float, far_d: float) -> np.ndarray:
+    """The sweep's true focus settings (diopters, ascending) for a chart spanning far_d..near_d diopters: the
+    setup's step and margin, or, without them, SWEEP_STEP_PX and SWEEP_MARGIN_PX of the lens's thin-lens blur per
+    diopter, clipped to the surrogate's focus range (a sweep clipped there keeps MIN_SWEEP_FRAMES frames)."""
+    s = rig.setup
+    if s.step_d is not None:
+        return np.arange(far_d - s.margin_d, near_d + s.margin_d + 1e-9, s.step_d)
+    flo, fhi = rig.src.model.focus_range_m
+    lo, hi = max(far_d - SWEEP_MARGIN_PX / rig.blur_px_per_d, 1.0 / fhi), \
+        min(near_d + SWEEP_MARGIN_PX / rig.blur_px_per_d, 1.0 / flo)
+    step = min(SWEEP_STEP_PX / rig.blur_px_per_d, (hi - lo) / (MIN_SWEEP_FRAMES - 1))
+    return np.linspace(lo, hi, int(np.ceil((hi - lo) / step - 1e-9)) + 1)
 
 
 def effects_for(setup: LensSetup, variant: str) -> list[str]:
@@ -142,6 +161,7 @@ class Rig:
         self.f_px = p.efl_mm / s.pixel_mm
         self.efl, self.fno = p.efl_mm, p.fno
         self.pupil = p.total_track_mm + p.bfl_mm - p.entrance_pupil_z_mm
+        self.blur_px_per_d = p.entrance_pupil_mm * p.efl_mm / s.pixel_mm / 1000.0  # thin lens, far focus
 
     def ctx(self):
         from aat_deploy.render import effects as fx
@@ -200,7 +220,7 @@ def sweep(rig: Rig, variant: str, i: int, progress=print) -> dict:
                 "layout": layout, "distance_m": d}
     rgb, depth = chart_scene(img, layout, ChartPose(d, tx, ty), rig.w, rig.h, rig.f_px, rig.pupil)
     dd = 1.0 / depth
-    fd = np.arange(float(dd.min()) - s.margin_d, float(dd.max()) + s.margin_d + 1e-9, s.step_d)
+    fd = sweep_diopters(rig, float(dd.max()), float(dd.min()))
     true_m = 1.0 / fd  # far to near (diopters ascending), as a sweep is read
     t0 = time.time()
     frames, reported = shoot(rig.lens, rgb * 0.6, depth, true_m, effects, rig.src, seed=1000 + i, workers=2)
@@ -338,16 +358,17 @@ def part_needs(rig: Rig, sweeps: list[dict], log) -> list[dict]:
     for sub in subsets:
         for every in (1, 2, 3):
             chosen = [sweeps[i] for i in sub]
+            step_d = float(np.mean(np.diff(1.0 / chosen[0]["true_m"]))) * every  # the true focus step
             try:
                 res = fit(rig, "copy", chosen, 20, every)
             except Exception as e:  # noqa: BLE001 (a subset too small to fit is a row that says so)
-                rows.append({"distances_m": [s.distances_m[i] for i in sub], "step_d": s.step_d * every,
+                rows.append({"distances_m": [s.distances_m[i] for i in sub], "step_d": step_d,
                              "error": str(e).splitlines()[0][:120]})
                 continue
             e_in = map_errors(rig, res.calibration, eff, inside)["calibration"]
             e_s = map_errors(rig, res.calibration, eff, schedule)["calibration"]
             frames = sum(len(range(0, len(sw["reported_m"]), every)) for sw in chosen)
-            rows.append({"distances_m": [s.distances_m[i] for i in sub], "step_d": s.step_d * every, "frames": frames,
+            rows.append({"distances_m": [s.distances_m[i] for i in sub], "step_d": step_d, "frames": frames,
                          "family": res.calibration.focus_error.family, "inside_rms_d": e_in["rms_d"],
                          "schedule_rms_d": e_s["rms_d"]})
             log(f"  needs {rows[-1]}")
