@@ -277,8 +277,29 @@ def fit(rig: Rig, variant: str, sweeps: list[dict], n_boot: int, keep_every: int
     return fit_calibration(measures(rig, sweeps, variant, keep_every), n_boot=n_boot)
 
 
+def psf_growth(rig: Rig, object_m: float) -> dict:
+    """Why a sweep can be flat or unbracketed: the surrogate's PSF RMS radius (px, its second moment) on axis and at
+    field x = 0.7 for an object at object_m, at the sweep's focus settings, beside the thin-lens defocus blur
+    diameter (px); and the best-focus map's field curvature (D nearer than on axis) at radius 0.5 and 1 for a frame
+    focused at object_m."""
+    fd = sweep_diopters(rig, 1.0 / object_m, 1.0 / object_m)
+    out = {"object_m": object_m, "focus_d": fd.tolist(),
+           "defocus_blur_px": (rig.blur_px_per_d * np.abs(fd - 1.0 / object_m)).tolist()}
+    shift = rig.fmap.shift_diopters(calibrated=True)  # (R, F)
+    at = [float(np.interp(1.0 / object_m, rig.fmap.focus_diopters, row)) for row in shift]
+    out["field_curvature_d"] = {f"r{r:g}": float(np.interp(r, rig.fmap.radius, at)) - at[0] for r in (0.5, 1.0)}
+    for name, x in (("rms_radius_px_centre", 0.0), ("rms_radius_px_x0.7", 0.7)):
+        k, sc = rig.src(np.full(fd.size, x), np.zeros(fd.size), np.full(fd.size, object_m), 1.0 / fd)
+        g = np.arange(k.shape[-1]) - k.shape[-1] // 2
+        p = k / k.sum((-1, -2), keepdims=True)
+        out[name] = (np.sqrt((p * (g[:, None] ** 2 + g[None, :] ** 2)).sum((-1, -2))) * sc).tolist()
+    return out
+
+
 # -- parts -----------------------------------------------------------------------------------------------------------
 def part_map(rig: Rig, n_boot: int, log) -> tuple[list, dict]:
+    from aat_deploy.calibrate.sweep import SweepError
+
     rows, fits = [], {}
     s = rig.setup
     inside = diopter_grid(max(s.distances_m), min(s.distances_m), 10)
@@ -286,7 +307,15 @@ def part_map(rig: Rig, n_boot: int, log) -> tuple[list, dict]:
     for variant in ("nominal", "copy"):
         sw = [sweep(rig, variant, i, log) for i in range(len(s.distances_m))]
         t0 = time.time()
-        res = fit(rig, variant, sw, n_boot)
+        try:
+            res = fit(rig, variant, sw, n_boot)
+        except SweepError as e:  # a lens whose sweeps cannot be calibrated is a row that says why
+            why = psf_growth(rig, float(np.median(s.distances_m)))
+            rows.append({"lens": s.key, "variant": variant, "refused": str(e).splitlines()[0], "psf": why})
+            log(f"  {s.key} {variant}: refused: {e}; PSF RMS radius on axis "
+                f"{min(why['rms_radius_px_centre']):.2f}-{max(why['rms_radius_px_centre']):.2f} px over the sweep, "
+                f"defocus blur up to {max(why['defocus_blur_px']):.2f} px")
+            continue
         cal = res.calibration
         fits[variant] = (cal, sw)
         eff = effects_for(s, variant)
@@ -460,6 +489,16 @@ def tables(res: dict) -> str:
            "prescription map RMS, inside | thin lens RMS, inside | calibration RMS / p95, 0.5-10 m schedule | "
            "prescription map RMS, schedule |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in res.get("map", []):
+        if "refused" in r:
+            p = r["psf"]
+            out.append(f"| {r['lens']} | {r['variant']} | refused: {r['refused'].split(': ', 1)[-1]} (PSF RMS radius "
+                       f"{min(p['rms_radius_px_centre']):.2f}-{max(p['rms_radius_px_centre']):.2f} px on axis, "
+                       f"{min(p['rms_radius_px_x0.7']):.2f}-{max(p['rms_radius_px_x0.7']):.2f} px at x = 0.7 over "
+                       f"the sweep's {p['focus_d'][0]:.2f}-{p['focus_d'][-1]:.2f} D, object at {p['object_m']:g} m;"
+                       f" thin-lens defocus blur up to {max(p['defocus_blur_px']):.1f} px; best focus "
+                       f"{p['field_curvature_d']['r0.5']:+.1f} D at radius 0.5, {p['field_curvature_d']['r1']:+.1f} D "
+                       "at the corner, from the axis's) | | | | | | | |")
+            continue
         fe = (f"{r['family']}" + (f" {r['scale']:.4f} [{r['scale_ci'][0]:.4f}, {r['scale_ci'][1]:.4f}]"
                                   if r["family"] == "scale" and r["scale_ci"] else "")
               + (f" {r['bias_d']:+.4f} D [{r['bias_ci'][0]:+.4f}, {r['bias_ci'][1]:+.4f}]"
@@ -536,11 +575,13 @@ def main(argv=None) -> int:
         rows, fits = part_map(rig, a.boot, log)
         if "map" in parts:
             res["map"] += rows
-        if "depth" in parts:
+        if "copy" not in fits:
+            log(f"  {key}: the copy's sweeps were refused: no depth, needs or blind parts")
+        elif "depth" in parts:
             res["depth"][key] = part_depth(rig, fits["copy"][0], a.n, log)
-        if "needs" in parts:
+        if "needs" in parts and "copy" in fits:
             res["needs"][key] = part_needs(rig, fits["copy"][1], log)
-        if "blind" in parts:
+        if "blind" in parts and "copy" in fits:
             res["blind"][key] = part_blind(rig, fits["copy"][0], a.worlds, log)
         save(res, Path(a.out))  # after every lens: a long run's finished lenses are kept
     print(tables(res))
