@@ -8,7 +8,8 @@ models are (training.nets.export), then one normalised (S, 3, H, W) stack is run
 no grad) and by the runtime (`aat_deploy.infer.model.DfFModel.infer`), both on 2 threads; best of 3, one run.
 Prints a table: seconds per stack each way, the ratio, and the max |difference| of the depths. The any-camera net
 (`dfvaat`, the small DFVNet told per-pixel focus maps) runs as `aat-infer --model dfv_aat` runs it: its runtime time
-includes making the maps (thin lens, a 50 mm f/1.8 camera).
+includes making the maps (thin lens, a 50 mm f/1.8 camera); two rows: whole frames, and as shipped, in overlapping
+tiles of the largest images it trained on (aat.tile_px; the depth difference of that row is tiled vs whole).
 """
 
 from __future__ import annotations
@@ -48,7 +49,7 @@ def main() -> None:
     for size in args.sizes.split(","):
         for net in args.nets.split(","):
             if net == "dfvaat":
-                rows.append(any_camera(size, stack, focus))
+                rows.extend(any_camera(size, stack, focus))
                 continue
             torch.manual_seed(0)
             model = build_model(net, size).eval()
@@ -72,12 +73,16 @@ def main() -> None:
         print(f"| {name} | {tt:.2f} s | {to:.2f} s | {tt / to:.2f}x | {d:.1e} |")
 
 
-def any_camera(size: str, stack: np.ndarray, focus: np.ndarray) -> tuple:
-    """The any-camera net, torch vs the runtime (maps included), as one table row."""
+def any_camera(size: str, stack: np.ndarray, focus: np.ndarray) -> list[tuple]:
+    """The any-camera net, torch vs the runtime (maps included), whole frames; then as shipped: the runtime in tiles
+    of aat.tile_px (the largest images configs/anycam/dfv_aat.json trains on, training.train.export), against torch
+    on the whole frame (the difference column then is tiled vs whole, not a parity check)."""
     from aat_deploy.anycam.model import FocusMapModel
     from aat_deploy.anycam.optics import CameraOptics
     from training.nets.dfvaat import build, predict
     from training.nets.export import export_focus_map_onnx, focus_map_metadata
+    from training.train.config import load_config
+    from training.train.export import largest_training_image_px
 
     torch.manual_seed(0)
     model = build(size).eval()
@@ -91,9 +96,14 @@ def any_camera(size: str, stack: np.ndarray, focus: np.ndarray) -> tuple:
         with torch.no_grad():
             ref, t_torch = best_of(lambda: predict(model, torch.from_numpy(stack)[None], maps[:, :-1], maps[:, -1:]),
                                    repeat=3)
-        out, t_ort = best_of(lambda: rt.infer(stack, focus), repeat=3)
+        out, t_ort = best_of(lambda: rt.infer(stack, focus, tile=0), repeat=3)
+        tile = largest_training_image_px(load_config(ROOT / "configs/anycam/dfv_aat.json").data)
+        tiled, t_tiled = best_of(lambda: rt.infer(stack, focus, tile=tile, overlap=tile // 4), repeat=3)
     print(f"done dfvaat {size}", flush=True)
-    return (f"dfvaat {size} (any camera)", t_torch, t_ort, float(np.abs(out.depth_m - ref["depth_m"][0].numpy()).max()))
+    ref_d = ref["depth_m"][0].numpy()
+    return [(f"dfvaat {size} (any camera, whole frame)", t_torch, t_ort, float(np.abs(out.depth_m - ref_d).max())),
+            (f"dfvaat {size} (any camera as shipped: tiles of {tile} px, {tile // 4} overlapping)", t_torch, t_tiled,
+             float(np.abs(tiled.depth_m - ref_d).max()))]
 
 
 if __name__ == "__main__":
