@@ -14,7 +14,7 @@ shipped model and is skipped in all three):
   so by default it runs one round). `--grid-rounds 0` skips it.
 Prints the load average at the start and the end: the machine is shared, and the times are wall clock.
 
-    python -m benchmarks.bench_diagnose_speed --against COMMIT [ROOT] [--model M.onnx] [--repeat 2]
+    python -m benchmarks.bench_diagnose_speed --against COMMIT [--after COMMIT] [ROOT] [--model M.onnx] [--repeat 2]
 
 Before/after (issue 32's speed work): the whole `aat-diagnose ROOT --model M --torch-free` (every effect, 3 rounds) as
 it ran at COMMIT (its `aat_deploy/` exported with `git archive` into cache/bench_ref/<commit>/,
@@ -110,10 +110,11 @@ def against(a) -> None:
     lens_obj, lens = find_lens(DfFModel(model), None)
     psf = Path(a.psf) if a.psf else find_surrogate(lens_obj, None).path
     ref = reference_tree(a.against)
+    after = reference_tree(a.after) if a.after else ROOT
     out = Path(a.out) / "against"
     runs: dict[str, list] = {"before": [], "after": []}
     for k in range(a.repeat):
-        for name, code in (("before", ref), ("after", ROOT)):
+        for name, code in (("before", ref), ("after", after)):
             r = diagnose_process(code, Path(a.root).resolve(), model, lens.resolve(), Path(psf).resolve(),
                                  out / f"{name}_{k}")
             runs[name].append(r)
@@ -121,7 +122,7 @@ def against(a) -> None:
                   f"{r['load_end']:.1f}", flush=True)
     best = {k: min(v, key=lambda r: r["wall_s"]) for k, v in runs.items()}
     print(f"\n{a.root}, model {model.name}, torch-free, every effect, 3 rounds; before = {ref.name[:7]}, after = "
-          f"this checkout; 2 cores\n")
+          f"{after.name[:7] if a.after else 'this checkout'}; 2 cores\n")
     print("| code | run | wall time (s) | CPU time (s) | load average at start -> end |")
     print("|---|---|---|---|---|")
     for name, rs in runs.items():
@@ -146,6 +147,8 @@ def main() -> None:
     ap.add_argument("--grid-rounds", type=int, default=1)
     ap.add_argument("--against", metavar="COMMIT", help="before/after: the whole diagnosis at COMMIT and here")
     ap.add_argument("--repeat", type=int, default=2, help="with --against: runs of each, interleaved")
+    ap.add_argument("--after", metavar="COMMIT", help="with --against: 'after' is COMMIT's code (exported as "
+                    "'before' is), not this checkout's (which may change while the benchmark runs)")
     ap.add_argument("--out", default=str(ROOT / "cache" / "bench_diagnose_speed"))
     a = ap.parse_args()
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
