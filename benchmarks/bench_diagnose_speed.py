@@ -15,6 +15,7 @@ shipped model and is skipped in all three):
 Prints the load average at the start and the end: the machine is shared, and the times are wall clock.
 
     python -m benchmarks.bench_diagnose_speed --against COMMIT [--after COMMIT] [ROOT] [--model M.onnx] [--repeat 2]
+    python -m benchmarks.bench_diagnose_speed --profile [ROOT] [--model M.onnx]
 
 Before/after (issue 32's speed work): the whole `aat-diagnose ROOT --model M --torch-free` (every effect, 3 rounds) as
 it ran at COMMIT (its `aat_deploy/` exported with `git archive` into cache/bench_ref/<commit>/,
@@ -138,6 +139,94 @@ def against(a) -> None:
         print(f"| {what} | {verdict} |")
 
 
+# (label, pstats pattern: file suffix and function name) of the stages `--profile` reports; they nest and overlap
+STAGES = (
+    ("the whole run (session.run)", "diagnose/session.py", "run"),
+    ("optical renders, full resolution and binned (TwinRenderer.optical)", "diagnose/twin.py", "optical"),
+    ("twins scored at full resolution (render, model, distances: score_twin)", "diagnose/gap.py", "score_twin"),
+    ("model inference (DfFModel.infer)", "infer/model.py", "infer"),
+    ("focus_metadata's fit (fit_focus_metadata)", "diagnose/fitters.py", "fit_focus_metadata"),
+    ("... its binning correction re-anchored (anchors.reanchored_sweep)", "diagnose/anchors.py", "reanchored_sweep"),
+    ("... its family fits and bootstrap (focusfit.fit_metadata)", "diagnose/focusfit.py", "fit_metadata"),
+    ("lens_tolerance's fit (fit_lens_tolerance)", "diagnose/fitters.py", "fit_lens_tolerance"),
+    ("sensor_tilt's fit (fit_sensor_tilt)", "diagnose/fitters.py", "fit_sensor_tilt"),
+    ("... their amounts refitted on binned twins (refine_amount)", "diagnose/fitters.py", "refine_amount"),
+    ("misalignment's fit (fit_misalignment)", "diagnose/fitters.py", "fit_misalignment"),
+    ("noise's fit (fit_noise)", "diagnose/fitters.py", "fit_noise"),
+    ("screening at reduced resolution (_screen)", "diagnose/search.py", "_screen"),
+    ("noise draws (poisson_gaussian)", "effects/noise.py", "poisson_gaussian"),
+    ("report, figures, recording (report.*)", "diagnose/report.py", None),
+)
+
+
+def profile(a) -> None:
+    """Where one whole diagnosis (this checkout, every effect, `--rounds` rounds) spends its time: cProfile of the
+    main thread (frames render in 2 worker threads: a render counts in full where it is waited for), cumulative
+    seconds of each stage; then one full-resolution optical stack rendered single-threaded, by function."""
+    import cProfile
+    import pstats
+
+    from aat_deploy.diagnose.search import DiagnoseConfig
+    from aat_deploy.diagnose.session import run
+
+    out = Path(a.out) / "profile"
+    prof = cProfile.Profile()
+    load0 = os.getloadavg()[0]
+    t0, c0 = time.perf_counter(), time.process_time()
+    prof.enable()
+    res = run(Path(a.root), Path(a.model), out, psf=a.psf, force=True, quiet=True, torch_free=True,
+              cfg=DiagnoseConfig(max_effects=a.rounds))
+    prof.disable()
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    st = pstats.Stats(prof).stats  # {(file, line, name): (cc, nc, tt, ct, callers)}
+    print(f"\n{a.root}, model {Path(a.model).name}, torch-free, {a.rounds} rounds: {wall:.0f} s wall, {cpu:.0f} s CPU "
+          f"(process), load {load0:.1f} -> {os.getloadavg()[0]:.1f}; named {[e['effect'] for e in res['ranked_effects']]}, "
+          f"{res['twin_renders']} full-resolution optical renders\n")
+    print("| stage | calls | cumulative wall time (s) | share of the run |")
+    print("|---|---|---|---|")
+    for label, path, name in STAGES:
+        hits = [(v[1], v[3]) for (f, _, n), v in st.items() if f.endswith(path) and (n == name or name is None)]
+        if name is None:  # a module: its top-level calls from elsewhere only
+            hits = [(v[1], v[3]) for (f, _, n), v in st.items() if f.endswith(path)
+                    and not any(c[0].endswith(path) for c in v[4])]
+        calls, cum = sum(h[0] for h in hits), sum(h[1] for h in hits)
+        print(f"| {label} | {calls} | {cum:.1f} | {100 * cum / wall:.0f} % |")
+    render_profile(a)
+
+
+def render_profile(a) -> None:
+    """One full-resolution optical stack of the capture (the base twin), rendered in one thread: its time by
+    function (the FFTs' share)."""
+    import cProfile
+    import pstats
+
+    from aat_deploy.diagnose.inputs import load_capture_data
+    from aat_deploy.diagnose.lookup import find_lens, find_surrogate
+    from aat_deploy.diagnose.session import make_renderer
+    from aat_deploy.infer.model import DfFModel
+
+    model = DfFModel(a.model, threads=2)
+    lens, _ = find_lens(model, None)
+    twins = make_renderer(model, lens, find_surrogate(lens, a.psf), torch_free=True)
+    twins.workers = 1
+    cap = load_capture_data(Path(a.root), model)
+    prof = cProfile.Profile()
+    t0 = time.process_time()
+    prof.enable()
+    twins.linear(cap, cap.aif_linear, [])
+    prof.disable()
+    total = time.process_time() - t0
+    st = pstats.Stats(prof).stats
+    groups = {"FFTs (pocketfft)": ("pocketfft", "_pocketfft", "scipy/fft", "numpy/fft"),
+              "PSF surrogate (onnxruntime)": ("onnxruntime",)}
+    print(f"\none full-resolution optical stack ({cap.frames.shape[0]} frames), one thread: {total:.1f} s CPU")
+    print("| part | self time (s) | share |")
+    print("|---|---|---|")
+    for label, keys in groups.items():
+        t = sum(v[2] for (f, _, n), v in st.items() if any(k in f or k in n for k in keys))
+        print(f"| {label} | {t:.1f} | {100 * t / total:.0f} % |")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("root", nargs="?", default=str(ROOT / "captures" / "sample_rf50"))
@@ -150,8 +239,12 @@ def main() -> None:
     ap.add_argument("--after", metavar="COMMIT", help="with --against: 'after' is COMMIT's code (exported as "
                     "'before' is), not this checkout's (which may change while the benchmark runs)")
     ap.add_argument("--out", default=str(ROOT / "cache" / "bench_diagnose_speed"))
+    ap.add_argument("--profile", action="store_true", help="where one whole diagnosis spends its time (cProfile)")
     a = ap.parse_args()
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    if a.profile:
+        profile(a)
+        return
     if a.against:
         against(a)
         return
