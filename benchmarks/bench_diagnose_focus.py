@@ -19,6 +19,13 @@ the reported value) while the truth does not.
     python -m benchmarks.bench_diagnose_focus [--captures 3] [--kinds scale_1.1,none] [--out RESULTS.jsonl]
     flock /work/heavy.lock nice -n 10 python -m benchmarks.bench_diagnose_focus        # the whole benchmark
     python -m benchmarks.bench_diagnose_focus --table [RESULTS.jsonl ...]               # the table only
+    python -m benchmarks.bench_diagnose_focus --fit-only --folders cache/bench_diagnose_focus/captures/scene2029 \
+        --out results/diagnose_focus_tune2029.jsonl                                     # the tuning capture's sets
+    python -m benchmarks.bench_diagnose_focus --systematic results/diagnose_focus_tune2029.jsonl  # tune SYSTEMATIC_D
+
+The tuning capture (scene 2029, rendered like the others with --scene-seed 2029 --seed 4) is not in the benchmark:
+`focusfit.SYSTEMATIC_D`, the family choice's only setting, is chosen on its sets alone (`--systematic`: the family
+each set's stored fits choose per setting), then the benchmark's sets are run with it.
 
 Captures are rendered once into --cache (git-ignored), the copies hard-link their frames; results are appended to
 --out, one JSON line per set, and sets already there are skipped (a stopped run continues where it stopped). Each
