@@ -1,4 +1,4 @@
-"""Small derivative-free minimisers for the diagnosis's fits (numpy only; the runtime has no scipy)."""
+"""Small derivative-free minimisers for the diagnosis's fits (numpy only)."""
 
 from __future__ import annotations
 
