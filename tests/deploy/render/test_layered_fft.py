@@ -1,6 +1,7 @@
 """The layered renderer's numpy backend takes its FFTs from scipy.fft (faster on its batches of small blocks, issue 32):
-its frames must be numpy.fft's to float32 rounding, so twins, renders and everything fitted on them stay what they
-were. Torch-free."""
+its frames must be numpy.fft's to float32 rounding. (Noise drawn on frames that moved by float32 rounding can take
+another path of numpy's Poisson sampler: noisy twins are then another draw, BENCHMARKS "Full-frame speed".)
+Torch-free."""
 
 from __future__ import annotations
 
