@@ -349,3 +349,34 @@ def test_effect_entries_have_one_typed_constructor():
     grid = EffectEntry("noise", {}, 1, 0.3, [0.2, 0.4], 0.3, [0.2, 0.4], 0.0, [0.0, 0.0], None, None, None,
                        distances=[]).as_dict()
     assert "fit" not in grid and "screened_out" not in grid and grid["share_of_gap"] is None
+
+
+def test_candidate_settings_are_chosen_on_images_and_only_the_closest_is_scored(setup):
+    """`Diagnosis._best_of` compares an effect's candidate settings on their images alone and runs the model on the
+    closest only (issue 32's speed): the setting and the scored twin are those of scoring every candidate and
+    keeping the one whose images come closest, as before."""
+    from aat_deploy.diagnose.inputs import find_captures, load_capture_data
+    from aat_deploy.diagnose.lookup import find_lens
+    from aat_deploy.diagnose.search import DiagnoseConfig, Diagnosis
+    from aat_deploy.diagnose.session import make_renderer
+    from aat_deploy.infer.model import DfFModel
+    from aat_deploy.render import effects as fx
+
+    tmp, model_path, sets = setup
+    model = DfFModel(model_path, threads=2)
+    twins = make_renderer(model, find_lens(model, RF50)[0], None, torch_free=True)
+    diag = Diagnosis(model, twins, [load_capture_data(f, model) for f in find_captures(sets["none"])],
+                     DiagnoseConfig(search="grid"))
+    base = diag.score_twin([])
+    settings = fx.make("noise").candidates
+    every = [diag.score_twin([fx.make("noise", **p)]) for p in settings]
+    want = min(every, key=lambda s: diag._image_distance(s.dist))
+    calls = []
+    infer = model.infer
+    model.infer = lambda *a, **k: calls.append(1) or infer(*a, **k)
+    got = diag._best_of("noise", settings, base, 0)
+    assert got.effects[-1].params == want.effects[-1].params
+    assert len(calls) == len(diag.runs)  # the model ran on the chosen setting's twins only
+    for a, b in zip(got.pred, want.pred):
+        assert np.array_equal(a, b)
+    assert [dataclasses.asdict(d) for d in got.dist] == [dataclasses.asdict(d) for d in want.dist]
