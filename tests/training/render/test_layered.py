@@ -142,3 +142,27 @@ def test_torch_backend_spells_the_same_operations_as_numpy():
     scale = np.array([1.0, 1.5, 2.0, 3.0, 4.5])
     np.testing.assert_allclose(cells_to_pixels(torch.from_numpy(k), torch.from_numpy(scale), 33).numpy(),
                                cells_to_pixels(k, scale, 33), rtol=1e-12, atol=1e-15)
+
+
+def test_field_varying_focus_same_on_both_backends():
+    """Focus varying over the field (`focus_at`: each anchor's PSF at its own focus and cell size): the torch
+    backend renders what the numpy one does (float32 rounding)."""
+    from aat_deploy.render.layered import render_layered as render_numpy
+
+    src = ToySource()
+
+    class NumpySource(ToySource):
+        def __call__(self, *args):
+            k, s = src(*args)
+            return k.numpy(), s.numpy()
+
+    def split(x, y, focus_m):  # the right half focused near, the left far: cell sizes 1 and 1.42
+        return np.where(np.asarray(x) > 0, 0.9, 0.3)
+
+    rng = np.random.default_rng(5)
+    img = rng.random((2, 48, 64)).astype(np.float32)
+    depth = np.full((48, 64), 1.0, np.float32)
+    a = render_numpy(img, depth, 0.5, NumpySource(), _field(), LayeredConfig(cell_px=16), focus_at=split)
+    b = render_layered(torch.from_numpy(img), torch.from_numpy(depth), 0.5, src, _field(), LayeredConfig(cell_px=16),
+                       focus_at=split)
+    np.testing.assert_allclose(b.numpy(), a, rtol=0, atol=2e-6)
