@@ -516,11 +516,15 @@ def tables(res: dict) -> str:
             for k in ("thin lens", "prescription map", "calibration", "oracle"):
                 out.append(f"| {lens} | {d['scenes']} | {k} | {fmt(d[k]['mae'])} | {fmt(d[k]['mae_outer'])} |")
         out += ["", "| lens | calibration / oracle, MAE | outer | calibration / prescription map, MAE | outer | "
-                    "prescription / oracle, MAE | outer |", "|---|---|---|---|---|---|---|"]
+                    "prescription / oracle, MAE | outer | calibration / thin lens, MAE | outer |",
+                "|---|---|---|---|---|---|---|---|---|"]
         for lens, d in res["depth"].items():
+            per = d["per_scene"]  # the thin-lens ratio from the stored scenes (the same paired bootstrap)
+            thin = [fmt(paired_ratio(per["calibration"], per["thin lens"], z)) for z in ("mae", "mae_outer")]
             out.append(f"| {lens} | {fmt(d['cal/oracle mae'])} | {fmt(d['cal/oracle mae_outer'])} | "
                        f"{fmt(d['cal/prescription mae'])} | {fmt(d['cal/prescription mae_outer'])} | "
-                       f"{fmt(d['prescription/oracle mae'])} | {fmt(d['prescription/oracle mae_outer'])} |")
+                       f"{fmt(d['prescription/oracle mae'])} | {fmt(d['prescription/oracle mae_outer'])} | "
+                       f"{thin[0]} | {thin[1]} |")
     if res.get("needs"):
         out += ["", "### c) How many chart distances and frames (the copy)", "",
                 "| lens | chart distances (m) | sweep step (D) | frames | family | map RMS inside (D) | "
