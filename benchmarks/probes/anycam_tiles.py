@@ -1,14 +1,16 @@
 """How the any-camera model's error depends on the size of the images it runs on (exploratory).
 
     OMP_WAIT_POLICY=PASSIVE python -m benchmarks.probes.anycam_tiles --model models/reproduce/dfv_aat_v1.onnx
-        [--lens paper50] [--n 8] [--tiles 0,256,128]
+        [--lens paper50] [--n 8] [--tiles 0,256,128] [--split test|validation]
 
 Runs the model (given the lens's best-focus map, as `bench_anycam`'s "dfv_aat, lens map") on the first --n stacks of
 a lens's fixed-protocol held-out set (cached by bench_anycam) on whole frames (tile 0) and in overlapping tiles of
 each size (`FocusMapModel.infer(tile=T)`, a quarter of the tile overlapping), beside the classical method with the
-same map. Prints each stack's MAE (m) and the means. The stacks are test scenes, so this probe chooses nothing: it
-showed that the first run's net, trained on 128 px images, is worse the larger the image (docs/training.md); the
-runtime's tile size comes from the training images' size (aat.tile_px), not from this probe.
+same map. Prints each stack's MAE (m) and the means. The test stacks are test scenes, so on them this probe chooses
+nothing: it showed that the first run's net, trained on 128 px images, is worse the larger the image
+(docs/training.md). `--split validation` scores validation stacks instead (training photographs, their own seed
+benchmarks.select_focus_noise.VAL_SEED; rendered on first use): what may choose a setting, on the RF50 only (the
+held-out lenses choose nothing).
 """
 
 from __future__ import annotations
@@ -30,8 +32,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--lens", choices=sorted(LENSES), default="paper50")
     ap.add_argument("--n", type=int, default=8)
     ap.add_argument("--tiles", default="0,256,128", help="tile sides (px; 0 = whole frames), comma-separated")
+    ap.add_argument("--split", choices=("test", "validation"), default="test")
     ap.add_argument("--cache", default=str(ROOT / "cache" / "heldout"))
     a = ap.parse_args(argv)
+    if a.split == "validation" and a.lens != "rf50":
+        ap.error("--split validation: the RF50 only (the held-out lenses choose nothing)")
     from aat_deploy.anycam.model import FocusMapModel, mapping_from_args
     from aat_deploy.focus import classical_depth
     from aat_deploy.focus.bestfocus import for_lens
@@ -39,7 +44,14 @@ def main(argv: list[str] | None = None) -> int:
 
     tiles = [int(t) for t in a.tiles.split(",")]
     lens = ROOT / LENSES[a.lens]["lens"]
-    items = load_test_set(test_spec(a.lens, "fixed", a.n, real=False), a.cache, progress=False)["procedural"]
+    spec = test_spec(a.lens, "fixed", a.n, real=False)
+    if a.split == "validation":
+        from dataclasses import replace
+
+        from benchmarks.select_focus_noise import VAL_SEED
+
+        spec = replace(spec, seed=VAL_SEED, photo_split="train")
+    items = load_test_set(spec, a.cache, progress=False)["procedural"]
     model = FocusMapModel(a.model, threads=2, mapping=mapping_from_args(lens=lens))
     fmap, _ = for_lens(lens, compute=False)
     labels = ["whole frame" if t == 0 else f"tiles of {t} px" for t in tiles] + ["classical, lens map"]
@@ -51,7 +63,8 @@ def main(argv: list[str] | None = None) -> int:
         preds.append(classical_depth(it.stack, it.focus_m, fmap).depth_m)
         rows.append([float(np.abs(d - it.depth_m)[ok].mean()) for d in preds])
         print(" ".join(f"{v:.3f}" for v in rows[-1]), file=sys.stderr, flush=True)
-    print(f"\n#### {a.model.name} on {a.lens}, fixed protocol, first {len(items)} held-out stacks: MAE (m)\n")
+    what = "held-out" if a.split == "test" else "validation"
+    print(f"\n#### {a.model.name} on {a.lens}, fixed protocol, first {len(items)} {what} stacks: MAE (m)\n")
     print("| " + " | ".join(labels) + " |\n" + "|---" * len(labels) + "|")
     print("| " + " | ".join(f"{v:.3f}" for v in np.mean(rows, 0)) + " |")
     return 0
