@@ -25,18 +25,18 @@ from pathlib import Path
 import numpy as np
 
 from .anycam.model import open_model
-from .optics.camera import Intrinsics
 from .capture.folder import focus_problem, read_capture
-from .io.color import srgb_to_linear
 from .confidence import MIN_CONFIDENCE, mark_unknown
 from .errors import CaptureError
 from .infer.frames import FrameReader
 from .infer.method import DepthMethod
-from .io.atomic import atomic_folder, writing
-from .io.guard import check_output_dir
 from .infer.model import DfFModel
 from .infer.outputs import DepthMaps, RecordingInputs, summary_fields, to_srgb8, write_outputs, write_summary
 from .infer.process import depth_from_frames
+from .io.atomic import atomic_folder, writing
+from .io.color import srgb_to_linear
+from .io.guard import check_output_dir
+from .optics.camera import Intrinsics
 from .shipped import resolve
 
 DEFAULT_MODEL = "rf50_dfvnet_aat_field"

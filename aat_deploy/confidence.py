@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from .errors import CaptureError
-from .io.files import load_json
 from .io.atomic import write_text_atomic
+from .io.files import load_json
 
 FORMAT = "aat-confidence-calibration-v1"
 TOLERANCE_REL = 0.10  # "within 10 % of the true depth"

@@ -54,9 +54,9 @@ def main() -> None:
     from aat_deploy.lens.io import load_lens
     from aat_deploy.optics.focus_table import diopter_grid
     from aat_deploy.psf.surrogate import PSFSurrogate
-    from training.data.scenes import SceneConfig, procedural_scene
     from aat_deploy.render import effects as fx
     from aat_deploy.render.effects.chromatic import surrogate_name
+    from training.data.scenes import SceneConfig, procedural_scene
     from training.render.simulator import Simulator
     from training.render.sources import OnnxPSF, UnitEnergy, thin_lens_source
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+
 from benchmarks import FIGURES
 
 ROOT = Path(__file__).resolve().parents[1]

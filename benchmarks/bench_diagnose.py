@@ -393,9 +393,9 @@ def drawn_sets(plan: list, order, rng: np.random.Generator, captures: int, width
 def load_model(model_path: Path, lens_path: Path, psf_path: Path, torch_free: bool = False):
     """(model, lens, PSF surrogate source, twin renderer) as the diagnosis uses them (torch_free: as a runtime-only
     install does)."""
+    from aat_deploy.diagnose.lookup import find_lens, find_surrogate
     from aat_deploy.diagnose.session import make_renderer
     from aat_deploy.infer.model import DfFModel
-    from aat_deploy.diagnose.lookup import find_lens, find_surrogate
 
     m = DfFModel(model_path, threads=2)
     lens, _ = find_lens(m, lens_path)
@@ -434,9 +434,9 @@ def verify_sets(plan, order, rng, captures: int, setup: Path, lens_path: Path, p
 
 def retrain(m, lens_path: Path, psf_path: Path, res: dict, caps, folder: Path, steps: int,
             torch_free: bool = False) -> dict:
+    from aat_deploy.diagnose.lookup import find_lens, find_surrogate
     from aat_deploy.diagnose.search import DiagnoseConfig
     from aat_deploy.diagnose.session import retrain_command, score_model
-    from aat_deploy.diagnose.lookup import find_lens, find_surrogate
 
     out = folder.parent / f"{folder.name}_retrain"
     cmd = retrain_command(m.path, lens_path, psf_path, res["shrink"]["effects"], steps, out,

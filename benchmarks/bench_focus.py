@@ -35,7 +35,6 @@ from pathlib import Path
 
 import numpy as np
 
-from aat_deploy.io.atomic import write_text_atomic
 from aat_deploy.eval.stats import (  # the statistics of every DfF table
     N_BOOT,
     bootstrap_mean,
@@ -45,8 +44,9 @@ from aat_deploy.eval.stats import (  # the statistics of every DfF table
     summarise,
     zone_masks,
 )
-from training.train.testsets import LENSES
+from aat_deploy.io.atomic import write_text_atomic
 from benchmarks import RESULTS
+from training.train.testsets import LENSES
 
 ROOT = Path(__file__).resolve().parents[1]
 

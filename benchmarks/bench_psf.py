@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+
 from benchmarks import FIGURES
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from benchmarks.timing import best_of
 from benchmarks import FIGURES
+from benchmarks.timing import best_of
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -117,8 +117,8 @@ def figure(lens, out_dir: Path, lens_src, thin_src) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from training.data.scenes import SceneConfig, procedural_scene
     from aat_deploy.render import effects as fx
+    from training.data.scenes import SceneConfig, procedural_scene
     from training.render.layered import LayeredConfig
     from training.render.simulator import Simulator
 

@@ -35,8 +35,8 @@ def main() -> None:
     args = ap.parse_args()
     h, w = (int(v) for v in args.hw.split("x"))
     torch.set_num_threads(2)
-    from aat_deploy.lens.io import load_lens
     from aat_deploy.infer.model import DfFModel
+    from aat_deploy.lens.io import load_lens
     from aat_deploy.optics.focus_table import diopter_grid
     from training.nets.export import dff_metadata, export_dff_onnx
     from training.nets.model import build_model, predict

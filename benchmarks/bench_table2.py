@@ -42,8 +42,8 @@ from aat_deploy.eval.stats import (
 )
 from aat_deploy.eval.stats import fmt_interval as fmt
 from aat_deploy.io.atomic import write_text_atomic
-from training.train.testsets import LENSES
 from benchmarks import FIGURES, RESULTS
+from training.train.testsets import LENSES
 
 ROOT = Path(__file__).resolve().parents[1]
 

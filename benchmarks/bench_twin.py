@@ -39,11 +39,11 @@ def main() -> None:
 
     from aat_deploy.lens.io import load_lens
     from aat_deploy.optics.focus_table import diopter_grid
+    from aat_deploy.render import effects as fx
     from aat_deploy.render.layered import LayeredConfig
     from aat_deploy.render.optical import optical_stack
     from aat_deploy.render.sources import GaussianSource
     from training.data.scenes import SceneConfig, procedural_scene
-    from aat_deploy.render import effects as fx
     from training.render.simulator import Simulator
     from training.render.sources import OnnxPSF
 

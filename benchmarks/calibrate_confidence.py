@@ -39,9 +39,9 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks import FIGURES, RESULTS
 from benchmarks.bench_table2 import LENSES
 from benchmarks.select_focus_noise import CONDITIONS, VAL_SEED
-from benchmarks import FIGURES, RESULTS
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -283,8 +283,8 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--n-fit and --n-assess must be >= 1")
     from aat_deploy.confidence import FOCUS_CALIBRATION, MIN_CONFIDENCE, TOLERANCE_REL, model_calibration_path
     from aat_deploy.focus import FocusConfig
-    from aat_deploy.io.atomic import write_text_atomic
     from aat_deploy.infer.model import DfFModel
+    from aat_deploy.io.atomic import write_text_atomic
     from aat_deploy.shipped import resolve
 
     thresholds = (0.3, MIN_CONFIDENCE, 0.7)

@@ -17,10 +17,10 @@ import json
 from pathlib import Path
 
 from aat_deploy.diagnose.inputs import load_capture_data
+from aat_deploy.diagnose.lookup import find_lens, find_surrogate
 from aat_deploy.diagnose.search import DiagnoseConfig, diagnose
 from aat_deploy.diagnose.session import make_renderer
 from aat_deploy.infer.model import DfFModel
-from aat_deploy.diagnose.lookup import find_lens, find_surrogate
 
 ROOT = Path(__file__).resolve().parents[1]
 SETUP = ROOT / "cache" / "bench_diagnose"

@@ -35,8 +35,8 @@ from pathlib import Path
 import numpy as np
 
 from aat_deploy.eval.stats import N_BOOT, bootstrap_mean, paired_ratio
-from training.train.testsets import LENSES
 from benchmarks import RESULTS
+from training.train.testsets import LENSES
 
 ROOT = Path(__file__).resolve().parents[1]
 

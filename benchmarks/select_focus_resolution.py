@@ -33,8 +33,8 @@ from pathlib import Path
 import numpy as np
 
 from aat_deploy.eval.stats import N_BOOT, bootstrap_mean, paired_ratio
-from benchmarks.select_focus_noise import CONDITIONS, VAL_SEED
 from benchmarks import RESULTS
+from benchmarks.select_focus_noise import CONDITIONS, VAL_SEED
 
 ROOT = Path(__file__).resolve().parents[1]
 

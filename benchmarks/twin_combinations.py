@@ -19,10 +19,10 @@ import numpy as np
 
 from aat_deploy.diagnose.compare import focus_curves
 from aat_deploy.diagnose.inputs import load_capture_data
+from aat_deploy.diagnose.lookup import find_lens, find_surrogate
 from aat_deploy.diagnose.session import make_renderer
 from aat_deploy.infer.model import DfFModel
 from aat_deploy.infer.normalise import normalise_stack
-from aat_deploy.diagnose.lookup import find_lens, find_surrogate
 from aat_deploy.render import effects as fx
 
 

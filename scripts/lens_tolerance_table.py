@@ -30,8 +30,8 @@ def main(argv: list[str] | None = None) -> int:
         print("lens_tolerance_table: error: give --psf or --out", file=sys.stderr)
         return 2
     from aat_deploy.lens.io import load_lens
-    from training.optics.tolerance import sensitivity_table
     from aat_deploy.render.effects.lens_tolerance import table_name
+    from training.optics.tolerance import sensitivity_table
 
     try:
         lens = load_lens(a.lens)

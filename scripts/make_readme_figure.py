@@ -17,9 +17,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from aat_deploy.api import depth_from_focus, read_stack  # noqa: E402
+from aat_deploy.infer.outputs import to_srgb8  # noqa: E402
 from aat_deploy.io.atomic import atomic_file  # noqa: E402
 from aat_deploy.io.colorize import depth_preview  # noqa: E402
-from aat_deploy.infer.outputs import to_srgb8  # noqa: E402
 
 SAMPLE = ROOT / "captures" / "sample_rf50"
 

@@ -77,9 +77,9 @@ def _heldout(out: dict) -> None:
 
 def _twin(out: dict) -> None:
     from aat_deploy.lens.io import load_lens
+    from aat_deploy.render import effects as fx
     from aat_deploy.render.optical import optical_stack
     from aat_deploy.render.sources import GaussianSource, OnnxSource
-    from aat_deploy.render import effects as fx
 
     lens = load_lens(ROOT / "lenses/canon_rf50mm_f1.8.json")
     src = OnnxSource(ROOT / "models/psf_rf50.onnx", lens, threads=1)

@@ -13,9 +13,9 @@ import textwrap
 import tomllib
 
 import pytest
+from conftest import ROOT
 
 from aat_deploy import DISTRIBUTION, __version__
-from conftest import ROOT
 
 SCRIPTS = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["scripts"]
 

@@ -11,7 +11,6 @@ import sys
 
 import cv2
 import pytest
-
 from conftest import ROOT
 from test_install import readme_commands
 

@@ -6,10 +6,10 @@ from __future__ import annotations
 import re
 
 import pytest
+from conftest import ROOT, SHARED
 
 from aat_deploy.capture import exiftool
 from aat_deploy.cli import capture as cli
-from conftest import ROOT, SHARED
 
 DOC = ROOT / "docs" / "shooting.md"
 

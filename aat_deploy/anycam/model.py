@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 import onnxruntime as ort
 
-from ..optics.camera import Intrinsics
 from ..errors import CaptureError, ModelError
 from ..infer.model import DfFModel, _meta_int
+from ..optics.camera import Intrinsics
 from .maps import FocusMapping
 from .optics import CameraOptics, from_exif
 

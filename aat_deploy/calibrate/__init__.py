@@ -11,9 +11,20 @@ What consumers call (`format.py`):
     k = defocus_scale_px_per_d(cal, height, width)               # (H, W) float32 blur diameter px per diopter
 """
 
-from .format import (FORMAT, CalibrationError, CameraCalibration, CameraIdentity, FieldPoly, FocusError,
-                     defocus_scale_px_per_d, in_focus_diopters, load_calibration, on_axis_diopters,
-                     save_calibration, thin_lens_defocus_scale_px_per_d)
+from .format import (
+    FORMAT,
+    CalibrationError,
+    CameraCalibration,
+    CameraIdentity,
+    FieldPoly,
+    FocusError,
+    defocus_scale_px_per_d,
+    in_focus_diopters,
+    load_calibration,
+    on_axis_diopters,
+    save_calibration,
+    thin_lens_defocus_scale_px_per_d,
+)
 
 __all__ = ["FORMAT", "CalibrationError", "CameraCalibration", "CameraIdentity", "FieldPoly", "FocusError",
            "defocus_scale_px_per_d", "in_focus_diopters", "load_calibration", "on_axis_diopters", "save_calibration",

@@ -39,8 +39,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import CaptureError
-from ..io.files import file_kind
 from ..io.atomic import write_text_atomic
+from ..io.files import file_kind
 from ..optics.thin_lens import blur_diameter_px
 from ..render.effects.focus_metadata import curve_d
 

@@ -13,12 +13,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from aat_deploy.io.color import linear_to_srgb
+from aat_deploy.capture.dng import write_dng
 from aat_deploy.io.atomic import atomic_folder
+from aat_deploy.io.color import linear_to_srgb
 from aat_deploy.io.depth_png import encode_mm16
 from aat_deploy.lens.schema import Lens
 from aat_deploy.optics.paraxial import paraxial_data
-from aat_deploy.capture.dng import write_dng
 
 # XYZ (D65) -> linear sRGB: the rendered RGB has sRGB primaries, so this is the camera's ColorMatrix1.
 XYZ_TO_SRGB = np.array([[3.2406, -1.5372, -0.4986], [-0.9689, 1.8758, 0.0415], [0.0557, -0.2040, 1.0570]])

@@ -28,10 +28,18 @@ from ..capture.focuslist import parse_focus_list
 from ..capture.folder import SIDECAR, _sidecar, focus_problem, frame_files, read_capture
 from ..capture.imagefile import frame_header
 from ..errors import CaptureError, one_line, safe_output_streams
-from ..io.files import check_inside, read_input_bytes
 from ..io.atomic import atomic_file
-from .common import (EXIT_FAILED, EXIT_OK, EXIT_USAGE, add_reader_options, check_reader_options, parser, run_guarded,
-                     subparser)
+from ..io.files import check_inside, read_input_bytes
+from .common import (
+    EXIT_FAILED,
+    EXIT_OK,
+    EXIT_USAGE,
+    add_reader_options,
+    check_reader_options,
+    parser,
+    run_guarded,
+    subparser,
+)
 
 
 def _frame_rows(target: Path, args) -> list[dict]:

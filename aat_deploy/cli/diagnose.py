@@ -15,8 +15,15 @@ import os
 import sys
 from pathlib import Path
 
-from .common import (add_list_option, add_reader_options, check_reader_options, parser, print_effects, run_guarded,
-                     threads_option)
+from .common import (
+    add_list_option,
+    add_reader_options,
+    check_reader_options,
+    parser,
+    print_effects,
+    run_guarded,
+    threads_option,
+)
 
 
 def build_parser() -> argparse.ArgumentParser:

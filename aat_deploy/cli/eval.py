@@ -31,9 +31,9 @@ def main(argv: list[str] | None = None) -> int:
 def _main(argv: list[str] | None) -> int:
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     from ..errors import CaptureError, one_line, safe_output_streams  # heavy modules load inside the guard
+    from ..eval.datasets import NAMES as DATASETS
     from ..eval.report import MD_COLUMNS
     from ..eval.run import EvalOptions, evaluate
-    from ..eval.datasets import NAMES as DATASETS
     from ..eval.score import ALIGN_MODES
     from ..shipped import resolve
 
@@ -116,8 +116,8 @@ def _dataset(ap, args, models: list[Path]) -> int:
     from ..eval.dataset_run import DatasetEvalOptions, evaluate_dataset
     from ..eval.datasets import open_dataset
     from ..focus.runner import FocusMethod
-    from ..io.guard import check_output_dir
     from ..infer.model import DfFModel
+    from ..io.guard import check_output_dir
 
     if not models and not args.method:
         ap.error("--dataset: give --model M.onnx (and/or --compare ...) and/or --method focus")

@@ -26,14 +26,14 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import CaptureError, one_line, safe_output_streams
-from ..io.files import check_inside
-from ..gt.read import check_aspect, check_units, find_gt, load_ground_truth
-from ..optics.camera import load_intrinsics
 from ..gt.raycast import load_mesh, load_pose, render_depth
+from ..gt.read import check_aspect, check_units, find_gt, load_ground_truth
 from ..io.atomic import atomic_files
 from ..io.depth_png import encode_mm16
+from ..io.files import check_inside
 from ..io.guard import check_output_files
 from ..io.images import imwrite
+from ..optics.camera import load_intrinsics
 from .common import add_reader_options, check_reader_options, parser, run_guarded, subparser
 
 

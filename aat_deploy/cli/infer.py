@@ -43,13 +43,12 @@ def main(argv: list[str] | None = None) -> int:
 
 def _main(argv: list[str] | None) -> int:
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    from ..anycam.model import DEFAULT_MAX_SIDE, FocusMapModel, mapping_from_args, open_model
     from ..capture.focuslist import parse_focus_list  # the heavy modules load inside the interrupt guard
     from ..confidence import MIN_CONFIDENCE
     from ..errors import CaptureError, one_line, safe_output_streams
     from ..focus.method import FocusConfig
     from ..focus.runner import FocusMethod
-    from ..anycam.model import DEFAULT_MAX_SIDE, FocusMapModel, mapping_from_args
-    from ..anycam.model import open_model
     from ..infer.pipeline import Options, check_output, output_dir_for, output_dirs, run_capture
     from ..shipped import resolve
 

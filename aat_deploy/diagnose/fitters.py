@@ -24,10 +24,10 @@ import numpy as np
 
 from aat_deploy.diagnose import anchors, focusrobust
 from aat_deploy.diagnose import focusfit as ff
+from aat_deploy.diagnose.binned import bin_frames, binned_capture
 from aat_deploy.diagnose.compare import focus_curves, image_distances, region_brightness, region_index, region_shifts
 from aat_deploy.diagnose.optimise import grid_then_golden
 from aat_deploy.infer.normalise import normalise_stack
-from aat_deploy.diagnose.binned import bin_frames, binned_capture
 
 SWEEP_STEP_D = 0.06  # focus sweep spacing (diopters); curves are interpolated between (Catmull-Rom)
 SWEEP_MARGIN_D = ff.MAX_ERROR_D + 0.05

@@ -11,11 +11,11 @@ import numpy as np
 from aat_deploy.capture.folder import read_capture
 from aat_deploy.capture.raw import load_frame
 from aat_deploy.errors import CaptureError
+from aat_deploy.eval import batch
+from aat_deploy.gt.read import check_units, find_gt, load_ground_truth, to_sensor
 from aat_deploy.infer.frames import FrameReader
 from aat_deploy.infer.geometry import fit_to_sensor
 from aat_deploy.infer.model import DfFModel
-from aat_deploy.eval import batch
-from aat_deploy.gt.read import check_units, find_gt, load_ground_truth, to_sensor
 
 
 @dataclass

@@ -6,13 +6,12 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-from aat_deploy.infer.model import DfFModel
-from aat_deploy.shipped import shipped_dir
 from aat_deploy.diagnose.twin import TwinError
-from aat_deploy.render.sources import OnnxSource
+from aat_deploy.infer.model import DfFModel
 from aat_deploy.lens.io import load_lens
 from aat_deploy.lens.schema import Lens
-
+from aat_deploy.render.sources import OnnxSource
+from aat_deploy.shipped import shipped_dir
 
 
 def find_lens(model: DfFModel, lens_path: str | Path | None) -> tuple[Lens, Path]:

@@ -19,17 +19,17 @@ import numpy as np
 from aat_deploy import extensions
 from aat_deploy.diagnose import report
 from aat_deploy.diagnose.inputs import find_captures, load_capture_data
-from aat_deploy.diagnose.search import Diagnosis, DiagnoseConfig, diagnose
+from aat_deploy.diagnose.lookup import find_lens, find_surrogate
+from aat_deploy.diagnose.search import DiagnoseConfig, Diagnosis, diagnose
+from aat_deploy.diagnose.twin import TwinError, TwinRenderer, model_effects
 from aat_deploy.errors import AatError, CaptureError, ModelError
-from aat_deploy.progress import say
+from aat_deploy.infer.model import DfFModel
 from aat_deploy.io.atomic import atomic_folder
 from aat_deploy.io.guard import check_no_overlap
-from aat_deploy.infer.model import DfFModel
-from aat_deploy.diagnose.lookup import find_lens, find_surrogate
-from aat_deploy.diagnose.twin import TwinError, TwinRenderer, model_effects
-from aat_deploy.render.sources import OnnxSource
 from aat_deploy.lens.schema import Lens
+from aat_deploy.progress import say
 from aat_deploy.render import effects as fx
+from aat_deploy.render.sources import OnnxSource
 
 
 class DiagnoseError(AatError, RuntimeError):

@@ -20,16 +20,16 @@ from pathlib import Path
 import numpy as np
 
 from aat_deploy.diagnose.inputs import CaptureData
-from aat_deploy.infer.model import DfFModel
-from aat_deploy.infer.normalise import normalise_stack
-from aat_deploy.render.layered import LayeredConfig
-from aat_deploy.render.optical import optical_stack
-from aat_deploy.render.sources import GaussianSource, OnnxSource
 from aat_deploy.errors import AatError
 from aat_deploy.gt.holes import fill_holes
+from aat_deploy.infer.model import DfFModel
+from aat_deploy.infer.normalise import normalise_stack
 from aat_deploy.lens.schema import Lens
 from aat_deploy.optics.focus_table import FocusTable, paraxial_focus_table
 from aat_deploy.render import effects as fx
+from aat_deploy.render.layered import LayeredConfig
+from aat_deploy.render.optical import optical_stack
+from aat_deploy.render.sources import GaussianSource, OnnxSource
 
 
 class TwinError(AatError):

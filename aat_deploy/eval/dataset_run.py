@@ -22,14 +22,14 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import CaptureError
+from ..gt.read import to_sensor
+from ..infer.process import depth_from_frames
 from ..io.atomic import atomic_folder, writing
 from ..io.colorize import colorize
 from ..metrics import depth_metrics
-from ..infer.process import depth_from_frames
 from . import plots, report
 from .batch import Progress
 from .datasets import Dataset
-from ..gt.read import to_sensor
 
 TABLE = (("mae", "MAE"), ("mse", "MSE"), ("rmse", "RMSE"), ("abs_rel", "AbsRel"), ("sq_rel", "SqRel"),
          ("delta1", "δ1"), ("delta2", "δ2"), ("delta3", "δ3"))

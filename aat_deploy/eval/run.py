@@ -23,16 +23,6 @@ import numpy as np
 
 from ..capture.raw import load_frame
 from ..errors import CaptureError, one_line
-from ..infer.geometry import fit_to_sensor
-from ..metrics import MetricAccumulator, valid_mask
-from ..infer.model import DfFModel
-from ..io.atomic import atomic_folder, writing
-from ..io.colorize import colorize
-from ..io.guard import check_no_overlap, check_output_dir
-from ..infer.outputs import to_srgb8
-from ..infer.pipeline import Options, infer_capture
-from . import plots, report
-from .batch import Progress, capture_name, find_captures, model_labels
 from ..gt.read import (
     GroundTruth,
     GTError,
@@ -41,7 +31,16 @@ from ..gt.read import (
     load_ground_truth,
     to_sensor,
 )
-from .stats import field_radius
+from ..infer.geometry import fit_to_sensor
+from ..infer.model import DfFModel
+from ..infer.outputs import to_srgb8
+from ..infer.pipeline import Options, infer_capture
+from ..io.atomic import atomic_folder, writing
+from ..io.colorize import colorize
+from ..io.guard import check_no_overlap, check_output_dir
+from ..metrics import MetricAccumulator, valid_mask
+from . import plots, report
+from .batch import Progress, capture_name, find_captures, model_labels
 from .score import (
     ErrorProfile,
     aif_pair,
@@ -49,6 +48,7 @@ from .score import (
     fit_alignment,
     radius_profile,
 )
+from .stats import field_radius
 
 ERROR_PERCENTILE = 99.0  # error maps of a capture share the scale 0..this percentile of |error| over the models
 

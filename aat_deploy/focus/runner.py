@@ -21,9 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..optics.camera import Intrinsics
 from ..errors import CaptureError
 from ..infer.method import DepthMethod, DepthOutput
+from ..optics.camera import Intrinsics
 from . import scale
 from .bestfocus import BestFocusError, BestFocusMap, for_lens, from_psf
 from .method import FocusConfig, classical_depth

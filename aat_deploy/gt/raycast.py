@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..optics.camera import Intrinsics
 from ..errors import CaptureError
 from ..io.files import load_json
+from ..optics.camera import Intrinsics
 
 ORTHO_TOL = 1e-3
 

@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..optics.camera import Intrinsics
 from ..errors import CaptureError
+from ..optics.camera import Intrinsics
 
 
 @dataclass

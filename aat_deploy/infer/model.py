@@ -16,14 +16,14 @@ from pathlib import Path
 import numpy as np
 import onnxruntime as ort
 
-from ..optics.camera import Intrinsics, model_intrinsics
-from ..optics.field import pixel_fields
 from ..confidence import ConfidenceCalibrationError, model_calibration, model_calibration_path, std_confidence
 from ..errors import ModelError
 from ..io.files import file_kind
-from .method import DepthMethod, DepthOutput
 from ..machine import bound_threads
+from ..optics.camera import Intrinsics, model_intrinsics
+from ..optics.field import pixel_fields
 from ..shipped import shipped_hint
+from .method import DepthMethod, DepthOutput
 
 REQUIRED_META = ("aat.kind", "aat.lens_name", "aat.focal_length_mm", "aat.f_number", "aat.sensor_px",
                  "aat.pixel_um", "aat.focus_range_m", "aat.stack_min", "aat.stack_max", "aat.size_multiple")

@@ -26,11 +26,11 @@ import numpy as np
 
 from ..errors import OutputError
 from ..io.color import linear_to_srgb
-from ..optics.camera import CAMERA_FRAME, POINT_FROM_PIXEL, Intrinsics, camera_json, points_from_depth
-from ..io.depth_png import encode_mm16
 from ..io.colorize import depth_preview, depth_range, uncertainty_preview, uncertainty_range
+from ..io.depth_png import encode_mm16
 from ..io.images import imwrite
 from ..io.ply import write_ply
+from ..optics.camera import CAMERA_FRAME, POINT_FROM_PIXEL, Intrinsics, camera_json, points_from_depth
 
 MAX_PLY_POINTS = 4_000_000   # every pixel up to this; more are subsampled on a regular grid (stride)
 MAX_RRD_POINTS = 200_000

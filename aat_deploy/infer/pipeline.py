@@ -25,13 +25,14 @@ from ..confidence import MIN_CONFIDENCE, mark_unknown
 from ..errors import CaptureError
 from ..gt.read import check_units, find_gt, load_ground_truth, to_sensor
 from ..io.atomic import atomic_folder, writing
-from .method import DepthMethod
 from ..io.guard import check_output_dir
+from ..progress import say
 from .frames import FrameReader
+from .method import DepthMethod
 from .normalise import DESCRIPTION as NORMALISATION
 from .outputs import DESCRIPTIONS, DepthMaps, RecordingInputs, summary_fields, write_outputs, write_summary
-from ..progress import say
 from .process import depth_from_frames
+
 # every capture's files (confidence.* only from methods that give one)
 OUTPUT_FILES = tuple(k for k in DESCRIPTIONS if not k.startswith("confidence")) + ("summary.json",)
 FOCAL_TOLERANCE = 0.02  # relative difference of focal length that counts as another lens

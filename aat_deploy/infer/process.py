@@ -14,10 +14,10 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from ..optics.camera import Intrinsics
 from ..errors import CaptureError
-from .geometry import align_stack, equalise_exposure, fit_to_sensor, sensor_crop
+from ..optics.camera import Intrinsics
 from ..progress import Progress, say, track
+from .geometry import align_stack, equalise_exposure, fit_to_sensor, sensor_crop
 from .method import DepthMethod
 from .normalise import normalise_scale, normalise_stack
 from .outputs import DepthMaps

@@ -23,8 +23,8 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from ..optics.camera import Intrinsics
 from ..io.colorize import ColorScale
+from ..optics.camera import Intrinsics
 
 MAX_POINTS = 200_000
 

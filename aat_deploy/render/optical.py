@@ -9,8 +9,8 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from aat_deploy.backend import namespace
-from aat_deploy.render import effects as fx
 from aat_deploy.optics.field import field_of
+from aat_deploy.render import effects as fx
 from aat_deploy.render.layered import LayeredConfig, render_layered
 
 

@@ -19,12 +19,12 @@ import json
 
 import numpy as np
 
-from aat_deploy.psf.surrogate import PSFSurrogate
 from aat_deploy.lens.schema import Lens
-from aat_deploy.optics.paraxial import paraxial_data
 from aat_deploy.optics.focus_table import FocusTable, table_from_arrays
+from aat_deploy.optics.paraxial import paraxial_data
 from aat_deploy.optics.thin_lens import blur_diameter_px, gaussian_kernels, thin_lens_blur_px
 from aat_deploy.psf.kernel import KernelSpec
+from aat_deploy.psf.surrogate import PSFSurrogate
 
 # Metadata keys of an exported surrogate that carry the lens's focusing (`training.psf.export.metadata`).
 TABLE_KEYS = ("aat.focus_table_diopters", "aat.focus_table_sensor_z_mm")

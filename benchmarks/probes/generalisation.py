@@ -45,8 +45,8 @@ def main(argv: list[str] | None = None) -> int:
     from tqdm import tqdm
 
     from aat_deploy.eval.stats import bootstrap_mean
-    from aat_deploy.metrics import depth_metrics
     from aat_deploy.infer.model import DfFModel
+    from aat_deploy.metrics import depth_metrics
     from aat_deploy.optics.field import pixel_fields
     from training.train.config import load_config
     from training.train.data import make_dataset

@@ -9,8 +9,8 @@ import pytest
 from deploy_fixtures import render_stack, synthetic_scene, write_dng_capture
 
 from aat_deploy.api import depth_from_focus, load_model, read_stack
-from aat_deploy.io.color import linear_to_srgb
 from aat_deploy.infer.pipeline import Options, run_capture
+from aat_deploy.io.color import linear_to_srgb
 
 FOCUS = [0.6, 0.8, 1.2, 2.0, 3.0, 4.5]
 

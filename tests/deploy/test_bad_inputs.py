@@ -25,8 +25,8 @@ from conftest import LENSES, SHARED
 from deploy_fixtures import (
     ENTRY_KINDS,
     GOOD_KINDS,
-    SKIPPED_UNLISTED,
     SIDECAR_KINDS,
+    SKIPPED_UNLISTED,
     canon_jpeg,
     claim_size,
     fuzz_seeds,
@@ -47,8 +47,8 @@ from aat_deploy.cli import infer as infer_cli
 from aat_deploy.cli import view as view_cli
 from aat_deploy.errors import CaptureError
 from aat_deploy.gt.read import find_gt, load_ground_truth
-from aat_deploy.io import marker
 from aat_deploy.infer.model import DfFModel
+from aat_deploy.io import marker
 
 FOCUS = [0.6, 1.0, 2.0]
 FUZZ = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])

@@ -12,14 +12,13 @@ import numpy as np
 import pytest
 from deploy_fixtures import write_dng_capture
 
-from aat_deploy.optics.camera import points_from_depth
-from aat_deploy.optics.camera import Intrinsics, load_intrinsics
-from aat_deploy.io.colorize import depth_preview, depth_range
 from aat_deploy.infer.model import DfFModel
 from aat_deploy.infer.outputs import DepthMaps, RecordingInputs, write_outputs
 from aat_deploy.infer.pipeline import Options, run_capture
 from aat_deploy.infer.process import native_warp
 from aat_deploy.infer.upsample import blend_by_depth, guided_upsample
+from aat_deploy.io.colorize import depth_preview, depth_range
+from aat_deploy.optics.camera import Intrinsics, load_intrinsics, points_from_depth
 
 FOCUS = [0.6, 0.8, 1.2, 2.0, 3.0, 4.5]
 F_PX = 50.0 / 0.540  # the tiny model: focal length mm / pixel pitch mm

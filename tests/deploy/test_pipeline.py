@@ -21,9 +21,9 @@ from aat_deploy.capture.folder import read_capture
 from aat_deploy.cli import infer as infer_cli
 from aat_deploy.errors import CaptureError, ModelError, OutputError
 from aat_deploy.infer.geometry import align_stack
-from aat_deploy.io.marker import MARKER
 from aat_deploy.infer.model import DfFModel
 from aat_deploy.infer.pipeline import Options, run_capture
+from aat_deploy.io.marker import MARKER
 
 FOCUS = [0.6, 0.8, 1.2, 2.0, 3.0, 4.5]
 F32_EPS = float(np.finfo(np.float32).eps)

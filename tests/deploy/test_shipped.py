@@ -6,9 +6,9 @@ from __future__ import annotations
 import os
 
 import pytest
+from conftest import ROOT
 
 from aat_deploy.shipped import resolve, shipped_dir, shipped_hint, shipped_names
-from conftest import ROOT
 
 
 def test_names_list_depth_models_and_surrogates_apart_never_reproduce():

@@ -69,14 +69,14 @@ def find_surrogate(lens) -> Path | None:
 def run(args) -> Path:
     import torch
 
+    from aat_deploy.capture.virtual import write_capture
     from aat_deploy.errors import OutputError
-    from aat_deploy.infer.geometry import fit_rgbd_to_sensor
     from aat_deploy.gt.holes import fill_holes
+    from aat_deploy.infer.geometry import fit_rgbd_to_sensor
     from aat_deploy.io.guard import check_output_dir
     from aat_deploy.lens.io import LensFileError, load_lens
-    from aat_deploy.capture.virtual import write_capture
-    from training.data.rgbd import RGBDError, load_rgbd
     from aat_deploy.render import effects as fx
+    from training.data.rgbd import RGBDError, load_rgbd
     from training.render.simulator import Simulator
     from training.render.sources import OnnxPSF, RayTracedPSF
 

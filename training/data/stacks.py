@@ -19,13 +19,13 @@ import torch
 from torch.utils.data import Dataset
 
 from aat_deploy.gt.holes import fill_holes
-from aat_deploy.lens.io import load_lens
 from aat_deploy.infer.normalise import normalise_scale, scaled
+from aat_deploy.lens.io import load_lens
 from aat_deploy.optics.field import pixel_fields
+from aat_deploy.render import effects as fx
 from training.data.cache import item_path, save_item
 from training.data.rgbd import load_middlebury_motorcycle
 from training.data.scenes import SceneConfig, procedural_scene
-from aat_deploy.render import effects as fx
 from training.render.layered import LayeredConfig
 from training.render.schedule import FocusSchedule, scene_range_distances
 from training.render.simulator import Simulator

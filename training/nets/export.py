@@ -20,9 +20,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from aat_deploy.infer.normalise import DESCRIPTION as NORMALISATION
 from aat_deploy.io.atomic import atomic_file
 from aat_deploy.lens.schema import Lens
-from aat_deploy.infer.normalise import DESCRIPTION as NORMALISATION
 from training.nets.model import DfFNet
 
 DISTANCES = "metres from the sensor plane along the optical axis"

@@ -23,10 +23,10 @@ import numpy as np
 import torch
 
 from aat_deploy.lens.schema import Lens
+from aat_deploy.render.effects.lens_tolerance import air_gaps, elements, optics_key
 from training.optics.focus import best_focus_shift_mm, focus
 from training.optics.trace import _intersect, _refract, rays_through_pupil, uniform_disk_grid
 from training.psf.geometry import object_points_mm
-from aat_deploy.render.effects.lens_tolerance import air_gaps, elements, optics_key
 
 TABLE_FORMAT = "aat-tolerance-v1"
 

@@ -15,8 +15,10 @@ import torch
 from aat_deploy.lens.schema import Lens
 from aat_deploy.psf.kernel import KernelSpec
 from aat_deploy.render.sources import LensGeometry as _LensGeometry
-from aat_deploy.render.sources import OnnxSource
-from aat_deploy.render.sources import UnitEnergy  # noqa: F401 (re-exported)
+from aat_deploy.render.sources import (
+    OnnxSource,
+    UnitEnergy,  # noqa: F401 (re-exported)
+)
 from training.devices.select import on_cpu
 from training.psf.raytrace import DEFAULT_WAVELENGTH_NM, raytrace_psfs
 from training.psf.surrogates import GaussianPSF, PSFModel

@@ -16,8 +16,8 @@ import numpy as np
 import torch
 
 from aat_deploy.diagnose.twin import TwinRenderer
-from aat_deploy.lens.schema import Lens
 from aat_deploy.infer.model import DfFModel
+from aat_deploy.lens.schema import Lens
 from aat_deploy.render import effects as fx
 from aat_deploy.render.sources import OnnxSource
 from training.render.simulator import Simulator

@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from aat_deploy.eval.stats import ZONES, field_radius, zone_masks
-from aat_deploy.io.atomic import atomic_file
 from aat_deploy.infer.normalise import normalise_stack
+from aat_deploy.io.atomic import atomic_file
 
 COLS = ("mae", "mse", "rmse", "abs_rel", "sq_rel", "delta1", "delta2", "delta3")
 HEADER = ("| model | MAE | MSE | RMSE | AbsRel | SqRel | δ1 | δ2 | δ3 | MAE centre | MAE outer |\n"
@@ -44,8 +44,8 @@ def rgbd_item(dataset, rgb: np.ndarray, gt_m: np.ndarray) -> Item:
     dataset's sensor, rendered with its simulator and fixed schedule."""
     import torch
 
-    from aat_deploy.infer.geometry import fit_rgbd_to_sensor
     from aat_deploy.gt.holes import fill_holes
+    from aat_deploy.infer.geometry import fit_rgbd_to_sensor
 
     rgb, gt = fit_rgbd_to_sensor(rgb, gt_m, dataset.sensor_hw)
     st = dataset.sim.render_stack(torch.from_numpy(rgb.transpose(2, 0, 1).copy()), torch.from_numpy(fill_holes(gt)),
@@ -78,8 +78,8 @@ def model_label(meta: dict, path: Path) -> str:
 def evaluate_model(path, items: list[Item], threads: int = 2, n_bins: int = 10, label: str | None = None,
                    ) -> ModelResult:
     """Run the ONNX model at `path` on `items` with onnxruntime; metrics, zone MAE and error vs field radius."""
-    from aat_deploy.metrics import MetricAccumulator
     from aat_deploy.infer.model import DfFModel
+    from aat_deploy.metrics import MetricAccumulator
 
     path = Path(path)
     model = DfFModel(path, threads=threads)

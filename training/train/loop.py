@@ -36,11 +36,11 @@ from training.devices.distributed import barrier, broadcast_buffers, init_distri
 from training.devices.precision import amp_dtype, amp_name, autocast, grad_scaler
 from training.devices.select import pin_memory, resolve_device, to_device
 from training.nets import registry
+from training.nets.dfvaat import train_levels as focus_map_levels
 from training.nets.model import build_model, train_levels
 from training.train.checkpoint import load, save_atomic, to_cpu
 from training.train.config import TrainConfig
 from training.train.evaluate import evaluate
-from training.nets.dfvaat import train_levels as focus_map_levels
 from training.train.loss import dff_loss, focus_map_loss
 from training.train.sampler import ResumableSampler
 from training.train.schedule import lr_at

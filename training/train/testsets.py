@@ -140,10 +140,10 @@ def _real_rgbd(spec: TestSetSpec, ds, cache_dir: str | None, name: str, loader) 
             return TestItem(name, z["stack"].astype(np.float32), z["focus_m"], z["depth_m"], z["aif"])
     import torch
 
-    from aat_deploy.infer.geometry import fit_rgbd_to_sensor
     from aat_deploy.gt.holes import fill_holes
-    from aat_deploy.io.atomic import atomic_file
+    from aat_deploy.infer.geometry import fit_rgbd_to_sensor
     from aat_deploy.infer.normalise import normalise_scale, scaled
+    from aat_deploy.io.atomic import atomic_file
     from training.render.schedule import scene_range_distances
 
     rgb, gt = fit_rgbd_to_sensor(*loader(), ds.sensor_hw)

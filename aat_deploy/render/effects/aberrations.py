@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from aat_deploy.render.sources import UnitEnergy
 from aat_deploy.render.effects import Effect, SimContext, register
+from aat_deploy.render.sources import UnitEnergy
 
 
 @register

@@ -13,11 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
-from aat_deploy.render.sources import UnitEnergy
-from aat_deploy.optics.thin_lens import thin_lens_blur_px
 from aat_deploy.backend import as_tensor
+from aat_deploy.optics.thin_lens import thin_lens_blur_px
 from aat_deploy.render.effects import Effect, SimContext, register, torch_extension
-
+from aat_deploy.render.sources import UnitEnergy
 
 
 def _three_wavelengths(ctx: SimContext, wavelengths_nm: list[float], n_rays: int, compiled: bool, k: int):

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from aat_deploy.optics.paraxial import paraxial_data
 from aat_deploy.optics.focus_table import FocusTable
+from aat_deploy.optics.paraxial import paraxial_data
 from aat_deploy.render.effects import Effect, SimContext, register, traced_focus_table
 
 

@@ -35,8 +35,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from aat_deploy.io.color import linear_to_srgb, srgb_to_linear
 from aat_deploy.focus.measures import LUMA  # Rec. 709 luminance of linear RGB
+from aat_deploy.io.color import linear_to_srgb, srgb_to_linear
 from aat_deploy.render.effects import Effect, SimContext, register
 
 MID_GREY = 0.18  # the tone mapping's fixed point (linear)

@@ -55,8 +55,8 @@ def develop_libraw(mosaic_linear: np.ndarray) -> np.ndarray:
     import tempfile
     from pathlib import Path
 
-    from aat_deploy.capture.raw import load_raw
     from aat_deploy.capture.dng import write_dng
+    from aat_deploy.capture.raw import load_raw
 
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "frame.dng"

@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from aat_deploy.render.sources import normalise_energy
 from aat_deploy.optics.field import field_to_tan
 from aat_deploy.render.effects import Effect, SimContext, register
+from aat_deploy.render.sources import normalise_energy
 
 
 @register

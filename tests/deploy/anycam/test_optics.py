@@ -105,8 +105,7 @@ def test_best_focus_map_moves_focus_with_the_field_radius():
 
 def test_calibration_map_applies_the_focus_error_the_tilt_and_the_measured_blur(tmp_path):
     from aat_deploy.anycam.model import mapping_from_args
-    from aat_deploy.calibrate.format import (CameraCalibration, CameraIdentity, FieldPoly, FocusError,
-                                             save_calibration)
+    from aat_deploy.calibrate.format import CameraCalibration, CameraIdentity, FieldPoly, FocusError, save_calibration
 
     # best focus tilted along x by 0.1 D edge to edge; the reported focus 10 % too far (scale 0.9); blur 20 px/D
     tilt = FieldPoly(np.array([[1, 0]]), np.array([[0.05]]), (0.1, 3.0))

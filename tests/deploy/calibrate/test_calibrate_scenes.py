@@ -9,6 +9,7 @@ from functools import lru_cache
 
 import numpy as np
 import pytest
+from test_fit import H, W, small_rf50, truth_fn
 
 from aat_deploy.calibrate import in_focus_diopters, load_calibration
 from aat_deploy.calibrate.chart import dead_leaves
@@ -16,8 +17,6 @@ from aat_deploy.calibrate.format import CameraIdentity, field_grid
 from aat_deploy.calibrate.scene import turned_view
 from aat_deploy.calibrate.scenes import estimate_scene, fit_from_scenes
 from aat_deploy.capture.virtual import shoot
-
-from test_fit import H, W, small_rf50, truth_fn
 
 TILT = "sensor_tilt:tilt_x_deg=1.0:tilt_y_deg=-0.6"
 

@@ -23,8 +23,14 @@ from aat_deploy.calibrate import in_focus_diopters
 from aat_deploy.calibrate.chart import ChartSpec, make_chart
 from aat_deploy.calibrate.fit import fit_calibration
 from aat_deploy.calibrate.peaks import TileGrid, tile_peaks
-from aat_deploy.calibrate.pose import (ChartPose, best_view, focal_from_view, intrinsics_matrix, plane_depth_mm,
-                                       pose_from_view)
+from aat_deploy.calibrate.pose import (
+    ChartPose,
+    best_view,
+    focal_from_view,
+    intrinsics_matrix,
+    plane_depth_mm,
+    pose_from_view,
+)
 from aat_deploy.calibrate.scene import chart_scene
 from aat_deploy.calibrate.sweep import Sweep, SweepError, measure_sweep
 from aat_deploy.capture.virtual import shoot

@@ -12,9 +12,19 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from aat_deploy.calibrate import (FORMAT, CalibrationError, CameraCalibration, CameraIdentity, FieldPoly, FocusError,
-                                  defocus_scale_px_per_d, in_focus_diopters, load_calibration, save_calibration,
-                                  thin_lens_defocus_scale_px_per_d)
+from aat_deploy.calibrate import (
+    FORMAT,
+    CalibrationError,
+    CameraCalibration,
+    CameraIdentity,
+    FieldPoly,
+    FocusError,
+    defocus_scale_px_per_d,
+    in_focus_diopters,
+    load_calibration,
+    save_calibration,
+    thin_lens_defocus_scale_px_per_d,
+)
 from aat_deploy.calibrate.format import field_grid, poly_terms
 from aat_deploy.optics.thin_lens import blur_diameter_px
 from aat_deploy.render import effects as fx

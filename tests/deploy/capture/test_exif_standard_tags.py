@@ -9,9 +9,9 @@ import logging
 from pathlib import Path
 
 import pytest
+from conftest import ROOT, SHARED
 
 from aat_deploy.capture.exif import read_metadata
-from conftest import ROOT, SHARED
 
 exifread = pytest.importorskip("exifread")
 TAGS = {"Make": "make", "Model": "model", "LensModel": "lens", "FocalLength": "focal_length_mm",

@@ -12,11 +12,11 @@ from conftest import ROOT
 
 from aat_deploy.capture.folder import read_capture
 from aat_deploy.capture.raw import load_raw
+from aat_deploy.capture.virtual import BLACK_LEVEL, WHITE_LEVEL, mosaic_rggb, to_dn
 from aat_deploy.io.color import linear_to_srgb
 from aat_deploy.lens.io import load_lens
-from aat_deploy.capture.virtual import BLACK_LEVEL, WHITE_LEVEL, mosaic_rggb, to_dn
-from training.cli.render import main as render_main
 from aat_deploy.render import effects as fx
+from training.cli.render import main as render_main
 from training.render.simulator import Simulator
 from training.render.sources import OnnxPSF
 
@@ -64,9 +64,9 @@ def test_aat_render_writes_a_capture_the_runtime_reads(scene, tmp_path, capsys):
     lens = load_lens(ROOT / "lenses/canon_rf50mm_f1.8.json")
     sim = Simulator(lens, OnnxPSF(ROOT / "models/psf_rf50.onnx", lens), fx.parse(["aberrations"]))
     srgb = cv2.imread(str(scene / "rgb.png"))[..., ::-1].astype(np.float32) / 255
-    from aat_deploy.io.color import srgb_to_linear
-    from aat_deploy.infer.geometry import fit_rgbd_to_sensor
     from aat_deploy.gt.holes import fill_holes
+    from aat_deploy.infer.geometry import fit_rgbd_to_sensor
+    from aat_deploy.io.color import srgb_to_linear
 
     rgb, depth = fit_rgbd_to_sensor(srgb_to_linear(srgb), np.load(scene / "depth.npy"), (640, 960))
     ref = sim.render_stack(torch.from_numpy(rgb.transpose(2, 0, 1).copy()), torch.from_numpy(fill_holes(depth)),

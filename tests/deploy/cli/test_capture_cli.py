@@ -7,13 +7,13 @@ import json
 import math
 
 import pytest
+from conftest import ROOT
 from deploy_fixtures import write_dng_capture, write_png_capture
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from aat_deploy.capture.folder import read_capture
 from aat_deploy.cli import capture as cli
-from conftest import ROOT
 
 FOCUS = [0.7, 1.2, 2.5]
 

@@ -7,11 +7,11 @@ import json
 import numpy as np
 import pytest
 import torch
+from conftest import ROOT
 
 from aat_deploy.diagnose import bins as B
 from aat_deploy.diagnose.bootstrap import binned_bootstrap, capture_bootstrap, ratio_bootstrap
 from aat_deploy.diagnose.compare import focus_curves, region_shifts
-from conftest import ROOT
 from tests.deploy_fixtures import build_tiny_dff
 
 RF50 = "lenses/canon_rf50mm_f1.8.json"
@@ -76,9 +76,9 @@ def setup(tmp_path_factory):
     """A classical-DfF model 'trained' for the RF50 on a 192x128 sensor with the thin-lens simulator, and capture
     sets rendered with that simulator, with and without a withheld focus-metadata bias."""
     from aat_deploy.capture.virtual import write_capture
-    from training.data.scenes import SceneConfig, procedural_scene
     from aat_deploy.lens.io import load_lens
     from aat_deploy.render import effects as fx
+    from training.data.scenes import SceneConfig, procedural_scene
     from training.render.layered import LayeredConfig
     from training.render.simulator import Simulator
     from training.render.sources import thin_lens_source

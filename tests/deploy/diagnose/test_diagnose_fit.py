@@ -10,8 +10,8 @@ import json
 import numpy as np
 import pytest
 import torch
-
 from conftest import ROOT
+
 from tests.deploy_fixtures import build_tiny_dff
 
 RF50 = "lenses/canon_rf50mm_f1.8.json"
@@ -34,11 +34,11 @@ def world(tmp_path_factory):
 def render_set(world, name: str, effects, n: int = 2, focus_m=FOCUS_M, frame_format: str = "tiff"):
     """Capture folders rendered with the thin-lens simulator plus `effects` (a list, or per scene s: effects(s)),
     frames as float TIFFs or DNGs (`frame_format`: a RAW the runtime develops); their CaptureData and a renderer."""
+    from aat_deploy.capture.virtual import write_capture
     from aat_deploy.diagnose.inputs import load_capture_data
+    from aat_deploy.diagnose.lookup import find_lens
     from aat_deploy.diagnose.session import make_renderer
     from aat_deploy.infer.model import DfFModel
-    from aat_deploy.diagnose.lookup import find_lens
-    from aat_deploy.capture.virtual import write_capture
     from training.data.scenes import SceneConfig, procedural_scene
     from training.render.layered import LayeredConfig
     from training.render.simulator import Simulator

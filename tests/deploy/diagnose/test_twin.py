@@ -16,11 +16,11 @@ from deploy_fixtures import build_tiny_dff, run_without_torch
 from aat_deploy.lens.io import load_lens, save_lens
 from aat_deploy.optics.field import field_of
 from aat_deploy.optics.paraxial import paraxial_data
+from aat_deploy.render import effects as fx
 from aat_deploy.render.layered import LayeredConfig, render_layered
 from aat_deploy.render.optical import optical_stack
 from aat_deploy.render.sources import GaussianSource, OnnxSource, UnitEnergy
 from training.psf.geometry import focus_table
-from aat_deploy.render import effects as fx
 from training.render.layered import render_layered as render_layered_torch
 from training.render.simulator import Simulator
 from training.render.sources import OnnxPSF, thin_lens_source
@@ -158,8 +158,8 @@ TWIN_EFFECTS = ["", "vignetting", "noise:full_well_e=3000", "sensor_tilt:tilt_x_
 def tiny(tmp_path_factory):
     """The RF50 on a 96x64 sensor with an (untrained, small) RotPSF surrogate exported for it, a classical-DfF
     model 'trained' with the AAT simulator for it, and one virtual capture with ground truth."""
-    from aat_deploy.psf.kernel import KernelSpec
     from aat_deploy.capture.virtual import write_capture
+    from aat_deploy.psf.kernel import KernelSpec
     from training.data.scenes import SceneConfig, procedural_scene
     from training.psf.export import export_psf_onnx
     from training.psf.surrogates import RotPSF
@@ -212,8 +212,8 @@ def test_export_metadata_and_stamping(tiny, tmp_path):
 def test_paraxial_fallback_warns(tiny, tmp_path):
     import onnx
 
-    from aat_deploy.infer.model import DfFModel
     from aat_deploy.diagnose.twin import TwinRenderer
+    from aat_deploy.infer.model import DfFModel
 
     tmp, lens, model = tiny
     m = onnx.load(str(tmp / "psf.onnx"))
@@ -229,8 +229,8 @@ def test_paraxial_fallback_warns(tiny, tmp_path):
 
 
 def test_what_needs_torch(tiny):
-    from aat_deploy.infer.model import DfFModel
     from aat_deploy.diagnose.twin import TwinRenderer
+    from aat_deploy.infer.model import DfFModel
 
     tmp, lens, model = tiny
     twins = TwinRenderer(DfFModel(model), lens, tmp / "psf.onnx", cell_px=32, threads=1)

@@ -13,11 +13,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from aat_deploy.io.color import linear_to_srgb
 from aat_deploy.cli.eval import main
 from aat_deploy.eval.dataset_run import score_stack
-from aat_deploy.eval.datasets import DatasetError, need, open_dataset
-from aat_deploy.eval.datasets import ddff12, fod500, zedd
+from aat_deploy.eval.datasets import DatasetError, ddff12, fod500, need, open_dataset, zedd
+from aat_deploy.io.color import linear_to_srgb
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from deploy_fixtures import render_stack, synthetic_scene  # noqa: E402
@@ -107,8 +106,7 @@ def test_ddff12_scored_in_disparity_by_aat_eval(tmp_path, capsys):
 
 def _calibration(tmp_path, scale: float, size_px=(64, 48)) -> Path:
     """A calibration with no field term whose reported focus distance is `scale` x the true one."""
-    from aat_deploy.calibrate import (CameraCalibration, CameraIdentity, FieldPoly, FocusError,
-                                      save_calibration)
+    from aat_deploy.calibrate import CameraCalibration, CameraIdentity, FieldPoly, FocusError, save_calibration
     from aat_deploy.calibrate.format import poly_terms
 
     terms = poly_terms(2, constant=False)

@@ -11,7 +11,6 @@ import cv2
 import numpy as np
 import pytest
 
-from aat_deploy.optics.camera import intrinsics_from_dict
 from aat_deploy.cli import gt as gt_cli
 from aat_deploy.gt.pose import (
     Correspondences,
@@ -20,6 +19,7 @@ from aat_deploy.gt.pose import (
     solve_pose,
 )
 from aat_deploy.gt.raycast import GTRenderError, load_pose
+from aat_deploy.optics.camera import intrinsics_from_dict
 
 INTR = {"width": 1200, "height": 800, "fx_px": 1500.0, "fy_px": 1500.0, "cx_px": 610.0, "cy_px": 395.0,
         "pupil_to_sensor_mm": 37.0}

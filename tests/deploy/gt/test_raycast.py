@@ -13,9 +13,9 @@ from conftest import ROOT
 
 trimesh = pytest.importorskip("trimesh")
 
-from aat_deploy.optics.camera import CameraError, Intrinsics, intrinsics_from_dict, load_intrinsics
 from aat_deploy.cli import gt as gt_cli
 from aat_deploy.gt.raycast import GTRenderError, load_pose, pixel_rays, render_depth
+from aat_deploy.optics.camera import CameraError, Intrinsics, intrinsics_from_dict, load_intrinsics
 
 PUPIL_MM = 40.0
 # the accuracy aat-gt promises, a length by design (metres); Embree's float32 rounding is ~1e-7 of the depth

@@ -11,7 +11,6 @@ import pytest
 from deploy_fixtures import tiny_model_path, write_pfm
 
 from aat_deploy.cli import gt as gt_cli
-from aat_deploy.infer.geometry import fit_to_sensor
 from aat_deploy.gt.read import (
     GTError,
     check_units,
@@ -19,6 +18,7 @@ from aat_deploy.gt.read import (
     load_ground_truth,
     to_sensor,
 )
+from aat_deploy.infer.geometry import fit_to_sensor
 
 RNG = np.random.default_rng(3)
 DEPTH = RNG.uniform(0.7, 4.0, (48, 64)).astype(np.float32)

@@ -9,18 +9,18 @@ import warnings
 
 import numpy as np
 import pytest
+from conftest import ROOT
 from deploy_fixtures import render_stack, synthetic_scene, write_dng_capture
 
 from aat_deploy.anycam.model import FocusMapModel
 from aat_deploy.api import depth_from_focus, read_stack
-from aat_deploy.optics.camera import Intrinsics
 from aat_deploy.focus import FocusConfig, classical_depth
 from aat_deploy.focus.runner import FocusMethod
 from aat_deploy.infer.method import DepthMethod, DepthOutput
 from aat_deploy.infer.model import DfFModel
 from aat_deploy.infer.pipeline import Options, run_capture
 from aat_deploy.infer.process import depth_from_frames
-from conftest import ROOT
+from aat_deploy.optics.camera import Intrinsics
 
 FOCUS = [0.6, 0.8, 1.2, 2.0, 3.0, 4.5]
 

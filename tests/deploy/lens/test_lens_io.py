@@ -6,8 +6,8 @@ import json
 import math
 
 import pytest
-
 from conftest import LENSES
+
 from aat_deploy.lens.io import LensFileError, lens_from_dict, load_lens, save_lens
 from aat_deploy.lens.materials import CauchyNdVd, UnknownMaterialError, parse_material
 from aat_deploy.optics.paraxial import paraxial_data

@@ -13,8 +13,8 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-
 from conftest import LENSES, SHARED
+
 from aat_deploy.lens.io import load_lens
 from aat_deploy.lens.materials import (
     C_LINE_NM,

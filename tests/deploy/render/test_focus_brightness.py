@@ -4,12 +4,12 @@ PSF surrogate, as the torch-free twins have them)."""
 
 import numpy as np
 import pytest
+from conftest import LENSES, ROOT
 
 from aat_deploy.lens.io import load_lens
 from aat_deploy.render import effects as fx
 from aat_deploy.render.effects.focus_brightness import irradiance_gains
 from aat_deploy.render.sources import OnnxSource
-from conftest import LENSES, ROOT
 
 
 @pytest.fixture(scope="module")

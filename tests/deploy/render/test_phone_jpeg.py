@@ -4,12 +4,12 @@ tone mapping's fixed point and power law, denoising that keeps edges, the sensor
 
 import numpy as np
 import pytest
+from conftest import LENSES
 
 from aat_deploy.io.color import linear_to_srgb, srgb_to_linear
 from aat_deploy.lens.io import load_lens
 from aat_deploy.render import effects as fx
 from aat_deploy.render.effects.phone_jpeg import RANGES, random_settings
-from conftest import LENSES
 
 OFF = {"tone": 0.0, "denoise": 0.0, "sharpen": 0.0}
 

@@ -104,10 +104,10 @@ def test_outputs_metadata_and_report(chain):
 
 
 def test_runtime_accepts_ef50_captures_and_flags_rf50(chain, tmp_path):
-    from aat_deploy.lens.io import load_lens
     from aat_deploy.capture.virtual import write_capture
-    from training.data.scenes import SceneConfig, procedural_scene
+    from aat_deploy.lens.io import load_lens
     from aat_deploy.render import effects as fx
+    from training.data.scenes import SceneConfig, procedural_scene
     from training.render.simulator import Simulator
     from training.render.sources import OnnxPSF
 
@@ -227,10 +227,10 @@ def test_chromatic_fits_per_wavelength_surrogates_and_trains_with_them(chain, co
 def test_chromatic_twins_render_without_torch_next_to_their_surrogates(colour, tmp_path):
     """With psf_<w>nm.onnx next to the lens's surrogate the torch-free twin renderer renders `chromatic`
     (three different channels); psfs=trace still needs torch; a folder without them is a one-line error."""
-    from aat_deploy.lens.io import load_lens
     from aat_deploy.diagnose.twin import TwinRenderer
-    from aat_deploy.render.sources import OnnxSource
+    from aat_deploy.lens.io import load_lens
     from aat_deploy.render import effects as fx
+    from aat_deploy.render.sources import OnnxSource
 
     out = colour["out"]
     lens = load_lens(out / "lens.json")

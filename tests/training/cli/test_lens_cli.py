@@ -5,8 +5,8 @@ from __future__ import annotations
 import json
 
 import pytest
-
 from conftest import LENSES
+
 from training.cli.lens import main
 
 RF50 = str(LENSES / "canon_rf50mm_f1.8.json")

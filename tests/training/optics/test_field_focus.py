@@ -61,8 +61,8 @@ def _plane_stack(depth_m: float, focus_m: np.ndarray, origin: tuple[int, int], n
     """A photo-textured plane rendered through the RF50's surrogate PSFs at the crop `origin` of its sensor."""
     import torch
 
-    from training.data.textures import photo_texture
     from aat_deploy.render import effects as fx
+    from training.data.textures import photo_texture
     from training.render.layered import LayeredConfig
     from training.render.simulator import Simulator
     from training.render.sources import OnnxPSF

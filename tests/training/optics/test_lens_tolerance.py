@@ -12,11 +12,10 @@ import pytest
 import torch
 
 from aat_deploy.lens.io import load_lens
-from training.optics.tolerance import (focal_surface_change_mm, sensitivity_table,
-                                       trace_decentred)
-from training.optics.trace import Rays, rays_through_pupil, trace, uniform_disk_grid
 from aat_deploy.render import effects as fx
 from aat_deploy.render.effects.lens_tolerance import air_gaps, elements, optics_key, table_name
+from training.optics.tolerance import focal_surface_change_mm, sensitivity_table, trace_decentred
+from training.optics.trace import Rays, rays_through_pupil, trace, uniform_disk_grid
 
 RF50 = "lenses/canon_rf50mm_f1.8.json"
 
@@ -55,6 +54,7 @@ def test_decentred_element_matches_optiland(lens):
     from optiland.materials import IdealMaterial
     from optiland.optic import Optic
     from optiland.physical_apertures import RadialAperture
+
     from tests.training.optics.test_optiland_crosscheck import _optiland_trace
 
     w = lens.design_wavelength_nm

@@ -6,8 +6,8 @@ import math
 
 import pytest
 import torch
-
 from conftest import LENSES, assert_close
+
 from aat_deploy.lens.io import load_lens
 from aat_deploy.lens.schema import Lens, Sensor, Surface
 from aat_deploy.optics.paraxial import paraxial_data, paraxial_image_z_mm

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 import torch
-
 from conftest import LENSES, assert_close
+
 from aat_deploy.lens.io import load_lens
 from aat_deploy.optics.paraxial import paraxial_data
 from aat_deploy.optics.thin_lens import thin_lens_blur_px

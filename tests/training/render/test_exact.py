@@ -65,10 +65,10 @@ def test_frame_with_thin_lens_gaussian_and_orientation_of_field():
     from conftest import LENSES
 
     from aat_deploy.lens.io import load_lens
+    from aat_deploy.optics.field import pixel_fields
     from aat_deploy.psf.kernel import KernelSpec
     from training.psf.surrogates import GaussianPSF
     from training.render.exact import render_frame_exact
-    from aat_deploy.optics.field import pixel_fields
     from training.render.sources import ModelPSF
 
     lens = load_lens(LENSES / "canon_rf50mm_f1.8.json")

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import torch
 
+from aat_deploy.optics.field import field_of
 from training.render.exact import render_frame_exact
 from training.render.layered import LayeredConfig, layer_diopters, render_layered
-from aat_deploy.optics.field import field_of
 
 SENSOR = (96, 128)  # rows, cols of a toy sensor
 pytestmark = pytest.mark.numerics  # float32 FFT convolution vs direct sums and analytic values
