@@ -9,7 +9,7 @@ no grad) and by the runtime (`aat_deploy.infer.model.DfFModel.infer`), both on 2
 Prints a table: seconds per stack each way, the ratio, and the max |difference| of the depths. The any-camera net
 (`dfvaat`, the small DFVNet told per-pixel focus maps) runs as `aat-infer --model dfv_aat` runs it: its runtime time
 includes making the maps (thin lens, a 50 mm f/1.8 camera); two rows: whole frames, and as shipped, in overlapping
-tiles of the largest images it trained on (aat.tile_px; the depth difference of that row is tiled vs whole).
+tiles of the largest scenes it trained on (aat.tile_px; the depth difference of that row is tiled vs whole).
 """
 
 from __future__ import annotations
@@ -75,8 +75,8 @@ def main() -> None:
 
 def any_camera(size: str, stack: np.ndarray, focus: np.ndarray) -> list[tuple]:
     """The any-camera net, torch vs the runtime (maps included), whole frames; then as shipped: the runtime in tiles
-    of aat.tile_px (the largest images configs/anycam/dfv_aat.json trains on, training.train.export), against torch
-    on the whole frame (the difference column then is tiled vs whole, not a parity check)."""
+    of aat.tile_px (the largest single scenes configs/anycam/dfv_aat.json trains on, training.train.export),
+    against torch on the whole frame (the difference column then is tiled vs whole, not a parity check)."""
     from aat_deploy.anycam.model import FocusMapModel
     from aat_deploy.anycam.optics import CameraOptics
     from training.nets.dfvaat import build, predict

@@ -12,11 +12,12 @@ from training.train.loop import load_trained
 
 
 def largest_training_image_px(data: dict) -> int:
-    """Side (px) of the largest images an any-camera run trained on: its crops (or whole renders), twice that with
-    mosaic batches (`training.data.anycam.mosaic`). The runtime runs the net on tiles of this size (aat.tile_px):
-    the first run's net, trained on 128 px images, was 2.4x worse on whole 640 x 480 frames than on 128 px tiles."""
-    side = int(data.get("crop") or min(data.get("height", 160), data.get("width", 160)))
-    return 2 * side if float(data.get("mosaic", 0.0)) > 0 else side
+    """Side (px) of the largest single scenes an any-camera run trained on: its crops, or its whole renders (a mosaic,
+    `training.data.anycam.mosaic`, is four unrelated scenes, not a larger one). The runtime runs the net on tiles of
+    this size (aat.tile_px): the first run's net, trained on 128 px images, was 2.4x worse on whole 640 x 480 frames
+    than on 128 px tiles, and on RF50 validation stacks 128 px tiles beat 96, 256 and whole frames
+    (benchmarks/probes/anycam_tiles.py --split validation)."""
+    return int(data.get("crop") or min(data.get("height", 160), data.get("width", 160)))
 
 
 def export_checkpoint(checkpoint, out, *, force: bool = False, extra: dict | None = None,
