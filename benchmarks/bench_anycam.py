@@ -2,7 +2,7 @@
 the classical method given the same focus map.
 
     OMP_WAIT_POLICY=PASSIVE python -m benchmarks.bench_anycam [--lenses paper50 ef50 z35 rf50] [--protocol fixed paper]
-        [--n 24] [--model models/dfv_aat.onnx] [--tables] [--out results]
+        [--n 24] [--model models/dfv_aat.onnx] [--tile N] [--tables] [--out results]
 
 Test stacks (training/train/testsets.py, cached in cache/heldout): whole-sensor renders through each lens with its
 PSF surrogate, procedural scenes textured with the held-out photographs (n per lens and protocol) plus the real RGB-D
@@ -58,7 +58,7 @@ DFV_MAP, DFV_THIN, CL_MAP, CL_THIN = ("dfv_aat, lens map", "dfv_aat, thin-lens m
 STACK_SIZES = (3, 5, 8, 12, 16)
 
 
-def methods(model_path: Path, lens_key: str, threads: int) -> dict:
+def methods(model_path: Path, lens_key: str, threads: int, tile: int | None = None) -> dict:
     """{label: fn(item) -> (depth_m, aif)} for one lens."""
     from aat_deploy.anycam.maps import FocusMapping
     from aat_deploy.anycam.model import FocusMapModel, mapping_from_args
@@ -76,7 +76,8 @@ def methods(model_path: Path, lens_key: str, threads: int) -> dict:
 
         def dfv(model):
             def fn(it):  # the camera's optics from the lens file either way; only the focus map differs
-                r = model.bound(with_map.mapping_optics(it.stack.shape[-1]), it.focus_m).infer(it.stack, it.focus_m)
+                r = model.bound(with_map.mapping_optics(it.stack.shape[-1]), it.focus_m).infer(
+                    it.stack, it.focus_m, tile=tile, overlap=(tile or 0) // 4 or 32)
                 return r.depth_m, r.aif
             return fn
 
@@ -161,11 +162,11 @@ def print_lens(lens_key: str, protocol: str, res: dict, ratios: list[dict], n: i
                   f"{fmt(r['procedural_outer'], 2)} | {real[0]} | {real[1]} |")
 
 
-def tables(model_path: Path, n: int, threads: int, cache: str) -> dict:
+def tables(model_path: Path, n: int, threads: int, cache: str, tile: int | None = None) -> dict:
     """Stack-size and schedule tables on the paper lens (fixed protocol)."""
     from training.train.testsets import load_test_set
 
-    fns = {k: v for k, v in methods(model_path, "paper50", threads).items() if k in (DFV_MAP, CL_MAP)}
+    fns = {k: v for k, v in methods(model_path, "paper50", threads, tile).items() if k in (DFV_MAP, CL_MAP)}
     out = {"stack_size": {}, "schedule": {}}
     for s in STACK_SIZES:
         items = load_test_set(test_spec("paper50", "fixed", n, stack_size=s, real=False), cache)
@@ -196,6 +197,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--model", type=Path, default=ROOT / "models" / "dfv_aat.onnx")
     ap.add_argument("--tables", action="store_true", help="also the stack-size and schedule tables (paper lens)")
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--tile", type=int, default=None,
+                    help="run dfv_aat in tiles of this side (px; 0 = whole frames); default: the model's aat.tile_px")
     ap.add_argument("--cache", default=str(ROOT / "cache" / "heldout"))
     ap.add_argument("--out", type=Path, default=RESULTS)
     a = ap.parse_args(argv)
@@ -209,7 +212,7 @@ def main(argv: list[str] | None = None) -> int:
         if not (ROOT / spec["psf"]).is_file():
             print(f"{lens_key}: {spec['psf']} missing (configs/psf_*.json: aat-psf fit, export, stamp); skipped")
             continue
-        fns = methods(a.model, lens_key, a.threads)
+        fns = methods(a.model, lens_key, a.threads, a.tile)
         for protocol in a.protocol:
             print(f"{lens_key}, {protocol} protocol", flush=True)
             items = load_test_set(test_spec(lens_key, protocol, a.n), a.cache)
@@ -227,7 +230,7 @@ def main(argv: list[str] | None = None) -> int:
                 field_figures(maps, a.out / "figures" / f"anycam_{lens_key}_{protocol}.png",
                               f"{lens_key}, {protocol} protocol: MAE against field radius")
     if a.tables:
-        results["tables"] = tables(a.model, max(8, a.n // 2), a.threads, a.cache)
+        results["tables"] = tables(a.model, max(8, a.n // 2), a.threads, a.cache, a.tile)
     a.out.mkdir(parents=True, exist_ok=True)
     path = a.out / "anycam.json"
     write_text_atomic(path, json.dumps(results, indent=1, default=float))
