@@ -28,7 +28,21 @@ from aat_deploy.io.atomic import atomic_file, write_text_atomic
 from training.devices.shard import Shard
 
 MANIFEST_FORMAT = "aat-stack-cache-v1"
+# Renders with focus varying over the field changed at c9c07bd (each anchor's PSF at its own cell size): their
+# keys carry this mark so renders cached before it are not read as current. Other renders did not change and keep
+# their keys.
+FIELD_FOCUS_RENDERER = 2
 _ZIP_TIME = (1980, 1, 1, 0, 0, 0)  # the earliest a zip can hold: no wall-clock time in the bytes
+
+
+def renderer_marks(effects) -> dict:
+    """What to add to a cache key for these effects (aat_deploy.render.effects specs or instances): the mark of
+    the renderer's field-varying focus when one of them varies focus over the field, else nothing."""
+    from aat_deploy.render import effects as fx
+
+    parsed = [e for e in effects if not isinstance(e, (str, dict))] + fx.parse(
+        [e for e in effects if isinstance(e, (str, dict))])
+    return {"field_focus_renderer": FIELD_FOCUS_RENDERER} if fx.varies_focus(parsed) else {}
 
 
 def item_path(cache: Path, index: int) -> Path:

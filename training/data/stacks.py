@@ -23,7 +23,7 @@ from aat_deploy.infer.normalise import normalise_scale, scaled
 from aat_deploy.lens.io import load_lens
 from aat_deploy.optics.field import pixel_fields
 from aat_deploy.render import effects as fx
-from training.data.cache import item_path, save_item
+from training.data.cache import item_path, renderer_marks, save_item
 from training.data.rgbd import load_middlebury_motorcycle
 from training.data.scenes import SceneConfig, procedural_scene
 from training.render.layered import LayeredConfig
@@ -111,6 +111,7 @@ class StackDataConfig:
                   "scene_perturb"):
             if d[f] == StackDataConfig.__dataclass_fields__[f].default:
                 d.pop(f)  # configs that do not use a field hash as they did before it existed
+        d.update(renderer_marks(self.effects))
         return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:12]
 
 

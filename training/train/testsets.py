@@ -74,7 +74,10 @@ class TestSetSpec:
         if not self.effects:
             d.pop("effects")  # sets without effects hash (and stay cached) as before the field existed
         else:
+            from training.data.cache import renderer_marks
+
             d["effects"] = list(self.effects)
+            d.update(renderer_marks(self.effects))
         for f, default in (("scene_near_m", 0.5), ("scene_far_m", 10.0), ("nyu", False), ("jitter_d", 0.0)):
             if d[f] == default:
                 d.pop(f)  # likewise

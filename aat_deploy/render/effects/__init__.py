@@ -39,9 +39,9 @@ text form), `compose.py` (a list of effects applied hook by hook); this package 
 from __future__ import annotations
 
 from .base import Effect, NeedsTorch, SimContext, is_post, spec, torch_extension, traced_focus_table
-from .compose import focus_at, post_frame, post_stack, twin_focus, wrap_source
+from .compose import focus_at, post_frame, post_stack, twin_focus, varies_focus, wrap_source
 from .registry import describe, make, names, parse, register
 
-__all__ = ["Effect", "NeedsTorch", "SimContext", "is_post", "torch_extension", "traced_focus_table", "focus_at",
+__all__ = ["Effect", "NeedsTorch", "SimContext", "is_post", "torch_extension", "traced_focus_table", "focus_at", "varies_focus",
            "post_frame", "post_stack", "twin_focus", "wrap_source", "describe", "make", "names", "parse", "register",
            "spec"]

@@ -17,6 +17,12 @@ def wrap_source(effects: list[Effect], source, ctx: SimContext):
     return source
 
 
+def varies_focus(effects: list[Effect]) -> bool:
+    """True when one of the effects makes focus vary over the field (a `focus_at` or `sensor_shift_mm` hook)."""
+    return any(type(e).focus_at is not Effect.focus_at or type(e).sensor_shift_mm is not Effect.sensor_shift_mm
+               for e in effects)
+
+
 def focus_at(effects: list[Effect], ctx: SimContext) -> Callable | None:
     """The per-field focus function of the effects (None: focus is the same everywhere): the first effect's
     `focus_at` if one has it, else the sum of their sensor shifts (`sensor_shift_mm`) through the lens's focus

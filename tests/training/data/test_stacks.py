@@ -149,3 +149,11 @@ def test_random_crops_flips_and_field_coordinates():
         assert np.array_equal(it["stack"].numpy(), sub)
         flips_seen.add((lr, ud))
     assert len(flips_seen) >= 3
+
+
+def test_field_focus_training_data_keys_carry_the_renderer_mark():
+    """Training data with sensor_tilt or lens_tolerance is rendered again after the renderer's per-anchor cell
+    fix (c9c07bd); noise-only data keeps its cache (its key as before the mark existed)."""
+    assert _cfg(effects=("noise",)).key() == "eb8f712e3c7d"
+    assert _cfg(effects=("sensor_tilt",)).key() != "25811c8eb9f8"
+    assert _cfg(effects=("noise", "lens_tolerance")).key() != "dea9ae866009"

@@ -85,3 +85,26 @@ def test_validation_split_is_apart_from_the_test_set(small_lens, tmp_path):
         == "23d99424ccfa"
     with pytest.raises(ValueError, match="photo_split"):
         TestSetSpec(small_lens, None, 5, photo_split="val")
+
+
+def test_field_focus_sets_are_rendered_again_after_the_renderer_fix():
+    """Sets whose effects vary focus over the field (sensor_tilt, lens_tolerance) were drawn wrong before c9c07bd
+    (every anchor at the first anchor's cell size): their keys changed, so stale cached renders are not read. Sets
+    the fix did not touch keep their keys (hashes before the mark existed)."""
+    def key(*effects):
+        return TestSetSpec("lenses/canon_rf50mm_f1.8.json", "models/psf_rf50.onnx", 8, effects=effects).key()
+
+    assert key("noise") == "a6092bfe0a28" and key("noise", "vignetting") == "0caf85be2564"
+    assert key("sensor_tilt") != "9df47c43eb63" and key("noise", "lens_tolerance") != "a66a37ef1780"
+    assert key("sensor_tilt") != key("sensor_tilt:tilt_x_deg=0.2")  # settings still count
+
+
+def test_varies_focus_follows_the_effects_hooks():
+    """The mark follows the effects' own hooks (focus_at / sensor_shift_mm), not a list of names."""
+    from aat_deploy.render import effects as fx
+    from aat_deploy.render.effects.registry import _REGISTRY, _load
+
+    _load()
+    varying = {n for n, cls in _REGISTRY.items() if fx.varies_focus([cls()])}
+    assert {"sensor_tilt", "lens_tolerance"} <= varying
+    assert not {"noise", "vignetting", "raw_pipeline", "focus_metadata"} & varying
