@@ -52,6 +52,11 @@ def _floats(text: str) -> list[float]:
     return v
 
 
+def prog(args) -> str:
+    """The command's name in messages: `fit` also runs as `aat-lens focus-map --from-captures`, which sets it."""
+    return getattr(args, "prog", None) or "aat-calibrate"
+
+
 def _say(args, msg: str) -> None:
     if not getattr(args, "quiet", False):
         print(msg, file=sys.stderr, flush=True)
@@ -87,30 +92,30 @@ def cmd_fit(args) -> int:
     png = out.with_suffix(".png")
     for p in (out, png):
         if p.exists() and not args.force:
-            print(f"aat-calibrate: error: {p}: exists (use --force to overwrite)", file=sys.stderr)
+            print(f"{prog(args)}: error: {p}: exists (use --force to overwrite)", file=sys.stderr)
             return EXIT_USAGE
     sweeps = [Path(s) for s in args.sweeps]
     if any(p.resolve() in (s.resolve(), *s.resolve().parents) for s in sweeps for p in (out, png)):
-        print(f"aat-calibrate: error: {out}: the output must not be inside a sweep folder", file=sys.stderr)
+        print(f"{prog(args)}: error: {out}: the output must not be inside a sweep folder", file=sys.stderr)
         return EXIT_USAGE
     if args.from_scenes:
         return fit_scenes(args, sweeps, out, png)
     if args.chart is None:
-        print("aat-calibrate: error: --chart chart.json is required (or --from-scenes)", file=sys.stderr)
+        print(f"{prog(args)}: error: --chart chart.json is required (or --from-scenes)", file=sys.stderr)
         return EXIT_USAGE
     if args.distance_m is not None and len(args.distance_m) != len(sweeps):
-        print(f"aat-calibrate: error: --distance-m gives {len(args.distance_m)} distances for {len(sweeps)} sweeps",
+        print(f"{prog(args)}: error: --distance-m gives {len(args.distance_m)} distances for {len(sweeps)} sweeps",
               file=sys.stderr)
         return EXIT_USAGE
     try:
         layout = load_layout(args.chart)
     except CaptureError as e:
-        print(f"aat-calibrate: error: {e}", file=sys.stderr)
+        print(f"{prog(args)}: error: {e}", file=sys.stderr)
         return EXIT_USAGE
     cfg = FocusConfig()
     measures, failed = [], 0
     for i, s in enumerate(sweeps):
-        _say(args, f"aat-calibrate: measuring {s} ({i + 1}/{len(sweeps)})")
+        _say(args, f"{prog(args)}: measuring {s} ({i + 1}/{len(sweeps)})")
         try:
             sw = load_sweep(s, args.max_side, max_megapixels=args.max_megapixels,
                             allow_outside_links=args.allow_outside_links)
@@ -118,19 +123,19 @@ def cmd_fit(args) -> int:
                                           args.pupil_to_sensor_mm, args.sensor_mm, cfg.measure, cfg.window_px,
                                           cfg.prefilter_px))
         except CaptureError as e:
-            print(f"aat-calibrate: error: {e}", file=sys.stderr)
+            print(f"{prog(args)}: error: {e}", file=sys.stderr)
             failed += 1
     if failed:
-        print(f"aat-calibrate: {failed} of {len(sweeps)} sweeps unusable: nothing written", file=sys.stderr)
+        print(f"{prog(args)}: {failed} of {len(sweeps)} sweeps unusable: nothing written", file=sys.stderr)
         return EXIT_FAILED
     settings = {"sweeps": [str(s) for s in sweeps], "chart": str(args.chart),
                 "distance_m": args.distance_m, "measure": cfg.measure, "window_px": cfg.window_px,
                 "prefilter_px": cfg.prefilter_px, "estimator": "gauss", "max_side": args.max_side}
     try:
         res = fit_calibration(measures, n_boot=args.boot, sensor_mm=args.sensor_mm, settings=settings,
-                              progress=lambda what: _say(args, f"aat-calibrate: {what}"))
+                              progress=lambda what: _say(args, f"{prog(args)}: {what}"))
     except (CaptureError, ValueError) as e:
-        print(f"aat-calibrate: error: {e}", file=sys.stderr)
+        print(f"{prog(args)}: error: {e}", file=sys.stderr)
         return EXIT_FAILED
     cal = res.calibration
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -141,10 +146,10 @@ def cmd_fit(args) -> int:
             save_calibration(cal, tj, force=True)
             calibration_png(cal, tp, res.observations, res.model.residual_d)
     except (OSError, CalibrationError) as e:
-        print(f"aat-calibrate: error: {out}: cannot write ({e})", file=sys.stderr)
+        print(f"{prog(args)}: error: {out}: cannot write ({e})", file=sys.stderr)
         return EXIT_FAILED
     for w in res.warnings:
-        print(f"aat-calibrate: warning: {w}", file=sys.stderr)
+        print(f"{prog(args)}: warning: {w}", file=sys.stderr)
     print(json.dumps(summary(cal, out, png)))
     return EXIT_OK
 
@@ -160,7 +165,7 @@ def fit_scenes(args, captures: list[Path], out: Path, png: Path) -> int:
 
     scenes, loaded, failed = [], [], 0
     for i, c in enumerate(captures):
-        _say(args, f"aat-calibrate: estimating {c} ({i + 1}/{len(captures)})")
+        _say(args, f"{prog(args)}: estimating {c} ({i + 1}/{len(captures)})")
         try:
             sw = load_sweep(c, args.max_side, min_frames=3, max_megapixels=args.max_megapixels,
                             allow_outside_links=args.allow_outside_links)
@@ -172,20 +177,20 @@ def fit_scenes(args, captures: list[Path], out: Path, png: Path) -> int:
             scenes.append(estimate_scene(c.name, sw.frames, sw.reported_m))
             loaded.append(sw)
         except CaptureError as e:
-            print(f"aat-calibrate: error: {e}", file=sys.stderr)
+            print(f"{prog(args)}: error: {e}", file=sys.stderr)
             failed += 1
     if failed:
-        print(f"aat-calibrate: {failed} of {len(captures)} captures unusable: nothing written", file=sys.stderr)
+        print(f"{prog(args)}: {failed} of {len(captures)} captures unusable: nothing written", file=sys.stderr)
         return EXIT_FAILED
     if len(scenes) < 2:
-        print("aat-calibrate: error: --from-scenes needs at least two captures of the same surfaces", file=sys.stderr)
+        print(f"{prog(args)}: error: --from-scenes needs at least two captures of the same surfaces", file=sys.stderr)
         return EXIT_USAGE
     try:
         res = fit_from_scenes(scenes, camera_identity_of(loaded[0]), loaded[0].size_px, args.sensor_mm,
                               args.pupil_to_sensor_mm, n_boot=min(args.boot, 50),
                               settings={"captures": [str(c) for c in captures], "max_side": args.max_side})
     except ValueError as e:
-        print(f"aat-calibrate: error: {e}", file=sys.stderr)
+        print(f"{prog(args)}: error: {e}", file=sys.stderr)
         return EXIT_FAILED
     cal = res.calibration
     try:
@@ -193,10 +198,10 @@ def fit_scenes(args, captures: list[Path], out: Path, png: Path) -> int:
             save_calibration(cal, tj, force=True)
             calibration_png(cal, tp)
     except (OSError, CalibrationError) as e:
-        print(f"aat-calibrate: error: {out}: cannot write ({e})", file=sys.stderr)
+        print(f"{prog(args)}: error: {out}: cannot write ({e})", file=sys.stderr)
         return EXIT_FAILED
     for w in res.warnings:
-        print(f"aat-calibrate: warning: {w}", file=sys.stderr)
+        print(f"{prog(args)}: warning: {w}", file=sys.stderr)
     print(json.dumps({**summary(cal, out, png), "pairs": cal.residuals["pairs"],
                       "samples": cal.residuals["samples"]}))
     return EXIT_OK
@@ -301,6 +306,24 @@ def cmd_show(args) -> int:
     return EXIT_OK
 
 
+def add_fit_options(f: argparse.ArgumentParser) -> None:
+    """The fit's options but the folders, --out and --force: `aat-calibrate fit` and `aat-lens focus-map
+    --from-captures` (the same command, `cmd_fit`)."""
+    f.add_argument("--chart", help="the chart's layout (chart.json from `aat-calibrate chart`)")
+    f.add_argument("--from-scenes", action="store_true", help="no chart: the folders are ordinary stacks of one "
+                   "camera turned between them (blind calibration of the field term; docs/calibration.md)")
+    f.add_argument("--distance-m", type=_floats, metavar="D1,D2,...",
+                   help="per sweep, metres from the sensor plane to the chart at the frame centre (measured)")
+    f.add_argument("--pupil-to-sensor-mm", type=float, help="entrance pupil's distance in front of the sensor "
+                   "(default: the EXIF focal length)")
+    f.add_argument("--sensor-mm", type=lambda t: _pair(t, "--sensor-mm"), metavar="W,H",
+                   help="sensor size in mm (focal length in px for the pose; stored in the calibration)")
+    f.add_argument("--max-side", type=int, default=1600, help="measure on frames reduced to this many px (default "
+                   "1600)")
+    f.add_argument("--boot", type=int, default=100, help="bootstrap replicates for the intervals (default 100)")
+    add_reader_options(f)
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = parser("aat-calibrate", __doc__.split("\n")[0], quiet=False)
     sub = ap.add_subparsers(dest="cmd", required=True, metavar="{chart,fit,shoot,show}")
@@ -317,21 +340,9 @@ def build_parser() -> argparse.ArgumentParser:
     f = subparser(sub, "fit", "fit a camera calibration to chart sweeps")
     f.add_argument("sweeps", nargs="+", metavar="SWEEP_DIR", help="one capture folder per chart position (with "
                    "--from-scenes: per scene)")
-    f.add_argument("--chart", help="the chart's layout (chart.json from `aat-calibrate chart`)")
-    f.add_argument("--from-scenes", action="store_true", help="no chart: the folders are ordinary stacks of one "
-                   "camera turned between them (blind calibration of the field term; docs/calibration.md)")
     f.add_argument("--out", required=True, help="calibration file to write (.json; the maps go to .png beside it)")
-    f.add_argument("--distance-m", type=_floats, metavar="D1,D2,...",
-                   help="per sweep, metres from the sensor plane to the chart at the frame centre (measured)")
-    f.add_argument("--pupil-to-sensor-mm", type=float, help="entrance pupil's distance in front of the sensor "
-                   "(default: the EXIF focal length)")
-    f.add_argument("--sensor-mm", type=lambda t: _pair(t, "--sensor-mm"), metavar="W,H",
-                   help="sensor size in mm (focal length in px for the pose; stored in the calibration)")
-    f.add_argument("--max-side", type=int, default=1600, help="measure on frames reduced to this many px (default "
-                   "1600)")
-    f.add_argument("--boot", type=int, default=100, help="bootstrap replicates for the intervals (default 100)")
     f.add_argument("--force", action="store_true", help="overwrite an existing calibration")
-    add_reader_options(f)
+    add_fit_options(f)
     s = subparser(sub, "shoot", "the virtual camera: a chart sweep through a lens with effects (a capture folder)")
     s.add_argument("--chart", required=True, help="chart image (.png with its .json beside it)")
     s.add_argument("--lens", required=True, help="lens file or shipped lens name")

@@ -99,7 +99,7 @@ class TwinRenderer:
         misses the lens's spherical aberration, with a warning."""
         warnings.warn(f"{getattr(self.lens_source, 'path', 'no PSF surrogate')}: no real-ray focus table; sensor "
                       "tilt and focus breathing use the paraxial one (stamp the surrogate with "
-                      "scripts/stamp_psf_optics.py)", stacklevel=3)
+                      "aat-lens focus-map LENS --stamp PSF.onnx)", stacklevel=3)
         return paraxial_focus_table(self.lens)
 
     def context(self, capture: str = "") -> fx.SimContext:

@@ -15,7 +15,7 @@ aberration and astigmatism make them differ). Interpolation is bilinear in (r^2,
 from the nominal focus (object diopters minus frame diopters), held constant beyond the table's focus range.
 
 Stored as JSON (`save_json`, format FORMAT) in `<lens folder>/best_focus/<lens stem>.json` and/or in a PSF
-surrogate's ONNX metadata under METADATA_KEY (`scripts/stamp_psf_optics.py`). Reading it needs no torch.
+surrogate's ONNX metadata under METADATA_KEY (`aat-lens focus-map LENS --stamp PSF.onnx`). Reading it needs no torch.
 """
 
 from __future__ import annotations
@@ -162,7 +162,7 @@ def from_psf(path: str | Path) -> BestFocusMap:
         raise BestFocusError(str(e)) from None
     if METADATA_KEY not in meta:
         raise BestFocusError(f"{path}: this PSF surrogate carries no best-focus map; add it with "
-                             "`python scripts/stamp_psf_optics.py PSF.onnx LENS.json` (needs the train extra)")
+                             "`aat-lens focus-map LENS --stamp PSF.onnx` (needs the train extra)")
     try:
         d = json.loads(meta[METADATA_KEY])
     except json.JSONDecodeError as e:

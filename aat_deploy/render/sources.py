@@ -75,7 +75,7 @@ class OnnxSource(LensGeometry):
 
     def focus_table(self) -> FocusTable | None:
         """Sensor z (mm) vs focus (diopters) of the lens, real-ray traced at export; None for a surrogate exported
-        before these keys existed (stamp it: scripts/stamp_psf_optics.py)."""
+        before these keys existed (stamp it: `aat-lens focus-map LENS --stamp PSF.onnx`)."""
         meta = self.model.meta
         if not all(k in meta for k in TABLE_KEYS):
             return None

@@ -5,6 +5,13 @@
     aat-lens layout LENS --png out.png [--focus-m D]
     aat-lens focus-map LENS [--png out.png] [--force] [--no-calibrate] [--psf trace|PSF.onnx] [--out MAP.json]
                             [--stamp PSF.onnx]
+    aat-lens focus-map --from-captures SWEEP_DIR [SWEEP_DIR ...] --chart chart.json --out mycam.json
+                            [--distance-m D1,D2,...] [--force] ...   (the options of `aat-calibrate fit`)
+
+A best-focus map either way: from a prescription (traced, then calibrated on rendered stacks; for `aat-infer
+--method focus --lens`) or from captures, with no prescription (chart sweeps, or `--from-scenes` ordinary stacks:
+`aat-calibrate fit` itself, the one fit; the `aat-camera-calibration-v1` file `--calibration` reads, maps PNG
+beside it; docs/calibration.md).
 
 Distances in metres are measured from the sensor plane (camera convention); lengths in mm.
 """
@@ -17,7 +24,8 @@ import math
 import sys
 from pathlib import Path
 
-from aat_deploy.cli.common import parser, run_or_hint, subparser
+from aat_deploy.cli.calibrate import add_fit_options
+from aat_deploy.cli.common import check_reader_options, parser, run_or_hint, subparser
 from aat_deploy.io.atomic import atomic_file
 from aat_deploy.lens.io import LensFileError, load_lens
 from aat_deploy.lens.materials import UnknownMaterialError
@@ -151,11 +159,14 @@ def cmd_focus_map(a) -> int:
 
     from aat_deploy.focus.bestfocus import load_json, map_path_for_lens
 
+    if a.sweeps:
+        return focus_map_from_captures(a)
     out = Path(a.out) if a.out else map_path_for_lens(a.lens)
     png = _png_path(a.png, a.force)
     if out.exists() and not a.force:
-        if png is None:
-            print(f"aat-lens: error: {out}: exists (pass --force to replace it, --png to draw it)", file=sys.stderr)
+        if png is None and a.stamp is None:
+            print(f"aat-lens: error: {out}: exists (pass --force to replace it, --png to draw it, --stamp to stamp "
+                  "it)", file=sys.stderr)
             return 2
         fmap = load_json(out)
     else:
@@ -178,6 +189,34 @@ def cmd_focus_map(a) -> int:
         md = stamp_optics_metadata(a.stamp, load_lens(a.lens), best_focus=fmap)
         print(f"{a.stamp}: stamped {', '.join(sorted(md))}")
     return 0
+
+
+def _fit_options_given(a) -> list[str]:
+    """The --from-captures options set to other than their defaults."""
+    ref = argparse.ArgumentParser()
+    add_fit_options(ref)
+    return [f"--{k.replace('_', '-')}" for k, v in vars(ref.parse_args([])).items() if getattr(a, k) != v]
+
+
+PRESCRIPTION_ONLY = ("png", "no_calibrate", "psf", "stamp")
+
+
+def focus_map_from_captures(a) -> int:
+    """`aat-calibrate fit` (`aat_deploy.cli.calibrate.cmd_fit`, the one fit) on the sweeps: a camera calibration,
+    not a lens's radial map; its options are the fit's (`add_fit_options`)."""
+    from aat_deploy.cli.calibrate import cmd_fit
+
+    given = [f"--{k.replace('_', '-')}" for k in PRESCRIPTION_ONLY if getattr(a, k) not in (None, False, "trace")]
+    if given:
+        print(f"aat-lens: error: {', '.join(given)}: for a map from a prescription (LENS), not --from-captures "
+              "(the maps PNG goes beside --out)", file=sys.stderr)
+        return 2
+    if a.out is None:
+        print("aat-lens: error: --from-captures needs --out mycam.json (the calibration file to write)",
+              file=sys.stderr)
+        return 2
+    a.prog = "aat-lens"
+    return cmd_fit(a)
 
 
 LENS_HELP = "lens file (our JSON, the paper's JSON, Zemax .zmx, DiffOptics .txt) or a shipped lens's name"
@@ -208,17 +247,27 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--focus-m", type=_distance, default=math.inf, help="focus distance, m from the sensor (default inf)")
     p.add_argument("--force", action="store_true", help="overwrite an existing PNG")
     p.set_defaults(func=cmd_layout)
-    p = subparser(sub, "focus-map", "the lens's best-focus map for aat-infer --method focus --lens: real-ray traced, "
-                  "then calibrated on rendered stacks (needs the train extra; about 4 min tracing, 3 calibrating)")
-    p.add_argument("lens", metavar="LENS", help=LENS_HELP)
-    p.add_argument("--out", default=None, help="the map's file (default: <lens folder>/best_focus/<lens stem>.json)")
+    p = subparser(sub, "focus-map", "a best-focus map: from LENS, for aat-infer --method focus --lens (real-ray "
+                  "traced, then calibrated on rendered stacks; needs the train extra; about 4 min tracing, 3 "
+                  "calibrating), or --from-captures, a camera calibration for --calibration (as aat-calibrate fit; "
+                  "no prescription, no torch)")
+    p.add_argument("lens", metavar="LENS", nargs="?", help=LENS_HELP + " (or --from-captures)")
+    p.add_argument("--from-captures", dest="sweeps", nargs="+", metavar="SWEEP_DIR", default=None,
+                   help="no prescription: fit the camera's map to these capture folders, one chart sweep each "
+                   "(`aat-calibrate shoot` makes virtual ones; docs/calibration.md), or ordinary stacks with "
+                   "--from-scenes; writes --out, an aat-camera-calibration-v1 file, and its maps as .png beside it")
+    p.add_argument("--out", default=None, help="the map's file (LENS: default <lens folder>/best_focus/<lens "
+                   "stem>.json; --from-captures: required, the calibration .json)")
     p.add_argument("--png", default=None, help="also draw the map (best focus against field radius) as this PNG; "
                    "with an existing map and no --force, the stored map is drawn")
     p.add_argument("--force", action="store_true", help="replace an existing map and PNG")
     p.add_argument("--no-calibrate", action="store_true", help="the traced map only (no rendered calibration)")
     p.add_argument("--psf", default="trace", help="PSFs of the calibration renders: trace (default) or a .onnx")
-    p.add_argument("--stamp", default=None, help="also stamp the map into this PSF surrogate's metadata, so that "
-                   "aat-infer --method focus --psf finds it")
+    p.add_argument("--stamp", default=None, help="also stamp the map (the stored one, without --force), the lens's "
+                   "focus table and exit pupil into this PSF surrogate's metadata (the surrogate of this lens), so "
+                   "that aat-infer --method focus --psf and the diagnosis's twins find them")
+    g = p.add_argument_group("--from-captures (the options of aat-calibrate fit)")
+    add_fit_options(g)
     p.set_defaults(func=cmd_focus_map)
     return ap
 
@@ -228,7 +277,17 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main(argv: list[str] | None) -> int:
-    a = build_parser().parse_args(argv)
+    ap = build_parser()
+    a = ap.parse_args(argv)
+    if a.cmd == "focus-map":
+        if (a.lens is None) == (a.sweeps is None):
+            ap.error("focus-map: give LENS (a prescription) or --from-captures SWEEP_DIR ... (captures), one of them")
+        if a.sweeps:
+            check_reader_options(ap, a)
+            return a.func(a)
+        given = _fit_options_given(a)
+        if given:
+            ap.error(f"focus-map: {', '.join(given)}: options of --from-captures, not of a map from LENS")
     a.lens = str(resolve(a.lens, "lenses"))  # a path, or a shipped lens's name
     try:
         return a.func(a)

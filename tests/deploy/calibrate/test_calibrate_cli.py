@@ -259,3 +259,45 @@ def test_calibration_corrects_depth_of_a_scene_the_right_way(rig, scene, tmp_pat
                        "--out", str(tmp_path / "both"), "-q"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--calibration" in err[0] and not (tmp_path / "both").exists()
+
+
+def test_aat_lens_focus_map_from_captures_is_the_same_fit(rig, tmp_path, capsys):
+    """`aat-lens focus-map --from-captures` (the best-focus map command's front door for captures) runs
+    `aat-calibrate fit` itself: the same calibration file, its maps beside it, its one-line errors under aat-lens's
+    name, and an existing file kept without --force; prescription-only options are refused."""
+    from training.cli.lens import main as lens_main
+
+    common = ["--chart", str(rig / "chart.json"), "--distance-m", "0.6,1.0", "--boot", "5", "-q"]
+    sweeps = [str(rig / "sweep0"), str(rig / "sweep1")]
+    ref, out = tmp_path / "ref.json", tmp_path / "lens" / "cam.json"
+    assert cli.main(["fit", *sweeps, "--out", str(ref), *common]) == 0
+    capsys.readouterr()
+    assert lens_main(["focus-map", "--from-captures", *sweeps, "--out", str(out), *common]) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["calibration"] == str(out) and out.with_suffix(".png").is_file()
+    a, b = (load_calibration(p).to_dict() for p in (ref, out))
+    for d in (a, b):
+        d["fit"].pop("created")
+    assert a == b
+    before = out.read_bytes()
+    assert lens_main(["focus-map", "--from-captures", *sweeps, "--out", str(out), *common]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"aat-lens: error: {out}: exists") and out.read_bytes() == before
+    assert lens_main(["focus-map", "--from-captures", *sweeps, "--out", str(out), "--force", *common]) == 0
+    capsys.readouterr()
+    for extra in (["--png", str(tmp_path / "m.png")], ["--stamp", "x.onnx"], ["--no-calibrate"]):
+        assert lens_main(["focus-map", "--from-captures", *sweeps, "--out", str(tmp_path / "n.json"), *extra]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("aat-lens: error: --") and not (tmp_path / "n.json").exists()
+    assert lens_main(["focus-map", "--from-captures", *sweeps]) == 2  # --out is required
+    assert "needs --out" in capsys.readouterr().err
+    # the missing chart: the fit's own message, under aat-lens's name
+    assert lens_main(["focus-map", "--from-captures", *sweeps, "--out", str(tmp_path / "n.json"), "-q"]) == 2
+    assert capsys.readouterr().err.strip() == "aat-lens: error: --chart chart.json is required (or --from-scenes)"
+    # LENS and --from-captures together, neither, or a fit option with LENS: usage errors
+    for argv in (["focus-map", "rf50", "--from-captures", *sweeps], ["focus-map"],
+                 ["focus-map", "rf50", "--chart", str(rig / "chart.json")]):
+        with pytest.raises(SystemExit) as e:
+            lens_main(argv)
+        assert e.value.code == 2
+    capsys.readouterr()

@@ -76,3 +76,16 @@ def test_focus_map_writes_draws_and_keeps_an_existing_map(tmp_path, capsys, monk
     again = tmp_path / "again.png"
     assert main(["focus-map", RF50, "--out", str(out), "--png", str(again)]) == 0  # draws the stored map
     assert again.stat().st_size > 1000 and out.read_bytes() == before
+    # --stamp stamps the stored map into a surrogate of this lens (what scripts/stamp_psf_optics.py did)
+    import shutil
+
+    import onnx
+
+    from aat_deploy.focus.bestfocus import METADATA_KEY
+
+    psf = shutil.copy(LENSES.parent / "models" / "psf_rf50.onnx", tmp_path / "psf.onnx")
+    capsys.readouterr()
+    assert main(["focus-map", RF50, "--out", str(out), "--stamp", str(psf)]) == 0
+    assert METADATA_KEY in capsys.readouterr().out and out.read_bytes() == before
+    md = {p.key: p.value for p in onnx.load(str(psf)).metadata_props}
+    assert json.loads(md[METADATA_KEY]) == fmap.to_dict()
