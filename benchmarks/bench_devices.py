@@ -2,7 +2,7 @@
 
     python -m benchmarks.bench_devices --device cuda                       # one GPU vs this machine's CPU
     python -m benchmarks.bench_devices --device cuda --sections train --nets aifnet:full,dfvnet:full
-    torchrun --standalone --nproc_per_node=gpu benchmarks/bench_devices.py --sections ddp   # NCCL, all GPUs
+    torchrun --standalone --nproc_per_node=gpu -m benchmarks.bench_devices --sections ddp   # NCCL, all GPUs
     python -m benchmarks.bench_devices --device cpu --quick                # smoke run of the script itself
 
 Sections (each prints a table; times are wall clock, best of --repeat, the ratio is CPU time / device time):

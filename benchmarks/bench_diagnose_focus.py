@@ -1,7 +1,7 @@
 """Focus-metadata errors on captures like the shipped sample (issue 32): the withheld-effect benchmark's focus sets
 made from real-looking captures rather than from its own TIFF renders.
 
-Captures: `captures/sample_rf50` and others rendered like it (`scripts/make_sample_capture.py --scene-seed S --seed
+Captures: `captures/sample_rf50` and others rendered like it (`python -m scripts.make_sample_capture --scene-seed S --seed
 N`: a procedural scene through the RF50 with vignetting and noise, 8 DNG frames 0.6-6 m that the runtime develops
 with LibRaw). Each set is a copy of one capture whose reported focus distances (a `capture.json` sidecar, as a
 user would correct EXIF) carry one error:

@@ -5,7 +5,7 @@ The database (CC0) ships as YAML files inside the optiland package
 (optiland/database/data-nk); optiland is used only to find that folder, so the
 JSON it writes needs neither optiland nor PyYAML. Rerun with:
 
-    python scripts/build_glass_catalog.py
+    python -m scripts.build_glass_catalog
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Export the trained DfF runs to the ONNX models shipped in models/ (metadata per docs/contracts.md).
 
-    python scripts/export_dff_models.py [--runs runs] [--force] [NAME ...]
-    python scripts/export_dff_models.py --runs cache/runs/table2 paper50_dfvnet_aat ...   (scripts/train_table2.sh)
+    python -m scripts.export_dff_models [--runs runs] [--force] [NAME ...]
+    python -m scripts.export_dff_models --runs cache/runs/table2 paper50_dfvnet_aat ...   (scripts/train_table2.sh)
 
 NAME defaults to the four runs of scripts/train_dff_models.sh; each RUNS/NAME/model.pt -> OUT/NAME.onnx (OUT: models/,
 or models/reproduce/ for baselines, ablations and superseded models; see models/README.md) with an
@@ -11,11 +11,9 @@ onnxruntime-vs-torch parity check at three shapes.
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))  # `training` is the repository's, not an installed package
 NAMES = ["dff_dfvnet_aat", "dff_dfvnet_thin", "dff_aifnet_aat", "dff_aifnet_thin"]
 
 

@@ -1,8 +1,8 @@
 """The project's import graph: which package leans on which, cycles, and library modules that import CLI modules.
 
-    python scripts/import_graph.py            # the summary and every offending import
-    python scripts/import_graph.py --edges    # also every project-internal import (module -> module)
-    python scripts/import_graph.py --check    # exit 1 if any arrow aat_deploy -> training, cycle or library -> CLI
+    python -m scripts.import_graph            # the summary and every offending import
+    python -m scripts.import_graph --edges    # also every project-internal import (module -> module)
+    python -m scripts.import_graph --check    # exit 1 if any arrow aat_deploy -> training, cycle or library -> CLI
 
 Reads the source with `ast` (nothing is imported). Every `import` counts, at module level or inside a function
 (a lazy import is still a dependency; it is marked `lazy`). `from pkg import name` counts as an import of the

@@ -2,8 +2,8 @@
 `aat-diagnose`) renders it without torch: the change of the best-focus surface per 0.05 mm of every air gap and
 of every element's decentre, traced through the prescription (`training.optics.tolerance`).
 
-    python scripts/lens_tolerance_table.py LENS.json --psf models/psf_rf50.onnx   # -> models/tolerance_<key>.json
-    python scripts/lens_tolerance_table.py LENS.json --out DIR [--force]
+    python -m scripts.lens_tolerance_table LENS.json --psf models/psf_rf50.onnx   # -> models/tolerance_<key>.json
+    python -m scripts.lens_tolerance_table LENS.json --out DIR [--force]
 
 The file name carries the lens's optics key (surfaces, stop, sensor size; not its pixels), which the effect checks.
 """

@@ -2,7 +2,7 @@
 """The README's picture: the shipped sample's focal stack, then its all-in-focus image and depth from the shipped
 DFVNet, next to the ground truth the virtual camera rendered it from.
 
-    python scripts/make_readme_figure.py [--out docs/sample.png] [--model rf50_dfvnet_aat_field]
+    python -m scripts.make_readme_figure [--out docs/sample.png] [--model rf50_dfvnet_aat_field]
 """
 
 from __future__ import annotations
@@ -13,14 +13,12 @@ from pathlib import Path
 
 import numpy as np
 
+from aat_deploy.api import depth_from_focus, read_stack
+from aat_deploy.infer.outputs import to_srgb8
+from aat_deploy.io.atomic import atomic_file
+from aat_deploy.io.colorize import depth_preview
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from aat_deploy.api import depth_from_focus, read_stack  # noqa: E402
-from aat_deploy.infer.outputs import to_srgb8  # noqa: E402
-from aat_deploy.io.atomic import atomic_file  # noqa: E402
-from aat_deploy.io.colorize import depth_preview  # noqa: E402
-
 SAMPLE = ROOT / "captures" / "sample_rf50"
 
 

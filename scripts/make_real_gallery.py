@@ -1,7 +1,7 @@
 """The real-stack gallery: depth, all-in-focus and confidence of every real focal stack in ../shared/data, made as
 `aat-infer` makes them, into docs/gallery/*.png and docs/real_stacks.md. Shown, not scored: none has ground truth.
 
-    python scripts/make_real_gallery.py [--max-side 640] [--methods focus] [--out docs]
+    python -m scripts.make_real_gallery [--max-side 640] [--methods focus] [--out docs]
 
 Stacks (`STACKS`; each with the focus distances it carries, or placeholder positions where it has none, as a
 user would pass `--focus-m`):
@@ -38,7 +38,6 @@ import cv2
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 SHARED = ROOT.parent / "shared" / "data"
 PANEL_PX = 240  # panel height in the saved pictures
@@ -300,7 +299,7 @@ def row_picture(stack: RealStack, cols: dict[str, Column | str]) -> np.ndarray:
 
 def page(rows: list[tuple[RealStack, dict[str, Column | str], str]], max_side: int) -> str:
     lines = ["# Real focal stacks: depth, all-in-focus and confidence (shown, not scored)", "",
-             "Made by `python scripts/make_real_gallery.py` from every real stack in `../shared/data` (not in the "
+             "Made by `python -m scripts.make_real_gallery` from every real stack in `../shared/data` (not in the "
              "repository: research data of others, see each folder's MANIFEST.md). None has ground truth, so "
              "nothing here is a score. Each method runs as `aat-infer` runs it, with the stack's own focus "
              f"distances or, where it has none, placeholder positions (as `--focus-m` would give), at most "

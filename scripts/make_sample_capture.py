@@ -1,6 +1,6 @@
 """Regenerate the shipped sample capture: a procedural scene through the RF50's virtual camera.
 
-    python scripts/make_sample_capture.py [--out captures/sample_rf50] [--force] [--scene-seed 2026] [--seed 1]
+    python -m scripts.make_sample_capture [--out captures/sample_rf50] [--force] [--scene-seed 2026] [--seed 1]
 
 Writes 8 DNG frames (focus 0.6..6 m, even in diopters) with ground truth, via `aat-render` (the same path a user
 takes), from a procedural scene (ours: no third-party data in the repository). Other --scene-seed / --seed values

@@ -1,7 +1,7 @@
 """Write lenses/ideal_thin_rf50.json: a perfect thin lens with the RF50's focal length, F-number and sensor.
 
 This is the optics of the thin-lens baseline: the only difference from the RF50 is the aberrations.
-    python scripts/make_thin_lens.py [--force]
+    python -m scripts.make_thin_lens [--force]
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Fingerprints (SHA-256 of the bytes) of outputs a restructuring must leave unchanged, to compare two checkouts.
 
-    OMP_WAIT_POLICY=PASSIVE PYTHONPATH=. python scripts/output_fingerprints.py [--out fingerprints.json]
+    OMP_WAIT_POLICY=PASSIVE python -m scripts.output_fingerprints [--out fingerprints.json]
 
 Computes, from the checkout it runs in (about a minute on 2 cores):
 - `aat-infer captures/sample_rf50 --model models/reproduce/dff_dfvnet_aat.onnx`: depth_m.npy, std_m.npy, aif.png;
@@ -28,7 +28,6 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 
 def _digest(a) -> str:

@@ -1,6 +1,6 @@
 """Training and validation curves of DfF runs (their `log.jsonl`), one figure, so convergence can be seen.
 
-    python scripts/plot_training_curves.py runs/table2/paper50_dfvnet_aat runs/table2/paper50_dfvnet_thin \
+    python -m scripts.plot_training_curves runs/table2/paper50_dfvnet_aat runs/table2/paper50_dfvnet_thin \
         --out results/figures/curves_paper50_dfvnet.png [--force]
 
 Left: the training loss (mean over windows of 200 steps); right: validation MAE (m) on the run's held-out
@@ -16,8 +16,6 @@ import gzip
 import json
 import sys
 from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
 def read_log(run: Path) -> tuple[list[dict], list[dict]]:

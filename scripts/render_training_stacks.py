@@ -1,10 +1,10 @@
 """Render a training config's stacks once into its content-hashed cache (training/data/stacks.py, layout in
 training/data/cache.py), so every training run that uses the same data reads them instead of rendering again.
 
-    OMP_WAIT_POLICY=PASSIVE nice python scripts/render_training_stacks.py configs/paper50/dfv_aat.json [...] \
+    OMP_WAIT_POLICY=PASSIVE nice python -m scripts.render_training_stacks configs/paper50/dfv_aat.json [...] \
         [--workers 2] [--split train|val|both] [--shard i/n] [--device cpu|cuda|...]
-    python scripts/render_training_stacks.py CONFIG --shard 3/8            # job 3 of 8 (array jobs, machines)
-    torchrun --nproc_per_node=8 scripts/render_training_stacks.py CONFIG --workers 1   # shard = rank/world
+    python -m scripts.render_training_stacks CONFIG --shard 3/8            # job 3 of 8 (array jobs, machines)
+    torchrun --nproc_per_node=8 -m scripts.render_training_stacks CONFIG --workers 1   # shard = rank/world
 
 Sharded: shard i of n renders items i, i+n, i+2n, ...; n jobs started anywhere (the cache folder shared) fill one
 cache without collisions, and the files equal those one process writes, byte for byte. Resumable: items already
@@ -28,10 +28,9 @@ import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from training.devices.shard import Shard, add_shard_argument, shard_from_env  # torch-free
 
-from training.devices.shard import Shard, add_shard_argument, shard_from_env  # noqa: E402 (torch-free)
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def _datasets(config_paths: list[str], split: str) -> dict:

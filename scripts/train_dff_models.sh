@@ -8,4 +8,4 @@ export OMP_WAIT_POLICY=PASSIVE
 for name in dff_dfvnet_aat dff_dfvnet_thin dff_aifnet_aat dff_aifnet_thin; do
   aat-train --config "configs/${name}.json" --out "runs/${name}" --resume --no-progress
 done
-python scripts/export_dff_models.py --force --out models/reproduce  # the first models, superseded (models/README.md)
+python -m scripts.export_dff_models --force --out models/reproduce  # the first models, superseded (models/README.md)

@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Issue 35's any-camera model (models/dfv_aat.onnx): configs/anycam/dfv_aat.json, one run, resumable.
 #   OUT=cache/runs nice -n 15 scripts/train_dfv_aat.sh          (rerun the same command to continue after a kill)
-# then: python scripts/export_dff_models.py --runs cache/runs dfv_aat   (models/dfv_aat.onnx)
-# Training data is rendered once into cache/stacks (scripts/render_training_stacks.py configs/anycam/dfv_aat.json,
+# then: python -m scripts.export_dff_models --runs cache/runs dfv_aat   (models/dfv_aat.onnx)
+# Training data is rendered once into cache/stacks (python -m scripts.render_training_stacks configs/anycam/dfv_aat.json,
 # under the heavy-job lock); items still missing when the run reads them are rendered by the run itself and cached.
 # A run whose folder is missing (a new machine) starts from its committed checkpoint in checkpoints/dfv_aat/
 # (DEST=checkpoints OUT=cache/runs scripts/snapshot_runs.sh copies last.pt and the logs there).

@@ -5,7 +5,7 @@
 # rerun after a kill and every run continues from $OUT/<name>/last.pt; finished runs are skipped. Training data
 # is rendered once into cache/stacks (scripts/render_training_stacks.py) and shared by the nets of one lens.
 #   OUT=cache/runs/table2 nice -n 10 scripts/train_table2.sh [NAME_AAT NAME_THIN ...]
-# then: python scripts/export_dff_models.py --runs cache/runs/table2 NAME ...   (models/NAME.onnx; --out models/reproduce for baselines and ablations)
+# then: python -m scripts.export_dff_models --runs cache/runs/table2 NAME ...   (models/NAME.onnx; --out models/reproduce for baselines and ablations)
 # A run whose folder is missing (a new machine) starts from its committed checkpoint in checkpoints/table2/NAME/
 # (scripts/snapshot_runs.sh copies the unfinished runs' last.pt and logs there at the end of a session).
 # A run already shipped as models/NAME.onnx (and not in progress in $OUT) is skipped, with its data rendering.
@@ -36,7 +36,7 @@ for ((i = 0; i < ${#pairs[@]}; i += 2)); do
     todo+=("$n") cfgs+=("configs/table2/$n.json")
   done
   [ ${#todo[@]} -eq 0 ] && continue
-  python scripts/render_training_stacks.py "${cfgs[@]}" --workers 2
+  python -m scripts.render_training_stacks "${cfgs[@]}" --workers 2
   pids=()
   for n in "${todo[@]}"; do
     if [ ! -f "$OUT/$n/last.pt" ] && [ -f "checkpoints/table2/$n/last.pt" ]; then

@@ -1,11 +1,12 @@
-"""benchmarks/ holds code only and runs as `python -m benchmarks.NAME`: no module edits sys.path to find the
-repository or its siblings, each imports as part of the `benchmarks` package, and what they write lives under
-results/ (issue 36)."""
+"""benchmarks/ holds code only and runs as `python -m benchmarks.NAME`, scripts/ as `python -m scripts.NAME`: no
+module edits sys.path to find the repository or its siblings, each imports as part of its package, the docs show
+them run that way, and what the benchmarks write lives under results/ (issue 36)."""
 
 from __future__ import annotations
 
 import ast
 import importlib
+import re
 import subprocess
 import sys
 
@@ -14,6 +15,7 @@ from conftest import ROOT
 
 MODULES = sorted(".".join(p.relative_to(ROOT).with_suffix("").parts) for p in (ROOT / "benchmarks").rglob("*.py")
                  if p.name != "__init__.py")
+SCRIPTS = sorted(f"scripts.{p.stem}" for p in (ROOT / "scripts").glob("*.py") if p.name != "__init__.py")
 
 
 def _path_edits(source: str) -> list[int]:
@@ -54,3 +56,33 @@ def test_a_benchmark_runs_with_python_m_from_the_root():
     r = subprocess.run([sys.executable, "-m", "benchmarks.bench_calibrate", "--help"], cwd=ROOT,
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0 and "usage:" in r.stdout, r.stderr[-2000:]
+
+
+def test_no_script_edits_sys_path():
+    bad = {str(p.relative_to(ROOT)): lines for p in (ROOT / "scripts").rglob("*.py")
+           if (lines := _path_edits(p.read_text()))}
+    assert not bad, f"sys.path edits in scripts/ (run them as python -m scripts.NAME instead): {bad}"
+
+
+@pytest.mark.parametrize("name", SCRIPTS)
+def test_every_script_imports_as_a_module(name):
+    importlib.import_module(name)  # module level only: the work runs under `if __name__ == "__main__"`
+
+
+def test_a_script_runs_with_python_m_from_the_root():
+    r = subprocess.run([sys.executable, "-m", "scripts.import_graph", "--help"], cwd=ROOT, capture_output=True,
+                       text=True, timeout=120)
+    assert r.returncode == 0 and "usage:" in r.stdout, r.stderr[-2000:]
+
+
+def test_docs_and_shell_scripts_run_python_scripts_as_modules():
+    """No `python scripts/NAME.py` (nor benchmarks/) left in a doc, a docstring or a shell script: the way they
+    run is `python -m scripts.NAME`."""
+    as_file = re.compile(r"(python3?|torchrun[^\n`]*?) +(scripts|benchmarks)/\w+\.py")
+    skip = {"cache", ".git", "archive", "__pycache__", ".hypothesis"}
+    bad = []
+    for p in ROOT.rglob("*"):
+        if (p.suffix in (".md", ".py", ".sh", ".sbatch") and p.is_file() and not skip & set(p.relative_to(ROOT).parts)
+                and p.name != "test_benchmarks_layout.py"):
+            bad += [f"{p.relative_to(ROOT)}: {m.group(0)}" for m in as_file.finditer(p.read_text(errors="replace"))]
+    assert not bad, f"run these as python -m PACKAGE.NAME: {bad[:10]}"

@@ -95,7 +95,7 @@ KNOWN_FOLDER_PAIRS = {  # ("aat_deploy", X): the top level holds both the API (a
 def test_no_new_folders_import_each_other():
     pairs = {(a, b) for a, b, _, _ in _import_graph().report(ROOT)["folder_pairs"]}
     assert ("aat_deploy.lens", "aat_deploy.optics") not in pairs  # lens files sit above optics (aat_deploy/lens/io)
-    assert pairs - KNOWN_FOLDER_PAIRS == set(), "new folders importing each other: python scripts/import_graph.py"
+    assert pairs - KNOWN_FOLDER_PAIRS == set(), "new folders importing each other: python -m scripts.import_graph"
 
 
 def test_every_runtime_module_imports_without_training_and_torch(tmp_path):
