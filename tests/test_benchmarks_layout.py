@@ -86,3 +86,16 @@ def test_docs_and_shell_scripts_run_python_scripts_as_modules():
                 and p.name != "test_benchmarks_layout.py"):
             bad += [f"{p.relative_to(ROOT)}: {m.group(0)}" for m in as_file.finditer(p.read_text(errors="replace"))]
     assert not bad, f"run these as python -m PACKAGE.NAME: {bad[:10]}"
+
+
+def test_finished_training_logs_are_compressed_and_read_as_they_are():
+    """results/training/<run>/: a finished run (train_summary.json) keeps its log gzip-compressed, and
+    scripts.plot_training_curves reads it (training and validation rows) without unpacking."""
+    from scripts.plot_training_curves import read_log
+
+    runs = sorted(p.parent for p in (ROOT / "results" / "training").glob("*/train_summary.json"))
+    assert runs
+    for run in runs:
+        assert not (run / "log.jsonl").exists() and (run / "log.jsonl.gz").is_file(), run.name
+        train, val = read_log(run)
+        assert train and val, run.name
