@@ -85,6 +85,7 @@ def render_shard(spec: tuple, shard: Shard, workers: int, progress: bool = True,
 
     ds = make_dataset(*spec[:4])
     todo = [i for i in shard.items(spec[4]) if not ds.is_cached(i)]
+    todo.sort(key=getattr(ds, "render_priority", lambda i: 0))  # a dataset may rank its items (stable)
     if not todo:
         return 0
     if workers <= 1:

@@ -26,9 +26,12 @@ effects fixed by (seed, index).
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
-from dataclasses import asdict, dataclass
+import os
+import shutil
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -77,6 +80,10 @@ class AnyCamConfig:
     cache_dir: str | None = None
     only_cached: bool = False  # read only the items already in the cache (a run started before its data is rendered)
     mosaic: float = 0.0  # chance that a batch's items are laid out 2 x 2 into one image (`collate`)
+    # chance that a parametric item is a wide sweep (`cameras.wide_sweep_camera`: APS-C / full frame wide open over
+    # the scene's depth range, 16-140 px of blur change); decided apart from the other draws, so every other item
+    # is the item of the same index with 0 here (`base_config`) and is read from that config's cache when there
+    wide_sweep_fraction: float = 0.0
 
     def key(self) -> str:
         """Hash of what defines the renders (not how they are read)."""
@@ -85,8 +92,37 @@ class AnyCamConfig:
             d.pop(k)
         if d["max_layers"] == 128:
             d.pop("max_layers")  # the layered renderer's default (renders made before the field hash as before)
+        if not d["wide_sweep_fraction"]:
+            d.pop("wide_sweep_fraction")  # renders made before it hash as before
         d["version"] = 1
         return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:12]
+
+    def base_config(self) -> AnyCamConfig | None:
+        """The config whose items this one shares (all but the wide sweeps), or None."""
+        return replace(self, wide_sweep_fraction=0.0) if self.wide_sweep_fraction else None
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """What an item's camera and focus sweep are (`AnyCamDataset.draw_sweep`): the camera (aberrations included
+    for parametric ones), the full sensor (H, W) px, the sweep's near and far ends (m), its dense focus distances
+    (m, near -> far), the schedule's kind, the camera's description, traced (the RF50) and wide
+    (`cameras.wide_sweep_camera`)."""
+
+    cam: Camera
+    sensor_hw: tuple[int, int]
+    near: float
+    far: float
+    focus: np.ndarray
+    kind: str
+    info: dict
+    traced: bool
+    wide: bool
+
+    def span_px(self) -> float:
+        """Total blur change over the sweep (px): the defocus scale the net is told x the sweep's diopters."""
+        k = self.cam.defocus_px_per_diopter(float(np.sqrt(self.focus[0] * self.focus[-1])))
+        return float(k * (1.0 / self.focus[0] - 1.0 / self.focus[-1]))
 
 
 def _resolve(p: str) -> Path:
@@ -100,6 +136,8 @@ class AnyCamDataset(Dataset):
     def __init__(self, cfg: AnyCamConfig):
         self.cfg = cfg
         self.cache = Path(cfg.cache_dir) / f"anycam_{cfg.key()}" if cfg.cache_dir else None
+        base = cfg.base_config()
+        self.base_cache = Path(cfg.cache_dir) / f"anycam_{base.key()}" if base and cfg.cache_dir else None
         self._traced: dict = {}
         # with only_cached, position j reads item self.items[j]: the cached ones, as found now
         self.items = [i for i in range(cfg.n_items) if not cfg.only_cached or self.is_cached(i)]
@@ -136,6 +174,46 @@ class AnyCamDataset(Dataset):
         return procedural_scene(SceneConfig(height=h, width=w, near_m=near, far_m=far,
                                             photo_fraction=c.photo_fraction, photo_split=c.photo_split), rng)
 
+    def is_wide(self, index: int) -> bool:
+        """Whether item `index` is a wide sweep: a parametric item (not the RF50) picked with chance
+        wide_sweep_fraction from a stream of its own, so that every other draw stays as with 0."""
+        c = self.cfg
+        if not c.wide_sweep_fraction or np.random.default_rng([c.seed, index, 35]).random() < c.traced_fraction:
+            return False
+        return bool(np.random.default_rng([c.seed, index, 36]).random() < c.wide_sweep_fraction)
+
+    def render_priority(self, index: int) -> int:
+        """Order in which a renderer makes the missing items (lower first): the wide sweeps, then the others."""
+        return 0 if self.is_wide(index) else 1
+
+    def draw_sweep(self, rng: np.random.Generator, index: int) -> Sweep:
+        """The camera and focus sweep of item `index`, drawn from its render stream `rng` (which `render` goes on
+        reading): the RF50 (traced_fraction), a wide sweep (`is_wide`) or a `cameras.random_camera`."""
+        c = self.cfg
+        traced = rng.random() < c.traced_fraction
+        wide = not traced and self.is_wide(index)
+        if traced:
+            cam = _traced_camera("rf50")
+            sensor_hw = cam.sensor_hw
+            info = {"class": "traced", "lens": "rf50"}
+            near, far = cams.random_focus_range(rng, 0.35, "full_frame")
+            near, far = max(near, 0.3), min(far, 20.0)  # the surrogate's range
+        elif wide:
+            cam, info, near, far = cams.wide_sweep_camera(rng)
+            sensor_hw = cam.sensor_hw
+        else:
+            cam, info = cams.random_camera(rng)
+            sensor_hw = cam.sensor_hw
+            near, far = cams.random_focus_range(rng, info["min_focus_m"], info["class"],
+                                                cam.defocus_px_per_diopter(2.0))
+        kind = str(rng.choice(cams.WIDE_SCHEDULES[0], p=cams.WIDE_SCHEDULES[1])) if wide else None
+        focus, kind = cams.dense_schedule(rng, near, far, kind=kind)
+        spacing = (1 / focus[0] - 1 / focus[-1]) / (len(focus) - 1)
+        if not traced:
+            ab = cams.random_aberrations(rng, spacing, 0.5 * (1 / near + 1 / far))
+            cam = Camera(cam.focal_mm, cam.f_number, cam.sensor_hw, cam.pixel_mm, ab)
+        return Sweep(cam, tuple(sensor_hw), near, far, focus, kind, info, traced, wide)
+
     def render(self, index: int) -> dict:
         """Item `index` (numpy): frames (F, 3, h, w) linear float32, focus_m (F,) near -> far, depth_m (h, w),
         aif (3, h, w) linear, origin (row, col) on the sensor, sensor_hw, and what defines its focus map."""
@@ -148,32 +226,19 @@ class AnyCamDataset(Dataset):
         rng = np.random.default_rng([c.seed, index, 35])
         m = c.margin_px
         hh, ww = c.height + 2 * m, c.width + 2 * m
-        traced = rng.random() < c.traced_fraction
+        sw = self.draw_sweep(rng, index)
+        cam, sensor_hw, near, far, focus, kind, info, traced = (sw.cam, sw.sensor_hw, sw.near, sw.far, sw.focus,
+                                                                sw.kind, sw.info, sw.traced)
         if traced:
             lens, sim, fmap = self._traced_lens("rf50")
-            from aat_deploy.optics.paraxial import paraxial_data
-
-            p = paraxial_data(lens)
-            sensor_hw = (lens.sensor.height_px, lens.sensor.width_px)
-            cam = Camera(p.efl_mm, p.fno, sensor_hw, lens.sensor.pixel_mm)
-            info = {"class": "traced", "lens": "rf50"}
-            near, far = cams.random_focus_range(rng, 0.35, "full_frame")
-            near, far = max(near, 0.3), min(far, 20.0)  # the surrogate's range
-        else:
-            cam, info = cams.random_camera(rng)
-            sensor_hw = cam.sensor_hw
-            near, far = cams.random_focus_range(rng, info["min_focus_m"], info["class"],
-                                                cam.defocus_px_per_diopter(2.0))
-        focus, kind = cams.dense_schedule(rng, near, far)
-        spacing = (1 / focus[0] - 1 / focus[-1]) / (len(focus) - 1)
-        if not traced:
-            ab = cams.random_aberrations(rng, spacing, 0.5 * (1 / near + 1 / far))
-            cam = Camera(cam.focal_mm, cam.f_number, cam.sensor_hw, cam.pixel_mm, ab)
         hs, ws = sensor_hw
         origin = (int(rng.integers(0, max(1, hs - c.height + 1))), int(rng.integers(0, max(1, ws - c.width + 1))))
-        # scene depths mostly inside the sweep (a user sweeps over the scene), sometimes a little beyond either end
-        s_near = near * float(np.exp(rng.uniform(-0.15, 0.35)))
-        s_far = max(far * float(np.exp(rng.uniform(-0.7, 0.15))), s_near * 1.3)
+        if sw.wide:  # the sweep spans the scene's depth range (the paper's protocol), give or take a little
+            s_near = near * float(np.exp(rng.uniform(-0.1, 0.05)))
+            s_far = max(far * float(np.exp(rng.uniform(-0.15, 0.1))), s_near * 1.3)
+        else:  # scene depths mostly inside the sweep (a user sweeps over the scene), sometimes a little beyond
+            s_near = near * float(np.exp(rng.uniform(-0.15, 0.35)))
+            s_far = max(far * float(np.exp(rng.uniform(-0.7, 0.15))), s_near * 1.3)
         f_px = cam.focal_mm / cam.pixel_mm
         centre = (hs / 2 - (origin[0] - m), ws / 2 - (origin[1] - m))  # optical axis in the rendered window
         rgb, depth = self._scene(rng, hh, ww, f_px, centre, s_near, s_far)
@@ -204,14 +269,24 @@ class AnyCamDataset(Dataset):
                                       "traced": info.get("lens"), "info": info})}
 
     def is_cached(self, index: int) -> bool:
-        """The item's render is in the cache and still valid (`stale`)."""
-        if self.cache is None or not item_path(self.cache, index).is_file():
+        """The item's render is in the cache and still valid (`stale`). An item this config shares with its
+        `base_config` (every one but the wide sweeps: the same draws, so the same bytes) found valid in that
+        config's cache is adopted first: hard-linked (else copied) into this cache."""
+        if self.cache is None:
             return False
-        try:
-            with np.load(item_path(self.cache, index)) as z:
-                return not self.stale(z)
-        except Exception:  # noqa: BLE001 (a torn write: render again)
-            return False
+        f = item_path(self.cache, index)
+        if not f.is_file() and self.base_cache is not None and not self.is_wide(index):
+            b = item_path(self.base_cache, index)
+            if _valid(b, self.stale):
+                f.parent.mkdir(parents=True, exist_ok=True)
+                tmp = f.with_suffix(f".adopt{os.getpid()}.tmp")  # each process its own
+                tmp.unlink(missing_ok=True)
+                try:
+                    os.link(b, tmp)
+                except OSError:
+                    shutil.copyfile(b, tmp)
+                os.replace(tmp, f)
+        return f.is_file() and _valid(f, self.stale)
 
     def stale(self, z) -> bool:
         """A cached render (an open .npz) made before RENDER_VERSION that the current renderer draws otherwise:
@@ -237,10 +312,11 @@ class AnyCamDataset(Dataset):
         return bool((fd - half[None]).min() < FAR_D)
 
     def load_or_render(self, index: int) -> dict:
-        """Item `index` whole (numpy): from the cache, else rendered and cached (frames as float16; the cache's
-        layout and byte-deterministic files of `training.data.cache`, so sharded rendering fills it)."""
+        """Item `index` whole (numpy): from the cache (or adopted from the base config's: `is_cached`), else
+        rendered and cached (frames as float16; the cache's layout and byte-deterministic files of
+        `training.data.cache`, so sharded rendering fills it)."""
         f = item_path(self.cache, index) if self.cache is not None else None
-        if f is not None and f.is_file():
+        if f is not None and (f.is_file() or self.is_cached(index)):
             try:
                 with np.load(f) as z:
                     item = None if self.stale(z) else {k: z[k] for k in z.files}
@@ -346,6 +422,28 @@ def mosaic(parts: list[dict]) -> dict:
         out[k] = np.concatenate([np.concatenate([a[k], b[k]], -1), np.concatenate([c[k], d[k]], -1)], -2)
     out["focus_m"] = np.full_like(np.asarray(a["focus_m"]), np.nan)
     return out
+
+
+@functools.lru_cache(maxsize=None)
+def _traced_camera(name: str) -> Camera:
+    """A traced lens's paraxial camera (focal length, f-number, its sensor and pixel pitch)."""
+    from aat_deploy.lens.io import load_lens
+    from aat_deploy.optics.paraxial import paraxial_data
+
+    lens = load_lens(_resolve(TRACED[name][0]))
+    p = paraxial_data(lens)
+    return Camera(p.efl_mm, p.fno, (lens.sensor.height_px, lens.sensor.width_px), lens.sensor.pixel_mm)
+
+
+def _valid(path: Path, stale) -> bool:
+    """A cached render file that opens and is not `stale`."""
+    if not path.is_file():
+        return False
+    try:
+        with np.load(path) as z:
+            return not stale(z)
+    except Exception:  # noqa: BLE001 (a torn write: render again)
+        return False
 
 
 def _span_px(it: dict) -> float:

@@ -101,6 +101,54 @@ def random_focus_range(rng: np.random.Generator, min_focus_m: float, cls: str, k
     return near, far
 
 
+WIDE_SPAN_PX = (16.0, 140.0)  # total blur change of a wide sweep (px), drawn log-uniform: the held-out stacks' 50-80
+WIDE_F_NUMBER = (1.4, 2.8)  # wide apertures: a focal stack is shot wide open
+WIDE_SCENE_NEAR_M = (0.25, 3.0)  # nearest focus of a wide sweep (m; and no nearer than 8 focal lengths)
+WIDE_DEPTH_RATIO = (1.5, 30.0)  # farthest / nearest surface
+WIDE_K_PX_PER_D = 8.0  # least blur growth of a wide sweep's camera (px per diopter)
+MAX_WIDTH_PX = 6000  # a 24-60 MP sensor's width: the finest working resolution a wide sweep is given
+WIDE_SCHEDULES = (("even", "random", "depth"), (0.4, 0.2, 0.4))
+
+
+def wide_sweep_camera(rng: np.random.Generator) -> tuple[Camera, dict, float, float]:
+    """A large-sensor camera (APS-C or full frame) at a wide aperture sweeping a scene's whole depth range, as
+    the paper's protocol and a photographer's focus bracket do: (camera without aberrations, its description, near,
+    far of the sweep in m). The total blur change over the sweep, k x (1/near - 1/far) with k the blur growth per
+    diopter, is drawn log-uniform over WIDE_SPAN_PX and the working resolution (pixel pitch) set to give it: about
+    half the `random_camera` sweeps change the blur by under 9 px in all, where the held-out stacks change it by
+    50-80 px (benchmarks/probes/anycam_sweeps.py). k stays <= K_MAX_PX_PER_D as the runtime keeps it."""
+    by_name = {c.name: c for c in SENSOR_CLASSES}
+    for attempt in range(60):
+        cls = by_name["aps_c" if rng.random() < 0.4 else "full_frame"]
+        diag = rng.uniform(*cls.diag_mm)
+        focal = _log_uniform(rng, *cls.focal_mm)
+        fno = _log_uniform(rng, *WIDE_F_NUMBER)
+        width_mm = diag * cls.aspect / np.hypot(cls.aspect, 1.0)
+        min_focus = max(WIDE_SCENE_NEAR_M[0], MIN_FOCUS_FOCAL_LENGTHS * focal / 1000.0)
+        # the blur change and growth first, then the depth range that gives them (drawing the range first and
+        # rejecting what needs k > K_MAX would leave few sweeps of large blur change)
+        span_px = _log_uniform(rng, *WIDE_SPAN_PX)
+        k = _log_uniform(rng, WIDE_K_PX_PER_D, K_MAX_PX_PER_D)
+        ratio = _log_uniform(rng, *WIDE_DEPTH_RATIO)
+        near = (1.0 - 1.0 / ratio) / (span_px / k)
+        far = min(near * ratio, 50.0)
+        k = span_px / (1.0 / near - 1.0 / far)
+        # k at the sweep's mid focus, as the net is told it (`AnyCamDataset.focus_maps`)
+        k1000 = Camera(focal, fno, (667, 1000), width_mm / 1000).defocus_px_per_diopter(float(np.sqrt(near * far)))
+        width_px = int(round(1000 * k / k1000))
+        if (min_focus <= near <= WIDE_SCENE_NEAR_M[1] and k <= K_MAX_PX_PER_D
+                and 160 <= width_px <= MAX_WIDTH_PX):
+            break
+    else:  # the last draw, brought inside the limits (its blur change then other than drawn)
+        near = float(np.clip(near, min_focus, WIDE_SCENE_NEAR_M[1]))
+        far = max(far, near * WIDE_DEPTH_RATIO[0])
+        width_px = int(np.clip(round(1000 * min(k, K_MAX_PX_PER_D) / k1000), 160, MAX_WIDTH_PX))
+    cam = Camera(focal, fno, (max(8, round(width_px / cls.aspect)), width_px), width_mm / width_px)
+    info = {"class": cls.name, "sweep": "wide", "sensor_mm": [width_mm, width_mm / cls.aspect], "focal_mm": focal,
+            "f_number": fno, "width_px": width_px, "height_px": cam.sensor_hw[0], "min_focus_m": min_focus}
+    return cam, info, near, far
+
+
 def dense_schedule(rng: np.random.Generator, near_m: float, far_m: float, n: int = RENDER_FRAMES,
                    kind: str | None = None) -> tuple[np.ndarray, str]:
     """n focus distances (m) near -> far over [near_m, far_m]: 'even' in diopters (jittered by up to 0.2 of a

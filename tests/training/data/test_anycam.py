@@ -204,3 +204,83 @@ def test_mosaic_batches_lay_four_stacks_out_2x2_each_quadrant_its_own_camera(ds)
             assert torch.equal(mos[k][0, ..., r:r + 32, c:c + 32], plain[k][q]), k
     loss, parts = focus_map_loss(train_levels(build(), mos), mos, LossConfig(level_weights=(8.0, 4.0)))
     assert torch.isfinite(loss) and np.isfinite(parts["frames_l1"])
+
+
+def test_wide_sweeps_are_large_sensors_wide_open_changing_the_blur_by_tens_of_pixels():
+    """The third run's sweeps that look like the test stacks (benchmarks/probes/anycam_sweeps.py: the first runs'
+    sweeps changed the blur by under 9 px in half the items, the held-out stacks by 50-80 px)."""
+    rng = np.random.default_rng(4)
+    spans = []
+    for _ in range(400):
+        cam, info, near, far = cams.wide_sweep_camera(rng)
+        assert info["class"] in ("aps_c", "full_frame") and info["sweep"] == "wide"
+        assert cams.WIDE_F_NUMBER[0] <= cam.f_number <= cams.WIDE_F_NUMBER[1]
+        assert near >= cams.MIN_FOCUS_FOCAL_LENGTHS * cam.focal_mm / 1000 - 1e-12 and far > near
+        k = cam.defocus_px_per_diopter(float(np.sqrt(near * far)))
+        assert k <= cams.K_MAX_PX_PER_D * 1.1  # (k is set at 2 m; a little more at a near focus)
+        assert cam.sensor_hw[1] <= cams.MAX_WIDTH_PX
+        spans.append(k * (1 / near - 1 / far))
+    spans = np.array(spans)
+    assert np.mean((spans >= 20) & (spans <= 120)) >= 0.7
+    assert np.median(spans) >= 25 and np.percentile(spans, 90) >= 60
+    assert spans.min() >= 10
+
+
+def _sweeps_config(**kw) -> AnyCamConfig:
+    return AnyCamConfig(n_items=400, seed=0, height=48, width=48, margin_px=8, max_layers=24, **kw)
+
+
+def test_a_wide_sweep_config_keeps_every_other_item_of_its_base_config_draw_for_draw():
+    """Items not drawn as wide sweeps are the base config's items (so its cached renders serve): same camera,
+    aberrations and focus; the wide ones are new, and the config's cache key is its own."""
+    cfg = _sweeps_config(wide_sweep_fraction=0.5)
+    base = cfg.base_config()
+    assert base == _sweeps_config() and base.key() == _sweeps_config().key() != cfg.key()
+    assert _sweeps_config().base_config() is None
+    new, old = AnyCamDataset(cfg), AnyCamDataset(base)
+    wide = 0
+    for i in range(120):
+        a = new.draw_sweep(np.random.default_rng([0, i, 35]), i)
+        b = old.draw_sweep(np.random.default_rng([0, i, 35]), i)
+        assert a.wide == new.is_wide(i) and not (a.wide and a.traced) and not b.wide
+        if a.wide:
+            wide += 1
+            assert not np.array_equal(a.focus, b.focus)
+        else:
+            assert np.array_equal(a.focus, b.focus) and a.cam == b.cam and a.kind == b.kind
+    assert 0.3 <= wide / 120 <= 0.55  # 0.5 of the 85 % parametric items
+    assert new.render_priority(next(i for i in range(120) if new.is_wide(i))) == 0
+
+
+def test_the_wide_sweep_config_covers_the_test_stacks_blur_change():
+    """Regression guard of the third run's data (configs/anycam/dfv_aat_v3.json) against the first runs':
+    at least 45 % of its sweeps change the blur by 20-120 px (the first runs': about a quarter)."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[3]
+
+    def share(name):
+        data = json.loads((root / "configs" / "anycam" / name).read_text())["data"]
+        d = AnyCamDataset(AnyCamConfig(**{**data, "n_items": 500, "cache_dir": None, "only_cached": False}))
+        s = np.array([d.draw_sweep(np.random.default_rng([d.cfg.seed, i, 35]), i).span_px() for i in range(500)])
+        return np.mean((s >= 20) & (s <= 120))
+
+    assert share("dfv_aat_v3.json") >= 0.45 > 0.35 >= share("dfv_aat.json")
+
+
+def test_shared_items_are_adopted_from_the_base_cache_wide_ones_never(tmp_path):
+    from training.data.cache import item_path, save_item
+
+    cfg = _sweeps_config(wide_sweep_fraction=0.5, cache_dir=str(tmp_path))
+    new = AnyCamDataset(cfg)
+    shared = next(i for i in range(50) if not new.is_wide(i))
+    wide = next(i for i in range(50) if new.is_wide(i))
+    fake = {"frames": np.zeros((2, 3, 4, 4), np.float16), "render_version": np.int64(2), "camera": np.asarray("{}")}
+    new.base_cache.mkdir(parents=True)
+    for i in (shared, wide):
+        save_item(item_path(new.base_cache, i), fake)
+    assert not item_path(new.cache, shared).exists()
+    assert new.is_cached(shared) and not new.is_cached(wide)
+    assert item_path(new.cache, shared).read_bytes() == item_path(new.base_cache, shared).read_bytes()
+    assert not item_path(new.cache, wide).exists()
+    assert new.is_cached(shared)  # again: idempotent

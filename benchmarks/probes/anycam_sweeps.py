@@ -1,0 +1,159 @@
+"""How much the blur changes across the any-camera training sweeps against the held-out test stacks (issue 35).
+
+    python -m benchmarks.probes.anycam_sweeps [--configs configs/anycam/dfv_aat.json configs/anycam/dfv_aat_v3.json]
+        [--out results/anycam_sweeps.json] [--figure results/figures/anycam_sweeps.png]
+
+Per sweep, in pixels of blur diameter: the total blur change k x (1/near - 1/far) (k: the defocus scale the net is
+told, px per diopter, at the sweep's geometric-mean focus) and the blur change per frame spacing, both for the
+16-frame dense render and for the stack a validation item reads (S drawn as `AnyCamDataset.__getitem__` does:
+3 to `cameras.max_frames`). Training side: every item of each config's training data, drawn without rendering
+(`AnyCamDataset.draw_sweep`). Test side: only camera and schedule parameters, never a lens's map or a test
+image: each lens's focal length, f-number and pixel pitch (paraxial, from its lens file, as the runtime reads
+them; k at most K_MAX_PX_PER_D, as the runtime brings frames to) with `bench_anycam`'s fixed schedule, and the
+paper protocol's focus distances as its cached test sets hold them (only where cached; they follow each scene's
+depth range). Prints quantiles and the shares under 9 px and within 20-120 px; writes JSON and a histogram.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from aat_deploy.io.atomic import atomic_file, write_text_atomic
+
+ROOT = Path(__file__).resolve().parents[2]
+QUANTILES = (5, 25, 50, 75, 95)
+
+
+def training_sweeps(config: Path) -> list[dict]:
+    """One row per training item of a config: kind (traced / wide / parametric), class, total and per-spacing
+    blur change (px)."""
+    from training.data import cameras as cams
+    from training.data.anycam import AnyCamConfig, AnyCamDataset
+    from training.train.config import load_config
+
+    cfg = load_config(config)
+    ds = AnyCamDataset(AnyCamConfig(**{**dict(cfg.data), "only_cached": False, "cache_dir": None}))
+    rows = []
+    for i in range(ds.cfg.n_items):
+        sw = ds.draw_sweep(np.random.default_rng([ds.cfg.seed, i, 35]), i)
+        span = sw.span_px()
+        s = int(np.random.default_rng([i, 5]).integers(cams.S_RANGE[0], cams.max_frames(span) + 1))
+        rows.append({"kind": "traced" if sw.traced else "wide" if sw.wide else "parametric",
+                     "class": sw.info.get("class"), "span_px": span, "dense_step_px": span / (len(sw.focus) - 1),
+                     "read_step_px": span / (s - 1), "frames_read": s})
+    return rows
+
+
+def test_sweeps(cache: Path) -> list[dict]:
+    """One row per test-protocol sweep: lens, protocol, total and per-spacing blur change (px)."""
+    from aat_deploy.anycam.model import K_MAX_PX_PER_D
+    from aat_deploy.calibrate.format import thin_lens_defocus_scale_px_per_d
+    from aat_deploy.lens.io import load_lens
+    from aat_deploy.optics.paraxial import paraxial_data
+    from benchmarks.bench_anycam import LENSES, test_spec
+    from training.train.testsets import _dataset
+
+    rows = []
+    for key, spec in LENSES.items():
+        lens = load_lens(ROOT / spec["lens"])
+        p = paraxial_data(lens)
+
+        def span(focus: np.ndarray) -> float:
+            k = thin_lens_defocus_scale_px_per_d(p.efl_mm, p.fno, lens.sensor.pixel_mm * 1000.0,
+                                                 float(np.sqrt(focus[0] * focus[-1])))
+            return min(k, K_MAX_PX_PER_D) * (1.0 / focus[0] - 1.0 / focus[-1])
+
+        near, far = spec["range_m"]
+        f = np.array([near, far])
+        s = span(f)
+        rows.append({"lens": key, "protocol": "fixed", "span_px": s, "step_px": s / (spec["stack_size"] - 1),
+                     "frames": spec["stack_size"]})
+        ds = _dataset(test_spec(key, "paper", 24, real=False), str(cache))
+        for i in range(24):
+            path = ds.cache / f"{i:06d}.npz" if ds.cache is not None else None
+            if path is None or not path.is_file():
+                continue
+            with np.load(path) as z:
+                fm = np.sort(np.asarray(z["focus_m"], np.float64))  # only the focus distances are read
+            s = span(fm)
+            rows.append({"lens": key, "protocol": "paper", "span_px": s, "step_px": s / (len(fm) - 1),
+                         "frames": len(fm)})
+    return rows
+
+
+def stats(x) -> dict:
+    x = np.asarray(x, np.float64)
+    return {"n": int(x.size), **{f"p{q}": float(np.percentile(x, q)) for q in QUANTILES},
+            "under_9px": float(np.mean(x < 9.0)), "in_20_120px": float(np.mean((x >= 20) & (x <= 120)))}
+
+
+def figure(train: dict, test: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    bins = np.geomspace(0.5, 400, 40)
+    fig, ax = plt.subplots(1, len(train), figsize=(5 * len(train), 3.4), squeeze=False)
+    for a, (name, rows) in zip(ax[0], train.items()):
+        a.hist([r["span_px"] for r in rows], bins=bins, color="0.6", label=f"training sweeps ({name})")
+        for r in test:
+            a.axvline(r["span_px"], color="r" if r["protocol"] == "fixed" else "b", lw=0.6, alpha=0.6)
+        a.set(xscale="log", xlabel="total blur change over the sweep (px)", ylabel="items", title=name)
+        a.plot([], [], "r", label="test, fixed protocol (per lens)")
+        a.plot([], [], "b", label="test, paper protocol (per cached stack)")
+        a.legend(fontsize=7)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_file(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--configs", nargs="+", type=Path,
+                    default=[ROOT / "configs/anycam/dfv_aat.json", ROOT / "configs/anycam/dfv_aat_v3.json"])
+    ap.add_argument("--cache", type=Path, default=ROOT / "cache" / "heldout", help="the held-out sets' cache")
+    ap.add_argument("--out", type=Path, default=ROOT / "results" / "anycam_sweeps.json")
+    ap.add_argument("--figure", type=Path, default=ROOT / "results" / "figures" / "anycam_sweeps.png")
+    a = ap.parse_args(argv)
+    train = {c.stem: training_sweeps(c) for c in a.configs}
+    test = test_sweeps(a.cache)
+    summary = {"training": {}, "test": {}}
+    for name, rows in train.items():
+        groups = {"all": rows, **{k: [r for r in rows if r["kind"] == k] for k in ("parametric", "wide", "traced")}}
+        summary["training"][name] = {
+            g: {"span_px": stats([r["span_px"] for r in rs]), "dense_step_px": stats([r["dense_step_px"] for r in rs]),
+                "read_step_px": stats([r["read_step_px"] for r in rs])} for g, rs in groups.items() if rs}
+    for r in test:
+        summary["test"].setdefault(f"{r['lens']} {r['protocol']}", []).append(r)
+    summary["test"] = {k: {"span_px": stats([r["span_px"] for r in rs]), "step_px": stats([r["step_px"] for r in rs]),
+                           "frames": rs[0]["frames"]} for k, rs in summary["test"].items()}
+    print("| sweeps | n | total blur change (px) p5 / p25 / p50 / p75 / p95 | under 9 px | 20-120 px "
+          "| blur per frame spacing as read (px) p5 / p50 / p95 |")
+    print("|---|---|---|---|---|---|")
+    for name, groups in summary["training"].items():
+        for g, st in groups.items():
+            s, r = st["span_px"], st["read_step_px"]
+            print(f"| training {name}, {g} | {s['n']} | " + " / ".join(f"{s[f'p{q}']:.1f}" for q in QUANTILES)
+                  + f" | {s['under_9px']:.0%} | {s['in_20_120px']:.0%} | {r['p5']:.1f} / {r['p50']:.1f} / "
+                  f"{r['p95']:.1f} |")
+    for name, st in summary["test"].items():
+        s, r = st["span_px"], st["step_px"]
+        print(f"| test {name} ({st['frames']} frames) | {s['n']} | " + " / ".join(f"{s[f'p{q}']:.1f}" for q in QUANTILES)
+              + f" | {s['under_9px']:.0%} | {s['in_20_120px']:.0%} | {r['p5']:.1f} / {r['p50']:.1f} / {r['p95']:.1f} |")
+    a.out.parent.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(a.out, json.dumps({"summary": summary, "configs": [str(c) for c in a.configs]}, indent=1))
+    figure(train, test, a.figure)
+    print(f"wrote {a.out} and {a.figure}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
