@@ -138,7 +138,7 @@ def score(kind: str, family: str, true_d: np.ndarray, rep_d: np.ndarray, res: di
             "frame_err_d": (per - true_d).round(4).tolist(), "frame_max_err_d": float(np.abs(per - true_d).max()),
             "frames_on_bound": int(on_bound.sum()), "verdict": res.get("verdict"), "named": named,
             "robust": f.get("robust"), "frame_focus_sd_d": f.get("frame_focus_sd_d"),
-            "families": [{k: x.get(k) for k in ("family", "k", "bic", "true_d")} for x in f.get("families", [])]}
+            "families": [{k: x.get(k) for k in ("family", "k", "score", "true_d")} for x in f.get("families", [])]}
 
 
 SYSTEMATIC_GRID_D = (0.005, 0.0075, 0.01, 0.013, 0.015, 0.02, 0.025, 0.03, 0.04, 0.05)

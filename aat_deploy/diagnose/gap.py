@@ -43,7 +43,8 @@ class DiagnoseConfig:
     search_px: int = 240  # the reduced-resolution search bins the sensor to about this many pixels across
     fit_boot: int = 100  # bootstrap replicates of the fits' intervals
     min_share: float = 0.1  # a named effect explains the gap when its share is >= this and its interval > 0
-    min_image_explained: float = 0.25  # ... and its twin's images (or lighting) came at least this much closer
+    min_image_explained: float = 0.25  # ... and its twin's images (or lighting) came at least this much closer,
+    min_focus_support: float = 0.95  # or (focus metadata) this share of the fit's replicates found an error
     max_unexplained: float = 1 / 3  # more of the gap left than this (point estimate): "partly explained"
 
 

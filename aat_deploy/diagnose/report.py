@@ -134,9 +134,9 @@ def focus_section(d: dict) -> list[str]:
         lines.append(f"The images support a **{f['family']}** error of the reported focus "
                      f"({_params({k: v for k, v in f['params'].items() if k in ('bias_d', 'scale', 'map_d')})}"
                      f"{'; 95 % interval ' + ci if ci else ''}); `focus_metadata` was {status}.")
-    lines += ["", "| family | parameters | BIC | chosen in bootstrap replicates |", "|---|---|---|---|"]
+    lines += ["", "| family | parameters | score (−2 log evidence) | chosen in bootstrap replicates |", "|---|---|---|---|"]
     for fam in f["families"]:
-        lines.append(f"| {fam['family']} | {fam['k']} | {fam['bic']:.1f} | {f['support'].get(fam['family'], 0):.0%} |")
+        lines.append(f"| {fam['family']} | {fam['k']} | {fam['score']:.1f} | {f['support'].get(fam['family'], 0):.0%} |")
     if f["family"] != "none":
         lines += ["", "Corrected focus distances (m, 95 % interval); drop-in `capture.json` files are in "
                   "`corrected_focus/<capture>/` (copy one into its capture folder to use it with `aat-infer`):", "",

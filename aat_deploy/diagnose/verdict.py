@@ -36,19 +36,39 @@ def share_view(entry: dict, min_image: float = 0.25) -> tuple[float | None, str 
     return share, None
 
 
-def explains_gap(entry: dict, min_share: float, min_image: float = 0.25) -> bool:
+def focus_measured(entry: dict, min_support: float = 0.95) -> bool:
+    """Whether `focus_metadata`'s fit measured a focus error in the captures (docs/diagnosis.md, "Verdict"): a family
+    other than `none`, some error family chosen in at least `min_support` of the bootstrap replicates, and some
+    frame's reported focus outside the 95 % interval of its corrected focus. The fit reads every frame's focus
+    from the images (each region's focus curve against the twin's focus sweep), which is what a focus error
+    changes; the images' distances barely move with it (a frame 0.05 D off changes its focus curves little more
+    than the capture's noise does) while the model's depth does. So for focus metadata this is the evidence that
+    its twin resembles the captures. False for every other effect."""
+    fit = entry.get("fit") or {}
+    f = fit.get("focus_fit") or {}
+    if entry.get("effect") != "focus_metadata" or f.get("family", "none") == "none":
+        return False
+    if 1.0 - (f.get("support") or {}).get("none", 0.0) < min_support:
+        return False
+    return any(not lo <= rep <= hi for c in fit.get("corrected_focus", [])
+               for rep, (lo, hi) in zip(c["reported_m"], c["ci_m"]))
+
+
+def explains_gap(entry: dict, min_share: float, min_image: float = 0.25, min_focus_support: float = 0.95) -> bool:
     """Whether a named effect explains part of the gap: it closes a significant part of the gap (share >=
     min_share, interval above 0) AND its twin resembles the captures: its images came closer by at least
     `min_image` (fraction of the image distance), or its lighting did (vignetting, which the shape measures
-    barely see). The second condition keeps a stand-in from being blamed: with a cause the registry lacks, a
-    flexible effect can move the model's errors towards the captures' (weak noise raises the focus-curve floor
+    barely see), or, for focus metadata, its fit measured the frames focused elsewhere than reported
+    (`focus_measured`). The second condition keeps a stand-in from being blamed: with a cause the registry lacks,
+    a flexible effect can move the model's errors towards the captures' (weak noise raises the focus-curve floor
     a hidden focus bias also changes) while the images stay almost as far from the captures as before."""
     share, lo = entry.get("share_of_gap"), entry.get("ci_low")
     img, bri = entry.get("image_closeness"), entry.get("brightness_closeness")
     if share is None or lo is None or lo <= 0 or share < min_share or (img is not None and img < 0 and
                                                                           (bri is None or bri < min_image)):
         return False
-    return img is None or img >= min_image or (bri is not None and bri >= min_image)
+    return (img is None or img >= min_image or (bri is not None and bri >= min_image)
+            or focus_measured(entry, min_focus_support))
 
 
 VERDICTS = {
@@ -66,7 +86,7 @@ def verdict(gap_significant: bool, ranked: list[dict], unexplained_share: float 
     partly_explained (some do, but more than cfg.max_unexplained of the gap is left), explained."""
     if not gap_significant:
         return "no_gap"
-    if not any(explains_gap(e, cfg.min_share, cfg.min_image_explained) for e in ranked):
+    if not any(explains_gap(e, cfg.min_share, cfg.min_image_explained, cfg.min_focus_support) for e in ranked):
         return "unexplained"
     return "partly_explained" if unexplained_share is not None and unexplained_share > cfg.max_unexplained \
         else "explained"
@@ -102,7 +122,8 @@ def annotate_shares(entries: list[dict], ranked: list[dict], cfg: DiagnoseConfig
     named = {id(e) for e in ranked}
     for e in entries:
         e["share_shown"], e["share_note"] = share_view(e, cfg.min_image_explained)
-        e["explains_gap"] = explains_gap(e, cfg.min_share, cfg.min_image_explained) if id(e) in named else None
+        e["explains_gap"] = (explains_gap(e, cfg.min_share, cfg.min_image_explained, cfg.min_focus_support)
+                             if id(e) in named else None)
 
 
 

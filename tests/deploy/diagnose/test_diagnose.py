@@ -312,6 +312,45 @@ def test_verdict_by_hand():
     assert verdict(True, [bias], 0.05, cfg) == "explained"
 
 
+def _focus_entry(family: str, support: dict, reported_m, ci_m, **numbers) -> dict:
+    """A named focus_metadata entry as the search makes it, with its fit's report (`fitters.fit_focus_metadata`)."""
+    fit = {"focus_fit": {"family": family, "support": support},
+           "corrected_focus": [{"capture": "c", "reported_m": list(reported_m), "ci_m": [list(x) for x in ci_m]}]}
+    return {"effect": "focus_metadata", "fit": fit, **numbers}
+
+
+def test_focus_metadata_is_blamed_on_its_measured_focus_not_on_its_images():
+    """A focus error changes the model's depth a lot and the images little: benchmark set scale 0.9 on the
+    shipped sample (bench_diagnose_focus) closed 1.12 of the gap while its images came only 0.10 closer. The fit
+    measured every frame focused elsewhere than reported (scale chosen in every replicate, the reported focus
+    outside the corrected intervals): it explains the gap. The same numbers without that measurement do not: an
+    untouched copy (family none, or an error in too few replicates, or the reported focus inside the intervals),
+    or any other effect (the stand-in rule holds)."""
+    from aat_deploy.diagnose.gap import DiagnoseConfig
+    from aat_deploy.diagnose.verdict import explains_gap, focus_measured, verdict
+
+    cfg = DiagnoseConfig()
+    lim = (cfg.min_share, cfg.min_image_explained, cfg.min_focus_support)
+    numbers = {"share_of_gap": 1.119, "ci_low": 1.075, "ci_high": 1.165, "image_closeness": 0.101,
+               "brightness_closeness": 0.001}
+    rep = [0.54, 1.8, 5.4]  # reported 0.9 x the true 0.6, 2, 6 m
+    ci = [(0.597, 0.603), (1.98, 2.02), (5.8, 6.2)]
+    found = _focus_entry("scale", {"scale": 1.0}, rep, ci, **numbers)
+    assert focus_measured(found) and explains_gap(found, *lim)
+    assert verdict(True, [found], -0.119, cfg) == "explained"
+    # scene 2027's untouched copy: none chosen, scale in 13 % of the replicates
+    untouched = _focus_entry("none", {"none": 0.87, "scale": 0.13}, rep, ci, **numbers)
+    assert not focus_measured(untouched) and not explains_gap(untouched, *lim)
+    assert verdict(True, [untouched], 1.0, cfg) == "unexplained"
+    weak = _focus_entry("scale", {"none": 0.1, "scale": 0.9}, rep, ci, **numbers)
+    assert not explains_gap(weak, *lim)
+    inside = _focus_entry("scale", {"scale": 1.0}, rep, [(0.5, 0.61), (1.7, 2.1), (5.0, 6.5)], **numbers)
+    assert not explains_gap(inside, *lim)
+    assert not explains_gap(dict(found, effect="noise"), *lim)  # a stand-in is still judged on its images
+    assert not explains_gap(dict(found, share_of_gap=0.05, ci_low=0.01), *lim)  # too small a part of the gap
+    assert not explains_gap(dict(found, image_closeness=-0.3), *lim)  # its images moved away
+
+
 def test_alternatives_are_the_effects_the_images_cannot_tell_apart():
     """_pick names the closest effect and lists the others that pass the rule with overlapping intervals."""
     from aat_deploy.diagnose.search import DiagnoseConfig, Diagnosis

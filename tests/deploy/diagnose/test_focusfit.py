@@ -129,3 +129,66 @@ def test_minimisers_by_hand():
     assert p[0] == pytest.approx(0.5)
     assert isotonic(np.array([1.0, 3.0, 2.0, 4.0])).tolist() == [1.0, 2.5, 2.5, 4.0]
     assert isotonic(np.array([3.0, 1.0]), np.array([1.0, 3.0])).tolist() == [1.5, 1.5]
+
+
+# --- the family choice on hand-made per-frame estimates ------------------------------------------------------
+TRUE_D = np.linspace(1 / 0.6, 1 / 6.0, 8)  # the shipped sample's focus, 0.6 to 6 m even in diopters, near first
+
+
+def hand_fits(rep: np.ndarray, est: np.ndarray, sd: np.ndarray) -> dict:
+    """The families fitted by weighted least squares to per-frame estimates est (1, S) of frames reported at rep
+    (1, S) with spread sd (1, S), as `fit_families` fits them to the curves (here: to the frames' focus)."""
+    w = 1.0 / (sd ** 2 + ff.SYSTEMATIC_D ** 2)
+    b = float(np.sum(w * (rep - est)) / w.sum())
+    s = float(np.sum(w * rep * est) / np.sum(w * rep * rep))
+    kx = np.array([rep.min(), np.unique(rep)[4], rep.max()])
+    basis = np.stack([ff.parabola(rep, kx, np.eye(3)[j]) for j in range(3)], -1)[0]  # (S, 3)
+    ky = np.linalg.solve(basis.T @ (w[0, :, None] * basis), basis.T @ (w[0] * est[0]))
+    fits = {"none": (0, rep), "offset": (1, rep - b), "scale": (1, rep * s), "monotone": (3, (basis @ ky)[None]),
+            "per_frame": (8, est)}
+    return {k: ff.FamilyFit(k, kk, {}, np.asarray(t, np.float64), 0.0) for k, (kk, t) in fits.items()}
+
+
+def bic_choice(fits: dict, sd: np.ndarray) -> str:
+    """The choice before issue 32's fix: chi2 + k log n (BIC) on the same estimates."""
+    e, var = fits["per_frame"].true_d, sd ** 2 + ff.SYSTEMATIC_D ** 2
+    return min(fits.values(), key=lambda f: np.sum((f.true_d - e) ** 2 / var) + f.k * math.log(e.size)).name
+
+
+def test_scale_wins_over_a_curve_bent_by_one_frame():
+    """A distance scale (0.95) whose per-frame estimates carry what the twin gets wrong: the nearest frame held
+    0.04 D towards its reported focus and a 0.01 D wave over the others (scene 2027's pattern). BIC's k log n let
+    the 3-knot curve buy that frame (the choice below); the evidence charges the knots' 0.8 D range: scale."""
+    rep = (TRUE_D / 0.95)[None]
+    est = (TRUE_D + np.array([0.043, 0.006, 0.0, -0.007, -0.010, -0.002, 0.011, 0.0]))[None]
+    sd = np.array([[0.007, 0.0025, 0.002, 0.0016, 0.002, 0.003, 0.003, 0.003]])
+    fits = hand_fits(rep, est, sd)
+    assert bic_choice(fits, sd) == "monotone"  # the case discriminates
+    ff.score_families(fits, sd, np.ones_like(sd))
+    assert ff.select(fits).name == "scale"
+    assert abs(fits["scale"].true_d - TRUE_D).max() < 0.02
+
+
+@pytest.mark.parametrize("a", [0.1, -0.1])
+def test_a_true_encoder_curve_still_wins(a):
+    """The benchmark's monotone curve (reported = true + a (true - 1)^2 - a / 3 D, within 0.045 D of the best
+    offset or scale), with estimates as good as scene 2027's untouched copy (its 0.015 D wave): monotone."""
+    rep = (TRUE_D + a * (TRUE_D - 1) ** 2 - a / 3)[None]
+    est = (TRUE_D + np.array([-0.009, -0.006, -0.004, -0.010, -0.015, -0.007, 0.009, 0.004]))[None]
+    sd = np.full((1, 8), 0.0025)
+    fits = hand_fits(rep, est, sd)
+    ff.score_families(fits, sd, np.ones_like(sd))
+    assert ff.select(fits).name == "monotone"
+    assert fits["monotone"].score < min(fits[k].score for k in ("none", "offset", "scale")) - 2
+
+
+def test_quantisation_beats_per_frame_by_its_bins():
+    """Estimates inside 0.1 D bins of reported values on that grid: per_frame fits them exactly too, but its
+    values range over 0.8 D against the bins' 0.1 D: quantisation."""
+    rep = (np.round(TRUE_D / 0.1) * 0.1)[None]
+    fits = hand_fits(rep, TRUE_D[None], np.full((1, 8), 0.002))
+    fits["quantisation"] = ff.FamilyFit("quantisation", 8, {}, TRUE_D[None].copy(), 0.0)
+    ff.score_families(fits, np.full((1, 8), 0.002), np.ones((1, 8)))
+    assert ff.select(fits).name == "quantisation"
+    assert fits["per_frame"].score - fits["quantisation"].score == pytest.approx(
+        2 * 8 * math.log(2 * ff.MAX_ERROR_D / 0.1), rel=1e-6)
