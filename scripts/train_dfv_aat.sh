@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Issue 35's any-camera model (models/dfv_aat.onnx): configs/anycam/dfv_aat.json, one run, resumable.
-#   OUT=cache/runs nice -n 15 scripts/train_dfv_aat.sh          (rerun the same command to continue after a kill)
+# Issue 35's any-camera model (models/dfv_aat.onnx): configs/anycam/NAME.json (default dfv_aat), one run, resumable.
+#   OUT=cache/runs nice -n 15 scripts/train_dfv_aat.sh [NAME]   (rerun the same command to continue after a kill)
 # then: python -m scripts.export_dff_models --runs cache/runs dfv_aat   (models/dfv_aat.onnx)
 # Training data is rendered once into cache/stacks (python -m scripts.render_training_stacks configs/anycam/dfv_aat.json,
 # under the heavy-job lock); items still missing when the run reads them are rendered by the run itself and cached.
@@ -10,7 +10,8 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 export OMP_WAIT_POLICY=PASSIVE OMP_NUM_THREADS=1 PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}"
 OUT=${OUT:-cache/runs}
-n=dfv_aat
+n=${1:-dfv_aat}
+[ -f "configs/anycam/$n.json" ] || { echo "configs/anycam/$n.json: no such config" >&2; exit 2; }
 mkdir -p "$OUT"
 if [ -f "$OUT/$n/model.pt" ]; then echo "$n: done ($OUT/$n/model.pt)"; exit 0; fi
 if [ ! -f "$OUT/$n/last.pt" ] && [ -f "checkpoints/$n/last.pt" ]; then
