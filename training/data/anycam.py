@@ -4,7 +4,8 @@ in-focus diopters and the defocus scale a user of that camera would give the net
 Each item (deterministic in (seed, index), rendered once and cached as float16 linear frames) is:
 - a camera: with probability `traced_fraction` the Canon RF50 through its PSF surrogate (real traced PSFs, the
   lens's own best-focus map), else a random camera of `training.data.cameras` (phone to full frame) with cheap
-  parametric aberrated PSFs driven by a random best-focus map (`training.render.parametric`);
+  parametric aberrated PSFs driven by a random best-focus map (`training.render.parametric`) (with probability
+  `wide_sweep_fraction` a wide sweep: a large sensor wide open over its scene's depth range, `Sweep`);
 - a scene: a room (`training.data.rooms`: floor, walls, furniture in the camera's perspective, textureless and dark
   surfaces) with probability `room_fraction`, else planes and shapes (`training.data.scenes`), depths around the
   camera's sweep;

@@ -4,7 +4,10 @@ A camera is a sensor class (phone 1/2.5" to 1/1.3", 1-inch, APS-C, full frame), 
 class, and a working resolution (the pixels the net sees: 320 to 1280 px across, fewer when the blur per diopter
 would exceed `K_MAX_PX_PER_D`, as the runtime brings captures to that limit too). Its best-focus map gets random
 field curvature, tilt and astigmatism (`training.render.parametric`), sized in units of the schedule's frame
-spacing so every camera sees shifts of a fraction of a frame to about two frames.
+spacing so every camera sees shifts of a fraction of a frame to about two frames. A wide sweep
+(`wide_sweep_camera`) is an APS-C or full-frame camera wide open sweeping its scene's whole depth range, the total
+blur change drawn first (tens of pixels, as the held-out stacks have): `random_camera`'s sweeps are mostly phones'
+and small apertures' of a few pixels.
 
 Schedules are rendered dense (`RENDER_FRAMES` frames) and the frames a training stack shows are a subset chosen
 when the item is read (`subset`): any S from 3 to 16, evenly strided (an even schedule stays even), a random
