@@ -207,9 +207,10 @@ def supported(fit: ff.ShiftFit) -> bool:
 
 def refine_amount(state: FitState, name: str, params: dict, keys: tuple[str, ...]) -> tuple[dict, float]:
     """The sweep reads a field-dependent focus as each region refocused; the renderer moves the focus anchor by
-    anchor, and the two differ in size (on the shipped sample a -0.85 deg tilt was read as -0.54). So the amount
-    is refitted on binned twins with the effect: its settings scaled by one factor (golden-section search over
-    0.5..2.5, the direction kept), the factor whose twin's focus curves come closest."""
+    anchor, and the two differ in size (a -0.85 deg tilt read as -0.54 before the renderer fix c9c07bd, -0.73
+    after it: benchmarks/diagnose_tilt_refit.py). So the amount is refitted on binned twins with the effect: its
+    settings scaled by one factor (golden-section search over 0.5..2.5, the direction kept), the factor whose
+    twin's focus curves come closest."""
     seen: dict[float, float] = {}
 
     def cost(c):
