@@ -3,7 +3,7 @@
 of every element's decentre, traced through the prescription (`training.optics.tolerance`).
 
     python -m scripts.lens_tolerance_table LENS.json --psf models/psf_rf50.onnx   # -> models/tolerance_<key>.json
-    python -m scripts.lens_tolerance_table LENS.json --out DIR [--force]
+    python -m scripts.lens_tolerance_table LENS.json --out DIR [--force] [--focus-m 0.07,0.15,0.5]
 
 The file name carries the lens's optics key (surfaces, stop, sensor size; not its pixels), which the effect checks.
 """
@@ -25,6 +25,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", help="folder for the table (instead of --psf's)")
     ap.add_argument("--rays", type=int, default=1024, help="rays per field point")
     ap.add_argument("--force", action="store_true", help="replace an existing table")
+    ap.add_argument("--focus-m", default="0.5,1.5,20",
+                    help="focus distances of the table, m from the sensor (default 0.5,1.5,20; a phone lens's "
+                         "working range is nearer, e.g. 0.07,0.15,0.5)")
     a = ap.parse_args(argv)
     if not (a.psf or a.out):
         print("lens_tolerance_table: error: give --psf or --out", file=sys.stderr)
@@ -43,8 +46,14 @@ def main(argv: list[str] | None = None) -> int:
     if path.exists() and not a.force:
         print(f"lens_tolerance_table: error: {path} exists (use --force)", file=sys.stderr)
         return 2
+    try:
+        focus_m = tuple(float(t) for t in a.focus_m.split(","))
+    except ValueError:
+        print(f"lens_tolerance_table: error: --focus-m {a.focus_m!r}: expected comma-separated metres",
+              file=sys.stderr)
+        return 2
     t0 = time.time()
-    table = sensitivity_table(lens, n_rays=a.rays, progress=lambda m: print(f"  {m}", file=sys.stderr, flush=True))
+    table = sensitivity_table(lens, focus_m=focus_m, n_rays=a.rays, progress=lambda m: print(f"  {m}", file=sys.stderr, flush=True))
     folder.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(table))

@@ -4,7 +4,7 @@
     aat-lens spot LENS --field-deg F --focus-m D [--defocus-mm X] [--json] [--png out.png]
     aat-lens layout LENS --png out.png [--focus-m D]
     aat-lens focus-map LENS [--png out.png] [--force] [--no-calibrate] [--psf trace|PSF.onnx] [--out MAP.json]
-                            [--stamp PSF.onnx]
+                            [--stamp PSF.onnx] [--near-m M] [--calibrate-at M,M,...] [--sweep-d D]
     aat-lens focus-map --from-captures SWEEP_DIR [SWEEP_DIR ...] --chart chart.json --out mycam.json
                             [--distance-m D1,D2,...] [--force] ...   (the options of `aat-calibrate fit`)
 
@@ -37,6 +37,13 @@ def _distance(text: str) -> float:
     if not (v > 0):
         raise argparse.ArgumentTypeError(f"distance must be > 0 metres (or 'inf'), got {text}")
     return v
+
+
+def _distances(text: str) -> tuple[float, ...]:
+    try:
+        return tuple(_distance(t) for t in text.split(",") if t.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated distances in metres, got {text!r}") from None
 
 
 def _png_path(p: str | None, force: bool) -> Path | None:
@@ -173,7 +180,8 @@ def cmd_focus_map(a) -> int:
         from training.render.focus_calibration import make_focus_map
 
         t0 = time.time()
-        fmap, points = make_focus_map(a.lens, not a.no_calibrate, a.psf, progress=not a.quiet)
+        fmap, points = make_focus_map(a.lens, not a.no_calibrate, a.psf, progress=not a.quiet, near_m=a.near_m,
+                                      calibrate_at_m=a.calibrate_at, sweep_d=a.sweep_d)
         fmap.save_json(out)
         print(f"wrote {out} ({time.time() - t0:.0f} s)")
         for p in points:
@@ -266,6 +274,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--stamp", default=None, help="also stamp the map (the stored one, without --force), the lens's "
                    "focus table and exit pupil into this PSF surrogate's metadata (the surrogate of this lens), so "
                    "that aat-infer --method focus --psf and the diagnosis's twins find them")
+    p.add_argument("--near-m", type=_distance, default=None,
+                   help="the map's nearest frame focus, m from the sensor (default 0.2 m or the lens's nearest "
+                        "focus; a phone lens's working range is nearer)")
+    p.add_argument("--calibrate-at", type=_distances, default=None, metavar="M,M,...",
+                   help="frame focus settings of the calibration renders, m from the sensor (default 0.6,1,2,5)")
+    p.add_argument("--sweep-d", type=float, default=None,
+                   help="the calibration's frame sweep, +- diopters around each setting (default 0.2: about 7 px of "
+                        "blur on a 50 mm f/1.8; widen it for a lens with less blur per diopter)")
     g = p.add_argument_group("--from-captures (the options of aat-calibrate fit)")
     add_fit_options(g)
     p.set_defaults(func=cmd_focus_map)

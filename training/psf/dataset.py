@@ -24,6 +24,7 @@ from tqdm import tqdm
 from aat_deploy.io.atomic import atomic_file
 from aat_deploy.lens.schema import Lens
 from aat_deploy.psf.kernel import KernelSpec
+from training.psf.geometry import focus_table_reaching
 from training.psf.raytrace import DEFAULT_WAVELENGTH_NM, raytrace_psfs
 
 DEFAULT_CACHE = Path(os.environ.get("AAT_CACHE", Path(__file__).resolve().parents[2] / "cache"))
@@ -95,6 +96,7 @@ def build_psf_dataset(lens: Lens, cfg: PSFDataConfig, cache_dir: Path | None = N
     spec = KernelSpec.for_lens(lens, cfg.kernel_size, cfg.margin_px)
     over = 2 if cfg.layout == "axis" else 1
     k = spec.size if over == 1 else 2 * spec.size + 1
+    table = focus_table_reaching(lens, cfg.near_m)  # the sensor positions of the whole focus range
     parts_dir = cache_dir / f"{path.stem}.parts"
     parts_dir.mkdir(parents=True, exist_ok=True)
     kernels = np.zeros((cfg.n, k, k), np.float32)
@@ -109,7 +111,7 @@ def build_psf_dataset(lens: Lens, cfg: PSFDataConfig, cache_dir: Path | None = N
             continue
         b = raytrace_psfs(lens, inp["x"][sl], inp["y"][sl], inp["depth_m"][sl], inp["focus_m"][sl], spec,
                           n_rays=cfg.n_rays, wavelength_nm=cfg.wavelength_nm, seed=cfg.seed * 100003 + i,
-                          compiled=compiled, chunk=256, oversample=over, center_wavelength_nm=cfg.center_wavelength_nm,
+                          compiled=compiled, chunk=256, oversample=over, table=table, center_wavelength_nm=cfg.center_wavelength_nm,
                           device=device)
         kernels[sl], energy[sl], scale[sl] = b.kernels.numpy(), b.energy, b.scale
         _atomic_savez(part, kernels=kernels[sl], energy=energy[sl], scale=scale[sl])

@@ -14,7 +14,7 @@ from aat_deploy.io.atomic import atomic_file
 from aat_deploy.lens.schema import Lens
 from aat_deploy.optics.paraxial import paraxial_data
 from aat_deploy.render.sources import EXIT_PUPIL_KEY, TABLE_KEYS
-from training.psf.geometry import focus_table
+from training.psf.geometry import DEFAULT_NEAR_M, focus_table_reaching
 from training.psf.surrogates import PSFModel
 
 INPUTS_DOC = ("query (B, 4) float32 = x, y, depth_m, focus_m. x, y: normalised upright image position in [-1, 1] "
@@ -53,17 +53,17 @@ def metadata(model: PSFModel, lens: Lens, extra: dict | None = None) -> dict[str
         "aat.outputs": OUTPUTS_DOC,
         "aat.efl_mm": f"{model.efl_mm:.9g}",
         "aat.entrance_pupil_mm": f"{model.epd_mm:.9g}",
-        **optics_metadata(lens),
+        **optics_metadata(lens, model.near_m),
     }
     md.update({f"aat.{k}": (v if isinstance(v, str) else json.dumps(v)) for k, v in (extra or {}).items()})
     return md
 
 
-def optics_metadata(lens: Lens) -> dict[str, str]:
+def optics_metadata(lens: Lens, near_m: float = DEFAULT_NEAR_M) -> dict[str, str]:
     """The lens's focusing, for renderers without the ray tracer (`aat_deploy.diagnose.twin`): the real-ray focus table of
-    `training.psf.geometry.focus_table(lens)` (diopters ascending, sensor z in mm from the first vertex) and the
-    paraxial exit pupil (mm from the first vertex), as JSON."""
-    t = focus_table(lens)
+    `training.psf.geometry.focus_table_reaching(lens, near_m)` (diopters ascending, sensor z in mm from the first
+    vertex; near_m: the surrogate's nearest distance) and the paraxial exit pupil (mm from the first vertex), as JSON."""
+    t = focus_table_reaching(lens, near_m)
     return {TABLE_KEYS[0]: json.dumps(t.diopters.tolist()), TABLE_KEYS[1]: json.dumps(t.sensor_z_mm.tolist()),
             EXIT_PUPIL_KEY: json.dumps(float(paraxial_data(lens).exit_pupil_z_mm))}
 
@@ -80,7 +80,8 @@ def stamp_optics_metadata(path, lens: Lens, best_focus=None) -> dict[str, str]:
     props = {p.key: p for p in m.metadata_props}
     if "aat.lens_hash" not in props or props["aat.lens_hash"].value != lens.prescription_hash():
         raise ValueError(f"{path}: not a PSF surrogate of {lens.name!r} (lens hash differs)")
-    md = optics_metadata(lens)
+    near = json.loads(props["aat.focus_range_m"].value)[0] if "aat.focus_range_m" in props else DEFAULT_NEAR_M
+    md = optics_metadata(lens, near)
     if best_focus is not None:
         from aat_deploy.focus.bestfocus import METADATA_KEY
 

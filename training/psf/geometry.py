@@ -22,6 +22,9 @@ from aat_deploy.optics.paraxial import paraxial_data
 from training.optics.focus import focus
 
 
+DEFAULT_NEAR_M = 0.2  # m: the focus table's nearest distance unless a surrogate's range reaches nearer
+
+
 @lru_cache(maxsize=16)
 def _focus_table(lens: Lens, near_m: float, far_m: float, n: int, wavelength_nm: float) -> FocusTable:
     dist = diopter_grid(near_m, far_m, n)[::-1]  # far first = ascending diopters
@@ -36,7 +39,7 @@ def _focus_table(lens: Lens, near_m: float, far_m: float, n: int, wavelength_nm:
     return FocusTable(1.0 / dist[:len(zs)], np.array(zs))
 
 
-def focus_table(lens: Lens, near_m: float = 0.2, far_m: float = 100.0, n: int = 129,
+def focus_table(lens: Lens, near_m: float = DEFAULT_NEAR_M, far_m: float = 100.0, n: int = 129,
                 wavelength_nm: float | None = None) -> FocusTable:
     """Real-ray focus table from near_m to far_m (metres from the sensor), n samples even in diopters. A lens that
     cannot focus as close as near_m (e.g. a 50 mm lens below about 4 x EFL) gets a table ending at its nearest
@@ -45,6 +48,13 @@ def focus_table(lens: Lens, near_m: float = 0.2, far_m: float = 100.0, n: int = 
     Default wavelength: the lens's design wavelength. A camera focuses once; PSFs traced at other wavelengths
     keep this sensor position, so their chromatic focus shift shows up as defocus."""
     return _focus_table(lens, near_m, far_m, n, wavelength_nm or lens.design_wavelength_nm)
+
+
+def focus_table_reaching(lens: Lens, near_m: float, wavelength_nm: float | None = None, n: int = 129) -> FocusTable:
+    """The real-ray focus table reaching `near_m` (metres from the sensor) when that is nearer than the default
+    table's DEFAULT_NEAR_M (a phone lens's working range), else the default table: every range of 0.2 m or farther
+    keeps the table it always had."""
+    return focus_table(lens, near_m=min(DEFAULT_NEAR_M, float(near_m)), n=n, wavelength_nm=wavelength_nm)
 
 
 def object_points_mm(lens: Lens, x, y, depth_m, sensor_z_mm) -> torch.Tensor:

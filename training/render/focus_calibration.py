@@ -144,19 +144,28 @@ def calibrate(lens, fmap: BestFocusMap, cfg: CalibrationConfig = CalibrationConf
     return replace(fmap, offset_diopters=offset, notes=notes), points
 
 
-def make_focus_map(lens_path, calibrate_map: bool = True, psf: str = "trace", progress: bool = True
+def make_focus_map(lens_path, calibrate_map: bool = True, psf: str = "trace", progress: bool = True,
+                   near_m: float | None = None, calibrate_at_m=None, sweep_d: float | None = None
                    ) -> tuple[BestFocusMap, list[dict]]:
     """A lens file's best-focus map as `aat-lens focus-map` stores it: traced (training.optics.field_focus), then
     calibrated on rendered stacks (PSFs: "trace" or a surrogate .onnx), the lens file and the calibration points in
-    its notes. Returns (map, calibration points)."""
+    its notes. Returns (map, calibration points).
+
+    near_m: the map's nearest frame focus (m; None: the focus table's default, 0.2 m); calibrate_at_m / sweep_d:
+    the calibration's frame focus settings and sweep (None: CalibrationConfig's, made for 50 mm lenses: a phone
+    lens blurs ~30x less per diopter and needs a ~30x wider sweep)."""
     from aat_deploy.lens.io import load_lens
     from training.optics.field_focus import best_focus_map
+    from training.psf.geometry import focus_table_reaching
 
     lens = load_lens(lens_path)
-    fmap = best_focus_map(lens, progress=progress)
+    table = focus_table_reaching(lens, near_m) if near_m is not None else None
+    fmap = best_focus_map(lens, table=table, progress=progress)
     points: list[dict] = []
     if calibrate_map:
-        fmap, points = calibrate(lens, fmap, CalibrationConfig(psf=psf), progress=progress)
+        over = {k: v for k, v in (("focus_m", tuple(calibrate_at_m) if calibrate_at_m else None),
+                                  ("sweep_d", sweep_d)) if v is not None}
+        fmap, points = calibrate(lens, fmap, CalibrationConfig(psf=psf, **over), progress=progress)
     notes = dict(fmap.notes)
     notes["lens_file"] = str(lens_path)
     notes["calibration_points"] = points

@@ -59,7 +59,8 @@ def test_focus_map_writes_draws_and_keeps_an_existing_map(tmp_path, capsys, monk
     from aat_deploy.focus.bestfocus import load_json
 
     traced = ff.best_focus_map
-    small = lambda lens, progress=False: traced(lens, radii=[0.0, 0.6, 1.0], focus_diopters=[0.2, 1.0, 2.0])
+    small = lambda lens, table=None, progress=False: traced(lens, radii=[0.0, 0.6, 1.0], focus_diopters=[0.2, 1.0, 2.0],
+                                                          table=table)
     monkeypatch.setattr(ff, "best_focus_map", small)  # a 3 x 3 map: seconds, not the full 13 x 33
     out, png = tmp_path / "map.json", tmp_path / "map.png"
     assert main(["focus-map", RF50, "--no-calibrate", "--out", str(out), "--png", str(png), "-q"]) == 0

@@ -165,3 +165,17 @@ def test_kernels_centred_on_another_wavelength_keep_lateral_colour():
     same = raytrace_psfs(RF50, x, y, d, f, spec, n_rays=256, wavelength_nm=465.0, center_wavelength_nm=465.0)
     # the same rays through the same code: bit for bit
     assert torch.equal(same.kernels, raytrace_psfs(RF50, x, y, d, f, spec, n_rays=256, wavelength_nm=465.0).kernels)
+
+
+def test_focus_table_reaching_a_phone_lens_working_range():
+    """A surrogate's focus range nearer than 0.2 m gets a table that reaches it (a phone lens focuses at 7 cm);
+    ranges of 0.2 m or farther keep the default table (every stored surrogate and dataset stays as it was)."""
+    from training.psf.geometry import focus_table_reaching
+
+    assert focus_table_reaching(RF50, 0.3) is focus_table(RF50)
+    phone = load_lens(LENSES / "cellphone_asphere.json")
+    t = focus_table_reaching(phone, 0.05, n=9)  # 9 samples: a real-ray focus search each
+    assert t.diopters[-1] == pytest.approx(20.0)
+    assert float(t(0.05)) == pytest.approx(focus(phone, 0.05, phone.design_wavelength_nm), abs=1e-6)
+    with pytest.raises(ValueError, match="outside the table"):
+        focus_table(phone, n=9)(0.07)
