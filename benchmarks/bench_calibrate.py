@@ -74,6 +74,12 @@ class LensSetup:
     step_d: float | None = 0.04  # the chart sweeps' focus step and how far they reach beyond the chart (D);
     margin_d: float | None = 0.3  # None: from the lens's blur per diopter (`sweep_diopters`)
     marker_frac: float | None = None  # marker side / grid spacing (None: the chart's default, a quarter)
+    schedule_m: tuple = (0.5, 10.0)  # the depth stacks' 8 frames (even in diopters) and their scenes' range (m)
+    middlebury: bool = True  # Middlebury Motorcycle among the held-out stacks (its depths are 1-2 m)
+
+    def schedule(self) -> np.ndarray:
+        """The depth stacks' 8 true focus distances (m, near to far)."""
+        return diopter_grid(self.schedule_m[1], self.schedule_m[0], 8)
 
 
 LENSES = {
@@ -99,6 +105,17 @@ LENSES = {
                      ("lens_tolerance:element=3:decentre_x_mm=0.003", "sensor_tilt:tilt_x_deg=0.1:tilt_y_deg=-0.06",
                       f"focus_metadata:bias_d=0:scale={SCALE}", "noise"),
                      tolerance_table="cache/tolerance/auto", step_d=None, margin_d=None, marker_frac=0.45),
+    # the phone lens (EFL 5.6 mm f/2.8, 640 x 480 at 8.9 um: 1.26 px of blur per diopter) in its working range: its
+    # surrogate (configs/psf_cellphone.json) covers 0.05-2 m, its map was calibrated with sweeps widened to its blur
+    # (aat-lens focus-map --near-m 0.05 --calibrate-at 0.07,0.1,0.15,0.3 --sweep-d 6); charts at 7-18 cm, sweeps
+    # designed in pixels of blur, depth stacks 0.07-0.5 m (no Middlebury: its scene lies at 1-2 m); a copy with a
+    # phone's tolerances (the second element decentred 5 um: about 0.6 D at the edge; the sensor tilted 0.3 deg: 0.5 D)
+    "cellphone": LensSetup("cellphone", "lenses/cellphone_asphere.json", "models/psf_cellphone.onnx",
+                           (0.07, 0.1, 0.18), ((12, 4), (-9, -3), (8, 0)),
+                           ("lens_tolerance:element=1:decentre_x_mm=0.005", "sensor_tilt:tilt_x_deg=0.3:tilt_y_deg=-0.2",
+                            f"focus_metadata:bias_d=0:scale={SCALE}", "noise"),
+                           tolerance_table="cache/tolerance/auto", step_d=None, margin_d=None,
+                           schedule_m=(0.07, 0.5), middlebury=False),
 }
 NOMINAL = ("noise",)
 # Sweeps designed in pixels of blur (setups without step_d / margin_d): the RF50's sweeps are 1.4 px of thin-lens
@@ -303,7 +320,7 @@ def part_map(rig: Rig, n_boot: int, log) -> tuple[list, dict]:
     rows, fits = [], {}
     s = rig.setup
     inside = diopter_grid(max(s.distances_m), min(s.distances_m), 10)
-    schedule = diopter_grid(10.0, 0.5, 8)
+    schedule = s.schedule()
     for variant in ("nominal", "copy"):
         sw = [sweep(rig, variant, i, log) for i in range(len(s.distances_m))]
         t0 = time.time()
@@ -336,7 +353,8 @@ def zone_scores(depth: np.ndarray, gt: np.ndarray) -> dict:
     valid = np.isfinite(gt) & (gt > 0)
     err = np.abs(depth - gt)
     outer = zone_masks(*gt.shape)["outer"] & valid
-    return {"mae": float(err[valid].mean()), "mae_outer": float(err[outer].mean())}
+    err_d = np.abs(1.0 / np.maximum(depth[valid], 1e-6) - 1.0 / gt[valid])  # diopters: near and far weigh alike
+    return {"mae": float(err[valid].mean()), "mae_outer": float(err[outer].mean()), "mae_d": float(err_d.mean())}
 
 
 def part_depth(rig: Rig, cal, n: int, log) -> dict:
@@ -346,7 +364,9 @@ def part_depth(rig: Rig, cal, n: int, log) -> dict:
 
     s = rig.setup
     eff = tuple(effects_for(s, "copy"))
-    spec = TestSetSpec(s.lens, s.psf, 8, protocol="fixed", n_procedural=n, effects=eff)
+    near, far = s.schedule_m
+    spec = TestSetSpec(s.lens, s.psf, 8, protocol="fixed", n_procedural=n, effects=eff, focus_near_m=near,
+                       focus_far_m=far, scene_near_m=near, scene_far_m=far, middlebury=s.middlebury)
     t0 = time.time()
     sets = load_test_set(spec, str(ROOT / "cache/heldout"))
     items = sets["procedural"] + sets.get("middlebury", [])
@@ -366,8 +386,8 @@ def part_depth(rig: Rig, cal, n: int, log) -> dict:
     out = {"scenes": len(items), "per_scene": per}
     for k, v in per.items():
         out[k] = {z: list(bootstrap_mean([x[z] for x in v], n_boot=N_BOOT, seed=1))
-                  for z in ("mae", "mae_outer")}
-    for z in ("mae", "mae_outer"):
+                  for z in ("mae", "mae_outer", "mae_d")}
+    for z in ("mae", "mae_outer", "mae_d"):
         out[f"cal/oracle {z}"] = paired_ratio(per["calibration"], per["oracle"], z)
         out[f"cal/prescription {z}"] = paired_ratio(per["calibration"], per["prescription map"], z)
         out[f"prescription/oracle {z}"] = paired_ratio(per["prescription map"], per["oracle"], z)
@@ -381,7 +401,7 @@ def part_needs(rig: Rig, sweeps: list[dict], log) -> list[dict]:
     s = rig.setup
     eff = effects_for(s, "copy")
     inside = diopter_grid(max(s.distances_m), min(s.distances_m), 10)
-    schedule = diopter_grid(10.0, 0.5, 8)
+    schedule = s.schedule()
     rows = []
     subsets = [(1,), (0, 2), (0, 1, 2)]
     for sub in subsets:
@@ -486,7 +506,7 @@ def part_blind(rig: Rig, chart_cal, n_worlds: int, log) -> list[dict]:
 def tables(res: dict) -> str:
     out = ["### a) The calibrated map against the copy's truth (diopters over every pixel)", "",
            "| lens | variant | focus error fitted | tiles | residual RMS | calibration RMS / p95, inside | "
-           "prescription map RMS, inside | thin lens RMS, inside | calibration RMS / p95, 0.5-10 m schedule | "
+           "prescription map RMS, inside | thin lens RMS, inside | calibration RMS / p95, depth schedule | "
            "prescription map RMS, schedule |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in res.get("map", []):
         if "refused" in r:
@@ -511,24 +531,28 @@ def tables(res: dict) -> str:
                    f"{s['prescription map']['rms_d']:.4f} |")
     if res.get("depth"):
         out += ["", "### b) Depth through the copy, classical method, four mappings of the reported focus", "",
-                "| lens | scenes | mapping | MAE (m) | MAE outer (m) |", "|---|---|---|---|---|"]
+                "| lens | scenes | mapping | MAE (m) | MAE outer (m) | MAE (D) |", "|---|---|---|---|---|---|"]
         for lens, d in res["depth"].items():
             for k in ("thin lens", "prescription map", "calibration", "oracle"):
-                out.append(f"| {lens} | {d['scenes']} | {k} | {fmt(d[k]['mae'])} | {fmt(d[k]['mae_outer'])} |")
+                md = fmt(d[k]["mae_d"]) if "mae_d" in d[k] else "-"  # runs before 2026-11-26 kept metres only
+                out.append(f"| {lens} | {d['scenes']} | {k} | {fmt(d[k]['mae'])} | {fmt(d[k]['mae_outer'])} | {md} |")
         out += ["", "| lens | calibration / oracle, MAE | outer | calibration / prescription map, MAE | outer | "
-                    "prescription / oracle, MAE | outer | calibration / thin lens, MAE | outer |",
-                "|---|---|---|---|---|---|---|---|---|"]
+                    "prescription / oracle, MAE | outer | calibration / thin lens, MAE | outer | "
+                    "calibration / prescription map, MAE in D | calibration / thin lens, MAE in D |",
+                "|---|---|---|---|---|---|---|---|---|---|---|"]
         for lens, d in res["depth"].items():
             per = d["per_scene"]  # the thin-lens ratio from the stored scenes (the same paired bootstrap)
             thin = [fmt(paired_ratio(per["calibration"], per["thin lens"], z)) for z in ("mae", "mae_outer")]
+            in_d = [fmt(paired_ratio(per["calibration"], per[b], "mae_d")) if "mae_d" in per["calibration"][0]
+                    else "-" for b in ("prescription map", "thin lens")]
             out.append(f"| {lens} | {fmt(d['cal/oracle mae'])} | {fmt(d['cal/oracle mae_outer'])} | "
                        f"{fmt(d['cal/prescription mae'])} | {fmt(d['cal/prescription mae_outer'])} | "
                        f"{fmt(d['prescription/oracle mae'])} | {fmt(d['prescription/oracle mae_outer'])} | "
-                       f"{thin[0]} | {thin[1]} |")
+                       f"{thin[0]} | {thin[1]} | {in_d[0]} | {in_d[1]} |")
     if res.get("needs"):
         out += ["", "### c) How many chart distances and frames (the copy)", "",
                 "| lens | chart distances (m) | sweep step (D) | frames | family | map RMS inside (D) | "
-                "map RMS 0.5-10 m (D) |", "|---|---|---|---|---|---|---|"]
+                "map RMS, depth schedule (D) |", "|---|---|---|---|---|---|---|"]
         for lens, rows in res["needs"].items():
             for r in rows:
                 if "error" in r:
