@@ -90,3 +90,29 @@ def test_focus_map_writes_draws_and_keeps_an_existing_map(tmp_path, capsys, monk
     assert METADATA_KEY in capsys.readouterr().out and out.read_bytes() == before
     md = {p.key: p.value for p in onnx.load(str(psf)).metadata_props}
     assert json.loads(md[METADATA_KEY]) == fmap.to_dict()
+
+
+def test_focus_map_for_a_phone_lens_working_range(tmp_path, monkeypatch):
+    """--near-m makes the traced map reach the lens's near working range (a phone lens at 5 cm); --calibrate-at and
+    --sweep-d reach the calibration (a lens with ~30x less blur per diopter needs ~30x wider sweeps)."""
+    import training.optics.field_focus as ff
+    import training.render.focus_calibration as fc
+    from aat_deploy.focus.bestfocus import load_json
+
+    traced = ff.best_focus_map
+    monkeypatch.setattr(ff, "best_focus_map", lambda lens, table=None, progress=False: traced(
+        lens, radii=[0.0, 1.0], focus_diopters=[table.diopters[0], table.diopters[-1]], table=table))
+    seen = {}
+
+    def fake_calibrate(lens, fmap, cfg, progress=True):
+        seen["cfg"] = cfg
+        return fmap, []
+
+    monkeypatch.setattr(fc, "calibrate", fake_calibrate)
+    out = tmp_path / "phone.json"
+    phone = str(LENSES / "cellphone_asphere.json")
+    assert main(["focus-map", phone, "--near-m", "0.05", "--calibrate-at", "0.07,0.3", "--sweep-d", "5.5",
+                 "--out", str(out), "-q"]) == 0
+    fmap = load_json(out)
+    assert fmap.focus_diopters[-1] == pytest.approx(20.0)  # the map reaches 5 cm
+    assert seen["cfg"].focus_m == (0.07, 0.3) and seen["cfg"].sweep_d == 5.5
