@@ -21,7 +21,6 @@ from aat_deploy.optics.focus_table import FocusTable, diopter_grid
 from aat_deploy.optics.paraxial import paraxial_data
 from training.optics.focus import focus
 
-
 DEFAULT_NEAR_M = 0.2  # m: the focus table's nearest distance unless a surrogate's range reaches nearer
 
 
