@@ -25,7 +25,8 @@ there (`effects.focus_at`): the renderer's own PSFs are the nominal lens's at th
 
 a) **map**: the calibration's in-focus diopters against the truth over every pixel, RMS and 95th percentile of
    |error|, over reported focus settings inside the calibrated range and over the depth schedule (8 frames,
-   0.5-10 m; the phone 0.07-0.5 m); beside it the nominal prescription's map and the thin lens (both fed the reported focus).
+   0.5-10 m; the phone 0.07-0.5 m); beside it the nominal prescription's map and the thin lens (both fed the
+   reported focus).
 b) **depth**: held-out scenes (`training.train.testsets`: procedural scenes with test-split photographs, their own
    seed, and Middlebury Motorcycle; the phone: procedural only, 0.07-0.5 m) rendered through the copy, 8 frames
    even in diopters over the schedule, the classical
@@ -116,7 +117,8 @@ LENSES = {
     # phone's tolerances (the second element decentred 5 um: about 0.6 D at the edge; the sensor tilted 0.3 deg: 0.5 D)
     "cellphone": LensSetup("cellphone", "lenses/cellphone_asphere.json", "models/psf_cellphone.onnx",
                            (0.07, 0.1, 0.18), ((12, 4), (-9, -3), (8, 0)),
-                           ("lens_tolerance:element=1:decentre_x_mm=0.005", "sensor_tilt:tilt_x_deg=0.3:tilt_y_deg=-0.2",
+                           ("lens_tolerance:element=1:decentre_x_mm=0.005",
+                            "sensor_tilt:tilt_x_deg=0.3:tilt_y_deg=-0.2",
                             f"focus_metadata:bias_d=0:scale={SCALE}", "noise"),
                            tolerance_table="cache/tolerance/auto", step_d=None, margin_d=None,
                            schedule_m=(0.07, 0.5), middlebury=False),

@@ -53,7 +53,8 @@ def main(argv: list[str] | None = None) -> int:
               file=sys.stderr)
         return 2
     t0 = time.time()
-    table = sensitivity_table(lens, focus_m=focus_m, n_rays=a.rays, progress=lambda m: print(f"  {m}", file=sys.stderr, flush=True))
+    table = sensitivity_table(lens, focus_m=focus_m, n_rays=a.rays,
+                              progress=lambda m: print(f"  {m}", file=sys.stderr, flush=True))
     folder.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(table))

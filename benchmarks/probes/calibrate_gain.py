@@ -91,7 +91,8 @@ def depth(rig: B.Rig, n: int, log) -> dict:
         vol = focus_volume(it.stack, cfg.measure, cfg.window_px, prefilter_px=cfg.prefilter_px)
         rep = np.asarray(it.focus_m, np.float64)
         runs = {"thin lens": dict(), "prescription map": dict(best_focus=rig.fmap),
-                "calibration": dict(calibration=cal), "oracle": dict(frame_diopters=rig.truth(list(eff), rep / B.SCALE))}
+                "calibration": dict(calibration=cal),
+                "oracle": dict(frame_diopters=rig.truth(list(eff), rep / B.SCALE))}
         gt = it.depth_m
         valid = np.isfinite(gt) & (gt > 0)
         for k, kw in runs.items():

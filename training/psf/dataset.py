@@ -111,8 +111,8 @@ def build_psf_dataset(lens: Lens, cfg: PSFDataConfig, cache_dir: Path | None = N
             continue
         b = raytrace_psfs(lens, inp["x"][sl], inp["y"][sl], inp["depth_m"][sl], inp["focus_m"][sl], spec,
                           n_rays=cfg.n_rays, wavelength_nm=cfg.wavelength_nm, seed=cfg.seed * 100003 + i,
-                          compiled=compiled, chunk=256, oversample=over, table=table, center_wavelength_nm=cfg.center_wavelength_nm,
-                          device=device)
+                          compiled=compiled, chunk=256, oversample=over, table=table,
+                          center_wavelength_nm=cfg.center_wavelength_nm, device=device)
         kernels[sl], energy[sl], scale[sl] = b.kernels.numpy(), b.energy, b.scale
         _atomic_savez(part, kernels=kernels[sl], energy=energy[sl], scale=scale[sl])
     data = {**{k_: v.astype(np.float32) for k_, v in inp.items()}, "kernels": kernels, "energy": energy,

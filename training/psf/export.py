@@ -62,7 +62,8 @@ def metadata(model: PSFModel, lens: Lens, extra: dict | None = None) -> dict[str
 def optics_metadata(lens: Lens, near_m: float = DEFAULT_NEAR_M) -> dict[str, str]:
     """The lens's focusing, for renderers without the ray tracer (`aat_deploy.diagnose.twin`): the real-ray focus table of
     `training.psf.geometry.focus_table_reaching(lens, near_m)` (diopters ascending, sensor z in mm from the first
-    vertex; near_m: the surrogate's nearest distance) and the paraxial exit pupil (mm from the first vertex), as JSON."""
+    vertex; near_m: the surrogate's nearest distance) and the paraxial exit pupil (mm from the first vertex), as
+    JSON."""
     t = focus_table_reaching(lens, near_m)
     return {TABLE_KEYS[0]: json.dumps(t.diopters.tolist()), TABLE_KEYS[1]: json.dumps(t.sensor_z_mm.tolist()),
             EXIT_PUPIL_KEY: json.dumps(float(paraxial_data(lens).exit_pupil_z_mm))}
