@@ -124,9 +124,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--n", type=int, default=24)
     ap.add_argument("--parts", default="amplitudes,depth")
     ap.add_argument("--out", default=None, help="also write the results as JSON")
+    ap.add_argument("--copy-effects", default=None,
+                    help="amplitudes only: another copy (comma-separated effects, bench_calibrate's syntax)")
     a = ap.parse_args(argv)
     log = lambda m: print(m, file=sys.stderr, flush=True)
-    rig = B.Rig(B.LENSES[a.lens])
+    setup = B.LENSES[a.lens]
+    if a.copy_effects:
+        if "depth" in a.parts:
+            ap.error("--copy-effects: the held-out stacks and sweeps are rendered through bench_calibrate's copy; "
+                     "use --parts amplitudes")
+        setup = B.dataclasses.replace(setup, copy_effects=tuple(a.copy_effects.split(",")))
+    rig = B.Rig(setup)
     res: dict = {"lens": a.lens}
     if "amplitudes" in a.parts:
         res["amplitudes"] = amp = amplitudes(rig)
