@@ -1,7 +1,7 @@
 """How much the blur changes across the any-camera training sweeps against the held-out test stacks (issue 35).
 
     python -m benchmarks.probes.anycam_sweeps [--configs configs/anycam/dfv_aat.json configs/anycam/dfv_aat_v3.json]
-        [--out results/anycam_sweeps.json] [--figure results/figures/anycam_sweeps.png]
+        [--out results/anycam_sweeps.json] [--figure results/figures/anycam_sweeps.png] [--window-coverage]
 
 Per sweep, in pixels of blur diameter: the total blur change k x (1/near - 1/far) (k: the defocus scale the net is
 told, px per diopter, at the sweep's geometric-mean focus) and the blur change per frame spacing, both for the
@@ -12,6 +12,7 @@ image: each lens's focal length, f-number and pixel pitch (paraxial, from its le
 them; k at most K_MAX_PX_PER_D, as the runtime brings frames to) with `bench_anycam`'s fixed schedule, and the
 paper protocol's focus distances as its cached test sets hold them (only where cached; they follow each scene's
 depth range). Prints quantiles and the shares under 9 px and within 20-120 px; writes JSON and a histogram.
+--window-coverage also reads the cached renders: how much of its sweep's depth each 128 px window spans.
 """
 
 from __future__ import annotations
@@ -86,6 +87,35 @@ def test_sweeps(cache: Path) -> list[dict]:
     return rows
 
 
+def window_coverage(config: Path, every: int = 4) -> dict:
+    """How much of its sweep a cached render's window spans in depth: (1/d_2% - 1/d_98%) / (1/near - 1/far) of its
+    depth map, per kind, with the working width (px across the full sensor). Reads the renders cached for the config
+    (every `every`-th item); a narrow field of view (a high working resolution) sees a thin slice of the scene."""
+    from training.data.anycam import AnyCamConfig, AnyCamDataset
+    from training.data.cache import item_path
+    from training.train.config import load_config
+
+    cfg = load_config(config)
+    ds = AnyCamDataset(AnyCamConfig(**{**dict(cfg.data), "only_cached": False}))
+    rows = {}
+    for i in range(0, ds.cfg.n_items, every):
+        f = item_path(ds.cache, i) if ds.cache is not None else None
+        if f is None or not f.is_file():
+            continue
+        with np.load(f) as z:
+            d, fm, cam, width = z["depth_m"], z["focus_m"], json.loads(str(z["camera"])), int(z["sensor_hw"][1])
+        kind = "wide" if ds.is_wide(i) else "traced" if cam.get("traced") else "parametric"
+        cov = (1 / np.percentile(d, 2) - 1 / np.percentile(d, 98)) / (1 / fm[0] - 1 / fm[-1])
+        rows.setdefault(kind, []).append((float(cov), width))
+    out = {}
+    for kind, r in rows.items():
+        cov, w = np.array(r).T
+        out[kind] = {"n": len(cov), **{f"p{q}": float(np.percentile(cov, q)) for q in (10, 50, 90)},
+                     "median_width_under_1000px": float(np.median(cov[w < 1000])) if (w < 1000).any() else None,
+                     "median_width_2000px_up": float(np.median(cov[w >= 2000])) if (w >= 2000).any() else None}
+    return out
+
+
 def stats(x) -> dict:
     x = np.asarray(x, np.float64)
     return {"n": int(x.size), **{f"p{q}": float(np.percentile(x, q)) for q in QUANTILES},
@@ -122,6 +152,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cache", type=Path, default=ROOT / "cache" / "heldout", help="the held-out sets' cache")
     ap.add_argument("--out", type=Path, default=ROOT / "results" / "anycam_sweeps.json")
     ap.add_argument("--figure", type=Path, default=ROOT / "results" / "figures" / "anycam_sweeps.png")
+    ap.add_argument("--window-coverage", action="store_true",
+                    help="also how much of its sweep's depth each cached render's window spans (reads the renders)")
     a = ap.parse_args(argv)
     train = {c.stem: training_sweeps(c) for c in a.configs}
     test = test_sweeps(a.cache)
@@ -148,6 +180,15 @@ def main(argv: list[str] | None = None) -> int:
         s, r = st["span_px"], st["step_px"]
         print(f"| test {name} ({st['frames']} frames) | {s['n']} | " + " / ".join(f"{s[f'p{q}']:.1f}" for q in QUANTILES)
               + f" | {s['under_9px']:.0%} | {s['in_20_120px']:.0%} | {r['p5']:.1f} / {r['p50']:.1f} / {r['p95']:.1f} |")
+    if a.window_coverage:
+        summary["window_coverage"] = {c.stem: window_coverage(c) for c in a.configs}
+        print("\n| renders | kind | n | window depth range / sweep range p10 / p50 / p90 | median, < 1000 px across "
+              "| median, >= 2000 px across |\n|---|---|---|---|---|---|")
+        for name, kinds in summary["window_coverage"].items():
+            for kind, st in kinds.items():
+                w1, w2 = st["median_width_under_1000px"], st["median_width_2000px_up"]
+                print(f"| {name} | {kind} | {st['n']} | {st['p10']:.2f} / {st['p50']:.2f} / {st['p90']:.2f} | "
+                      f"{'-' if w1 is None else f'{w1:.2f}'} | {'-' if w2 is None else f'{w2:.2f}'} |")
     a.out.parent.mkdir(parents=True, exist_ok=True)
     write_text_atomic(a.out, json.dumps({"summary": summary, "configs": [str(c) for c in a.configs]}, indent=1))
     figure(train, test, a.figure)
