@@ -121,7 +121,7 @@ def wide_sweep_camera(rng: np.random.Generator) -> tuple[Camera, dict, float, fl
     half the `random_camera` sweeps change the blur by under 9 px in all, where the held-out stacks change it by
     50-80 px (benchmarks/probes/anycam_sweeps.py). k stays <= K_MAX_PX_PER_D as the runtime keeps it."""
     by_name = {c.name: c for c in SENSOR_CLASSES}
-    for attempt in range(60):
+    for _ in range(60):
         cls = by_name["aps_c" if rng.random() < 0.4 else "full_frame"]
         diag = rng.uniform(*cls.diag_mm)
         focal = _log_uniform(rng, *cls.focal_mm)
