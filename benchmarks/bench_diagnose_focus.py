@@ -260,6 +260,17 @@ def table(rows: list[dict]) -> None:
         how = "family other than none; the focus fit alone names no effect" if all(r.get("fit_only") for r in un) \
             else "family other than none, or focus_metadata named"
         print(f"untouched copies blaming focus metadata ({how}): {bad}/{len(un)}")
+    whole = [r for r in err if not r.get("fit_only")]
+    if whole:
+        named = sum(r["focus_named"] for r in whole)
+        cause = sum(r.get("focus_cause", False) for r in whole)
+        lo, hi = wilson(cause, len(whole))
+        verdicts: dict = {}
+        for r in whole:
+            verdicts[r["verdict"]] = verdicts.get(r["verdict"], 0) + 1
+        print(f"sets with an error: focus metadata named in {named}/{len(whole)}, a cause (explains the gap) in "
+              f"{cause}/{len(whole)} ({100 * lo:.0f}-{100 * hi:.0f} %); verdicts "
+              + ", ".join(f"{k} {v}" for k, v in sorted(verdicts.items(), key=lambda x: str(x[0]))))
     bound = sum(r["frames_on_bound"] > 0 for r in rows)
     print(f"sets with a per-frame estimate on its search bound while the truth is not there: {bound}/{n}")
     for label, key in (("wall clock", "seconds"), ("CPU time, all threads", "cpu_seconds")):
