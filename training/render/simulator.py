@@ -20,9 +20,11 @@ import torch
 
 from aat_deploy.lens.io import load_lens
 from aat_deploy.lens.schema import Lens
+from aat_deploy.optics.focus_table import FocusTable
 from aat_deploy.render import effects as fx
 from aat_deploy.render.optical import optical_stack
 from training.devices.select import resolve_device
+from training.psf.geometry import DEFAULT_NEAR_M
 from training.render.layered import LayeredConfig
 from training.render.sources import OnnxPSF, RayTracedPSF, thin_lens_source
 
@@ -53,6 +55,17 @@ class Stack:
     focus_reported_m: np.ndarray  # (S,) what the metadata says (differs only with metadata effects)
 
 
+def near_focus_table(lens_source) -> FocusTable | None:
+    """The surrogate's stamped focus table when it reaches nearer than the traced default's DEFAULT_NEAR_M (a phone
+    lens's working range: the default table would refuse its focus distances); else None, so the context traces the
+    default table on first use, as it always has (the renders of every 0.2 m+ lens, and their cache keys, stay)."""
+    source = getattr(lens_source, "numpy", None)  # an OnnxPSF's torch-free OnnxSource
+    table = source.focus_table() if source is not None else None
+    if table is None or 1.0 / table.diopters[-1] >= DEFAULT_NEAR_M:
+        return None
+    return table
+
+
 class Simulator:
     def __init__(self, lens: Lens, lens_source=None, effects: list | None = None,
                  layered: LayeredConfig = LayeredConfig(), thin_source=None, device: str | torch.device = "cpu"):
@@ -76,7 +89,8 @@ class Simulator:
 
     def context(self, origin=(0, 0), crop_hw=None) -> fx.SimContext:
         s = self.lens.sensor
-        return fx.SimContext(self.lens, (s.height_px, s.width_px), tuple(origin), self.lens_source)
+        return fx.SimContext(self.lens, (s.height_px, s.width_px), tuple(origin), self.lens_source,
+                             near_focus_table(self.lens_source))
 
     def source(self, ctx: fx.SimContext):
         return fx.wrap_source(self.effects, self.thin_source, ctx)
