@@ -7,7 +7,9 @@ validation curve (same items, same metrics, same mask as the run's validation).
 The validation items (training.data.anycam, fixed_subsets: each item's frames and camera processing fixed) carry
 per-pixel in-focus diopters; the classical method (`aat_deploy.focus.classical_depth`) is given the same map
 (`frame_diopters`) and, for comparison, only the nominal focus distances. Metrics as the run's validation:
-aat_deploy.metrics over pixels inside each stack's focus range, averaged over items. Prints a markdown table.
+aat_deploy.metrics over pixels inside each stack's focus range, averaged over items. Prints a markdown table, and
+with checkpoints the paired ratios (each later checkpoint against the first, each against the classical method
+with the map) with 95 % bootstrap intervals over the items: a new run's gain over an earlier net on the same items.
 """
 
 from __future__ import annotations
@@ -71,12 +73,33 @@ def main(argv: list[str] | None = None) -> int:
     for label, acc in accs.items():
         r = acc.result()
         print(f"| {label} | {r['mae']:.3f} | {r['abs_rel']:.3f} | {r['delta1']:.3f} |")
+    ratios = paired_ratios(accs, [*nets])
+    if ratios:
+        print("\n| paired ratio of MAE over the items both score (95 % bootstrap over items) | ratio |\n|---|---|")
+        for label, (r, lo, hi) in ratios.items():
+            print(f"| {label} | {r:.2f} [{lo:.2f}, {hi:.2f}] |")
     if rows:
         print("\n| item | frames | least map diopters | " + " | ".join(f"{k} MAE (m)" for k in accs) + " |")
         print("|---" * (3 + len(accs)) + "|")
         for i, s_, lo, maes in rows:
             print(f"| {i} | {s_} | {lo:.3f} | " + " | ".join(f"{v:.3f}" for v in maes) + " |")
     return 0
+
+
+def paired_ratios(accs: dict, nets: list[str]) -> dict[str, list[float]]:
+    """{'B / A': [ratio, low, high]}: every net after the first against the first net, and every net against the
+    classical method with the same map; MAE over the items both score (pixels inside the focus range), items
+    resampled together (aat_deploy.eval.stats.paired_ratio). A ratio whose interval holds 1 is no difference."""
+    from aat_deploy.eval.stats import paired_ratio
+
+    pairs = [(b, nets[0]) for b in nets[1:]] + [(b, "Classical, per-pixel map") for b in nets]
+    out = {}
+    for b, a in pairs:
+        both = [(x, y) for x, y in zip(accs[b].rows, accs[a].rows)
+                if x.get("n_valid", 0) > 0 and y.get("n_valid", 0) > 0]
+        if both:
+            out[f"{b} / {a}"] = paired_ratio([x for x, _ in both], [y for _, y in both], "mae")
+    return out
 
 
 if __name__ == "__main__":

@@ -1,7 +1,8 @@
 """How much the blur changes across the any-camera training sweeps against the held-out test stacks (issue 35).
 
     python -m benchmarks.probes.anycam_sweeps [--configs configs/anycam/dfv_aat.json configs/anycam/dfv_aat_v3.json]
-        [--out results/anycam_sweeps.json] [--figure results/figures/anycam_sweeps.png] [--window-coverage]
+        [--out results/anycam_sweeps.json] [--figure results/figures/anycam_sweeps.png]
+        [--window-coverage [--coverage-split train|val] [--coverage-every N]]
 
 Per sweep, in pixels of blur diameter: the total blur change k x (1/near - 1/far) (k: the defocus scale the net is
 told, px per diopter, at the sweep's geometric-mean focus) and the blur change per frame spacing, both for the
@@ -11,7 +12,9 @@ told, px per diopter, at the sweep's geometric-mean focus) and the blur change p
 image: each lens's focal length, f-number and pixel pitch (paraxial, from its lens file, as the runtime reads
 them; k at most K_MAX_PX_PER_D, as the runtime brings frames to) with `bench_anycam`'s fixed schedule, and the
 paper protocol's focus distances as its cached test sets hold them (only where cached; they follow each scene's
-depth range). Prints quantiles and the shares under 9 px and within 20-120 px; writes JSON and a histogram.
+depth range). Prints quantiles and the shares under 9 px and within 20-120 px, and the draw limits' quantities (wide
+sweeps' working width; parametric best-focus maps past infinity or past half the far focus's diopters); writes JSON
+and a histogram.
 --window-coverage also reads the cached renders: how much of its sweep's depth each 128 px window spans.
 """
 
@@ -46,8 +49,20 @@ def training_sweeps(config: Path) -> list[dict]:
         s = int(np.random.default_rng([i, 5]).integers(cams.S_RANGE[0], cams.max_frames(span) + 1))
         rows.append({"kind": "traced" if sw.traced else "wide" if sw.wide else "parametric",
                      "class": sw.info.get("class"), "span_px": span, "dense_step_px": span / (len(sw.focus) - 1),
-                     "read_step_px": span / (s - 1), "frames_read": s})
+                     "read_step_px": span / (s - 1), "frames_read": s, "width_px": int(sw.sensor_hw[1]),
+                     "map_far_ratio": None if sw.traced else map_far_ratio(sw.cam, sw.focus)})
     return rows
+
+
+def map_far_ratio(cam, focus_m: np.ndarray, grid: int = 65) -> float:
+    """The least best-focus diopters of a parametric camera's map (any frame, either astigmatic focus, the full
+    sensor) over its far frame's nominal diopters: below 0 the map passes infinity somewhere, where a net that
+    weights that frame answers up to 1 km (`training.data.cameras.limit_far_map` keeps it >= its floor)."""
+    g = np.linspace(-1.0, 1.0, grid)
+    x, y = np.meshgrid(g, g)
+    f = np.sort(np.asarray(focus_m, np.float64))[:, None, None]
+    d = 1.0 / f + cam.shift_diopters(x[None], y[None], f) - np.abs(0.5 * cam.aberrations.a2 * cam.radius(x, y) ** 2)
+    return float(d.min() * f[-1, 0, 0])
 
 
 def test_sweeps(cache: Path) -> list[dict]:
@@ -87,7 +102,7 @@ def test_sweeps(cache: Path) -> list[dict]:
     return rows
 
 
-def window_coverage(config: Path, every: int = 4) -> dict:
+def window_coverage(config: Path, every: int = 4, split: str = "train") -> dict:
     """How much of its sweep a cached render's window spans in depth: (1/d_2% - 1/d_98%) / (1/near - 1/far) of its
     depth map, per kind, with the working width (px across the full sensor). Reads the renders cached for the config
     (every `every`-th item); a narrow field of view (a high working resolution) sees a thin slice of the scene."""
@@ -96,7 +111,8 @@ def window_coverage(config: Path, every: int = 4) -> dict:
     from training.train.config import load_config
 
     cfg = load_config(config)
-    ds = AnyCamDataset(AnyCamConfig(**{**dict(cfg.data), "only_cached": False}))
+    data = cfg.data if split == "train" else cfg.val_data
+    ds = AnyCamDataset(AnyCamConfig(**{**dict(data), "only_cached": False, "fixed_subsets": False}))
     rows = {}
     for i in range(0, ds.cfg.n_items, every):
         f = item_path(ds.cache, i) if ds.cache is not None else None
@@ -154,6 +170,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--figure", type=Path, default=ROOT / "results" / "figures" / "anycam_sweeps.png")
     ap.add_argument("--window-coverage", action="store_true",
                     help="also how much of its sweep's depth each cached render's window spans (reads the renders)")
+    ap.add_argument("--coverage-split", choices=("train", "val"), default="train",
+                    help="whose renders --window-coverage reads (default train)")
+    ap.add_argument("--coverage-every", type=int, default=4, help="every n-th render (default 4)")
     a = ap.parse_args(argv)
     train = {c.stem: training_sweeps(c) for c in a.configs}
     test = test_sweeps(a.cache)
@@ -180,8 +199,19 @@ def main(argv: list[str] | None = None) -> int:
         s, r = st["span_px"], st["step_px"]
         print(f"| test {name} ({st['frames']} frames) | {s['n']} | " + " / ".join(f"{s[f'p{q}']:.1f}" for q in QUANTILES)
               + f" | {s['under_9px']:.0%} | {s['in_20_120px']:.0%} | {r['p5']:.1f} / {r['p50']:.1f} / {r['p95']:.1f} |")
+    print("\n| training sweeps | wide sweeps' working width (px) p50 / p90 / max | wide over 1,400 px "
+          "| parametric maps past infinity | past half the far focus's diopters |\n|---|---|---|---|---|")
+    for name, rows in train.items():
+        w = np.array([r["width_px"] for r in rows if r["kind"] == "wide"] or [np.nan], np.float64)
+        m = np.array([r["map_far_ratio"] for r in rows if r["map_far_ratio"] is not None], np.float64)
+        summary["training"][name]["limits"] = {
+            "wide_width_p50": float(np.median(w)), "wide_over_1400": float(np.mean(w > 1400)),
+            "maps_past_infinity": float(np.mean(m < 0)), "maps_past_half_far": float(np.mean(m < 0.5 - 1e-6))}
+        print(f"| {name} | {np.percentile(w, 50):.0f} / {np.percentile(w, 90):.0f} / {np.max(w):.0f} | "
+              f"{np.mean(w > 1400):.0%} | {np.mean(m < 0):.0%} | {np.mean(m < 0.5 - 1e-6):.0%} |")
     if a.window_coverage:
-        summary["window_coverage"] = {c.stem: window_coverage(c) for c in a.configs}
+        summary["window_coverage"] = {c.stem: window_coverage(c, a.coverage_every, a.coverage_split)
+                                      for c in a.configs}
         print("\n| renders | kind | n | window depth range / sweep range p10 / p50 / p90 | median, < 1000 px across "
               "| median, >= 2000 px across |\n|---|---|---|---|---|---|")
         for name, kinds in summary["window_coverage"].items():

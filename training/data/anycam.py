@@ -85,6 +85,10 @@ class AnyCamConfig:
     # the scene's depth range, 16-140 px of blur change); decided apart from the other draws, so every other item
     # is the item of the same index with 0 here (`base_config`) and is read from that config's cache when there
     wide_sweep_fraction: float = 0.0
+    wide_max_width_px: int = cams.MAX_WIDTH_PX  # the wide sweeps' finest working resolution (px across)
+    # parametric best-focus maps stay within 1 / far_map_floor x the sweep's far focus (`cameras.limit_far_map`;
+    # 0: as drawn, maps may pass infinity)
+    far_map_floor: float = 0.0
 
     def key(self) -> str:
         """Hash of what defines the renders (not how they are read)."""
@@ -95,12 +99,25 @@ class AnyCamConfig:
             d.pop("max_layers")  # the layered renderer's default (renders made before the field hash as before)
         if not d["wide_sweep_fraction"]:
             d.pop("wide_sweep_fraction")  # renders made before it hash as before
+        if d["wide_max_width_px"] == cams.MAX_WIDTH_PX:
+            d.pop("wide_max_width_px")  # likewise
+        if not d["far_map_floor"]:
+            d.pop("far_map_floor")
         d["version"] = 1
         return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:12]
 
     def base_config(self) -> AnyCamConfig | None:
         """The config whose items this one shares (all but the wide sweeps), or None."""
         return replace(self, wide_sweep_fraction=0.0) if self.wide_sweep_fraction else None
+
+    def donor_configs(self) -> list[AnyCamConfig]:
+        """Configs whose cached renders may hold this one's items: the base config, and the same configs without
+        the later draw limits (wide_max_width_px, far_map_floor at their defaults). A limit only changes the items
+        it touches, so every other item is drawn (and rendered) the same: `AnyCamDataset.is_cached` adopts an
+        item from a donor's cache when its draw there is the same (`same_draw`)."""
+        legacy = replace(self, wide_max_width_px=cams.MAX_WIDTH_PX, far_map_floor=0.0)
+        out = [self.base_config(), None if legacy == self else legacy, None if legacy == self else legacy.base_config()]
+        return [c for c in out if c is not None]
 
 
 @dataclass(frozen=True)
@@ -139,11 +156,21 @@ class AnyCamDataset(Dataset):
         self.cache = Path(cfg.cache_dir) / f"anycam_{cfg.key()}" if cfg.cache_dir else None
         base = cfg.base_config()
         self.base_cache = Path(cfg.cache_dir) / f"anycam_{base.key()}" if base and cfg.cache_dir else None
+        self._donors = [AnyCamDataset._bare(d) for d in cfg.donor_configs()] if cfg.cache_dir else []
         self._traced: dict = {}
         # with only_cached, position j reads item self.items[j]: the cached ones, as found now
         self.items = [i for i in range(cfg.n_items) if not cfg.only_cached or self.is_cached(i)]
         if not self.items:
             raise ValueError(f"{self.cache}: no cached items (only_cached): render them first")
+
+    @classmethod
+    def _bare(cls, cfg: AnyCamConfig) -> AnyCamDataset:
+        """A dataset of `cfg` that only draws and names its cache (no item list, no donors of its own)."""
+        d = cls.__new__(cls)
+        d.cfg, d._traced, d._donors, d.items = cfg, {}, [], []
+        d.cache = Path(cfg.cache_dir) / f"anycam_{cfg.key()}" if cfg.cache_dir else None
+        d.base_cache = None
+        return d
 
     def __len__(self) -> int:
         return len(self.items)
@@ -200,7 +227,7 @@ class AnyCamDataset(Dataset):
             near, far = cams.random_focus_range(rng, 0.35, "full_frame")
             near, far = max(near, 0.3), min(far, 20.0)  # the surrogate's range
         elif wide:
-            cam, info, near, far = cams.wide_sweep_camera(rng)
+            cam, info, near, far = cams.wide_sweep_camera(rng, c.wide_max_width_px)
             sensor_hw = cam.sensor_hw
         else:
             cam, info = cams.random_camera(rng)
@@ -212,7 +239,8 @@ class AnyCamDataset(Dataset):
         spacing = (1 / focus[0] - 1 / focus[-1]) / (len(focus) - 1)
         if not traced:
             ab = cams.random_aberrations(rng, spacing, 0.5 * (1 / near + 1 / far))
-            cam = Camera(cam.focal_mm, cam.f_number, cam.sensor_hw, cam.pixel_mm, ab)
+            cam = cams.limit_far_map(Camera(cam.focal_mm, cam.f_number, cam.sensor_hw, cam.pixel_mm, ab), focus,
+                                     c.far_map_floor)
         return Sweep(cam, tuple(sensor_hw), near, far, focus, kind, info, traced, wide)
 
     def render(self, index: int) -> dict:
@@ -269,16 +297,31 @@ class AnyCamDataset(Dataset):
                                       "pixel_mm": cam.pixel_mm, "aberrations": cam.aberrations.to_dict(),
                                       "traced": info.get("lens"), "info": info})}
 
+    def same_draw(self, other: AnyCamDataset, index: int) -> bool:
+        """Whether item `index` is drawn the same in `other` (a config of the same renders but for its draw
+        limits or wide-sweep share): the same camera, aberrations, sweep and schedule, and the render stream left
+        in the same state, so the rest of `render` (origin, scene, frames) is the same, byte for byte."""
+        states, sweeps = [], []
+        for d in (self, other):
+            rng = np.random.default_rng([d.cfg.seed, index, 35])
+            sweeps.append(d.draw_sweep(rng, index))
+            states.append(rng.bit_generator.state)
+        a, b = sweeps
+        return (states[0] == states[1] and a.cam == b.cam and a.sensor_hw == b.sensor_hw and a.near == b.near
+                and a.far == b.far and np.array_equal(a.focus, b.focus) and a.kind == b.kind and a.info == b.info
+                and a.traced == b.traced and a.wide == b.wide)
+
     def is_cached(self, index: int) -> bool:
-        """The item's render is in the cache and still valid (`stale`). An item this config shares with its
-        `base_config` (every one but the wide sweeps: the same draws, so the same bytes) found valid in that
-        config's cache is adopted first: hard-linked (else copied) into this cache."""
+        """The item's render is in the cache and still valid (`stale`). An item this config shares with a donor
+        config (`AnyCamConfig.donor_configs`: its `base_config`, whose items are all but the wide sweeps, and the
+        same configs without the later draw limits; the same draws, so the same bytes: `same_draw`) found valid in
+        that config's cache is adopted first: hard-linked (else copied) into this cache."""
         if self.cache is None:
             return False
         f = item_path(self.cache, index)
-        if not f.is_file() and self.base_cache is not None and not self.is_wide(index):
-            b = item_path(self.base_cache, index)
-            if _valid(b, self.stale):
+        for donor in self._donors if not f.is_file() else ():
+            b = item_path(donor.cache, index)
+            if _valid(b, self.stale) and self.same_draw(donor, index):
                 f.parent.mkdir(parents=True, exist_ok=True)
                 tmp = f.with_suffix(f".adopt{os.getpid()}.tmp")  # each process its own
                 tmp.unlink(missing_ok=True)
@@ -287,6 +330,7 @@ class AnyCamDataset(Dataset):
                 except OSError:
                     shutil.copyfile(b, tmp)
                 os.replace(tmp, f)
+                break
         return f.is_file() and _valid(f, self.stale)
 
     def stale(self, z) -> bool:

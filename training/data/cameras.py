@@ -16,7 +16,7 @@ subset, or a phone-like few frames at the near end. Distances are metres from th
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -113,13 +113,17 @@ MAX_WIDTH_PX = 6000  # a 24-60 MP sensor's width: the finest working resolution 
 WIDE_SCHEDULES = (("even", "random", "depth"), (0.4, 0.2, 0.4))
 
 
-def wide_sweep_camera(rng: np.random.Generator) -> tuple[Camera, dict, float, float]:
+def wide_sweep_camera(rng: np.random.Generator, max_width_px: int = MAX_WIDTH_PX
+                      ) -> tuple[Camera, dict, float, float]:
     """A large-sensor camera (APS-C or full frame) at a wide aperture sweeping a scene's whole depth range, as
     the paper's protocol and a photographer's focus bracket do: (camera without aberrations, its description, near,
     far of the sweep in m). The total blur change over the sweep, k x (1/near - 1/far) with k the blur growth per
     diopter, is drawn log-uniform over WIDE_SPAN_PX and the working resolution (pixel pitch) set to give it: about
     half the `random_camera` sweeps change the blur by under 9 px in all, where the held-out stacks change it by
-    50-80 px (benchmarks/probes/anycam_sweeps.py). k stays <= K_MAX_PX_PER_D as the runtime keeps it."""
+    50-80 px (benchmarks/probes/anycam_sweeps.py). k stays <= K_MAX_PX_PER_D as the runtime keeps it, the working
+    resolution <= max_width_px: a 128 px render of a 2,000+ px wide camera sees a narrow slice of its scene (often one
+    surface), not the depth range its sweep spans (`--window-coverage`). Draws over the limit are drawn again, so
+    every draw within it is the same as with a higher limit."""
     by_name = {c.name: c for c in SENSOR_CLASSES}
     for _ in range(60):
         cls = by_name["aps_c" if rng.random() < 0.4 else "full_frame"]
@@ -140,12 +144,12 @@ def wide_sweep_camera(rng: np.random.Generator) -> tuple[Camera, dict, float, fl
         k1000 = Camera(focal, fno, (667, 1000), width_mm / 1000).defocus_px_per_diopter(float(np.sqrt(near * far)))
         width_px = int(round(1000 * k / k1000))
         if (min_focus <= near <= WIDE_SCENE_NEAR_M[1] and k <= K_MAX_PX_PER_D
-                and 160 <= width_px <= MAX_WIDTH_PX):
+                and 160 <= width_px <= max_width_px):
             break
     else:  # the last draw, brought inside the limits (its blur change then other than drawn)
         near = float(np.clip(near, min_focus, WIDE_SCENE_NEAR_M[1]))
         far = max(far, near * WIDE_DEPTH_RATIO[0])
-        width_px = int(np.clip(round(1000 * min(k, K_MAX_PX_PER_D) / k1000), 160, MAX_WIDTH_PX))
+        width_px = int(np.clip(round(1000 * min(k, K_MAX_PX_PER_D) / k1000), 160, max_width_px))
     cam = Camera(focal, fno, (max(8, round(width_px / cls.aspect)), width_px), width_mm / width_px)
     info = {"class": cls.name, "sweep": "wide", "sensor_mm": [width_mm, width_mm / cls.aspect], "focal_mm": focal,
             "f_number": fno, "width_px": width_px, "height_px": cam.sensor_hw[0], "min_focus_m": min_focus}
@@ -186,6 +190,31 @@ def random_aberrations(rng: np.random.Generator, spacing_d: float, d_mid: float,
                        tx=float(rng.normal(0, 0.2) * u), ty=float(rng.normal(0, 0.2) * u),
                        a2=float(rng.normal(0, 0.5) * u), g=float(rng.uniform(-0.2, 0.2)), d_mid=float(d_mid),
                        b0_px=float(rng.uniform(0.4, 1.6)), shape_p=float(_log_uniform(rng, 2.0, 10.0)))
+
+
+def limit_far_map(cam: Camera, focus_m: np.ndarray, floor: float, grid: int = 65) -> Camera:
+    """`cam` with its aberrations scaled down (all of c2, c4, tilt and astigmatism by one factor <= 1) so that no
+    frame's best-focus map (tangential or sagittal, anywhere on the full sensor) lies beyond 1 / (floor x the far
+    frame's diopters) m: at most 1 / floor times as far as the sweep's far focus, never past infinity. Aberrations
+    sized in frame spacings (`random_aberrations`) exceed the far focus's own diopters on long sweeps (0.2 D of
+    spacing against 0.023 D at 43 m): the map then reaches 0 D or below in the corners, where a net that picks the
+    far frame answers 1 km (validation spikes of the third run). floor 0: unchanged. A map already within the limit
+    is returned as it is (the same draw, the same render)."""
+    ab = cam.aberrations
+    if floor <= 0:
+        return cam
+    g = np.linspace(-1.0, 1.0, grid)
+    x, y = np.meshgrid(g, g)
+    f = np.sort(np.asarray(focus_m, np.float64))
+    # best focus minus nominal, the nearer-side half of the astigmatic split included (linear in the scale)
+    shift = cam.shift_diopters(x[None], y[None], f[:, None, None]) - np.abs(0.5 * ab.a2 * cam.radius(x, y) ** 2)
+    worst = shift.reshape(len(f), -1).min(1)
+    room = 1.0 / f - floor / f[-1]  # how far each frame's map may move towards the far side (diopters)
+    s = min([1.0] + [float(r / -w) for r, w in zip(room, worst) if w < 0 and r < -w])
+    if s >= 1.0:
+        return cam
+    a = replace(ab, c2=ab.c2 * s, c4=ab.c4 * s, tx=ab.tx * s, ty=ab.ty * s, a2=ab.a2 * s)
+    return Camera(cam.focal_mm, cam.f_number, cam.sensor_hw, cam.pixel_mm, a)
 
 
 MIN_STEP_PX = 1.5  # frames are at least this much blur apart on average (px): finer steps carry little signal

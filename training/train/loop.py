@@ -3,7 +3,8 @@ difference between aberration-aware and thin-lens runs).
 
 Adam, cosine learning rate over the configured number of optimizer steps, gradient clipping, optional start from
 trained weights (`init`: an exported .onnx or a checkpoint, training.nets.warm_start), checkpoints every
-`checkpoint_every` steps (atomic) and resume from `last.pt`: the sampler order depends only on (seed, epoch) and
+`checkpoint_every` steps (atomic; `best.pt` also keeps the weights of the best validation MAE) and resume from
+`last.pt`: the sampler order depends only on (seed, epoch) and
 an epoch can start part-way, so kill + rerun with resume continues exactly where it stopped.
 
 Devices (`device`: auto | cpu | cuda[:N] | mps, training.devices.select): the net, the optimizer state and every
@@ -32,6 +33,7 @@ from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader, Dataset
 from tqdm import tqdm
 
+from aat_deploy.io.atomic import write_text_atomic
 from training.devices.distributed import barrier, broadcast_buffers, init_distributed
 from training.devices.precision import amp_dtype, amp_name, autocast, grad_scaler
 from training.devices.select import pin_memory, resolve_device, to_device
@@ -74,10 +76,24 @@ def _make_sets(cfg: TrainConfig, train_set: Dataset | None, val_set: Dataset | N
 def _validate_and_log(model, val_set, cfg: TrainConfig, out_dir: Path, step: int, final: bool) -> dict:
     metrics, err_map = evaluate(model, val_set, cfg.val_items, cfg.loss.mask_focus_range)
     _log(out_dir, {"step": step, "val": metrics})
+    _keep_best(model, cfg, out_dir, step, metrics)
     if final:
         (out_dir / "val_metrics.json").write_text(json.dumps(metrics, indent=1))
         np.save(out_dir / "val_error_map_m.npy", err_map.astype(np.float32))
     return metrics
+
+
+def _keep_best(model, cfg: TrainConfig, out_dir: Path, step: int, metrics: dict) -> None:
+    """best.pt: the weights of the lowest validation MAE so far (model.pt's format: load_trained and the export read
+    it) and best.json its step and metrics. A run's validation items are fixed, so its steps compare; a fine-tune
+    whose validation peaks early (the any-camera third run: best at step 500 of 9,000) keeps that net."""
+    mae = metrics.get("mae")
+    f = out_dir / "best.json"
+    if mae is None or not np.isfinite(mae) or (f.is_file() and json.loads(f.read_text())["mae"] <= mae):
+        return
+    save_atomic({"model": to_cpu(model.state_dict()), "config": cfg.to_dict(), "config_hash": cfg.hash(),
+                 "step": step}, out_dir / "best.pt")
+    write_text_atomic(f, json.dumps({"step": step, **metrics}, indent=1))
 
 
 def train(cfg: TrainConfig, out_dir, *, train_set: Dataset | None = None, val_set: Dataset | None = None,

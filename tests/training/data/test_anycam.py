@@ -284,3 +284,91 @@ def test_shared_items_are_adopted_from_the_base_cache_wide_ones_never(tmp_path):
     assert item_path(new.cache, shared).read_bytes() == item_path(new.base_cache, shared).read_bytes()
     assert not item_path(new.cache, wide).exists()
     assert new.is_cached(shared)  # again: idempotent
+
+
+ROOT = __import__("pathlib").Path(__file__).resolve().parents[3]
+ANYCAM_CONFIGS = sorted((ROOT / "configs" / "anycam").glob("*.json"))
+
+
+def test_every_anycam_config_keeps_the_held_out_lenses_out():
+    """No any-camera config (the fourth run's included) names a held-out lens anywhere (lens, init, data), and
+    every traced camera its items draw is one of TRACED (none held out)."""
+    assert "dfv_aat_v4.json" in {p.name for p in ANYCAM_CONFIGS}
+    for path in ANYCAM_CONFIGS:
+        text = path.read_text()
+        assert not any(h in text for h in HELD_OUT_LENSES), path
+        data = json.loads(text)["data"]
+        d = AnyCamDataset(AnyCamConfig(**{**data, "n_items": 300, "cache_dir": None, "only_cached": False}))
+        for i in range(300):
+            sw = d.draw_sweep(np.random.default_rng([d.cfg.seed, i, 35]), i)
+            assert not sw.traced or sw.info["lens"] in TRACED
+
+
+def test_far_map_limit_keeps_every_frames_map_within_twice_the_far_focus():
+    """limit_far_map: after it no frame's best focus (either astigmatic focus, anywhere on the sensor) lies past
+    floor x the far frame's diopters; a camera within the limit comes back unchanged (the same draw)."""
+    from training.render.parametric import Aberrations, Camera
+
+    focus = np.geomspace(0.31, 43.0, 16)
+    g = np.linspace(-1, 1, 101)  # finer than the function's own grid: the map between its nodes too
+    x, y = np.meshgrid(g, g)
+    touched = 0
+    rng = np.random.default_rng(7)
+    for _ in range(200):
+        spacing = (1 / focus[0] - 1 / focus[-1]) / 15
+        ab = cams.random_aberrations(rng, spacing, 0.5 * (1 / focus[0] + 1 / focus[-1]))
+        cam = Camera(50.0, 1.8, (800, 1200), 0.03, ab)
+        out = cams.limit_far_map(cam, focus, 0.5)
+        lo = (1 / focus[:, None, None] + out.shift_diopters(x[None], y[None], focus[:, None, None])
+              - np.abs(0.5 * out.aberrations.a2 * out.radius(x, y) ** 2)).min()
+        assert lo >= 0.5 / focus[-1] * 0.99
+        before = (1 / focus[:, None, None] + cam.shift_diopters(x[None], y[None], focus[:, None, None])
+                  - np.abs(0.5 * ab.a2 * cam.radius(x, y) ** 2)).min()
+        if before >= 0.5 / focus[-1] + 1e-6:
+            assert out == cam
+        else:
+            touched += 1
+            assert out.aberrations.g == ab.g and abs(out.aberrations.c2) <= abs(ab.c2)
+    assert touched > 20  # a long sweep's far end: frame-spacing-sized aberrations often pass it
+    assert cams.limit_far_map(Camera(50.0, 1.8, (8, 12), 0.03, Aberrations(c2=-9.0)), focus, 0.0).aberrations.c2 == -9
+
+
+def test_the_wide_sweeps_width_cap_redraws_only_the_draws_over_it():
+    """wide_sweep_camera(max_width_px): every camera within the cap, and a draw within it is the uncapped draw."""
+    same = 0
+    for i in range(200):
+        cam, info, near, far = cams.wide_sweep_camera(np.random.default_rng([i, 1]), 1280)
+        cam0, info0, near0, far0 = cams.wide_sweep_camera(np.random.default_rng([i, 1]))
+        assert cam.sensor_hw[1] <= 1280
+        if cam0.sensor_hw[1] <= 1280:
+            same += 1
+            assert (cam, info, near, far) == (cam0, info0, near0, far0)
+    assert 60 <= same < 200
+
+
+def test_items_the_draw_limits_leave_alone_are_adopted_from_the_unlimited_cache(tmp_path):
+    """A config with draw limits (far_map_floor, wide_max_width_px) shares every item they do not touch with the
+    same config without them: its render is the same, byte for byte, and is adopted from that config's cache; an
+    item a limit touches is drawn anew and never adopted."""
+    from training.data.cache import item_path
+
+    old_cfg = replace_cfg(_sweeps_config(wide_sweep_fraction=0.5, cache_dir=str(tmp_path / "old")), n_items=40)
+    new_cfg = replace_cfg(old_cfg, far_map_floor=0.5, wide_max_width_px=1280, cache_dir=str(tmp_path / "old"))
+    old, new = AnyCamDataset(old_cfg), AnyCamDataset(new_cfg)
+    assert new_cfg.key() != old_cfg.key() and old_cfg.key() in {c.key() for c in new_cfg.donor_configs()}
+    same = [i for i in range(40) if new.same_draw(AnyCamDataset._bare(old_cfg), i)]
+    diff = [i for i in range(40) if i not in same]
+    assert same and diff
+    for i in (same[0], diff[0]):
+        old.load_or_render(i)
+    assert new.is_cached(same[0]) and not new.is_cached(diff[0])
+    assert item_path(new.cache, same[0]).read_bytes() == item_path(old.cache, same[0]).read_bytes()
+    fresh = AnyCamDataset(replace_cfg(new_cfg, cache_dir=str(tmp_path / "fresh")))
+    assert np.array_equal(fresh.render(same[0])["frames"], old.render(same[0])["frames"])
+    assert not np.array_equal(fresh.render(diff[0])["frames"], old.render(diff[0])["frames"])
+
+
+def replace_cfg(cfg: AnyCamConfig, **kw) -> AnyCamConfig:
+    from dataclasses import replace
+
+    return replace(cfg, **kw)

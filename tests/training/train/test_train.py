@@ -288,3 +288,27 @@ def test_any_camera_net_trains_resumes_exactly_validates_and_exports(tmp_path):
     assert len(log) == 6 and all(math.isfinite(r["frames_l1"]) for r in log)
     md, err = export_checkpoint(tmp_path / "a" / "model.pt", tmp_path / "m.onnx")
     assert md["aat.inputs"] == "focus_map" and md["aat.net"] == "dfvaat" and err < 1e-3
+
+
+@pytest.mark.numerics
+def test_the_best_validation_weights_are_kept(tmp_path):
+    """best.pt holds the weights of the step whose validation MAE is the lowest logged (model.pt's format), across a
+    resume; best.json names that step."""
+    from training.data.anycam import AnyCamConfig, AnyCamDataset
+    from training.train.loop import load_trained, train
+
+    common = dict(seed=4, height=32, width=32, margin_px=8, max_layers=16, cache_dir=str(tmp_path / "cache"))
+    data = AnyCamDataset(AnyCamConfig(n_items=6, crop=0, **common))
+    val = AnyCamDataset(AnyCamConfig(n_items=4, crop=0, fixed_subsets=True, **common))
+    cfg = train_config(net="dfvaat", simulator="any_camera", lens="", val_every=1, val_items=4, lr=3e-3,
+                       loss=LossConfig(level_weights=(2.0, 1.0), mask_focus_range=True))
+    train(cfg, tmp_path / "r", train_set=data, val_set=val, stop_at_step=3, progress=False)
+    train(cfg, tmp_path / "r", train_set=data, val_set=val, resume=True, progress=False)
+    rows = [json.loads(line) for line in (tmp_path / "r" / "log.jsonl").read_text().splitlines()]
+    maes = {r["step"]: r["val"]["mae"] for r in rows if "val" in r}
+    assert len(maes) == 6 and len(set(maes.values())) > 1  # the weights changed between validations
+    best = json.loads((tmp_path / "r" / "best.json").read_text())
+    assert best["mae"] == min(maes.values()) and maes[best["step"]] == best["mae"]
+    model, _ = load_trained(tmp_path / "r" / "best.pt")
+    last, _ = load_trained(tmp_path / "r" / "model.pt")
+    assert torch.equal(_params(model), _params(last)) is (best["step"] == 6)
