@@ -54,15 +54,14 @@ def training_sweeps(config: Path) -> list[dict]:
     return rows
 
 
-def map_far_ratio(cam, focus_m: np.ndarray, grid: int = 65) -> float:
-    """The least best-focus diopters of a parametric camera's map (any frame, either astigmatic focus, the full
-    sensor) over its far frame's nominal diopters: below 0 the map passes infinity somewhere, where a net that
-    weights that frame answers up to 1 km (`training.data.cameras.limit_far_map` keeps it >= its floor)."""
-    g = np.linspace(-1.0, 1.0, grid)
-    x, y = np.meshgrid(g, g)
-    f = np.sort(np.asarray(focus_m, np.float64))[:, None, None]
-    d = 1.0 / f + cam.shift_diopters(x[None], y[None], f) - np.abs(0.5 * cam.aberrations.a2 * cam.radius(x, y) ** 2)
-    return float(d.min() * f[-1, 0, 0])
+def map_far_ratio(cam, focus_m: np.ndarray) -> float:
+    """The least best-focus diopters of a parametric camera's map (`cameras.least_map_diopters`: any frame, either
+    astigmatic focus, the full sensor) over its far frame's nominal diopters: below 0 the map passes infinity
+    somewhere, where a net that weights that frame answers up to 1 km (`cameras.limit_far_map` keeps it >= its
+    floor)."""
+    from training.data.cameras import least_map_diopters
+
+    return float(least_map_diopters(cam, focus_m).min() * float(np.max(focus_m)))
 
 
 def test_sweeps(cache: Path) -> list[dict]:

@@ -192,27 +192,34 @@ def random_aberrations(rng: np.random.Generator, spacing_d: float, d_mid: float,
                        b0_px=float(rng.uniform(0.4, 1.6)), shape_p=float(_log_uniform(rng, 2.0, 10.0)))
 
 
-def limit_far_map(cam: Camera, focus_m: np.ndarray, floor: float, grid: int = 65) -> Camera:
-    """`cam` with its aberrations scaled down (all of c2, c4, tilt and astigmatism by one factor <= 1) so that no
-    frame's best-focus map (tangential or sagittal, anywhere on the full sensor) lies beyond 1 / (floor x the far
-    frame's diopters) m: at most 1 / floor times as far as the sweep's far focus, never past infinity. Aberrations
-    sized in frame spacings (`random_aberrations`) exceed the far focus's own diopters on long sweeps (0.2 D of
-    spacing against 0.023 D at 43 m): the map then reaches 0 D or below in the corners, where a net that picks the
-    far frame answers 1 km (validation spikes of the third run). floor 0: unchanged. A map already within the limit
-    is returned as it is (the same draw, the same render)."""
-    ab = cam.aberrations
-    if floor <= 0:
-        return cam
+def least_map_diopters(cam: Camera, focus_m: np.ndarray, grid: int = 65) -> np.ndarray:
+    """(S,) the least best-focus object diopters of each frame's map (focus_m sorted near -> far): either
+    astigmatic focus, anywhere on the full sensor (a grid x grid lattice of fields, corners and edges included).
+    Below 0 a frame's map passes infinity somewhere."""
     g = np.linspace(-1.0, 1.0, grid)
     x, y = np.meshgrid(g, g)
+    f = np.sort(np.asarray(focus_m, np.float64))[:, None, None]
+    d = 1.0 / f + cam.shift_diopters(x[None], y[None], f) - np.abs(0.5 * cam.aberrations.a2 * cam.radius(x, y) ** 2)
+    return d.reshape(len(f), -1).min(1)
+
+
+def limit_far_map(cam: Camera, focus_m: np.ndarray, floor: float) -> Camera:
+    """`cam` with its aberrations scaled down (all of c2, c4, tilt and astigmatism by one factor <= 1) so that no
+    frame's best-focus map (`least_map_diopters`) lies beyond 1 / (floor x the far frame's diopters) m: at most
+    1 / floor times as far as the sweep's far focus, never past infinity. Aberrations sized in frame spacings
+    (`random_aberrations`) exceed the far focus's own diopters on long sweeps (0.2 D of spacing against 0.023 D at
+    43 m): the map then reaches 0 D or below in the corners, where a net that picks the far frame answers 1 km (the
+    third run's validation spikes). floor 0: unchanged. A map already within the limit is returned as it is (the
+    same draw, the same render)."""
+    if floor <= 0:
+        return cam
     f = np.sort(np.asarray(focus_m, np.float64))
-    # best focus minus nominal, the nearer-side half of the astigmatic split included (linear in the scale)
-    shift = cam.shift_diopters(x[None], y[None], f[:, None, None]) - np.abs(0.5 * ab.a2 * cam.radius(x, y) ** 2)
-    worst = shift.reshape(len(f), -1).min(1)
+    worst = least_map_diopters(cam, f) - 1.0 / f  # the shift towards the far side, linear in the scale
     room = 1.0 / f - floor / f[-1]  # how far each frame's map may move towards the far side (diopters)
     s = min([1.0] + [float(r / -w) for r, w in zip(room, worst) if w < 0 and r < -w])
     if s >= 1.0:
         return cam
+    ab = cam.aberrations
     a = replace(ab, c2=ab.c2 * s, c4=ab.c4 * s, tx=ab.tx * s, ty=ab.ty * s, a2=ab.a2 * s)
     return Camera(cam.focal_mm, cam.f_number, cam.sensor_hw, cam.pixel_mm, a)
 
