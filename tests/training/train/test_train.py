@@ -312,3 +312,7 @@ def test_the_best_validation_weights_are_kept(tmp_path):
     model, _ = load_trained(tmp_path / "r" / "best.pt")
     last, _ = load_trained(tmp_path / "r" / "model.pt")
     assert torch.equal(_params(model), _params(last)) is (best["step"] == 6)
+    from training.train.export import export_checkpoint
+
+    md, err = export_checkpoint(tmp_path / "r" / "best.pt", tmp_path / "best.onnx")  # exported as model.pt is
+    assert md["aat.net"] == "dfvaat" and err < 1e-3
