@@ -10,7 +10,7 @@ class AatError(ValueError):
     """The root of every error aat raises on purpose (bad input, a setting that cannot work, a missing extra): the
     message is one line naming the file or the setting and the problem. A ValueError, so callers that catch
     ValueError keep working; `except AatError` catches exactly aat's own. Some also derive from the built-in their
-    callers catch (RuntimeError, ImportError). Not an error: `cli.common.Interrupted` (a KeyboardInterrupt)."""
+    callers catch (RuntimeError, ImportError). Not an error: `aat_deploy.interrupt.Interrupted` (a KeyboardInterrupt)."""
 
 
 class CaptureError(AatError):

@@ -14,7 +14,7 @@ import pytest
 
 from aat_deploy.errors import AatError
 
-NOT_ERRORS = {"aat_deploy.cli.common.Interrupted"}  # KeyboardInterrupt: stops the run, whatever catches ValueError
+NOT_ERRORS = {"aat_deploy.interrupt.Interrupted"}  # KeyboardInterrupt: stops the run, whatever catches ValueError
 KEEPS = {"aat_deploy.diagnose.session.DiagnoseError": RuntimeError, "training.chain.runner.ChainError": RuntimeError,
          "aat_deploy.render.effects.base.NeedsTorch": RuntimeError,
          "aat_deploy.extensions.ExtensionUnavailable": ImportError}

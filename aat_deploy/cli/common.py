@@ -7,48 +7,51 @@ import argparse
 import signal
 import sys
 
-from .. import DISTRIBUTION, __version__
+from .. import DISTRIBUTION, __version__, interrupt
+from ..interrupt import Interrupted  # noqa: F401 (where the commands' callers have found it)
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
 EXIT_STATUS = ("exit status: 0 all done; 1 some capture or file failed (one line each, the others still ran); "
                "2 usage error or nothing could be run; 130 interrupted (Ctrl-C), 143 terminated (SIGTERM)")
 
 
-class Interrupted(KeyboardInterrupt):
-    """SIGINT or SIGTERM, raised in the main thread so every `finally` and atomic writer removes what it had
-    started (aat_deploy.io.atomic)."""
-
-    def __init__(self, signum: int):
-        super().__init__(signal.Signals(signum).name)
-        self.signum = signum
-
-
 def run_guarded(prog: str, main, argv) -> int:
     """main(argv) with SIGINT and SIGTERM raised as Interrupted, so an interrupted run leaves no temporary folder
     behind; the interruption is one line and the exit status 128 + the signal (130 Ctrl-C, 143 SIGTERM), never a
-    traceback, also during start-up (commands import their heavy modules inside main for that)."""
-    first: list[int] = []
+    traceback, also during start-up (commands import their heavy modules inside main for that). The signal is also
+    remembered (aat_deploy.interrupt): when a finalizer discards the exception (CPython's "Exception ignored in"),
+    the run still stops at its next commit of an output instead of finishing as if no signal had come."""
 
     def handler(signum, frame):
-        first.append(signum)
+        interrupt.note(signum)
         raise Interrupted(signum)
 
-    old = {}
+    def unraisable(u):  # an Interrupted discarded by a finalizer: remembered above, not a traceback
+        if not isinstance(u.exc_value, Interrupted):
+            old_hook(u)
+
+    old, old_hook = {}, sys.unraisablehook
     try:
         for sig in (signal.SIGINT, signal.SIGTERM):
             old[sig] = signal.signal(sig, handler)
     except ValueError:  # not the main thread (a library caller): its own signal handling stays
         pass
+    if old:
+        interrupt.clear()
+        sys.unraisablehook = unraisable
     try:
         return main(argv)
     except KeyboardInterrupt:
-        sig = first[0] if first else signal.SIGINT
+        sig = interrupt.received() or signal.SIGINT
         what = "interrupted" if sig == signal.SIGINT else "terminated"
         print(f"{prog}: {what} ({signal.Signals(sig).name})", file=sys.stderr, flush=True)
         return 128 + int(sig)
     finally:
         for sig, h in old.items():
             signal.signal(sig, h)
+        if old:
+            sys.unraisablehook = old_hook
+            interrupt.clear()
 
 
 def version_text(prog: str) -> str:

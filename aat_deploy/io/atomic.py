@@ -10,7 +10,8 @@ it is deleted and `path` is left as it was. `atomic_files` does the same for fil
 Folders: a folder is filled under a hidden temporary sibling `.NAME.tmp-PID` and renamed into place, carrying
 the marker of its tool and its content list (aat_deploy.io.marker); an existing folder (replaced only with force, and
 only when its marker proves it is an earlier output of the same tool with nothing else in it) is first moved aside to
-`.NAME.old-PID`, checked again, then deleted. A run interrupted by SIGINT/SIGTERM deletes its temporary folder; one
+`.NAME.old-PID`, checked again, then deleted. A run interrupted by SIGINT/SIGTERM deletes its temporary folder and
+commits nothing, also when the signal's exception was discarded by a finalizer (aat_deploy.interrupt); one
 killed outright leaves it behind, and the next run writing into the same parent folder deletes the marked hidden
 siblings whose process is gone (never a folder without our marker).
 
@@ -35,6 +36,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from ..errors import OutputError
+from ..interrupt import raise_if_interrupted
 from . import marker
 
 _SHORT_WRITE = re.compile(r"(\d+) requested and (\d+) written")  # numpy's tofile/save on a full disk (no errno)
@@ -107,6 +109,7 @@ def atomic_files(*paths: str | Path) -> Iterator[list[Path]]:
         _sweep_once(folder)
     try:
         yield tmps
+        raise_if_interrupted()  # a signal whose exception a finalizer discarded: commit nothing
         for tmp, path in zip(tmps, paths):
             if os.path.lexists(tmp):
                 os.replace(tmp, path)
@@ -259,6 +262,7 @@ def atomic_folder(out_dir: str | Path, force: bool, tool: str) -> Iterator[Path]
     try:
         marker.write(tmp, tool, complete=False)
         yield tmp
+        raise_if_interrupted()  # a signal whose exception a finalizer discarded: commit nothing
         marker.write(tmp, tool, complete=True)
         replace_folder(tmp, out_dir, force, tool)
     except BaseException:

@@ -811,8 +811,11 @@ import {module} as target
 real = target.{name}
 def held(*a, **k):
     out = real(*a, **k) if {after} else None
-    open({flag!r}, "w").write("in")
-    time.sleep(120)
+    with open({flag!r}, "w") as f:  # closed here: a handler run by an unclosed file's implicit close is discarded
+        f.write("in")
+    end = time.monotonic() + 120
+    while time.monotonic() < end:  # short sleeps: a signal that lands just before one starts waits 50 ms, not 120 s
+        time.sleep(0.05)
     return out if {after} else real(*a, **k)
 target.{name} = held
 from aat_deploy.cli.infer import main
@@ -822,7 +825,10 @@ sys.exit(main(sys.argv[1:]))
 
 def _run_until(tmp_path, module, name, after, argv, sig):
     """aat-infer in a subprocess, held inside module.name (after it ran, or before); send `sig` once it is there.
-    Returns (exit status, stderr lines)."""
+    Returns (exit status, stderr lines). The flag file appears before the hold starts; the hold is race-free for a
+    signal that lands in between (once, `open(flag).write()` and one `time.sleep(120)`: under load the signal's
+    handler ran in the implicit close of the flag file, CPython discarded its exception, and the run exited 120 s
+    later, past the 60 s below)."""
     import signal as _signal
     import time
 
@@ -850,6 +856,42 @@ def test_a_signal_while_outputs_are_written_leaves_no_temporary_folder(sig, stat
                          [cap, "--model", model_path, "--out", out, "-q", "--threads", "1"], sig)
     assert rc == status and err == [f"aat-infer: {'terminated' if sig == 'SIGTERM' else 'interrupted'} ({sig})"], err
     assert not out.exists() and list(out.parent.iterdir()) == []  # no .o.tmp-PID left behind
+    assert tree_hash(cap, earlier) == before
+
+
+DISCARDED = """
+import signal, sys
+sys.path.insert(0, {root!r})
+import aat_deploy.infer.pipeline as target
+real = target.write_outputs
+class Finalized:
+    def __del__(self):  # as an unclosed file whose implicit close runs the handler: CPython discards its exception
+        signal.raise_signal(signal.{sig})
+def written(*a, **k):
+    out = real(*a, **k)
+    Finalized()
+    return out
+target.write_outputs = written
+from aat_deploy.cli.infer import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+@pytest.mark.parametrize("sig, status", [("SIGTERM", 143), ("SIGINT", 130)])
+def test_a_signal_whose_exception_a_finalizer_discards_still_stops_the_run(sig, status, model_path, good, tmp_path):
+    """Before: a signal whose handler ran inside a finalizer (a `__del__`, an unclosed file's close) was lost: CPython
+    discards the exception, the run finished and committed its outputs with exit status 0 and an "Exception ignored"
+    traceback (the CI flake of the test above was this, in its harness)."""
+    cap, earlier = good
+    out = tmp_path / "runs" / "o"
+    before = tree_hash(cap, earlier)
+    code = DISCARDED.format(root=str(Path(__file__).resolve().parents[2]), sig=sig)
+    proc = subprocess.run([sys.executable, "-c", code, str(cap), "--model", str(model_path), "--out", str(out), "-q",
+                           "--threads", "1"], capture_output=True, text=True, timeout=120)
+    err = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert proc.returncode == status and err == [
+        f"aat-infer: {'terminated' if sig == 'SIGTERM' else 'interrupted'} ({sig})"], (proc.returncode, err)
+    assert not out.exists() and list(out.parent.iterdir()) == []  # nothing committed, no .o.tmp-PID left behind
     assert tree_hash(cap, earlier) == before
 
 

@@ -138,3 +138,33 @@ def test_temporary_files_of_killed_processes_are_swept_and_nothing_else(tmp_path
     assert all(q.read_bytes() == b"keep" for q in keep) and link.is_symlink() and (folder / "x").exists()
     assert (tmp_path / "thesis.txt").read_text() == "a user's file"
     assert atomic.temp_file_pid(temp_file(tmp_path / "x.tar.gz").name) == os.getpid()
+
+
+def test_nothing_is_committed_after_a_signal_whose_exception_was_discarded(tmp_path):
+    """A SIGTERM remembered by the commands' handler (aat_deploy.interrupt) but whose exception a finalizer discarded:
+    the writers raise Interrupted instead of committing; the old file and folder stay, no temporary is left."""
+    from aat_deploy import interrupt
+    from aat_deploy.io import marker
+
+    p, out = tmp_path / "a.json", tmp_path / "out"
+    p.write_text("old")
+    out.mkdir()
+    (out / "summary.json").write_text("old")
+    marker.write(out, "aat-infer", complete=True)
+    try:
+        with pytest.raises(interrupt.Interrupted, match="SIGTERM"):
+            with atomic_file(p) as tmp:
+                tmp.write_text("new")
+                interrupt.note(signal.SIGTERM)  # while it was written
+        interrupt.clear()
+        with pytest.raises(interrupt.Interrupted) as e:
+            with atomic.atomic_folder(out, True, "aat-infer") as tmp:
+                (tmp / "summary.json").write_text("new")
+                interrupt.note(signal.SIGTERM)
+        assert e.value.signum == signal.SIGTERM
+    finally:
+        interrupt.clear()
+    assert p.read_text() == "old" and (out / "summary.json").read_text() == "old"
+    assert sorted(q.name for q in tmp_path.iterdir()) == ["a.json", "out"]
+    write_text_atomic(p, "new")  # cleared: writes commit again
+    assert p.read_text() == "new"
