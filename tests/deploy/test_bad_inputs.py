@@ -825,10 +825,11 @@ sys.exit(main(sys.argv[1:]))
 
 def _run_until(tmp_path, module, name, after, argv, sig):
     """aat-infer in a subprocess, held inside module.name (after it ran, or before); send `sig` once it is there.
-    Returns (exit status, stderr lines). The flag file appears before the hold starts; the hold is race-free for a
-    signal that lands in between (once, `open(flag).write()` and one `time.sleep(120)`: under load the signal's
-    handler ran in the implicit close of the flag file, CPython discarded its exception, and the run exited 120 s
-    later, past the 60 s below)."""
+    Returns (exit status, stderr lines). The signal can land between the flag file's creation and the hold, so the
+    flag is closed explicitly (a handler run by an unclosed file's implicit close raises inside a finalizer, and
+    CPython discards that) and the hold sleeps in 50 ms steps (a handler pending when a sleep starts runs when it
+    ends). Before, `open(flag).write()` and one `time.sleep(120)` failed this test under load: the run went on and
+    exited 120 s later, past the 60 s below."""
     import signal as _signal
     import time
 
