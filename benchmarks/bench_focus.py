@@ -1,7 +1,7 @@
 """Classical depth from focus (aat_deploy.focus, `aat-infer --method focus`) on held-out stacks: which focus measure
 and estimator, thin-lens vs aberration-aware focus mapping, next to the shipped learned models, and its speed.
 
-    OMP_WAIT_POLICY=PASSIVE python -m benchmarks.bench_focus --lens rf50 [--n 32] [--variants] [--speed]
+    OMP_WAIT_POLICY=PASSIVE python -m benchmarks.bench_focus --lens rf50 [--n 32] [--variants] [--speed] [--threads 2]
     OMP_WAIT_POLICY=PASSIVE python -m benchmarks.bench_focus --lens paper50 [--n 32]
 
 Test stacks: `training.train.testsets` (the cache every DfF benchmark shares), the "fixed" protocol: 8 frames even in
@@ -18,7 +18,7 @@ map, min RMS spot) and aberration-aware calibrated (plus the offset measured on 
 `<lens folder>/best_focus/<lens stem>.json` (`aat-lens focus-map LENS`). Learned models: models/reproduce/dff_dfvnet_*.onnx
 (RF50 only), run as aat-infer runs them.
 --variants: the measure / estimator / window / filling comparison (thin-lens mapping, RF50 procedural scenes).
---speed: one 8 x 3 x 640 x 960 stack, best of 5, 2 threads, thin-lens vs aberration-aware (same run).
+--speed: one 8 x 3 x 640 x 960 stack, best of 5, `--threads` (default 2), thin-lens vs aberration-aware (same run).
 --calibration: only print the lens's stored calibration (where the focus measure peaks vs the traced min-RMS best
 focus, measured by `aat-lens focus-map` on rendered stacks) as a table; no stacks.
 """
@@ -150,7 +150,7 @@ def run_variants(items) -> list[tuple[str, dict]]:
     return rows, aif_rows
 
 
-def run_models(items) -> list[tuple[str, list]]:
+def run_models(items, threads: int = 2) -> list[tuple[str, list]]:
     from aat_deploy.infer.model import DfFModel
 
     out = []
@@ -158,18 +158,18 @@ def run_models(items) -> list[tuple[str, list]]:
         path = ROOT / "models" / "reproduce" / f"{name}.onnx"
         if not path.is_file():
             continue
-        m = DfFModel(path, threads=2)
+        m = DfFModel(path, threads=threads)
         label = f"learned: DFVNet {'AAT' if name.endswith('aat') else 'thin-lens'} training ({path.name})"
         out.append((label, [(m.infer(it.stack, it.focus_m).depth_m, None) for it in items]))
     return out
 
 
-def speed(items, fmap) -> list[str]:
+def speed(items, fmap, threads: int = 2) -> list[str]:
     import cv2
 
     from aat_deploy.focus import FocusConfig, classical_depth
 
-    cv2.setNumThreads(2)
+    cv2.setNumThreads(threads)
     it = items[0]
     lines = ["| mapping | stack | time (best of 5) | measure | placement | estimate | aif | fill | spread |",
              "|---|---|---|---|---|---|---|---|---|"]
@@ -214,6 +214,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--variants", action="store_true")
     ap.add_argument("--speed", action="store_true")
     ap.add_argument("--calibration", action="store_true", help="print the stored calibration only")
+    ap.add_argument("--threads", type=int, default=2,
+                    help="threads of the learned models (onnxruntime) and of --speed (OpenCV)")
     ap.add_argument("--out", default=str(RESULTS))
     a = ap.parse_args(argv)
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
@@ -237,8 +239,8 @@ def main(argv: list[str] | None = None) -> int:
     sets = load_items(a.lens, a.n)
     result = {"lens": a.lens, "n": a.n, "config": FocusConfig().__dict__, "sets": {}}
     if a.speed:
-        lines = speed(sets["procedural"], fmap)
-        print("\n### Speed (2 threads)\n\n" + "\n".join(lines))
+        lines = speed(sets["procedural"], fmap, a.threads)
+        print(f"\n### Speed ({a.threads} thread{'s' if a.threads > 1 else ''})\n\n" + "\n".join(lines))
         result["speed"] = lines
     if a.variants:
         rows, aif_rows = run_variants(sets["procedural"])
@@ -257,7 +259,7 @@ def main(argv: list[str] | None = None) -> int:
             if fmap.offset_diopters is not None:
                 methods.append(("classical, aberration-aware (calibrated)", classical(items, FocusConfig(), fmap)))
         if a.lens == "rf50":
-            methods += run_models(items)
+            methods += run_models(items, a.threads)
         per = {lab: [score(d, it.depth_m) for (d, _), it in zip(res, items)] for lab, res in methods}
         if len(items) > 1:
             rows = [(lab, summarise(p)) for lab, p in per.items()]
