@@ -1,6 +1,6 @@
 """The paper's Table 2 on our models: AAT vs thin-lens training, tested on stacks rendered through the real lens.
 
-    OMP_WAIT_POLICY=PASSIVE python -m benchmarks.bench_dff [--n 12] [--figures DIR] [MODEL.onnx ...]
+    OMP_WAIT_POLICY=PASSIVE python -m benchmarks.bench_dff [--n 12] [--figures DIR] [--threads 2] [MODEL.onnx ...]
 
 Test sets (never seen in training; all rendered with the RF50's PSFs, the `aat` simulator; fixed schedule of
 8 focus distances even in diopters over 0.5-10 m, the training schedule, never derived from the depth):
@@ -39,6 +39,7 @@ def main() -> None:
     ap.add_argument("models", nargs="*")
     ap.add_argument("--n", type=int, default=12)
     ap.add_argument("--figures", default=str(FIGURES))
+    ap.add_argument("--threads", type=int, default=2, help="onnxruntime threads per model")
     args = ap.parse_args()
     from training.train.heldout import evaluate_model, plot_error_over_field, table
 
@@ -47,7 +48,7 @@ def main() -> None:
     results: dict[str, list] = {s: [] for s in sets}
     for path in paths:
         for sname, items in sets.items():
-            results[sname].append(evaluate_model(path, items))
+            results[sname].append(evaluate_model(path, items, threads=args.threads))
         print(f"done {path.name}", flush=True)
 
     for sname, items in sets.items():
