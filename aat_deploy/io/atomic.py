@@ -218,21 +218,21 @@ def _sweep_once(folder: Path) -> None:
 def replace_folder(tmp: Path, out_dir: Path, force: bool, tool: str) -> None:
     """Move the finished folder `tmp` to out_dir; an existing out_dir is replaced only with force and only if it is
     an earlier output of `tool` holding nothing else (marker.replace_problem, checked again once it is moved aside,
-    so nothing added while this run worked is lost): moved aside, swapped, then deleted; put back on any failure."""
+    so nothing added while this run worked is lost): moved aside, swapped, then deleted; put back on any failure,
+    a signal included (Ctrl-C while it is aside: else the next run's sweep would delete it as a stale `.old-PID`)."""
     old = None
-    if os.path.lexists(out_dir):
-        if not force:
-            raise OutputError(f"{out_dir}: output folder exists (pass --force to overwrite)")
-        old = temp_sibling(out_dir, "old")
-        os.replace(out_dir, old)
-        why = None if old.is_symlink() else marker.refusal(out_dir, tool, old)
-        if why is not None:
-            os.replace(old, out_dir)
-            raise OutputError(why)
+    if os.path.lexists(out_dir) and not force:
+        raise OutputError(f"{out_dir}: output folder exists (pass --force to overwrite)")
     try:
+        if os.path.lexists(out_dir):
+            old = temp_sibling(out_dir, "old")
+            os.replace(out_dir, old)
+            why = None if old.is_symlink() else marker.refusal(out_dir, tool, old)
+            if why is not None:
+                raise OutputError(why)
         os.replace(tmp, out_dir)
     except BaseException:
-        if old is not None:
+        if old is not None and os.path.lexists(old) and not os.path.lexists(out_dir):
             os.replace(old, out_dir)
         raise
     if old is not None:

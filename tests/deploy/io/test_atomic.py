@@ -168,3 +168,25 @@ def test_nothing_is_committed_after_a_signal_whose_exception_was_discarded(tmp_p
     assert sorted(q.name for q in tmp_path.iterdir()) == ["a.json", "out"]
     write_text_atomic(p, "new")  # cleared: writes commit again
     assert p.read_text() == "new"
+
+
+def test_a_signal_while_the_earlier_output_is_moved_aside_puts_it_back(tmp_path, monkeypatch):
+    """Before: Ctrl-C while --force's earlier output sat aside as .out.old-PID (its marker being checked) left it
+    there and no out/ at all; the next run's sweep then deleted it as a dead process's stale folder."""
+    from aat_deploy import interrupt
+    from aat_deploy.io import marker
+
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "summary.json").write_text("old")
+    marker.write(out, "aat-infer", complete=True)
+
+    def signal_now(*a, **k):
+        raise interrupt.Interrupted(signal.SIGINT)
+
+    monkeypatch.setattr(marker, "refusal", signal_now)
+    with pytest.raises(interrupt.Interrupted):
+        with atomic.atomic_folder(out, True, "aat-infer") as tmp:
+            (tmp / "summary.json").write_text("new")
+    assert (out / "summary.json").read_text() == "old"
+    assert sorted(q.name for q in tmp_path.iterdir()) == ["out"]
