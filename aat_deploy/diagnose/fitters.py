@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from statistics import NormalDist
 
 import numpy as np
 
@@ -161,12 +162,17 @@ def fit_focus_metadata(state: FitState) -> Fitted:
     data, robust = focusrobust.prepare(sweep)
     fit = ff.fit_metadata(data, n_boot=state.n_boot, seed=state.seed)
     rep = {"focus_fit": {**fit.summary(), "robust": {**robust, **anchored}}, "corrected_focus": []}
+    z = NormalDist().inv_cdf(0.975)
     for i, c in enumerate(state.caps):
         s = len(c.focus_m)
         rep["corrected_focus"].append({
             "capture": c.name, "files": list(getattr(c, "files", []) or []), "reported_m": c.focus_m.tolist(),
             "corrected_m": (1.0 / fit.best.true_d[i, :s]).tolist(),
-            "ci_m": [[1.0 / hi, 1.0 / lo] for lo, hi in fit.true_d_ci[i, :s]]})
+            "ci_m": [[1.0 / hi, 1.0 / lo] for lo, hi in fit.true_d_ci[i, :s]],
+            # the systematic part included (`focusfit.corrected_sd`): frames it leaves undetermined are flagged
+            "total_ci_m": [[1.0 / (d + z * e), 1.0 / max(d - z * e, 1e-6)]
+                           for d, e in zip(fit.best.true_d[i, :s], fit.true_d_sd[i, :s])],
+            "undetermined": fit.undetermined[i, :s].tolist()})
     return Fitted(None if fit.best.name == "none" else _rounded(fit.best.params), rep)
 
 

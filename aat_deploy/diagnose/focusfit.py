@@ -56,6 +56,9 @@ DIOPTER_STEPS = (0.25, 0.2, 0.125, 0.1, 0.05, 0.025, 0.02)  # candidate fixed qu
 # the family is right in all 12 of its sets at 0.0075 and 0.01 D (11 from 0.013 to 0.04: its monotone curve read
 # as none; 7 at 0.005), the tie broken towards its rms per-frame error (0.012 D)
 SYSTEMATIC_D = 0.01
+# a frame whose focus is not known to this (one standard error, its systematic part included, diopters: the
+# precision issue 32 asks of a corrected focus) is reported as undetermined, with its interval, not as a point
+UNDETERMINED_SD_D = 0.02
 
 
 @dataclass
@@ -321,8 +324,57 @@ def family_design(name: str, reported_d: np.ndarray, true_d: np.ndarray, frames:
     raise ValueError(f"unknown focus-error family {name!r}")
 
 
+def level_sensitivity(data: SweepData, d: np.ndarray, step_d: float = 0.01) -> np.ndarray:
+    """(n, S) how far (diopters per log unit) a misfit of a frame's level, alike in all its regions, moves that
+    frame's focus estimate at frame focus d (n, S): |sum_r w_r s_r| / sum_r w_r s_r^2, s_r the slope of region r's
+    twin curve at the frame's focus. A frame that shows something in focus has regions on both sides of their
+    peaks (slopes of both signs): a level misfit moves it little. A frame that shows nothing in focus (the
+    nearest frame of a stack whose scene is far) has every region on the same side, and reads a level misfit (a
+    noise floor, the development, a gain) as focus: its cost is flat along that direction (issue 32, scene 2027's
+    nearest frame). inf for a frame without any slope."""
+    n, r, s = data.capture.shape
+    at = np.broadcast_to(np.asarray(d, np.float64)[:, None, :], (n, r, s))
+    slope = (curves_at(data, at + step_d) - curves_at(data, at - step_d)) / (2 * step_d)  # (n, R, S)
+    w = data.weight[..., None]
+    den = np.sum(w * slope * slope, axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(den > 0, np.abs(np.sum(w * slope, axis=1)) / den, np.inf)
+
+
+def frame_systematic(data: SweepData, d: np.ndarray, frames: np.ndarray | None = None,
+                     systematic_d: float = SYSTEMATIC_D) -> np.ndarray:
+    """(n, S) every frame's systematic error (diopters) at frame focus d (n, S): systematic_d for a typical frame,
+    scaled up by how much more its estimate reads a level misfit as focus than the median frame does
+    (`level_sensitivity`; never scaled down: a frame straddling focus still shares the twin's other misfits),
+    at most MAX_ERROR_D. No new setting: systematic_d keeps its meaning (the typical frame's) and its tuning."""
+    fr = data.frames if frames is None else frames
+    k = level_sensitivity(data, d)
+    real = (fr > 0) & np.isfinite(k)
+    typical = float(np.median(k[real])) if real.any() else np.inf
+    with np.errstate(invalid="ignore"):
+        factor = np.where(np.isfinite(k) & (typical > 0), np.maximum(1.0, k / typical), np.inf)
+    return np.minimum(systematic_d * factor, MAX_ERROR_D)
+
+
+def corrected_sd(fit: FamilyFit, reported_d: np.ndarray, frame_sd: np.ndarray, frames: np.ndarray,
+                 systematic_d: float | np.ndarray = SYSTEMATIC_D) -> np.ndarray:
+    """(n, S) the standard error (diopters) of a family's corrected focus, the per-frame estimates' systematic
+    error included: the family's parameters' covariance (J^T W J + P)^-1 carried to every frame through J
+    (`family_design`), W the inverse of frame_sd^2 + systematic_d^2, P the inverse variance of each parameter's
+    uniform range (width^2 / 12: a frame alone in a quantisation bin is known at least to its bin). A frame
+    that only its own estimate determines keeps that estimate's error; one a family ties to its neighbours (an
+    offset, a scale) gets theirs too."""
+    rep = np.asarray(reported_d, np.float64)
+    jac, widths = family_design(fit.name, rep, fit.true_d, frames)
+    if not widths:
+        return np.zeros(rep.shape)
+    inv = np.where(frames > 0, 1.0 / (np.asarray(frame_sd, np.float64) ** 2 + np.asarray(systematic_d) ** 2), 0.0)
+    a = np.einsum("nsi,ns,nsj->ij", jac, inv, jac) + np.diag(12.0 / np.square(widths))
+    return np.sqrt(np.einsum("nsi,ij,nsj->ns", jac, np.linalg.inv(a), jac))
+
+
 def score_families(fits: dict[str, FamilyFit], frame_sd: np.ndarray, frames: np.ndarray,
-                   systematic_d: float = SYSTEMATIC_D) -> None:
+                   systematic_d: float | np.ndarray = SYSTEMATIC_D) -> None:
     """Every family's score (`FamilyFit.score`, lower is better): -2 log of its evidence given the per-frame
     estimates, by Laplace's approximation with each parameter uniform over its search range (`family_design`):
 
@@ -330,7 +382,7 @@ def score_families(fits: dict[str, FamilyFit], frame_sd: np.ndarray, frames: np.
 
     chi2 summing over the frames (the observations) the squared distance of the family's focus from the
     `per_frame` estimates, W their inverse variances: frame_sd (n, S) (the bootstrap's spread) squared plus
-    systematic_d squared. The regions of one frame share its focus error and the twin's misfit, so the frames are
+    systematic_d squared (a number, or (n, S) per frame: `frame_systematic`). The regions of one frame share its focus error and the twin's misfit, so the frames are
     the observations. BIC, chi2 + k log n, is the large-sample limit of this; with 8 frames it drops what matters
     most: a knot free over 0.8 D that the frames pin to 0.01 D costs about 7 (log n = 2.1), a true focus confined to
     its 0.1 D quantisation bin about 2. So a 3-knot curve no longer buys one end frame's 0.04 D misfit (issue 32:
@@ -339,7 +391,7 @@ def score_families(fits: dict[str, FamilyFit], frame_sd: np.ndarray, frames: np.
     e = fits["per_frame"].true_d
     rep = fits["none"].true_d
     use = frames > 0
-    inv = np.where(use, 1.0 / (np.asarray(frame_sd, np.float64) ** 2 + systematic_d ** 2), 0.0)
+    inv = np.where(use, 1.0 / (np.asarray(frame_sd, np.float64) ** 2 + np.asarray(systematic_d) ** 2), 0.0)
     for f in fits.values():
         chi2 = float(np.sum(np.where(use, (f.true_d - e) ** 2, 0.0) * inv))
         jac, widths = family_design(f.name, rep, f.true_d, frames)
@@ -365,6 +417,9 @@ class MetadataFit:
     support: dict
     on_bound: np.ndarray | None = None  # (n, S) the per-frame estimate sits on its +-MAX_ERROR_D search bound
     frame_sd: np.ndarray | None = None  # (n, S) the per-frame estimates' bootstrap spread, diopters
+    frame_sys: np.ndarray | None = None  # (n, S) their systematic error (`frame_systematic`), diopters
+    true_d_sd: np.ndarray | None = None  # (n, S) the corrected focus's standard error, systematic included
+    undetermined: np.ndarray | None = None  # (n, S) frames whose true_d_sd >= UNDETERMINED_SD_D
 
     def summary(self) -> dict:
         b = self.best
@@ -372,6 +427,9 @@ class MetadataFit:
                 "frame_focus_d": self.fits["per_frame"].true_d.tolist(),
                 "frames_on_bound": [] if self.on_bound is None else self.on_bound.tolist(),
                 "frame_focus_sd_d": [] if self.frame_sd is None else np.round(self.frame_sd, 5).tolist(),
+                "frame_systematic_d": [] if self.frame_sys is None else np.round(self.frame_sys, 5).tolist(),
+                "corrected_sd_d": [] if self.true_d_sd is None else np.round(self.true_d_sd, 5).tolist(),
+                "frames_undetermined": [] if self.undetermined is None else self.undetermined.tolist(),
                 "families": [{"family": f.name, "k": f.k, "ss": f.ss, "score": f.score, "true_d": f.true_d.tolist(),
                               **f.detail}
                              for f in self.fits.values()], **b.detail}
@@ -406,12 +464,14 @@ def fit_metadata(data: SweepData, n_boot: int = 50, seed: int = 0, level: float 
             continue
         reps.append((fit_families(data, w, fr), fr))
     sd = np.std([rf["per_frame"].true_d for rf, _ in reps], 0) if len(reps) > 1 else np.zeros(data.reported_d.shape)
-    score_families(fits, sd, data.frames)
+    # each frame's systematic error at the fit's own per-frame estimates, held for every replicate
+    sys_d = frame_systematic(data, fits["per_frame"].true_d)
+    score_families(fits, sd, data.frames, sys_d)
     best = select(fits)
     wins = {k: 0 for k in fits}
     true_reps, par_reps = [], {k: [] for k in _scalar_params(best)}
     for rf, fr in reps:
-        score_families(rf, sd, fr)
+        score_families(rf, sd, fr, sys_d)
         wins[select(rf).name] += 1
         true_reps.append(rf[best.name].true_d)
         for k, v in _scalar_params(rf[best.name]).items():
@@ -422,7 +482,9 @@ def fit_metadata(data: SweepData, n_boot: int = 50, seed: int = 0, level: float 
     pci = {k: [float(np.quantile(v, a)), float(np.quantile(v, 1 - a))] for k, v in par_reps.items() if v}
     total = max(sum(wins.values()), 1)
     bound = (np.abs(np.abs(fits["per_frame"].true_d - data.reported_d) - MAX_ERROR_D) < 2e-3) & (data.frames > 0)
-    return MetadataFit(best, fits, ci, pci, {k: v / total for k, v in wins.items()}, bound, sd)
+    tsd = corrected_sd(best, data.reported_d, sd, data.frames, sys_d)
+    return MetadataFit(best, fits, ci, pci, {k: v / total for k, v in wins.items()}, bound, sd, sys_d, tsd,
+                       (tsd >= UNDETERMINED_SD_D) & (data.frames > 0))
 
 
 # --- field-dependent focus (sensor tilt, lens tolerances) ---------------------------------------------------

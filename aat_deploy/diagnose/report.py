@@ -126,7 +126,8 @@ def focus_section(d: dict) -> list[str]:
         return []
     lines = ["## Focus metadata", ""]
     status = ("named, and it explains the gap" if f["explains_gap"] else "named" if f["named"] else
-              "not named (the twin with it did not come significantly closer to the captures)")
+              "not named (the fit did not measure an error that closes a significant part of the gap, nor did "
+              "the twin with it come significantly closer to the captures)")
     if f["family"] == "none":
         lines.append("The images support no focus-metadata error: the reported focus distances fit best as they are.")
     else:
@@ -138,13 +139,23 @@ def focus_section(d: dict) -> list[str]:
     for fam in f["families"]:
         lines.append(f"| {fam['family']} | {fam['k']} | {fam['score']:.1f} | {f['support'].get(fam['family'], 0):.0%} |")
     if f["family"] != "none":
-        lines += ["", "Corrected focus distances (m, 95 % interval); drop-in `capture.json` files are in "
-                  "`corrected_focus/<capture>/` (copy one into its capture folder to use it with `aat-infer`):", "",
+        lines += ["", "Corrected focus distances (m, 95 % interval, the per-frame estimates' systematic error "
+                  "included); drop-in `capture.json` files are in `corrected_focus/<capture>/` (copy one into its "
+                  "capture folder to use it with `aat-infer`):", "",
                   "| capture | reported (m) | corrected (m) |", "|---|---|---|"]
+        undetermined = 0
         for c in f["corrected_focus"]:
             rep = ", ".join(f"{x:.3f}" for x in c["reported_m"])
-            cor = ", ".join(f"{x:.3f} ({lo:.3f} … {hi:.3f})" for x, (lo, hi) in zip(c["corrected_m"], c["ci_m"]))
+            und = c.get("undetermined") or [False] * len(c["corrected_m"])
+            undetermined += sum(und)
+            cor = ", ".join(f"{x:.3f} ({lo:.3f} … {hi:.3f}){' **undetermined**' if u else ''}"
+                            for x, (lo, hi), u in zip(c["corrected_m"], c.get("total_ci_m", c["ci_m"]), und))
             lines.append(f"| {c['capture']} | {rep} | {cor} |")
+        if undetermined:
+            lines += ["", f"{undetermined} frame(s) **undetermined**: the images do not fix their focus to "
+                      "0.02 D (one standard error, systematic part included); the frame shows little in focus, so "
+                      "its estimate reads a misfit of the twin's level as focus. Their value is the family's; "
+                      "trust only its interval (docs/diagnosis.md, \"Focus errors\")."]
     return lines + [""]
 
 

@@ -40,9 +40,10 @@ def _say(quiet: bool):
     return lambda msg: say(quiet, msg)  # the runtime's progress lines (aat_deploy.progress)
 
 
-def make_renderer(model: DfFModel, lens: Lens, surrogate: OnnxSource | None, torch_free: bool = False):
+def make_renderer(model: DfFModel, lens: Lens, surrogate: OnnxSource | None, torch_free: bool = False,
+                  threads: int = 2):
     """The twin renderer: torch-free, with the training simulator behind it for torch-only effects when torch is
-    installed (and `torch_free` is not asked for)."""
+    installed (and `torch_free` is not asked for); threads: the torch-free renderer's frames in parallel."""
     if not torch_free:
         torch_backed = extensions.load("torch_twin_renderer", optional=True)  # None without torch: stay torch-free
         if torch_backed is not None:
@@ -50,7 +51,7 @@ def make_renderer(model: DfFModel, lens: Lens, surrogate: OnnxSource | None, tor
     if surrogate is None and any(e.uses_lens_psfs for e in model_effects(model)):
         raise TwinError(f"{model.path}: no PSF surrogate for lens {lens.name!r} at this sensor (pass --psf); "
                         "ray tracing the lens's PSFs needs the training package (torch)")
-    return TwinRenderer(model, lens, surrogate)
+    return TwinRenderer(model, lens, surrogate, threads=threads)
 
 
 def retrain_command(model_path: Path, lens_path: Path, psf_path: Path | None, effects: list[str], steps: int,

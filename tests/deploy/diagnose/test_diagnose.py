@@ -351,6 +351,46 @@ def test_focus_metadata_is_blamed_on_its_measured_focus_not_on_its_images():
     assert not explains_gap(dict(found, image_closeness=-0.3), *lim)  # its images moved away
 
 
+def test_focus_metadata_is_named_on_its_measured_focus():
+    """Issue 32: focus metadata named by its fit's measurement (`search.named_by_focus`), not by closeness. Scene
+    2027's scale 0.95 (results/diagnose_focus_all36.jsonl): the fit chose scale in every replicate, correcting the
+    focus closed 2.24 of the gap (interval from 2.02), its images came 0.06 closer and its closeness was -0.03, so
+    noise (closeness 0.13) was named and focus metadata never. Now it is named first and explains the gap; with
+    images moving 0.02 away (the benchmark's noise) too. Not: an untouched copy (family none), too few replicates,
+    a share whose interval reaches 0, images that moved far away, or any other effect with the same numbers."""
+    from aat_deploy.diagnose.gap import DiagnoseConfig
+    from aat_deploy.diagnose.search import Diagnosis, named_by_focus
+    from aat_deploy.diagnose.verdict import explains_gap, share_view
+
+    cfg = DiagnoseConfig()
+    lim = (cfg.min_share, cfg.min_image_explained, cfg.min_focus_support)
+    numbers = {"closeness": -0.034, "closeness_ci": [-0.034, -0.034], "image_closeness": 0.061,
+               "image_closeness_ci": [0.061, 0.061], "brightness_closeness": 0.0, "share_of_gap": 2.24,
+               "ci_low": 2.02, "ci_high": 2.5}
+    rep = [0.63, 2.1, 6.3]  # reported 1 / 0.95 x the true 0.6, 2, 6 m
+    ci = [(0.597, 0.603), (1.98, 2.02), (5.8, 6.2)]
+    found = _focus_entry("scale", {"scale": 0.71, "monotone": 0.29}, rep, ci, **numbers)
+    assert named_by_focus(found, cfg) and explains_gap(found, *lim)
+    noise = {"effect": "noise", "closeness": 0.133, "closeness_ci": [0.133, 0.133], "image_closeness": 0.2,
+             "image_closeness_ci": [0.2, 0.2], "share_of_gap": -0.11, "ci_low": -0.2}
+    top = Diagnosis._pick(None, [(noise, "noise"), (found, "focus")], cfg)
+    assert top[1] == "focus"  # named before the closer effect
+    slightly_away = dict(found, image_closeness=-0.02)
+    assert named_by_focus(slightly_away, cfg) and explains_gap(slightly_away, *lim)
+    assert share_view(slightly_away)[0] == 1.0  # shown (clipped), not withheld as from a twin unlike the captures
+    assert share_view(dict(found, effect="noise", image_closeness=-0.02))[0] is None
+    untouched = _focus_entry("none", {"none": 0.87, "scale": 0.13}, rep, ci, **numbers)
+    weak = _focus_entry("scale", {"none": 0.1, "scale": 0.9}, rep, ci, **numbers)
+    for entry in (untouched, weak, dict(found, ci_low=-0.1), dict(found, image_closeness=-0.3),
+                  dict(found, effect="noise")):
+        assert not named_by_focus(entry, cfg)
+    assert Diagnosis._pick(None, [(noise, "noise"), (untouched, "focus")], cfg)[1] == "noise"
+    assert Diagnosis._pick(None, [(untouched, "focus")], cfg) is None
+    # no significant gap (the image-only search, no share): the measurement alone lists it
+    assert named_by_focus(dict(found, share_of_gap=None, ci_low=None), cfg)
+    assert not named_by_focus(dict(untouched, share_of_gap=None, ci_low=None), cfg)
+
+
 def test_alternatives_are_the_effects_the_images_cannot_tell_apart():
     """_pick names the closest effect and lists the others that pass the rule with overlapping intervals."""
     from aat_deploy.diagnose.search import DiagnoseConfig, Diagnosis
@@ -419,3 +459,21 @@ def test_candidate_settings_are_chosen_on_images_and_only_the_closest_is_scored(
     for a, b in zip(got.pred, want.pred):
         assert np.array_equal(a, b)
     assert [dataclasses.asdict(d) for d in got.dist] == [dataclasses.asdict(d) for d in want.dist]
+
+
+def test_report_marks_undetermined_frames_with_their_interval():
+    """The focus section shows each corrected distance with its interval, systematic error included
+    (`total_ci_m`), and marks a frame the fit left undetermined (`focusfit.UNDETERMINED_SD_D`) as such."""
+    from aat_deploy.diagnose.report import focus_section
+
+    f = {"family": "quantisation", "params": {"map_d": [1.7, 1.66]}, "params_ci": {}, "named": True,
+         "explains_gap": True, "support": {"quantisation": 1.0},
+         "families": [{"family": "quantisation", "k": 8, "score": 1.0}],
+         "corrected_focus": [{"capture": "c", "reported_m": [0.588, 1.0], "corrected_m": [0.585, 1.0],
+                              "ci_m": [[0.583, 0.588], [0.99, 1.01]], "total_ci_m": [[0.57, 0.61], [0.98, 1.02]],
+                              "undetermined": [True, False]}]}
+    text = "\n".join(focus_section({"focus": f}))
+    assert "0.585 (0.570 … 0.610) **undetermined**" in text and "1.000 (0.980 … 1.020)," not in text
+    assert "1.000 (0.980 … 1.020) |" in text and "1 frame(s) **undetermined**" in text
+    f["corrected_focus"][0]["undetermined"] = [False, False]
+    assert "undetermined" not in "\n".join(focus_section({"focus": f}))

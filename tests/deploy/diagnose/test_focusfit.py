@@ -192,3 +192,89 @@ def test_quantisation_beats_per_frame_by_its_bins():
     assert ff.select(fits).name == "quantisation"
     assert fits["per_frame"].score - fits["quantisation"].score == pytest.approx(
         2 * 8 * math.log(2 * ff.MAX_ERROR_D / 0.1), rel=1e-6)
+
+
+# --- frames that show nothing in focus (issue 32: scene 2027's nearest frame) -------------------------------------
+def far_scene_sweep(level_d: float = 0.0, frame: int = 0, seed: int = 0) -> tuple[ff.SweepData, np.ndarray]:
+    """The shipped sample's focus (0.6-6 m) over a scene whose content is all 2-6 m away (0.17-0.5 D, as scene
+    2027's): the nearest frame (1.67 D) shows nothing in focus. level_d: a misfit of one frame's level in every
+    region alike (log units), as a noise floor or a development the twin gets wrong leaves."""
+    rng = np.random.default_rng(seed)
+    true = TRUE_D[None]
+    grid = np.arange(0.0, 2.2, 0.06)
+    depth = rng.uniform(0.17, 0.5, size=54)
+    twin = peak(depth, grid)[None]
+    cap = np.stack([peak(depth[r:r + 1], true[0])[0] for r in range(54)])[None]
+    cap = cap + rng.normal(0, 0.4, size=(1, 54, 1)) + rng.normal(0, 0.005, size=cap.shape)
+    cap[:, :, frame] += level_d
+    xy = np.stack([np.tile(np.linspace(-0.9, 0.9, 9), 6), np.repeat(np.linspace(0.8, -0.8, 6), 9)], 1)
+    return ff.SweepData(grid, twin, cap, true.copy(), true.copy(), xy), true
+
+
+def test_a_frame_that_shows_nothing_in_focus_reads_a_level_as_focus():
+    """`level_sensitivity` predicts how far a frame-wide level misfit moves a frame's estimate: the nearest frame of
+    a far scene moves by about its sensitivity times the misfit, several times what the median frame's would; its
+    systematic error (`frame_systematic`) is scaled up by that ratio, the others keep SYSTEMATIC_D."""
+    data, true = far_scene_sweep()
+    k = ff.level_sensitivity(data, true)[0]
+    assert k[0] > 2 * np.median(k)
+    before = ff.frame_focus(data)[0]
+    moved = [ff.frame_focus(far_scene_sweep(0.1, f)[0])[0, f] - before[f] for f in (0, 4)]
+    assert abs(moved[0]) == pytest.approx(0.1 * k[0], rel=0.25)
+    assert abs(moved[1]) == pytest.approx(0.1 * k[4], rel=0.25)
+    assert abs(moved[0]) > 0.02 > abs(moved[1])  # a 0.1 log-unit misfit: over the 0.02 D asked of the nearest only
+    sys_d = ff.frame_systematic(data, true)[0]
+    assert sys_d[0] == pytest.approx(ff.SYSTEMATIC_D * k[0] / np.median(k), rel=1e-9)
+    assert np.all(sys_d >= ff.SYSTEMATIC_D - 1e-12) and np.sum(np.isclose(sys_d, ff.SYSTEMATIC_D)) >= 4
+
+
+def test_an_offset_is_not_read_as_a_curve_bent_by_an_unsure_frame():
+    """Scene 2027's offset +0.05 D (the whole diagnosis, results/diagnose_focus_all36.jsonl): its nearest frame's
+    estimate 0.044 D off, the others within 0.015 D. With one systematic error for every frame the 3-knot curve
+    buys that frame (the run's choice, 0.025 D off); with that frame's own (its level sensitivity 3 times the
+    median frame's: 0.03 D) the offset wins and corrects every frame to 0.02 D."""
+    rep = (TRUE_D + 0.05)[None]
+    est = (TRUE_D + np.array([0.044, 0.004, -0.003, -0.011, -0.015, -0.007, 0.007, 0.010]))[None]
+    sd = np.array([[0.0075, 0.0026, 0.0017, 0.0016, 0.002, 0.0031, 0.0024, 0.0027]])
+    fits = hand_fits(rep, est, sd)
+    ff.score_families(fits, sd, np.ones_like(sd))
+    assert ff.select(fits).name == "monotone"  # the case discriminates
+    sys_d = np.full((1, 8), ff.SYSTEMATIC_D)
+    sys_d[0, 0] *= 3
+    ff.score_families(fits, sd, np.ones_like(sd), sys_d)
+    assert ff.select(fits).name == "offset"
+    assert abs(fits["offset"].true_d - TRUE_D).max() < 0.02
+
+
+def test_corrected_sd_carries_each_frames_error_through_its_family():
+    """`corrected_sd` by hand: an offset ties every frame to all the estimates (1 / sqrt(sum of the inverse
+    variances + the range's 12 / 0.8^2)); a quantisation bin holds its own frame's error, bounded by its bin; a
+    frame whose systematic error is 3 x 0.01 D is undetermined there (>= UNDETERMINED_SD_D), the others not."""
+    rep = (np.round(TRUE_D / 0.1) * 0.1)[None]
+    sd = np.full((1, 8), 0.003)
+    sys_d = np.full((1, 8), ff.SYSTEMATIC_D)
+    sys_d[0, 0] *= 3
+    var = sd ** 2 + sys_d ** 2
+    off = ff.FamilyFit("offset", 1, {}, rep - 0.01, 0.0)
+    got = ff.corrected_sd(off, rep, sd, np.ones_like(sd), sys_d)
+    assert np.allclose(got, 1 / math.sqrt(np.sum(1 / var) + 12 / 0.8 ** 2))
+    q = ff.FamilyFit("quantisation", 8, {}, TRUE_D[None].copy(), 0.0)
+    got = ff.corrected_sd(q, rep, sd, np.ones_like(sd), sys_d)[0]
+    assert np.allclose(got, 1 / np.sqrt(1 / var[0] + 12 / 0.1 ** 2))
+    assert got[0] >= ff.UNDETERMINED_SD_D and np.all(got[1:] < ff.UNDETERMINED_SD_D)
+    assert np.all(ff.corrected_sd(ff.FamilyFit("none", 0, {}, rep, 0.0), rep, sd, np.ones_like(sd)) == 0)
+
+
+def test_fit_metadata_reports_each_frames_systematic_error_and_flags():
+    """The fit on the far scene reported 0.05 D too near: the offset found; every frame's systematic error, the
+    corrected focus's standard error and the undetermined flags in its summary, shaped as the frames."""
+    data, true = far_scene_sweep()
+    data = ff.SweepData(data.grid_d, data.twin, data.capture, true + 0.05, true + 0.05, data.field_xy)
+    fit = ff.fit_metadata(data, n_boot=10)
+    assert fit.best.name == "offset" and np.abs(fit.best.true_d - true).max() < 0.02
+    s = fit.summary()
+    for key in ("frame_systematic_d", "corrected_sd_d", "frames_undetermined"):
+        assert np.asarray(s[key]).shape == true.shape
+    assert s["frame_systematic_d"][0][0] > 2 * ff.SYSTEMATIC_D
+    assert not any(s["frames_undetermined"][0])  # the offset ties the nearest frame to the others
+    assert np.all(fit.true_d_sd < ff.UNDETERMINED_SD_D)
