@@ -325,9 +325,9 @@ def family_design(name: str, reported_d: np.ndarray, true_d: np.ndarray, frames:
 
 
 def level_sensitivity(data: SweepData, d: np.ndarray, step_d: float = 0.01) -> np.ndarray:
-    """(n, S) how far (diopters per log unit) a misfit of a frame's level, alike in all its regions, moves that
-    frame's focus estimate at frame focus d (n, S): |sum_r w_r s_r| / sum_r w_r s_r^2, s_r the slope of region r's
-    twin curve at the frame's focus. A frame that shows something in focus has regions on both sides of their
+    """(n, S) how far (diopters per log unit, signed) a misfit of a frame's level, alike in all its regions (the
+    capture's curves that much above the twin's), moves that frame's focus estimate at frame focus d (n, S):
+    sum_r w_r s_r / sum_r w_r s_r^2, s_r the slope of region r's twin curve at the frame's focus. A frame that shows something in focus has regions on both sides of their
     peaks (slopes of both signs): a level misfit moves it little. A frame that shows nothing in focus (the
     nearest frame of a stack whose scene is far) has every region on the same side, and reads a level misfit (a
     noise floor, the development, a gain) as focus: its cost is flat along that direction (issue 32, scene 2027's
@@ -338,7 +338,7 @@ def level_sensitivity(data: SweepData, d: np.ndarray, step_d: float = 0.01) -> n
     w = data.weight[..., None]
     den = np.sum(w * slope * slope, axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(den > 0, np.abs(np.sum(w * slope, axis=1)) / den, np.inf)
+        return np.where(den > 0, np.sum(w * slope, axis=1) / den, np.inf)
 
 
 def frame_systematic(data: SweepData, d: np.ndarray, frames: np.ndarray | None = None,
@@ -348,7 +348,7 @@ def frame_systematic(data: SweepData, d: np.ndarray, frames: np.ndarray | None =
     (`level_sensitivity`; never scaled down: a frame straddling focus still shares the twin's other misfits),
     at most MAX_ERROR_D. No new setting: systematic_d keeps its meaning (the typical frame's) and its tuning."""
     fr = data.frames if frames is None else frames
-    k = level_sensitivity(data, d)
+    k = np.abs(level_sensitivity(data, d))
     real = (fr > 0) & np.isfinite(k)
     typical = float(np.median(k[real])) if real.any() else np.inf
     with np.errstate(invalid="ignore"):
