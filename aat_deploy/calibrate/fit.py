@@ -35,7 +35,8 @@ class FitResult:
 
 
 def observations(measures: list[SweepMeasurement]) -> Observations:
-    """Every counted tile of every sweep; cells = (sweep, interval between the two frames the peak lies between)."""
+    """Every counted tile of every sweep; cells = (sweep, interval between the two frames the peak lies between);
+    the frames' aspect (the field radius's shape)."""
     cols = {k: [] for k in ("x", "y", "reported_d", "object_d", "sweep", "cell")}
     for i, m in enumerate(measures):
         ok = m.peaks.counted
@@ -48,8 +49,9 @@ def observations(measures: list[SweepMeasurement]) -> Observations:
         cols["object_d"].append(m.object_d[ok])
         cols["sweep"].append(np.full(int(ok.sum()), i))
         cols["cell"].append(i * 10_000 + interval)
+    w, h = measures[0].sweep.size_px
     return Observations(*(np.concatenate(cols[k]).astype(np.float64 if k not in ("sweep", "cell") else np.int64)
-                          for k in cols))
+                          for k in cols), aspect=w / h)
 
 
 def camera_identity(measures: list[SweepMeasurement]) -> CameraIdentity:
@@ -118,8 +120,9 @@ def fit_blur(measures: list[SweepMeasurement], model) -> tuple[FieldPoly | None,
 
 def fit_calibration(measures: list[SweepMeasurement], n_boot: int = 100, degree: int | None = None,
                     focus_degree: int | None = None, sensor_mm: tuple[float, float] | None = None,
-                    settings: dict | None = None, progress=None) -> FitResult:
-    """The calibration from measured sweeps (`sweep.measure_sweep`)."""
+                    settings: dict | None = None, progress=None, radial: int | None = None) -> FitResult:
+    """The calibration from measured sweeps (`sweep.measure_sweep`). degree, radial, focus_degree: the field
+    term's order (`model.FieldBasis`; None: chosen by cross-validation)."""
     if not measures:
         raise SweepError("no sweeps to fit")
     identity = camera_identity(measures)
@@ -128,13 +131,13 @@ def fit_calibration(measures: list[SweepMeasurement], n_boot: int = 100, degree:
         raise SweepError(f"{measures[0].sweep.path}: only {len(obs)} tiles with a bracketed focus peak over all "
                          f"sweeps (need {MIN_TILES}): fill the frame with the chart and sweep past it on both sides")
     # robust: tiles whose peak disagrees wildly with the first fit (chart border, a glare) are dropped once
-    fit = fit_model(obs, degree, focus_degree)
+    fit = fit_model(obs, degree, focus_degree, radial)
     mad = float(np.median(np.abs(fit.residual_d - np.median(fit.residual_d)))) * 1.4826
     bad = np.abs(fit.residual_d) > max(5 * mad, 0.005)
     warnings: list[str] = []
     if bad.any():
         obs = obs.subset(~bad)
-        fit = fit_model(obs, fit.degree, fit.focus_degree)
+        fit = fit_model(obs, fit.degree, fit.focus_degree, fit.radial)
         warnings.append(f"{int(bad.sum())} of {len(bad)} tiles left out as outliers (peak more than "
                         f"{max(5 * mad, 0.005):.3f} D off the first fit)")
     if progress:
@@ -175,7 +178,8 @@ def fit_calibration(measures: list[SweepMeasurement], n_boot: int = 100, degree:
                    "what": "bootstrap standard deviation of the field term at the middle of the focus range"}
     first = measures[0].sweep
     fitinfo = {"method": "chart", "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-               "version": __version__, "degree": fit.degree, "focus_degree": fit.focus_degree,
+               "version": __version__, "degree": fit.degree, "radial_degree": fit.radial,
+               "focus_degree": fit.focus_degree,
                "order_cv": fit.cv, "working_scale": first.scale, **(settings or {})}
     cal = CameraCalibration(identity, first.size_px, fe, fit.field, blur, sensor_mm, residuals, uncertainty, fitinfo)
     return FitResult(cal, obs, fit, blur_obs, per_sweep, warnings)

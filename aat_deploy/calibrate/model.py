@@ -5,8 +5,13 @@ the model order chosen by cross-validation, the family by BIC, and bootstrap int
     D_i = g(r_i) + sum_k sum_j c[k, j] phi_k(x_i, y_i) P_j(tau(g(r_i)))
 
 g is the family: none (g = r), offset (g = r - b), scale (g = s r), monotone (a parabola in r, stored as 9 knots of
-`map_d`, the diagnosis's form; only with three or more sweeps: `families_for`). phi_k are the monomials of degree 1..n in (x, y) (no constant: the frame centre is
-g's), P_j Legendre polynomials of the on-axis focus over the measured range. For a given g the model is linear in
+`map_d`, the diagnosis's form; only with three or more sweeps: `families_for`). phi_k are the monomials of degree
+1..n in (x, y) (no constant: the frame centre is g's) and, beyond them, even powers rho^2m of the field radius up
+to `radial` (rho = 1 at the frame's corner: `FieldBasis`): a lens's field curvature is round about its axis and
+may be steep at the edge (a phone lens's best focus moves 2.6 D between field radius 0.5 and 0.7 and 7 D to the
+corner), which low-degree monomials cannot follow; what they cannot follow, the family's constant takes, and the
+whole frame's focus error is then wrong. The radial powers are stored expanded into monomials (`FieldPoly`).
+P_j Legendre polynomials of the on-axis focus over the measured range. For a given g the model is linear in
 (family parameters, c); g enters tau, so the fit alternates (tau from the last g) until it settles.
 
 Family choice: BIC with the observations grouped into cells of one sweep and one frame interval (tiles that peak
@@ -27,14 +32,61 @@ from .format import FieldPoly, FocusError, poly_terms
 
 FAMILY_PARAMS = {"none": 0, "offset": 1, "scale": 1, "monotone": 3}
 DEGREES = (2, 3, 4, 5, 6)
+RADIAL = (0, 8, 12)  # the radial powers' highest degree (0: none); 12 is the format's MAX_DEGREE
 MONOTONE_KNOTS = 9
+
+
+@dataclass(frozen=True)
+class FieldBasis:
+    """The field term's functions: the monomials x^a y^b of total degree 1..degree, then the even powers
+    rho^2m of the field radius for degree < 2m <= radial (none when radial <= degree), rho^2 = (x^2 w^2 +
+    y^2 h^2) / (w^2 + h^2) with aspect = w / h of the frames (square pixels: rho = 1 at the corners, the
+    best-focus maps' radius)."""
+
+    degree: int
+    radial: int = 0
+    aspect: float = 1.0
+
+    def powers(self) -> list[int]:
+        """The radial powers 2m used."""
+        return [p for p in range(2, self.radial + 1, 2) if p > self.degree]
+
+    def expansion(self) -> tuple[np.ndarray, np.ndarray]:
+        """(terms (M, 2), E (K, M)): function k = sum_m E[k, m] x^terms[m][0] y^terms[m][1]."""
+        mono = [tuple(t) for t in poly_terms(self.degree, constant=False)]
+        a2 = self.aspect ** 2 / (1.0 + self.aspect ** 2)  # rho^2 = a2 x^2 + (1 - a2) y^2
+        rows = [{t: 1.0} for t in mono]
+        for p in self.powers():
+            m = p // 2
+            rows.append({(2 * i, 2 * (m - i)): math.comb(m, i) * a2 ** i * (1 - a2) ** (m - i) for i in range(m, -1, -1)})
+        terms = list(dict.fromkeys(mono + [t for r in rows[len(mono):] for t in r]))
+        e = np.zeros((len(rows), len(terms)))
+        for k, r in enumerate(rows):
+            for t, v in r.items():
+                e[k, terms.index(t)] = v
+        return np.array(terms, np.int64).reshape(-1, 2), e
+
+    def columns(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """(N, K) the functions at field points x, y (N,)."""
+        terms, e = self.expansion()
+        return np.stack([x ** a * y ** b for a, b in terms], 1) @ e.T
+
+    def field_poly(self, c: np.ndarray, focus_range_d: tuple[float, float]) -> FieldPoly:
+        """The stored form of coefficients c (K, J) of these functions: monomial coefficients E^T c."""
+        terms, e = self.expansion()
+        return FieldPoly(terms, e.T @ c, focus_range_d)
+
+    @property
+    def size(self) -> int:
+        return len(poly_terms(self.degree, constant=False)) + len(self.powers())
 
 
 @dataclass
 class Observations:
     """N tile observations: x, y normalised field; reported_d the reported focus (diopters) at the tile's focus
     peak; object_d the tile's object (diopters from the sensor plane); sweep (N,) int; weight (N,) >= 0;
-    cell (N,) int: the sweep-and-frame-interval group (for BIC)."""
+    cell (N,) int: the sweep-and-frame-interval group (for BIC); aspect: the frames' width / height (the field
+    radius's shape, `FieldBasis`)."""
 
     x: np.ndarray
     y: np.ndarray
@@ -43,6 +95,7 @@ class Observations:
     sweep: np.ndarray
     cell: np.ndarray
     weight: np.ndarray | None = None
+    aspect: float = 1.0
 
     def __post_init__(self):
         if self.weight is None:
@@ -53,13 +106,14 @@ class Observations:
 
     def subset(self, keep: np.ndarray) -> Observations:
         return Observations(*(getattr(self, k)[keep] for k in ("x", "y", "reported_d", "object_d", "sweep", "cell",
-                                                                  "weight")))
+                                                                  "weight")), aspect=self.aspect)
 
 
 @dataclass
 class ModelFit:
     """focus: the chosen family's error; field: the field term; residual_d (N,) object minus model; fits: every
-    family's (FocusError, FieldPoly, BIC); degree, focus_degree: the model order; cv: the order's CV table."""
+    family's (FocusError, FieldPoly, BIC); degree, radial, focus_degree: the model order (`FieldBasis`, Legendre
+    degree in focus); cv: the order's CV table."""
 
     focus: FocusError
     field: FieldPoly
@@ -68,6 +122,7 @@ class ModelFit:
     degree: int = 0
     focus_degree: int = 0
     cv: list = field(default_factory=list)
+    radial: int = 0
 
     def predict(self, x, y, reported_d) -> np.ndarray:
         """In-focus object diopters at field (x, y) for reported focus diopters (all broadcast together)."""
@@ -104,12 +159,13 @@ def _focus_error(name: str, p: np.ndarray, r_range: tuple[float, float]) -> Focu
 
 
 def fit_family(obs: Observations, name: str, degree: int, focus_degree: int, iterations: int = 6,
-               weight: np.ndarray | None = None) -> tuple[FocusError, FieldPoly, np.ndarray] | None:
+               weight: np.ndarray | None = None, radial: int = 0) -> tuple[FocusError, FieldPoly, np.ndarray] | None:
     """One family at one model order: (FocusError, FieldPoly, residuals (N,)) or None if it cannot be fitted."""
     w = obs.weight if weight is None else weight
     r, d = obs.reported_d, obs.object_d
-    terms = poly_terms(degree, constant=False)
-    basis = np.stack([obs.x ** a * obs.y ** b for a, b in terms], 1)  # (N, K)
+    fb = FieldBasis(degree, radial, obs.aspect)
+    basis = fb.columns(obs.x, obs.y)  # (N, K)
+    nk = basis.shape[1]
     fam, off = _family_columns(name, r)
     r_range = (float(r.min()), float(r.max()))
     t = r.copy()
@@ -117,24 +173,26 @@ def fit_family(obs: Observations, name: str, degree: int, focus_degree: int, ite
     fe = fp = None
     for _ in range(iterations):
         lo, hi = float(t.min()), float(t.max())
-        fp0 = FieldPoly(terms, np.zeros((len(terms), focus_degree + 1)), (lo, hi))
+        fp0 = FieldPoly(np.array([[1, 0]]), np.zeros((1, focus_degree + 1)), (lo, hi))
         leg = np.polynomial.legendre.legvander(fp0.tau(t), focus_degree)  # (N, J)
         field_cols = (basis[:, :, None] * leg[:, None, :]).reshape(len(r), -1)
         a = np.column_stack([fam, field_cols])
         sol, *_ = np.linalg.lstsq(a * sw[:, None], (d - off) * sw, rcond=None)
         if not np.all(np.isfinite(sol)):
             return None
-        p, c = sol[:fam.shape[1]], sol[fam.shape[1]:].reshape(len(terms), focus_degree + 1)
+        p, c = sol[:fam.shape[1]], sol[fam.shape[1]:].reshape(nk, focus_degree + 1)
         fe = _focus_error(name, p, r_range)
         if fe is None:
             return None
         t_new = fe.true_diopters(r)
-        fp = FieldPoly(terms, c, (lo, hi))
+        fp = fb.field_poly(c, (lo, hi))
+        fit_c = c
         if np.max(np.abs(t_new - t)) < 1e-7:
             t = t_new
             break
         t = t_new
-    pred = fe.true_diopters(r) + (fp.focus_weights(fe.true_diopters(r)) * basis).sum(1)
+    tt = fe.true_diopters(r)
+    pred = tt + (np.polynomial.legendre.legvander(fp.tau(tt), focus_degree) @ fit_c.T * basis).sum(1)
     return fe, fp, d - pred
 
 
@@ -157,30 +215,35 @@ def spatial_folds(obs: Observations, k: int = 5, blocks: int = 4) -> np.ndarray:
     return perm[by * blocks + bx]
 
 
-def choose_order(obs: Observations, family: str, focus_degrees: tuple[int, ...], degrees=DEGREES
-                 ) -> tuple[int, int, list]:
-    """(degree, focus_degree, table) minimising the spatial-block CV RMS residual (each held-out fold predicted by
-    the fit on the others); ties within 2 % go to the smaller model."""
+def choose_order(obs: Observations, family: str, focus_degrees: tuple[int, ...], degrees=DEGREES, radials=RADIAL
+                 ) -> tuple[int, int, int, list]:
+    """(degree, radial, focus_degree, table) minimising the spatial-block CV RMS residual (each held-out fold
+    predicted by the fit on the others); ties within 2 % go to the smaller model (fewer parameters, then lower
+    degrees)."""
     folds = spatial_folds(obs)
     table = []
     for fd in focus_degrees:
         for deg in degrees:
-            err, n = 0.0, 0
-            for f in np.unique(folds):
-                test = folds == f
-                w = np.where(test, 0.0, obs.weight)
-                res = fit_family(obs, family, deg, fd, weight=w)
-                if res is None:
-                    err = math.inf
-                    break
-                err += float(np.sum(obs.weight[test] * res[2][test] ** 2))
-                n += float(obs.weight[test].sum())
-            table.append({"degree": deg, "focus_degree": fd, "params": len(poly_terms(deg, False)) * (fd + 1),
-                          "cv_rms_d": math.sqrt(err / max(n, 1e-12)) if math.isfinite(err) else math.inf})
+            for rad in radials:
+                if rad and not FieldBasis(deg, rad).powers():
+                    continue  # no radial power beyond the monomials: the same model as rad = 0
+                err, n = 0.0, 0
+                for f in np.unique(folds):
+                    test = folds == f
+                    w = np.where(test, 0.0, obs.weight)
+                    res = fit_family(obs, family, deg, fd, weight=w, radial=rad)
+                    if res is None:
+                        err = math.inf
+                        break
+                    err += float(np.sum(obs.weight[test] * res[2][test] ** 2))
+                    n += float(obs.weight[test].sum())
+                table.append({"degree": deg, "radial": rad, "focus_degree": fd,
+                              "params": FieldBasis(deg, rad).size * (fd + 1),
+                              "cv_rms_d": math.sqrt(err / max(n, 1e-12)) if math.isfinite(err) else math.inf})
     best = min(t["cv_rms_d"] for t in table)
     ok = [t for t in table if t["cv_rms_d"] <= best * 1.02]
-    pick = min(ok, key=lambda t: (t["params"], t["degree"]))
-    return pick["degree"], pick["focus_degree"], table
+    pick = min(ok, key=lambda t: (t["params"], t["degree"], t["radial"]))
+    return pick["degree"], pick["radial"], pick["focus_degree"], table
 
 
 def families_for(obs: Observations) -> tuple[str, ...]:
@@ -191,12 +254,12 @@ def families_for(obs: Observations) -> tuple[str, ...]:
 
 
 def fit_all(obs: Observations, degree: int, focus_degree: int, families=None,
-            weight: np.ndarray | None = None) -> dict:
+            weight: np.ndarray | None = None, radial: int = 0) -> dict:
     """{family: (FocusError, FieldPoly, residuals, BIC)} for every family (default: `families_for`) that can be
     fitted."""
     out = {}
     for name in families or families_for(obs):
-        res = fit_family(obs, name, degree, focus_degree, weight=weight)
+        res = fit_family(obs, name, degree, focus_degree, weight=weight, radial=radial)
         if res is not None:
             out[name] = (*res, bic(obs, res[2], FAMILY_PARAMS[name], weight))
     return out
@@ -207,23 +270,25 @@ def select(fits: dict) -> str:
     return min(fits, key=lambda n: (round(fits[n][3], 9), FAMILY_PARAMS[n]))
 
 
-def fit_model(obs: Observations, degree: int | None = None, focus_degree: int | None = None) -> ModelFit:
-    """The model on all observations: order by CV (unless given), family by BIC. With one sweep the field term
-    cannot depend on focus (focus_degree 0); with two at most linearly."""
+def fit_model(obs: Observations, degree: int | None = None, focus_degree: int | None = None,
+              radial: int | None = None) -> ModelFit:
+    """The model on all observations: order by CV (what is not given), family by BIC. With one sweep the field
+    term cannot depend on focus (focus_degree 0); with two at most linearly."""
     n_sweeps = len(np.unique(obs.sweep))
     max_fd = min(2, n_sweeps - 1)
     table = []
-    if degree is None or focus_degree is None:
+    if degree is None or focus_degree is None or radial is None:
         fds = (focus_degree,) if focus_degree is not None else tuple(range(max_fd + 1))
         degs = (degree,) if degree is not None else DEGREES
+        rads = (radial,) if radial is not None else RADIAL
         fam = "monotone" if "monotone" in families_for(obs) else "scale"
-        degree, focus_degree, table = choose_order(obs, fam, fds, degs)
-    fits = fit_all(obs, degree, focus_degree)
+        degree, radial, focus_degree, table = choose_order(obs, fam, fds, degs, rads)
+    fits = fit_all(obs, degree, focus_degree, radial=radial)
     if not fits:
         raise ValueError("no focus-error family could be fitted to the tiles")
     best = select(fits)
     fe, fp, res, _ = fits[best]
-    return ModelFit(fe, fp, res, fits, degree, focus_degree, table)
+    return ModelFit(fe, fp, res, fits, degree, focus_degree, table, radial)
 
 
 @dataclass
@@ -260,7 +325,7 @@ def bootstrap(obs: Observations, fit: ModelFit, n_boot: int = 100, seed: int = 0
             w = w * ws[np.searchsorted(sweeps, obs.sweep)]
         if w.sum() <= 0:
             continue
-        fits = fit_all(obs, fit.degree, fit.focus_degree, weight=w)
+        fits = fit_all(obs, fit.degree, fit.focus_degree, weight=w, radial=fit.radial)
         if not fits:
             continue
         wins[select(fits)] += 1

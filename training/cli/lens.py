@@ -5,6 +5,7 @@
     aat-lens layout LENS --png out.png [--focus-m D]
     aat-lens focus-map LENS [--png out.png] [--force] [--no-calibrate] [--psf trace|PSF.onnx] [--out MAP.json]
                             [--stamp PSF.onnx] [--near-m M] [--calibrate-at M,M,...] [--sweep-d D]
+                            [--calibrate-radii R,R,...]
     aat-lens focus-map --from-captures SWEEP_DIR [SWEEP_DIR ...] --chart chart.json --out mycam.json
                             [--distance-m D1,D2,...] [--force] ...   (the options of `aat-calibrate fit`)
 
@@ -44,6 +45,16 @@ def _distances(text: str) -> tuple[float, ...]:
         return tuple(_distance(t) for t in text.split(",") if t.strip())
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected comma-separated distances in metres, got {text!r}") from None
+
+
+def _radii(text: str) -> tuple[float, ...]:
+    try:
+        r = tuple(float(t) for t in text.split(",") if t.strip())
+    except ValueError:
+        r = ()
+    if not r or not all(0.0 <= v <= 1.0 for v in r):
+        raise argparse.ArgumentTypeError(f"expected comma-separated field radii in 0..1, got {text!r}")
+    return tuple(sorted(set(r)))
 
 
 def _png_path(p: str | None, force: bool) -> Path | None:
@@ -170,7 +181,21 @@ def cmd_focus_map(a) -> int:
         return focus_map_from_captures(a)
     out = Path(a.out) if a.out else map_path_for_lens(a.lens)
     png = _png_path(a.png, a.force)
-    if out.exists() and not a.force:
+    if a.recalibrate:
+        if not a.force:
+            print(f"aat-lens: error: --recalibrate replaces {a.recalibrate}'s calibration in {out}: pass --force",
+                  file=sys.stderr)
+            return 2
+        from training.render.focus_calibration import make_focus_map
+
+        t0 = time.time()
+        fmap, points = make_focus_map(a.lens, True, a.psf, progress=not a.quiet, calibrate_at_m=a.calibrate_at,
+                                      sweep_d=a.sweep_d, radii=a.calibrate_radii, traced=load_json(a.recalibrate))
+        fmap.save_json(out)
+        print(f"wrote {out} ({time.time() - t0:.0f} s)")
+        for p in points:
+            print(json.dumps({k: (round(v, 4) if isinstance(v, float) else v) for k, v in p.items()}))
+    elif out.exists() and not a.force:
         if png is None and a.stamp is None:
             print(f"aat-lens: error: {out}: exists (pass --force to replace it, --png to draw it, --stamp to stamp "
                   "it)", file=sys.stderr)
@@ -181,7 +206,7 @@ def cmd_focus_map(a) -> int:
 
         t0 = time.time()
         fmap, points = make_focus_map(a.lens, not a.no_calibrate, a.psf, progress=not a.quiet, near_m=a.near_m,
-                                      calibrate_at_m=a.calibrate_at, sweep_d=a.sweep_d)
+                                      calibrate_at_m=a.calibrate_at, sweep_d=a.sweep_d, radii=a.calibrate_radii)
         fmap.save_json(out)
         print(f"wrote {out} ({time.time() - t0:.0f} s)")
         for p in points:
@@ -282,6 +307,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sweep-d", type=float, default=None,
                    help="the calibration's frame sweep, +- diopters around each setting (default 0.2: about 7 px of "
                         "blur on a 50 mm f/1.8; widen it for a lens with less blur per diopter)")
+    p.add_argument("--recalibrate", default=None, metavar="MAP.json",
+                   help="calibrate this stored map of LENS again (its traced part kept, its calibration replaced; "
+                        "needs --force) instead of tracing the lens anew")
+    p.add_argument("--calibrate-radii", type=_radii, default=None, metavar="R,R,...",
+                   help="field radii of the calibration renders (0 centre, 1 corner; default 0,0.3,0.5,0.65,0.8,0.9): "
+                        "closer where best focus changes steeply (a phone lens's edge)")
     g = p.add_argument_group("--from-captures (the options of aat-calibrate fit)")
     add_fit_options(g)
     p.set_defaults(func=cmd_focus_map)

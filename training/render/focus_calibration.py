@@ -12,8 +12,10 @@ sweep of frames around F (`n_sweep` focus settings over +-`sweep_d` diopters); t
 found by a parabola on log measure around the best frame of the sweep. The frame F_peak where the measure peaks
 should, by the map, have D*(r, F_peak) in focus; the object is at D*(r, F). The offset that makes the map agree
 with the measure is offset = D*(r, F) - D*(r, F_peak) (object diopters; added by `BestFocusMap` when calibrated).
-Points whose D* is beyond infinity (not renderable) are left out; the offset is interpolated over r (held beyond
-the measured range) and over F.
+Points whose D* is beyond infinity, or outside a surrogate's depth range (it would render the object at the range's
+end: a phone lens's corner focused at 7 cm is in focus nearer than its surrogate's 5 cm), are left out, and a
+surrogate's sweep frames are kept inside its focus range; the offset is interpolated over r (held beyond the
+measured range) and over F.
 """
 
 from __future__ import annotations
@@ -57,6 +59,18 @@ def _simulator(lens, cfg: CalibrationConfig):
     return Simulator(lens, src, fx.parse(["aberrations"]), LayeredConfig(cell_px=32))
 
 
+def renderable_diopters(cfg: CalibrationConfig) -> tuple[tuple[float, float], tuple[float, float]]:
+    """((lo, hi) object diopters, (lo, hi) frame focus diopters) the PSFs render as they are: a surrogate's depth
+    and focus ranges (it clamps beyond them), everything for real rays."""
+    if cfg.psf == "trace":
+        return (0.0, np.inf), (0.0, np.inf)
+    from aat_deploy.psf.surrogate import PSFSurrogate
+
+    m = PSFSurrogate(cfg.psf, threads=1)
+    (dn, df), (fn, ff) = m.depth_range_m, m.focus_range_m
+    return (1.0 / df, 1.0 / dn), (1.0 / ff, 1.0 / fn)
+
+
 def _peak_log(x: np.ndarray, m: np.ndarray) -> float:
     """Peak of a sampled curve: the vertex of the parabola through log m at the best sample and its neighbours."""
     k = int(np.argmax(m))
@@ -69,8 +83,10 @@ def _peak_log(x: np.ndarray, m: np.ndarray) -> float:
     return float(x1 - 0.5 * num / den) if den != 0 else float(x1)
 
 
-def measure_point(lens, fmap: BestFocusMap, r: float, focus_m: float, cfg: CalibrationConfig, sim=None) -> dict:
-    """One (r, F): the traced D*, the sweep's measure curve and the peak; offset in object diopters."""
+def measure_point(lens, fmap: BestFocusMap, r: float, focus_m: float, cfg: CalibrationConfig, sim=None,
+                  ranges=None) -> dict:
+    """One (r, F): the traced D*, the sweep's measure curve and the peak; offset in object diopters. ranges: the
+    renderable diopters (`renderable_diopters`; None: from cfg)."""
     import torch
 
     from training.data.textures import photo_texture
@@ -80,12 +96,16 @@ def measure_point(lens, fmap: BestFocusMap, r: float, focus_m: float, cfg: Calib
     out = {"r": float(r), "focus_m": float(focus_m), "traced_object_diopters": d_star}
     if d_star <= 0.02:
         return {**out, "offset_diopters": float("nan"), "note": "traced best focus beyond 50 m: not rendered"}
+    (dlo, dhi), (flo, fhi) = renderable_diopters(cfg) if ranges is None else ranges
+    if not dlo <= d_star <= dhi:
+        return {**out, "offset_diopters": float("nan"),
+                "note": f"traced best focus {1 / d_star:.4g} m: outside the PSFs' depth range, not rendered"}
     s = lens.sensor
     n = cfg.crop_px + 2 * cfg.margin_px
     col = (1 + r) / 2 * s.width_px - n / 2
     row = (1 - r) / 2 * s.height_px - n / 2  # y up
     fd = 1.0 / focus_m + np.linspace(-cfg.sweep_d, cfg.sweep_d, cfg.n_sweep)
-    fd = fd[fd > 0]
+    fd = fd[(fd > 0) & (fd >= flo - 1e-9) & (fd <= fhi + 1e-9)]
     rng = np.random.default_rng([cfg.seed, int(r * 1000), int(focus_m * 1000)])
     curve = np.zeros(fd.size)
     for _ in range(cfg.n_textures):
@@ -111,6 +131,7 @@ def calibrate(lens, fmap: BestFocusMap, cfg: CalibrationConfig = CalibrationConf
               ) -> tuple[BestFocusMap, list[dict]]:
     """The map with `offset_diopters` measured on rendered stacks, and the per-point measurements."""
     sim = _simulator(lens, cfg)
+    ranges = renderable_diopters(cfg)
     points = []
     it = [(r, f) for f in cfg.focus_m for r in cfg.radii]
     if progress:
@@ -118,7 +139,7 @@ def calibrate(lens, fmap: BestFocusMap, cfg: CalibrationConfig = CalibrationConf
 
         it = tqdm(it, desc="calibrating the focus measure's peak", unit="point")
     for r, f in it:
-        points.append(measure_point(lens, fmap, r, f, cfg, sim))
+        points.append(measure_point(lens, fmap, r, f, cfg, sim, ranges))
     radii = np.array(cfg.radii, np.float64)
     fdp = np.sort(1.0 / np.array(cfg.focus_m, np.float64))
     grid = np.full((radii.size, fdp.size), np.nan)
@@ -145,26 +166,35 @@ def calibrate(lens, fmap: BestFocusMap, cfg: CalibrationConfig = CalibrationConf
 
 
 def make_focus_map(lens_path, calibrate_map: bool = True, psf: str = "trace", progress: bool = True,
-                   near_m: float | None = None, calibrate_at_m=None, sweep_d: float | None = None
-                   ) -> tuple[BestFocusMap, list[dict]]:
+                   near_m: float | None = None, calibrate_at_m=None, sweep_d: float | None = None,
+                   radii=None, traced: BestFocusMap | None = None) -> tuple[BestFocusMap, list[dict]]:
     """A lens file's best-focus map as `aat-lens focus-map` stores it: traced (training.optics.field_focus), then
     calibrated on rendered stacks (PSFs: "trace" or a surrogate .onnx), the lens file and the calibration points in
     its notes. Returns (map, calibration points).
 
     near_m: the map's nearest frame focus (m; None: the focus table's default, 0.2 m); calibrate_at_m / sweep_d:
     the calibration's frame focus settings and sweep (None: CalibrationConfig's, made for 50 mm lenses: a phone
-    lens blurs ~30x less per diopter and needs a ~30x wider sweep)."""
+    lens blurs ~30x less per diopter and needs a ~30x wider sweep); radii: the calibration's field radii (None:
+    CalibrationConfig's; a lens whose best focus changes steeply at the edge needs them closer there); traced: a
+    stored map of this lens whose traced part is kept (its calibration is made again) instead of tracing anew."""
     from aat_deploy.lens.io import load_lens
     from training.optics.field_focus import best_focus_map
     from training.psf.geometry import focus_table_reaching
 
     lens = load_lens(lens_path)
-    table = focus_table_reaching(lens, near_m) if near_m is not None else None
-    fmap = best_focus_map(lens, table=table, progress=progress)
+    if traced is not None:
+        if traced.lens_hash and traced.lens_hash != lens.prescription_hash():
+            raise ValueError(f"the map to recalibrate is of lens {traced.lens_name!r}, not {lens.name!r}")
+        notes = {k: v for k, v in traced.notes.items() if k not in ("calibration", "calibration_points")}
+        fmap = replace(traced, offset_diopters=None, notes=notes)
+    else:
+        table = focus_table_reaching(lens, near_m) if near_m is not None else None
+        fmap = best_focus_map(lens, table=table, progress=progress)
     points: list[dict] = []
     if calibrate_map:
         over = {k: v for k, v in (("focus_m", tuple(calibrate_at_m) if calibrate_at_m else None),
-                                  ("sweep_d", sweep_d)) if v is not None}
+                                  ("sweep_d", sweep_d), ("radii", tuple(radii) if radii else None))
+                if v is not None}
         fmap, points = calibrate(lens, fmap, CalibrationConfig(psf=psf, **over), progress=progress)
     notes = dict(fmap.notes)
     notes["lens_file"] = str(lens_path)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 from conftest import LENSES
 
@@ -112,7 +113,57 @@ def test_focus_map_for_a_phone_lens_working_range(tmp_path, monkeypatch):
     out = tmp_path / "phone.json"
     phone = str(LENSES / "cellphone_asphere.json")
     assert main(["focus-map", phone, "--near-m", "0.05", "--calibrate-at", "0.07,0.3", "--sweep-d", "5.5",
-                 "--out", str(out), "-q"]) == 0
+                 "--calibrate-radii", "0.8,0,0.7", "--out", str(out), "-q"]) == 0
     fmap = load_json(out)
     assert fmap.focus_diopters[-1] == pytest.approx(20.0)  # the map reaches 5 cm
     assert seen["cfg"].focus_m == (0.07, 0.3) and seen["cfg"].sweep_d == 5.5
+    assert seen["cfg"].radii == (0.0, 0.7, 0.8)
+    with pytest.raises(SystemExit):
+        main(["focus-map", phone, "--calibrate-radii", "0.5,1.2", "--out", str(out), "--force", "-q"])
+
+
+def test_focus_map_recalibrate_keeps_the_traced_map(tmp_path, monkeypatch, capsys):
+    """--recalibrate calibrates a stored map again without tracing: its traced part kept, its old calibration
+    dropped before the new one; without --force nothing is written; another lens's map is refused."""
+    import dataclasses
+
+    import training.optics.field_focus as ff
+    import training.render.focus_calibration as fc
+    from aat_deploy.focus.bestfocus import load_json
+
+    stored = load_json(LENSES / "best_focus" / "canon_rf50mm_f1.8.json")
+    src = tmp_path / "stored.json"
+    dataclasses.replace(stored, offset_diopters=np.full_like(stored.object_diopters, 0.3)).save_json(src)
+    monkeypatch.setattr(ff, "best_focus_map", lambda *a, **k: pytest.fail("traced anew"))
+    seen = {}
+
+    def fake_calibrate(lens, fmap, cfg, progress=True):
+        seen["offset"], seen["cfg"] = fmap.offset_diopters, cfg
+        return dataclasses.replace(fmap, offset_diopters=np.full_like(fmap.object_diopters, -0.1)), []
+
+    monkeypatch.setattr(fc, "calibrate", fake_calibrate)
+    out = tmp_path / "new.json"
+    args = ["focus-map", RF50, "--recalibrate", str(src), "--calibrate-radii", "0,0.5", "--out", str(out), "-q"]
+    assert main(args) == 2 and not out.exists() and "--force" in capsys.readouterr().err
+    assert main(args + ["--force"]) == 0
+    new = load_json(out)
+    assert seen["offset"] is None and seen["cfg"].radii == (0.0, 0.5)
+    np.testing.assert_array_equal(new.object_diopters, stored.object_diopters)
+    assert np.all(new.offset_diopters == -0.1)
+    phone = str(LENSES / "cellphone_asphere.json")
+    assert main(["focus-map", phone, "--recalibrate", str(src), "--out", str(tmp_path / "x.json"), "--force",
+                 "-q"]) == 2
+    assert "not" in capsys.readouterr().err and not (tmp_path / "x.json").exists()
+
+
+def test_calibration_points_outside_a_surrogates_range_are_not_rendered():
+    """A surrogate clamps depths beyond its range: a point whose traced best focus lies there is left out (NaN,
+    with a note) instead of measured on an object rendered at the range's end."""
+    from aat_deploy.focus.bestfocus import load_json
+    from aat_deploy.lens.io import load_lens
+    from training.render.focus_calibration import CalibrationConfig, measure_point
+
+    lens = load_lens(RF50)
+    fmap = load_json(LENSES / "best_focus" / "canon_rf50mm_f1.8.json")
+    p = measure_point(lens, fmap, 0.5, 1.0, CalibrationConfig(), sim=object(), ranges=((0.0, 0.5), (0.0, 5.0)))
+    assert np.isnan(p["offset_diopters"]) and "outside the PSFs' depth range" in p["note"]

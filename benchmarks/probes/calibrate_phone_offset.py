@@ -1,0 +1,201 @@
+"""Why the chart calibration read a +1 D reported-focus offset on the nominal phone lens (issue 33), and what a
+chart sweep can measure at a phone's scale (1.26 px of blur per diopter).
+
+    python -m benchmarks.probes.calibrate_phone_offset [--out results/calibrate_phone_offset.json]   # ~3 min
+
+On bench_calibrate's cached nominal phone sweeps (charts at 7, 10 and 18 cm; `--lenses cellphone --parts map`
+renders them) and its traced best-focus map, one candidate at a time:
+
+1. **distance**: every counted tile's object diopters as the fit computes them (the tape distance, 2 mm SD as in
+   the benchmark, and the markers' homography, the entrance pupil assumed) against the rendered chart's depth;
+2. **peaks**: where the centre tiles' (field radius < 0.08) focus curves peak, in reported diopters minus the
+   object's, against the same measured on axis with a dense sweep (0.1 D steps) of four textures (point 4);
+3. **the model**: the fit (`aat_deploy.calibrate.model.fit_model`) on the measured tiles, and on tiles made from
+   the traced map itself (each tile's peak where the map has its object in focus: no noise, no measurement), with
+   the field term of monomials only (`radial=0`, the model before the radial powers, order by cross-validation as
+   it was) and with the radial powers; its offset and its error at the frame centre;
+4. **the floor at phone scale**: on axis, where the focus measure (the runtime's) peaks for the chart's dead
+   leaves and three photographs, with a dense sweep and with the chart sweeps' step (1.1 D, ten phases, the
+   `gauss` estimator); the focus curve's width. The same for the RF50 at its scale (the same pixels of blur).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks import RESULTS
+from benchmarks import bench_calibrate as bc
+
+CENTRE_R = 0.08
+
+
+def rendered_depth(rig, i: int) -> np.ndarray:
+    from aat_deploy.calibrate.pose import ChartPose
+    from aat_deploy.calibrate.scene import chart_scene
+
+    s = rig.setup
+    img, layout = bc.chart_for(rig, s.distances_m[i])
+    _, depth = chart_scene(img, layout, ChartPose(s.distances_m[i], *s.tilts[i]), rig.w, rig.h, rig.f_px, rig.pupil)
+    return depth.astype(np.float64)
+
+
+def part_distance_and_peaks(rig, ms) -> list[dict]:
+    r = rig.fmap.radius_px(rig.h, rig.w).astype(np.float64)
+    rows = []
+    for i, m in enumerate(ms):
+        g = m.peaks.grid
+        ok = m.peaks.counted
+        true_d = g.mean(1.0 / rendered_depth(rig, i))
+        e = (m.object_d - true_d)[ok]
+        centre = ok & (g.mean(r) < CENTRE_R)
+        pk = (m.peaks.peak_d - true_d)[centre]
+        rows.append({"chart_m": rig.setup.distances_m[i], "tiles": int(ok.sum()),
+                     "object_error_mean_d": float(e.mean()), "object_error_rms_d": float(np.sqrt(np.mean(e ** 2))),
+                     "object_error_max_d": float(np.abs(e).max()), "centre_tiles": int(centre.sum()),
+                     "centre_peak_minus_object_d": float(pk.mean()), "centre_peak_sd_d": float(pk.std())})
+    return rows
+
+
+def map_made_observations(rig, ms, obs):
+    """The same tiles with their peak where the traced map has their object in focus (no noise)."""
+    from aat_deploy.calibrate.model import Observations
+
+    r = rig.fmap.radius_px(rig.h, rig.w).astype(np.float64)
+    rad = np.concatenate([m.peaks.grid.mean(r)[m.peaks.counted] for m in ms])
+    f_grid = np.linspace(0.3, 25.0, 4000)
+    t = rig.fmap.frame_diopters(1.0 / f_grid, rad)  # (F, N)
+    peak = np.array([np.interp(obs.object_d[j], t[:, j], f_grid) for j in range(len(obs))])
+    return Observations(obs.x, obs.y, peak, obs.object_d, obs.sweep, obs.cell, aspect=obs.aspect)
+
+
+def part_model(rig, obs, made) -> list[dict]:
+    from aat_deploy.calibrate.model import fit_model
+
+    rows = []
+    for name, o in (("measured tiles", obs), ("tiles made from the traced map", made)):
+        for label, radial in (("monomials only (before)", 0), ("with radial powers", None)):
+            t0 = time.time()
+            f = fit_model(o, radial=radial)
+            centre = float(f.predict(0.0, 0.0, 10.0) - rig.fmap.frame_diopters([0.1], [0.0])[0, 0])
+            rows.append({"tiles": name, "model": label, "degree": f.degree, "radial": f.radial,
+                         "focus_degree": f.focus_degree, "family": f.focus.family, "offset_d": f.focus.bias_d,
+                         "scale": f.focus.scale,
+                         "offset_fit_d": float(f.fits["offset"][0].bias_d) if "offset" in f.fits else None,
+                         "residual_rms_d": float(np.sqrt(np.mean(f.residual_d ** 2))),
+                         "centre_error_at_10d": centre, "seconds": round(time.time() - t0, 1)})
+            print(f"  {name}, {label}: degree {f.degree} radial {f.radial}, {f.focus.family} offset "
+                  f"{f.focus.bias_d:+.3f} D, centre {centre:+.3f} D", file=sys.stderr, flush=True)
+    return rows
+
+
+def peak_log(x: np.ndarray, m: np.ndarray) -> float:
+    from training.render.focus_calibration import _peak_log
+
+    return _peak_log(x, m)
+
+
+def part_floor(key: str, object_m: float, half_px: float = 5.0, coarse_px: float = 1.39) -> dict:
+    """On axis: the measure's peak (D from the object) per texture, dense and at the chart sweeps' step."""
+    import torch
+
+    from aat_deploy.calibrate.pose import ChartPose
+    from aat_deploy.calibrate.scene import chart_scene
+    from aat_deploy.focus import FocusConfig
+    from aat_deploy.focus.estimate import estimate_peak
+    from aat_deploy.focus.measures import focus_volume
+    from aat_deploy.render import effects as fx
+    from training.data.textures import photo_texture
+    from training.render.layered import LayeredConfig
+    from training.render.simulator import Simulator
+    from training.render.sources import OnnxPSF
+
+    torch.set_num_threads(1)
+    rig = bc.Rig(bc.LENSES[key])
+    cfg = FocusConfig()
+    sim = Simulator(rig.lens, OnnxPSF.from_source(rig.src), fx.parse(["aberrations"]), LayeredConfig(cell_px=32))
+    n, m = 112, 24
+    origin = (rig.h // 2 - n // 2, rig.w // 2 - n // 2)
+    img, layout = bc.chart_for(rig, object_m)
+    # the chart's texture at its scale, a marker-free part of it on the axis
+    rgb, _ = chart_scene(img, layout, ChartPose(object_m, axis_point_mm=(0.07 * object_m * 1000, 0.05 * object_m *
+                                                                          1000)), rig.w, rig.h, rig.f_px, rig.pupil)
+    textures = {"chart": rgb[:, origin[0]:origin[0] + n, origin[1]:origin[1] + n]}
+    rng = np.random.default_rng(5)
+    for i in range(3):
+        textures[f"photo {i}"] = photo_texture(rng, n, n, "train").transpose(2, 0, 1).astype(np.float32)
+    half_d, step_d = half_px / rig.blur_px_per_d, coarse_px / rig.blur_px_per_d
+    fd = 1.0 / object_m + np.linspace(-half_d, half_d, 101)
+    out = {"lens": key, "object_m": object_m, "blur_px_per_d": rig.blur_px_per_d, "dense_step_d": float(fd[1] - fd[0]),
+           "coarse_step_d": step_d, "textures": {}}
+    for name, tex in textures.items():
+        st = sim.render_stack(torch.from_numpy(np.ascontiguousarray(tex)), torch.full((n, n), object_m), 1.0 / fd,
+                              origin=origin, rng=np.random.default_rng(0))
+        fr = st.frames.numpy()
+        vol = focus_volume(fr / max(float(fr.max()), 1e-12), cfg.measure, cfg.window_px, prefilter_px=cfg.prefilter_px)
+        curve = vol[:, m:n - m, m:n - m].mean((1, 2)).astype(np.float64)
+        coarse = []
+        for ph in np.linspace(0, step_d, 10, endpoint=False):
+            xs = np.arange(fd[0] + ph, fd[-1], step_d)
+            ys = np.interp(xs, fd, curve)
+            pk = estimate_peak(ys[:, None, None].astype(np.float32), xs.astype(np.float32), None, "gauss")
+            coarse.append(float(pk.diopters[0, 0]) - 1.0 / object_m)
+        half = fd[curve >= 0.5 * curve.max()]
+        out["textures"][name] = {"dense_peak_d": peak_log(fd, curve) - 1.0 / object_m,
+                                 "coarse_mean_d": float(np.mean(coarse)), "coarse_min_d": float(min(coarse)),
+                                 "coarse_max_d": float(max(coarse)), "half_max_width_d": float(half.max() - half.min())}
+    dense = [v["dense_peak_d"] for v in out["textures"].values()]
+    out["dense_spread_d"] = float(max(dense) - min(dense))
+    out["dense_spread_px"] = out["dense_spread_d"] * rig.blur_px_per_d
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", default=str(RESULTS / "calibrate_phone_offset.json"))
+    a = ap.parse_args(argv)
+    from aat_deploy.calibrate.fit import observations
+
+    rig = bc.Rig(bc.LENSES["cellphone"])
+    sweeps = [bc.sweep(rig, "nominal", i, lambda m: print(m, file=sys.stderr)) for i in range(3)]
+    ms = bc.measures(rig, sweeps, "nominal")
+    obs = observations(ms)
+    res = {"distance_and_peaks": part_distance_and_peaks(rig, ms)}
+    res["model"] = part_model(rig, obs, map_made_observations(rig, ms, obs))
+    res["floor"] = [part_floor("cellphone", 0.1), part_floor("rf50", 1.0)]
+    from aat_deploy.io.atomic import write_text_atomic
+
+    Path(a.out).parent.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(Path(a.out), json.dumps(res, indent=1))
+    print("| chart (m) | tiles | object error: mean / RMS / max (D) | centre tiles | centre peak - object (D, SD) |")
+    print("|---|---|---|---|---|")
+    for r in res["distance_and_peaks"]:
+        print(f"| {r['chart_m']:g} | {r['tiles']} | {r['object_error_mean_d']:+.4f} / {r['object_error_rms_d']:.4f} / "
+              f"{r['object_error_max_d']:.4f} | {r['centre_tiles']} | {r['centre_peak_minus_object_d']:+.3f} "
+              f"({r['centre_peak_sd_d']:.3f}) |")
+    print("\n| tiles | field term | order (degree, radial, focus) | family chosen | offset (D) | residual RMS (D) | "
+          "centre error, reported 10 D (D) |")
+    print("|---|---|---|---|---|---|---|")
+    for r in res["model"]:
+        off = r["offset_fit_d"] if r["family"] != "offset" else r["offset_d"]
+        print(f"| {r['tiles']} | {r['model']} | {r['degree']}, {r['radial']}, {r['focus_degree']} | {r['family']} | "
+              f"{off:+.3f}{'' if r['family'] == 'offset' else ' (if chosen)'} | {r['residual_rms_d']:.3f} | "
+              f"{r['centre_error_at_10d']:+.3f} |")
+    print("\n| lens | object | texture | measure peak - object, dense (D) | at the chart step (D, 10 phases) | "
+          "curve half-max width (D) |")
+    print("|---|---|---|---|---|---|")
+    for f in res["floor"]:
+        for name, t in f["textures"].items():
+            print(f"| {f['lens']} ({f['blur_px_per_d']:.2f} px/D) | {f['object_m']:g} m | {name} | "
+                  f"{t['dense_peak_d']:+.4f} | {t['coarse_mean_d']:+.4f} ({t['coarse_min_d']:+.4f}..{t['coarse_max_d']:+.4f})"
+                  f" | {t['half_max_width_d']:.3f} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
