@@ -348,7 +348,7 @@ def part_map(rig: Rig, n_boot: int, log) -> tuple[list, dict]:
                      "family": fe.family, "scale": fe.scale, "scale_ci": fe.intervals.get("scale"),
                      "bias_d": fe.bias_d, "bias_ci": fe.intervals.get("bias_d"), "support": fe.support,
                      "tiles": cal.residuals["tiles"], "residual_rms_d": cal.residuals["rms_d"],
-                     "inside": e_in, "schedule": e_sched, "degree": res.model.degree,
+                     "inside": e_in, "schedule": e_sched, "degree": res.model.degree, "radial": res.model.radial,
                      "focus_degree": res.model.focus_degree, "warnings": res.warnings})
         log(f"  {s.key} {variant}: family {fe.family} scale {fe.scale:.4f} bias {fe.bias_d:+.4f}; map RMS "
             f"{e_in['calibration']['rms_d']:.4f} D inside, {e_sched['calibration']['rms_d']:.4f} D on the schedule")

@@ -167,7 +167,8 @@ def calibrate(lens, fmap: BestFocusMap, cfg: CalibrationConfig = CalibrationConf
 
 def make_focus_map(lens_path, calibrate_map: bool = True, psf: str = "trace", progress: bool = True,
                    near_m: float | None = None, calibrate_at_m=None, sweep_d: float | None = None,
-                   radii=None, traced: BestFocusMap | None = None) -> tuple[BestFocusMap, list[dict]]:
+                   radii=None, traced: BestFocusMap | None = None, textures: int | None = None
+                   ) -> tuple[BestFocusMap, list[dict]]:
     """A lens file's best-focus map as `aat-lens focus-map` stores it: traced (training.optics.field_focus), then
     calibrated on rendered stacks (PSFs: "trace" or a surrogate .onnx), the lens file and the calibration points in
     its notes. Returns (map, calibration points).
@@ -176,7 +177,8 @@ def make_focus_map(lens_path, calibrate_map: bool = True, psf: str = "trace", pr
     the calibration's frame focus settings and sweep (None: CalibrationConfig's, made for 50 mm lenses: a phone
     lens blurs ~30x less per diopter and needs a ~30x wider sweep); radii: the calibration's field radii (None:
     CalibrationConfig's; a lens whose best focus changes steeply at the edge needs them closer there); traced: a
-    stored map of this lens whose traced part is kept (its calibration is made again) instead of tracing anew."""
+    stored map of this lens whose traced part is kept (its calibration is made again) instead of tracing anew;
+    textures: photo textures per point (None: CalibrationConfig's)."""
     from aat_deploy.lens.io import load_lens
     from training.optics.field_focus import best_focus_map
     from training.psf.geometry import focus_table_reaching
@@ -193,7 +195,8 @@ def make_focus_map(lens_path, calibrate_map: bool = True, psf: str = "trace", pr
     points: list[dict] = []
     if calibrate_map:
         over = {k: v for k, v in (("focus_m", tuple(calibrate_at_m) if calibrate_at_m else None),
-                                  ("sweep_d", sweep_d), ("radii", tuple(radii) if radii else None))
+                                  ("sweep_d", sweep_d), ("radii", tuple(radii) if radii else None),
+                                  ("n_textures", textures))
                 if v is not None}
         fmap, points = calibrate(lens, fmap, CalibrationConfig(psf=psf, **over), progress=progress)
     notes = dict(fmap.notes)

@@ -143,11 +143,12 @@ def test_focus_map_recalibrate_keeps_the_traced_map(tmp_path, monkeypatch, capsy
 
     monkeypatch.setattr(fc, "calibrate", fake_calibrate)
     out = tmp_path / "new.json"
-    args = ["focus-map", RF50, "--recalibrate", str(src), "--calibrate-radii", "0,0.5", "--out", str(out), "-q"]
+    args = ["focus-map", RF50, "--recalibrate", str(src), "--calibrate-radii", "0,0.5", "--calibrate-textures", "5",
+            "--out", str(out), "-q"]
     assert main(args) == 2 and not out.exists() and "--force" in capsys.readouterr().err
     assert main(args + ["--force"]) == 0
     new = load_json(out)
-    assert seen["offset"] is None and seen["cfg"].radii == (0.0, 0.5)
+    assert seen["offset"] is None and seen["cfg"].radii == (0.0, 0.5) and seen["cfg"].n_textures == 5
     np.testing.assert_array_equal(new.object_diopters, stored.object_diopters)
     assert np.all(new.offset_diopters == -0.1)
     phone = str(LENSES / "cellphone_asphere.json")
