@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 import time
 from pathlib import Path
@@ -116,6 +117,17 @@ def label_of(meta: dict, path: Path) -> str:
             + (AIF_LOSS if str(meta.get("aat.config_name", "")).endswith("_aif") else ""))
 
 
+def unique_label(label: str, path: Path, taken) -> str:
+    """`label`, or when another model of the run has it (the first RF50 DFVNets beside the current ones) the label
+    with the model's family, its file stem less the simulator ("AAT DFVNet (dff_dfvnet)"), so that no row replaces
+    another and an AAT net still finds its thin-lens twin ("Baseline DFVNet (dff_dfvnet)")."""
+    if label not in taken:
+        return label
+    family = re.sub(r"_(aat|thin)$", "", path.stem)
+    out = f"{label} ({family})"
+    return out if out not in taken else f"{label} ({path.stem})"
+
+
 def table(rows: list[tuple[str, dict]]) -> str:
     head = ("| model | MAE | MSE | RMSE | AbsRel | SqRel | δ1 | δ2 | δ3 | MAE centre | MAE outer | AiF PSNR | AiF SSIM |\n"
             "|---|---|---|---|---|---|---|---|---|---|---|---|---|")
@@ -167,7 +179,7 @@ def main(argv: list[str] | None = None) -> int:
             for path in paths:
                 t0 = time.time()
                 per, err_map, meta = run_model(path, items, a.threads, a.tile or None)
-                lab = label_of(meta, path)
+                lab = unique_label(label_of(meta, path), path, per_model)
                 per_model[lab] = per
                 maps[lab] = err_map
                 rows.append((lab, summarise(per, KEYS)))

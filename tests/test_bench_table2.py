@@ -26,3 +26,16 @@ def test_labels(bench):
     assert bench.label_of(meta, Path("x.onnx")) == "AAT AiFNet + AiF loss"
     meta = {"aat.net": "dfvnet", "aat.simulator": "thin_lens", "aat.field_channels": "0"}
     assert bench.label_of(meta, Path("x.onnx")) == "Baseline DFVNet"
+
+
+def test_a_label_two_models_share_names_the_family_and_keeps_the_twin(bench):
+    # the current RF50 DFVNets and the first ones have the same metadata labels: before, the later row replaced the
+    # earlier one in the results (the paper-protocol run of 2026-11-26 scored dff_dfvnet_* as "AAT DFVNet")
+    taken = {"AAT DFVNet": {}, "Baseline DFVNet": {}}
+    aat = bench.unique_label("AAT DFVNet", Path("models/reproduce/dff_dfvnet_aat.onnx"), taken)
+    thin = bench.unique_label("Baseline DFVNet", Path("models/reproduce/dff_dfvnet_thin.onnx"), taken)
+    assert (aat, thin) == ("AAT DFVNet (dff_dfvnet)", "Baseline DFVNet (dff_dfvnet)")
+    assert "Baseline " + aat[4:] == thin  # main's twin rule pairs them
+    assert bench.unique_label("AAT AiFNet", Path("rf50_aifnet_aat.onnx"), taken) == "AAT AiFNet"  # unique: unchanged
+    taken[aat] = {}
+    assert bench.unique_label("AAT DFVNet", Path("x/dff_dfvnet_aat.onnx"), taken) == "AAT DFVNet (dff_dfvnet_aat)"
