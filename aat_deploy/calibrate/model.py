@@ -185,7 +185,10 @@ def fit_family(obs: Observations, name: str, degree: int, focus_degree: int, ite
         if fe is None:
             return None
         t_new = fe.true_diopters(r)
-        fp = fb.field_poly(c, (lo, hi))
+        try:
+            fp = fb.field_poly(c, (lo, hi))
+        except ValueError:  # coefficients beyond what the file stores (near-collinear high powers): no fit
+            return None
         fit_c = c
         if np.max(np.abs(t_new - t)) < 1e-7:
             t = t_new

@@ -69,7 +69,7 @@ def map_made_observations(rig, ms, obs):
     r = rig.fmap.radius_px(rig.h, rig.w).astype(np.float64)
     rad = np.concatenate([m.peaks.grid.mean(r)[m.peaks.counted] for m in ms])
     f_grid = np.linspace(0.3, 25.0, 4000)
-    t = rig.fmap.frame_diopters(1.0 / f_grid, rad)  # (F, N)
+    t = rig.fmap.frame_diopters(1.0 / f_grid, rad, calibrated=False)  # (F, N): the traced, round field
     peak = np.array([np.interp(obs.object_d[j], t[:, j], f_grid) for j in range(len(obs))])
     return Observations(obs.x, obs.y, peak, obs.object_d, obs.sweep, obs.cell, aspect=obs.aspect)
 
@@ -82,7 +82,7 @@ def part_model(rig, obs, made) -> list[dict]:
         for label, radial in (("monomials only (before)", 0), ("with radial powers", None)):
             t0 = time.time()
             f = fit_model(o, radial=radial)
-            centre = float(f.predict(0.0, 0.0, 10.0) - rig.fmap.frame_diopters([0.1], [0.0])[0, 0])
+            centre = float(f.predict(0.0, 0.0, 10.0) - rig.fmap.frame_diopters([0.1], [0.0], calibrated=False)[0, 0])
             rows.append({"tiles": name, "model": label, "degree": f.degree, "radial": f.radial,
                          "focus_degree": f.focus_degree, "family": f.focus.family, "offset_d": f.focus.bias_d,
                          "scale": f.focus.scale,

@@ -36,7 +36,7 @@ def truth(x, y, t):
     out = np.empty(r.size)
     for f in np.unique(t):
         sel = t.ravel() == f
-        out[sel] = fm.frame_diopters([1.0 / f], r[sel])[0]
+        out[sel] = fm.frame_diopters([1.0 / f], r[sel], calibrated=False)[0]
     return out.reshape(x.shape)
 
 
@@ -48,7 +48,7 @@ def phone_observations(bias_d: float = 0.0, noise_d: float = 0.05, seed: int = 0
     x, y = np.meshgrid((np.arange(24) + 0.5) / 12 - 1, 1 - (np.arange(18) + 0.5) / 9)
     r = np.sqrt(rho2(x, y)).ravel()
     f_grid = np.linspace(2.0, 20.0, 1801)
-    t_grid = phone_map().frame_diopters(1.0 / f_grid, r)  # (F, N)
+    t_grid = phone_map().frame_diopters(1.0 / f_grid, r, calibrated=False)  # (F, N)
     cols = {k: [] for k in ("x", "y", "reported_d", "object_d", "sweep", "cell")}
     for i, (dist, tilt) in enumerate(((0.07, 0.4), (0.1, -0.3), (0.18, 0.2))):
         obj = (1.0 / (dist * (1 + tilt * 0.3 * x))).ravel()  # a tilted plane: distance grows across the frame
@@ -112,3 +112,22 @@ def test_field_basis_stores_the_functions_it_fits():
     want = cols @ c[:, 0] - cols @ c[:, 1]  # at tau = -1: P0 - P1
     np.testing.assert_allclose(fp(x, y, [5.0])[0], want, rtol=1e-9, atol=1e-12)
     assert FieldBasis(6, 6).powers() == [] and FieldBasis(6, 8).powers() == [8]
+
+
+def test_a_fit_the_file_cannot_store_is_no_fit():
+    """Tiles only in a thin ring at the edge, alternating by hundreds of diopters: only cancelling high radial powers
+    follow them, with coefficients beyond the format's bound. That order is then not fitted (None: cross-validation
+    and the bootstrap skip it) instead of stopping the calibration with an error."""
+    from aat_deploy.calibrate.model import fit_family
+
+    rng = np.random.default_rng(0)
+    ang, rad = rng.uniform(0, 2 * np.pi, 400), rng.choice([0.85, 0.9, 0.95], 400)
+    a2 = ASPECT ** 2 / (1 + ASPECT ** 2)
+    x, y = rad * np.cos(ang) / np.sqrt(a2), rad * np.sin(ang) / np.sqrt(1 - a2)
+    ok = (np.abs(x) <= 1) & (np.abs(y) <= 1)
+    x, y, rad = x[ok], y[ok], rad[ok]
+    rep = np.full(len(x), 10.0)
+    obs = Observations(x, y, rep, rep + np.where(rad == 0.9, 500.0, -500.0), np.zeros(len(x), int),
+                       np.zeros(len(x), int), aspect=ASPECT)
+    assert fit_family(obs, "none", 2, 0, radial=12) is None
+    assert fit_family(obs, "none", 2, 0, radial=0) is not None
