@@ -112,7 +112,7 @@ LENSES = {
                      tolerance_table="cache/tolerance/auto", step_d=None, margin_d=None, marker_frac=0.45),
     # the phone lens (EFL 5.6 mm f/2.8, 640 x 480 at 8.9 um: 1.26 px of blur per diopter) in its working range: its
     # surrogate (configs/psf_cellphone.json) covers 0.05-2 m, its map was calibrated with sweeps widened to its blur
-    # (aat-lens focus-map --near-m 0.05 --calibrate-at 0.1,0.15,0.3,0.5 --sweep-d 5.5); charts at 7-18 cm, sweeps
+    # (aat-lens focus-map --recalibrate ... --calibrate-at 0.07,...,0.5 --sweep-d 5.5: models/README.md); charts at 7-18 cm, sweeps
     # designed in pixels of blur, depth stacks 0.07-0.5 m (no Middlebury: its scene lies at 1-2 m); a copy with a
     # phone's tolerances (the second element decentred 5 um: about 0.6 D at the edge; the sensor tilted 0.3 deg: 0.5 D)
     "cellphone": LensSetup("cellphone", "lenses/cellphone_asphere.json", "models/psf_cellphone.onnx",
@@ -286,11 +286,13 @@ def map_errors(rig: Rig, cal, effects: list[str], true_m: np.ndarray) -> dict:
                                            for f in rep]),
              "thin lens": np.broadcast_to((1.0 / rep)[:, None, None], truth.shape)}
     out = {}
+    zones = zone_masks(rig.h, rig.w)
     for k, p in preds.items():
         if p is None:
             continue
         e = np.abs(p - truth)
-        out[k] = {"rms_d": float(np.sqrt(np.mean(e ** 2))), "p95_d": float(np.quantile(e, 0.95))}
+        out[k] = {"rms_d": float(np.sqrt(np.mean(e ** 2))), "p95_d": float(np.quantile(e, 0.95)),
+                  "zone_rms_d": {z: float(np.sqrt(np.mean(e[:, m] ** 2))) for z, m in zones.items()}}
     return out
 
 

@@ -16,7 +16,11 @@ renders them) and its traced best-focus map, one candidate at a time:
    it was) and with the radial powers; its offset and its error at the frame centre;
 4. **the floor at phone scale**: on axis, where the focus measure (the runtime's) peaks for the chart's dead
    leaves and three photographs, with a dense sweep and with the chart sweeps' step (1.1 D, ten phases, the
-   `gauss` estimator); the focus curve's width. The same for the RF50 at its scale (the same pixels of blur).
+   `gauss` estimator); the focus curve's width. The same for the RF50 at its scale (the same pixels of blur);
+5. **the tiles against the benchmark's truth** (the calibrated map, lenses/best_focus/: where the measure peaks on
+   photo textures): every counted tile's peak minus the truth's peak for its object, by field zone;
+6. with `--truth-noise`: the calibrated map's own texture noise, its calibration points made twice with other
+   photo textures (3 per point, the default; 2 x 1.5 min) and compared point by point.
 """
 
 from __future__ import annotations
@@ -155,9 +159,54 @@ def part_floor(key: str, object_m: float, half_px: float = 5.0, coarse_px: float
     return out
 
 
+ZONES = ((0.0, 0.33), (0.33, 0.66), (0.66, 0.9), (0.9, 1.01))
+
+
+def part_tiles_vs_truth(rig, ms) -> list[dict]:
+    """Per chart and field zone: measured tile peak minus the calibrated truth's peak for the tile's object (D)."""
+    r = rig.fmap.radius_px(rig.h, rig.w).astype(np.float64)
+    f_grid = np.linspace(0.3, 25.0, 4000)
+    rows = []
+    for i, m in enumerate(ms):
+        g = m.peaks.grid
+        ok = m.peaks.counted
+        rt = g.mean(r)[ok]
+        true_d = g.mean(1.0 / rendered_depth(rig, i))[ok]
+        t = rig.fmap.frame_diopters(1.0 / f_grid, rt)  # (F, N) the calibrated map
+        peak = np.array([np.interp(true_d[j], t[:, j], f_grid) for j in range(len(rt))])
+        e = m.peaks.peak_d[ok] - peak
+        for lo, hi in ZONES:
+            z = (rt >= lo) & (rt < hi)
+            if z.any():
+                rows.append({"chart_m": rig.setup.distances_m[i], "zone": [lo, hi], "tiles": int(z.sum()),
+                             "mean_d": float(e[z].mean()), "sd_d": float(e[z].std()),
+                             "rms_d": float(np.sqrt(np.mean(e[z] ** 2)))})
+    return rows
+
+
+def part_truth_noise(rig) -> dict:
+    """The calibrated map's points made again with two other draws of photo textures (its command's settings)."""
+    from training.render.focus_calibration import CalibrationConfig, calibrate
+
+    c = rig.fmap.notes["calibration"]
+    pts = []
+    for seed in (1, 2):
+        cfg = CalibrationConfig(psf=c["psf"], focus_m=tuple(c["focus_m"]), sweep_d=c["sweep_d"],
+                                radii=tuple(c["radii"]), seed=seed)
+        pts.append(np.array([p["offset_diopters"] for p in calibrate(rig.lens, rig.fmap, cfg, progress=False)[1]]))
+    d = pts[0] - pts[1]
+    radii = np.tile(np.array(c["radii"]), len(c["focus_m"]))
+    ok = np.isfinite(d)
+    return {"textures_per_point": CalibrationConfig().n_textures, "points": int(ok.sum()),
+            "diff_rms_d": float(np.sqrt(np.mean(d[ok] ** 2))),
+            "diff_rms_axis_d": float(np.sqrt(np.mean(d[ok & (radii == 0)] ** 2))),
+            "diff_rms_off_axis_d": float(np.sqrt(np.mean(d[ok & (radii > 0)] ** 2)))}
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default=str(RESULTS / "calibrate_phone_offset.json"))
+    ap.add_argument("--truth-noise", action="store_true", help="also make the calibrated map's points again (3 min)")
     a = ap.parse_args(argv)
     from aat_deploy.calibrate.fit import observations
 
@@ -168,6 +217,9 @@ def main(argv=None) -> int:
     res = {"distance_and_peaks": part_distance_and_peaks(rig, ms)}
     res["model"] = part_model(rig, obs, map_made_observations(rig, ms, obs))
     res["floor"] = [part_floor("cellphone", 0.1), part_floor("rf50", 1.0)]
+    res["tiles_vs_truth"] = part_tiles_vs_truth(rig, ms)
+    if a.truth_noise:
+        res["truth_noise"] = part_truth_noise(rig)
     from aat_deploy.io.atomic import write_text_atomic
 
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
@@ -194,6 +246,16 @@ def main(argv=None) -> int:
             print(f"| {f['lens']} ({f['blur_px_per_d']:.2f} px/D) | {f['object_m']:g} m | {name} | "
                   f"{t['dense_peak_d']:+.4f} | {t['coarse_mean_d']:+.4f} ({t['coarse_min_d']:+.4f}..{t['coarse_max_d']:+.4f})"
                   f" | {t['half_max_width_d']:.3f} |")
+    print("\n| chart (m) | field radius | tiles | tile peak - calibrated truth's: mean (SD) (D) |")
+    print("|---|---|---|---|")
+    for r in res["tiles_vs_truth"]:
+        print(f"| {r['chart_m']:g} | {r['zone'][0]:g}-{min(r['zone'][1], 1):g} | {r['tiles']} | {r['mean_d']:+.3f} "
+              f"({r['sd_d']:.3f}) |")
+    if "truth_noise" in res:
+        t = res["truth_noise"]
+        print(f"\nthe calibrated map's points made twice ({t['textures_per_point']} textures each, {t['points']} points):"
+              f" difference RMS {t['diff_rms_d']:.3f} D (on axis {t['diff_rms_axis_d']:.3f}, off axis "
+              f"{t['diff_rms_off_axis_d']:.3f})")
     return 0
 
 

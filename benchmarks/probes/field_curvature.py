@@ -42,9 +42,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("map", help="a best-focus map (lenses/best_focus/*.json)")
     ap.add_argument("--focus-m", default="0.07,0.1,0.18,0.5", help="frame focus settings (m from the sensor)")
     ap.add_argument("--range-m", default="0.07,0.18", help="near,far (m) of the thin lens's RMS error")
+    ap.add_argument("--traced", action="store_true", help="a calibrated map's traced part only (smallest RMS spot)")
     a = ap.parse_args(argv)
     fmap = load_json(a.map)
-    cal = fmap.offset_diopters is not None
+    cal = fmap.offset_diopters is not None and not a.traced
     sw, sh = fmap.sensor_mm
     h, w = (480, int(round(480 * sw / sh)))  # the error is per pixel of any frame of the sensor's aspect
     print(f"{fmap.lens_name}: {'calibrated' if cal else 'traced (not calibrated)'} map")
