@@ -112,7 +112,7 @@ LENSES = {
                      tolerance_table="cache/tolerance/auto", step_d=None, margin_d=None, marker_frac=0.45),
     # the phone lens (EFL 5.6 mm f/2.8, 640 x 480 at 8.9 um: 1.26 px of blur per diopter) in its working range: its
     # surrogate (configs/psf_cellphone.json) covers 0.05-2 m, its map was calibrated with sweeps widened to its blur
-    # (aat-lens focus-map --recalibrate ... --calibrate-at 0.07,...,0.5 --sweep-d 5.5: models/README.md); charts at 7-18 cm, sweeps
+    # (aat-lens focus-map --recalibrate ... --sweep-d 5.5: models/README.md); charts at 7-18 cm, sweeps
     # designed in pixels of blur, depth stacks 0.07-0.5 m (no Middlebury: its scene lies at 1-2 m); a copy with a
     # phone's tolerances (the second element decentred 5 um: about 0.6 D at the edge; the sensor tilted 0.3 deg: 0.5 D)
     "cellphone": LensSetup("cellphone", "lenses/cellphone_asphere.json", "models/psf_cellphone.onnx",

@@ -58,7 +58,8 @@ class FieldBasis:
         rows = [{t: 1.0} for t in mono]
         for p in self.powers():
             m = p // 2
-            rows.append({(2 * i, 2 * (m - i)): math.comb(m, i) * a2 ** i * (1 - a2) ** (m - i) for i in range(m, -1, -1)})
+            rows.append({(2 * i, 2 * (m - i)): math.comb(m, i) * a2 ** i * (1 - a2) ** (m - i)
+                         for i in range(m, -1, -1)})
         terms = list(dict.fromkeys(mono + [t for r in rows[len(mono):] for t in r]))
         e = np.zeros((len(rows), len(terms)))
         for k, r in enumerate(rows):
@@ -173,8 +174,8 @@ def fit_family(obs: Observations, name: str, degree: int, focus_degree: int, ite
     fe = fp = None
     for _ in range(iterations):
         lo, hi = float(t.min()), float(t.max())
-        fp0 = FieldPoly(np.array([[1, 0]]), np.zeros((1, focus_degree + 1)), (lo, hi))
-        leg = np.polynomial.legendre.legvander(fp0.tau(t), focus_degree)  # (N, J)
+        tau = FieldPoly(np.array([[1, 0]]), np.zeros((1, 1)), (lo, hi)).tau(t)  # the stored form's tau
+        leg = np.polynomial.legendre.legvander(tau, focus_degree)  # (N, J)
         field_cols = (basis[:, :, None] * leg[:, None, :]).reshape(len(r), -1)
         a = np.column_stack([fam, field_cols])
         sol, *_ = np.linalg.lstsq(a * sw[:, None], (d - off) * sw, rcond=None)

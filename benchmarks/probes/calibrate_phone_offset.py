@@ -244,7 +244,8 @@ def main(argv=None) -> int:
     for f in res["floor"]:
         for name, t in f["textures"].items():
             print(f"| {f['lens']} ({f['blur_px_per_d']:.2f} px/D) | {f['object_m']:g} m | {name} | "
-                  f"{t['dense_peak_d']:+.4f} | {t['coarse_mean_d']:+.4f} ({t['coarse_min_d']:+.4f}..{t['coarse_max_d']:+.4f})"
+                  f"{t['dense_peak_d']:+.4f} | {t['coarse_mean_d']:+.4f} "
+                  f"({t['coarse_min_d']:+.4f}..{t['coarse_max_d']:+.4f})"
                   f" | {t['half_max_width_d']:.3f} |")
     print("\n| chart (m) | field radius | tiles | tile peak - calibrated truth's: mean (SD) (D) |")
     print("|---|---|---|---|")
@@ -253,7 +254,8 @@ def main(argv=None) -> int:
               f"({r['sd_d']:.3f}) |")
     if "truth_noise" in res:
         t = res["truth_noise"]
-        print(f"\nthe calibrated map's points made twice ({t['textures_per_point']} textures each, {t['points']} points):"
+        print(f"\nthe calibrated map's points made twice ({t['textures_per_point']} textures each, "
+              f"{t['points']} points):"
               f" difference RMS {t['diff_rms_d']:.3f} D (on axis {t['diff_rms_axis_d']:.3f}, off axis "
               f"{t['diff_rms_off_axis_d']:.3f})")
     return 0
