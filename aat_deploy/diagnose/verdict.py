@@ -41,7 +41,8 @@ def share_view(entry: dict, min_image: float = 0.25, min_focus_support: float = 
 def focus_measured(entry: dict, min_support: float = 0.95) -> bool:
     """Whether `focus_metadata`'s fit measured a focus error in the captures (docs/diagnosis.md, "Verdict"): a family
     other than `none`, some error family chosen in at least `min_support` of the bootstrap replicates, and some
-    frame's reported focus outside the 95 % interval of its corrected focus. The fit reads every frame's focus
+    frame's reported focus outside the 95 % interval of its corrected focus (its systematic error included,
+    `focusfit.corrected_sd`, when the fit reports it). The fit reads every frame's focus
     from the images (each region's focus curve against the twin's focus sweep), which is what a focus error
     changes; the images' distances barely move with it (a frame 0.05 D off changes its focus curves little more
     than the capture's noise does) while the model's depth does. So for focus metadata this is the evidence that
@@ -52,8 +53,9 @@ def focus_measured(entry: dict, min_support: float = 0.95) -> bool:
         return False
     if 1.0 - (f.get("support") or {}).get("none", 0.0) < min_support:
         return False
+    # the interval with the per-frame estimates' systematic error (`total_ci_m`) where the fit gives it
     return any(not lo <= rep <= hi for c in fit.get("corrected_focus", [])
-               for rep, (lo, hi) in zip(c["reported_m"], c["ci_m"]))
+               for rep, (lo, hi) in zip(c["reported_m"], c.get("total_ci_m", c["ci_m"])))
 
 
 def explains_gap(entry: dict, min_share: float, min_image: float = 0.25, min_focus_support: float = 0.95) -> bool:

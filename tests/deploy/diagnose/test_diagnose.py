@@ -386,6 +386,10 @@ def test_focus_metadata_is_named_on_its_measured_focus():
         assert not named_by_focus(entry, cfg)
     assert Diagnosis._pick(None, [(noise, "noise"), (untouched, "focus")], cfg)[1] == "noise"
     assert Diagnosis._pick(None, [(untouched, "focus")], cfg) is None
+    # the interval with the estimates' systematic error, where the fit gives it, must exclude the reported focus too
+    wide = _focus_entry("scale", {"scale": 1.0}, rep, ci, **numbers)
+    wide["fit"]["corrected_focus"][0]["total_ci_m"] = [[0.55, 0.65], [1.9, 2.15], [5.5, 6.5]]
+    assert not named_by_focus(wide, cfg) and not explains_gap(wide, *lim)
     # no significant gap (the image-only search, no share): the measurement alone lists it
     assert named_by_focus(dict(found, share_of_gap=None, ci_low=None), cfg)
     assert not named_by_focus(dict(untouched, share_of_gap=None, ci_low=None), cfg)
