@@ -183,8 +183,10 @@ class Diagnosis(GapAnalysis):
             if not lit:
                 return None
             top = max(lit, key=lambda t: t[0]["brightness_closeness"])
-        top[0]["alternatives"] = [t[0]["effect"] for t in best if t is not top and is_named(t[0], cfg.min_score)
-                                  and t[0]["closeness_ci"][1] >= top[0]["closeness_ci"][0]]
+        # the effects the images cannot tell apart from it; none for focus named on its fit's measurement
+        top[0]["alternatives"] = [] if measured else [
+            t[0]["effect"] for t in best if t is not top and is_named(t[0], cfg.min_score)
+            and t[0]["closeness_ci"][1] >= top[0]["closeness_ci"][0]]
         return top
 
     def _screen(self, state: fitters.FitState, cur_b: list, name: str, proposals: list[dict]):

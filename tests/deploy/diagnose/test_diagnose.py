@@ -374,7 +374,7 @@ def test_focus_metadata_is_named_on_its_measured_focus():
     noise = {"effect": "noise", "closeness": 0.133, "closeness_ci": [0.133, 0.133], "image_closeness": 0.2,
              "image_closeness_ci": [0.2, 0.2], "share_of_gap": -0.11, "ci_low": -0.2}
     top = Diagnosis._pick(None, [(noise, "noise"), (found, "focus")], cfg)
-    assert top[1] == "focus"  # named before the closer effect
+    assert top[1] == "focus" and top[0]["alternatives"] == []  # named before the closer effect, on its own evidence
     slightly_away = dict(found, image_closeness=-0.02)
     assert named_by_focus(slightly_away, cfg) and explains_gap(slightly_away, *lim)
     assert share_view(slightly_away)[0] == 1.0  # shown (clipped), not withheld as from a twin unlike the captures
