@@ -368,6 +368,7 @@ def corrected_sd(fit: FamilyFit, reported_d: np.ndarray, frame_sd: np.ndarray, f
     jac, widths = family_design(fit.name, rep, fit.true_d, frames)
     if not widths:
         return np.zeros(rep.shape)
+    jac = np.where((frames > 0)[..., None], jac, 0.0)  # padding frames (NaN) count nothing
     inv = np.where(frames > 0, 1.0 / (np.asarray(frame_sd, np.float64) ** 2 + np.asarray(systematic_d) ** 2), 0.0)
     a = np.einsum("nsi,ns,nsj->ij", jac, inv, jac) + np.diag(12.0 / np.square(widths))
     return np.sqrt(np.einsum("nsi,ij,nsj->ns", jac, np.linalg.inv(a), jac))
