@@ -242,7 +242,8 @@ def table(rows: list[dict]) -> None:
               f"{', '.join(f'{k} {v}' for k, v in sorted(fams.items(), key=lambda x: str(x[0])))} | "
               f"{_list(r['corrected_max_err_d'] for r in rs)} | {_list(r['frame_max_err_d'] for r in rs)} | "
               f"{sum(r['frames_on_bound'] for r in rs)} | {sum(r.get('frames_undetermined') or 0 for r in rs)} | "
-              f"{sum(r['focus_named'] for r in rs)}/{len(rs)} | {sum(r.get('focus_cause', False) for r in rs)}/{len(rs)} |")
+              f"{sum(r['focus_named'] for r in rs)}/{len(rs)} | "
+              f"{sum(r.get('focus_cause', False) for r in rs)}/{len(rs)} |")
     n, ok = len(rows), sum(r["family_ok"] for r in rows)
     lo, hi = wilson(ok, n)
     print(f"\nfamily right: {ok}/{n} ({100 * ok / max(n, 1):.0f} %, 95 % interval {100 * lo:.0f}-{100 * hi:.0f} %; "

@@ -41,7 +41,8 @@ def probe(folder, kind: str, index: int, model, lens, src, threads: int) -> None
     data = [load_capture_data(root / folder.name, model)]
     cfg = DiagnoseConfig()
     factor = max(1, min(8, data[0].frames.shape[-1] // cfg.search_px))
-    full = [fitters.fit_curves(twins.render(c, c.aif_linear, [], seed=cfg.seed + i), factor) for i, c in enumerate(data)]
+    full = [fitters.fit_curves(twins.render(c, c.aif_linear, [], seed=cfg.seed + i), factor)
+            for i, c in enumerate(data)]
     state = fitters.FitState(twins, data, [c.aif_linear for c in data], [], fx.make, factor, cfg.fit_boot, cfg.seed,
                              {}, full)
     # the sweep `fitters.fit_focus_metadata` fits (re-anchored at the estimates), made robust as it is
@@ -58,7 +59,8 @@ def probe(folder, kind: str, index: int, model, lens, src, threads: int) -> None
     peaks = prepared.grid_d[prepared.twin[0].argmax(-1)]
     print(f"\n{folder.name} {kind}: regions' twin curves peak at {np.quantile(peaks, 0.1):.2f}-"
           f"{np.quantile(peaks, 0.9):.2f} D (10-90 %), frames at {true_d.min():.2f}-{true_d.max():.2f} D\n")
-    print("| frame | true focus (D) | err (D) | k (D per log unit) | level at the truth (log) | k x level (D) | sys (D) |")
+    print("| frame | true focus (D) | err (D) | k (D per log unit) | level at the truth (log) | k x level (D) | "
+          "sys (D) |")
     print("|---|---|---|---|---|---|---|")
     for f in range(len(true_d)):
         print(f"| {f} | {true_d[f]:.3f} | {est[0, f] - true_d[f]:+.3f} | {k[f]:+.2f} | {level[f]:+.3f} | "

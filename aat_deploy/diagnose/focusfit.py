@@ -327,8 +327,9 @@ def family_design(name: str, reported_d: np.ndarray, true_d: np.ndarray, frames:
 def level_sensitivity(data: SweepData, d: np.ndarray, step_d: float = 0.01) -> np.ndarray:
     """(n, S) how far (diopters per log unit, signed) a misfit of a frame's level, alike in all its regions (the
     capture's curves that much above the twin's), moves that frame's focus estimate at frame focus d (n, S):
-    sum_r w_r s_r / sum_r w_r s_r^2, s_r the slope of region r's twin curve at the frame's focus. A frame that shows something in focus has regions on both sides of their
-    peaks (slopes of both signs): a level misfit moves it little. A frame that shows nothing in focus (the
+    sum_r w_r s_r / sum_r w_r s_r^2, s_r the slope of region r's twin curve at the frame's focus. A frame that
+    shows something in focus has regions on both sides of their peaks (slopes of both signs): a level misfit
+    moves it little. A frame that shows nothing in focus (the
     nearest frame of a stack whose scene is far) has every region on the same side, and reads a level misfit (a
     noise floor, the development, a gain) as focus: its cost is flat along that direction (issue 32, scene 2027's
     nearest frame). inf for a frame without any slope."""
@@ -383,9 +384,9 @@ def score_families(fits: dict[str, FamilyFit], frame_sd: np.ndarray, frames: np.
 
     chi2 summing over the frames (the observations) the squared distance of the family's focus from the
     `per_frame` estimates, W their inverse variances: frame_sd (n, S) (the bootstrap's spread) squared plus
-    systematic_d squared (a number, or (n, S) per frame: `frame_systematic`). The regions of one frame share its focus error and the twin's misfit, so the frames are
-    the observations. BIC, chi2 + k log n, is the large-sample limit of this; with 8 frames it drops what matters
-    most: a knot free over 0.8 D that the frames pin to 0.01 D costs about 7 (log n = 2.1), a true focus confined to
+    systematic_d squared (a number, or (n, S) per frame: `frame_systematic`). The regions of one frame share its
+    focus error and the twin's misfit, so the frames are the observations. BIC, chi2 + k log n, is the
+    large-sample limit of this; with 8 frames it drops what matters most: a knot free over 0.8 D that the frames pin to 0.01 D costs about 7 (log n = 2.1), a true focus confined to
     its 0.1 D quantisation bin about 2. So a 3-knot curve no longer buys one end frame's 0.04 D misfit (issue 32:
     scene 2027's scale and offset sets read as `monotone`), and `per_frame` pays for its wide range against
     `quantisation`, its bounded special case."""

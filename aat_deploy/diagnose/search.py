@@ -343,9 +343,10 @@ def named_by_focus(entry: dict, cfg: DiagnoseConfig) -> bool:
     than reported (`verdict.focus_measured`: an error family in at least `min_focus_support` of the bootstrap's
     replicates, some reported focus outside its corrected interval) and correcting the focus closes a significant
     part of the gap (`verdict.explains_gap`: share >= `min_share`, interval above 0, its images not moved away;
-    with no significant gap, the measurement alone, as the image-only search lists what the captures show). A focus error changes the model's depth a lot and the
-    images little (a frame 0.05 D off moves its focus curves about as much as the capture's noise), so
-    closeness, the images' measure, missed it in 5 of the benchmark's 33 error sets. Only focus metadata has
+    with no significant gap, the measurement alone, as the image-only search lists what the captures show). A
+    focus error changes the model's depth a lot and the images little (a frame 0.05 D off moves its focus curves
+    about as much as the capture's noise), so closeness, the images' measure, missed it in 5 of the benchmark's
+    33 error sets. Only focus metadata has
     this route; an untouched copy's fit chooses `none` and cannot take it."""
     if not focus_measured(entry, cfg.min_focus_support):
         return False
