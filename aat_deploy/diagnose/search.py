@@ -164,16 +164,17 @@ class Diagnosis(GapAnalysis):
                            bri[0], [bri[1], bri[2]], share[0], share[1], share[2],
                            distances=[asdict(d) for d in fit.dist], fit=fit_report).as_dict()
 
-    def _pick(self, best: list, cfg: DiagnoseConfig):
+    def _pick(self, best: list, cfg: DiagnoseConfig, focus_route: bool = True):
         """The round's named effect among (entry, twin) pairs, or None (`is_named`, then `named_by_brightness`).
-        A focus-metadata error the focus fit measured (`named_by_focus`) is named before them. The named entry
+        A focus-metadata error the focus fit measured (`named_by_focus`) is named before them, while the fit
+        measured it in every earlier round too (`focus_route`, `_greedy`). The named entry
         lists in `alternatives` the other effects that would be named too and whose closeness interval reaches
         its: on these captures the images cannot tell them apart (a tilted sensor and a decentred element both
         tilt the focal surface)."""
         if not best:
             return None
         best.sort(key=lambda t: -t[0]["closeness"])
-        measured = [t for t in best if named_by_focus(t[0], cfg)]
+        measured = [t for t in best if focus_route and named_by_focus(t[0], cfg)]
         if measured:  # the fit's evidence, not closeness: first, so later rounds fit on the corrected focus
             top = measured[0]
         elif is_named(best[0][0], cfg.min_score):
@@ -251,8 +252,9 @@ class Diagnosis(GapAnalysis):
                                              note="the fit found no setting the images support").as_dict())
                 continue
             # a measured focus error is scored at full resolution whatever its binned images do (they barely move)
-            screen = (None if focus_measured({"effect": name, "fit": report}, cfg.min_focus_support)
-                      else self._screen(state, cur_b, name, proposals))
+            route = getattr(self, "_focus_route", True)  # set per round by `_greedy`
+            measured = route and focus_measured({"effect": name, "fit": report}, cfg.min_focus_support)
+            screen = None if measured else self._screen(state, cur_b, name, proposals)
             if screen is not None:
                 params, img, bri = screen
                 if not (img.mean() > 0 or bri.mean() >= cfg.min_score):
@@ -316,8 +318,12 @@ class Diagnosis(GapAnalysis):
         gap0 = self.gap_maps(base)
         chain, ranked, remaining, evaluated = [base], [], list(candidates), []
         for rnd in range(self.cfg.max_effects):
+            # focus metadata is named on its measurement only while every earlier round's fit measured it too: a
+            # later twin carries the effects named so far, and a stand-in among them bends the focus curves
+            # (scene 2027's untouched copy: after a phone pipeline its third round read a 1.018 scale)
+            self._focus_route = focus_route(evaluated, self.cfg)
             best = round_fn(chain[-1], rnd, remaining, gap0, evaluated, image_only)
-            top = self._pick(best, self.cfg)
+            top = self._pick(best, self.cfg, self._focus_route)
             if top is None:
                 break
             ranked.append(top[0])
@@ -336,6 +342,14 @@ def is_named(entry: dict, min_score: float) -> bool:
         return True
     img = entry.get("image_closeness_ci")
     return img is not None and img[0] >= min_score and entry["closeness"] >= min_score
+
+
+def focus_route(evaluated: list[dict], cfg: DiagnoseConfig) -> bool:
+    """Whether focus metadata may still be named on its fit's measurement (`named_by_focus`): every earlier
+    round's focus fit (the entries so far) measured an error (`verdict.focus_measured`). A fit that found the
+    reported focus right on a plainer twin and an error only once other effects joined it reads those effects,
+    not the camera's metadata."""
+    return all(focus_measured(e, cfg.min_focus_support) for e in evaluated if e["effect"] == "focus_metadata")
 
 
 def named_by_focus(entry: dict, cfg: DiagnoseConfig) -> bool:

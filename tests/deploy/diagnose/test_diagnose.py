@@ -390,6 +390,15 @@ def test_focus_metadata_is_named_on_its_measured_focus():
     wide = _focus_entry("scale", {"scale": 1.0}, rep, ci, **numbers)
     wide["fit"]["corrected_focus"][0]["total_ci_m"] = [[0.55, 0.65], [1.9, 2.15], [5.5, 6.5]]
     assert not named_by_focus(wide, cfg) and not explains_gap(wide, *lim)
+    # scene 2027's untouched copy (bench_diagnose_focus, code a0cf9db): its fit chose none in rounds 1 and 2 and a
+    # 1.018 scale in round 3, after a phone pipeline (a stand-in) had joined the twin; correcting it closed 0.45 of
+    # the gap. Not named on its measurement then: every earlier round's fit must have measured the error too.
+    from aat_deploy.diagnose.search import focus_route
+
+    earlier = [dict(untouched, round=1), dict(untouched, round=2), dict(noise, round=1)]
+    assert not focus_route(earlier, cfg)
+    assert Diagnosis._pick(None, [(noise, "noise"), (found, "focus")], cfg, focus_route(earlier, cfg))[1] == "noise"
+    assert focus_route([dict(found, round=1), dict(noise, round=1)], cfg) and focus_route([], cfg)
     # no significant gap (the image-only search, no share): the measurement alone lists it
     assert named_by_focus(dict(found, share_of_gap=None, ci_low=None), cfg)
     assert not named_by_focus(dict(untouched, share_of_gap=None, ci_low=None), cfg)
