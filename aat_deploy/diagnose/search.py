@@ -323,6 +323,10 @@ class Diagnosis(GapAnalysis):
             # (scene 2027's untouched copy: after a phone pipeline its third round read a 1.018 scale)
             self._focus_route = focus_route(evaluated, self.cfg)
             best = round_fn(chain[-1], rnd, remaining, gap0, evaluated, image_only)
+            if not self._focus_route:  # nor does the verdict count this round's measurement (`focus_measured`)
+                for e in evaluated:
+                    if e["effect"] == "focus_metadata" and e.get("round") == rnd + 1:
+                        e["focus_route"] = False
             top = self._pick(best, self.cfg, self._focus_route)
             if top is None:
                 break

@@ -51,6 +51,8 @@ def focus_measured(entry: dict, min_support: float = 0.95) -> bool:
     f = fit.get("focus_fit") or {}
     if entry.get("effect") != "focus_metadata" or f.get("family", "none") == "none":
         return False
+    if entry.get("focus_route") is False:  # an earlier round's fit found no error (`search.focus_route`)
+        return False
     if 1.0 - (f.get("support") or {}).get("none", 0.0) < min_support:
         return False
     # the interval with the per-frame estimates' systematic error (`total_ci_m`) where the fit gives it

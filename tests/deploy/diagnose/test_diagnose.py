@@ -399,6 +399,8 @@ def test_focus_metadata_is_named_on_its_measured_focus():
     assert not focus_route(earlier, cfg)
     assert Diagnosis._pick(None, [(noise, "noise"), (found, "focus")], cfg, focus_route(earlier, cfg))[1] == "noise"
     assert focus_route([dict(found, round=1), dict(noise, round=1)], cfg) and focus_route([], cfg)
+    late = dict(found, round=3, focus_route=False)  # as _greedy marks it: the verdict does not count it either
+    assert not named_by_focus(late, cfg) and not explains_gap(late, *lim)
     # no significant gap (the image-only search, no share): the measurement alone lists it
     assert named_by_focus(dict(found, share_of_gap=None, ci_low=None), cfg)
     assert not named_by_focus(dict(untouched, share_of_gap=None, ci_low=None), cfg)
