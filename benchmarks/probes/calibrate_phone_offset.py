@@ -14,8 +14,8 @@ renders them) and its traced best-focus map, one candidate at a time:
    the traced map itself (each tile's peak where the map has its object in focus: no noise, no measurement), with
    the field term of monomials only (`radial=0`, the model before the radial powers, order by cross-validation as
    it was) and with the radial powers; its offset and its error at the frame centre;
-4. **the floor at phone scale**: on axis, where the focus measure (the runtime's) peaks for the chart's dead
-   leaves and three photographs, with a dense sweep and with the chart sweeps' step (1.1 D, ten phases, the
+4. **the floor at phone scale**: on axis and at field radius 0.75 (on the diagonal), where the focus measure (the
+   runtime's) peaks for the chart's dead leaves and three photographs, with a dense sweep and with the chart sweeps' step (1.1 D, ten phases, the
    `gauss` estimator); the focus curve's width. The same for the RF50 at its scale (the same pixels of blur);
 5. **the tiles against the benchmark's truth** (the calibrated map, lenses/best_focus/: where the measure peaks on
    photo textures): every counted tile's peak minus the truth's peak for its object, by field zone;
@@ -104,8 +104,10 @@ def peak_log(x: np.ndarray, m: np.ndarray) -> float:
     return _peak_log(x, m)
 
 
-def part_floor(key: str, object_m: float, half_px: float = 5.0, coarse_px: float = 1.39) -> dict:
-    """On axis: the measure's peak (D from the object) per texture, dense and at the chart sweeps' step."""
+def part_floor(key: str, object_m: float, half_px: float = 5.0, coarse_px: float = 1.39, radius: float = 0.0
+               ) -> dict:
+    """At field radius `radius` on the diagonal (0: on axis): the measure's peak (D from the object) per texture,
+    dense and at the chart sweeps' step."""
     import torch
 
     from aat_deploy.calibrate.pose import ChartPose
@@ -124,7 +126,7 @@ def part_floor(key: str, object_m: float, half_px: float = 5.0, coarse_px: float
     cfg = FocusConfig()
     sim = Simulator(rig.lens, OnnxPSF.from_source(rig.src), fx.parse(["aberrations"]), LayeredConfig(cell_px=32))
     n, m = 112, 24
-    origin = (rig.h // 2 - n // 2, rig.w // 2 - n // 2)
+    origin = (int(round((1 - radius) / 2 * rig.h - n / 2)), int(round((1 + radius) / 2 * rig.w - n / 2)))
     img, layout = bc.chart_for(rig, object_m)
     # the chart's texture at its scale, a marker-free part of it on the axis
     rgb, _ = chart_scene(img, layout, ChartPose(object_m, axis_point_mm=(0.07 * object_m * 1000, 0.05 * object_m *
@@ -135,8 +137,8 @@ def part_floor(key: str, object_m: float, half_px: float = 5.0, coarse_px: float
         textures[f"photo {i}"] = photo_texture(rng, n, n, "train").transpose(2, 0, 1).astype(np.float32)
     half_d, step_d = half_px / rig.blur_px_per_d, coarse_px / rig.blur_px_per_d
     fd = 1.0 / object_m + np.linspace(-half_d, half_d, 101)
-    out = {"lens": key, "object_m": object_m, "blur_px_per_d": rig.blur_px_per_d, "dense_step_d": float(fd[1] - fd[0]),
-           "coarse_step_d": step_d, "textures": {}}
+    out = {"lens": key, "object_m": object_m, "radius": radius, "blur_px_per_d": rig.blur_px_per_d,
+           "dense_step_d": float(fd[1] - fd[0]), "coarse_step_d": step_d, "textures": {}}
     for name, tex in textures.items():
         st = sim.render_stack(torch.from_numpy(np.ascontiguousarray(tex)), torch.full((n, n), object_m), 1.0 / fd,
                               origin=origin, rng=np.random.default_rng(0))
@@ -216,7 +218,8 @@ def main(argv=None) -> int:
     obs = observations(ms)
     res = {"distance_and_peaks": part_distance_and_peaks(rig, ms)}
     res["model"] = part_model(rig, obs, map_made_observations(rig, ms, obs))
-    res["floor"] = [part_floor("cellphone", 0.1), part_floor("rf50", 1.0)]
+    res["floor"] = [part_floor("cellphone", 0.1), part_floor("rf50", 1.0), part_floor("cellphone", 0.1, radius=0.75),
+                    part_floor("rf50", 1.0, radius=0.75)]
     res["tiles_vs_truth"] = part_tiles_vs_truth(rig, ms)
     if a.truth_noise:
         res["truth_noise"] = part_truth_noise(rig)
@@ -238,12 +241,12 @@ def main(argv=None) -> int:
         print(f"| {r['tiles']} | {r['model']} | {r['degree']}, {r['radial']}, {r['focus_degree']} | {r['family']} | "
               f"{off:+.3f}{'' if r['family'] == 'offset' else ' (if chosen)'} | {r['residual_rms_d']:.3f} | "
               f"{r['centre_error_at_10d']:+.3f} |")
-    print("\n| lens | object | texture | measure peak - object, dense (D) | at the chart step (D, 10 phases) | "
-          "curve half-max width (D) |")
-    print("|---|---|---|---|---|---|")
+    print("\n| lens | object | field radius | texture | measure peak - object, dense (D) | at the chart step (D, 10 "
+          "phases) | curve half-max width (D) |")
+    print("|---|---|---|---|---|---|---|")
     for f in res["floor"]:
         for name, t in f["textures"].items():
-            print(f"| {f['lens']} ({f['blur_px_per_d']:.2f} px/D) | {f['object_m']:g} m | {name} | "
+            print(f"| {f['lens']} ({f['blur_px_per_d']:.2f} px/D) | {f['object_m']:g} m | {f['radius']:g} | {name} | "
                   f"{t['dense_peak_d']:+.4f} | {t['coarse_mean_d']:+.4f} "
                   f"({t['coarse_min_d']:+.4f}..{t['coarse_max_d']:+.4f})"
                   f" | {t['half_max_width_d']:.3f} |")
