@@ -1,6 +1,7 @@
 """Fingerprints (SHA-256 of the bytes) of outputs a restructuring must leave unchanged, to compare two checkouts.
 
-    OMP_WAIT_POLICY=PASSIVE python -m scripts.output_fingerprints [--out fingerprints.json]
+    OMP_WAIT_POLICY=PASSIVE python -m scripts.output_fingerprints [--out fingerprints.json] [--only twin,infer_focus]
+        [--checkout DIR]
 
 Computes, from the checkout it runs in (about a minute on 2 cores):
 - `aat-infer captures/sample_rf50 --model models/reproduce/dff_dfvnet_aat.onnx`: depth_m.npy, std_m.npy, aif.png;
@@ -12,7 +13,9 @@ Computes, from the checkout it runs in (about a minute on 2 cores):
 - thin-lens blur and PSF window sizes (`thin_lens_blur_px`, `KernelSpec.scale`), the numpy and torch Gaussian
   baselines' kernels.
 Prints a table (output, first 16 hex digits); --out also writes the full digests as JSON. Two checkouts agree bit
-for bit when their tables are equal.
+for bit when their tables are equal. --only computes the named groups alone (cheap enough to bisect one output);
+--checkout computes them from another checkout's code and data (e.g. a `git worktree` at an older commit, as far back
+as this script's functions exist there). The changes explained so far: BENCHMARKS.md, "Output fingerprints".
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -37,16 +41,23 @@ def _digest(a) -> str:
     return hashlib.sha256(f"{a.dtype.str}{a.shape}".encode() + a.tobytes()).hexdigest()
 
 
-def _infer(out: dict, tmp: Path) -> None:
+def _infer(out: dict, only: set[str] | None = None) -> None:
     runs = {"infer_dfvnet": ["--model", str(ROOT / "models/reproduce/dff_dfvnet_aat.onnx")],
             "infer_focus": ["--method", "focus", "--lens", "canon_rf50mm_f1.8"]}
-    for name, extra in runs.items():
-        d = tmp / name
-        subprocess.run([sys.executable, "-m", "aat_deploy.cli.infer", str(ROOT / "captures/sample_rf50"), *extra,
-                        "--out", str(d), "-q", "--threads", "1"], check=True, cwd=ROOT)
-        for f in ("depth_m.npy", "std_m.npy", "aif.png", "confidence.npy"):
-            if (d / f).is_file():
-                out[f"{name}/{f}"] = _digest((d / f).read_bytes())
+    with tempfile.TemporaryDirectory(prefix="aat_fingerprints_") as tmp:
+        for name, extra in runs.items():
+            if only is None or name in only:
+                _infer_one(out, Path(tmp), name, extra)
+
+
+def _infer_one(out: dict, tmp: Path, name: str, extra: list[str]) -> None:
+    d = tmp / name
+    subprocess.run([sys.executable, "-m", "aat_deploy.cli.infer", str(ROOT / "captures/sample_rf50"), *extra,
+                    "--out", str(d), "-q", "--threads", "1"], check=True, cwd=ROOT,
+                   env={**os.environ, "PYTHONPATH": str(ROOT)})
+    for f in ("depth_m.npy", "std_m.npy", "aif.png", "confidence.npy"):
+        if (d / f).is_file():
+            out[f"{name}/{f}"] = _digest((d / f).read_bytes())
 
 
 def _stacks(out: dict) -> None:
@@ -117,20 +128,32 @@ def _blur(out: dict) -> None:
         out["gaussian_torch/blur_px"] = _digest(g.blur_px(q[:, 2], q[:, 3]).numpy())
 
 
+GROUPS = ("infer_dfvnet", "infer_focus", "stacks", "heldout", "twin", "blur")
+
+
 def main(argv: list[str] | None = None) -> int:
+    global ROOT
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, help="also write the full digests as JSON here")
+    ap.add_argument("--only", help=f"comma-separated groups to compute (of {', '.join(GROUPS)}); default all")
+    ap.add_argument("--checkout", type=Path, help="the checkout whose code and data to fingerprint (default this one)")
     args = ap.parse_args(argv)
+    only = None if args.only is None else set(args.only.split(","))
+    if only is not None and not only <= set(GROUPS):
+        ap.error(f"--only: unknown group(s) {', '.join(sorted(only - set(GROUPS)))}; known: {', '.join(GROUPS)}")
+    if args.checkout is not None:
+        ROOT = args.checkout.resolve()
+        if not (ROOT / "aat_deploy").is_dir():
+            ap.error(f"--checkout {args.checkout}: no aat_deploy/ there")
+        sys.path.insert(0, str(ROOT))  # before the first import of the project's packages
     import torch
 
     torch.set_num_threads(1)
     out: dict[str, str] = {}
-    with tempfile.TemporaryDirectory(prefix="aat_fingerprints_") as tmp:
-        _infer(out, Path(tmp))
-    _stacks(out)
-    _heldout(out)
-    _twin(out)
-    _blur(out)
+    _infer(out, only)
+    for name, fn in (("stacks", _stacks), ("heldout", _heldout), ("twin", _twin), ("blur", _blur)):
+        if only is None or name in only:
+            fn(out)
     print("| output | sha256 (first 16) |\n|---|---|")
     for k, v in out.items():
         print(f"| {k} | {v[:16]} |")
