@@ -20,7 +20,10 @@ renders them) and its traced best-focus map, one candidate at a time:
 5. **the tiles against the benchmark's truth** (the calibrated map, lenses/best_focus/: where the measure peaks on
    photo textures): every counted tile's peak minus the truth's peak for its object, by field zone;
 6. with `--truth-noise`: the calibrated map's own texture noise, its calibration points made twice with other
-   photo textures (3 per point, the default; 2 x 1.5 min) and compared point by point.
+   photo textures (3 per point, the default; 2 x 1.5 min) and compared point by point;
+7. with `--step-px S`: the nominal sweeps rendered again S px of blur apart (bench_calibrate's are 1.4 px, 1.1 D;
+   cached under cache/phone_offset/), fitted, and the map's RMS error by field zone beside the benchmark's
+   sweeps' (1 min): whether the chart sweep's step limits the map.
 """
 
 from __future__ import annotations
@@ -205,10 +208,37 @@ def part_truth_noise(rig) -> dict:
             "diff_rms_off_axis_d": float(np.sqrt(np.mean(d[ok & (radii > 0)] ** 2)))}
 
 
+def part_step(step_px: float) -> dict:
+    """The nominal map's RMS error by zone (inside the charts' range) from sweeps step_px apart and from the
+    benchmark's."""
+    from aat_deploy.optics.focus_table import diopter_grid
+
+    out = {}
+    for label, step in (("benchmark", bc.SWEEP_STEP_PX), ("denser", step_px)):
+        rig = bc.Rig(bc.LENSES["cellphone"])
+        saved = bc.SWEEP_STEP_PX, bc.CACHE
+        bc.SWEEP_STEP_PX = step
+        if label == "denser":
+            bc.CACHE = bc.ROOT / "cache" / "phone_offset" / f"sweeps_{step:g}px"
+        try:
+            sw = [bc.sweep(rig, "nominal", i, lambda m: print(m, file=sys.stderr)) for i in range(3)]
+            res = bc.fit(rig, "nominal", sw, 10)
+        finally:
+            bc.SWEEP_STEP_PX, bc.CACHE = saved
+        s = rig.setup
+        e = bc.map_errors(rig, res.calibration, bc.effects_for(s, "nominal"),
+                          diopter_grid(max(s.distances_m), min(s.distances_m), 10))["calibration"]
+        out[label] = {"step_px": step, "step_d": step / rig.blur_px_per_d,
+                      "frames": [len(x["reported_m"]) for x in sw], "family": res.calibration.focus_error.family,
+                      "rms_d": e["rms_d"], "zone_rms_d": e["zone_rms_d"]}
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default=str(RESULTS / "calibrate_phone_offset.json"))
     ap.add_argument("--truth-noise", action="store_true", help="also make the calibrated map's points again (3 min)")
+    ap.add_argument("--step-px", type=float, default=None, help="also fit nominal sweeps this many px apart (1 min)")
     a = ap.parse_args(argv)
     from aat_deploy.calibrate.fit import observations
 
@@ -223,6 +253,8 @@ def main(argv=None) -> int:
     res["tiles_vs_truth"] = part_tiles_vs_truth(rig, ms)
     if a.truth_noise:
         res["truth_noise"] = part_truth_noise(rig)
+    if a.step_px:
+        res["step"] = part_step(a.step_px)
     from aat_deploy.io.atomic import write_text_atomic
 
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
@@ -261,6 +293,13 @@ def main(argv=None) -> int:
               f"{t['points']} points):"
               f" difference RMS {t['diff_rms_d']:.3f} D (on axis {t['diff_rms_axis_d']:.3f}, off axis "
               f"{t['diff_rms_off_axis_d']:.3f})")
+    if "step" in res:
+        print("\n| nominal sweeps | step (px / D) | frames | family | map RMS inside (D) | centre / middle / outer (D) |")
+        print("|---|---|---|---|---|---|")
+        for k, r in res["step"].items():
+            z = r["zone_rms_d"]
+            print(f"| {k} | {r['step_px']:g} / {r['step_d']:.2f} | {r['frames']} | {r['family']} | {r['rms_d']:.3f} | "
+                  f"{z['centre']:.3f} / {z['middle']:.3f} / {z['outer']:.3f} |")
     return 0
 
 
