@@ -15,8 +15,9 @@ renders them) and its traced best-focus map, one candidate at a time:
    the field term of monomials only (`radial=0`, the model before the radial powers, order by cross-validation as
    it was) and with the radial powers; its offset and its error at the frame centre;
 4. **the floor at phone scale**: on axis and at field radius 0.75 (on the diagonal), where the focus measure (the
-   runtime's) peaks for the chart's dead leaves and three photographs, with a dense sweep and with the chart sweeps' step (1.1 D, ten phases, the
-   `gauss` estimator); the focus curve's width. The same for the RF50 at its scale (the same pixels of blur);
+   runtime's) peaks for the chart's dead leaves and three photographs, with a dense sweep and with the chart
+   sweeps' step (1.1 D, ten phases, the `gauss` estimator); the focus curve's width. The same for the RF50 at its
+   scale (the same pixels of blur);
 5. **the tiles against the benchmark's truth** (the calibrated map, lenses/best_focus/: where the measure peaks on
    photo textures): every counted tile's peak minus the truth's peak for its object, by field zone;
 6. with `--truth-noise`: the calibrated map's own texture noise, its calibration points made twice with other
@@ -294,7 +295,8 @@ def main(argv=None) -> int:
               f" difference RMS {t['diff_rms_d']:.3f} D (on axis {t['diff_rms_axis_d']:.3f}, off axis "
               f"{t['diff_rms_off_axis_d']:.3f})")
     if "step" in res:
-        print("\n| nominal sweeps | step (px / D) | frames | family | map RMS inside (D) | centre / middle / outer (D) |")
+        print("\n| nominal sweeps | step (px / D) | frames | family | map RMS inside (D) | "
+              "centre / middle / outer (D) |")
         print("|---|---|---|---|---|---|")
         for k, r in res["step"].items():
             z = r["zone_rms_d"]
