@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(os.environ.get("AAT_FINGERPRINTS_ROOT") or Path(__file__).resolve().parents[1])  # see --checkout
 
 
 def _digest(a) -> str:
@@ -131,8 +131,15 @@ def _blur(out: dict) -> None:
 GROUPS = ("infer_dfvnet", "infer_focus", "stacks", "heldout", "twin", "blur")
 
 
+def _in_checkout(root: Path, only: str | None, out: Path | None) -> int:
+    """Run this file again with `root`'s packages first on the path (`python -c` puts its working folder first)."""
+    args = (["--only", only] if only else []) + (["--out", str(out.resolve())] if out else [])
+    code = "import runpy, sys; sys.argv[0] = sys.argv.pop(1); runpy.run_path(sys.argv[0], run_name='__main__')"
+    env = {**os.environ, "PYTHONPATH": str(root), "AAT_FINGERPRINTS_ROOT": str(root)}
+    return subprocess.run([sys.executable, "-c", code, __file__, *args], cwd=root, env=env, check=False).returncode
+
+
 def main(argv: list[str] | None = None) -> int:
-    global ROOT
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, help="also write the full digests as JSON here")
     ap.add_argument("--only", help=f"comma-separated groups to compute (of {', '.join(GROUPS)}); default all")
@@ -142,10 +149,9 @@ def main(argv: list[str] | None = None) -> int:
     if only is not None and not only <= set(GROUPS):
         ap.error(f"--only: unknown group(s) {', '.join(sorted(only - set(GROUPS)))}; known: {', '.join(GROUPS)}")
     if args.checkout is not None:
-        ROOT = args.checkout.resolve()
-        if not (ROOT / "aat_deploy").is_dir():
+        if not (args.checkout / "aat_deploy").is_dir():
             ap.error(f"--checkout {args.checkout}: no aat_deploy/ there")
-        sys.path.insert(0, str(ROOT))  # before the first import of the project's packages
+        return _in_checkout(args.checkout.resolve(), args.only, args.out)
     import torch
 
     torch.set_num_threads(1)
