@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 
 from aat_deploy.eval.stats import field_radius
+from aat_deploy.optics.focus_table import diopter_grid
 
 RADIUS_EDGES = (0.0, 0.2, 0.4, 0.6, 0.8, 1.0001)  # field radius (aat_deploy.eval.stats.field_radius)
 DEFOCUS_EDGES_D = (0.0, 0.05, 0.1, 0.2, 0.4, np.inf)  # distance from the nearest focus setting, diopters
@@ -78,8 +79,8 @@ def shared_edges(gts: list[np.ndarray], aifs: list[np.ndarray], n: int = 5) -> t
     """Depth edges (m, ascending, even in diopters between the set's 1st and 99th percentile) and texture
     quantile edges over all captures."""
     inv = np.concatenate([1.0 / g[np.isfinite(g) & (g > 0)] for g in gts])
-    lo, hi = np.percentile(inv, [1, 99])
-    d_edges = 1.0 / np.linspace(hi, lo, n + 1)  # ascending metres
+    lo_d, hi_d = np.percentile(inv, [1, 99])
+    d_edges = diopter_grid(1.0 / hi_d, 1.0 / lo_d, n + 1)  # ascending metres, near to far
     d_edges[0], d_edges[-1] = 0.0, np.inf
     tex = np.concatenate([texture(a).ravel() for a in aifs])
     t_edges = np.quantile(tex, np.linspace(0, 1, n + 1))

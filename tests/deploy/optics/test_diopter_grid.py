@@ -1,6 +1,6 @@
 """The one "even in diopters" schedule (`optics.focus_table.even_diopters` / `diopter_grid`): its definition, and
 bit-identity with the inline copies it replaced (schedules, Mobile Depth's placeholders, the benchmarks' stacks), so
-moving them onto it changed no output."""
+moving them onto it changed no output; aat-diagnose's depth bins agree to the last bits and bin every pixel alike."""
 
 from __future__ import annotations
 
@@ -41,3 +41,21 @@ def test_bench_calibrate_inside_range_is_the_same_bits():
     for dist in ((0.6, 1.5, 4.0), (0.5, 10.0), (0.8, 2.0, 3.0, 7.5)):
         lo_d, hi_d = 1.0 / max(dist), 1.0 / min(dist)
         assert np.array_equal(diopter_grid(max(dist), min(dist), 10), 1.0 / np.linspace(lo_d, hi_d, 10))
+
+
+@given(st.lists(st.floats(0.3, 50.0), min_size=20, max_size=200), st.integers(2, 12))
+def test_diagnosis_depth_bins_are_the_inline_formula(depths_m, n):
+    """aat-diagnose's shared depth edges (diagnose.bins.shared_edges) through the grid instead of their inline
+    1 / np.linspace(hi, lo, n + 1) over the 1st and 99th percentile in diopters. Not bit for bit: the grid takes
+    metres, and 1 / (1 / x) is x only to the last bit, so an edge may move by a few units in the last place
+    (relative 1e-15); every pixel lands in the same bin."""
+    from aat_deploy.diagnose.bins import shared_edges
+
+    gt = np.asarray(depths_m, dtype=np.float32).reshape(1, -1)
+    edges, _ = shared_edges([gt], [np.ones((3, 8, 8), np.float32)], n)
+    lo, hi = np.percentile(1.0 / gt[gt > 0], [1, 99])
+    inline = 1.0 / np.linspace(hi, lo, n + 1)
+    inline[0], inline[-1] = 0.0, np.inf
+    assert edges[0] == 0.0 and edges[-1] == np.inf and np.all(np.diff(edges) >= 0)
+    np.testing.assert_allclose(edges[1:-1], inline[1:-1], rtol=1e-14, atol=0)
+    assert np.array_equal(np.digitize(gt, edges), np.digitize(gt, inline))
