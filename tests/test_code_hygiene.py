@@ -72,3 +72,12 @@ def test_no_iterator_is_used_as_a_truth_value_in_the_project():
             found += [f"{path.relative_to(ROOT)}:{line}" for line in always_true_conditions(path.read_text())]
     assert found == [], "an iterator object is always truthy (wrap it: any(...), next(..., None), list(...)): " \
                         + ", ".join(found)
+
+
+def test_test_files_have_unique_names():
+    """tests/ has no __init__.py, so pytest imports each test file by its bare name: two files of one name in
+    different folders make the whole collection fail ("import file mismatch") on a clean checkout."""
+    seen: dict[str, list[str]] = {}
+    for p in (ROOT / "tests").rglob("test_*.py"):
+        seen.setdefault(p.name, []).append(str(p.relative_to(ROOT)))
+    assert {n: ps for n, ps in seen.items() if len(ps) > 1} == {}
