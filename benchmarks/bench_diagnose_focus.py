@@ -305,6 +305,8 @@ def main() -> None:
                     "scene2029, rendered like the others with --scene-seed 2029 --seed 4, which is not in the "
                     "benchmark: focusfit.SYSTEMATIC_D was set on it)")
     ap.add_argument("--kinds", help=f"only these sets (comma-separated of {', '.join(kinds())})")
+    ap.add_argument("--sets", help="only these sets, in this order (comma-separated capture:kind, e.g. "
+                    "scene2027:monotone; captures numbered as without it, so a set is the same set)")
     ap.add_argument("--model", default=str(ROOT / "models" / "rf50_dfvnet_aat_field.onnx"))
     ap.add_argument("--rounds", type=int, default=3, help="greedy rounds (aat-diagnose's default: 3)")
     ap.add_argument("--threads", type=int, default=2, help="the DfF model's threads (1 in a heavy-job lane)")
@@ -342,6 +344,12 @@ def main() -> None:
     done = {(r["capture"], r["kind"]) for r in map(json.loads, out.read_text().splitlines())} if out.exists() else set()
     # kind by kind (every capture's untouched copy first): a run stopped early still covers every capture
     todo = [(k, c, n) for n in names for k, c in enumerate(caps) if (c.name, n) not in done]
+    if a.sets:  # a chosen order of (capture, kind) pairs, each keeping its capture's index
+        order = [tuple(x.split(":")) for x in a.sets.split(",")]
+        unknown = [x for x in order if x not in {(c.name, n) for _, c, n in todo} | done]
+        if unknown:
+            raise SystemExit(f"--sets: unknown {', '.join(':'.join(x) for x in unknown)}")
+        todo = sorted((t for t in todo if (t[1].name, t[2]) in order), key=lambda t: order.index((t[1].name, t[2])))
     model = DfFModel(a.model, threads=a.threads)
     lens, _ = find_lens(model, None)
     src = find_surrogate(lens, None, a.threads)
