@@ -386,7 +386,8 @@ def score_families(fits: dict[str, FamilyFit], frame_sd: np.ndarray, frames: np.
     `per_frame` estimates, W their inverse variances: frame_sd (n, S) (the bootstrap's spread) squared plus
     systematic_d squared (a number, or (n, S) per frame: `frame_systematic`). The regions of one frame share its
     focus error and the twin's misfit, so the frames are the observations. BIC, chi2 + k log n, is the
-    large-sample limit of this; with 8 frames it drops what matters most: a knot free over 0.8 D that the frames pin to 0.01 D costs about 7 (log n = 2.1), a true focus confined to
+    large-sample limit of this; with 8 frames it drops what matters most: a knot free over 0.8 D that the
+    frames pin to 0.01 D costs about 7 (log n = 2.1), a true focus confined to
     its 0.1 D quantisation bin about 2. So a 3-knot curve no longer buys one end frame's 0.04 D misfit (issue 32:
     scene 2027's scale and offset sets read as `monotone`), and `per_frame` pays for its wide range against
     `quantisation`, its bounded special case."""
