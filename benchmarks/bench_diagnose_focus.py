@@ -139,8 +139,19 @@ def score(kind: str, family: str, true_d: np.ndarray, rep_d: np.ndarray, res: di
             "frames_on_bound": int(on_bound.sum()), "verdict": res.get("verdict"), "named": named,
             "robust": f.get("robust"), "frame_focus_sd_d": f.get("frame_focus_sd_d"),
             "frame_systematic_d": f.get("frame_systematic_d"), "corrected_sd_d": f.get("corrected_sd_d"),
+            "undetermined_covers": undetermined_covers(f, true_d),
             "frames_undetermined": int(np.sum(f.get("frames_undetermined") or [])),
             "families": [{k: x.get(k) for k in ("family", "k", "score", "true_d")} for x in f.get("families", [])]}
+
+
+def undetermined_covers(f: dict, true_d: np.ndarray) -> list[bool] | None:
+    """Per frame reported undetermined: does its 95 % interval (`corrected_focus[].total_ci_m`, the systematic
+    part included) contain the truth? None without the flag (older rows, or no interval)."""
+    cf = (f.get("corrected_focus") or [{}])[0]
+    ci, und = cf.get("total_ci_m"), cf.get("undetermined")
+    if not ci or und is None:
+        return None
+    return [bool(min(lo, hi) <= 1.0 / t <= max(lo, hi)) for (lo, hi), u, t in zip(ci, und, true_d) if u]
 
 
 SYSTEMATIC_GRID_D = (0.005, 0.0075, 0.01, 0.013, 0.015, 0.02, 0.025, 0.03, 0.04, 0.05)
@@ -268,7 +279,10 @@ def table(rows: list[dict]) -> None:
                 print(f"sets with a frame reported undetermined (not counted as within 0.02 D): {len(und)}/{len(err)} "
                   f"({100 * lo:.0f}-{100 * hi:.0f} %)" + "".join(
                       f"; {r['capture']} {r['kind']}: {r['frames_undetermined']} frame(s), max error "
-                      f"{r['corrected_max_err_d']:.3f} D" for r in und))
+                      f"{r['corrected_max_err_d']:.3f} D" + (
+                          f", its 95 % interval containing the truth in {sum(r['undetermined_covers'])}/"
+                          f"{len(r['undetermined_covers'])}" if r.get("undetermined_covers") is not None else "")
+                      for r in und))
         over = [r for r in err if r["corrected_max_err_d"] > 0.02 and not r.get("frames_undetermined")]
         print("sets over 0.02 D with every frame reported determined: " + (", ".join(
             f"{r['capture']} {r['kind']} {r['corrected_max_err_d']:.3f} D" for r in over) or "none"))

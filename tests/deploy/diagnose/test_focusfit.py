@@ -249,8 +249,8 @@ def test_an_offset_is_not_read_as_a_curve_bent_by_an_unsure_frame():
 
 def test_corrected_sd_carries_each_frames_error_through_its_family():
     """`corrected_sd` by hand: an offset ties every frame to all the estimates (1 / sqrt(sum of the inverse
-    variances + the range's 12 / 0.8^2)); a quantisation bin holds its own frame's error, bounded by its bin; a
-    frame whose systematic error is 3 x 0.01 D is undetermined there (>= UNDETERMINED_SD_D), the others not."""
+    variances)); a quantisation bin holds its own frame's error; a frame whose systematic error is 3 x 0.01 D is
+    undetermined there (>= UNDETERMINED_SD_D), the others not."""
     rep = (np.round(TRUE_D / 0.1) * 0.1)[None]
     sd = np.full((1, 8), 0.003)
     sys_d = np.full((1, 8), ff.SYSTEMATIC_D)
@@ -258,12 +258,31 @@ def test_corrected_sd_carries_each_frames_error_through_its_family():
     var = sd ** 2 + sys_d ** 2
     off = ff.FamilyFit("offset", 1, {}, rep - 0.01, 0.0)
     got = ff.corrected_sd(off, rep, sd, np.ones_like(sd), sys_d)
-    assert np.allclose(got, 1 / math.sqrt(np.sum(1 / var) + 12 / 0.8 ** 2))
+    assert np.allclose(got, 1 / math.sqrt(np.sum(1 / var)))
     q = ff.FamilyFit("quantisation", 8, {}, TRUE_D[None].copy(), 0.0)
     got = ff.corrected_sd(q, rep, sd, np.ones_like(sd), sys_d)[0]
-    assert np.allclose(got, 1 / np.sqrt(1 / var[0] + 12 / 0.1 ** 2))
+    assert np.allclose(got, np.sqrt(var[0]))
     assert got[0] >= ff.UNDETERMINED_SD_D and np.all(got[1:] < ff.UNDETERMINED_SD_D)
     assert np.all(ff.corrected_sd(ff.FamilyFit("none", 0, {}, rep, 0.0), rep, sd, np.ones_like(sd)) == 0)
+
+
+def test_a_frame_alone_in_its_bin_is_known_no_better_than_its_estimate():
+    """Scene 2027's quantised set (issue 32): its nearest frame alone in a 0.1 D bin, its estimate known to 0.0276 D
+    (bootstrap 0.007, systematic 0.0267). A Gaussian of the bin's variance (0.1^2 / 12) in the parameters'
+    covariance made it 0.01996 D, just under UNDETERMINED_SD_D, while the corrected focus is that estimate (the
+    least-squares fit, clipped to the bin), 0.042 D off. Now its standard error is the estimate's: undetermined,
+    and the 95 % interval around it holds a truth 0.042 D away."""
+    rep = (np.round(TRUE_D / 0.1) * 0.1)[None]
+    sd = np.full((1, 8), 0.003)
+    sd[0, 0] = 0.007
+    sys_d = np.full((1, 8), ff.SYSTEMATIC_D)
+    sys_d[0, 0] = 0.0267
+    q = ff.FamilyFit("quantisation", 8, {}, TRUE_D[None].copy(), 0.0)
+    got = ff.corrected_sd(q, rep, sd, np.ones_like(sd), sys_d)[0]
+    old = 1 / math.sqrt(1 / (0.007 ** 2 + 0.0267 ** 2) + 12 / 0.1 ** 2)
+    assert old < ff.UNDETERMINED_SD_D  # the case discriminates: the old covariance called it determined
+    assert got[0] == pytest.approx(math.hypot(0.007, 0.0267), rel=1e-9) and got[0] >= ff.UNDETERMINED_SD_D
+    assert 1.96 * got[0] > 0.042 > 1.96 * old
 
 
 def test_fit_metadata_reports_each_frames_systematic_error_and_flags():
@@ -279,3 +298,22 @@ def test_fit_metadata_reports_each_frames_systematic_error_and_flags():
     assert s["frame_systematic_d"][0][0] > 2 * ff.SYSTEMATIC_D
     assert not any(s["frames_undetermined"][0])  # the offset ties the nearest frame to the others
     assert np.all(fit.true_d_sd < ff.UNDETERMINED_SD_D)
+
+
+def test_a_far_frame_alone_in_its_bin_is_reported_undetermined_with_an_interval_holding_the_truth():
+    """The whole fit on the far scene, its focus reported on 0.1 D steps and the nearest frame's level off by -0.09
+    log units (it reads a level as focus: 0.034 D nearer, inside its bin): quantisation chosen; that frame, alone in
+    its bin, is reported undetermined (the bin's Gaussian stand-in in the covariance had called it known to
+    0.018 D), its 95 % interval holds the truth, and every frame reported determined is within 0.02 D."""
+    data, true = far_scene_sweep(-0.09, 0)
+    rep = np.round(true / 0.1) * 0.1
+    d = ff.SweepData(data.grid_d, data.twin, data.capture, rep, rep.copy(), data.field_xy)
+    fit = ff.fit_metadata(d, n_boot=20)
+    assert fit.best.name == "quantisation"
+    err = np.abs(fit.best.true_d - true)[0]
+    assert err[0] > 0.02  # the case discriminates: the nearest frame is off
+    old = 1 / math.sqrt(1 / (fit.frame_sd[0, 0] ** 2 + fit.frame_sys[0, 0] ** 2) + 12 / 0.1 ** 2)
+    assert old < ff.UNDETERMINED_SD_D <= fit.true_d_sd[0, 0]
+    assert fit.undetermined[0, 0] and fit.summary()["frames_undetermined"][0][0]
+    assert err[0] <= 1.96 * fit.true_d_sd[0, 0]
+    assert np.all(err[~fit.undetermined[0]] <= 0.02)
