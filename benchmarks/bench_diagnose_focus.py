@@ -238,8 +238,11 @@ def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
 
 
 def table(rows: list[dict]) -> None:
-    rows = list({(r["capture"], r["kind"]): r for r in rows}.values())
-    print(f"\n{len(rows)} sets, {len({r['capture'] for r in rows})} captures\n")
+    """The benchmark's table and its summary lines; a set in several rows (files) counts once, its last row."""
+    rows = sorted({(r["capture"], r["kind"]): r for r in rows}.values(), key=lambda r: r["capture"])
+    caps = sorted({r["capture"] for r in rows})
+    print(f"\n{len(rows)} sets, {len(caps)} captures (per capture: {', '.join(caps)}; code "
+          f"{', '.join(sorted({str(r.get('commit')) for r in rows}))})\n")
     print("| set | captures | family right | families chosen | corrected focus max error (D), per capture | "
           "per-frame max error (D) | frames on a bound | frames undetermined | focus metadata named | a cause |")
     print("|---|---|---|---|---|---|---|---|---|---|")

@@ -154,8 +154,9 @@ def focus_section(d: dict) -> list[str]:
         if undetermined:
             lines += ["", f"{undetermined} frame(s) **undetermined**: the images do not fix their focus to "
                       "0.02 D (one standard error, systematic part included); the frame shows little in focus, so "
-                      "its estimate reads a misfit of the twin's level as focus. Their value is the family's point, not "
-                      "a corrected distance: trust only its interval (docs/diagnosis.md, \"Focus errors\")."]
+                      "its estimate reads a misfit of the twin's level as focus. Their value is the family's "
+                      "point, not a corrected distance: trust only its interval (docs/diagnosis.md, \"Focus "
+                      "errors\")."]
     return lines + [""]
 
 
