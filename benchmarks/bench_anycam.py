@@ -2,7 +2,8 @@
 the classical method given the same focus map.
 
     OMP_WAIT_POLICY=PASSIVE python -m benchmarks.bench_anycam [--lenses paper50 ef50 z35 rf50] [--protocol fixed paper]
-        [--n 24] [--model models/dfv_aat.onnx] [--tile N] [--tables] [--out results]
+        [--n 24] [--model models/dfv_aat.onnx] [--tile N] [--tables [stack_size schedule]] [--label NAME]
+        [--out results] [--force]
 
 Test stacks (training/train/testsets.py, cached in cache/heldout): whole-sensor renders through each lens with its
 PSF surrogate, procedural scenes textured with the held-out photographs (n per lens and protocol) plus the real RGB-D
@@ -22,12 +23,18 @@ Metrics per image then the mean over images (aat_deploy.metrics, metres from the
 95 % bootstrap intervals over scenes; paired ratios with a paired bootstrap (bench_table2). The two real scenes are
 reported one by one (two scenes: no interval over scenes). --tables adds, on the paper lens (fixed protocol, n/2
 scenes): MAE by stack size (3, 5, 8, 12, 16 frames) and by schedule (even in diopters, jittered, linear in depth,
-phone-like: 5 frames over the near range 0.5-2 m). Results as JSON in --out, tables printed for BENCHMARKS.md.
+phone-like: 5 frames over the near range 0.5-2 m); `--lenses` with no lens runs only the tables. Results as JSON in
+--out (`anycam_<label>.json`, maps `figures/anycam_<label>_<lens>_<protocol>_*.png`; without --label `anycam.json`),
+tables printed for BENCHMARKS.md. The JSON is written after every lens and protocol and every table row, with each
+scene's scores: a rerun of the same command (same model file, n and tile) skips what it holds and reprints its
+tables, so a killed run resumes and short commands (one lens, one protocol, one table) add to one file; a file of
+another model or setting is refused unless --force, which starts it afresh.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import sys
 import time
@@ -162,58 +169,118 @@ def print_lens(lens_key: str, protocol: str, res: dict, ratios: list[dict], n: i
                   f"{fmt(r['procedural_outer'], 2)} | {real[0]} | {real[1]} |")
 
 
-def tables(model_path: Path, n: int, threads: int, cache: str, tile: int | None = None) -> dict:
-    """Stack-size and schedule tables on the paper lens (fixed protocol)."""
+TABLES = ("stack_size", "schedule")
+
+
+def table_specs(what: str, n: int) -> dict:
+    """{row name: TestSetSpec} of one table on the paper lens (fixed protocol unless the row says)."""
+    if what == "stack_size":
+        return {str(s): test_spec("paper50", "fixed", n, stack_size=s, real=False) for s in STACK_SIZES}
+    return {"even in diopters (10 frames)": test_spec("paper50", "fixed", n, real=False),
+            "jittered (10 frames, up to 0.45 of a spacing)": test_spec("paper50", "fixed", n, jitter_d=0.45,
+                                                                       real=False),
+            "linear in depth over each scene (the paper's)": test_spec("paper50", "paper", n, real=False),
+            "phone-like (5 frames over 0.5-2 m)": test_spec("paper50", "fixed", n, stack_size=5,
+                                                            range_m=(0.5, 2.0), real=False)}
+
+
+def tables(model_path: Path, n: int, threads: int, cache: str, tile: int | None = None,
+           which: tuple[str, ...] = TABLES, done: dict | None = None, save=None) -> dict:
+    """Stack-size and schedule tables on the paper lens: {table: {row: {label: {"procedural": [per-scene scores]}}}}.
+    Rows already in `done` (same layout) are kept, not rerun; save(out) is called after every new row."""
     from training.train.testsets import load_test_set
 
-    fns = {k: v for k, v in methods(model_path, "paper50", threads, tile).items() if k in (DFV_MAP, CL_MAP)}
-    out = {"stack_size": {}, "schedule": {}}
-    for s in STACK_SIZES:
-        items = load_test_set(test_spec("paper50", "fixed", n, stack_size=s, real=False), cache)
-        out["stack_size"][s], _ = run_set(items, fns)
-    schedules = {"even in diopters (10 frames)": test_spec("paper50", "fixed", n, real=False),
-                 "jittered (10 frames, up to 0.45 of a spacing)": test_spec("paper50", "fixed", n, jitter_d=0.45,
-                                                                            real=False),
-                 "linear in depth over each scene (the paper's)": test_spec("paper50", "paper", n, real=False),
-                 "phone-like (5 frames over 0.5-2 m)": test_spec("paper50", "fixed", n, stack_size=5,
-                                                                 range_m=(0.5, 2.0), real=False)}
-    for name, spec in schedules.items():
-        out["schedule"][name], _ = run_set(load_test_set(spec, cache), fns)
-    for what, rows in out.items():
-        print(f"\n#### paper50, MAE by {what.replace('_', ' ')} ({n} procedural stacks, 95 % bootstrap)\n")
-        print(f"| {what.replace('_', ' ')} | {DFV_MAP} | {CL_MAP} | ratio |\n|---|---|---|---|")
-        for k, r in rows.items():
-            cells = [fmt(summarise(r[lab]["procedural"])["mae"], 3) if lab in r else "–" for lab in (DFV_MAP, CL_MAP)]
-            ratio = fmt(paired_ratio(r[DFV_MAP]["procedural"], r[CL_MAP]["procedural"]), 2) if DFV_MAP in r else "–"
-            print(f"| {k} | {cells[0]} | {cells[1]} | {ratio} |")
+    out = {w: dict((done or {}).get(w, {})) for w in which}
+    fns = None
+    for what in which:
+        for row, spec in table_specs(what, n).items():
+            if row in out[what]:
+                continue
+            if fns is None:
+                fns = {k: v for k, v in methods(model_path, "paper50", threads, tile).items() if k in (DFV_MAP, CL_MAP)}
+            print(f"paper50, {what.replace('_', ' ')} {row}", flush=True)
+            out[what][row], _ = run_set(load_test_set(spec, cache), fns)
+            if save is not None:
+                save(out)
+    for what in which:
+        print_table(what, out[what], n)
     return out
+
+
+def print_table(what: str, rows: dict, n: int) -> None:
+    name = what.replace("_", " ")
+    print(f"\n#### paper50, MAE by {name} ({n} procedural stacks, 95 % bootstrap)\n")
+    print(f"| {name} | {DFV_MAP} | {CL_MAP} | ratio |\n|---|---|---|---|")
+    for k, r in rows.items():
+        cells = [fmt(summarise(r[lab]["procedural"])["mae"], 3) if lab in r else "–" for lab in (DFV_MAP, CL_MAP)]
+        ratio = fmt(paired_ratio(r[DFV_MAP]["procedural"], r[CL_MAP]["procedural"]), 2) if DFV_MAP in r else "–"
+        print(f"| {k} | {cells[0]} | {cells[1]} | {ratio} |")
+
+
+def model_id(path: Path) -> str:
+    """sha256 (first 12 hex) of the model file, '' without one: a resumed results file must be of the same model."""
+    return hashlib.sha256(path.read_bytes()).hexdigest()[:12] if path.is_file() else ""
+
+
+def previous(path: Path, ident: dict, force: bool) -> dict:
+    """The results file to add to: its content when it was made with the same `ident` (model file, n, tile), a fresh
+    one with --force or none there; else SystemExit with one line naming the file and what differs."""
+    if force or not path.is_file():
+        return {**ident, "lenses": {}}
+    try:
+        old = json.loads(path.read_text())
+    except (OSError, ValueError) as e:
+        raise SystemExit(f"{path}: not a results file of this benchmark ({e}); --force starts it afresh") from None
+    diff = [f"{k} {old.get(k)!r} here, {v!r} now" for k, v in ident.items() if old.get(k) != v]
+    if diff:
+        raise SystemExit(f"{path}: made with another setting ({'; '.join(diff)}); use another --label or --out, "
+                         "or --force to start it afresh")
+    old.setdefault("lenses", {})
+    return old
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--lenses", nargs="+", default=list(LENSES), choices=list(LENSES))
+    ap.add_argument("--lenses", nargs="*", default=list(LENSES), choices=list(LENSES),
+                    help="held-out lenses (default all; none: only --tables)")
     ap.add_argument("--protocol", nargs="+", default=["fixed", "paper"], choices=["fixed", "paper"])
     ap.add_argument("--n", type=int, default=24, help="procedural scenes per lens and protocol (default 24)")
     ap.add_argument("--model", type=Path, default=ROOT / "models" / "dfv_aat.onnx")
-    ap.add_argument("--tables", action="store_true", help="also the stack-size and schedule tables (paper lens)")
+    ap.add_argument("--tables", nargs="*", choices=TABLES, default=None,
+                    help="also the stack-size and/or schedule tables (paper lens, max(8, n/2) scenes; alone: both)")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--tile", type=int, default=None,
                     help="run dfv_aat in tiles of this side (px; 0 = whole frames); default: the model's aat.tile_px")
     ap.add_argument("--cache", default=str(ROOT / "cache" / "heldout"))
     ap.add_argument("--out", type=Path, default=RESULTS)
+    ap.add_argument("--label", default="", help="name of the results: anycam_<label>.json and its figures")
+    ap.add_argument("--force", action="store_true", help="start the results file afresh instead of adding to it")
     a = ap.parse_args(argv)
     from training.train.testsets import load_test_set
 
     if not a.model.is_file():
         print(f"{a.model}: no such model (train it: scripts/train_dfv_aat.sh); only the baselines run", flush=True)
-    results = {"model": str(a.model), "n": a.n, "lenses": {}}
+    stem = f"anycam_{a.label}" if a.label else "anycam"
+    path = a.out / f"{stem}.json"
+    ident = {"model": str(a.model), "model_sha256": model_id(a.model), "n": a.n, "tile": a.tile}
+    results = previous(path, ident, a.force)
+
+    def save() -> None:
+        a.out.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(path, json.dumps(results, indent=1, default=float))
+
     for lens_key in a.lenses:
         spec = LENSES[lens_key]
         if not (ROOT / spec["psf"]).is_file():
             print(f"{lens_key}: {spec['psf']} missing (configs/psf_*.json: aat-psf fit, export, stamp); skipped")
             continue
-        fns = methods(a.model, lens_key, a.threads, a.tile)
+        fns = None
         for protocol in a.protocol:
+            done = results["lenses"].get(lens_key, {}).get(protocol)
+            if done is not None:  # resumed: print it again from the stored scores
+                print_lens(lens_key, protocol, done["per_image"], done["ratios"], a.n)
+                continue
+            fns = fns or methods(a.model, lens_key, a.threads, a.tile)
             print(f"{lens_key}, {protocol} protocol", flush=True)
             items = load_test_set(test_spec(lens_key, protocol, a.n), a.cache)
             res, maps = run_set(items, fns)
@@ -223,17 +290,24 @@ def main(argv: list[str] | None = None) -> int:
             print_lens(lens_key, protocol, res, ratios, a.n)
             results["lenses"].setdefault(lens_key, {})[protocol] = {
                 "summary": {lab: {k: summarise(v) if k == "procedural" else v for k, v in r.items()}
-                            for lab, r in res.items()}, "ratios": ratios}
+                            for lab, r in res.items()}, "ratios": ratios, "per_image": res}
             if maps:
                 from benchmarks.bench_table2 import field_figures
 
-                field_figures(maps, a.out / "figures" / f"anycam_{lens_key}_{protocol}.png",
+                field_figures(maps, a.out / "figures" / f"{stem}_{lens_key}_{protocol}.png",
                               f"{lens_key}, {protocol} protocol: MAE against field radius")
-    if a.tables:
-        results["tables"] = tables(a.model, max(8, a.n // 2), a.threads, a.cache, a.tile)
-    a.out.mkdir(parents=True, exist_ok=True)
-    path = a.out / "anycam.json"
-    write_text_atomic(path, json.dumps(results, indent=1, default=float))
+            save()
+    if a.tables is not None:
+        n_tab = max(8, a.n // 2)
+        which = tuple(a.tables) or TABLES
+
+        def save_tables(t: dict) -> None:
+            results["tables"] = {**results.get("tables", {}), **t, "n": n_tab}
+            save()
+
+        results["tables"] = {**results.get("tables", {}), "n": n_tab}
+        tables(a.model, n_tab, a.threads, a.cache, a.tile, which, results["tables"], save_tables)
+    save()
     print(f"\nwrote {path}")
     return 0
 

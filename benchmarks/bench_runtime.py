@@ -1,20 +1,25 @@
 """Runtime inference: onnxruntime (what `aat-infer` runs) vs torch eager on the same net and input.
 
     OMP_WAIT_POLICY=PASSIVE python -m benchmarks.bench_runtime [--sizes small] [--hw 640x960] [--stack 8]
-                                                               [--nets dfvnet,aifnet,dfvaat]
+        [--nets dfvnet,aifnet,dfvaat] [--threads 2] [--tile N] [--json results/runtime.json]
 
 For each net, a freshly built model (weights do not change the speed) is exported exactly as the shipped
 models are (training.nets.export), then one normalised (S, 3, H, W) stack is run by torch (`predict`, eager,
-no grad) and by the runtime (`aat_deploy.infer.model.DfFModel.infer`), both on 2 threads; best of 3, one run.
+no grad) and by the runtime (`aat_deploy.infer.model.DfFModel.infer`), both on --threads threads (2; 1 in a
+heavy-job lane); best of 3, one run.
 Prints a table: seconds per stack each way, the ratio, and the max |difference| of the depths. The any-camera net
 (`dfvaat`, the small DFVNet told per-pixel focus maps) runs as `aat-infer --model dfv_aat` runs it: its runtime time
 includes making the maps (thin lens, a 50 mm f/1.8 camera); two rows: whole frames, and as shipped, in overlapping
-tiles of the largest scenes it trained on (aat.tile_px; the depth difference of that row is tiled vs whole).
+tiles of the largest scenes it trained on (aat.tile_px, --tile to set it as a model's metadata says; the depth
+difference of that row is tiled vs whole). With both `dfvnet` and `dfvaat`, a second table gives the any-camera
+net's runtime time over the DFVNet's of the same size and input (issue 35: no slower than today's DFVNet); --json
+also writes the rows.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import tempfile
 from pathlib import Path
 
@@ -26,15 +31,21 @@ from benchmarks.timing import best_of
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--sizes", default="small")
     ap.add_argument("--hw", default="640x960")
     ap.add_argument("--stack", type=int, default=8)
     ap.add_argument("--nets", default="dfvnet,aifnet,dfvaat")
-    args = ap.parse_args()
+    ap.add_argument("--threads", type=int, default=2, help="threads of torch and the runtime (1 in a heavy-job lane)")
+    ap.add_argument("--tile", type=int, default=None,
+                    help="the any-camera net's tile (px; default: the largest image configs/anycam/dfv_aat.json "
+                         "trains on, what its export writes as aat.tile_px)")
+    ap.add_argument("--json", type=Path, default=None, help="also write the rows here (JSON)")
+    args = ap.parse_args(argv)
     h, w = (int(v) for v in args.hw.split("x"))
-    torch.set_num_threads(2)
+    threads = args.threads
+    torch.set_num_threads(threads)
     from aat_deploy.infer.model import DfFModel
     from aat_deploy.lens.io import load_lens
     from aat_deploy.optics.focus_table import diopter_grid
@@ -49,7 +60,7 @@ def main() -> None:
     for size in args.sizes.split(","):
         for net in args.nets.split(","):
             if net == "dfvaat":
-                rows.extend(any_camera(size, stack, focus))
+                rows.extend(any_camera(size, stack, focus, threads, args.tile))
                 continue
             torch.manual_seed(0)
             model = build_model(net, size).eval()
@@ -58,7 +69,7 @@ def main() -> None:
                 md = dff_metadata(model, lens, simulator="aat", effects=[], focus_range_m=(0.5, 10.0),
                                   stack_range=(2, 16), config_hash="benchmark")
                 export_dff_onnx(model, path, md)
-                rt = DfFModel(path, threads=2)
+                rt = DfFModel(path, threads=threads)
                 with torch.no_grad():
                     ref, t_torch = best_of(lambda m=model: predict(m, torch.from_numpy(stack)[None],
                                                                   torch.from_numpy(focus)[None]), repeat=3)
@@ -66,14 +77,37 @@ def main() -> None:
             diff = float(np.abs(out.depth_m - ref["depth_m"][0].numpy()).max())
             rows.append((f"{net} {size}", t_torch, t_ort, diff))
             print(f"done {net} {size}", flush=True)
-    print(f"\n### DfF inference, one stack of {args.stack} x 3 x {h} x {w}, 2 threads\n")
+    print(f"\n### DfF inference, one stack of {args.stack} x 3 x {h} x {w}, {threads} thread(s)\n")
     print("| net | torch eager | onnxruntime (aat-infer) | torch / ORT | max abs depth diff (m) |")
     print("|---|---|---|---|---|")
     for name, tt, to, d in rows:
         print(f"| {name} | {tt:.2f} s | {to:.2f} s | {tt / to:.2f}x | {d:.1e} |")
+    ratios = anycam_ratios(rows)
+    if ratios:
+        print("\n| any-camera net, runtime | its time / the DFVNet's (same size, input, run) |\n|---|---|")
+        for name, r in ratios.items():
+            print(f"| {name} | {r:.2f}x |")
+    if args.json is not None:
+        from aat_deploy.io.atomic import write_text_atomic
+
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(args.json, json.dumps({
+            "stack": [args.stack, 3, h, w], "threads": threads, "repeat": 3,
+            "rows": [{"net": n, "torch_s": tt, "runtime_s": to, "max_abs_depth_diff_m": d} for n, tt, to, d in rows],
+            "anycam_over_dfvnet": ratios}, indent=1))
+        print(f"wrote {args.json}")
 
 
-def any_camera(size: str, stack: np.ndarray, focus: np.ndarray) -> list[tuple]:
+def anycam_ratios(rows: list[tuple]) -> dict[str, float]:
+    """{any-camera row: its runtime seconds / those of the DFVNet of the same size}, rows (name, torch s, runtime
+    s, diff) as main prints them ("dfvnet small", "dfvaat small (...)")."""
+    dfv = {name.split()[1]: to for name, _, to, _ in rows if name.split()[0] == "dfvnet"}
+    return {name: to / dfv[name.split()[1]] for name, _, to, _ in rows
+            if name.split()[0] == "dfvaat" and name.split()[1] in dfv}
+
+
+def any_camera(size: str, stack: np.ndarray, focus: np.ndarray, threads: int = 2, tile: int | None = None
+               ) -> list[tuple]:
     """The any-camera net, torch vs the runtime (maps included), whole frames; then as shipped: the runtime in tiles
     of aat.tile_px (the largest single scenes configs/anycam/dfv_aat.json trains on, training.train.export),
     against torch on the whole frame (the difference column then is tiled vs whole, not a parity check)."""
@@ -91,13 +125,14 @@ def any_camera(size: str, stack: np.ndarray, focus: np.ndarray) -> list[tuple]:
         path = Path(d) / "m.onnx"
         export_focus_map_onnx(model, path, focus_map_metadata(model, effects=[], stack_range=(3, 16),
                                                               config_hash="benchmark", k_range=(0.3, 64)))
-        rt = FocusMapModel(path, threads=2).bound(CameraOptics(50.0, 1.8, 37.5, w, "benchmark"), focus)
+        rt = FocusMapModel(path, threads=threads).bound(CameraOptics(50.0, 1.8, 37.5, w, "benchmark"), focus)
         maps = torch.from_numpy(rt.maps(focus, h, w))[None]
         with torch.no_grad():
             ref, t_torch = best_of(lambda: predict(model, torch.from_numpy(stack)[None], maps[:, :-1], maps[:, -1:]),
                                    repeat=3)
         out, t_ort = best_of(lambda: rt.infer(stack, focus, tile=0), repeat=3)
-        tile = largest_training_image_px(load_config(ROOT / "configs/anycam/dfv_aat.json").data)
+        if tile is None:
+            tile = largest_training_image_px(load_config(ROOT / "configs/anycam/dfv_aat.json").data)
         tiled, t_tiled = best_of(lambda: rt.infer(stack, focus, tile=tile, overlap=tile // 4), repeat=3)
     print(f"done dfvaat {size}", flush=True)
     ref_d = ref["depth_m"][0].numpy()

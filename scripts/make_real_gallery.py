@@ -1,7 +1,7 @@
 """The real-stack gallery: depth, all-in-focus and confidence of every real focal stack in ../shared/data, made as
 `aat-infer` makes them, into docs/gallery/*.png and docs/real_stacks.md. Shown, not scored: none has ground truth.
 
-    python -m scripts.make_real_gallery [--max-side 640] [--methods focus] [--out docs]
+    python -m scripts.make_real_gallery [--max-side 640] [--methods focus] [--out docs] [--model M] [--panel-px 240]
 
 Stacks (`STACKS`; each with the focus distances it carries, or placeholder positions where it has none, as a
 user would pass `--focus-m`):
@@ -20,7 +20,9 @@ focus` runs it (the runtime's `depth_from_frames`: fit, optional alignment, norm
 confidence; depth below the confidence threshold is unknown, grey). `dfv_aat` is the any-camera model
 (`models/dfv_aat.onnx`, `aat-infer --model dfv_aat`) told a thin lens: it needs each frame's focus in metres (or
 placeholders whose inverse is affine in defocus) and the blur growth in px per (placeholder) diopter; a stack
-that gives neither shows the reason instead of panels (`RealStack.defocus_px_per_d`). To add a method (a DfF
+that gives neither shows the reason instead of panels (`RealStack.defocus_px_per_d`). `--model` runs another
+any-camera model file in that column (a candidate before it ships: its column and page name the file and say it is
+not the shipped model). Depth panels of one stack share one colour scale, so the columns compare. To add a method (a DfF
 model), write its column function (returning a Column, or one line saying why it cannot run on that stack) and
 add it to METHODS; rows get one more group of panels, the page one more column.
 """
@@ -28,6 +30,7 @@ add it to METHODS; rows get one more group of panels, the page one more column.
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 import time
 from collections.abc import Callable
@@ -260,44 +263,65 @@ def panel(title: str, rgb8: np.ndarray, height: int = PANEL_PX) -> np.ndarray:
     img = cv2.resize(rgb8, (max(1, round(w * height / h)), height), interpolation=cv2.INTER_AREA)
     out = np.full((height + 22, img.shape[1], 3), 255, np.uint8)
     out[22:] = img
-    cv2.putText(out, title, (4, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+    scale = 0.45  # smaller for a title wider than the panel, so none is cut off
+    width = cv2.getTextSize(title, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)[0][0]
+    scale *= min(1.0, (out.shape[1] - 8) / max(width, 1))
+    cv2.putText(out, title, (4, 16), cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), 1, cv2.LINE_AA)
     return out
 
 
-def depth_panel(stack: RealStack, col: Column) -> np.ndarray:
-    from aat_deploy.io.colorize import DEPTH_COLORMAP, depth_preview, depth_range, linear_preview
+def display_range(stack: RealStack, depths: list[np.ndarray]) -> tuple[float, float]:
+    """One colour scale for a stack's depth maps (every method's, so their panels compare): (near, far) in the
+    stack's units for metric depth, else (low, high) of the shown quantity; robust percentiles of all known pixels."""
+    from aat_deploy.io.colorize import depth_range
 
     if stack.kind == "depth":
-        near, far = depth_range(col.depth)
-        return depth_preview(col.depth, near, far, unit=stack.unit)[0]
-    v = stack.display(col.depth)
+        return depth_range(np.concatenate([d.ravel() for d in depths]))
+    v = np.concatenate([stack.display(d).ravel() for d in depths])
     known = v[np.isfinite(v)]
     lo, hi = (np.percentile(known, [0.5, 99.5]) if known.size else (0.0, 1.0))
-    hi = hi if hi > lo else lo + 1
-    return linear_preview(v, float(lo), float(hi), stack.unit, "", DEPTH_COLORMAP)
+    return float(lo), float(hi if hi > lo else lo + 1)
 
 
-def row_picture(stack: RealStack, cols: dict[str, Column | str]) -> np.ndarray:
+def depth_panel(stack: RealStack, col: Column, rng: tuple[float, float] | None = None) -> np.ndarray:
+    from aat_deploy.io.colorize import DEPTH_COLORMAP, depth_preview, linear_preview
+
+    lo, hi = display_range(stack, [col.depth]) if rng is None else rng
+    if stack.kind == "depth":
+        return depth_preview(col.depth, lo, hi, unit=stack.unit)[0]
+    return linear_preview(stack.display(col.depth), lo, hi, stack.unit, "", DEPTH_COLORMAP)
+
+
+def row_picture(stack: RealStack, cols: dict[str, Column | str], methods: dict | None = None,
+                height: int = PANEL_PX) -> np.ndarray:
+    """One stack's picture: a middle frame (and the source's reference image), then per method that ran its
+    all-in-focus, depth (one colour scale for all methods) and confidence; (height + 22, W, 3) uint8 RGB.
+    methods: {key: (title, column function)} the titles come from (default METHODS)."""
     from aat_deploy.io.colorize import linear_preview
 
+    methods = METHODS if methods is None else methods
     s = len(stack.frames)
-    panels = [panel(f"frame {s // 2 + 1} of {s}", srgb8(stack.frames[s // 2]))]
+    panels = [panel(f"frame {s // 2 + 1} of {s}", srgb8(stack.frames[s // 2]), height)]
     if stack.reference is not None:
         panels.append(panel("the source's all-in-focus" if stack.name == "lytro_refocus" else "centre view",
-                            srgb8(stack.reference)))
-    for key, col in cols.items():
-        title = METHODS[key][0]
-        if isinstance(col, str):  # the method cannot run on this stack: said on the page, no panels
-            continue
-        panels.append(panel(f"{title}: all-in-focus", srgb8(col.aif)))
+                            srgb8(stack.reference), height))
+    ran = {k: c for k, c in cols.items() if not isinstance(c, str)}  # the others: said on the page, no panels
+    rng = display_range(stack, [c.depth for c in ran.values()]) if ran else None
+    for key, col in ran.items():
+        panels.append(panel(f"{methods[key][0]}: all-in-focus", srgb8(col.aif), height))
         unk = "" if col.unknown_share is None else f" ({col.unknown_share:.0%} unknown, grey)"
-        panels.append(panel(f"depth{unk}", depth_panel(stack, col)))
+        panels.append(panel(f"depth{unk}", depth_panel(stack, col, rng), height))
         if col.confidence is not None:
-            panels.append(panel("confidence", linear_preview(col.confidence, 0.0, 1.0, "conf.", "", "viridis")))
+            panels.append(panel("confidence", linear_preview(col.confidence, 0.0, 1.0, "conf.", "", "viridis"),
+                                height))
     return np.concatenate(panels, 1)
 
 
-def page(rows: list[tuple[RealStack, dict[str, Column | str], str]], max_side: int) -> str:
+def page(rows: list[tuple[RealStack, dict[str, Column | str], str]], max_side: int, methods: dict | None = None,
+         note: str = "") -> str:
+    """The gallery's markdown page; methods as row_picture's (its keys: the columns, in order); note: a paragraph
+    after the introduction (which model file ran, where it is not the shipped one)."""
+    methods = METHODS if methods is None else methods
     lines = ["# Real focal stacks: depth, all-in-focus and confidence (shown, not scored)", "",
              "Made by `python -m scripts.make_real_gallery` from every real stack in `../shared/data` (not in the "
              "repository: research data of others, see each folder's MANIFEST.md). None has ground truth, so "
@@ -307,12 +331,13 @@ def page(rows: list[tuple[RealStack, dict[str, Column | str], str]], max_side: i
              "of the truth, docs/contracts.md) is below 0.5 is unknown and grey; with placeholder positions (and the phone "
              "stack's undocumented units) its tolerance refers to those positions, so read it as relative there. "
              "No lens is given (thin-lens mapping). To add a method column, see the script's docstring.", ""]
-    lines += ["| stack | frames | focus distances | " + " | ".join(f"{METHODS[k][0]}: time, unknown"
-                                                              for k in METHODS) + " |",
-              "|---|---|---|" + "---|" * len(METHODS)]
+    lines += [note, ""] if note else []
+    lines += ["| stack | frames | focus distances | " + " | ".join(f"{methods[k][0]}: time, unknown"
+                                                              for k in methods) + " |",
+              "|---|---|---|" + "---|" * len(methods)]
     for st, cols, _ in rows:
         cells = [c if isinstance(c, str) else f"{c.seconds:.2f} s, {c.unknown_share:.0%}"
-                 if c.unknown_share is not None else f"{c.seconds:.2f} s" for c in cols.values()]
+                 if c.unknown_share is not None else f"{c.seconds:.2f} s" for c in (cols.get(k, "–") for k in methods)]
         lines.append(f"| {st.title} | {len(st.frames)} × {st.frames.shape[2]}×{st.frames.shape[1]} px | "
                      f"{st.focus_note} | " + " | ".join(cells) + " |")
     lines.append("")
@@ -321,11 +346,23 @@ def page(rows: list[tuple[RealStack, dict[str, Column | str], str]], max_side: i
                   + (" Frames aligned and exposure-equalised (`--align`)." if st.align else ""), ""]
         for k, c in cols.items():
             for n in [c] if isinstance(c, str) else dict.fromkeys(c.notes):
-                lines.append(f"- {METHODS[k][0]}: {n}")
+                lines.append(f"- {methods[k][0]}: {n}")
         if any(isinstance(c, str) or c.notes for c in cols.values()):
             lines.append("")
         lines += [f"![{st.name}](gallery/{png})", ""]
     return "\n".join(lines)
+
+
+def model_methods(keys: list[str], model: Path) -> tuple[dict, str]:
+    """The method columns `keys` of METHODS, the dfv_aat column running `model`, and the page's note on it: a file
+    other than the shipped models/dfv_aat.onnx is named in the column's title and the note, as not shipped."""
+    methods = {k: METHODS[k] for k in keys}
+    if "dfv_aat" not in methods or model.resolve() == DFV_AAT.resolve():
+        return methods, ""
+    methods["dfv_aat"] = (f"any-camera {model.stem} (not shipped)", functools.partial(dfv_aat_column, model=model))
+    return methods, (f"The any-camera column runs `{model.name}`, a candidate model that is **not** the shipped "
+                     "`models/dfv_aat.onnx` (BENCHMARKS.md, \"The any-camera model\", says why), as `aat-infer "
+                     "--model` runs it: in the model's own tiles (`aat.tile_px`), told a thin lens.")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -334,12 +371,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-side", type=int, default=640, help="working size: longer side in px (as --max-side)")
     ap.add_argument("--methods", default=",".join(METHODS), help=f"method columns (of {', '.join(METHODS)})")
     ap.add_argument("--stacks", default=",".join(STACKS), help=f"stacks (of {', '.join(STACKS)})")
+    ap.add_argument("--model", type=Path, default=DFV_AAT,
+                    help="the any-camera model file of the dfv_aat column (default the shipped models/dfv_aat.onnx)")
+    ap.add_argument("--panel-px", type=int, default=PANEL_PX, help="panel height in the pictures (px)")
     a = ap.parse_args(argv)
-    methods = [m for m in a.methods.split(",") if m]
+    keys = [m for m in a.methods.split(",") if m]
     stacks = [s for s in a.stacks.split(",") if s]
-    bad = [m for m in methods if m not in METHODS] + [s for s in stacks if s not in STACKS]
+    bad = [m for m in keys if m not in METHODS] + [s for s in stacks if s not in STACKS]
     if bad:
         ap.error(f"unknown method or stack: {', '.join(bad)}")
+    methods, note = model_methods(keys, a.model)
     from tqdm import tqdm
 
     from aat_deploy.io.atomic import atomic_file, write_text_atomic
@@ -351,15 +392,16 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{SHARED / FOLDERS[name]}: not present, skipped", file=sys.stderr)
             continue
         st = STACKS[name]()
-        cols = {m: METHODS[m][1](st, a.max_side) for m in methods}
+        cols = {m: methods[m][1](st, a.max_side) for m in methods}
         png = f"{name}.png"
         with atomic_file(a.out / "gallery" / png) as tmp:
-            cv2.imwrite(str(tmp), row_picture(st, cols)[..., ::-1], [cv2.IMWRITE_PNG_COMPRESSION, 9])
+            cv2.imwrite(str(tmp), row_picture(st, cols, methods, a.panel_px)[..., ::-1],
+                        [cv2.IMWRITE_PNG_COMPRESSION, 9])
         rows.append((st, cols, png))
         print(f"{name}: {len(st.frames)} frames; " + ", ".join(f"{m} {c if isinstance(c, str) else f'{c.seconds:.2f} s'}"
                                                            for m, c in cols.items()),
               file=sys.stderr)
-    write_text_atomic(a.out / "real_stacks.md", page(rows, a.max_side) + "\n")
+    write_text_atomic(a.out / "real_stacks.md", page(rows, a.max_side, methods, note) + "\n")
     print(f"wrote {a.out / 'real_stacks.md'} and {len(rows)} pictures in {a.out / 'gallery'}")
     return 0
 

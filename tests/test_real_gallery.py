@@ -100,3 +100,59 @@ def test_the_any_camera_column_runs_or_says_why(gallery, tmp_path):
     cols = {"focus": gallery.focus_column(st, 640), "dfv_aat": "not run: two frames (the model takes 3 or more)"}
     assert gallery.row_picture(st, cols).shape[0] > 0
     assert "not run: two frames" in gallery.page([(st, cols, "toy.png")], 640)
+
+
+def test_another_model_file_is_named_as_not_shipped(gallery, tmp_path):
+    methods, note = gallery.model_methods(["focus", "dfv_aat"], gallery.DFV_AAT)
+    assert note == "" and methods["dfv_aat"] == gallery.METHODS["dfv_aat"]
+    cand = tmp_path / "dfv_aat_v9.onnx"
+    methods, note = gallery.model_methods(["focus", "dfv_aat"], cand)
+    assert list(methods) == ["focus", "dfv_aat"]
+    assert methods["dfv_aat"][0] == "any-camera dfv_aat_v9 (not shipped)"
+    assert "`dfv_aat_v9.onnx`" in note and "**not** the shipped" in note
+    st = toy_stack(gallery)
+    st.defocus_px_per_d = 3.0
+    assert methods["dfv_aat"][1](st, 640) == "dfv_aat_v9.onnx not present (scripts/train_dfv_aat.sh, then export)"
+    assert gallery.model_methods(["focus"], cand) == ({"focus": gallery.METHODS["focus"]}, "")
+
+
+def test_depth_panels_of_a_stack_share_one_scale_and_the_page_its_columns(gallery):
+    st = toy_stack(gallery, kind="depth")
+    near = np.full((20, 30), 1.0)
+    far = np.full((20, 30), 4.0)
+    lo, hi = gallery.display_range(st, [near, far])
+    assert lo == pytest.approx(1.0, rel=0.02) and hi == pytest.approx(4.0, rel=0.02)
+    a = gallery.depth_panel(st, gallery.Column(near, None, None, 0.0), (lo, hi))
+    b = gallery.depth_panel(st, gallery.Column(near, None, None, 0.0))  # its own scale: another colour
+    assert not np.array_equal(a[5, 5], b[5, 5])
+    col = gallery.Column(near, np.ones((3, 20, 30)), None, 0.5, [], 0.25)
+    text = gallery.page([(st, {"focus": col}, "toy.png")], 640, {"focus": gallery.METHODS["focus"]}, "a note")
+    header = next(line for line in text.splitlines() if line.startswith("| stack"))
+    row = next(line for line in text.splitlines() if line.startswith("| toy"))
+    assert header.count("|") == row.count("|") == 5 and "0.50 s, 25%" in row and "\na note\n" in text
+    assert gallery.row_picture(st, {"focus": col}, height=100).shape[0] == 122
+
+
+@pytest.mark.skipif(not (SHARED / "lightfield_lytro_real_epinet2067").is_dir(),
+                    reason="../shared/data/lightfield_lytro_real_epinet2067 absent (a clone without shared data)")
+def test_the_script_runs_a_candidate_model_beside_the_classical_method(gallery, tmp_path):
+    torch = pytest.importorskip("torch")
+    from training.nets.dfvaat import build
+    from training.nets.export import export_focus_map_onnx, focus_map_metadata
+
+    torch.manual_seed(0)
+    net = build()
+    path = tmp_path / "cand.onnx"
+    export_focus_map_onnx(net, path, focus_map_metadata(net, effects=[], stack_range=(3, 16), config_hash="test",
+                                                        k_range=(0.3, 64)), check_shapes=[(1, 3, 32, 64)])
+    out = tmp_path / "g"
+    assert gallery.main(["--out", str(out), "--stacks", "lytro_lightfield", "--methods", "focus,dfv_aat",
+                         "--model", str(path), "--max-side", "160", "--panel-px", "100"]) == 0
+    import cv2
+
+    img = cv2.imread(str(out / "gallery" / "lytro_lightfield.png"))
+    assert img.shape[0] == 122
+    text = (out / "real_stacks.md").read_text()
+    assert "any-camera cand (not shipped)" in text and "`cand.onnx`" in text
+    row = next(line for line in text.splitlines() if line.startswith("| Lytro light field"))
+    assert "not run" not in row and row.count(" s") >= 2  # both columns ran, with their times
