@@ -77,16 +77,21 @@ def test_camera_for_blur_gives_the_models_blur_growth(gallery):
     assert gallery.camera_for_blur(16.0, focus)[2] == pytest.approx(pixel_um / 2, rel=1e-9)
 
 
-def test_the_any_camera_column_runs_or_says_why(gallery, tmp_path):
+def untrained_any_camera_model(path):
+    """An untrained any-camera net exported as the shipped one is (needs torch): path."""
     torch = pytest.importorskip("torch")
     from training.nets.dfvaat import build
     from training.nets.export import export_focus_map_onnx, focus_map_metadata
 
     torch.manual_seed(0)
     net = build()
-    path = tmp_path / "dfv_aat.onnx"
     export_focus_map_onnx(net, path, focus_map_metadata(net, effects=[], stack_range=(3, 16), config_hash="test",
                                                         k_range=(0.3, 64)), check_shapes=[(1, 3, 32, 64)])
+    return path
+
+
+def test_the_any_camera_column_runs_or_says_why(gallery, tmp_path):
+    path = untrained_any_camera_model(tmp_path / "dfv_aat.onnx")
     st = toy_stack(gallery)
     assert gallery.dfv_aat_column(st, 640, path) == "not run: its optics are unknown"
     assert "not present" in gallery.dfv_aat_column(st, 640, tmp_path / "missing.onnx")
@@ -136,15 +141,7 @@ def test_depth_panels_of_a_stack_share_one_scale_and_the_page_its_columns(galler
 @pytest.mark.skipif(not (SHARED / "lightfield_lytro_real_epinet2067").is_dir(),
                     reason="../shared/data/lightfield_lytro_real_epinet2067 absent (a clone without shared data)")
 def test_the_script_runs_a_candidate_model_beside_the_classical_method(gallery, tmp_path):
-    torch = pytest.importorskip("torch")
-    from training.nets.dfvaat import build
-    from training.nets.export import export_focus_map_onnx, focus_map_metadata
-
-    torch.manual_seed(0)
-    net = build()
-    path = tmp_path / "cand.onnx"
-    export_focus_map_onnx(net, path, focus_map_metadata(net, effects=[], stack_range=(3, 16), config_hash="test",
-                                                        k_range=(0.3, 64)), check_shapes=[(1, 3, 32, 64)])
+    path = untrained_any_camera_model(tmp_path / "cand.onnx")
     out = tmp_path / "g"
     assert gallery.main(["--out", str(out), "--stacks", "lytro_lightfield", "--methods", "focus,dfv_aat",
                          "--model", str(path), "--max-side", "160", "--panel-px", "100"]) == 0
