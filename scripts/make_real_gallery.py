@@ -238,8 +238,10 @@ def dfv_aat_column(stack: RealStack, max_side: int, model: Path | None = None) -
     net.max_side = max_side
     camera = camera_for_blur(stack.defocus_px_per_d, stack.focus_m)
     res = api.depth_from_focus(stack.frames, stack.focus_m, net, camera=camera, align=stack.align)
+    # without a confidence calibration nothing is marked unknown: no share to show (it would read as 0 % doubtful)
+    share = res.unknown["unknown_share"] if res.unknown and res.confidence is not None else None
     return Column(res.depth_m, res.aif.transpose(2, 0, 1), res.confidence, time.perf_counter() - t0, res.warnings,
-                  res.unknown["unknown_share"] if res.unknown else None)
+                  share)
 
 
 METHODS: dict[str, tuple[str, Callable[[RealStack, int], Column | str]]] = {
@@ -309,7 +311,8 @@ def row_picture(stack: RealStack, cols: dict[str, Column | str], methods: dict |
     rng = display_range(stack, [c.depth for c in ran.values()]) if ran else None
     for key, col in ran.items():
         panels.append(panel(f"{methods[key][0]}: all-in-focus", srgb8(col.aif), height))
-        unk = "" if col.unknown_share is None else f" ({col.unknown_share:.0%} unknown, grey)"
+        unk = (" (no confidence)" if col.confidence is None else "" if col.unknown_share is None
+               else f" ({col.unknown_share:.0%} unknown, grey)")
         panels.append(panel(f"depth{unk}", depth_panel(stack, col, rng), height))
         if col.confidence is not None:
             panels.append(panel("confidence", linear_preview(col.confidence, 0.0, 1.0, "conf.", "", "viridis"),
@@ -337,7 +340,8 @@ def page(rows: list[tuple[RealStack, dict[str, Column | str], str]], max_side: i
               "|---|---|---|" + "---|" * len(methods)]
     for st, cols, _ in rows:
         cells = [c if isinstance(c, str) else f"{c.seconds:.2f} s, {c.unknown_share:.0%}"
-                 if c.unknown_share is not None else f"{c.seconds:.2f} s" for c in (cols.get(k, "–") for k in methods)]
+                 if c.unknown_share is not None else f"{c.seconds:.2f} s, no confidence" if c.confidence is None
+                 else f"{c.seconds:.2f} s" for c in (cols.get(k, "–") for k in methods)]
         lines.append(f"| {st.title} | {len(st.frames)} × {st.frames.shape[2]}×{st.frames.shape[1]} px | "
                      f"{st.focus_note} | " + " | ".join(cells) + " |")
     lines.append("")
