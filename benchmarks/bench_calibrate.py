@@ -166,9 +166,12 @@ def tolerance_path(setup: LensSetup) -> Path:
 
 
 class Rig:
-    """A lens with its surrogate, map, geometry and the effects' context."""
+    """A lens with its surrogate, map, geometry and the effects' context. truth_map: the best-focus map that is the
+    truth and the prescription's map (default lenses/best_focus/<lens stem>.json); measure / prefilter_px: the focus
+    measure the chart fit uses (default the runtime's), which must be the one truth_map was calibrated with."""
 
-    def __init__(self, setup: LensSetup):
+    def __init__(self, setup: LensSetup, truth_map: str | None = None, measure: str | None = None,
+                 prefilter_px: float | None = None):
         from aat_deploy.focus.bestfocus import load_json
         from aat_deploy.lens.io import load_lens
         from aat_deploy.optics.paraxial import paraxial_data
@@ -177,7 +180,19 @@ class Rig:
         self.setup = setup
         self.lens = load_lens(ROOT / setup.lens)
         self.src = OnnxSource(ROOT / setup.psf, self.lens, threads=2)
-        self.fmap = load_json(ROOT / "lenses" / "best_focus" / f"{Path(setup.lens).stem}.json")
+        from aat_deploy.focus import FocusConfig
+
+        self.fmap = load_json(ROOT / truth_map if truth_map else
+                              ROOT / "lenses" / "best_focus" / f"{Path(setup.lens).stem}.json")
+        base = FocusConfig()
+        self.measure = measure or base.measure
+        self.prefilter_px = base.prefilter_px if prefilter_px is None else float(prefilter_px)
+        cal = self.fmap.notes.get("calibration", {})
+        made = (cal.get("measure", base.measure), float(cal.get("prefilter_px", base.prefilter_px)))
+        if made != (self.measure, self.prefilter_px):
+            raise SystemExit(f"bench_calibrate: the truth map was calibrated for measure {made[0]} with a "
+                             f"{made[1]:g} px pre-filter, the fit would use {self.measure} with "
+                             f"{self.prefilter_px:g} px: give --truth-map a map of that measure")
         p = paraxial_data(self.lens)
         s = self.lens.sensor
         self.w, self.h = s.width_px, s.height_px
@@ -270,8 +285,19 @@ def measures(rig: Rig, sweeps: list[dict], variant: str, keep_every: int = 1):
                  "focal_length_mm": round(rig.efl, 2), "f_number": round(rig.fno, 2)}
         s = Sweep(Path(f"{rig.setup.key}_{variant}_{sw['distance_m']:g}m"), sw["frames"][idx], sw["reported_m"][idx],
                   ident, (rig.w, rig.h), 1.0)
-        out.append(measure_sweep(s, sw["layout"], distance_m=tape))
+        out.append(measure_sweep(s, sw["layout"], distance_m=tape, measure=rig.measure,
+                                 prefilter_px=rig.prefilter_px))
     return out
+
+
+def truth_family(rig: Rig, effects: list[str], true_m: np.ndarray) -> dict:
+    """The reported-focus family the truth itself has: the fit's g is the in-focus diopters at the frame centre (its
+    field term is 0 there), so the truth's g is the truth's centre pixel against the reported focus; the offset
+    and the scale fitted to it by least squares over these frames (true_m), for comparison with the fit's."""
+    rep_d = 1.0 / (true_m * (SCALE if any(e.startswith("focus_metadata") for e in effects) else 1.0))
+    t = rig.truth(effects, true_m)[:, rig.h // 2, rig.w // 2].astype(np.float64)
+    return {"scale": float(np.sum(t * rep_d) / np.sum(rep_d ** 2)), "bias_d": float(np.mean(rep_d - t)),
+            "centre_minus_thin_lens_d": [float(v) for v in t - 1.0 / true_m]}
 
 
 def map_errors(rig: Rig, cal, effects: list[str], true_m: np.ndarray) -> dict:
@@ -351,7 +377,9 @@ def part_map(rig: Rig, n_boot: int, log) -> tuple[list, dict]:
                      "bias_d": fe.bias_d, "bias_ci": fe.intervals.get("bias_d"), "support": fe.support,
                      "tiles": cal.residuals["tiles"], "residual_rms_d": cal.residuals["rms_d"],
                      "inside": e_in, "schedule": e_sched, "degree": res.model.degree, "radial": res.model.radial,
-                     "focus_degree": res.model.focus_degree, "warnings": res.warnings})
+                     "focus_degree": res.model.focus_degree, "warnings": res.warnings,
+                     "truth_family": truth_family(rig, eff, inside), "measure": rig.measure,
+                     "prefilter_px": rig.prefilter_px})
         log(f"  {s.key} {variant}: family {fe.family} scale {fe.scale:.4f} bias {fe.bias_d:+.4f}; map RMS "
             f"{e_in['calibration']['rms_d']:.4f} D inside, {e_sched['calibration']['rms_d']:.4f} D on the schedule")
     return rows, fits
@@ -380,6 +408,9 @@ def part_depth(rig: Rig, cal, n: int, log) -> dict:
     items = sets["procedural"] + sets.get("middlebury", [])
     log(f"  {s.key}: {len(items)} held-out stacks through the copy ({time.time() - t0:.0f} s)")
     cfg = FocusConfig()
+    if (cfg.measure, cfg.prefilter_px) != (rig.measure, rig.prefilter_px):
+        raise SystemExit(f"bench_calibrate: part depth runs the classical method with its own measure "
+                         f"({cfg.measure}), not the fit's ({rig.measure}): run --parts map,needs")
     per = {k: [] for k in ("thin lens", "prescription map", "calibration", "oracle")}
     for it in items:
         vol = focus_volume(it.stack, cfg.measure, cfg.window_px, prefilter_px=cfg.prefilter_px)
@@ -531,6 +562,10 @@ def tables(res: dict) -> str:
                                   if r["family"] == "scale" and r["scale_ci"] else "")
               + (f" {r['bias_d']:+.4f} D [{r['bias_ci'][0]:+.4f}, {r['bias_ci'][1]:+.4f}]"
                  if r["family"] == "offset" and r["bias_ci"] else ""))
+        tf = r.get("truth_family")  # runs before 2026-11-26 did not record it
+        if tf and r["family"] in ("scale", "offset"):
+            fe += (f" (the truth's {tf['scale']:.4f})" if r["family"] == "scale" else
+                   f" (the truth's {tf['bias_d']:+.4f} D)")
         i, s = r["inside"], r["schedule"]
         out.append(f"| {r['lens']} | {r['variant']} | {fe} | {r['tiles']} | {r['residual_rms_d']:.4f} | "
                    f"{i['calibration']['rms_d']:.4f} / {i['calibration']['p95_d']:.4f} | "
@@ -590,6 +625,11 @@ def main(argv=None) -> int:
     ap.add_argument("--boot", type=int, default=100)
     ap.add_argument("--worlds", type=int, default=3, help="blind: worlds of 9 turned views each")
     ap.add_argument("--out", default=str(RESULTS / "calibrate.json"))
+    ap.add_argument("--measure", default=None, help="the focus measure of the chart fit (default the runtime's; "
+                    "aat_deploy.focus.measures); needs --truth-map calibrated with it")
+    ap.add_argument("--prefilter-px", type=float, default=None, help="that measure's pre-filter (px)")
+    ap.add_argument("--truth-map", default=None, help="the truth and prescription best-focus map (a path in the "
+                    "repo; default lenses/best_focus/<lens>.json), calibrated for --measure")
     ap.add_argument("--tables", nargs="+", metavar="RESULT.json",
                     help="only print the tables of earlier runs' results, merged (BENCHMARKS.md's)")
     a = ap.parse_args(argv)
@@ -606,7 +646,7 @@ def main(argv=None) -> int:
     log = lambda m: print(m, file=sys.stderr, flush=True)
     res: dict = {"map": [], "depth": {}, "needs": {}, "blind": {}}
     for key in a.lenses.split(","):
-        rig = Rig(LENSES[key])
+        rig = Rig(LENSES[key], a.truth_map, a.measure, a.prefilter_px)
         log(f"{key}: {rig.lens.name}")
         rows, fits = part_map(rig, a.boot, log)
         if "map" in parts:

@@ -11,7 +11,16 @@ has that pixel in focus. The measures here are the ones the literature ranks hig
 - `tenengrad`  squared Sobel gradient magnitude, windowed;
 - `multiscale` `mlap2` on an image pyramid (levels 0, 1, 2), each level divided by its mean over the stack so
   that every level weighs alike, summed at full size: coarse levels still tell frames apart where the fine
-  level sees only blur (far from every frame's focus).
+  level sees only blur (far from every frame's focus);
+- `narrowband` the local energy of one narrow band of spatial frequency (a quadrature Gabor pair at
+  NARROWBAND_CYCLES_PX, its envelope 1 / that in px) along four orientations, windowed, each orientation divided
+  **at each pixel** by its own largest value over the stack, and summed. Off axis an aberrated lens is sharpest
+  at different focus for different orientations (sagittal / tangential) and for fine and coarse detail; a
+  broad-band measure weighs these by the texture's own energy, so its peak moves with the texture (a phone
+  lens at field radius 0.75: by 0.27 D SD between textures, `benchmarks/probes/measure_texture.py`). One band
+  with orientations weighed alike peaks where the lens's MTF at that band is highest, whatever the texture. Its
+  values say nothing about texture strength (every textured pixel peaks at 4): a measure for locating peaks
+  (a chart calibration, `aat-calibrate fit --measure`), not for the confidence of a depth map.
 
 Windows are Gaussian with standard deviation `window_px / 4` (a window of about `window_px` pixels).
 `prefilter_px` > 0 blurs each grey frame first (Gaussian, that standard deviation in px): the measures are
@@ -111,6 +120,38 @@ def multiscale(g: np.ndarray, window_px: float = 9, step: int = 1, levels: int =
     return out
 
 
+NARROWBAND_CYCLES_PX = 0.35  # `narrowband`'s band: fine detail, below the 0.5 cycles/px Nyquist limit
+NARROWBAND_ORIENTATIONS = 4
+NARROWBAND_FLOOR = 1e-10  # energy (grey levels 0-1, squared) under which a pixel has no texture in the band
+
+
+def gabor_pair(cycles_px: float, theta: float) -> tuple[np.ndarray, np.ndarray]:
+    """(even, odd) Gabor kernels at cycles_px along direction theta (rad), isotropic Gaussian envelope of
+    standard deviation 1 / cycles_px px (a band about +-cycles_px / 2 pi wide); the even one without DC."""
+    sigma = 1.0 / cycles_px
+    k = 2 * int(np.ceil(3 * sigma)) + 1
+    even = cv2.getGaborKernel((k, k), sigma, theta, 1.0 / cycles_px, 1.0, 0.0, ktype=cv2.CV_32F)
+    odd = cv2.getGaborKernel((k, k), sigma, theta, 1.0 / cycles_px, 1.0, np.pi / 2, ktype=cv2.CV_32F)
+    return even - even.mean(), odd
+
+
+def narrowband(g: np.ndarray, window_px: float = 9, step: int = 1, levels: int = 1) -> np.ndarray:
+    """Grey stack (S, H, W) -> (S, H, W) float32: per orientation the Gabor energy at NARROWBAND_CYCLES_PX,
+    windowed, over its maximum across the stack at that pixel; summed over NARROWBAND_ORIENTATIONS. A pixel
+    whose largest energy is under 1e-6 of the stack's largest, or under NARROWBAND_FLOOR, is divided by that
+    instead: a pixel without texture adds little (a flat stack ~0) rather than a normalised curve of its own."""
+    s, h, w = g.shape
+    out = np.zeros((s, h, w), np.float32)
+    for i in range(NARROWBAND_ORIENTATIONS):
+        even, odd = gabor_pair(NARROWBAND_CYCLES_PX, np.pi * i / NARROWBAND_ORIENTATIONS)
+        comp = np.stack([_window(cv2.filter2D(f, cv2.CV_32F, even, borderType=cv2.BORDER_REFLECT) ** 2
+                                 + cv2.filter2D(f, cv2.CV_32F, odd, borderType=cv2.BORDER_REFLECT) ** 2, window_px)
+                         for f in g])
+        top = comp.max(0)
+        out += comp / np.maximum(top, max(1e-6 * float(top.max()), NARROWBAND_FLOOR))[None]
+    return out
+
+
 @dataclass(frozen=True)
 class FocusMeasure:
     """volume(grey stack (S, H, W), window_px, step, levels) -> (S, H, W) float32 >= 0; tail_exponent: how the
@@ -128,6 +169,7 @@ MEASURES: dict[str, FocusMeasure] = {
     "mlap2": FocusMeasure(_each_frame(mlap2)),
     "tenengrad": FocusMeasure(_each_frame(tenengrad)),
     "multiscale": FocusMeasure(multiscale),
+    "narrowband": FocusMeasure(narrowband),
 }
 
 

@@ -108,28 +108,32 @@ def peak_log(x: np.ndarray, m: np.ndarray) -> float:
     return _peak_log(x, m)
 
 
-def part_floor(key: str, object_m: float, half_px: float = 5.0, coarse_px: float = 1.39, radius: float = 0.0
-               ) -> dict:
-    """At field radius `radius` on the diagonal (0: on axis): the measure's peak (D from the object) per texture,
-    dense and at the chart sweeps' step."""
+def floor_stacks(key: str, object_m: float, half_px: float = 5.0, radius: float = 0.0, photos: int = 3,
+                 cache: Path | None = None) -> tuple:
+    """(rig, fd (F,) focus diopters, {texture: frames (F, 3, n, n)}): a patch at field radius `radius` on the
+    diagonal (0: on axis) with the object at object_m, rendered through the lens's surrogate over a dense sweep
+    +-half_px of blur about it, for the chart's dead leaves and `photos` training photographs (seeded). With
+    `cache`, the frames are kept there (an .npz per setting) and read back."""
     import torch
 
     from aat_deploy.calibrate.pose import ChartPose
     from aat_deploy.calibrate.scene import chart_scene
-    from aat_deploy.focus import FocusConfig
-    from aat_deploy.focus.estimate import estimate_peak
-    from aat_deploy.focus.measures import focus_volume
     from aat_deploy.render import effects as fx
     from training.data.textures import photo_texture
     from training.render.layered import LayeredConfig
     from training.render.simulator import Simulator
     from training.render.sources import OnnxPSF
 
-    torch.set_num_threads(1)
     rig = bc.Rig(bc.LENSES[key])
-    cfg = FocusConfig()
+    half_d = half_px / rig.blur_px_per_d
+    fd = 1.0 / object_m + np.linspace(-half_d, half_d, 101)
+    f = cache / f"floor_{key}_{object_m:g}m_r{radius:g}_{half_px:g}px_{photos}.npz" if cache else None
+    if f is not None and f.exists():
+        z = np.load(f)
+        return rig, z["fd"], {k[4:]: z[k] for k in z.files if k.startswith("tex_")}
+    torch.set_num_threads(1)
     sim = Simulator(rig.lens, OnnxPSF.from_source(rig.src), fx.parse(["aberrations"]), LayeredConfig(cell_px=32))
-    n, m = 112, 24
+    n = 112
     origin = (int(round((1 - radius) / 2 * rig.h - n / 2)), int(round((1 + radius) / 2 * rig.w - n / 2)))
     img, layout = bc.chart_for(rig, object_m)
     # the chart's texture at its scale, a marker-free part of it on the axis
@@ -137,18 +141,42 @@ def part_floor(key: str, object_m: float, half_px: float = 5.0, coarse_px: float
                                                                           1000)), rig.w, rig.h, rig.f_px, rig.pupil)
     textures = {"chart": rgb[:, origin[0]:origin[0] + n, origin[1]:origin[1] + n]}
     rng = np.random.default_rng(5)
-    for i in range(3):
+    for i in range(photos):
         textures[f"photo {i}"] = photo_texture(rng, n, n, "train").transpose(2, 0, 1).astype(np.float32)
-    half_d, step_d = half_px / rig.blur_px_per_d, coarse_px / rig.blur_px_per_d
-    fd = 1.0 / object_m + np.linspace(-half_d, half_d, 101)
-    out = {"lens": key, "object_m": object_m, "radius": radius, "blur_px_per_d": rig.blur_px_per_d,
-           "dense_step_d": float(fd[1] - fd[0]), "coarse_step_d": step_d, "textures": {}}
+    stacks = {}
     for name, tex in textures.items():
         st = sim.render_stack(torch.from_numpy(np.ascontiguousarray(tex)), torch.full((n, n), object_m), 1.0 / fd,
                               origin=origin, rng=np.random.default_rng(0))
-        fr = st.frames.numpy()
-        vol = focus_volume(fr / max(float(fr.max()), 1e-12), cfg.measure, cfg.window_px, prefilter_px=cfg.prefilter_px)
-        curve = vol[:, m:n - m, m:n - m].mean((1, 2)).astype(np.float64)
+        stacks[name] = st.frames.numpy()
+    if f is not None:
+        f.parent.mkdir(parents=True, exist_ok=True)
+        tmp = f.with_name(f.stem + ".tmp.npz")
+        np.savez(tmp, fd=fd, **{f"tex_{k}": v for k, v in stacks.items()})
+        tmp.replace(f)
+    return rig, fd, stacks
+
+
+def floor_peaks(rig, fd: np.ndarray, stacks: dict, object_m: float, coarse_px: float = 1.39,
+                measure: str | None = None, levels: int = 3, prefilter_px: float | None = None,
+                margin: int = 24) -> dict:
+    """Where `measure` (the runtime's by default, its window and pre-filter unless given) peaks on each texture's stack of
+    `floor_stacks`, in diopters from the object: dense, and at the chart sweeps' step (10 phases, the `gauss`
+    estimator); the curve's width at half its height; the spread between textures (max - min, and SD)."""
+    from aat_deploy.focus import FocusConfig
+    from aat_deploy.focus.estimate import estimate_peak
+    from aat_deploy.focus.measures import focus_volume
+
+    cfg = FocusConfig()
+    measure = measure or cfg.measure
+    prefilter_px = cfg.prefilter_px if prefilter_px is None else prefilter_px
+    step_d = coarse_px / rig.blur_px_per_d
+    out = {"measure": measure, "levels": levels, "prefilter_px": prefilter_px, "blur_px_per_d": rig.blur_px_per_d,
+           "dense_step_d": float(fd[1] - fd[0]), "coarse_step_d": step_d, "textures": {}}
+    for name, fr in stacks.items():
+        n = fr.shape[-1]
+        vol = focus_volume(fr / max(float(fr.max()), 1e-12), measure, cfg.window_px, levels=levels,
+                           prefilter_px=prefilter_px)
+        curve = vol[:, margin:n - margin, margin:n - margin].mean((1, 2)).astype(np.float64)
         coarse = []
         for ph in np.linspace(0, step_d, 10, endpoint=False):
             xs = np.arange(fd[0] + ph, fd[-1], step_d)
@@ -159,10 +187,19 @@ def part_floor(key: str, object_m: float, half_px: float = 5.0, coarse_px: float
         out["textures"][name] = {"dense_peak_d": peak_log(fd, curve) - 1.0 / object_m,
                                  "coarse_mean_d": float(np.mean(coarse)), "coarse_min_d": float(min(coarse)),
                                  "coarse_max_d": float(max(coarse)), "half_max_width_d": float(half.max() - half.min())}
-    dense = [v["dense_peak_d"] for v in out["textures"].values()]
-    out["dense_spread_d"] = float(max(dense) - min(dense))
+    dense = np.array([v["dense_peak_d"] for v in out["textures"].values()])
+    out["dense_spread_d"] = float(dense.max() - dense.min())
+    out["dense_sd_d"] = float(dense.std(ddof=1)) if len(dense) > 1 else float("nan")
     out["dense_spread_px"] = out["dense_spread_d"] * rig.blur_px_per_d
     return out
+
+
+def part_floor(key: str, object_m: float, half_px: float = 5.0, coarse_px: float = 1.39, radius: float = 0.0
+               ) -> dict:
+    """At field radius `radius` on the diagonal (0: on axis): the measure's peak (D from the object) per texture,
+    dense and at the chart sweeps' step."""
+    rig, fd, stacks = floor_stacks(key, object_m, half_px, radius)
+    return {"lens": key, "object_m": object_m, "radius": radius, **floor_peaks(rig, fd, stacks, object_m, coarse_px)}
 
 
 ZONES = ((0.0, 0.33), (0.33, 0.66), (0.66, 0.9), (0.9, 1.01))

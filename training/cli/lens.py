@@ -27,6 +27,7 @@ from pathlib import Path
 
 from aat_deploy.cli.calibrate import add_fit_options
 from aat_deploy.cli.common import check_reader_options, parser, run_or_hint, subparser
+from aat_deploy.focus.measures import MEASURES
 from aat_deploy.io.atomic import atomic_file
 from aat_deploy.lens.io import LensFileError, load_lens
 from aat_deploy.lens.materials import UnknownMaterialError
@@ -191,7 +192,8 @@ def cmd_focus_map(a) -> int:
         t0 = time.time()
         fmap, points = make_focus_map(a.lens, True, a.psf, progress=not a.quiet, calibrate_at_m=a.calibrate_at,
                                       sweep_d=a.sweep_d, radii=a.calibrate_radii, traced=load_json(a.recalibrate),
-                                      textures=a.calibrate_textures)
+                                      textures=a.calibrate_textures, measure=a.calibrate_measure,
+                                      prefilter_px=a.calibrate_prefilter_px)
         fmap.save_json(out)
         print(f"wrote {out} ({time.time() - t0:.0f} s)")
         for p in points:
@@ -208,7 +210,8 @@ def cmd_focus_map(a) -> int:
         t0 = time.time()
         fmap, points = make_focus_map(a.lens, not a.no_calibrate, a.psf, progress=not a.quiet, near_m=a.near_m,
                                       calibrate_at_m=a.calibrate_at, sweep_d=a.sweep_d, radii=a.calibrate_radii,
-                                      textures=a.calibrate_textures)
+                                      textures=a.calibrate_textures, measure=a.calibrate_measure,
+                                      prefilter_px=a.calibrate_prefilter_px)
         fmap.save_json(out)
         print(f"wrote {out} ({time.time() - t0:.0f} s)")
         for p in points:
@@ -313,6 +316,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="photo textures per calibration point (default 3): more average out how a lens's off-axis "
                         "astigmatism makes the measure's peak depend on the texture (a phone lens: ~0.15 D per "
                         "point with 3)")
+    p.add_argument("--calibrate-measure", default=None, choices=sorted(MEASURES), metavar="NAME",
+                   help="the focus measure whose peak the map is calibrated to (default: the runtime's, mlap2; "
+                        "narrowband: a measure whose peak moves less with the texture, for chart calibrations; "
+                        "docs/calibration.md). The map then belongs to that measure")
+    p.add_argument("--calibrate-prefilter-px", type=float, default=None, metavar="PX",
+                   help="that measure's pre-filter (Gaussian sigma, px; default the runtime's 1 px; narrowband: 0)")
     p.add_argument("--recalibrate", default=None, metavar="MAP.json",
                    help="calibrate this stored map of LENS again (its traced part kept, its calibration replaced; "
                         "needs --force) instead of tracing the lens anew")

@@ -149,8 +149,14 @@ def test_focus_map_recalibrate_keeps_the_traced_map(tmp_path, monkeypatch, capsy
     assert main(args + ["--force"]) == 0
     new = load_json(out)
     assert seen["offset"] is None and seen["cfg"].radii == (0.0, 0.5) and seen["cfg"].n_textures == 5
+    assert (seen["cfg"].measure, seen["cfg"].prefilter_px) == ("mlap2", 1.0)  # the runtime's unless given
     np.testing.assert_array_equal(new.object_diopters, stored.object_diopters)
     assert np.all(new.offset_diopters == -0.1)
+    # --calibrate-measure / --calibrate-prefilter-px: the map belongs to that measure (its notes say which)
+    assert main(args + ["--force", "--calibrate-measure", "narrowband", "--calibrate-prefilter-px", "0"]) == 0
+    assert (seen["cfg"].measure, seen["cfg"].prefilter_px) == ("narrowband", 0.0)
+    with pytest.raises(SystemExit):
+        main(args + ["--force", "--calibrate-measure", "fog"])
     phone = str(LENSES / "cellphone_asphere.json")
     assert main(["focus-map", phone, "--recalibrate", str(src), "--out", str(tmp_path / "x.json"), "--force",
                  "-q"]) == 2

@@ -1,0 +1,76 @@
+"""How much the focus measure's peak moves with the texture, per measure (issue 33: the phone lens's map cannot be
+calibrated to 0.02 D while its peak depends on what the chart shows).
+
+    python -m benchmarks.probes.measure_texture [--photos 7] [--out results/measure_texture.json]   # ~10 min once
+
+A patch (112 px) at field radius 0 and 0.75 (on the diagonal) of the phone lens focused near 10 cm and of the
+RF50 near 1 m, rendered through each lens's surrogate over a dense sweep (101 frames, +-5 px of blur) for the
+chart's dead leaves and `--photos` training photographs (`calibrate_phone_offset.floor_stacks`, cached under
+cache/phone_offset/); for each measure of `aat_deploy.focus.measures` listed here, where it peaks on each texture
+(`floor_peaks`): the spread between textures (max - min and SD, D), the curve's width at half height, and how far
+the chart sweep's step (1.39 px) moves the peak. Training photographs only: nothing here is a test scene.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks import RESULTS
+from benchmarks.bench_calibrate import ROOT
+from benchmarks.probes.calibrate_phone_offset import floor_peaks, floor_stacks
+
+SETTINGS = (("cellphone", 0.1, 0.0), ("cellphone", 0.1, 0.75), ("rf50", 1.0, 0.0), ("rf50", 1.0, 0.75))
+# (measure, pyramid levels, pre-filter px): the runtime's measure and its 1 px pre-filter; `narrowband` is a
+# band-pass itself, and a pre-filter tilts its band toward coarse detail (at 1 px it passes a tenth of its
+# 0.35 cycles/px and most of its lower flank), so it is also run without one
+VARIANTS = (("mlap2", 1, 1.0), ("multiscale", 3, 1.0), ("narrowband", 1, 1.0), ("narrowband", 1, 0.0))
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--photos", type=int, default=7, help="training photographs besides the chart's dead leaves")
+    ap.add_argument("--variants", default=",".join(f"{m}:{lv}:{p:g}" for m, lv, p in VARIANTS),
+                    help="measure:levels:prefilter_px, comma-separated")
+    ap.add_argument("--out", default=str(RESULTS / "measure_texture.json"))
+    a = ap.parse_args(argv)
+    variants = [(v.split(":")[0], int(v.split(":")[1]), float(v.split(":")[2])) for v in a.variants.split(",")]
+    rows = []
+    for key, obj, rad in SETTINGS:
+        rig, fd, stacks = floor_stacks(key, obj, radius=rad, photos=a.photos, cache=ROOT / "cache" / "phone_offset")
+        print(f"  {key} at {obj:g} m, radius {rad:g}: {len(stacks)} textures", file=sys.stderr, flush=True)
+        for meas, lev, pf in variants:
+            r = floor_peaks(rig, fd, stacks, obj, measure=meas, levels=lev, prefilter_px=pf)
+            t = r["textures"].values()
+            r.update(lens=key, object_m=obj, radius=rad,
+                     half_width_mean_d=float(np.mean([v["half_max_width_d"] for v in t])),
+                     coarse_shift_max_d=float(max(max(abs(v["coarse_max_d"] - v["dense_peak_d"]),
+                                                      abs(v["coarse_min_d"] - v["dense_peak_d"])) for v in t)))
+            rows.append(r)
+    from aat_deploy.io.atomic import write_text_atomic
+
+    Path(a.out).parent.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(Path(a.out), json.dumps({"photos": a.photos, "rows": rows}, indent=1))
+    print(table(rows))
+    return 0
+
+
+def table(rows: list[dict]) -> str:
+    out = ["| lens | object | field radius | measure (levels), pre-filter | peak - object, mean over textures (D) | spread "
+           "max - min (D) | SD (D) | half-height width (D) | chart step moves the peak by up to (D) |",
+           "|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        peaks = [v["dense_peak_d"] for v in r["textures"].values()]
+        lev = f" ({r['levels']})" if r["measure"] == "multiscale" else ""
+        out.append(f"| {r['lens']} ({r['blur_px_per_d']:.2f} px/D) | {r['object_m']:g} m | {r['radius']:g} | "
+                   f"{r['measure']}{lev}, {r['prefilter_px']:g} px | {np.mean(peaks):+.3f} | {r['dense_spread_d']:.3f} | {r['dense_sd_d']:.3f} | "
+                   f"{r['half_width_mean_d']:.3f} | {r['coarse_shift_max_d']:.3f} |")
+    return "\n".join(out)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

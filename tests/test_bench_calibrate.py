@@ -1,0 +1,44 @@
+"""bench_calibrate: the truth's own reported-focus family (what the fit's interval is compared with) and the guard
+that the chart fit's focus measure is the one its truth map was calibrated with."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from benchmarks import bench_calibrate as bc
+
+
+class _Rig:
+    """A stand-in with a truth whose centre is a known function of the true focus."""
+
+    h, w = 3, 5
+
+    def __init__(self, centre):
+        self.centre = centre
+
+    def truth(self, effects, true_m):
+        t = self.centre(1.0 / np.asarray(true_m, np.float64))
+        return np.broadcast_to(t[:, None, None], (len(t), self.h, self.w)).copy()
+
+
+def test_truth_family_by_hand():
+    true_m = 1.0 / np.linspace(5.5, 14.0, 10)  # the phone's charts
+    scaled = ["focus_metadata:bias_d=0:scale=1.1", "noise"]
+    # the copy's reported distance is 1.1 x the true one, the truth the thin lens: exactly the scale 1.1
+    tf = bc.truth_family(_Rig(lambda d: d), scaled, true_m)
+    assert tf["scale"] == pytest.approx(1.1, abs=1e-12) and max(map(abs, tf["centre_minus_thin_lens_d"])) < 1e-12
+    # the measure's own offset (its in-focus object 0.2 D farther on axis): a pure scale reads less than 1.1,
+    # by the least-squares formula over the frames
+    tf = bc.truth_family(_Rig(lambda d: d - 0.2), scaled, true_m)
+    rep = 1.0 / (1.1 * true_m)
+    assert tf["scale"] == pytest.approx(np.sum((1.1 * rep - 0.2) * rep) / np.sum(rep ** 2), rel=1e-12)
+    assert tf["scale"] < 1.085
+    # no reported-focus error: the measure's offset is the truth's offset
+    tf = bc.truth_family(_Rig(lambda d: d - 0.2), ["noise"], true_m)
+    assert tf["bias_d"] == pytest.approx(0.2, abs=1e-12) and tf["scale"] < 1.0
+
+
+def test_a_fit_measure_without_its_truth_map_is_refused():
+    with pytest.raises(SystemExit, match="calibrated for measure mlap2.*narrowband"):
+        bc.Rig(bc.LENSES["cellphone"], measure="narrowband", prefilter_px=0.0)
