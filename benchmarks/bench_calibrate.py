@@ -120,8 +120,7 @@ LENSES = {
                            ("lens_tolerance:element=1:decentre_x_mm=0.005",
                             "sensor_tilt:tilt_x_deg=0.3:tilt_y_deg=-0.2",
                             f"focus_metadata:bias_d=0:scale={SCALE}", "noise"),
-                           tolerance_table="cache/tolerance/auto", step_d=None, margin_d=None,
-                           schedule_m=(0.07, 0.5), middlebury=False),
+                           step_d=None, margin_d=None, schedule_m=(0.07, 0.5), middlebury=False),
 }
 NOMINAL = ("noise",)
 # Sweeps designed in pixels of blur (setups without step_d / margin_d): the RF50's sweeps are 1.4 px of thin-lens

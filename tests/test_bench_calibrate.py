@@ -42,3 +42,18 @@ def test_truth_family_by_hand():
 def test_a_fit_measure_without_its_truth_map_is_refused():
     with pytest.raises(SystemExit, match="calibrated for measure mlap2.*narrowband"):
         bc.Rig(bc.LENSES["cellphone"], measure="narrowband", prefilter_px=0.0)
+
+
+def test_every_copy_finds_its_tolerance_table():
+    """The copies' decentres are read from a tolerance table (no torch): the RF50's and the phone's committed next to
+    their surrogates in models/ (the phone's as the command in models/README.md writes it), the held-out lenses'
+    under cache/ (bench_calibrate's tolerance_table)."""
+    from aat_deploy.render import effects as fx
+
+    for key in ("rf50", "cellphone"):
+        setup = bc.LENSES[key]
+        assert setup.tolerance_table is None
+        rig = bc.Rig(setup)
+        tol = [e for e in fx.parse(bc.effects_for(setup, "copy")) if type(e).__name__ == "LensTolerance"]
+        assert len(tol) == 1 and tol[0].torch_reason(rig.ctx()) == ""
+        assert tol[0]._table_path(rig.ctx()).parent == bc.ROOT / "models"

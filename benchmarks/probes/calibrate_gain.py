@@ -4,7 +4,7 @@ the EF50's copy gains less than the RF50's and the paper lens's in bench_calibra
     OMP_WAIT_POLICY=PASSIVE nice -n 10 python -m benchmarks.probes.calibrate_gain --lens ef50 [--n 24] [--out F.json]
 
 Two parts, on benchmarks/bench_calibrate.py's setup (its copy, its held-out stacks and chart sweeps, cached):
-1. **Map amplitudes** over the depth schedule (8 frames, 0.5-10 m; every pixel; diopters): how far each mapping of
+1. **Map amplitudes** over the depth schedule (8 frames, 0.5-10 m, the phone's 0.07-0.5 m; every pixel; diopters): how far each mapping of
    the reported focus is from the copy's truth, split into the common term (the frame's error at the centre, the
    reported focus's scale) and the field term (the rest); and the field terms themselves (in focus at (x, y) minus
    at the centre): the nominal prescription's, the copy's truth's, and the copy's departure from the prescription
@@ -27,7 +27,6 @@ import numpy as np
 
 from aat_deploy.eval.stats import N_BOOT, bootstrap_mean, paired_ratio, zone_masks
 from aat_deploy.eval.stats import fmt_interval as fmt
-from aat_deploy.optics.focus_table import diopter_grid
 from benchmarks import bench_calibrate as B
 
 BANDS_M = ((0.5, 1.0), (1.0, 2.0), (2.0, 4.0), (4.0, 10.0))
@@ -45,7 +44,7 @@ def rms(a: np.ndarray, mask: np.ndarray | None = None) -> float:
 
 def amplitudes(rig: B.Rig) -> dict:
     eff = B.effects_for(rig.setup, "copy")
-    true_m = diopter_grid(10.0, 0.5, 8)
+    true_m = rig.setup.schedule()  # the depth stacks' 8 frames (0.5-10 m; the phone 0.07-0.5 m)
     rep = true_m * B.SCALE
     truth = rig.truth(eff, true_m)
     nominal = rig.truth(["noise"], true_m)  # the nominal lens's truth at the true focus
@@ -138,7 +137,7 @@ def main(argv: list[str] | None = None) -> int:
     res: dict = {"lens": a.lens}
     if "amplitudes" in a.parts:
         res["amplitudes"] = amp = amplitudes(rig)
-        print(f"{a.lens}: map amplitudes over the 0.5-10 m schedule (RMS, D)")
+        print(f"{a.lens}: map amplitudes over the {setup.schedule_m[0]:g}-{setup.schedule_m[1]:g} m schedule (RMS, D)")
         for k in ("thin lens - truth", "prescription map - truth"):
             print(f"  {k}: " + ", ".join(f"{z} {v:.4f}" for z, v in amp[k].items()))
         for k, v in amp["field terms"].items():
