@@ -19,8 +19,10 @@ has that pixel in focus. The measures here are the ones the literature ranks hig
   broad-band measure weighs these by the texture's own energy, so its peak moves with the texture (a phone
   lens at field radius 0.75: by 0.27 D SD between textures, `benchmarks/probes/measure_texture.py`). One band
   with orientations weighed alike peaks where the lens's MTF at that band is highest, whatever the texture. Its
-  values say nothing about texture strength (every textured pixel peaks at 4): a measure for locating peaks
-  (a chart calibration, `aat-calibrate fit --measure`), not for the confidence of a depth map.
+  values say nothing about texture strength (every textured pixel peaks at 4): a measure for locating peaks,
+  not for the confidence of a depth map. Use it without the pre-filter (a 1 px one tilts its band toward coarse
+  detail, and the texture dependence returns). On the phone's noisy chart sweeps, 1.1 D apart, it did not beat
+  `mlap2` (BENCHMARKS.md, "Calibrating a camera"), so nothing uses it by default.
 
 Windows are Gaussian with standard deviation `window_px / 4` (a window of about `window_px` pixels).
 `prefilter_px` > 0 blurs each grey frame first (Gaussian, that standard deviation in px): the measures are

@@ -246,14 +246,14 @@ def part_truth_noise(rig) -> dict:
             "diff_rms_off_axis_d": float(np.sqrt(np.mean(d[ok & (radii > 0)] ** 2)))}
 
 
-def part_step(step_px: float) -> dict:
+def part_step(step_px: float, **rig_kw) -> dict:
     """The nominal map's RMS error by zone (inside the charts' range) from sweeps step_px apart and from the
-    benchmark's."""
+    benchmark's. rig_kw: bench_calibrate.Rig's truth_map / measure / prefilter_px (another measure's fit)."""
     from aat_deploy.optics.focus_table import diopter_grid
 
     out = {}
     for label, step in (("benchmark", bc.SWEEP_STEP_PX), ("denser", step_px)):
-        rig = bc.Rig(bc.LENSES["cellphone"])
+        rig = bc.Rig(bc.LENSES["cellphone"], **rig_kw)
         saved = bc.SWEEP_STEP_PX, bc.CACHE
         bc.SWEEP_STEP_PX = step
         if label == "denser":
@@ -266,7 +266,8 @@ def part_step(step_px: float) -> dict:
         s = rig.setup
         e = bc.map_errors(rig, res.calibration, bc.effects_for(s, "nominal"),
                           diopter_grid(max(s.distances_m), min(s.distances_m), 10))["calibration"]
-        out[label] = {"step_px": step, "step_d": step / rig.blur_px_per_d,
+        out[label] = {"step_px": step, "step_d": step / rig.blur_px_per_d, "measure": rig.measure,
+                      "prefilter_px": rig.prefilter_px, "residual_rms_d": res.calibration.residuals["rms_d"],
                       "frames": [len(x["reported_m"]) for x in sw], "family": res.calibration.focus_error.family,
                       "rms_d": e["rms_d"], "zone_rms_d": e["zone_rms_d"]}
     return out

@@ -9,6 +9,15 @@ chart's dead leaves and `--photos` training photographs (`calibrate_phone_offset
 cache/phone_offset/); for each measure of `aat_deploy.focus.measures` listed here, where it peaks on each texture
 (`floor_peaks`): the spread between textures (max - min and SD, D), the curve's width at half height, and how far
 the chart sweep's step (1.39 px) moves the peak. Training photographs only: nothing here is a test scene.
+
+With `--chart-fit`, the measure on the chart fit itself (bench_calibrate's nominal phone sweeps, noise on, and
+sweeps twice as dense, `calibrate_phone_offset.part_step`; ~5 min on lane B): the map's RMS error by field zone
+against a truth map calibrated with the same measure, for `mlap2` (lenses/best_focus/) and `narrowband` without
+pre-filter (results/cellphone_map_narrowband.json, made by `aat-lens focus-map lenses/cellphone_asphere.json
+--recalibrate lenses/best_focus/cellphone_asphere.json --psf models/psf_cellphone.onnx --calibrate-at
+0.07,0.1,0.15,0.3,0.5 --sweep-d 5.5 --calibrate-radii 0,0.3,0.5,0.6,0.65,0.7,0.75,0.8,0.85,0.9,0.95
+--calibrate-textures 12 --calibrate-measure narrowband --calibrate-prefilter-px 0 --out
+results/cellphone_map_narrowband.json --force`, 3 min).
 """
 
 from __future__ import annotations
@@ -22,13 +31,15 @@ import numpy as np
 
 from benchmarks import RESULTS
 from benchmarks.bench_calibrate import ROOT
-from benchmarks.probes.calibrate_phone_offset import floor_peaks, floor_stacks
+from benchmarks.probes.calibrate_phone_offset import floor_peaks, floor_stacks, part_step
 
 SETTINGS = (("cellphone", 0.1, 0.0), ("cellphone", 0.1, 0.75), ("rf50", 1.0, 0.0), ("rf50", 1.0, 0.75))
 # (measure, pyramid levels, pre-filter px): the runtime's measure and its 1 px pre-filter; `narrowband` is a
 # band-pass itself, and a pre-filter tilts its band toward coarse detail (at 1 px it passes a tenth of its
 # 0.35 cycles/px and most of its lower flank), so it is also run without one
 VARIANTS = (("mlap2", 1, 1.0), ("multiscale", 3, 1.0), ("narrowband", 1, 1.0), ("narrowband", 1, 0.0))
+# the chart fit with each measure and a truth map calibrated with it (None: the lens's own, the runtime's measure)
+CHART_FITS = (("mlap2", 1.0, None), ("narrowband", 0.0, "results/cellphone_map_narrowband.json"))
 
 
 def main(argv=None) -> int:
@@ -36,6 +47,8 @@ def main(argv=None) -> int:
     ap.add_argument("--photos", type=int, default=7, help="training photographs besides the chart's dead leaves")
     ap.add_argument("--variants", default=",".join(f"{m}:{lv}:{p:g}" for m, lv, p in VARIANTS),
                     help="measure:levels:prefilter_px, comma-separated")
+    ap.add_argument("--chart-fit", type=float, default=None, metavar="STEP_PX",
+                    help="also fit the nominal phone sweeps with each measure, the benchmark's and STEP_PX apart")
     ap.add_argument("--out", default=str(RESULTS / "measure_texture.json"))
     a = ap.parse_args(argv)
     variants = [(v.split(":")[0], int(v.split(":")[1]), float(v.split(":")[2])) for v in a.variants.split(",")]
@@ -51,11 +64,25 @@ def main(argv=None) -> int:
                      coarse_shift_max_d=float(max(max(abs(v["coarse_max_d"] - v["dense_peak_d"]),
                                                       abs(v["coarse_min_d"] - v["dense_peak_d"])) for v in t)))
             rows.append(r)
+    fits = []
+    if a.chart_fit:
+        for meas, pf, truth_map in CHART_FITS:
+            for label, r in part_step(a.chart_fit, measure=meas, prefilter_px=pf, truth_map=truth_map).items():
+                fits.append({"sweeps": label, **r})
+                print(f"  chart fit, {meas}, {label} sweeps: {r['rms_d']:.3f} D", file=sys.stderr, flush=True)
     from aat_deploy.io.atomic import write_text_atomic
 
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(Path(a.out), json.dumps({"photos": a.photos, "rows": rows}, indent=1))
+    write_text_atomic(Path(a.out), json.dumps({"photos": a.photos, "rows": rows, "chart_fits": fits}, indent=1))
     print(table(rows))
+    if fits:
+        print("\n| measure, pre-filter | nominal sweeps | step (px / D) | family | tile residual RMS (D) | map RMS inside "
+              "(D) | centre / middle / outer (D) |\n|---|---|---|---|---|---|---|")
+        for f in fits:
+            z = f["zone_rms_d"]
+            print(f"| {f['measure']}, {f['prefilter_px']:g} px | {f['sweeps']} | {f['step_px']:g} / {f['step_d']:.2f} | "
+                  f"{f['family']} | {f['residual_rms_d']:.3f} | {f['rms_d']:.3f} | {z['centre']:.3f} / "
+                  f"{z['middle']:.3f} / {z['outer']:.3f} |")
     return 0
 
 
