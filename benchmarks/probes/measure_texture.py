@@ -12,7 +12,7 @@ the chart sweep's step (1.39 px) moves the peak. Training photographs only: noth
 
 With `--chart-fit`, the measure on the chart fit itself (bench_calibrate's nominal phone sweeps, noise on, and
 sweeps twice as dense, `calibrate_phone_offset.part_step`; ~5 min on lane B): the map's RMS error by field zone
-against a truth map calibrated with the same measure, for `mlap2` (lenses/best_focus/) and `narrowband` without
+against a truth map calibrated with the same measure, and the tiles' peaks against it by chart and zone, for `mlap2` (lenses/best_focus/) and `narrowband` without
 pre-filter (results/cellphone_map_narrowband.json, made by `aat-lens focus-map lenses/cellphone_asphere.json
 --recalibrate lenses/best_focus/cellphone_asphere.json --psf models/psf_cellphone.onnx --calibrate-at
 0.07,0.1,0.15,0.3,0.5 --sweep-d 5.5 --calibrate-radii 0,0.3,0.5,0.6,0.65,0.7,0.75,0.8,0.85,0.9,0.95
@@ -30,8 +30,9 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks import RESULTS
+from benchmarks import bench_calibrate as bc
 from benchmarks.bench_calibrate import ROOT
-from benchmarks.probes.calibrate_phone_offset import floor_peaks, floor_stacks, part_step
+from benchmarks.probes.calibrate_phone_offset import floor_peaks, floor_stacks, part_step, part_tiles_vs_truth
 
 SETTINGS = (("cellphone", 0.1, 0.0), ("cellphone", 0.1, 0.75), ("rf50", 1.0, 0.0), ("rf50", 1.0, 0.75))
 # (measure, pyramid levels, pre-filter px): the runtime's measure and its 1 px pre-filter; `narrowband` is a
@@ -49,6 +50,7 @@ def main(argv=None) -> int:
                     help="measure:levels:prefilter_px, comma-separated")
     ap.add_argument("--chart-fit", type=float, default=None, metavar="STEP_PX",
                     help="also fit the nominal phone sweeps with each measure, the benchmark's and STEP_PX apart")
+    ap.add_argument("--tiles", action="store_true", help="only the tiles' peaks against each measure's truth (2 min)")
     ap.add_argument("--out", default=str(RESULTS / "measure_texture.json"))
     a = ap.parse_args(argv)
     variants = [(v.split(":")[0], int(v.split(":")[1]), float(v.split(":")[2])) for v in a.variants.split(",")]
@@ -65,11 +67,17 @@ def main(argv=None) -> int:
                                                       abs(v["coarse_min_d"] - v["dense_peak_d"])) for v in t)))
             rows.append(r)
     fits = []
-    if a.chart_fit:
+    if a.chart_fit or a.tiles:
         for meas, pf, truth_map in CHART_FITS:
-            for label, r in part_step(a.chart_fit, measure=meas, prefilter_px=pf, truth_map=truth_map).items():
+            steps = {} if a.tiles else part_step(a.chart_fit, measure=meas, prefilter_px=pf, truth_map=truth_map)
+            for label, r in steps.items():
                 fits.append({"sweeps": label, **r})
                 print(f"  chart fit, {meas}, {label} sweeps: {r['rms_d']:.3f} D", file=sys.stderr, flush=True)
+            # where its tiles' peaks lie against its truth, by chart and field zone (the benchmark's sweeps)
+            rig = bc.Rig(bc.LENSES["cellphone"], truth_map, meas, pf)
+            sweeps = [bc.sweep(rig, "nominal", i, lambda m: None) for i in range(3)]
+            for t in part_tiles_vs_truth(rig, bc.measures(rig, sweeps, "nominal")):
+                fits.append({"tiles_vs_truth": True, "measure": meas, **t})
     from aat_deploy.io.atomic import write_text_atomic
 
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
@@ -78,11 +86,15 @@ def main(argv=None) -> int:
     if fits:
         print("\n| measure, pre-filter | nominal sweeps | step (px / D) | family | tile residual RMS (D) | map RMS inside "
               "(D) | centre / middle / outer (D) |\n|---|---|---|---|---|---|---|")
-        for f in fits:
+        for f in (f for f in fits if "tiles_vs_truth" not in f):
             z = f["zone_rms_d"]
             print(f"| {f['measure']}, {f['prefilter_px']:g} px | {f['sweeps']} | {f['step_px']:g} / {f['step_d']:.2f} | "
                   f"{f['family']} | {f['residual_rms_d']:.3f} | {f['rms_d']:.3f} | {z['centre']:.3f} / "
                   f"{z['middle']:.3f} / {z['outer']:.3f} |")
+        print("\n| measure | chart (m) | field radius | tiles | tile peak - its truth's: mean (SD) (D) |\n|---|---|---|---|---|")
+        for f in (f for f in fits if "tiles_vs_truth" in f):
+            print(f"| {f['measure']} | {f['chart_m']:g} | {f['zone'][0]:g}-{min(f['zone'][1], 1):g} | {f['tiles']} | "
+                  f"{f['mean_d']:+.3f} ({f['sd_d']:.3f}) |")
     return 0
 
 
