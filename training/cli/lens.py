@@ -318,8 +318,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "point with 3)")
     p.add_argument("--calibrate-measure", default=None, choices=sorted(MEASURES), metavar="NAME",
                    help="the focus measure whose peak the map is calibrated to (default: the runtime's, mlap2; "
-                        "narrowband: a measure whose peak moves less with the texture, for chart calibrations; "
-                        "docs/calibration.md). The map then belongs to that measure")
+                        "narrowband: its peak moves less with the texture, but on noisy chart sweeps it did not "
+                        "calibrate better; BENCHMARKS.md). The map then belongs to that measure")
     p.add_argument("--calibrate-prefilter-px", type=float, default=None, metavar="PX",
                    help="that measure's pre-filter (Gaussian sigma, px; default the runtime's 1 px; narrowband: 0)")
     p.add_argument("--recalibrate", default=None, metavar="MAP.json",
