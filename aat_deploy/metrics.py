@@ -66,6 +66,32 @@ def depth_metrics(pred_m: np.ndarray, gt_m: np.ndarray, focus_range_m: tuple[flo
     }
 
 
+def frame_error(pred_m: np.ndarray, gt_m: np.ndarray, frame_diopters: np.ndarray,
+                mask: np.ndarray | None = None) -> dict[str, float]:
+    """Depth error in frame spacings (the any-camera net's loss units, training.train.loss.focus_map_loss): per
+    pixel |1/p - 1/g| / ((max_s D_s - min_s D_s) / (S - 1)), D_s the in-focus diopters of frame s at that pixel
+    (frame_diopters (S, H, W), 1/m from the sensor plane; spacing at least 1e-3 D as in the loss), averaged over the
+    valid pixels whose true diopters lie inside that pixel's own frame range (what depth from focus can reach; pass
+    `mask` (H, W) bool to use another set of pixels instead). Returns {"frames_l1", "n_valid"} (NaN, 0 when no
+    pixel counts)."""
+    p = np.asarray(pred_m, np.float64)
+    g = np.asarray(gt_m, np.float64)
+    fd = np.asarray(frame_diopters, np.float64)
+    if p.shape != g.shape or fd.shape[1:] != g.shape:
+        raise ValueError(f"frame_error: prediction {p.shape}, ground truth {g.shape} and maps {fd.shape} differ")
+    m = valid_mask(g)
+    inv_g = 1.0 / np.where(m, g, 1.0)
+    if mask is None:
+        m &= (inv_g >= fd.min(0)) & (inv_g <= fd.max(0))
+    else:
+        m &= np.asarray(mask, bool)
+    if not m.any():
+        return {"frames_l1": float("nan"), "n_valid": 0}
+    spacing = np.maximum((fd.max(0) - fd.min(0)) / max(fd.shape[0] - 1, 1), 1e-3)
+    err = np.abs(1.0 / np.maximum(p, 1e-9) - inv_g) / spacing
+    return {"frames_l1": float(err[m].mean()), "n_valid": int(m.sum())}
+
+
 def psnr(pred: np.ndarray, ref: np.ndarray, data_range: float = 1.0) -> float:
     """Peak signal-to-noise ratio in dB over all pixels and channels (inf for identical images)."""
     p = np.asarray(pred, dtype=np.float64)

@@ -10,6 +10,18 @@ per-pixel in-focus diopters; the classical method (`aat_deploy.focus.classical_d
 aat_deploy.metrics over pixels inside each stack's focus range, averaged over items. Prints a markdown table, and
 with checkpoints the paired ratios (each later checkpoint against the first, each against the classical method
 with the map) with 95 % bootstrap intervals over the items: a new run's gain over an earlier net on the same items.
+
+    OMP_NUM_THREADS=1 python -m benchmarks.anycam_val_baseline --frames-set [configs/anycam/val_frames256.json]
+        [--render] --checkpoint REFERENCE.pt OTHER.pt MODEL.onnx ... [--out results/anycam_val_frames256.json]
+
+`--frames-set`: the comparison of nets that resolves about 20 %: the set's own items (configs/anycam/
+val_frames256.json: 256 validation draws of the fourth and fifth runs' distribution, sweeps of under 9 px of total
+blur change left out: they carry no depth signal), each net (.pt checkpoint or exported .onnx) scored per item in
+frame spacings (`aat_deploy.metrics.frame_error`, the loss's units, pixels inside each pixel's frame range) and in
+metres (pixels inside the nominal focus range), the classical method with the map beside them; paired ratios
+against the first `--checkpoint` (the reference) with 95 % bootstrap intervals over the items. `--render` renders
+the set's missing items into its cache (cache/stacks) and stops. Per-item scores go to `--out` (merged: a model
+already scored there, same file content, is not scored again).
 """
 
 from __future__ import annotations
@@ -29,7 +41,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--per-item", action="store_true",
                     help="also each item's MAE per method, and its map's least in-focus diopters (a map past infinity, "
                          "< 0, makes the classical estimate 1 km where a far frame is sharpest)")
+    ap.add_argument("--frames-set", nargs="?", const=str(ROOT / "configs" / "anycam" / "val_frames256.json"),
+                    default=None, help="score on this validation set's config instead (see the module docstring)")
+    ap.add_argument("--render", action="store_true", help="with --frames-set: render its missing items and stop")
+    ap.add_argument("--out", default=str(ROOT / "results" / "anycam_val_frames256.json"),
+                    help="with --frames-set: the per-item scores (JSON, merged)")
     a = ap.parse_args(argv)
+    if a.frames_set:
+        return frames_set_main(Path(a.frames_set), a.checkpoint, a.render, Path(a.out))
     import numpy as np
     import torch
 
@@ -100,6 +119,159 @@ def paired_ratios(accs: dict, nets: list[str]) -> dict[str, list[float]]:
         if both:
             out[f"{b} / {a}"] = paired_ratio([x for x, _ in both], [y for _, y in both], "mae")
     return out
+
+
+def frames_set(path: Path):
+    """(config dict, AnyCamDataset, selected indices) of a --frames-set config: of its data's first n_items draws,
+    the first `items` whose dense sweep changes the blur by at least `min_span_px` (decided from the draw alone)."""
+    import json
+
+    import numpy as np
+
+    from training.data.anycam import AnyCamConfig, AnyCamDataset
+
+    try:
+        spec = json.loads(path.read_text())
+        ds = AnyCamDataset(AnyCamConfig(**spec["data"]))
+        n, floor = int(spec["items"]), float(spec["min_span_px"])
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise SystemExit(f"{path}: not a validation-set config ({e})") from None
+    if not ds.cfg.fixed_subsets:
+        raise SystemExit(f"{path}: data.fixed_subsets must be true (validation items)")
+    keep = [i for i in range(ds.cfg.n_items)
+            if ds.draw_sweep(np.random.default_rng([ds.cfg.seed, i, 35]), i).span_px() >= floor]
+    if len(keep) < n:
+        raise SystemExit(f"{path}: only {len(keep)} of {ds.cfg.n_items} draws reach {floor:g} px; raise n_items")
+    return spec, ds, keep[:n]
+
+
+def load_net(path: Path):
+    """(predict(item) -> depth_m (H, W), step) of a .pt checkpoint (training.train.loop.load_trained; or a bare
+    state dict of the dfvaat net, as the fine-tune probe saves) or an exported any-camera .onnx."""
+    import numpy as np
+
+    if path.suffix == ".onnx":
+        import onnxruntime as ort
+
+        so = ort.SessionOptions()
+        so.intra_op_num_threads = so.inter_op_num_threads = 1
+        sess = ort.InferenceSession(str(path), so, providers=["CPUExecutionProvider"])
+
+        def run_onnx(it):
+            fd = it["focus_diopters"].numpy()
+            order = np.argsort(-fd.mean((1, 2)), kind="stable")  # near -> far, as the runtime feeds it
+            feeds = {"stack": it["stack"].numpy()[order][None].astype(np.float32),
+                     "focus_diopters": fd[order][None].astype(np.float32),
+                     "defocus_px_per_d": it["defocus_px_per_d"].numpy()[None].astype(np.float32)}
+            return sess.run(None, feeds)[0][0]
+        return run_onnx, "onnx"
+    import torch
+
+    from training.nets.dfvaat import NET_NAME, predict
+    from training.nets.model import build_model
+    from training.train.checkpoint import load
+    from training.train.loop import load_trained
+
+    state = load(path)
+    if "config" in state:
+        model, _ = load_trained(path)
+    else:
+        model = build_model(NET_NAME, "small", 0)
+        model.load_state_dict(state["model"])
+    model.eval()
+
+    def run_pt(it):
+        with torch.no_grad():
+            return predict(model, it["stack"][None], it["focus_diopters"][None],
+                           it["defocus_px_per_d"][None])["depth_m"][0].numpy()
+    return run_pt, state.get("step", state.get("steps"))
+
+
+def score_items(predict_fn, ds, indices: list[int], desc: str) -> list[dict]:
+    """Per item of `indices`: frames_l1 (aat_deploy.metrics.frame_error), mae and delta1 in metres over the pixels
+    inside the nominal focus range, frames (S as read) and span_px (blur change over the frames read)."""
+    import numpy as np
+    from tqdm import tqdm
+
+    from aat_deploy.metrics import depth_metrics, frame_error
+
+    rows = []
+    for i in tqdm(indices, desc=desc, unit="item", file=sys.stderr):
+        it = ds[ds.items.index(i)]
+        d = np.asarray(predict_fn(it), np.float64)
+        gt, fd, focus = it["depth_m"].numpy(), it["focus_diopters"].numpy(), it["focus_m"].numpy()
+        m = depth_metrics(d, gt, (float(focus.min()), float(focus.max())))
+        f = frame_error(d, gt, fd)
+        rows.append({"index": i, "frames_l1": f["frames_l1"], "n_frames_px": f["n_valid"], "mae": m["mae"],
+                     "delta1": m["delta1"], "frames": int(fd.shape[0]),
+                     "span_px": float(it["defocus_px_per_d"].mean() * (fd.mean((1, 2)).max() - fd.mean((1, 2)).min()))})
+    return rows
+
+
+def frames_set_main(path: Path, models: list[str], render: bool, out: Path) -> int:
+    import hashlib
+    import json
+
+    import numpy as np
+    import torch
+    from tqdm import tqdm
+
+    from aat_deploy.eval.stats import paired_ratio
+    from aat_deploy.focus import classical_depth
+    from aat_deploy.io.atomic import write_text_atomic
+
+    torch.set_num_threads(1)
+    spec, ds, idx = frames_set(path)
+    if render:
+        for i in tqdm(idx, desc=f"{spec['name']}: render", unit="item", file=sys.stderr):
+            if not ds.is_cached(i):
+                ds.load_or_render(i)
+        print(f"{ds.cache}: {sum(ds.is_cached(i) for i in idx)} of {len(idx)} items cached")
+        return 0
+    if not models:
+        raise SystemExit("--frames-set: give the nets to score with --checkpoint (the first is the reference)")
+    res = json.loads(out.read_text()) if out.is_file() else {}
+    if res.get("set") not in (None, spec["name"]) or res.get("indices") not in (None, idx):
+        raise SystemExit(f"{out}: holds scores of another set; choose another --out")
+    res.update({"set": spec["name"], "config": str(path), "cache": str(ds.cache), "indices": idx})
+    scores = res.setdefault("models", {})
+
+    def save():
+        out.parent.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(out, json.dumps(res, indent=1))
+
+    if "classical, per-pixel map" not in scores:
+        scores["classical, per-pixel map"] = {"rows": score_items(
+            lambda it: classical_depth(it["stack"].numpy(), it["focus_m"].numpy(),
+                                       frame_diopters=it["focus_diopters"].numpy()).depth_m, ds, idx, "classical")}
+        save()
+    labels = []
+    for m in models:
+        p = Path(m)
+        sha = hashlib.sha256(p.read_bytes()).hexdigest()[:16]
+        label = f"{p.parent.name}/{p.name}"
+        labels.append(label)
+        if scores.get(label, {}).get("sha256") == sha:
+            continue
+        fn, step = load_net(p)
+        scores[label] = {"path": str(p), "sha256": sha, "step": step, "rows": score_items(fn, ds, idx, label)}
+        save()
+    ref = labels[0]
+    print(f"\n#### {spec['name']}: {len(idx)} validation items (sweeps of >= {spec['min_span_px']:g} px of blur "
+          f"change), reference {ref}\n")
+    print("| net | step | frames L1 (frame spacings) | / reference [95 %] | MAE (m) | / reference [95 %] | δ1 |")
+    print("|---|---|---|---|---|---|---|")
+    for label in [*labels, "classical, per-pixel map"]:
+        rows, rrows = scores[label]["rows"], scores[ref]["rows"]
+        cells = []
+        for key in ("frames_l1", "mae"):
+            both = [(x, y) for x, y in zip(rows, rrows) if np.isfinite(x[key]) and np.isfinite(y[key])]
+            mean = float(np.mean([x[key] for x, _ in both]))
+            r = paired_ratio([x for x, _ in both], [y for _, y in both], key)
+            cells += [f"{mean:.3f}", f"{r[0]:.2f} [{r[1]:.2f}, {r[2]:.2f}] ({len(both)})"]
+        d1 = np.nanmean([x["delta1"] for x in rows])
+        print(f"| {label} | {scores[label].get('step', '')} | " + " | ".join(cells) + f" | {d1:.3f} |")
+    return 0
 
 
 if __name__ == "__main__":

@@ -125,3 +125,21 @@ def test_accumulator_aif_metrics():
 def test_shape_mismatch_is_an_error():
     with pytest.raises(ValueError, match="shape"):
         depth_metrics(np.ones((2, 2)), np.ones((2, 3)))
+
+
+def test_frame_error_hand_computed_in_frame_spacings_inside_each_pixels_frame_range():
+    """frame_error: |1/p - 1/g| / the pixel's frame spacing, over pixels whose true diopters its frames reach."""
+    from aat_deploy.metrics import frame_error
+
+    fd = np.stack([np.full((2, 2), 2.0), np.full((2, 2), 1.5), np.full((2, 2), 1.0)])  # spacing 0.5 D
+    fd[:, 1, 1] = [4.0, 2.5, 1.0]  # spacing 1.5 D at this pixel
+    gt = np.array([[0.5, 0.25], [0.0, 0.5]])  # 2 D inside; 4 D beyond the near frame (2 D); invalid; 2 D inside
+    pred = np.array([[1.0, 1.0], [1.0, 1.0]])  # 1 D everywhere
+    r = frame_error(pred, gt, fd)
+    assert r["n_valid"] == 2
+    assert r["frames_l1"] == pytest.approx(((2 - 1) / 0.5 + (2 - 1) / 1.5) / 2)
+    every = frame_error(pred, gt, fd, mask=np.ones((2, 2), bool))  # the beyond-range pixel too: (4 - 1) / 0.5
+    assert every["n_valid"] == 3 and every["frames_l1"] == pytest.approx((2 + 2 / 3 + 6) / 3)
+    assert frame_error(pred, np.full((2, 2), 0.1), fd)["n_valid"] == 0  # 10 D: beyond every pixel's frames
+    with pytest.raises(ValueError, match="differ"):
+        frame_error(pred, gt, fd[:, :1])

@@ -28,7 +28,9 @@ class LossConfig:
     all-in-focus image. smooth: edge-aware Charbonnier smoothness of depth (weights exp(-smooth_edge |grad I|)).
     level_weights: per output level, finest first (DFVNet's deep supervision; missing levels get 0).
     mask_focus_range: also mask ground truth outside each stack's focus range (for the dfvaat net only in its
-    validation: its loss scores every pixel, training.train.loss.focus_map_loss)."""
+    validation: its loss scores every pixel, training.train.loss.focus_map_loss). out_of_range_weight (the dfvaat
+    net's loss only): the weight of pixels whose true diopters lie outside their own frames' range, which no
+    interpolation of the frames can reach (1: every pixel alike, as the first five any-camera runs; 0: left out)."""
 
     depth: float = 1.0
     aif: float = 0.0
@@ -37,6 +39,7 @@ class LossConfig:
     level_weights: tuple[float, ...] = (1.0,)
     mask_focus_range: bool = False
     depth_space: str = "m"  # "m": L1 on depth in metres (the paper's); "diopter": L1 on inverse depth (1/m)
+    out_of_range_weight: float = 1.0
 
 
 @dataclass
@@ -92,6 +95,8 @@ class TrainConfig:
             raise ConfigError(f"config {self.name}: field_channels must be one of {net.field_channels}")
         if self.loss.depth_space not in ("m", "diopter"):
             raise ConfigError(f"config {self.name}: loss.depth_space must be 'm' or 'diopter'")
+        if not 0.0 <= self.loss.out_of_range_weight <= 1.0:
+            raise ConfigError(f"config {self.name}: loss.out_of_range_weight must be within [0, 1]")
         if not self.loss.level_weights or sum(self.loss.level_weights) <= 0:
             raise ConfigError(f"config {self.name}: loss.level_weights must have a positive sum")
         return self
@@ -110,6 +115,8 @@ class TrainConfig:
             d.pop("field_channels")  # likewise
         if d["loss"].get("depth_space") == "m":
             d["loss"].pop("depth_space")  # likewise
+        if d["loss"].get("out_of_range_weight") == 1.0:
+            d["loss"].pop("out_of_range_weight")  # likewise
         return config_hash(d)
 
 

@@ -25,6 +25,14 @@ def masked_l1(pred: Tensor, gt: Tensor, mask: Tensor) -> Tensor:
     return diff.sum() / mask.sum().clamp_min(1)
 
 
+def weighted_l1(pred: Tensor, gt: Tensor, weight: Tensor) -> Tensor:
+    """sum w |pred - gt| / sum w over pixels of weight w >= 0 (0, still connected to the graph, when all are 0);
+    gt is not read where w = 0. With 0 / 1 weights it is masked_l1."""
+    diff = torch.where(weight > 0, (pred - torch.where(weight > 0, gt, torch.zeros_like(gt))).abs(),
+                       torch.zeros_like(pred))
+    return (weight * diff).sum() / weight.sum().clamp_min(1e-12)
+
+
 def edge_aware_smoothness(depth_m: Tensor, image: Tensor, edge: float = 150.0, eps: float = 1e-3) -> Tensor:
     """Charbonnier of depth gradients weighted by exp(-edge * mean_c |image gradient|).
     depth_m (B, H, W), image (B, 3, H, W)."""
@@ -86,9 +94,13 @@ def focus_map_loss(levels: list[tuple], batch: dict[str, Tensor], cfg: LossConfi
     med = torch.stack([g[m].median() if m.any() else g.new_tensor(1.0) for g, m in zip(gt, mask)])[:, None, None]
     weights = list(cfg.level_weights)[: len(levels)]
     wsum = sum(weights)
-    l_frames = sum(w * masked_l1(lv[3] / spacing, inv_gt / spacing, mask) for w, lv in zip(weights, levels)) / wsum
-    total = cfg.depth * l_frames
     inside = mask & (inv_gt <= fd.max(1).values) & (inv_gt >= fd.min(1).values)  # what depth from focus can reach
+    # pixels beyond their frames' range weigh cfg.out_of_range_weight: their error's floor (the distance to the
+    # nearest end frame) is no interpolation's to remove, and L1's gradient there never fades
+    px_w = torch.where(inside, torch.ones_like(gt), torch.full_like(gt, float(cfg.out_of_range_weight))) * mask
+    l_frames = sum(w * weighted_l1(lv[3] / spacing, inv_gt / spacing, px_w)
+                   for w, lv in zip(weights, levels)) / wsum
+    total = cfg.depth * l_frames
     parts = {"frames_l1": float(masked_l1(levels[0][3].detach() / spacing, inv_gt / spacing, mask)),
              "frames_l1_in_range": float(masked_l1(levels[0][3].detach() / spacing, inv_gt / spacing, inside)),
              "rel_l1": float(masked_l1(levels[0][0].detach() / med, gt / med, mask)),

@@ -316,3 +316,27 @@ def test_the_best_validation_weights_are_kept(tmp_path):
 
     md, err = export_checkpoint(tmp_path / "r" / "best.pt", tmp_path / "best.onnx")  # exported as model.pt is
     assert md["aat.net"] == "dfvaat" and err < 1e-3
+
+
+def test_focus_map_loss_weighs_pixels_beyond_their_frames_by_out_of_range_weight():
+    """loss.out_of_range_weight: 1 scores every valid pixel alike (the first runs' loss, bit for bit as before), 0
+    only the pixels whose true diopters their frames reach, 0.5 halves the others' weight; hand-computed."""
+    from training.train.loss import focus_map_loss
+
+    fd = torch.tensor([2.0, 1.5, 1.0])[None, :, None, None].expand(1, 3, 1, 3).clone()  # spacing 0.5 D
+    gt = torch.tensor([[[0.5, 1.0, 0.25]]])  # 2 D, 1 D inside; 4 D beyond the nearest frame (2 D)
+    pred_d = torch.tensor([[[1.5, 1.5, 2.0]]])  # errors 1, 1, 4 frame spacings
+    levels = [(1 / pred_d, None, None, pred_d)]
+    batch = {"depth_m": gt, "focus_diopters": fd}
+
+    def loss(w):
+        return float(focus_map_loss(levels, batch, LossConfig(out_of_range_weight=w))[0])
+
+    assert loss(1.0) == pytest.approx((1 + 1 + 4) / 3)
+    assert loss(1.0) == float(masked_l1(pred_d / 0.5, 1 / gt / 0.5, depth_mask(gt)))
+    assert loss(0.0) == pytest.approx(1.0)
+    assert loss(0.5) == pytest.approx((1 + 1 + 0.5 * 4) / 2.5)
+    d = json.loads((ROOT / "configs/anycam/dfv_aat_v5.json").read_text())
+    assert config_from_dict(d).hash() == config_from_dict({**d, "loss": {**d["loss"], "out_of_range_weight": 1.0}}).hash()
+    with pytest.raises(ConfigError, match="out_of_range_weight"):
+        config_from_dict({**d, "loss": {**d["loss"], "out_of_range_weight": 2.0}})

@@ -1,0 +1,46 @@
+"""benchmarks/anycam_val_baseline.py --frames-set: the set keeps the first draws whose sweep changes the blur by at
+least its floor, and an exported .onnx and its .pt checkpoint score alike (frames given far -> near are sorted)."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+from conftest import ROOT
+
+from benchmarks.anycam_val_baseline import frames_set, load_net
+
+
+def _spec(tmp_path, items, floor, n_items=40):
+    d = json.loads((ROOT / "configs/anycam/val_frames256.json").read_text())
+    d["items"], d["min_span_px"] = items, floor
+    d["data"] = {**d["data"], "n_items": n_items, "cache_dir": None}
+    p = tmp_path / "set.json"
+    p.write_text(json.dumps(d))
+    return p
+
+
+def test_the_set_keeps_the_first_draws_of_enough_blur_change_in_index_order(tmp_path):
+    spec, ds, idx = frames_set(_spec(tmp_path, 6, 9.0))
+    span = [ds.draw_sweep(np.random.default_rng([ds.cfg.seed, i, 35]), i).span_px() for i in range(40)]
+    assert idx == [i for i in range(40) if span[i] >= 9.0][:6]
+    assert any(s < 9.0 for s in span[: idx[-1]])  # some draws were left out before the last kept one
+    with pytest.raises(SystemExit, match="raise n_items"):
+        frames_set(_spec(tmp_path, 40, 9.0))
+
+
+def test_onnx_and_checkpoint_of_one_net_score_alike_whatever_the_frame_order():
+    pt, onnx = ROOT / "checkpoints/dfv_aat_v1/last.pt", ROOT / "models/reproduce/dfv_aat_v1.onnx"
+    if not (pt.is_file() and onnx.is_file()):
+        pytest.skip("the first any-camera run's checkpoint or export is not in this checkout")
+    rng = np.random.default_rng(0)
+    s, h, w = 5, 64, 64
+    fd = np.linspace(0.2, 2.0, s)[:, None, None] + 0.05 * rng.random((s, h, w))  # ascending: far -> near
+    item = {"stack": torch.from_numpy(rng.random((s, 3, h, w), np.float32) - 0.5),
+            "focus_diopters": torch.from_numpy(fd.astype(np.float32)),
+            "defocus_px_per_d": torch.full((1, h, w), 8.0)}
+    a, b = load_net(pt)[0](item), load_net(onnx)[0](item)
+    assert a.shape == (h, w) and np.isfinite(a).all()
+    np.testing.assert_allclose(b, a, rtol=1e-3)
+    flipped = {**item, "stack": item["stack"].flip(0), "focus_diopters": item["focus_diopters"].flip(0)}
+    np.testing.assert_allclose(load_net(onnx)[0](flipped), a, rtol=1e-3)
