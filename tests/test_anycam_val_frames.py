@@ -44,3 +44,12 @@ def test_onnx_and_checkpoint_of_one_net_score_alike_whatever_the_frame_order():
     np.testing.assert_allclose(b, a, rtol=1e-3)
     flipped = {**item, "stack": item["stack"].flip(0), "focus_diopters": item["focus_diopters"].flip(0)}
     np.testing.assert_allclose(load_net(onnx)[0](flipped), a, rtol=1e-3)
+
+
+def test_metre_spread_names_the_share_of_the_worst_items_hand_computed():
+    from benchmarks.anycam_val_baseline import metre_spread
+
+    rows = [{"mae": m, "frames_l1": f} for m, f in zip([1.0] * 19 + [81.0], [1.0] * 20)] + [
+        {"mae": float("nan"), "frames_l1": 1.0}]
+    text = metre_spread(rows, "ref")
+    assert "worst 1 of 20 items carry 81% of the summed MAE (m) and 5% of the summed frame error" in text

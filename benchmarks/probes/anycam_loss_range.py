@@ -2,7 +2,7 @@
 
     OMP_NUM_THREADS=1 nice -n 10 python -m benchmarks.probes.anycam_loss_range [--config configs/anycam/dfv_aat_v4.json]
         [--init checkpoints/dfv_aat_v1/last.pt] [--only shares,modes,mosaic,ft] [--batches 24] [--steps 120]
-        [--lr 1e-4] [--weights 1,0]
+        [--lr 1e-4] [--weights 1,0] [--seed 2] [--mosaic P]
 
 A pixel whose true diopters lie outside its own frames' range (`training.train.loss.focus_map_loss`'s `inside`) has
 an error no interpolation of the frames removes (at least its distance to the nearest end frame) and an L1 gradient
@@ -19,7 +19,8 @@ written after each):
   mode, in-range loss: does a quadrant lose anything by its neighbours;
 - `ft_w{W}`: the starting weights after `--steps` Adam steps (lr `--lr`, fresh moments, the run's clipping) with
   loss.out_of_range_weight W (1: the runs' loss, 0: out-of-range pixels left out), the same batches for every W
-  (benchmarks.probes.anycam_finetune.fine_tune), and then the held batches' loss parts in eval mode. Their weights
+  (benchmarks.probes.anycam_finetune.fine_tune; `--seed` picks the batches, `--mosaic` their chance of a 2 x 2
+  layout), and then the held batches' loss parts in eval mode. Their weights
   go to cache/probes/anycam_loss_range/ for `benchmarks.anycam_val_baseline --frames-set --checkpoint`.
 """
 
@@ -139,6 +140,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--steps", type=int, default=120)
     ap.add_argument("--lr", type=float, default=1e-4)
     ap.add_argument("--weights", default="1,0", help="out_of_range_weight of the fine-tune rows")
+    ap.add_argument("--seed", type=int, default=2, help="the fine-tunes' batches (2: anycam_finetune's)")
+    ap.add_argument("--mosaic", type=float, default=None, help="the fine-tunes' mosaic chance (default the config's)")
     ap.add_argument("--out", type=Path, default=ROOT / "results/anycam_loss_range.json")
     a = ap.parse_args(argv)
 
@@ -153,6 +156,10 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(1)
     cfg = load_config(a.config)
     train = AnyCamDataset(AnyCamConfig(**{**dict(cfg.data), "only_cached": True}))
+    ft_data = copy.copy(train)
+    if a.mosaic is not None:
+        ft_data.cfg = dataclasses.replace(train.cfg, mosaic=a.mosaic)
+    tag = ("" if a.seed == 2 else f"_seed{a.seed}") + ("" if a.mosaic is None else f"_mosaic{a.mosaic:g}")
     start = build_model(cfg.net, cfg.size, cfg.field_channels)
     start.load_state_dict(load(a.init)["model"])
     start.eval()
@@ -184,12 +191,13 @@ def main(argv: list[str] | None = None) -> int:
         for w in (float(x) for x in a.weights.split(",")):
             t = time.perf_counter()
             lc = dataclasses.replace(cfg.loss, out_of_range_weight=w)
-            m, mean_loss = fine_tune(start, train, a.steps, a.lr, False, cfg.grad_clip, lc)
-            path = saved / f"ft_w{w:g}_lr{a.lr:g}_{a.steps}.pt"
+            m, mean_loss = fine_tune(start, ft_data, a.steps, a.lr, False, cfg.grad_clip, lc, seed=a.seed)
+            path = saved / f"ft_w{w:g}_lr{a.lr:g}_{a.steps}{tag}.pt"
             torch.save({"model": m.state_dict(), "steps": a.steps, "lr": a.lr, "out_of_range_weight": w}, path)
-            put(f"ft_w{w:g}", {"checkpoint": str(path.relative_to(ROOT)), "train_frames_l1_mean": mean_loss,
-                               "eval_mode": loss_parts(m, held, False, cfg.loss),
-                               "s": round(time.perf_counter() - t, 1)})
+            put(f"ft_w{w:g}{tag}", {"seed": a.seed, "mosaic": ft_data.cfg.mosaic,
+                                    "checkpoint": str(path.relative_to(ROOT)), "train_frames_l1_mean": mean_loss,
+                                    "eval_mode": loss_parts(m, held, False, cfg.loss),
+                                    "s": round(time.perf_counter() - t, 1)})
     return 0
 
 
