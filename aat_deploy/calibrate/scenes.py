@@ -227,6 +227,25 @@ class BlindResult:
     warnings: list[str] = field(default_factory=list)
 
 
+MIN_TURN_SPREAD = 0.05  # least ratio of the turns' direction spread (about +-22 deg around one direction)
+
+
+def turn_spread(p: Pairs) -> float:
+    """How many directions the paired samples moved in across the field: the smaller over the larger eigenvalue
+    of the mean outer product of their unit displacement (x, y normalised field) directions; 0 when every pair
+    moved along one line (the camera turned one way only), 1 when all directions are alike. A field term changing
+    only across that line is then invisible: a point seen at (x, y1) and (x, y2) says nothing of how focus
+    changes with x."""
+    d = np.stack([p.xb - p.xa, p.yb - p.ya], 1)
+    n = np.linalg.norm(d, axis=1)
+    ok = n > 1e-6
+    if not ok.any():
+        return 0.0
+    u = d[ok] / n[ok, None]
+    ev = np.linalg.eigvalsh((u[:, :, None] * u[:, None, :]).mean(0))
+    return float(ev[0] / max(ev[1], 1e-12))
+
+
 def fit_from_scenes(scenes: list[SceneEstimate], identity: CameraIdentity, size_px: tuple[int, int],
                     sensor_mm=None, pupil_mm: float | None = None, degree: int = 2, focus_degree: int = 0,
                     n_boot: int = 50, progress=None, settings: dict | None = None) -> BlindResult:
@@ -240,6 +259,11 @@ def fit_from_scenes(scenes: list[SceneEstimate], identity: CameraIdentity, size_
     if len(p.homographies) == 0 or len(p) < 200:
         raise ValueError(f"only {len(p.homographies)} pairs of captures overlap ({len(p)} samples): blind calibration "
                          "needs captures of the same surfaces from a turning camera (pan or tilt between them)")
+    spread = turn_spread(p)
+    if spread < MIN_TURN_SPREAD:
+        raise ValueError(f"the captures turn one way only ({len(p.homographies)} overlapping pairs, direction spread "
+                         f"{spread:.3f} < {MIN_TURN_SPREAD}): the field term across that direction cannot be "
+                         "measured; turn the camera both ways between captures (pan and tilt)")
     if f_px is None:
         warnings.append(f"focal length {p.f_px:.0f} px fitted to the views' homographies (no --sensor-mm)")
     pupil_m = (pupil_mm if pupil_mm is not None else (identity.focal_length_mm or 0.0)) / 1000.0

@@ -86,6 +86,21 @@ def test_blind_calibration_recovers_a_sensor_tilt():
     assert float(np.sqrt(np.mean(np.square(errs)))) < 0.015
 
 
+def test_captures_turned_one_way_only_are_refused():
+    """Three views turned in pitch only (yaw -6 deg, pitch -6, 0, +6): every point moves vertically, so how focus
+    changes across the frame is not seen; the fit refuses in one line instead of returning a field term (the
+    benchmark's RF50 copy: 1.5 D off with three such views, 0.03 D with nine turned both ways)."""
+    from aat_deploy.calibrate.scenes import MIN_TURN_SPREAD, pair_samples, turn_spread
+
+    _, _, pupil = small_rf50()
+    scenes = [estimate_scene(f"view{k}", fr, rep) for k, (fr, rep) in enumerate(views())]
+    assert turn_spread(pair_samples(scenes[:3], None)) < 0.01 < 0.5 < turn_spread(pair_samples(scenes, None))
+    with pytest.raises(ValueError, match="turn one way only") as e:
+        fit_from_scenes(scenes[:3], CameraIdentity(focal_length_mm=49.56), (W, H), sensor_mm=(36.0, 24.0),
+                        pupil_mm=pupil, n_boot=5)
+    assert "\n" not in str(e.value) and f"< {MIN_TURN_SPREAD}" in str(e.value)
+
+
 def test_cli_from_scenes(tmp_path, capsys):
     """`aat-calibrate fit --from-scenes` on the views written as capture folders: a calibration whose field term
     has the tilt's sign and size (within 15 %), method `scenes`; captures that do not overlap are one line."""
