@@ -22,6 +22,9 @@ the test's views (degree 4 missed a vertical tilt by 21 %, degree 2 by 7 %); the
 diopters grow towards far focus, ~15 % between 0.7 and 1.5 m on a 50 mm lens) is weakly determined by scenes
 (a linear term fitted on the test's views moved the near end the wrong way); the chart fit resolves it.
 
+Captures that all turn one way (every pair's points move along one line) are refused (`turn_spread`): a field
+term that changes only across that line is invisible to them.
+
 What it cannot identify, and keeps from the reported focus: a common offset of every frame's focus (it moves every
 estimate alike; one known distance measures it: a chart sweep) and a common scale of the focus distances (a scene
 twice as far, focused twice as far, looks the same). The reported-focus error is therefore `none` in the file,
