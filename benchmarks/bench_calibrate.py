@@ -490,7 +490,8 @@ def world_views(rig: Rig, k: int, log) -> list[tuple[np.ndarray, np.ndarray]]:
     with atomic_file(f) as tmp:
         np.savez(tmp, **{f"frames{i}": fr.astype(np.float16) for i, (fr, _) in enumerate(out)},
                  **{f"reported{i}": rep for i, (_, rep) in enumerate(out)})
-    return out
+    # as the cache holds them (float16), so that a run that renders and one that reads the cache fit the same frames
+    return [(fr.astype(np.float16).astype(np.float32), rep) for fr, rep in out]
 
 
 def field_error(rig: Rig, pred: np.ndarray, truth: np.ndarray) -> float:

@@ -57,3 +57,26 @@ def test_every_copy_finds_its_tolerance_table():
         tol = [e for e in fx.parse(bc.effects_for(setup, "copy")) if type(e).__name__ == "LensTolerance"]
         assert len(tol) == 1 and tol[0].torch_reason(rig.ctx()) == ""
         assert tol[0]._table_path(rig.ctx()).parent == bc.ROOT / "models"
+
+
+def test_world_views_are_the_same_rendered_or_cached(tmp_path, monkeypatch):
+    """The blind part's views: the run that renders them and the runs that read them from the cache get the same
+    frames (the cache's float16), so two runs of part d fit the same data."""
+    import aat_deploy.calibrate.scene as scene
+    import aat_deploy.capture.virtual as virtual
+    import training.data.scenes as scenes
+
+    rig = bc.Rig(bc.LENSES["rf50"])
+    rng = np.random.default_rng(0)
+    monkeypatch.setattr(bc, "CACHE", tmp_path)
+    monkeypatch.setattr(scenes, "procedural_scene", lambda cfg, r: (np.zeros((cfg.height, cfg.width, 3), np.float32),
+                                                                    np.ones((cfg.height, cfg.width), np.float32)))
+    monkeypatch.setattr(scene, "turned_view", lambda rgb, z, f, yaw, pitch, w, h: (np.zeros((3, h, w)), np.ones((h, w))))
+    monkeypatch.setattr(virtual, "shoot", lambda *a, **k: (rng.random((8, 3, 4, 6)).astype(np.float32) / 3,
+                                                          np.linspace(0.5, 10, 8)))
+    fresh = bc.world_views(rig, 0, lambda m: None)
+    cached = bc.world_views(rig, 0, lambda m: None)
+    assert len(fresh) == len(cached) == 9
+    for (a, ra), (b, rb) in zip(fresh, cached):
+        np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(ra, rb)
