@@ -46,9 +46,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--render", action="store_true", help="with --frames-set: render its missing items and stop")
     ap.add_argument("--out", default=str(ROOT / "results" / "anycam_val_frames256.json"),
                     help="with --frames-set: the per-item scores (JSON, merged)")
+    ap.add_argument("--curve", default=None,
+                    help="with --frames-set: also a PNG of each run's checkpoints (same folder, a step each) against "
+                         "the reference in frame spacings, by step")
     a = ap.parse_args(argv)
     if a.frames_set:
-        return frames_set_main(Path(a.frames_set), a.checkpoint, a.render, Path(a.out))
+        return frames_set_main(Path(a.frames_set), a.checkpoint, a.render, Path(a.out),
+                               Path(a.curve) if a.curve else None)
     import numpy as np
     import torch
 
@@ -208,7 +212,7 @@ def score_items(predict_fn, ds, indices: list[int], desc: str) -> list[dict]:
     return rows
 
 
-def frames_set_main(path: Path, models: list[str], render: bool, out: Path) -> int:
+def frames_set_main(path: Path, models: list[str], render: bool, out: Path, curve: Path | None = None) -> int:
     import hashlib
     import json
 
@@ -272,7 +276,53 @@ def frames_set_main(path: Path, models: list[str], render: bool, out: Path) -> i
         d1 = np.nanmean([x["delta1"] for x in rows])
         print(f"| {label} | {scores[label].get('step', '')} | " + " | ".join(cells) + f" | {d1:.3f} |")
     print("\n(items) = items scored by both; " + metre_spread(scores[ref]["rows"], ref))
+    if curve is not None:
+        plot_curves(scores, labels, curve)
+        print(f"curve: {curve}")
     return 0
+
+
+def plot_curves(scores: dict, labels: list[str], path: Path) -> dict:
+    """PNG: per folder of checkpoints with integer steps (a run's copies), the paired ratio of frame spacings
+    against labels[0] with its 95 % interval, by step; 1 = the reference, and the classical method's ratio.
+    Returns {folder: [(step, ratio, low, high), ...]} as drawn."""
+    import math
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from aat_deploy.eval.stats import paired_ratio
+
+    ref = scores[labels[0]]["rows"]
+
+    def ratio(rows):
+        both = [(x, y) for x, y in zip(rows, ref) if math.isfinite(x["frames_l1"]) and math.isfinite(y["frames_l1"])]
+        return paired_ratio([x for x, _ in both], [y for _, y in both], "frames_l1")
+
+    runs: dict[str, list] = {}
+    for label in labels[1:]:
+        step = scores[label].get("step")
+        if isinstance(step, int):
+            runs.setdefault(label.split("/")[0], []).append((step, *ratio(scores[label]["rows"])))
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    for run, pts in runs.items():
+        pts.sort()
+        st, r, lo, hi = zip(*pts)
+        ax.errorbar(st, r, yerr=[[a - b for a, b in zip(r, lo)], [b - a for a, b in zip(r, hi)]], marker="o",
+                    capsize=3, label=run)
+    ax.axhline(1.0, color="k", lw=1, label=f"reference: {labels[0]}")
+    ax.axhline(ratio(scores["classical, per-pixel map"]["rows"])[0], color="grey", ls="--",
+               label="classical, per-pixel map")
+    ax.set_xlabel("step")
+    ax.set_ylabel("frame spacings / reference (95 % interval)")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return runs
 
 
 def metre_spread(rows: list[dict], label: str) -> str:

@@ -53,3 +53,19 @@ def test_metre_spread_names_the_share_of_the_worst_items_hand_computed():
         {"mae": float("nan"), "frames_l1": 1.0}]
     text = metre_spread(rows, "ref")
     assert "worst 1 of 20 items carry 81% of the summed MAE (m) and 5% of the summed frame error" in text
+
+
+def test_the_curve_groups_a_runs_checkpoints_by_folder_in_step_order(tmp_path):
+    from benchmarks.anycam_val_baseline import plot_curves
+
+    def rows(v):
+        return [{"frames_l1": v * (1 + 0.1 * k)} for k in range(8)] + [{"frames_l1": float("nan")}]
+
+    scores = {"ref/last.pt": {"step": 24000, "rows": rows(1.0)}, "classical, per-pixel map": {"rows": rows(2.0)},
+              "v5/step2000.pt": {"step": 2000, "rows": rows(1.5)}, "v5/step1000.pt": {"step": 1000, "rows": rows(3.0)},
+              "x/model.onnx": {"step": "onnx", "rows": rows(0.5)}}
+    runs = plot_curves(scores, ["ref/last.pt", "v5/step2000.pt", "v5/step1000.pt", "x/model.onnx"],
+                       tmp_path / "c.png")
+    assert list(runs) == ["v5"] and [p[0] for p in sorted(runs["v5"])] == [1000, 2000]
+    assert [round(p[1], 6) for p in sorted(runs["v5"])] == [3.0, 1.5]
+    assert (tmp_path / "c.png").stat().st_size > 1000
