@@ -315,6 +315,33 @@ def table(rows: list[dict]) -> None:
             print(f"{what}, {label}: {np.mean(t):.0f} s on average ({min(t):.0f}-{max(t):.0f} s, {len(t)} sets)")
 
 
+def compare(old: list[dict], new: list[dict]) -> None:
+    """Two runs of the same sets (e.g. before and after a change of the standard errors): per set in both, whether
+    the family and the corrected focus are the same, how far the corrected focus's standard errors moved (largest
+    relative change over the frames) and the frames reported undetermined before and after."""
+    a = {(r["capture"], r["kind"]): r for r in old}
+    b = {(r["capture"], r["kind"]): r for r in new}
+    both = sorted(set(a) & set(b))
+    print(f"\n{len(both)} sets in both\n")
+    print("| set | family same | corrected focus same (to 1e-4 D) | standard errors: largest relative change | "
+          "undetermined before -> after |")
+    print("|---|---|---|---|---|")
+    moved = []
+    for key in both:
+        x, y = a[key], b[key]
+        sx, sy = np.asarray(x.get("corrected_sd_d") or [[0.0]]), np.asarray(y.get("corrected_sd_d") or [[0.0]])
+        rel = float(np.max(np.abs(sy - sx) / np.maximum(sx, 1e-12))) if sx.shape == sy.shape and sx.any() else 0.0
+        moved.append(rel)
+        same_corr = np.allclose(x["corrected_err_d"], y["corrected_err_d"], atol=1e-4)
+        print(f"| {key[0]} {key[1]} | {'yes' if x['family'] == y['family'] else 'NO'} | "
+              f"{'yes' if same_corr else 'NO'} | {100 * rel:.2f} % | "
+              f"{x.get('frames_undetermined', 0)} -> {y.get('frames_undetermined', 0)} |")
+    fams = sum(a[k]["family"] == b[k]["family"] for k in both)
+    corr = sum(np.allclose(a[k]["corrected_err_d"], b[k]["corrected_err_d"], atol=1e-4) for k in both)
+    print(f"\nsame family in {fams}/{len(both)}, same corrected focus in {corr}/{len(both)}; standard errors moved "
+          f"by more than 1 % in {sum(m > 0.01 for m in moved)} set(s)")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--captures", type=int, default=3, help="the sample and this many minus one captures like it")
@@ -333,12 +360,18 @@ def main() -> None:
                     "without extra effects), not the whole diagnosis: minutes instead of a quarter hour per set, "
                     "for development; its rows are marked fit_only")
     ap.add_argument("--table", nargs="*", metavar="RESULTS", help="only print the table of these results files")
+    ap.add_argument("--compare", nargs=2, metavar=("OLD", "NEW"), help="only compare two results files set by set "
+                    "(family, corrected focus, its standard errors, undetermined frames)")
     ap.add_argument("--systematic", nargs="+", metavar="RESULTS", help="only print the family choice's hits per "
                     "setting of its systematic allowance (focusfit.SYSTEMATIC_D) on these results (rows with the "
                     "stored fits); tune it on the tuning capture's rows only")
     a = ap.parse_args()
     if a.table is not None:
         table([json.loads(x) for f in (a.table or [a.out]) for x in Path(f).read_text().splitlines() if x.strip()])
+        return
+    if a.compare:
+        old, new = ([json.loads(x) for x in Path(f).read_text().splitlines() if x.strip()] for f in a.compare)
+        compare(old, new)
         return
     if a.systematic:
         systematic_table([json.loads(x) for f in a.systematic for x in Path(f).read_text().splitlines() if x.strip()])
