@@ -1,0 +1,46 @@
+"""The focus benchmark's scoring (benchmarks/bench_diagnose_focus.py) on hand-made rows: whether an undetermined
+frame's interval holds the truth, the table's count of sets within 0.02 D, and the set-by-set comparison of two
+runs."""
+
+import numpy as np
+
+from benchmarks import bench_diagnose_focus as bench
+
+
+def test_undetermined_covers_reads_each_flagged_frames_interval_in_metres():
+    true_d = np.array([1.667, 1.0, 0.5])
+    f = {"corrected_focus": [{"total_ci_m": [[0.57, 0.61], [0.99, 1.01], [1.9, 2.1]],
+                              "undetermined": [True, False, True]}]}
+    assert bench.undetermined_covers(f, true_d) == [True, True]  # 0.6 m in 0.57-0.61, 2 m in 1.9-2.1
+    f["corrected_focus"][0]["total_ci_m"][0] = [0.61, 0.65]  # the truth, 0.600 m, outside
+    assert bench.undetermined_covers(f, true_d) == [False, True]
+    assert bench.undetermined_covers({"corrected_focus": [{"ci_m": [[0.5, 0.7]]}]}, true_d) is None  # older rows
+
+
+def _row(capture, kind, err, und=0, family="offset", sd=0.01):
+    return {"capture": capture, "kind": kind, "family_true": "offset", "family": family, "family_ok": True,
+            "corrected_max_err_d": err, "corrected_err_d": [err, 0.0], "reported_max_err_d": 0.05,
+            "frame_max_err_d": err, "frames_on_bound": 0, "frames_undetermined": und, "focus_named": True,
+            "focus_cause": True, "verdict": "explained", "fit_only": False, "corrected_sd_d": [[sd, sd]],
+            "undetermined_covers": [True] * und}
+
+
+def test_table_counts_an_undetermined_set_as_not_within_and_the_last_row_of_a_set(capsys):
+    rows = [_row("a", "offset_+0.05", 0.042), _row("b", "offset_+0.05", 0.004),
+            _row("a", "offset_+0.05", 0.042, und=1)]  # a later file's row of the same set replaces the first
+    bench.table(rows)
+    out = capsys.readouterr().out
+    assert "within 0.02 D of the truth in every frame: 1/2 sets" in out
+    assert "reported undetermined (not counted as within 0.02 D): 1/2" in out
+    assert "containing the truth in 1/1" in out
+    assert "sets over 0.02 D with every frame reported determined: none" in out
+
+
+def test_compare_says_what_moved_between_two_runs(capsys):
+    old = [_row("a", "quantised", 0.042, sd=0.02), _row("b", "scale_0.9", 0.004)]
+    new = [_row("a", "quantised", 0.042, und=1, sd=0.0276), _row("b", "scale_0.9", 0.004),
+           _row("c", "none", 0.0)]
+    bench.compare(old, new)
+    out = capsys.readouterr().out
+    assert "2 sets in both" in out and "| a quantised | yes | yes | 38.00 % | 0 -> 1 |" in out
+    assert "same family in 2/2, same corrected focus in 2/2; standard errors moved by more than 1 % in 1 set(s)" in out
