@@ -324,8 +324,8 @@ def compare(old: list[dict], new: list[dict]) -> None:
     both = sorted(set(a) & set(b))
     print(f"\n{len(both)} sets in both\n")
     print("| set | family same | corrected focus same (to 1e-4 D) | standard errors: largest relative change | "
-          "undetermined before -> after |")
-    print("|---|---|---|---|---|")
+          "undetermined before -> after | verdict and effects named same |")
+    print("|---|---|---|---|---|---|")
     moved = []
     for key in both:
         x, y = a[key], b[key]
@@ -335,11 +335,14 @@ def compare(old: list[dict], new: list[dict]) -> None:
         same_corr = np.allclose(x["corrected_err_d"], y["corrected_err_d"], atol=1e-4)
         print(f"| {key[0]} {key[1]} | {'yes' if x['family'] == y['family'] else 'NO'} | "
               f"{'yes' if same_corr else 'NO'} | {100 * rel:.2f} % | "
-              f"{x.get('frames_undetermined', 0)} -> {y.get('frames_undetermined', 0)} |")
+              f"{x.get('frames_undetermined', 0)} -> {y.get('frames_undetermined', 0)} | "
+              f"{'yes' if (x.get('verdict'), x.get('named')) == (y.get('verdict'), y.get('named')) else 'NO'} |")
     fams = sum(a[k]["family"] == b[k]["family"] for k in both)
     corr = sum(np.allclose(a[k]["corrected_err_d"], b[k]["corrected_err_d"], atol=1e-4) for k in both)
+    same = sum((a[k].get("verdict"), a[k].get("named")) == (b[k].get("verdict"), b[k].get("named")) for k in both)
     print(f"\nsame family in {fams}/{len(both)}, same corrected focus in {corr}/{len(both)}; standard errors moved "
-          f"by more than 1 % in {sum(m > 0.01 for m in moved)} set(s)")
+          f"by more than 1 % in {sum(m > 0.01 for m in moved)} set(s); same verdict and effects named in "
+          f"{same}/{len(both)}")
 
 
 def main() -> None:

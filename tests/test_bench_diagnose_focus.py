@@ -42,5 +42,9 @@ def test_compare_says_what_moved_between_two_runs(capsys):
            _row("c", "none", 0.0)]
     bench.compare(old, new)
     out = capsys.readouterr().out
-    assert "2 sets in both" in out and "| a quantised | yes | yes | 38.00 % | 0 -> 1 |" in out
-    assert "same family in 2/2, same corrected focus in 2/2; standard errors moved by more than 1 % in 1 set(s)" in out
+    assert "2 sets in both" in out and "| a quantised | yes | yes | 38.00 % | 0 -> 1 | yes |" in out
+    assert ("same family in 2/2, same corrected focus in 2/2; standard errors moved by more than 1 % in 1 set(s); "
+            "same verdict and effects named in 2/2") in out
+    new[0]["verdict"] = "partly_explained"
+    bench.compare(old, new)
+    assert "same verdict and effects named in 1/2" in capsys.readouterr().out
