@@ -9,7 +9,7 @@ the camera's user knows:
 Channel 1 is each frame's defocus position in pixels of blur, k (D_s - mean_s D_s) / 16: how much sharper or blurrier
 than its neighbours frame s makes a point, whatever the camera; channel 2 is log2(k) / 4. They enter every level's
 per-frame features as a bias, a 1x1 convolution of the channels averaged down to that level's scale (`Conditioned
-DFVNet`), not as image channels: a nearly constant image channel through the zero-padded 7x7 stem marks the image
+DFVNet`; computed in the cheaper order `cond_bias` documents, the same math), not as image channels: a nearly constant image channel through the zero-padded 7x7 stem marks the image
 border, and the first run's net learnt rings from the border instead of focus. The head interpolates the
 per-pixel focus diopters: D = sum_s p_s D_s(pixel) with p = softmax over S, depth_m = 1 / D. A pixel that is sharpest
 in frame s is placed where that frame really focuses at that pixel, so the map's aberrations (field curvature,
@@ -39,18 +39,36 @@ CONFIGS = {"small": replace(DFVNET_CONFIGS["small"], context_fuse=62)}
 
 
 def focus_channels(focus_diopters: Tensor, defocus_px_per_d: Tensor) -> Tensor:
-    """(B, S, H, W), (B, 1, H, W) -> (B, S, 2, H, W): blur position k (D_s - mean D) / 16 and log2(k) / 4."""
+    """(B, S, H, W), (B, 1, H, W) -> (B, S, 2, H, W): blur position k (D_s - mean D) / 16 and log2(k) / 4, the
+    conditioning channels by their definition (the net computes their pooled projection as `cond_bias` does)."""
     k = defocus_px_per_d.clamp_min(1e-3)
     pos = (focus_diopters - focus_diopters.mean(1, keepdim=True)) * k / 16.0
     lk = (torch.log2(k) / 4.0).expand_as(focus_diopters)
     return torch.stack([pos, lk], 2)
 
 
+def cond_inputs(focus_diopters: Tensor, defocus_px_per_d: Tensor) -> tuple[Tensor, Tensor]:
+    """(B, S, H, W), (B, 1, H, W) -> D_s k (B, S, H, W) and log2(k) / 4 (B, 1, H, W), k clamped as in
+    `focus_channels`: what `ConditionedDFVNet` pools into `focus_channels`' projection."""
+    k = defocus_px_per_d.clamp_min(1e-3)
+    return focus_diopters * k, torch.log2(k) / 4.0
+
+
+def softmax_frames(logits: Tensor) -> Tensor:
+    """softmax over dim 1 (frames). In an ONNX export it is written as exp(x - max) / sum: onnxruntime's Softmax on a
+    non-last axis transposes the tensor there and back, 7x slower at 8 x 640 x 960 (benchmarks/probes/
+    anycam_runtime_profile.py); the same function, equal to float rounding."""
+    if not torch.onnx.is_in_onnx_export():
+        return torch.softmax(logits, dim=1)
+    e = torch.exp(logits - logits.amax(1, keepdim=True))
+    return e / e.sum(1, keepdim=True)
+
+
 def focus_map_head(logits: Tensor, stack: Tensor | None, focus_diopters: Tensor
                    ) -> tuple[Tensor, Tensor | None, Tensor, Tensor]:
     """logits (B, S, H, W), stack (B, S, 3, H, W) or None, focus_diopters (B, S, H, W) ->
     depth_m (B, H, W), aif (B, 3, H, W) or None, std_m (B, H, W), diopters (B, H, W)."""
-    p = torch.softmax(logits, dim=1)
+    p = softmax_frames(logits)
     d = (p * focus_diopters).sum(1)
     depth = 1.0 / d.clamp_min(MIN_DIOPTERS)
     frame_m = 1.0 / focus_diopters.clamp_min(MIN_DIOPTERS)
@@ -61,23 +79,44 @@ def focus_map_head(logits: Tensor, stack: Tensor | None, focus_diopters: Tensor
 
 
 class ConditionedDFVNet(DFVNet):
-    """DFVNet on RGB frames whose per-frame features at /4, /8 (, /16, /32) get a per-pixel bias from conditioning
-    channels: a 1x1 convolution (no padding) of the channels average-pooled to that scale (fixed windows, exact at
-    every H, W that are multiples of 32). forward(stack (B, S, 3, H, W), cond (B, S, C, H, W))."""
+    """DFVNet on RGB frames whose per-frame features at /4, /8 (, /16, /32) get a per-pixel bias from the two
+    conditioning channels of `focus_channels`: a 1x1 convolution (no padding) of the channels average-pooled to that
+    scale (fixed windows, exact at every H, W that are multiples of 32). forward(stack (B, S, 3, H, W), dk (B, S, H,
+    W), lk (B, 1, H, W)), dk and lk from `cond_inputs`."""
 
     def __init__(self, cfg: DFVNetConfig, cond_channels: int):
         super().__init__(cfg, in_channels=3)
+        if cond_channels != EXTRA_CHANNELS:
+            raise ValueError(f"ConditionedDFVNet: {EXTRA_CHANNELS} conditioning channels (focus_channels), got "
+                             f"{cond_channels}")
         feats = tuple(reversed(cfg.features))  # /4, /8, /16, /32
         self.cond = nn.ModuleList(nn.Conv2d(cond_channels, feats[i], 1) for i in range(cfg.levels))
 
-    def forward(self, stack: Tensor, cond: Tensor) -> list[Tensor]:
+    def forward(self, stack: Tensor, dk: Tensor, lk: Tensor) -> list[Tensor]:
         b, s, c, h, w = stack.shape
         feats = self.encoder(stack.reshape(b * s, c, h, w))
-        flat = cond.reshape(b * s, cond.shape[2], h, w)
+        dk, lk = dk.reshape(b * s, 1, h, w), lk
         for i, proj in enumerate(self.cond):
-            f = 4 * 2**i
-            feats[i] = feats[i] + proj(F.avg_pool2d(flat, f, f))
+            f = 4 if i == 0 else 2  # a 2x2 mean of 4x4-window means is the 8x8-window mean (H, W multiples of 32)
+            dk, lk = F.avg_pool2d(dk, f, f), F.avg_pool2d(lk, f, f)
+            feats[i] = cond_bias(feats[i], proj, dk, lk, b, s)
         return self.decode(feats, b, s)
+
+
+def cond_bias(feat: Tensor, proj: nn.Conv2d, dk: Tensor, lk: Tensor, b: int, s: int) -> Tensor:
+    """feat (B*S, C, h, w) + proj(pooled focus_channels), from D_s k pooled (B*S, 1, h, w) and log2(k) / 4 pooled
+    (B, 1, h, w). The same sum in a cheaper order: the pooled blur position is pool(D k) - mean_s pool(D k), over 16
+    (pooling and the mean over frames are linear, so they commute), and the log2(k) channel, equal in every frame, is
+    projected once per pixel instead of once per frame; nothing is computed at full resolution but D k and its
+    pooling (the first export computed both channels of every frame at full resolution)."""
+    h, w = dk.shape[-2:]
+    pk = dk.reshape(b, s, 1, h, w)
+    pos = (pk - pk.mean(1, keepdim=True)).reshape(b * s, 1, h, w)
+    per_frame = F.conv2d(pos, proj.weight[:, :1] / 16.0)  # (B*S, C, h, w)
+    per_pixel = F.conv2d(lk, proj.weight[:, 1:], proj.bias)  # (B, C, h, w), every frame's
+    c = per_frame.shape[1]
+    out = (feat + per_frame).reshape(b, s, c, h, w) + per_pixel[:, None]
+    return out.reshape(b * s, c, h, w)
 
 
 class FocusMapDfF(nn.Module):
@@ -99,9 +138,9 @@ class FocusMapDfF(nn.Module):
         return count_params(self)
 
     def levels(self, stack: Tensor, focus_diopters: Tensor, defocus_px_per_d: Tensor) -> list[tuple]:
-        cond = focus_channels(focus_diopters, defocus_px_per_d).to(stack.dtype)
+        dk, lk = (t.to(stack.dtype) for t in cond_inputs(focus_diopters, defocus_px_per_d))
         return [focus_map_head(lg, stack if i == 0 else None, focus_diopters)
-                for i, lg in enumerate(self.net(stack, cond))]
+                for i, lg in enumerate(self.net(stack, dk, lk))]
 
     def forward(self, stack: Tensor, focus_diopters: Tensor, defocus_px_per_d: Tensor, all_levels: bool = False):
         levels = self.levels(stack, focus_diopters, defocus_px_per_d)

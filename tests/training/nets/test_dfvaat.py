@@ -2,6 +2,8 @@
 than the small DFVNet, and one ONNX export (dynamic S, H, W) matches torch at shapes other than the export's
 (the DFVNet pitfall of shape-derived pooling kernels, reference-facts 7)."""
 
+from pathlib import Path
+
 import pytest
 import torch
 
@@ -67,3 +69,72 @@ def test_onnx_export_with_dynamic_stack_and_size_matches_torch_at_other_shapes(t
     assert meta["aat.inputs"] == "focus_map" and meta["aat.stack_min"] == "3" and meta["aat.stack_max"] == "16"
     with pytest.raises(FileExistsError):
         export_focus_map_onnx(m, path, md)
+
+
+def _definition_logits(m, stack, fd, k):
+    """The conditioned net's logits by the definition the first export computed: both `focus_channels` of every frame
+    at full resolution, average-pooled to each level's scale and projected by its 1x1 convolution."""
+    import torch.nn.functional as F
+
+    from training.nets.dfvaat import focus_channels
+
+    net = m.net
+    b, s, c, h, w = stack.shape
+    feats = net.encoder(stack.reshape(b * s, c, h, w))
+    flat = focus_channels(fd, k).reshape(b * s, 2, h, w)
+    for i, proj in enumerate(net.cond):
+        feats[i] = feats[i] + proj(F.avg_pool2d(flat, 4 * 2**i, 4 * 2**i))
+    return net.decode(feats, b, s)
+
+
+@pytest.mark.parametrize("shape", [(1, 3, 32, 96), (2, 7, 64, 64), (1, 16, 96, 32)])
+def test_conditioning_in_its_cheaper_order_equals_its_definition(shape):
+    from training.nets.dfvaat import cond_inputs
+    from training.nets.export import _focus_map_example
+
+    torch.manual_seed(2)
+    m = build().eval()
+    for conv in m.net.cond:  # weights of a trained net's size, bias included
+        conv.weight.data.normal_(0, 0.5)
+        conv.bias.data.normal_(0, 0.5)
+    stack, fd, k = _focus_map_example(*shape, seed=5)
+    with torch.no_grad():
+        want = _definition_logits(m, stack, fd, k)
+        got = m.net(stack, *cond_inputs(fd, k))
+    for g, w in zip(got, want):
+        scale = float(w.abs().max())
+        assert scale > 1e-2 and float((g - w).abs().max()) < 1e-5 * scale
+
+
+def test_the_export_of_the_first_runs_checkpoint_matches_its_first_export_and_has_no_softmax(tmp_path):
+    """The current export of checkpoints/dfv_aat_v1 (cheaper conditioning, the head's softmax written as exp / sum:
+    onnxruntime's Softmax on the frame axis is 7x slower) against the file the first export wrote from the same
+    weights, models/reproduce/dfv_aat_v1.onnx, on random inputs at S, H, W the export never saw: within 1e-5 of
+    the outputs' scale (measured <= 4e-7); same inputs, outputs, dynamic axes and metadata."""
+    import numpy as np
+    import onnx
+    import onnxruntime as ort
+
+    from training.nets.export import _focus_map_example, read_metadata
+    from training.train.export import export_checkpoint
+
+    root = Path(__file__).resolve().parents[3]
+    ckpt, first = root / "checkpoints/dfv_aat_v1/last.pt", root / "models/reproduce/dfv_aat_v1.onnx"
+    if not (ckpt.is_file() and first.is_file()):
+        pytest.skip(f"needs {ckpt} and {first} (tracked in the repository)")
+    new = tmp_path / "v1.onnx"
+    _, err = export_checkpoint(ckpt, new)
+    assert err < 1e-3
+    ops = {n.op_type for n in onnx.load(str(new)).graph.node}
+    assert "Softmax" not in ops and "Exp" in ops
+    sessions = [ort.InferenceSession(str(p), providers=["CPUExecutionProvider"]) for p in (first, new)]
+    io = [[(a.name, a.shape) for a in (*s.get_inputs(), *s.get_outputs())] for s in sessions]
+    assert io[0] == io[1] and ("focus_diopters", ["B", "S", "H", "W"]) in io[1]
+    assert read_metadata(new) == read_metadata(first)
+    for i, shp in enumerate([(1, 3, 32, 96), (2, 9, 96, 64), (1, 16, 64, 160), (1, 6, 128, 128)]):
+        stack, fd, k = _focus_map_example(*shp, seed=10 + i)
+        feeds = {"stack": stack.numpy(), "focus_diopters": fd.numpy(), "defocus_px_per_d": k.numpy()}
+        old, cur = (s.run(None, feeds) for s in sessions)
+        dmax = float((1.0 / fd.clamp_min(MIN_DIOPTERS)).max())
+        for o, c, scale in zip(old, cur, (dmax, float(stack.max()), dmax)):
+            assert o.shape == c.shape and float(np.abs(o - c).max()) < 1e-5 * scale, shp
