@@ -234,17 +234,7 @@ class DfFModel(DepthMethod):
             field_xy = np.stack(pixel_fields(h, w, (h, w))).astype(np.float32)
         if not tile or (h <= tile and w <= tile):
             return self._with_confidence(self._run(stack, focus_m, field_xy))
-        m = self.size_multiple
-        tile = int(math.ceil(tile / m) * m)
-        overlap = min(int(overlap), tile // 4)
-        step = tile - overlap
-        ys = list(range(0, max(h - tile, 0) + 1, step))
-        xs = list(range(0, max(w - tile, 0) + 1, step))
-        if ys[-1] + tile < h:
-            ys.append(h - tile)
-        if xs[-1] + tile < w:
-            xs.append(w - tile)
-        ys, xs = [max(0, y) for y in ys], [max(0, x) for x in xs]
+        tile, overlap, ys, xs = tile_grid(h, w, tile, overlap, self.size_multiple)
         acc_d = np.zeros((h, w), np.float64)
         acc_s = np.zeros((h, w), np.float64)
         acc_a = np.zeros((3, h, w), np.float64)
@@ -273,6 +263,21 @@ class DfFModel(DepthMethod):
         if self.confidence_calibration is not None:
             out.confidence = std_confidence(self.confidence_calibration, out.depth_m, out.std_m)
         return out
+
+
+def tile_grid(h: int, w: int, tile: int, overlap: int, multiple: int = 1) -> tuple[int, int, list[int], list[int]]:
+    """How `DfFModel.infer` tiles an H x W image: (tile side rounded up to `multiple`, overlap (at most a quarter of
+    the tile), tile origins ys, xs). Tiles step by tile - overlap; the last row and column end at the image's edge."""
+    tile = int(math.ceil(tile / multiple) * multiple)
+    overlap = min(int(overlap), tile // 4)
+    step = tile - overlap
+    ys = list(range(0, max(h - tile, 0) + 1, step))
+    xs = list(range(0, max(w - tile, 0) + 1, step))
+    if ys[-1] + tile < h:
+        ys.append(h - tile)
+    if xs[-1] + tile < w:
+        xs.append(w - tile)
+    return tile, overlap, [max(0, y) for y in ys], [max(0, x) for x in xs]
 
 
 def _pad_linear(field: np.ndarray, ph: int, pw: int) -> np.ndarray:
