@@ -26,7 +26,7 @@ scenes): MAE by stack size (3, 5, 8, 12, 16 frames) and by schedule (even in dio
 phone-like: 5 frames over the near range 0.5-2 m); `--lenses` with no lens runs only the tables. Results as JSON in
 --out (`anycam_<label>.json`, maps `figures/anycam_<label>_<lens>_<protocol>_*.png`; without --label `anycam.json`),
 tables printed for BENCHMARKS.md. The JSON is written after every lens and protocol and every table row, with each
-scene's scores: a rerun of the same command (same model file, n and tile) skips what it holds and reprints its
+scene's scores: a rerun of the same command (same model file, n, tile and overlap) skips what it holds and reprints its
 tables, so a killed run resumes and short commands (one lens, one protocol, one table) add to one file; a file of
 another model or setting is refused unless --force, which starts it afresh.
 """
@@ -222,8 +222,21 @@ def model_id(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()[:12] if path.is_file() else ""
 
 
+def tile_overlap(tile: int | None) -> str:
+    """How dfv_aat's tiles overlap (`methods`), for the results file's identity: a quarter of --tile, or the runtime's
+    own share of the model's aat.tile_px (`aat_deploy.anycam.model.own_tiles`: an eighth since 2026-11-26, a quarter
+    before; a results file of the earlier runtime has no overlap, so it is not added to)."""
+    if tile == 0:
+        return "whole frames"
+    if tile:
+        return f"{tile // 4} px"
+    from aat_deploy.anycam.model import own_tiles
+
+    return f"{own_tiles(1024)[1] / 1024:g} of aat.tile_px"
+
+
 def previous(path: Path, ident: dict, force: bool) -> dict:
-    """The results file to add to: its content when it was made with the same `ident` (model file, n, tile), a fresh
+    """The results file to add to: its content when it was made with the same `ident` (model file, n, tile, overlap), a fresh
     one with --force or none there; else SystemExit with one line naming the file and what differs."""
     if force or not path.is_file():
         return {**ident, "lenses": {}}
@@ -262,7 +275,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{a.model}: no such model (train it: scripts/train_dfv_aat.sh); only the baselines run", flush=True)
     stem = f"anycam_{a.label}" if a.label else "anycam"
     path = a.out / f"{stem}.json"
-    ident = {"model": str(a.model), "model_sha256": model_id(a.model), "n": a.n, "tile": a.tile}
+    ident = {"model": str(a.model), "model_sha256": model_id(a.model), "n": a.n, "tile": a.tile,
+             "overlap": tile_overlap(a.tile)}
     results = previous(path, ident, a.force)
 
     def save() -> None:

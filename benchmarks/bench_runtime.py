@@ -10,8 +10,8 @@ heavy-job lane); best of 3, one run.
 Prints a table: seconds per stack each way, the ratio, and the max |difference| of the depths. The any-camera net
 (`dfvaat`, the small DFVNet told per-pixel focus maps) runs as `aat-infer --model dfv_aat` runs it: its runtime time
 includes making the maps (thin lens, a 50 mm f/1.8 camera); two rows: whole frames, and as shipped, in overlapping
-tiles of the largest scenes it trained on (aat.tile_px, --tile to set it as a model's metadata says; the depth
-difference of that row is tiled vs whole). With both `dfvnet` and `dfvaat`, a second table gives the any-camera
+tiles of the largest scenes it trained on (aat.tile_px, --tile to set it as a model's metadata says), overlapping as
+the runtime overlaps them (`aat_deploy.anycam.model.own_tiles`; the depth difference of that row is tiled vs whole). With both `dfvnet` and `dfvaat`, a second table gives the any-camera
 net's runtime time over the DFVNet's of the same size and input (issue 35: no slower than today's DFVNet); --json
 also writes the rows.
 """
@@ -111,7 +111,7 @@ def any_camera(size: str, stack: np.ndarray, focus: np.ndarray, threads: int = 2
     """The any-camera net, torch vs the runtime (maps included), whole frames; then as shipped: the runtime in tiles
     of aat.tile_px (the largest single scenes configs/anycam/dfv_aat.json trains on, training.train.export),
     against torch on the whole frame (the difference column then is tiled vs whole, not a parity check)."""
-    from aat_deploy.anycam.model import FocusMapModel
+    from aat_deploy.anycam.model import FocusMapModel, own_tiles
     from aat_deploy.anycam.optics import CameraOptics
     from training.nets.dfvaat import build, predict
     from training.nets.export import export_focus_map_onnx, focus_map_metadata
@@ -133,11 +133,12 @@ def any_camera(size: str, stack: np.ndarray, focus: np.ndarray, threads: int = 2
         out, t_ort = best_of(lambda: rt.infer(stack, focus, tile=0), repeat=3)
         if tile is None:
             tile = largest_training_image_px(load_config(ROOT / "configs/anycam/dfv_aat.json").data)
-        tiled, t_tiled = best_of(lambda: rt.infer(stack, focus, tile=tile, overlap=tile // 4), repeat=3)
+        tile, overlap = own_tiles(tile)
+        tiled, t_tiled = best_of(lambda: rt.infer(stack, focus, tile=tile, overlap=overlap), repeat=3)
     print(f"done dfvaat {size}", flush=True)
     ref_d = ref["depth_m"][0].numpy()
     return [(f"dfvaat {size} (any camera, whole frame)", t_torch, t_ort, float(np.abs(out.depth_m - ref_d).max())),
-            (f"dfvaat {size} (any camera as shipped: tiles of {tile} px, {tile // 4} overlapping)", t_torch, t_tiled,
+            (f"dfvaat {size} (any camera as shipped: tiles of {tile} px, {overlap} overlapping)", t_torch, t_tiled,
              float(np.abs(tiled.depth_m - ref_d).max()))]
 
 

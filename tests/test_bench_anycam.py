@@ -102,6 +102,11 @@ def test_a_file_of_another_model_or_setting_is_refused_unless_forced(bench, fake
     assert path.read_text() == before  # refused: the file is untouched
     assert bench.main(args + ["--n", "2", "--force"]) == 0
     assert json.loads(path.read_text())["model_sha256"] == bench.model_id(model)
+    old = json.loads(path.read_text())
+    del old["overlap"]  # a file of the runtime before own_tiles (its tiles overlapped by a quarter)
+    path.write_text(json.dumps(old))
+    with pytest.raises(SystemExit, match=r"overlap None here, '0.125 of aat.tile_px' now"):
+        bench.main(args + ["--n", "2"])
     path.write_text("{not json")
     with pytest.raises(SystemExit, match=r"anycam\.json: not a results file"):
         bench.main(args + ["--n", "2"])

@@ -30,6 +30,15 @@ K_MAX_PX_PER_D = 48.0
 DEFAULT_MAX_SIDE = 1024
 
 
+def own_tiles(tile_px: int) -> tuple[int, int]:
+    """(tile, overlap) px the runtime runs frames larger than an any-camera model's aat.tile_px in: tiles of that side
+    (the net is worse the farther a pixel lies from the border of the images it trained on), an eighth of it
+    overlapping and blended. An eighth (16 px of 128) scored 0.99 [0.97, 1.02]x the MAE of a quarter's overlap on 20
+    RF50 validation stacks and runs 1.44 instead of 1.87 px per frame pixel at 960 x 640 (BENCHMARKS.md, the any-camera
+    model's speed; benchmarks/probes/anycam_tiles.py --overlaps)."""
+    return int(tile_px), int(tile_px) // 8
+
+
 class FocusMapModel(DfFModel):
     """`DfFModel` for the any-camera model; `for_capture` binds a camera and mapping (a copy)."""
 
@@ -189,8 +198,8 @@ class FocusMapModel(DfFModel):
               progress=None, field_xy: np.ndarray | None = None):
         h, w = stack.shape[2:]
         maps = self.maps(focus_m, h, w) if field_xy is None else field_xy
-        if tile is None and self.tile_px:  # the net's own tile size (aat.tile_px), a quarter of it overlapping
-            tile, overlap = self.tile_px, max(int(overlap), self.tile_px // 4)
+        if tile is None and self.tile_px:  # the net's own tiles (aat.tile_px), an eighth of them overlapping
+            tile, overlap = own_tiles(self.tile_px)
         return super().infer(stack, focus_m, tile, overlap, progress, field_xy=maps)
 
     def _feeds(self, stack: np.ndarray, focus_m: np.ndarray, field_xy: np.ndarray | None, ph: int, pw: int) -> dict:
@@ -264,4 +273,4 @@ def mapping_from_args(lens=None, psf=None, calibration=None) -> FocusMapping:
     return FocusMapping("thin_lens")
 
 
-__all__ = ["FocusMapModel", "mapping_from_args", "K_MAX_PX_PER_D", "DEFAULT_MAX_SIDE"]
+__all__ = ["FocusMapModel", "mapping_from_args", "own_tiles", "K_MAX_PX_PER_D", "DEFAULT_MAX_SIDE"]
