@@ -1,7 +1,7 @@
 """Runtime inference: onnxruntime (what `aat-infer` runs) vs torch eager on the same net and input.
 
     OMP_WAIT_POLICY=PASSIVE python -m benchmarks.bench_runtime [--sizes small] [--hw 640x960] [--stack 8]
-        [--nets dfvnet,aifnet,dfvaat] [--threads 2] [--tile N] [--json results/runtime.json]
+        [--nets dfvnet,aifnet,dfvaat] [--threads 2] [--tile N] [--rounds 5] [--json results/runtime.json]
 
 For each net, a freshly built model (weights do not change the speed) is exported exactly as the shipped
 models are (training.nets.export), then one normalised (S, 3, H, W) stack is run by torch (`predict`, eager,
@@ -11,9 +11,11 @@ Prints a table: seconds per stack each way, the ratio, and the max |difference| 
 (`dfvaat`, the small DFVNet told per-pixel focus maps) runs as `aat-infer --model dfv_aat` runs it: its runtime time
 includes making the maps (thin lens, a 50 mm f/1.8 camera); two rows: whole frames, and as shipped, in overlapping
 tiles of the largest scenes it trained on (aat.tile_px, --tile to set it as a model's metadata says), overlapping as
-the runtime overlaps them (`aat_deploy.anycam.model.own_tiles`; the depth difference of that row is tiled vs whole). With both `dfvnet` and `dfvaat`, a second table gives the any-camera
-net's runtime time over the DFVNet's of the same size and input (issue 35: no slower than today's DFVNet); --json
-also writes the rows.
+the runtime overlaps them (`aat_deploy.anycam.model.own_tiles`; the depth difference of that row is tiled vs whole).
+With both `dfvnet` and `dfvaat`, a second table gives the any-camera net's runtime time over the DFVNet's of the
+same size and input (issue 35: no slower than today's DFVNet), and a third the same ratios from --rounds rounds in which the DFVNet and the any-camera net's ways (whole frame, its own
+tiles, tiles a quarter overlapping as before 2026-11-26) run in turn (`in_turns`): median and range over the
+rounds, steadier on a shared machine than the separate best-of runs; --json also writes the rows.
 """
 
 from __future__ import annotations
@@ -41,6 +43,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--tile", type=int, default=None,
                     help="the any-camera net's tile (px; default: the largest image configs/anycam/dfv_aat.json "
                          "trains on, what its export writes as aat.tile_px)")
+    ap.add_argument("--rounds", type=int, default=5,
+                    help="with dfvnet and dfvaat: rounds in which the DFVNet and the any-camera net's ways run in turn "
+                         "(0: none)")
     ap.add_argument("--json", type=Path, default=None, help="also write the rows here (JSON)")
     args = ap.parse_args(argv)
     h, w = (int(v) for v in args.hw.split("x"))
@@ -56,11 +61,12 @@ def main(argv: list[str] | None = None) -> None:
     rng = np.random.default_rng(0)
     stack = rng.random((args.stack, 3, h, w), dtype=np.float32)
     focus = np.sort(diopter_grid(0.5, 10.0, args.stack)).astype(np.float32)
-    rows = []
+    rows, runtimes = [], {}
     for size in args.sizes.split(","):
         for net in args.nets.split(","):
             if net == "dfvaat":
-                rows.extend(any_camera(size, stack, focus, threads, args.tile))
+                more, runtimes[("dfvaat", size)] = any_camera(size, stack, focus, threads, args.tile)
+                rows.extend(more)
                 continue
             torch.manual_seed(0)
             model = build_model(net, size).eval()
@@ -74,6 +80,7 @@ def main(argv: list[str] | None = None) -> None:
                     ref, t_torch = best_of(lambda m=model: predict(m, torch.from_numpy(stack)[None],
                                                                   torch.from_numpy(focus)[None]), repeat=3)
                 out, t_ort = best_of(lambda rt=rt: rt.infer(stack, focus), repeat=3)
+                runtimes[(net, size)] = rt
             diff = float(np.abs(out.depth_m - ref["depth_m"][0].numpy()).max())
             rows.append((f"{net} {size}", t_torch, t_ort, diff))
             print(f"done {net} {size}", flush=True)
@@ -87,6 +94,16 @@ def main(argv: list[str] | None = None) -> None:
         print("\n| any-camera net, runtime | its time / the DFVNet's (same size, input, run) |\n|---|---|")
         for name, r in ratios.items():
             print(f"| {name} | {r:.2f}x |")
+    turns = {}
+    for size in args.sizes.split(","):
+        if args.rounds > 0 and ("dfvnet", size) in runtimes and ("dfvaat", size) in runtimes:
+            rt, tile = runtimes[("dfvaat", size)]
+            turns[size] = in_turns(runtimes[("dfvnet", size)], rt, tile, stack, focus, args.rounds)
+            print(f"\n| {size} nets, {args.rounds} rounds in turn | seconds (best) | its time / the DFVNet's in the "
+                  "same round: median [least, most] |\n|---|---|---|")
+            for name, secs in turns[size].items():
+                r = np.array(secs) / np.array(turns[size]["DFVNet"])
+                print(f"| {name} | {min(secs):.2f} s | {np.median(r):.2f}x [{r.min():.2f}, {r.max():.2f}] |")
     if args.json is not None:
         from aat_deploy.io.atomic import write_text_atomic
 
@@ -94,7 +111,7 @@ def main(argv: list[str] | None = None) -> None:
         write_text_atomic(args.json, json.dumps({
             "stack": [args.stack, 3, h, w], "threads": threads, "repeat": 3,
             "rows": [{"net": n, "torch_s": tt, "runtime_s": to, "max_abs_depth_diff_m": d} for n, tt, to, d in rows],
-            "anycam_over_dfvnet": ratios}, indent=1))
+            "anycam_over_dfvnet": ratios, "rounds_in_turn_s": turns}, indent=1))
         print(f"wrote {args.json}")
 
 
@@ -107,10 +124,11 @@ def anycam_ratios(rows: list[tuple]) -> dict[str, float]:
 
 
 def any_camera(size: str, stack: np.ndarray, focus: np.ndarray, threads: int = 2, tile: int | None = None
-               ) -> list[tuple]:
+               ) -> tuple[list[tuple], tuple]:
     """The any-camera net, torch vs the runtime (maps included), whole frames; then as shipped: the runtime in tiles
     of aat.tile_px (the largest single scenes configs/anycam/dfv_aat.json trains on, training.train.export),
-    against torch on the whole frame (the difference column then is tiled vs whole, not a parity check)."""
+    against torch on the whole frame (the difference column then is tiled vs whole, not a parity check). Returns
+    those rows and (the runtime model bound to a camera, the tile side) for `in_turns`."""
     from aat_deploy.anycam.model import FocusMapModel, own_tiles
     from aat_deploy.anycam.optics import CameraOptics
     from training.nets.dfvaat import build, predict
@@ -139,7 +157,30 @@ def any_camera(size: str, stack: np.ndarray, focus: np.ndarray, threads: int = 2
     ref_d = ref["depth_m"][0].numpy()
     return [(f"dfvaat {size} (any camera, whole frame)", t_torch, t_ort, float(np.abs(out.depth_m - ref_d).max())),
             (f"dfvaat {size} (any camera as shipped: tiles of {tile} px, {overlap} overlapping)", t_torch, t_tiled,
-             float(np.abs(tiled.depth_m - ref_d).max()))]
+             float(np.abs(tiled.depth_m - ref_d).max()))], (rt, tile)
+
+
+def in_turns(dfv, anycam, tile: int, stack: np.ndarray, focus: np.ndarray, rounds: int) -> dict[str, list[float]]:
+    """{way: seconds in each round}: the DFVNet's runtime, then the any-camera net's on whole frames, in its own tiles
+    (`own_tiles`) and in tiles a quarter overlapping (the runtime before 2026-11-26), one after the other in every
+    round on the same input, after one warm-up each: a load change on the shared machine hits the ways of a round
+    alike, so the ratio within rounds is steadier than that of separate best-of runs."""
+    from aat_deploy.anycam.model import own_tiles
+
+    _, overlap = own_tiles(tile)
+    ways = {"DFVNet": lambda: dfv.infer(stack, focus),
+            "any-camera net, whole frame (maps included)": lambda: anycam.infer(stack, focus, tile=0),
+            f"any-camera net as shipped: {tile} px tiles, {overlap} px overlap":
+                lambda: anycam.infer(stack, focus, tile=tile, overlap=overlap),
+            f"any-camera net, {tile} px tiles, {tile // 4} px overlap (the runtime before 2026-11-26)":
+                lambda: anycam.infer(stack, focus, tile=tile, overlap=tile // 4)}
+    for fn in ways.values():
+        fn()
+    secs: dict[str, list[float]] = {k: [] for k in ways}
+    for _ in range(rounds):
+        for k, fn in ways.items():
+            secs[k].append(best_of(fn)[1])
+    return secs
 
 
 if __name__ == "__main__":

@@ -24,11 +24,15 @@ def test_a_small_run_writes_both_nets_and_their_ratio(tmp_path, capsys):
 
     out = tmp_path / "runtime.json"
     main(["--hw", "64x96", "--stack", "3", "--nets", "dfvnet,dfvaat", "--threads", "1", "--tile", "64",
-          "--json", str(out)])
+          "--rounds", "2", "--json", str(out)])
     r = json.loads(out.read_text())
     names = [row["net"] for row in r["rows"]]
     assert names[0] == "dfvnet small" and len(names) == 3 and "tiles of 64 px" in names[2]
     assert r["threads"] == 1 and r["stack"] == [3, 3, 64, 96]
     dfv = r["rows"][0]["runtime_s"]
     assert r["anycam_over_dfvnet"][names[1]] == pytest.approx(r["rows"][1]["runtime_s"] / dfv)
-    assert "its time / the DFVNet's" in capsys.readouterr().out
+    turns = r["rounds_in_turn_s"]["small"]
+    assert list(turns)[0] == "DFVNet" and len(turns) == 4 and all(len(v) == 2 for v in turns.values())
+    assert "16 px overlap (the runtime before" in list(turns)[3] and "8 px overlap" in list(turns)[2]
+    out = capsys.readouterr().out
+    assert "its time / the DFVNet's" in out and "2 rounds in turn" in out
