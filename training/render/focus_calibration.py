@@ -11,11 +11,15 @@ sweep of frames around F (`n_sweep` focus settings over +-`sweep_d` diopters); t
 (`aat_deploy.focus.measures`) is averaged over the patch per frame, summed over `n_textures` textures, and its peak
 found by a parabola on log measure around the best frame of the sweep. The frame F_peak where the measure peaks
 should, by the map, have D*(r, F_peak) in focus; the object is at D*(r, F). The offset that makes the map agree
-with the measure is offset = D*(r, F) - D*(r, F_peak) (object diopters; added by `BestFocusMap` when calibrated).
+with the measure is offset = D*(r, F) - D*(r, F_peak) (object diopters; added by `BestFocusMap` when calibrated),
+and it belongs to the frame F_peak, where it is placed (`offset_grid`): under astigmatism the measure can peak
+diopters from the min-RMS focus (a phone lens's outer field: up to 3.7 D, following the sagittal focus near and
+lying between the two foci farther), and an offset placed at F moved the map there by as much (BestFocusMap
+files made before record no `placed_at` in their calibration notes).
 Points whose D* is beyond infinity, or outside a surrogate's depth range (it would render the object at the range's
 end: a phone lens's corner focused at 7 cm is in focus nearer than its surrogate's 5 cm), are left out, and a
-surrogate's sweep frames are kept inside its focus range; the offset is interpolated over r (held beyond the
-measured range) and over F.
+surrogate's sweep frames are kept inside its focus range; the offset is interpolated over F_peak and r (held
+beyond the measured ranges).
 """
 
 from __future__ import annotations
@@ -127,6 +131,34 @@ def measure_point(lens, fmap: BestFocusMap, r: float, focus_m: float, cfg: Calib
             "offset_diopters": d_star - d_at_peak}
 
 
+def offset_grid(fmap: BestFocusMap, points: list[dict]) -> np.ndarray:
+    """(R, F) offset_diopters on the map's grid from calibration points (`measure_point`'s dicts).
+
+    A point rendered at frame focus F has its object (the traced D*(r, F)) in focus, by the measure, in the frame
+    F_peak; its offset D*(r, F) - D*(r, F_peak) is what the map must add **at F_peak** (there the calibrated map
+    then gives the object). It is placed there, not at F: where the measure and the traced min-RMS focus disagree
+    by diopters (a phone lens's outer field, where the sagittal and tangential foci lie 2.7 D apart and the
+    measure follows one or the other: up to 3.7 D), a point placed at F put its offset on the wrong frames
+    (docs/calibration.md). Per calibration radius the offsets are interpolated along F_peak onto the map's focus
+    grid (held beyond the points); radii without points take their neighbours' (held beyond the measured radii);
+    then onto the map's radii, linearly in r^2."""
+    ok = [p for p in points if np.isfinite(p.get("offset_diopters", np.nan))]
+    radii = np.array(sorted({float(p["r"]) for p in points}), np.float64)
+    fgrid = np.asarray(fmap.focus_diopters, np.float64)
+    per_r = np.full((radii.size, fgrid.size), np.nan)
+    for i, r in enumerate(radii):
+        pts = sorted((p["measure_peak_focus_diopters"], p["offset_diopters"]) for p in ok if float(p["r"]) == r)
+        if pts:
+            x, y = np.array(pts).T
+            per_r[i] = np.interp(fgrid, x, y)
+    have = np.isfinite(per_r[:, 0])
+    if not have.any():
+        return np.zeros_like(np.asarray(fmap.object_diopters, np.float64))
+    for j in range(fgrid.size):  # radii without a point: along r (held beyond the measured radii)
+        per_r[~have, j] = np.interp(radii[~have], radii[have], per_r[have, j])
+    return np.stack([np.interp(fmap.radius ** 2, radii ** 2, per_r[:, j]) for j in range(fgrid.size)], 1)
+
+
 def calibrate(lens, fmap: BestFocusMap, cfg: CalibrationConfig = CalibrationConfig(), progress: bool = True
               ) -> tuple[BestFocusMap, list[dict]]:
     """The map with `offset_diopters` measured on rendered stacks, and the per-point measurements."""
@@ -140,27 +172,12 @@ def calibrate(lens, fmap: BestFocusMap, cfg: CalibrationConfig = CalibrationConf
         it = tqdm(it, desc="calibrating the focus measure's peak", unit="point")
     for r, f in it:
         points.append(measure_point(lens, fmap, r, f, cfg, sim, ranges))
-    radii = np.array(cfg.radii, np.float64)
-    fdp = np.sort(1.0 / np.array(cfg.focus_m, np.float64))
-    grid = np.full((radii.size, fdp.size), np.nan)
-    for p in points:
-        i = int(np.argmin(np.abs(radii - p["r"])))
-        j = int(np.argmin(np.abs(fdp - 1.0 / p["focus_m"])))
-        grid[i, j] = p["offset_diopters"]
-    # fill gaps along r (held beyond the measured radii), then along focus; all-NaN columns take neighbours
-    for j in range(fdp.size):
-        ok = np.isfinite(grid[:, j])
-        if ok.any():
-            grid[:, j] = np.interp(radii, radii[ok], grid[ok, j])
-    for i in range(radii.size):
-        ok = np.isfinite(grid[i])
-        grid[i] = np.interp(fdp, fdp[ok], grid[i, ok]) if ok.any() else 0.0
-    # onto the map's own grid (bilinear in r^2 and focus diopters, held beyond)
-    per_f = np.stack([np.interp(fmap.focus_diopters, fdp, row) for row in grid])  # (len(radii), F)
-    offset = np.stack([np.interp(fmap.radius ** 2, radii ** 2, per_f[:, j]) for j in range(per_f.shape[1])], 1)
+    offset = offset_grid(fmap, points)
     notes = dict(fmap.notes)
     notes["calibration"] = {"what": "offset_diopters = traced object diopters minus those the map gives the frame "
-                                    "where the focus measure peaks, on rendered stacks (training.render.focus_calibration)",
+                                    "where the focus measure peaks, on rendered stacks, placed at that frame "
+                                    "(training.render.focus_calibration.offset_grid)",
+                            "placed_at": "measure_peak",
                             **{k: (list(v) if isinstance(v, tuple) else v) for k, v in cfg.__dict__.items()}}
     return replace(fmap, offset_diopters=offset, notes=notes), points
 

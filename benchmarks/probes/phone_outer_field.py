@@ -1,0 +1,266 @@
+"""Why the phone's chart tiles and its truth map disagreed in the outer field (issue 33): astigmatism, and where the
+map's calibration put its offsets.
+
+    OMP_NUM_THREADS=1 python -m benchmarks.probes.phone_outer_field [--maps A.json,B.json] \
+        [--out results/phone_outer_field.json]          # ~1 min, nothing cached
+
+For a flat object at each chart distance of the benchmark (7, 10, 18 cm), by field radius (corner = 1), four
+candidates at once:
+
+1. **astigmatism**: the frame focus (D) in which the object's traced sagittal focus, tangential focus and smallest
+   RMS spot (the traced map's definition) lie on the sensor (`sagittal_tangential_foci`: the ray spread along the
+   azimuthal and the radial direction minimised separately, design wavelength, the tracer's pupil sampling),
+   beside where the runtime's focus measure (`mlap2`, its window and pre-filter) peaks on a rendered patch, and
+   where a second derivative along the radial and along the azimuthal direction alone peaks;
+2. **the truth map** (`--maps`, default the stored lenses/best_focus/cellphone_asphere.json and the same map's
+   calibration points placed at the frame where the measure peaked, `focus_calibration.offset_grid`): the frame
+   focus in which each map puts the object in focus, against the measure's peak;
+3. **the tile and the renderer's cell**: the patch's 16 px tiles with the renderer's anchors 16 px apart and 64 px
+   apart (the chart sweeps'), and the measure averaged over 32 px tiles;
+4. **relative illumination**: not a candidate here. Neither the chart sweeps (`bench_calibrate`: `noise` only, the
+   `aberrations` PSFs) nor the map's calibration renders use the `vignetting` effect, and the PSFs are unit-energy
+   (`UnitEnergy`); a tile's brightness does not change across the sweep, so it cannot move the peak.
+
+The patch: the top right of the frame (rows 0-192, columns 448-640: field radius 0.45-1, azimuths 8-62 deg), the
+chart's dead leaves at the sweeps' scale, grey, noise-free, rendered through the lens's surrogate over a dense sweep
+(0.2 D) with the torch-free renderer the sweeps use. Then (`--tiles`) the benchmark's nominal chart sweeps: every
+counted tile's peak minus each map's peak for its object, by chart and field zone (`calibrate_phone_offset`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks import RESULTS
+from benchmarks import bench_calibrate as bc
+from benchmarks.bench_calibrate import ROOT
+
+OBJECTS_M = (0.07, 0.1, 0.18)
+BINS = ((0.5, 0.6), (0.6, 0.66), (0.66, 0.72), (0.72, 0.78), (0.78, 0.84), (0.84, 0.9), (0.9, 1.0))
+REGION = (0, 448, 192)  # row, column, side (px)
+TILE = 16
+STORED = "lenses/best_focus/cellphone_asphere.json"
+
+
+def sagittal_tangential_foci(lens, table, r: float, object_m: float, start_d: float) -> dict:
+    """Frame focus (diopters) at which the object at object_m, field radius r on the diagonal, has its tangential
+    focus (least ray spread along the radial direction), its sagittal focus (along the azimuthal direction) and
+    its smallest RMS spot (`training.optics.field_focus`'s definition) on the sensor; secant method in diopters."""
+    import torch
+
+    from aat_deploy.optics.paraxial import paraxial_data
+    from training.optics.field_focus import N_RAYS, _pupil
+    from training.optics.trace import Rays, start_plane_z_mm, trace
+    from training.psf.geometry import object_points_mm
+
+    pupil_xy, pupil_r = _pupil(lens, N_RAYS)
+    s = lens.sensor
+    radial = np.array([s.width_mm, s.height_mm]) / np.hypot(s.width_mm, s.height_mm)  # the diagonal x = y = r
+    dirs = {"tangential": radial, "sagittal": np.array([-radial[1], radial[0]]), "min_rms": None}
+    z_ep = paraxial_data(lens).entrance_pupil_z_mm
+
+    def shift(key, focus_d):
+        zs = float(table(1.0 / focus_d))
+        obj = object_points_mm(lens, r, r, object_m, zs)[0]
+        target = torch.cat([pupil_xy * pupil_r, torch.full_like(pupil_xy[:, :1], z_ep)], -1)
+        d = target - obj
+        d = d * torch.sign(d[:, 2:3])
+        d = d / torch.linalg.vector_norm(d, dim=-1, keepdim=True)
+        o = target + ((start_plane_z_mm(lens) - z_ep) / d[:, 2:3]) * d
+        res = trace(lens, Rays(o, d, torch.ones(o.shape[0], dtype=torch.bool)), None, sensor_z_mm=zs)
+        v = res.rays.valid
+        a = res.rays.o[v, :2].numpy()
+        b = (res.rays.d[v, :2] / res.rays.d[v, 2:3]).numpy()
+        a, b = a - a.mean(0), b - b.mean(0)
+        u = dirs[key]
+        if u is not None:
+            a, b = a @ u, b @ u
+        return float(-(a * b).sum() / (b * b).sum())
+
+    out = {}
+    for key in dirs:
+        f0, f1 = start_d, start_d + 0.5
+        g0, g1 = shift(key, f0), shift(key, f1)
+        for _ in range(30):
+            if g1 == g0:
+                break
+            f0, f1, g0 = f1, f1 - g1 * (f1 - f0) / (g1 - g0), g1
+            g1 = shift(key, f1)
+            if abs(g1) < 1e-6:
+                break
+        out[key] = float(f1)
+    return out
+
+
+def render_patch(rig, object_m: float, cell_px: int) -> tuple[np.ndarray, np.ndarray]:
+    """(fd (F,) frame focus diopters, frames (F, H, W) grey) of the REGION patch of dead leaves at object_m."""
+    import cv2
+
+    from aat_deploy.calibrate.chart import dead_leaves
+    from aat_deploy.render import effects as fx
+    from aat_deploy.render.layered import LayeredConfig
+    from aat_deploy.render.optical import optical_stack
+    from aat_deploy.render.sources import GaussianSource
+
+    r0, c0, n = REGION
+    # the chart's texture at the sweeps' scale: 3 chart pixels per sensor pixel, leaves 1.5 chart px to a tenth
+    # of the chart's height (bench_calibrate.chart_for)
+    tex = dead_leaves(3 * n, 3 * n, 1.5, 0.1 * 3 * rig.h * 1.3, np.random.default_rng(3))
+    tex = cv2.resize(tex, (n, n), interpolation=cv2.INTER_AREA).astype(np.float32) / 255 * 0.6
+    fd = np.arange(max(0.6, 1 / object_m - 8), min(19.9, 1 / object_m + 3), 0.2)
+    ctx = fx.SimContext(rig.lens, (rig.h, rig.w), (r0, c0), rig.src, rig.src.focus_table(),
+                        rig.src.exit_pupil_z_mm())
+    fr = optical_stack(fx.parse(["aberrations"]), GaussianSource(rig.lens), np.repeat(tex[None], 3, 0),
+                       np.full((n, n), object_m, np.float32), 1.0 / fd, ctx, LayeredConfig(cell_px=cell_px), 1)
+    return fd, fr.mean(1)
+
+
+def directional_energy(frames: np.ndarray, radial: bool, window_px: float, prefilter_px: float,
+                       hw: tuple[int, int]) -> np.ndarray:
+    """(F, H, W) windowed squared second derivative of each (pre-filtered) frame along each pixel's radial (or
+    azimuthal) direction from the frame centre: the measure's energy for detail of one orientation."""
+    import cv2
+
+    from aat_deploy.focus.measures import _window
+
+    r0, c0, n = REGION
+    rows, cols = np.mgrid[r0:r0 + n, c0:c0 + n]
+    x, y = cols + 0.5 - hw[1] / 2, -(rows + 0.5 - hw[0] / 2)  # from the frame centre, y up
+    ux, uy = x / np.hypot(x, y), y / np.hypot(x, y)
+    if not radial:
+        ux, uy = -uy, ux
+    out = []
+    for f in frames:
+        b = cv2.GaussianBlur(f, (0, 0), prefilter_px)
+        ixx, iyy = cv2.Sobel(b, cv2.CV_32F, 2, 0, ksize=3), cv2.Sobel(b, cv2.CV_32F, 0, 2, ksize=3)
+        ixy = -cv2.Sobel(b, cv2.CV_32F, 1, 1, ksize=3)  # d/dy with y up
+        d = ux * ux * ixx + 2 * ux * uy * ixy + uy * uy * iyy
+        out.append(_window(d * d, window_px))
+    return np.stack(out)
+
+
+def tile_peaks(fd: np.ndarray, vol: np.ndarray, tile: int) -> tuple[np.ndarray, np.ndarray]:
+    """(peaks (ny, nx) frame focus D, bimodal (ny, nx) bool: a second local maximum above half the peak)."""
+    from training.render.focus_calibration import _peak_log
+
+    n = vol.shape[-1] // tile
+    cur = vol[:, :n * tile, :n * tile].reshape(len(fd), n, tile, n, tile).mean((2, 4)).astype(np.float64)
+    pk = np.array([[_peak_log(fd, cur[:, i, j]) for j in range(n)] for i in range(n)])
+    c = cur / cur.max(0)
+    loc = (c[1:-1] > c[:-2]) & (c[1:-1] >= c[2:]) & (c[1:-1] > 0.5)
+    return pk, loc.sum(0) > 1
+
+
+def truth_focus(fmap, object_m: float, radius: np.ndarray) -> np.ndarray:
+    """Frame focus (D) in which the map puts object_m in focus at each radius (NaN where not monotone)."""
+    fg = np.linspace(0.5, 20.0, 4000)
+    t = fmap.frame_diopters(1.0 / fg, radius.ravel())
+    out = np.array([np.interp(1 / object_m, t[:, j], fg) if np.all(np.diff(t[:, j]) > 0) else np.nan
+                    for j in range(radius.size)])
+    return out.reshape(radius.shape)
+
+
+def replaced(fmap):
+    """The stored map with its own calibration points placed at the frame where the measure peaked."""
+    import dataclasses
+
+    from training.render.focus_calibration import offset_grid
+
+    return dataclasses.replace(fmap, offset_diopters=offset_grid(fmap, fmap.notes["calibration_points"]))
+
+
+def main(argv=None) -> int:
+    from aat_deploy.focus import FocusConfig
+    from aat_deploy.focus.bestfocus import load_json
+    from aat_deploy.focus.measures import focus_volume
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--maps", default=None, help="truth maps to compare, comma-separated (default: the stored map "
+                                                 "and its points placed at the measure's peak)")
+    ap.add_argument("--tiles", action="store_true", help="also the benchmark's nominal chart tiles against each map")
+    ap.add_argument("--out", default=str(RESULTS / "phone_outer_field.json"))
+    a = ap.parse_args(argv)
+    rig = bc.Rig(bc.LENSES["cellphone"])
+    stored = load_json(ROOT / STORED)
+    maps = ({"stored (offsets at F)": stored, "stored points placed at F_peak": replaced(stored)} if not a.maps else
+            {Path(p).name: load_json(ROOT / p) for p in a.maps.split(",")})
+    cfg = FocusConfig()
+    r0, c0, n = REGION
+    rt = rig.fmap.radius_px(rig.h, rig.w)[r0:r0 + n, c0:c0 + n]
+    rows = []
+    for obj in OBJECTS_M:
+        fd, fr = render_patch(rig, obj, 16)
+        _, fr64 = render_patch(rig, obj, 64)
+        peak, bimodal = tile_peaks(fd, focus_volume(fr, cfg.measure, cfg.window_px, prefilter_px=cfg.prefilter_px),
+                                   TILE)
+        peak64, _ = tile_peaks(fd, focus_volume(fr64, cfg.measure, cfg.window_px, prefilter_px=cfg.prefilter_px),
+                               TILE)
+        peak32, _ = tile_peaks(fd, focus_volume(fr, cfg.measure, cfg.window_px, prefilter_px=cfg.prefilter_px), 32)
+        rad, _ = tile_peaks(fd, directional_energy(fr, True, cfg.window_px, cfg.prefilter_px, (rig.h, rig.w)), TILE)
+        azi, _ = tile_peaks(fd, directional_energy(fr, False, cfg.window_px, cfg.prefilter_px, (rig.h, rig.w)), TILE)
+        m = n // TILE
+        r16 = rt[:m * TILE, :m * TILE].reshape(m, TILE, m, TILE).mean((1, 3))
+        m32 = n // 32
+        r32 = rt[:m32 * 32, :m32 * 32].reshape(m32, 32, m32, 32).mean((1, 3))
+        truths = {k: truth_focus(v, obj, r16) for k, v in maps.items()}
+        for lo, hi in BINS:
+            z, z32 = (r16 >= lo) & (r16 < hi), (r32 >= lo) & (r32 < hi)
+            foci = sagittal_tangential_foci(rig.lens, rig.src.focus_table(), float(r16[z].mean()), obj,
+                                            float(np.nanmean(peak[z])))
+            row = {"object_m": obj, "radius": [lo, hi], "tiles": int(z.sum()), "radius_mean": float(r16[z].mean()),
+                   "traced_focus_d": foci, "mlap2_peak_d": float(np.nanmean(peak[z])),
+                   "mlap2_peak_sd_d": float(np.nanstd(peak[z])),
+                   "radial_peak_d": float(np.nanmean(rad[z])), "azimuthal_peak_d": float(np.nanmean(azi[z])),
+                   "bimodal_frac": float(bimodal[z].mean()),
+                   "cells64_minus_cells16_d": float(np.nanmean(peak64[z] - peak[z])),
+                   "tile32_minus_tile16_d": (float(np.nanmean(peak32[z32])) - float(np.nanmean(peak[z]))
+                                             if z32.any() else None),
+                   "maps_focus_d": {k: float(np.nanmean(v[z])) for k, v in truths.items()}}
+            rows.append(row)
+            print(f"  {obj:g} m, radius {lo:g}-{hi:g}: mlap2 {row['mlap2_peak_d']:.2f}, traced S "
+                  f"{foci['sagittal']:.2f} T {foci['tangential']:.2f}", file=sys.stderr, flush=True)
+    tiles = []
+    if a.tiles:
+        from benchmarks.probes.calibrate_phone_offset import part_tiles_vs_truth
+
+        sw = [bc.sweep(rig, "nominal", i, lambda m: None) for i in range(3)]
+        ms = bc.measures(rig, sw, "nominal")
+        for k, v in maps.items():
+            rig.fmap = v
+            tiles += [{"map": k, **t} for t in part_tiles_vs_truth(rig, ms)]
+    from aat_deploy.io.atomic import write_text_atomic
+
+    Path(a.out).parent.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(Path(a.out), json.dumps({"maps": list(maps), "rows": rows, "tiles": tiles}, indent=1))
+    print(table(rows, list(maps)))
+    if tiles:
+        print("\n| map | chart (m) | field radius | tiles | tile peak - map's peak: mean (SD) (D) |\n|---|---|---|---|---|")
+        for t in tiles:
+            print(f"| {t['map']} | {t['chart_m']:g} | {t['zone'][0]:g}-{min(t['zone'][1], 1):g} | {t['tiles']} | "
+                  f"{t['mean_d']:+.3f} ({t['sd_d']:.3f}) |")
+    return 0
+
+
+def table(rows: list[dict], maps: list[str]) -> str:
+    out = ["| object (m) | field radius | traced focus: tangential / min RMS / sagittal (D) | measure's peak: radial "
+           "detail / mlap2 (SD) / azimuthal detail (D) | two peaks | " + " | ".join(f"{m} (D)" for m in maps)
+           + " | anchors 64 px - 16 px (D) | 32 px tiles - 16 px (D) |",
+           "|---|---|---|---|---|" + "---|" * len(maps) + "---|---|"]
+    for r in rows:
+        t = r["traced_focus_d"]
+        t32 = "" if r["tile32_minus_tile16_d"] is None else f"{r['tile32_minus_tile16_d']:+.2f}"
+        out.append(f"| {r['object_m']:g} | {r['radius'][0]:g}-{r['radius'][1]:g} | {t['tangential']:.2f} / "
+                   f"{t['min_rms']:.2f} / {t['sagittal']:.2f} | {r['radial_peak_d']:.2f} / {r['mlap2_peak_d']:.2f} "
+                   f"({r['mlap2_peak_sd_d']:.2f}) / {r['azimuthal_peak_d']:.2f} | {r['bimodal_frac']:.0%} | "
+                   + " | ".join(f"{r['maps_focus_d'][m]:.2f}" for m in maps)
+                   + f" | {r['cells64_minus_cells16_d']:+.2f} | {t32} |")
+    return "\n".join(out)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
