@@ -12,9 +12,9 @@ candidates at once:
    azimuthal and the radial direction minimised separately, design wavelength, the tracer's pupil sampling),
    beside where the runtime's focus measure (`mlap2`, its window and pre-filter) peaks on a rendered patch, and
    where a second derivative along the radial and along the azimuthal direction alone peaks;
-2. **the truth map** (`--maps`, default the stored lenses/best_focus/cellphone_asphere.json and the same map's
-   calibration points placed at the frame where the measure peaked, `focus_calibration.offset_grid`): the frame
-   focus in which each map puts the object in focus, against the measure's peak;
+2. **the truth map** (`--maps`: by default the phone's map made before the fix, as stored and with its own
+   calibration points placed at the frame where the measure peaked, `focus_calibration.offset_grid`, and the map
+   made now): the frame focus in which each map puts the object in focus, against the measure's peak;
 3. **the tile and the renderer's cell**: the patch's 16 px tiles with the renderer's anchors 16 px apart and 64 px
    apart (the chart sweeps'), and the measure averaged over 32 px tiles;
 4. **relative illumination**: not a candidate here. Neither the chart sweeps (`bench_calibrate`: `noise` only, the
@@ -44,7 +44,9 @@ OBJECTS_M = (0.07, 0.1, 0.18)
 BINS = ((0.5, 0.6), (0.6, 0.66), (0.66, 0.72), (0.72, 0.78), (0.78, 0.84), (0.84, 0.9), (0.9, 1.0))
 REGION = (0, 448, 192)  # row, column, side (px)
 TILE = 16
-STORED = "lenses/best_focus/cellphone_asphere.json"
+# the phone's map as it was made before the fix (offsets placed at the rendering's focus; 5 focus settings; its
+# command in models/README.md, of commit 47dfcaf) and as it is now (offsets placed at the measure's peak, 9 settings)
+MAPS = ("results/cellphone_map_before_placement_fix.json", "lenses/best_focus/cellphone_asphere.json")
 
 
 def sagittal_tangential_foci(lens, table, r: float, object_m: float, start_d: float) -> dict:
@@ -180,15 +182,18 @@ def main(argv=None) -> int:
     from aat_deploy.focus.measures import focus_volume
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--maps", default=None, help="truth maps to compare, comma-separated (default: the stored map "
-                                                 "and its points placed at the measure's peak)")
+    ap.add_argument("--maps", default=",".join(MAPS), help="truth maps to compare, comma-separated (a map made "
+                    "before the fix is also shown with its own points placed at the measure's peak)")
     ap.add_argument("--tiles", action="store_true", help="also the benchmark's nominal chart tiles against each map")
     ap.add_argument("--out", default=str(RESULTS / "phone_outer_field.json"))
     a = ap.parse_args(argv)
     rig = bc.Rig(bc.LENSES["cellphone"])
-    stored = load_json(ROOT / STORED)
-    maps = ({"stored (offsets at F)": stored, "stored points placed at F_peak": replaced(stored)} if not a.maps else
-            {Path(p).name: load_json(ROOT / p) for p in a.maps.split(",")})
+    maps = {}
+    for p in a.maps.split(","):
+        m = load_json(ROOT / p)
+        maps[Path(p).name] = m
+        if m.notes.get("calibration", {}).get("placed_at") != "measure_peak":  # made before the fix
+            maps[f"{Path(p).name}, its points placed at F_peak"] = replaced(m)
     cfg = FocusConfig()
     r0, c0, n = REGION
     rt = rig.fmap.radius_px(rig.h, rig.w)[r0:r0 + n, c0:c0 + n]
