@@ -201,14 +201,27 @@ def fit_family(obs: Observations, name: str, degree: int, focus_degree: int, ite
 
 
 def bic(obs: Observations, residual: np.ndarray, k: int, weight: np.ndarray | None = None) -> float:
-    """n log(RSS / n) + k log n over cells (the weighted mean residual of each cell)."""
+    """BIC of tiles grouped in cells, each cell with its own error (its frame's focus error) besides each tile's:
+    n_c log(RSS_between / n_c) + n_w log(RSS_within / n_w) + k log n_c, RSS_between over the cells' weighted mean
+    residuals (n_c cells), RSS_within over the tiles' residuals about their cell's mean (n_w = tiles - cells).
+
+    The between part alone (the criterion before) treats a cell's tiles as one observation, which a frame's own
+    focus error makes them; but it also discards what the tiles of one cell show across the field, and that is
+    where a small reported-focus offset differs from the field term (a phone lens's 0.18 D: the field term's
+    radial powers take a near-constant over most of the field and leave a pattern across it, which averages away
+    within a cell; BENCHMARKS.md). A family that changes only how the cells' means follow the reported focus
+    (scale, curve) changes the between part; a frame's own error cannot enter the within part."""
     w = obs.weight if weight is None else weight
     cells, inv = np.unique(obs.cell, return_inverse=True)
     sw = np.bincount(inv, weights=w, minlength=len(cells))
     ok = sw > 0
-    mean = np.bincount(inv, weights=w * residual, minlength=len(cells))[ok] / sw[ok]
+    mean_all = np.bincount(inv, weights=w * residual, minlength=len(cells)) / np.maximum(sw, 1e-300)
+    mean = mean_all[ok]
     n = max(int(ok.sum()), 2)
-    return n * math.log(max(float(np.sum(mean ** 2)), 1e-300) / n) + k * math.log(n)
+    within = float(np.sum(w * (residual - mean_all[inv]) ** 2))
+    n_w = max(float(np.sum(w)) - n, 1.0)
+    return (n * math.log(max(float(np.sum(mean ** 2)), 1e-300) / n)
+            + n_w * math.log(max(within, 1e-300) / n_w) + k * math.log(n))
 
 
 def spatial_folds(obs: Observations, k: int = 5, blocks: int = 4) -> np.ndarray:

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from aat_deploy.calibrate.model import FieldBasis, Observations, fit_model
+from aat_deploy.calibrate.model import FieldBasis, Observations, fit_all, fit_model
 from benchmarks.probes.family_split import ASPECT, constant_vif, phone_observations, rho2, truth  # the phone's tiles
 
 
@@ -23,8 +23,9 @@ def map_error(fit, bias_d: float) -> np.ndarray:
 def test_a_steep_round_field_does_not_become_a_focus_offset():
     """No reported-focus error, tiles 0.05 D noisy: the fit keeps the frame centre within 0.03 D of the truth (an
     offset, if chosen, within 0.03 D of zero) and the map within 0.04 D RMS inside radius 0.9. With monomials only
-    (the model before the radial powers, as cross-validation chose it on the phone's sweeps) the field's misfit
-    became a reported-focus offset: +1.46 D here, the centre 1.47 D off."""
+    (the model before the radial powers, as cross-validation chose it on the phone's sweeps) the map is over 1 D
+    off, and the offset family takes the field's misfit (+1.46 D here): the criterion of the cells' mean residuals
+    alone chose it (the centre 1.47 D off); with the tiles' pattern within the cells (`model.bic`) none wins."""
     obs = phone_observations()
     fit = fit_model(obs)
     assert fit.radial > 0
@@ -33,7 +34,9 @@ def test_a_steep_round_field_does_not_become_a_focus_offset():
     err = map_error(fit, 0.0)
     assert float(np.sqrt(np.mean(err ** 2))) < 0.04, float(np.sqrt(np.mean(err ** 2)))
     mono = fit_model(obs, radial=0)
-    assert abs(float(mono.predict(0.0, 0.0, 10.0) - truth(0.0, 0.0, 10.0))) > 0.3
+    assert float(np.sqrt(np.mean(map_error(mono, 0.0) ** 2))) > 1.0
+    leak = fit_all(obs, mono.degree, mono.focus_degree, radial=0)["offset"]
+    assert leak[0].bias_d > 0.3 and mono.focus.family == "none"
 
 
 def test_an_offset_is_recovered_under_a_steep_round_field():
@@ -83,8 +86,40 @@ def test_the_offset_is_nearly_collinear_with_the_radial_powers():
     """Why the family is weakly split from the field term at phone scale: over the phone charts' tiles a constant is
     nearly in the span of the radial powers (the field term is zero only at the centre), so the tiles know the
     offset several times less well than with monomials only; with precise tiles (0.05 D) a 0.18 D offset (the
-    measure's own on the phone's axis) is still found."""
+    measure's own on the phone's axis) is still found (as an offset, or inside a monotone curve)."""
     obs = phone_observations()
     assert constant_vif(obs, 2, 12) > 5 * constant_vif(obs, 2, 0)
     fit = fit_model(phone_observations(bias_d=0.18, noise_d=0.05))
-    assert fit.focus.family == "offset" and abs(fit.focus.bias_d - 0.18) < 0.04, fit.focus
+    assert fit.focus.family in ("offset", "monotone"), fit.focus
+    assert abs(float(fit.predict(0.0, 0.0, 10.18) - truth(0.0, 0.0, 10.0))) < 0.04
+
+
+def test_a_small_offset_is_told_from_the_field_term_at_a_phones_tile_scatter():
+    """The measure's own 0.18 D on the phone's axis, tiles 0.15 D noisy (the phone's inside radius 0.66): the offset
+    family, within 0.05 D, the frame centre within 0.05 D, on every seed; without an offset, none. With the BIC
+    over the cells' mean residuals alone (the criterion before) a near-constant was taken by the radial powers
+    and none was chosen on all four seeds, the centre 0.18 D off (benchmarks/probes/family_split.py)."""
+    for seed in range(4):
+        fit = fit_model(phone_observations(bias_d=0.18, noise_d=0.15, seed=seed))
+        assert fit.focus.family == "offset" and abs(fit.focus.bias_d - 0.18) < 0.05, (seed, fit.focus)
+        assert abs(float(fit.predict(0.0, 0.0, 10.18) - truth(0.0, 0.0, 10.0))) < 0.05
+        none = fit_model(phone_observations(bias_d=0.0, noise_d=0.15, seed=seed))
+        assert none.focus.family == "none", (seed, none.focus)
+
+
+def test_bic_weighs_the_pattern_within_a_frames_cell():
+    """Two fits whose cells' mean residuals are the same: the one whose tiles scatter more about their cell's mean
+    (a pattern across the field the model left) has the higher BIC; a common error of one cell's tiles (its
+    frame's focus error) enters only through the cells' means."""
+    from aat_deploy.calibrate.model import bic
+
+    rng = np.random.default_rng(0)
+    n = 400
+    cell = np.repeat(np.arange(20), 20)
+    obs = Observations(np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n, int), cell)
+    base = rng.normal(0, 0.1, n)
+    base -= np.bincount(cell, base)[cell] / 20  # zero cell means
+    frame = rng.normal(0, 0.05, 20)[cell]
+    assert bic(obs, frame + 1.2 * base, 1) > bic(obs, frame + base, 1) + 50
+    assert bic(obs, 1.5 * frame + base, 1) > bic(obs, frame + base, 1)
+    assert bic(obs, frame + base, 2) > bic(obs, frame + base, 1)  # a parameter costs log(cells)
