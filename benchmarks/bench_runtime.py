@@ -14,7 +14,7 @@ tiles of the largest scenes it trained on (aat.tile_px, --tile to set it as a mo
 the runtime overlaps them (`aat_deploy.anycam.model.own_tiles`; the depth difference of that row is tiled vs whole).
 With both `dfvnet` and `dfvaat`, a second table gives the any-camera net's runtime time over the DFVNet's of the
 same size and input (issue 35: no slower than today's DFVNet), and a third the same ratios from --rounds rounds in which the DFVNet and the any-camera net's ways (whole frame, its own
-tiles, tiles a quarter overlapping as before 2026-11-26) run in turn (`in_turns`): median and range over the
+tiles batched and one per run, tiles a quarter overlapping one per run as before 2026-11-26) run in turn (`in_turns`): median and range over the
 rounds, steadier on a shared machine than the separate best-of runs; --json also writes the rows.
 """
 
@@ -162,18 +162,32 @@ def any_camera(size: str, stack: np.ndarray, focus: np.ndarray, threads: int = 2
 
 def in_turns(dfv, anycam, tile: int, stack: np.ndarray, focus: np.ndarray, rounds: int) -> dict[str, list[float]]:
     """{way: seconds in each round}: the DFVNet's runtime, then the any-camera net's on whole frames, in its own tiles
-    (`own_tiles`) and in tiles a quarter overlapping (the runtime before 2026-11-26), one after the other in every
+    (`own_tiles`) batched as the runtime runs them (`TILE_BATCH_PX`) and one per run, and in tiles a quarter
+    overlapping one per run (the runtime before 2026-11-26), one after the other in every
     round on the same input, after one warm-up each: a load change on the shared machine hits the ways of a round
     alike, so the ratio within rounds is steadier than that of separate best-of runs."""
+    import aat_deploy.infer.model as infer_model
     from aat_deploy.anycam.model import own_tiles
 
     _, overlap = own_tiles(tile)
+
+    def one_per_run(fn):  # tiles one per onnxruntime run, as before TILE_BATCH_PX
+        def run():
+            keep, infer_model.TILE_BATCH_PX = infer_model.TILE_BATCH_PX, 1
+            try:
+                return fn()
+            finally:
+                infer_model.TILE_BATCH_PX = keep
+        return run
+
     ways = {"DFVNet": lambda: dfv.infer(stack, focus),
             "any-camera net, whole frame (maps included)": lambda: anycam.infer(stack, focus, tile=0),
-            f"any-camera net as shipped: {tile} px tiles, {overlap} px overlap":
+            f"any-camera net as shipped: {tile} px tiles, {overlap} px overlap, batched":
                 lambda: anycam.infer(stack, focus, tile=tile, overlap=overlap),
-            f"any-camera net, {tile} px tiles, {tile // 4} px overlap (the runtime before 2026-11-26)":
-                lambda: anycam.infer(stack, focus, tile=tile, overlap=tile // 4)}
+            f"any-camera net, {tile} px tiles, {overlap} px overlap, one per run":
+                one_per_run(lambda: anycam.infer(stack, focus, tile=tile, overlap=overlap)),
+            f"any-camera net, {tile} px tiles, {tile // 4} px overlap, one per run (the runtime before 2026-11-26)":
+                one_per_run(lambda: anycam.infer(stack, focus, tile=tile, overlap=tile // 4))}
     for fn in ways.values():
         fn()
     secs: dict[str, list[float]] = {k: [] for k in ways}

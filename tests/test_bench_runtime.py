@@ -32,7 +32,8 @@ def test_a_small_run_writes_both_nets_and_their_ratio(tmp_path, capsys):
     dfv = r["rows"][0]["runtime_s"]
     assert r["anycam_over_dfvnet"][names[1]] == pytest.approx(r["rows"][1]["runtime_s"] / dfv)
     turns = r["rounds_in_turn_s"]["small"]
-    assert list(turns)[0] == "DFVNet" and len(turns) == 4 and all(len(v) == 2 for v in turns.values())
-    assert "16 px overlap (the runtime before" in list(turns)[3] and "8 px overlap" in list(turns)[2]
+    assert list(turns)[0] == "DFVNet" and len(turns) == 5 and all(len(v) == 2 for v in turns.values())
+    assert "16 px overlap, one per run (the runtime before" in list(turns)[4]
+    assert "8 px overlap, batched" in list(turns)[2] and "8 px overlap, one per run" in list(turns)[3]
     out = capsys.readouterr().out
     assert "its time / the DFVNet's" in out and "2 rounds in turn" in out

@@ -154,3 +154,28 @@ def test_frames_larger_than_the_training_images_run_as_tiles_of_that_size(tmp_pa
     assert not np.array_equal(auto, model.infer(stack, focus, tile=0).depth_m)
     small = stack[:, :, :64, :64]
     assert np.array_equal(model.infer(small, focus).depth_m, model.infer(small, focus, tile=0).depth_m)
+
+
+def test_tiles_run_in_batches_give_what_they_give_one_by_one(tmp_path, monkeypatch):
+    """DfFModel.infer runs equal tiles several to one batch of the graph's B axis (TILE_BATCH_PX): every sample is
+    computed on its own, so depth, all-in-focus and spread are those of one tile per run (to float rounding), and
+    progress still counts tiles."""
+    import aat_deploy.infer.model as infer_model
+    from training.nets.dfvaat import build
+    from training.nets.export import export_focus_map_onnx, focus_map_metadata
+
+    torch.manual_seed(3)
+    path = tmp_path / "m.onnx"
+    md = focus_map_metadata(build(), effects=[], stack_range=(3, 16), config_hash="test", k_range=(0.3, 64))
+    export_focus_map_onnx(build(), path, md, check_shapes=[(1, 3, 32, 64)])
+    focus = np.array([0.6, 1.0, 2.0, 5.0], np.float32)
+    model = FocusMapModel(path, mapping=mapping_from_args(lens=RF50))
+    model = model.bound(model.mapping_optics(160), focus)
+    stack = np.random.default_rng(2).random((4, 3, 96, 160), dtype=np.float32)
+    seen = []
+    batched = model.infer(stack, focus, tile=64, overlap=16, progress=lambda d, t: seen.append((d, t)))
+    assert infer_model.TILE_BATCH_PX // 64**2 >= 6 and seen == [(i, 6) for i in range(1, 7)]  # 2 x 3 tiles, 1 run
+    monkeypatch.setattr(infer_model, "TILE_BATCH_PX", 1)  # one tile per run
+    single = model.infer(stack, focus, tile=64, overlap=16)
+    for a, b in ((batched.depth_m, single.depth_m), (batched.aif, single.aif), (batched.std_m, single.std_m)):
+        assert np.abs(a - b).max() <= 1e-5 * np.abs(b).max()
