@@ -9,11 +9,12 @@ the camera's user knows:
 Channel 1 is each frame's defocus position in pixels of blur, k (D_s - mean_s D_s) / 16: how much sharper or blurrier
 than its neighbours frame s makes a point, whatever the camera; channel 2 is log2(k) / 4. They enter every level's
 per-frame features as a bias, a 1x1 convolution of the channels averaged down to that level's scale (`Conditioned
-DFVNet`; computed in the cheaper order `cond_bias` documents, the same math), not as image channels: a nearly constant image channel through the zero-padded 7x7 stem marks the image
-border, and the first run's net learnt rings from the border instead of focus. The head interpolates the
-per-pixel focus diopters: D = sum_s p_s D_s(pixel) with p = softmax over S, depth_m = 1 / D. A pixel that is sharpest
-in frame s is placed where that frame really focuses at that pixel, so the map's aberrations (field curvature,
-tilt, astigmatism) need not be learnt: the net is aberration-aware for lenses it never saw.
+DFVNet`, computed in the cheaper order `cond_bias` documents, the same math), not as image channels: a nearly
+constant image channel through the zero-padded 7x7 stem marks the image border, and the first run's net learnt rings
+from the border instead of focus. The head interpolates the per-pixel focus diopters: D = sum_s p_s D_s(pixel) with
+p = softmax over S, depth_m = 1 / D. A pixel that is sharpest in frame s is placed where that frame really focuses at
+that pixel, so the map's aberrations (field curvature, tilt, astigmatism) need not be learnt: the net is
+aberration-aware for lenses it never saw.
 
 Every kernel is shape-agnostic (as DFVNet's), so one ONNX export runs at any S (>= 3), H, W (multiples of 32).
 Frames are sorted near -> far (descending mean diopters); the runtime sorts and pads, as `predict` does here.
@@ -95,7 +96,7 @@ class ConditionedDFVNet(DFVNet):
     def forward(self, stack: Tensor, dk: Tensor, lk: Tensor) -> list[Tensor]:
         b, s, c, h, w = stack.shape
         feats = self.encoder(stack.reshape(b * s, c, h, w))
-        dk, lk = dk.reshape(b * s, 1, h, w), lk
+        dk = dk.reshape(b * s, 1, h, w)
         for i, proj in enumerate(self.cond):
             f = 4 if i == 0 else 2  # a 2x2 mean of 4x4-window means is the 8x8-window mean (H, W multiples of 32)
             dk, lk = F.avg_pool2d(dk, f, f), F.avg_pool2d(lk, f, f)
