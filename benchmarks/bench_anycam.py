@@ -26,8 +26,8 @@ scenes): MAE by stack size (3, 5, 8, 12, 16 frames) and by schedule (even in dio
 phone-like: 5 frames over the near range 0.5-2 m); `--lenses` with no lens runs only the tables. Results as JSON in
 --out (`anycam_<label>.json`, maps `figures/anycam_<label>_<lens>_<protocol>_*.png`; without --label `anycam.json`),
 tables printed for BENCHMARKS.md. The JSON is written after every lens and protocol and every table row, with each
-scene's scores: a rerun of the same command (same model file, n, tile and overlap) skips what it holds and reprints its
-tables, so a killed run resumes and short commands (one lens, one protocol, one table) add to one file; a file of
+scene's scores: a rerun of the same command (same model file, n, tile and overlap) skips what it holds and reprints
+its tables, so a killed run resumes and short commands (one lens, one protocol, one table) add to one file; a file of
 another model or setting is refused unless --force, which starts it afresh.
 """
 
@@ -236,8 +236,8 @@ def tile_overlap(tile: int | None) -> str:
 
 
 def previous(path: Path, ident: dict, force: bool) -> dict:
-    """The results file to add to: its content when it was made with the same `ident` (model file, n, tile, overlap), a fresh
-    one with --force or none there; else SystemExit with one line naming the file and what differs."""
+    """The results file to add to: its content when it was made with the same `ident` (model file, n, tile,
+    overlap), a fresh one with --force or none there; else SystemExit with one line naming the file and what differs."""
     if force or not path.is_file():
         return {**ident, "lenses": {}}
     try:

@@ -9,12 +9,12 @@ a lens's fixed-protocol held-out set (cached by bench_anycam) on whole frames (t
 each size (`FocusMapModel.infer(tile=T)`, a quarter of the tile overlapping), beside the classical method with the
 same map. Prints each stack's MAE (m) and the means. The test stacks are test scenes, so on them this probe chooses
 nothing: it showed that the first run's net, trained on 128 px images, is worse the larger the image
-(docs/training.md). `--overlaps` runs every tile size at each of these overlaps (px; the runtime caps it at a quarter
-of the tile) instead of a quarter of the tile; the table then also gives each setting's pixels run per frame pixel
-(the tiling's cost, `aat_deploy.infer.model.tile_grid`) and its MAE over the first setting's, paired over the
-stacks with a 95 % bootstrap interval (`aat_deploy.eval.stats.paired_ratio`); --json writes each stack's MAEs. `--split validation` scores validation stacks instead (training photographs, their own seed
+(docs/training.md). `--split validation` scores validation stacks instead (training photographs, their own seed
 benchmarks.select_focus_noise.VAL_SEED; rendered on first use): what may choose a setting, on the RF50 only (the
-held-out lenses choose nothing).
+held-out lenses choose nothing). `--overlaps` runs every tile size at each of these overlaps (px; the runtime caps it
+at a quarter of the tile) instead of a quarter of the tile; the table then also gives each setting's pixels run per
+frame pixel (the tiling's cost, `aat_deploy.infer.model.tile_grid`) and its MAE over the first setting's, paired over
+the stacks with a 95 % bootstrap interval (`aat_deploy.eval.stats.paired_ratio`); --json writes each stack's MAEs.
 """
 
 from __future__ import annotations
@@ -81,12 +81,9 @@ def main(argv: list[str] | None = None) -> int:
     print("| " + " | ".join(f"{v:.3f}" for v in np.mean(rows, 0)) + " |")
     if a.overlaps is not None:
         from aat_deploy.eval.stats import fmt_interval, paired_ratio
-        from aat_deploy.infer.model import tile_grid
 
         h, w = items[0].stack.shape[2:]
-        cost = [1.0 if t == 0 or (h <= t and w <= t) else
-                (lambda g: len(g[2]) * len(g[3]) * g[0] ** 2 / (h * w))(tile_grid(h, w, t, o, model.size_multiple))
-                for t, o in settings]
+        cost = [px_run_per_px(h, w, t, o, model.size_multiple) for t, o in settings]
         per = [[{"mae": r[i]} for r in rows] for i in range(len(labels))]
         print("| " + " | ".join(f"{c:.2f} px run per px ({h} x {w})" for c in cost) + " | |")
         print("| " + " | ".join(fmt_interval(paired_ratio(p, per[0])) + " x the first" for p in per) + " |")
@@ -96,6 +93,16 @@ def main(argv: list[str] | None = None) -> int:
         write_text_atomic(a.json, json.dumps({"model": str(a.model), "lens": a.lens, "split": a.split,
                                               "labels": labels, "mae_m": rows}, indent=1))
     return 0
+
+
+def px_run_per_px(h: int, w: int, tile: int, overlap: int, multiple: int) -> float:
+    """Pixels the net runs per frame pixel in tiles (`DfFModel.infer`'s layout; 1 for whole frames, tile 0)."""
+    from aat_deploy.infer.model import tile_grid
+
+    if tile == 0 or (h <= tile and w <= tile):
+        return 1.0
+    side, _, ys, xs = tile_grid(h, w, tile, overlap, multiple)
+    return len(ys) * len(xs) * side * side / (h * w)
 
 
 if __name__ == "__main__":
