@@ -59,6 +59,12 @@ SYSTEMATIC_D = 0.01
 # a frame whose focus is not known to this (one standard error, its systematic part included, diopters: the
 # precision issue 32 asks of a corrected focus) is reported as undetermined, with its interval, not as a point
 UNDETERMINED_SD_D = 0.02
+# the correlation length (diopters) of the per-frame estimates' errors within a capture: two frames focused d_i and
+# d_j apart err alike with correlation exp(-|d_i - d_j| / ERROR_CORRELATION_D) (`error_correlation`; the twin's
+# misfit changes smoothly with focus). Estimated by maximum likelihood on the tuning capture's sets ONLY (scene
+# 2029: `python -m benchmarks.focus_error_correlation results/diagnose_focus_tune2029_v2.jsonl`,
+# results/focus_error_correlation.md), never on the benchmark's scenes 2027 and 2028 (test material)
+ERROR_CORRELATION_D = 0.135
 
 
 @dataclass
@@ -357,26 +363,48 @@ def frame_systematic(data: SweepData, d: np.ndarray, frames: np.ndarray | None =
     return np.minimum(systematic_d * factor, MAX_ERROR_D)
 
 
+def error_correlation(focus_d: np.ndarray, frames: np.ndarray, length_d: float = ERROR_CORRELATION_D) -> np.ndarray:
+    """(n, S, S) the correlation of the per-frame estimates' errors between the frames of each capture focused at
+    focus_d (n, S) diopters: exp(-|d_i - d_j| / length_d) (`ERROR_CORRELATION_D`), 1 on the diagonal, 0 for
+    padding frames and between captures (each capture its own matrix); length_d <= 0: independent (identity)."""
+    real = np.asarray(frames) > 0
+    d = np.where(real, np.asarray(focus_d, np.float64), 0.0)
+    gap = np.abs(d[:, :, None] - d[:, None, :])
+    corr = np.exp(-gap / length_d) if length_d > 0 else np.broadcast_to(np.eye(d.shape[1]), gap.shape)
+    return np.where(real[:, :, None] & real[:, None, :], corr, 0.0)
+
+
 def corrected_sd(fit: FamilyFit, reported_d: np.ndarray, frame_sd: np.ndarray, frames: np.ndarray,
-                 systematic_d: float | np.ndarray = SYSTEMATIC_D) -> np.ndarray:
+                 systematic_d: float | np.ndarray = SYSTEMATIC_D, length_d: float = ERROR_CORRELATION_D) -> np.ndarray:
     """(n, S) the standard error (diopters) of a family's corrected focus, the per-frame estimates' systematic
-    error included: the covariance (J^T W J)^-1 of the family's least-squares parameters carried to every frame
-    through J (`family_design`), W the inverse of frame_sd^2 + systematic_d^2. A frame that only its own estimate
-    determines (a quantisation bin, `per_frame`) keeps that estimate's error; one a family ties to its neighbours
-    (an offset, a scale) gets theirs too. The parameters' search ranges do not enter: the corrected focus is the
-    least-squares fit (clipped to its range), not a posterior mean, so its error is the estimates'. A Gaussian of a
-    quantisation bin's variance (width^2 / 12) in the covariance made a frame alone in a 0.1 D bin look known to
-    0.020 D while its estimate, which is its corrected focus, was known to 0.028 D (scene 2027's nearest frame,
-    issue 32). A bin does bound a frame's true focus, but a frame known no better than its bin is not determined
-    to 0.02 D either way (a 0.1 D bin's standard deviation is 0.029 D)."""
+    error included: the family's least-squares parameters, weighted W = 1 / (frame_sd^2 + systematic_d^2) as if
+    the frames' errors were independent, carried to every frame through J (`family_design`), with the covariance
+    of the sandwich (J^T W J)^-1 J^T W C W J (J^T W J)^-1, C the errors' covariance: sigma_i sigma_j times their
+    correlation (`error_correlation` of the corrected focus, length_d). Neighbouring frames err alike (the twin's
+    misfit changes smoothly with focus: frames 0-4 of the tuning capture err the same way in 10 of its 12 sets), so
+    a family that ties a frame to its neighbours (a curve's end knot) gets less from them than independent errors
+    would give. length_d <= 0 (or frames far apart) gives C = W^-1 and the old (J^T W J)^-1. A frame that only
+    its own estimate determines (a quantisation bin, `per_frame`) keeps that estimate's error either way; one a
+    family ties to the others (an offset, a scale) gets theirs, less reduced the more they err alike.
+    The parameters' search ranges do not enter: the corrected focus is the least-squares fit (clipped to its
+    range), not a posterior mean, so its error is the estimates'. A Gaussian of a quantisation bin's variance
+    (width^2 / 12) in the covariance made a frame alone in a 0.1 D bin look known to 0.020 D while its estimate,
+    which is its corrected focus, was known to 0.028 D (scene 2027's nearest frame, issue 32). A bin does bound a
+    frame's true focus, but a frame known no better than its bin is not determined to 0.02 D either way (a 0.1 D
+    bin's standard deviation is 0.029 D)."""
     rep = np.asarray(reported_d, np.float64)
     jac, widths = family_design(fit.name, rep, fit.true_d, frames)
     if not widths:
         return np.zeros(rep.shape)
-    jac = np.where((frames > 0)[..., None], jac, 0.0)  # padding frames (NaN) count nothing
-    inv = np.where(frames > 0, 1.0 / (np.asarray(frame_sd, np.float64) ** 2 + np.asarray(systematic_d) ** 2), 0.0)
-    a = np.einsum("nsi,ns,nsj->ij", jac, inv, jac)
-    return np.sqrt(np.maximum(np.einsum("nsi,ij,nsj->ns", jac, np.linalg.pinv(a), jac), 0.0))
+    real = frames > 0
+    jac = np.where(real[..., None], jac, 0.0)  # padding frames (NaN) count nothing
+    sigma = np.sqrt(np.asarray(frame_sd, np.float64) ** 2 + np.asarray(systematic_d) ** 2)
+    inv = np.where(real, 1.0 / sigma ** 2, 0.0)
+    bread = np.linalg.pinv(np.einsum("nsi,ns,nsj->ij", jac, inv, jac))
+    scaled = jac * np.where(real, 1.0 / sigma, 0.0)[..., None]  # W J sigma: the errors in units of their sigma
+    meat = np.einsum("nsi,nst,ntj->ij", scaled, error_correlation(fit.true_d, frames, length_d), scaled)
+    cov = bread @ meat @ bread
+    return np.sqrt(np.maximum(np.einsum("nsi,ij,nsj->ns", jac, cov, jac), 0.0))
 
 
 def score_families(fits: dict[str, FamilyFit], frame_sd: np.ndarray, frames: np.ndarray,
@@ -436,6 +464,7 @@ class MetadataFit:
                 "frame_focus_sd_d": [] if self.frame_sd is None else np.round(self.frame_sd, 5).tolist(),
                 "frame_systematic_d": [] if self.frame_sys is None else np.round(self.frame_sys, 5).tolist(),
                 "corrected_sd_d": [] if self.true_d_sd is None else np.round(self.true_d_sd, 5).tolist(),
+                "error_correlation_d": ERROR_CORRELATION_D,  # the frames' errors' correlation length it assumes
                 "frames_undetermined": [] if self.undetermined is None else self.undetermined.tolist(),
                 "families": [{"family": f.name, "k": f.k, "ss": f.ss, "score": f.score, "true_d": f.true_d.tolist(),
                               **f.detail}

@@ -248,22 +248,79 @@ def test_an_offset_is_not_read_as_a_curve_bent_by_an_unsure_frame():
 
 
 def test_corrected_sd_carries_each_frames_error_through_its_family():
-    """`corrected_sd` by hand: an offset ties every frame to all the estimates (1 / sqrt(sum of the inverse
-    variances)); a quantisation bin holds its own frame's error; a frame whose systematic error is 3 x 0.01 D is
-    undetermined there (>= UNDETERMINED_SD_D), the others not."""
+    """`corrected_sd` by hand, the frames' errors independent (length_d 0): an offset ties every frame to all the
+    estimates (1 / sqrt(sum of the inverse variances)); a quantisation bin holds its own frame's error, whatever
+    the correlation; a frame whose systematic error is 3 x 0.01 D is undetermined there (>= UNDETERMINED_SD_D),
+    the others not."""
     rep = (np.round(TRUE_D / 0.1) * 0.1)[None]
     sd = np.full((1, 8), 0.003)
     sys_d = np.full((1, 8), ff.SYSTEMATIC_D)
     sys_d[0, 0] *= 3
     var = sd ** 2 + sys_d ** 2
     off = ff.FamilyFit("offset", 1, {}, rep - 0.01, 0.0)
-    got = ff.corrected_sd(off, rep, sd, np.ones_like(sd), sys_d)
+    got = ff.corrected_sd(off, rep, sd, np.ones_like(sd), sys_d, length_d=0.0)
     assert np.allclose(got, 1 / math.sqrt(np.sum(1 / var)))
     q = ff.FamilyFit("quantisation", 8, {}, TRUE_D[None].copy(), 0.0)
-    got = ff.corrected_sd(q, rep, sd, np.ones_like(sd), sys_d)[0]
+    got = ff.corrected_sd(q, rep, sd, np.ones_like(sd), sys_d, length_d=0.0)[0]
     assert np.allclose(got, np.sqrt(var[0]))
+    assert np.allclose(ff.corrected_sd(q, rep, sd, np.ones_like(sd), sys_d, length_d=1.0)[0], got)
     assert got[0] >= ff.UNDETERMINED_SD_D and np.all(got[1:] < ff.UNDETERMINED_SD_D)
     assert np.all(ff.corrected_sd(ff.FamilyFit("none", 0, {}, rep, 0.0), rep, sd, np.ones_like(sd)) == 0)
+
+
+def test_correlated_errors_leave_an_offset_undetermined_that_independent_errors_call_determined():
+    """By hand: two frames 0.2 D apart, each estimate's error 0.025 D (systematic), their correlation
+    exp(-0.2 / L) = 0.5. The offset is the two estimates' mean: independent, its standard error is
+    0.025 / sqrt(2) = 0.0177 D (determined); correlated 0.5, sqrt(0.025^2 (1 + 0.5) / 2) = 0.0217 D
+    (undetermined: the second frame adds less than a second independent look)."""
+    rep = np.array([[1.0, 0.8]])
+    sd, sys_d = np.zeros((1, 2)), np.full((1, 2), 0.025)
+    length = 0.2 / math.log(2.0)
+    assert np.allclose(ff.error_correlation(rep, np.ones((1, 2)), length)[0], [[1.0, 0.5], [0.5, 1.0]])
+    off = ff.FamilyFit("offset", 1, {}, rep - 0.03, 0.0)  # corrected focus 0.2 D apart too
+    ind = ff.corrected_sd(off, rep, sd, np.ones((1, 2)), sys_d, length_d=0.0)
+    cor = ff.corrected_sd(off, rep, sd, np.ones((1, 2)), sys_d, length_d=length)
+    assert np.allclose(ind, 0.025 / math.sqrt(2)) and np.all(ind < ff.UNDETERMINED_SD_D)
+    assert np.allclose(cor, math.sqrt(0.025 ** 2 * 1.5 / 2)) and np.all(cor >= ff.UNDETERMINED_SD_D)
+
+
+def test_an_offset_over_unequal_frames_takes_the_correlated_variance_of_its_weighted_mean():
+    """Three frames with unequal errors (bootstrap and systematic parts), correlated exp(-|d_i - d_j| / L): the
+    offset is the inverse-variance weighted mean of the estimates, whose variance by hand is
+    sum_ij w_i w_j s_i s_j r_ij / (sum w)^2, w = 1 / s^2."""
+    rep = np.array([[1.6, 1.3, 0.7]])
+    sd, sys_d = np.array([[0.004, 0.002, 0.003]]), np.array([[0.03, 0.01, 0.012]])
+    s = np.sqrt(sd ** 2 + sys_d ** 2)[0]
+    w = 1 / s ** 2
+    r = np.exp(-np.abs(rep[0][:, None] - rep[0][None]) / 0.25)
+    by_hand = math.sqrt(float(np.sum(np.outer(w * s, w * s) * r)) / w.sum() ** 2)
+    got = ff.corrected_sd(ff.FamilyFit("offset", 1, {}, rep.copy(), 0.0), rep, sd, np.ones((1, 3)), sys_d, 0.25)
+    assert np.allclose(got, by_hand, rtol=1e-12)
+    assert by_hand > 1 / math.sqrt(w.sum())  # the case discriminates: more than the independent errors give
+
+
+@pytest.mark.parametrize("name", ["offset", "scale", "monotone", "quantisation", "per_frame"])
+def test_without_correlation_the_standard_error_is_the_independent_one(name):
+    """length_d 0, or frames far apart against it: the sandwich (J^T W J)^-1 J^T W C W J (J^T W J)^-1 is
+    (J^T W J)^-1, the standard error of independent errors, computed here directly; padding frames and a second
+    capture change nothing of the first's."""
+    rng = np.random.default_rng(3)
+    rep = np.stack([np.round(TRUE_D / 0.1) * 0.1, np.round(TRUE_D / 0.1) * 0.1])
+    rep[1, 6:] = np.nan
+    frames = np.isfinite(rep).astype(np.float64)
+    sd, sys_d = rng.uniform(0.001, 0.006, rep.shape), rng.uniform(0.01, 0.03, rep.shape)
+    true = np.where(frames > 0, rep - 0.01, np.nan)
+    fit = ff.FamilyFit(name, 0, {}, true, 0.0)
+    jac, _ = ff.family_design(name, rep, true, frames)
+    jac = np.where((frames > 0)[..., None], np.nan_to_num(jac), 0.0)
+    w = np.where(frames > 0, 1 / (sd ** 2 + sys_d ** 2), 0.0)
+    cov = np.linalg.pinv(np.einsum("nsi,ns,nsj->ij", jac, w, jac))
+    old = np.sqrt(np.einsum("nsi,ij,nsj->ns", jac, cov, jac))
+    for length in (0.0, 1e-4):
+        got = ff.corrected_sd(fit, rep, sd, frames, sys_d, length_d=length)
+        assert np.allclose(got[frames > 0], old[frames > 0], rtol=1e-9, atol=1e-12)
+    assert not np.allclose(ff.corrected_sd(fit, rep, sd, frames, sys_d, length_d=0.3), old) or \
+        name in ("quantisation", "per_frame")  # each frame its own estimate: no neighbours to lean on
 
 
 def test_a_frame_alone_in_its_bin_is_known_no_better_than_its_estimate():
