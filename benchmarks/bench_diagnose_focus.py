@@ -154,6 +154,15 @@ def undetermined_covers(f: dict, true_d: np.ndarray) -> list[bool] | None:
     return [bool(min(lo, hi) <= 1.0 / t <= max(lo, hi)) for (lo, hi), u, t in zip(ci, und, true_d) if u]
 
 
+def undetermined_frames(row: dict) -> np.ndarray:
+    """(S,) the frames of a row's (first) capture reported undetermined: the corrected focus's standard error
+    (`corrected_sd_d`, rounded to 1e-5 D in the row) at least `focusfit.UNDETERMINED_SD_D`."""
+    from aat_deploy.diagnose import focusfit as ff
+
+    sd = np.asarray(row.get("corrected_sd_d") or [[0.0] * len(row["corrected_err_d"])], np.float64)[0]
+    return sd >= ff.UNDETERMINED_SD_D
+
+
 SYSTEMATIC_GRID_D = (0.005, 0.0075, 0.01, 0.013, 0.015, 0.02, 0.025, 0.03, 0.04, 0.05)
 
 
@@ -289,6 +298,14 @@ def table(rows: list[dict]) -> None:
         over = [r for r in err if r["corrected_max_err_d"] > 0.02 and not r.get("frames_undetermined")]
         print("sets over 0.02 D with every frame reported determined: " + (", ".join(
             f"{r['capture']} {r['kind']} {r['corrected_max_err_d']:.3f} D" for r in over) or "none"))
+        flags = [(np.abs(r["corrected_err_d"]), undetermined_frames(r), r.get("undetermined_covers") or [])
+                 for r in err if r.get("corrected_sd_d")]
+        if flags:  # frame by frame: a determined frame claims a corrected distance, an undetermined one does not
+            det = np.concatenate([e[~u] for e, u, _ in flags])
+            cov = [c for _, _, cs in flags for c in cs]
+            print(f"frames reported determined within 0.02 D of the truth: {int(np.sum(det <= 0.02))}/{len(det)}; "
+                  f"frames reported undetermined: {sum(int(u.sum()) for _, u, _ in flags)}, their 95 % interval "
+                  f"holding the truth in {sum(cov)}/{len(cov)}")
     un = [r for r in rows if r["kind"] == "none"]
     if un:
         bad = sum(r["focus_named"] or r["family"] != "none" for r in un)
@@ -343,6 +360,12 @@ def compare(old: list[dict], new: list[dict]) -> None:
     print(f"\nsame family in {fams}/{len(both)}, same corrected focus in {corr}/{len(both)}; standard errors moved "
           f"by more than 1 % in {sum(m > 0.01 for m in moved)} set(s); same verdict and effects named in "
           f"{same}/{len(both)}")
+    # frames that became undetermined in sets every frame of which was within 0.02 D before: precision given up
+    fine = [k for k in both if a[k]["kind"] != "none" and a[k]["corrected_max_err_d"] <= 0.02]
+    new_und = sum(int(np.sum(undetermined_frames(b[k]) & ~undetermined_frames(a[k]))) for k in fine)
+    print(f"frames undetermined: {sum(int(undetermined_frames(a[k]).sum()) for k in both)} before, "
+          f"{sum(int(undetermined_frames(b[k]).sum()) for k in both)} after; newly undetermined in the {len(fine)} "
+          f"sets with an error that were within 0.02 D before: {new_und}")
 
 
 def main() -> None:

@@ -17,6 +17,10 @@ draws. The interval treats them as independent and so understates how uncertain 
 
     python -m benchmarks.focus_error_correlation results/diagnose_focus_tune2029_v2.jsonl \
         [--capture scene2029] [--out results/focus_error_correlation.md]
+    python -m benchmarks.focus_error_correlation --sensitivity RESULTS.jsonl   # flags against the length
+
+`--sensitivity` reads any sets (the benchmark's too) and chooses nothing: what the flags would be at other
+lengths, to say whether any correlation of this form could change a verdict.
 """
 
 from __future__ import annotations
@@ -88,23 +92,56 @@ def estimate(rows: list[dict], capture: str = TUNING_CAPTURE, grid=LENGTH_GRID_D
 
 def calibration(rows: list[dict], capture: str, length_d: float) -> list[tuple]:
     """Per set: the chosen family's largest |corrected error| / standard error over the frames, independent
-    (length 0) and correlated (length_d), from the row's stored fits (`focusfit.corrected_sd`)."""
-    from aat_deploy.diagnose import focusfit as ff
-
+    (length 0) and correlated (length_d), from the row's stored fits (`row_sd`)."""
     out = []
     for r in usable(rows, capture):
-        fam = next((f for f in r["families"] if f["family"] == r["family"]), None)
-        if fam is None or r["family"] == "none":
+        one = [row_sd(r, length) for length in (0.0, length_d)]
+        if one[0] is None:
             continue
-        true_d = np.asarray(fam["true_d"], np.float64)
-        rep = np.asarray(next(f for f in r["families"] if f["family"] == "none")["true_d"], np.float64)
-        fit = ff.FamilyFit(r["family"], int(fam["k"]), {}, true_d, 0.0)
-        sd, sys_d = np.asarray(r["frame_focus_sd_d"]), np.asarray(r["frame_systematic_d"])
         err = np.abs(np.asarray(r["corrected_err_d"], np.float64))
-        one = [ff.corrected_sd(fit, rep, sd, np.ones_like(sd), sys_d, length)[0] for length in (0.0, length_d)]
         out.append((r["kind"], r["family"], float(err.max()), float(np.max(err / one[0])), float(np.max(one[0])),
                     float(np.max(err / one[1])), float(np.max(one[1]))))
     return out
+
+
+def row_sd(row: dict, length_d: float) -> np.ndarray | None:
+    """(S,) the standard error of a row's chosen family's corrected focus (`focusfit.corrected_sd` on the row's
+    stored fits) at this correlation length; None for `none` or rows without the fits."""
+    from aat_deploy.diagnose import focusfit as ff
+
+    fams = {f["family"]: f for f in row.get("families") or []}
+    if row.get("family") in (None, "none") or row["family"] not in fams or "none" not in fams \
+            or not row.get("frame_focus_sd_d") or not row.get("frame_systematic_d"):
+        return None
+    fit = ff.FamilyFit(row["family"], int(fams[row["family"]]["k"]), {},
+                       np.asarray(fams[row["family"]]["true_d"], np.float64), 0.0)
+    sd, sys_d = np.asarray(row["frame_focus_sd_d"], np.float64), np.asarray(row["frame_systematic_d"], np.float64)
+    rep = np.asarray(fams["none"]["true_d"], np.float64)
+    return ff.corrected_sd(fit, rep, sd, np.ones_like(sd), sys_d, length_d)[0]
+
+
+def sensitivity(rows: list[dict], lengths=(0.0, None, 0.5, 1.0, 10.0)) -> str:
+    """How the undetermined flags of any rows (evaluation sets: this reads them, it chooses nothing) would move with
+    the correlation length (None: the code's ERROR_CORRELATION_D): per length, the frames reported undetermined,
+    and for every set some frame of which is more than 0.02 D off, its worst frame's standard error."""
+    from aat_deploy.diagnose import focusfit as ff
+
+    lengths = [ff.ERROR_CORRELATION_D if x is None else x for x in lengths]
+    last = {(r["capture"], r["kind"]): r for r in rows}
+    sds = {k: [row_sd(r, x) for x in lengths] for k, r in last.items()}
+    sds = {k: v for k, v in sds.items() if v[0] is not None}
+    lines = ["| correlation length (D) | " + " | ".join(f"{x:g}" for x in lengths) + " |",
+             "|---|" + "---|" * len(lengths),
+             "| frames undetermined (SE >= 0.02 D) | " + " | ".join(
+                 str(sum(int(np.sum(v[j] >= ff.UNDETERMINED_SD_D)) for v in sds.values())) for j in range(len(lengths)))
+             + " |"]
+    for k, v in sorted(sds.items()):
+        err = np.abs(np.asarray(last[k]["corrected_err_d"], np.float64))
+        if err.max() > 0.02:
+            i = int(np.argmax(err))
+            lines.append(f"| {k[0]} {k[1]}: frame {i}, {err[i]:.3f} D off, its SE (D) | "
+                         + " | ".join(f"{x[i]:.4f}" for x in v) + " |")
+    return "\n".join(lines) + "\n"
 
 
 def report(rows: list[dict], capture: str = TUNING_CAPTURE) -> str:
@@ -145,9 +182,11 @@ def main() -> None:
     ap.add_argument("results", nargs="+", help="bench_diagnose_focus results files (rows with the stored fits)")
     ap.add_argument("--capture", default=TUNING_CAPTURE, help="the tuning capture (never a benchmark capture)")
     ap.add_argument("--out", help="also write the report here (markdown)")
+    ap.add_argument("--sensitivity", action="store_true", help="instead: how the undetermined flags of these rows "
+                    "(any sets, e.g. the benchmark's) would move with the correlation length; chooses nothing")
     a = ap.parse_args()
     rows = [json.loads(x) for f in a.results for x in Path(f).read_text().splitlines() if x.strip()]
-    text = report(rows, a.capture)
+    text = sensitivity(rows) if a.sensitivity else report(rows, a.capture)
     print(text, end="")
     if a.out:
         from aat_deploy.io.atomic import write_text_atomic

@@ -48,3 +48,21 @@ def test_compare_says_what_moved_between_two_runs(capsys):
     new[0]["verdict"] = "partly_explained"
     bench.compare(old, new)
     assert "same verdict and effects named in 1/2" in capsys.readouterr().out
+
+
+def test_frames_are_counted_one_by_one_determined_within_and_undetermined_holding_the_truth(capsys):
+    """Frame by frame: a determined frame claims its corrected distance (counted within 0.02 D or not), an
+    undetermined one (standard error >= UNDETERMINED_SD_D) does not; the comparison counts frames that became
+    undetermined in sets that were within 0.02 D before."""
+    a = _row("a", "quantised", 0.042, und=1, sd=0.01)
+    a["corrected_sd_d"] = [[0.0276, 0.01]]
+    b = _row("b", "monotone", 0.034, sd=0.012)
+    c = _row("c", "offset_+0.05", 0.004, sd=0.004)
+    bench.table([a, b, c])
+    out = capsys.readouterr().out
+    assert "frames reported determined within 0.02 D of the truth: 4/5; frames reported undetermined: 1, " \
+           "their 95 % interval holding the truth in 1/1" in out
+    c2 = dict(c, corrected_sd_d=[[0.021, 0.004]], frames_undetermined=1)
+    bench.compare([a, b, c], [a, b, c2])
+    assert "frames undetermined: 1 before, 2 after; newly undetermined in the 1 sets with an error that were " \
+           "within 0.02 D before: 1" in capsys.readouterr().out

@@ -58,3 +58,15 @@ def test_only_the_tuning_capture_enters_and_the_report_says_what_was_ignored():
     assert "| set0 | offset |" in text  # the corrected focus's z per set, independent and correlated
     with pytest.raises(SystemExit):
         fec.estimate(test)
+
+
+def test_sensitivity_lists_the_flags_and_each_missed_sets_standard_error_per_length():
+    rows = rows_drawn(0.0, 3, capture="scene2027", seed=4)
+    rows[1]["corrected_err_d"][2] = 0.05  # a set with a frame 0.05 D off
+    text = fec.sensitivity(rows, lengths=(0.0, 0.3))
+    sd, sys_d = np.asarray(rows[1]["frame_focus_sd_d"]), np.asarray(rows[1]["frame_systematic_d"])
+    independent = 1 / np.sqrt(np.sum(1 / (sd ** 2 + sys_d ** 2)))  # an offset: the inverse-variance mean's
+    correlated = fec.row_sd(rows[1], 0.3)[2]
+    assert correlated > independent  # the case discriminates
+    assert f"| scene2027 set1: frame 2, 0.050 D off, its SE (D) | {independent:.4f} | {correlated:.4f} |" in text
+    assert "| frames undetermined (SE >= 0.02 D) | 0 | 0 |" in text and "set0" not in text
