@@ -163,6 +163,19 @@ def undetermined_frames(row: dict) -> np.ndarray:
     return sd >= ff.UNDETERMINED_SD_D
 
 
+def reported_outside(row: dict, z: float = 1.959964) -> bool | None:
+    """Does some frame's reported focus lie outside the 95 % interval of its corrected focus (corrected focus
+    +- z standard errors, `corrected_sd_d`: the `total_ci_m` the verdict tests, in diopters)? None without the
+    stored fits."""
+    fams = {f["family"]: f for f in row.get("families") or []}
+    if row.get("family") not in fams or "none" not in fams or not row.get("corrected_sd_d"):
+        return None
+    rep = np.asarray(fams["none"]["true_d"], np.float64)[0]
+    corr = np.asarray(fams[row["family"]]["true_d"], np.float64)[0]
+    sd = np.asarray(row["corrected_sd_d"], np.float64)[0]
+    return bool(np.any(np.abs(rep - corr) > z * sd))
+
+
 SYSTEMATIC_GRID_D = (0.005, 0.0075, 0.01, 0.013, 0.015, 0.02, 0.025, 0.03, 0.04, 0.05)
 
 
@@ -363,6 +376,12 @@ def compare(old: list[dict], new: list[dict]) -> None:
     # frames that became undetermined in sets every frame of which was within 0.02 D before: precision given up
     fine = [k for k in both if a[k]["kind"] != "none" and a[k]["corrected_max_err_d"] <= 0.02]
     new_und = sum(int(np.sum(undetermined_frames(b[k]) & ~undetermined_frames(a[k]))) for k in fine)
+    outside = [(k, reported_outside(a[k]), reported_outside(b[k])) for k in both]
+    outside = [(k, x, y) for k, x, y in outside if x is not None and y is not None]
+    print(f"sets whose reported focus lies outside its corrected focus's 95 % interval (the systematic part "
+          f"included) in some frame (`verdict.focus_measured`'s test): {sum(x for _, x, _ in outside)} before, "
+          f"{sum(y for _, _, y in outside)} after, of {len(outside)}; changed: "
+          + (", ".join(f"{k[0]} {k[1]}" for k, x, y in outside if x != y) or "none"))
     print(f"frames undetermined: {sum(int(undetermined_frames(a[k]).sum()) for k in both)} before, "
           f"{sum(int(undetermined_frames(b[k]).sum()) for k in both)} after; newly undetermined in the {len(fine)} "
           f"sets with an error that were within 0.02 D before: {new_und}")

@@ -66,3 +66,16 @@ def test_frames_are_counted_one_by_one_determined_within_and_undetermined_holdin
     bench.compare([a, b, c], [a, b, c2])
     assert "frames undetermined: 1 before, 2 after; newly undetermined in the 1 sets with an error that were " \
            "within 0.02 D before: 1" in capsys.readouterr().out
+
+
+def test_compare_counts_sets_whose_reported_focus_leaves_the_widened_interval(capsys):
+    """The verdict's test of a measured error, by hand: reported 0.05 D from the corrected focus is outside
+    +-1.96 x 0.02 D (0.039) but inside +-1.96 x 0.03 D (0.059)."""
+    fams = [{"family": "none", "true_d": [[1.05, 0.5]]}, {"family": "offset", "true_d": [[1.0, 0.45]]}]
+    old = dict(_row("a", "offset_+0.05", 0.004, sd=0.02), families=fams)
+    new = dict(old, corrected_sd_d=[[0.03, 0.03]])
+    assert bench.reported_outside(old) and not bench.reported_outside(new)
+    assert bench.reported_outside(_row("b", "offset_+0.05", 0.004)) is None  # rows without the stored fits
+    bench.compare([old], [new])
+    assert "in some frame (`verdict.focus_measured`'s test): 1 before, 0 after, of 1; changed: a offset_+0.05" \
+        in capsys.readouterr().out
