@@ -81,6 +81,7 @@ class LensSetup:
     marker_frac: float | None = None  # marker side / grid spacing (None: the chart's default, a quarter)
     schedule_m: tuple = (0.5, 10.0)  # the depth stacks' 8 frames (even in diopters) and their scenes' range (m)
     middlebury: bool = True  # Middlebury Motorcycle among the held-out stacks (its depths are 1-2 m)
+    cell_px: int = 64  # the renderer's PSF anchor spacing (px) for the chart sweeps and the held-out stacks (--cell-px)
 
     def schedule(self) -> np.ndarray:
         """The depth stacks' 8 true focus distances (m, near to far)."""
@@ -178,7 +179,7 @@ class Rig:
 
         self.setup = setup
         self.lens = load_lens(ROOT / setup.lens)
-        self.src = OnnxSource(ROOT / setup.psf, self.lens, threads=2)
+        self.src = OnnxSource(ROOT / setup.psf, self.lens, threads=1)  # heavy jobs run single-threaded
         from aat_deploy.focus import FocusConfig
 
         self.fmap = load_json(ROOT / truth_map if truth_map else
@@ -249,7 +250,8 @@ def sweep(rig: Rig, variant: str, i: int, progress=print) -> dict:
     s = rig.setup
     d, (tx, ty) = s.distances_m[i], s.tilts[i]
     effects = effects_for(s, variant)
-    f = CACHE / f"{s.key}_{variant}_{d:g}m.npz"
+    cells = "" if s.cell_px == 64 else f"_cells{s.cell_px}"
+    f = CACHE / f"{s.key}_{variant}_{d:g}m{cells}.npz"
     img, layout = chart_for(rig, d)
     if f.is_file():
         z = np.load(f)
@@ -260,7 +262,8 @@ def sweep(rig: Rig, variant: str, i: int, progress=print) -> dict:
     fd = sweep_diopters(rig, float(dd.max()), float(dd.min()))
     true_m = 1.0 / fd  # far to near (diopters ascending), as a sweep is read
     t0 = time.time()
-    frames, reported = shoot(rig.lens, rgb * 0.6, depth, true_m, effects, rig.src, seed=1000 + i, workers=2)
+    frames, reported = shoot(rig.lens, rgb * 0.6, depth, true_m, effects, rig.src, seed=1000 + i, workers=1,
+                             cell_px=s.cell_px)
     progress(f"  {s.key} {variant} chart at {d:g} m: {len(fd)} frames in {time.time() - t0:.0f} s")
     CACHE.mkdir(parents=True, exist_ok=True)
     from aat_deploy.io.atomic import atomic_file
@@ -401,7 +404,8 @@ def part_depth(rig: Rig, cal, n: int, log) -> dict:
     eff = tuple(effects_for(s, "copy"))
     near, far = s.schedule_m
     spec = TestSetSpec(s.lens, s.psf, 8, protocol="fixed", n_procedural=n, effects=eff, focus_near_m=near,
-                       focus_far_m=far, scene_near_m=near, scene_far_m=far, middlebury=s.middlebury)
+                       focus_far_m=far, scene_near_m=near, scene_far_m=far, middlebury=s.middlebury,
+                       cell_px=s.cell_px)
     t0 = time.time()
     sets = load_test_set(spec, str(ROOT / "cache/heldout"))
     items = sets["procedural"] + sets.get("middlebury", [])
@@ -630,6 +634,10 @@ def main(argv=None) -> int:
     ap.add_argument("--prefilter-px", type=float, default=None, help="that measure's pre-filter (px)")
     ap.add_argument("--truth-map", default=None, help="the truth and prescription best-focus map (a path in the "
                     "repo; default lenses/best_focus/<lens>.json), calibrated for --measure")
+    ap.add_argument("--cell-px", type=int, default=None,
+                    help="the renderer's PSF anchor spacing (px) for the sweeps and held-out stacks (default 64; a "
+                         "phone's best focus moves by diopters over 64 px: benchmarks/probes/phone_outer_field.py); "
+                         "renders cached apart")
     ap.add_argument("--tables", nargs="+", metavar="RESULT.json",
                     help="only print the tables of earlier runs' results, merged (BENCHMARKS.md's)")
     a = ap.parse_args(argv)
@@ -646,7 +654,8 @@ def main(argv=None) -> int:
     log = lambda m: print(m, file=sys.stderr, flush=True)
     res: dict = {"map": [], "depth": {}, "needs": {}, "blind": {}}
     for key in a.lenses.split(","):
-        rig = Rig(LENSES[key], a.truth_map, a.measure, a.prefilter_px)
+        setup = LENSES[key] if a.cell_px is None else dataclasses.replace(LENSES[key], cell_px=a.cell_px)
+        rig = Rig(setup, a.truth_map, a.measure, a.prefilter_px)
         log(f"{key}: {rig.lens.name}")
         rows, fits = part_map(rig, a.boot, log)
         if "map" in parts:

@@ -15,8 +15,8 @@ candidates at once:
 2. **the truth map** (`--maps`: by default the phone's map made before the fix, as stored and with its own
    calibration points placed at the frame where the measure peaked, `focus_calibration.offset_grid`, and the map
    made now): the frame focus in which each map puts the object in focus, against the measure's peak;
-3. **the tile and the renderer's cell**: the patch's 16 px tiles with the renderer's anchors 16 px apart and 64 px
-   apart (the chart sweeps'), and the measure averaged over 32 px tiles;
+3. **the tile and the renderer's cell**: the patch's 16 px tiles with the renderer's anchors 16 px apart, 32 px
+   (the map calibration's) and 64 px (the chart sweeps' default), and the measure averaged over 32 px tiles;
 4. **relative illumination**: not a candidate here. Neither the chart sweeps (`bench_calibrate`: `noise` only, the
    `aberrations` PSFs) nor the map's calibration renders use the `vignetting` effect, and the PSFs are unit-energy
    (`UnitEnergy`); a tile's brightness does not change across the sweep, so it cannot move the peak.
@@ -53,36 +53,15 @@ def sagittal_tangential_foci(lens, table, r: float, object_m: float, start_d: fl
     """Frame focus (diopters) at which the object at object_m, field radius r on the diagonal, has its tangential
     focus (least ray spread along the radial direction), its sagittal focus (along the azimuthal direction) and
     its smallest RMS spot (`training.optics.field_focus`'s definition) on the sensor; secant method in diopters."""
-    import torch
+    from training.optics.field_focus import N_RAYS, _pupil, image_shift_mm
 
-    from aat_deploy.optics.paraxial import paraxial_data
-    from training.optics.field_focus import N_RAYS, _pupil
-    from training.optics.trace import Rays, start_plane_z_mm, trace
-    from training.psf.geometry import object_points_mm
-
-    pupil_xy, pupil_r = _pupil(lens, N_RAYS)
+    pupil = _pupil(lens, N_RAYS)
     s = lens.sensor
     radial = np.array([s.width_mm, s.height_mm]) / np.hypot(s.width_mm, s.height_mm)  # the diagonal x = y = r
     dirs = {"tangential": radial, "sagittal": np.array([-radial[1], radial[0]]), "min_rms": None}
-    z_ep = paraxial_data(lens).entrance_pupil_z_mm
 
     def shift(key, focus_d):
-        zs = float(table(1.0 / focus_d))
-        obj = object_points_mm(lens, r, r, object_m, zs)[0]
-        target = torch.cat([pupil_xy * pupil_r, torch.full_like(pupil_xy[:, :1], z_ep)], -1)
-        d = target - obj
-        d = d * torch.sign(d[:, 2:3])
-        d = d / torch.linalg.vector_norm(d, dim=-1, keepdim=True)
-        o = target + ((start_plane_z_mm(lens) - z_ep) / d[:, 2:3]) * d
-        res = trace(lens, Rays(o, d, torch.ones(o.shape[0], dtype=torch.bool)), None, sensor_z_mm=zs)
-        v = res.rays.valid
-        a = res.rays.o[v, :2].numpy()
-        b = (res.rays.d[v, :2] / res.rays.d[v, 2:3]).numpy()
-        a, b = a - a.mean(0), b - b.mean(0)
-        u = dirs[key]
-        if u is not None:
-            a, b = a @ u, b @ u
-        return float(-(a * b).sum() / (b * b).sum())
+        return image_shift_mm(lens, r, object_m, float(table(1.0 / focus_d)), pupil, direction=dirs[key])
 
     out = {}
     for key in dirs:
@@ -201,11 +180,14 @@ def main(argv=None) -> int:
     for obj in OBJECTS_M:
         fd, fr = render_patch(rig, obj, 16)
         _, fr64 = render_patch(rig, obj, 64)
+        _, fr32 = render_patch(rig, obj, 32)
         peak, bimodal = tile_peaks(fd, focus_volume(fr, cfg.measure, cfg.window_px, prefilter_px=cfg.prefilter_px),
                                    TILE)
         peak64, _ = tile_peaks(fd, focus_volume(fr64, cfg.measure, cfg.window_px, prefilter_px=cfg.prefilter_px),
                                TILE)
         peak32, _ = tile_peaks(fd, focus_volume(fr, cfg.measure, cfg.window_px, prefilter_px=cfg.prefilter_px), 32)
+        peak_c32, _ = tile_peaks(fd, focus_volume(fr32, cfg.measure, cfg.window_px, prefilter_px=cfg.prefilter_px),
+                                 TILE)
         rad, _ = tile_peaks(fd, directional_energy(fr, True, cfg.window_px, cfg.prefilter_px, (rig.h, rig.w)), TILE)
         azi, _ = tile_peaks(fd, directional_energy(fr, False, cfg.window_px, cfg.prefilter_px, (rig.h, rig.w)), TILE)
         m = n // TILE
@@ -223,6 +205,7 @@ def main(argv=None) -> int:
                    "radial_peak_d": float(np.nanmean(rad[z])), "azimuthal_peak_d": float(np.nanmean(azi[z])),
                    "bimodal_frac": float(bimodal[z].mean()),
                    "cells64_minus_cells16_d": float(np.nanmean(peak64[z] - peak[z])),
+                   "cells32_minus_cells16_d": float(np.nanmean(peak_c32[z] - peak[z])),
                    "tile32_minus_tile16_d": (float(np.nanmean(peak32[z32])) - float(np.nanmean(peak[z]))
                                              if z32.any() else None),
                    "maps_focus_d": {k: float(np.nanmean(v[z])) for k, v in truths.items()}}
@@ -254,8 +237,8 @@ def main(argv=None) -> int:
 def table(rows: list[dict], maps: list[str]) -> str:
     out = ["| object (m) | field radius | traced focus: tangential / min RMS / sagittal (D) | measure's peak: radial "
            "detail / mlap2 (SD) / azimuthal detail (D) | two peaks | " + " | ".join(f"{m} (D)" for m in maps)
-           + " | anchors 64 px - 16 px (D) | 32 px tiles - 16 px (D) |",
-           "|---|---|---|---|---|" + "---|" * len(maps) + "---|---|"]
+           + " | anchors 64 px - 16 px (D) | anchors 32 px - 16 px (D) | 32 px tiles - 16 px (D) |",
+           "|---|---|---|---|---|" + "---|" * len(maps) + "---|---|---|"]
     for r in rows:
         t = r["traced_focus_d"]
         t32 = "" if r["tile32_minus_tile16_d"] is None else f"{r['tile32_minus_tile16_d']:+.2f}"
@@ -263,7 +246,7 @@ def table(rows: list[dict], maps: list[str]) -> str:
                    f"{t['min_rms']:.2f} / {t['sagittal']:.2f} | {r['radial_peak_d']:.2f} / {r['mlap2_peak_d']:.2f} "
                    f"({r['mlap2_peak_sd_d']:.2f}) / {r['azimuthal_peak_d']:.2f} | {r['bimodal_frac']:.0%} | "
                    + " | ".join(f"{r['maps_focus_d'][m]:.2f}" for m in maps)
-                   + f" | {r['cells64_minus_cells16_d']:+.2f} | {t32} |")
+                   + f" | {r['cells64_minus_cells16_d']:+.2f} | {r['cells32_minus_cells16_d']:+.2f} | {t32} |")
     return "\n".join(out)
 
 

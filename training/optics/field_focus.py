@@ -43,10 +43,12 @@ def _pupil(lens: Lens, n_rays: int) -> tuple[torch.Tensor, float]:
 
 
 def image_shift_mm(lens: Lens, r: float, object_m: float, sensor_z_mm: float, pupil=None, n_rays: int = N_RAYS,
-                   wavelength_nm: float | None = None) -> float:
+                   wavelength_nm: float | None = None, direction=None) -> float:
     """Axial distance (mm, + = away from the lens) from the sensor plane at `sensor_z_mm` to the min-RMS image
     plane of the point at normalised field radius r (on the diagonal) `object_m` metres from that sensor.
-    NaN if every ray is vignetted."""
+    direction: a unit vector (x, y) on the sensor: the plane where the rays' spread along it alone is least
+    instead (along the radial direction: the tangential focus; across it: the sagittal focus). NaN if every ray
+    is vignetted."""
     pupil_xy, pupil_r = pupil or _pupil(lens, n_rays)
     obj = object_points_mm(lens, r, r, object_m, sensor_z_mm)[0]
     # Rays from the object point through the pupil; a negative distance is a virtual object beyond infinity
@@ -62,7 +64,11 @@ def image_shift_mm(lens: Lens, r: float, object_m: float, sensor_z_mm: float, pu
     if int(valid.sum()) < 8:
         return float("nan")
     d = res.rays.d
-    return best_focus_shift_mm(res.rays.o[:, :2], d[:, :2] / d[:, 2:3], valid)
+    xy, slopes = res.rays.o[:, :2], d[:, :2] / d[:, 2:3]
+    if direction is not None:
+        u = torch.as_tensor(np.asarray(direction, np.float64), dtype=xy.dtype).reshape(2, 1)
+        xy, slopes = xy @ u, slopes @ u
+    return best_focus_shift_mm(xy, slopes, valid)
 
 
 def in_focus_diopters(lens: Lens, r: float, sensor_z_mm: float, start_diopters: float, pupil=None,

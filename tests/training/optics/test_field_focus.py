@@ -140,3 +140,25 @@ def test_lens_without_a_stored_map_is_traced_on_the_spot(tmp_path):
                                atol=0.01)
     with pytest.raises(Exception, match="no best-focus map"):
         for_lens(copy, compute=False)
+
+
+def test_sagittal_and_tangential_foci_bracket_the_smallest_spot():
+    """image_shift_mm along one direction: the tangential (radial spread) and sagittal (azimuthal spread) foci of
+    the phone lens's outer field lie apart (astigmatism), and the smallest RMS spot, whose square is the sum of the
+    two spreads, lies between them, weighted by how fast each grows; on axis all three coincide."""
+    from training.optics.field_focus import N_RAYS, _pupil, image_shift_mm
+
+    lens = load_lens(ROOT / "lenses/cellphone_asphere.json")
+    pupil = _pupil(lens, N_RAYS)
+    s = lens.sensor
+    radial = np.array([s.width_mm, s.height_mm]) / math.hypot(s.width_mm, s.height_mm)
+    zs = float(focus_table(lens, near_m=0.05)(0.1))
+    for r in (0.0, 0.8):
+        t = image_shift_mm(lens, r, 0.1, zs, pupil, direction=radial)
+        sg = image_shift_mm(lens, r, 0.1, zs, pupil, direction=(-radial[1], radial[0]))
+        rms = image_shift_mm(lens, r, 0.1, zs, pupil)
+        if r == 0:
+            assert abs(t - sg) < 5e-4 and abs(rms - t) < 5e-4  # mm: the pupil sampling's own asymmetry
+        else:
+            assert abs(t - sg) > 0.01  # mm: diopters apart on this lens
+            assert min(t, sg) < rms < max(t, sg)
