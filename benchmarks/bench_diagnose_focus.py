@@ -319,6 +319,19 @@ def table(rows: list[dict]) -> None:
             print(f"frames reported determined within 0.02 D of the truth: {int(np.sum(det <= 0.02))}/{len(det)}; "
                   f"frames reported undetermined: {sum(int(u.sum()) for _, u, _ in flags)}, their 95 % interval "
                   f"holding the truth in {sum(cov)}/{len(cov)}")
+            # are the standard errors honest? the determined frames' 95 % intervals (corrected +- 1.96 SE) over
+            # the sets whose family has any (not `none`)
+            zs = {}
+            for r in err:
+                if r.get("corrected_sd_d") and np.any(r["corrected_sd_d"]):
+                    zs.setdefault(r["capture"], []).append(
+                        np.abs(r["corrected_err_d"]) / np.asarray(r["corrected_sd_d"], np.float64)[0])
+            if zs:
+                z = {c: np.concatenate(v) for c, v in zs.items()}
+                every = np.concatenate(list(z.values()))
+                print(f"frames whose 95 % interval holds the truth: {int(np.sum(every <= 1.959964))}/{len(every)} ("
+                      + ", ".join(f"{c} {int(np.sum(v <= 1.959964))}/{len(v)}" for c, v in sorted(z.items()))
+                      + f"); largest |error| / standard error {every.max():.2f}")
     un = [r for r in rows if r["kind"] == "none"]
     if un:
         bad = sum(r["focus_named"] or r["family"] != "none" for r in un)

@@ -62,6 +62,9 @@ def test_frames_are_counted_one_by_one_determined_within_and_undetermined_holdin
     out = capsys.readouterr().out
     assert "frames reported determined within 0.02 D of the truth: 4/5; frames reported undetermined: 1, " \
            "their 95 % interval holding the truth in 1/1" in out
+    # b's 0.034 D at 0.012 D is 2.83 standard errors: its interval misses; a's 0.042 D at 0.0276 D holds it
+    assert "frames whose 95 % interval holds the truth: 5/6 (a 2/2, b 1/2, c 2/2); largest |error| / standard " \
+           "error 2.83" in out
     c2 = dict(c, corrected_sd_d=[[0.021, 0.004]], frames_undetermined=1)
     bench.compare([a, b, c], [a, b, c2])
     assert "frames undetermined: 1 before, 2 after; newly undetermined in the 1 sets with an error that were " \
