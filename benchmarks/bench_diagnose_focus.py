@@ -319,7 +319,7 @@ def table(rows: list[dict]) -> None:
             print(f"frames reported determined within 0.02 D of the truth: {int(np.sum(det <= 0.02))}/{len(det)}; "
                   f"frames reported undetermined: {sum(int(u.sum()) for _, u, _ in flags)}, their 95 % interval "
                   f"holding the truth in {sum(cov)}/{len(cov)}")
-            # are the standard errors honest? the determined frames' 95 % intervals (corrected +- 1.96 SE) over
+            # are the standard errors honest? every frame's 95 % interval (corrected +- 1.96 SE) over
             # the sets whose family has any (not `none`)
             zs = {}
             for r in err:
