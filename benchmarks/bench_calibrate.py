@@ -478,10 +478,11 @@ def world_views(rig: Rig, k: int, log) -> list[tuple[np.ndarray, np.ndarray]]:
         z = np.load(f)
         return [(z[f"frames{i}"].astype(np.float32), z[f"reported{i}"]) for i in range(9)]
     hp, wp = int(rig.h * 1.45), int(rig.w * 1.45)
-    rgb, depth = procedural_scene(SceneConfig(height=hp, width=wp, near_m=0.5, far_m=10.0, photo_fraction=0.5,
+    near, far = s.schedule_m  # the worlds span the lens's depth schedule (the phone: 0.07-0.5 m)
+    rgb, depth = procedural_scene(SceneConfig(height=hp, width=wp, near_m=near, far_m=far, photo_fraction=0.5,
                                               photo_split="test"), np.random.default_rng([424242, k]))
     z_mm = depth * 1000.0 - rig.pupil
-    true_m = diopter_grid(10.0, 0.5, 8)
+    true_m = s.schedule()
     out = []
     t0 = time.time()
     for i, (yaw, pitch) in enumerate([(a, b) for a in (-6, 0, 6) for b in (-6, 0, 6)]):
@@ -514,7 +515,7 @@ def part_blind(rig: Rig, chart_cal, n_worlds: int, log) -> list[dict]:
 
     s = rig.setup
     eff = effects_for(s, "copy")
-    true_m = diopter_grid(10.0, 0.5, 8)
+    true_m = s.schedule()
     rep = true_m * SCALE
     truth = rig.truth(eff, true_m)
     r = rig.fmap.radius_px(rig.h, rig.w)
@@ -539,9 +540,13 @@ def part_blind(rig: Rig, chart_cal, n_worlds: int, log) -> list[dict]:
             rows.append({"captures": n, "blind": None, "error": str(e)[:120]})
             continue
         err = field_error(rig, in_focus_diopters(res.calibration, rep, rig.h, rig.w), truth)
+        u = res.calibration.uncertainty  # the bootstrap's spread and the fit's own warning (scenes.spread_check)
         rows.append({"captures": n, "blind": err, "pairs": res.calibration.residuals["pairs"],
-                     "samples": res.calibration.residuals["samples"]})
-        log(f"  blind {n} captures: field RMS {err:.4f} D ({rows[-1]['pairs']} pairs)")
+                     "samples": res.calibration.residuals["samples"], "sd_rms_d": u.get("sd_rms_d"),
+                     "limit_d": u.get("limit_d"), "field_rms_d": u.get("field_rms_d"),
+                     "warned": bool(u.get("warning"))})
+        log(f"  blind {n} captures: field RMS {err:.4f} D ({rows[-1]['pairs']} pairs), bootstrap SD "
+            f"{u.get('sd_rms_d')} D, limit {u.get('limit_d')} D, warned {rows[-1]['warned']}")
     return rows
 
 
@@ -609,15 +614,20 @@ def tables(res: dict) -> str:
                                f"{r['inside_rms_d']:.4f} | {r['schedule_rms_d']:.4f} |")
     if res.get("blind"):
         out += ["", "### d) Blind calibration from scenes: the field term's error against the copy's truth", "",
-                "| lens | captures (turned views) | overlapping pairs | field term RMS (D), 8 frames 0.5-10 m |",
-                "|---|---|---|---|"]
+                "| lens | captures (turned views) | overlapping pairs | field term RMS error (D), 8 frames over the "
+                "schedule | bootstrap SD, RMS (D) | warning limit (D) | warns |", "|---|---|---|---|---|---|---|"]
         for lens, rows in res["blind"].items():
             base = rows[0]
             for k in ("none (thin lens)", "prescription map", "chart calibration"):
-                out.append(f"| {lens} | {k} | - | {base[k]:.4f} |")
+                out.append(f"| {lens} | {k} | - | {base[k]:.4f} | | | |")
             for r in rows[1:]:
-                out.append(f"| {lens} | {r['captures']} | {r.get('pairs', '-')} | "
-                           + (f"{r['blind']:.4f} |" if r.get("blind") is not None else f"refused: {r['error']} |"))
+                if r.get("blind") is None:
+                    out.append(f"| {lens} | {r['captures']} | - | refused: {r['error']} | | | |")
+                    continue
+                sd = "-" if r.get("sd_rms_d") is None else f"{r['sd_rms_d']:.4f}"  # runs before 2026-11-26 13:10
+                lim = "-" if r.get("limit_d") is None else f"{r['limit_d']:.4f}"
+                warned = {True: "yes", False: "no"}.get(r.get("warned"), "-")
+                out.append(f"| {lens} | {r['captures']} | {r['pairs']} | {r['blind']:.4f} | {sd} | {lim} | {warned} |")
     return "\n".join(out)
 
 

@@ -80,3 +80,16 @@ def test_world_views_are_the_same_rendered_or_cached(tmp_path, monkeypatch):
     for (a, ra), (b, rb) in zip(fresh, cached):
         np.testing.assert_array_equal(a, b)
         np.testing.assert_array_equal(ra, rb)
+
+
+def test_blind_table_rows():
+    """Part d's table: the bootstrap's spread, its limit and whether the fit warned; runs recorded before they were
+    kept print '-'; a refused row says why."""
+    rows = [{"captures": 0, "none (thin lens)": 0.06, "prescription map": 0.05, "chart calibration": 0.005},
+            {"captures": 3, "blind": None, "error": "the captures turn one way only"},
+            {"captures": 9, "blind": 0.031, "pairs": 36, "sd_rms_d": 0.0123, "limit_d": 0.0271, "warned": False},
+            {"captures": 27, "blind": 0.029, "pairs": 105}]
+    lines = bc.tables({"blind": {"rf50": rows}}).splitlines()
+    assert "| rf50 | 9 | 36 | 0.0310 | 0.0123 | 0.0271 | no |" in lines
+    assert "| rf50 | 27 | 105 | 0.0290 | - | - | - |" in lines
+    assert any(ln.startswith("| rf50 | 3 | - | refused: the captures turn one way only") for ln in lines)

@@ -23,7 +23,8 @@ diopters grow towards far focus, ~15 % between 0.7 and 1.5 m on a 50 mm lens) is
 (a linear term fitted on the test's views moved the near end the wrong way); the chart fit resolves it.
 
 Captures that all turn one way (every pair's points move along one line) are refused (`turn_spread`): a field
-term that changes only across that line is invisible to them.
+term that changes only across that line is invisible to them. A field term whose bootstrap spread over the captures
+exceeds a tenth of the stacks' frame spacing is warned about and the spread recorded (`spread_check`).
 
 What it cannot identify, and keeps from the reported focus: a common offset of every frame's focus (it moves every
 estimate alike; one known distance measures it: a chart sweep) and a common scale of the focus distances (a scene
@@ -249,6 +250,37 @@ def turn_spread(p: Pairs) -> float:
     return float(ev[0] / max(ev[1], 1e-12))
 
 
+SPREAD_FRACTION = 0.1  # the issue's accuracy rule: a tenth of the stacks' frame spacing (0.02-0.03 D on 8 frames)
+MIN_BOOT_CAPTURES = 3  # a bootstrap over two captures cannot vary their one pair's samples
+
+
+def spread_check(sd: np.ndarray, field_d: np.ndarray, scenes: list[SceneEstimate], replicates: int) -> dict:
+    """Whether the bootstrap says the field term is determined: sd (ny, nx) its bootstrap SD over captures and
+    field_d (ny, nx) the field term (minus its centre value) on the same grid (D). sd_rms_d (RMS of sd over the
+    grid) is compared with limit_d, SPREAD_FRACTION of the captures' median frame spacing (reported diopters): the
+    accuracy a calibration should have to matter to depth from focus on those stacks. With few captures the
+    spread says how much the fit rests on single ones (a replicate without one of three may keep only a one-way
+    pair), not its error: a bias common to all captures (the field term's constancy in focus) no bootstrap sees.
+    Returns {"sd_rms_d",
+    "field_rms_d", "limit_d", "warning"} (a one-line warning, "" when the spread is within the limit), as the
+    calibration file's `uncertainty` records them."""
+    steps = np.concatenate([np.diff(np.sort(s.reported_d)) for s in scenes])
+    limit = SPREAD_FRACTION * float(np.median(steps[steps > 0])) if (steps > 0).any() else math.nan
+    rms = float(np.sqrt(np.mean(sd ** 2))) if replicates > 1 else math.nan
+    field_rms = float(np.sqrt(np.mean(field_d ** 2)))
+    fin = lambda v: round(v, 6) if math.isfinite(v) else None  # the file is strict JSON
+    out = {"sd_rms_d": fin(rms), "field_rms_d": fin(field_rms), "limit_d": fin(limit), "warning": ""}
+    if len(scenes) < MIN_BOOT_CAPTURES or not math.isfinite(rms):
+        out["warning"] = (f"the field term's spread cannot be measured from {len(scenes)} captures (a bootstrap over "
+                          f"captures needs {MIN_BOOT_CAPTURES} or more): its accuracy is unknown; add captures")
+    elif rms > limit:
+        out["warning"] = (f"the field term is poorly determined: its bootstrap SD over the captures is {rms:.3f} D "
+                          f"RMS over the field, above {limit:.3f} D (a tenth of the stacks' frame spacing), against a "
+                          f"field term of {field_rms:.3f} D RMS: it rests on single captures; add captures turned "
+                          "both ways")
+    return out
+
+
 def fit_from_scenes(scenes: list[SceneEstimate], identity: CameraIdentity, size_px: tuple[int, int],
                     sensor_mm=None, pupil_mm: float | None = None, degree: int = 2, focus_degree: int = 0,
                     n_boot: int = 50, progress=None, settings: dict | None = None) -> BlindResult:
@@ -288,13 +320,18 @@ def fit_from_scenes(scenes: list[SceneEstimate], identity: CameraIdentity, size_
         cb, _ = fit_field(p, degree, pupil_m, wb, focus_degree=focus_degree, focus_range_d=(lo, hi))
         maps.append(FieldPoly(terms, cb, (lo, hi))(xx, yy, [0.5 * (lo + hi)])[0])
     sd = np.std(np.array(maps), 0) if len(maps) > 1 else np.full(xx.shape, np.nan)
+    mid = fp(xx, yy, [0.5 * (lo + hi)])[0]
+    spread = spread_check(sd, mid - mid[len(gy) // 2, len(gx) // 2], scenes, len(maps))
     residuals = {"samples": int(len(p)), "pairs": len(p.homographies), "rms_d": float(np.sqrt(np.mean(res ** 2))),
                  "p95_d": float(np.quantile(np.abs(res), 0.95)), "f_px": float(p.f_px)}
     fit = {"method": "scenes", "captures": [s.name for s in scenes], "degree": degree, "focus_degree": focus_degree,
            "not_identified": NOT_IDENTIFIED, **(settings or {})}
     fe = FocusError("none", quantisation=None)
     cal = CameraCalibration(identity, size_px, fe, fp, None, sensor_mm, residuals,
-                            {"x": gx.tolist(), "y": gy.tolist(), "sd_d": np.round(sd, 6).tolist(),
-                             "replicates": len(maps), "what": "bootstrap SD over captures of the field term"}, fit)
+                            {"x": gx.tolist(), "y": gy.tolist(), "sd_d": np.round(sd, 6).tolist() if len(maps) > 1 else [],
+                             "replicates": len(maps), "what": "bootstrap SD over captures of the field term",
+                             **spread}, fit)
+    if spread["warning"]:
+        warnings.append(spread["warning"])
     warnings.append("blind calibration: " + NOT_IDENTIFIED)
     return BlindResult(cal, p, res, warnings)

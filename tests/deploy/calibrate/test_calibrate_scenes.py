@@ -124,6 +124,7 @@ def test_cli_from_scenes(tmp_path, capsys):
     want = float(1 / fn(np.array(1 - 1 / W), np.array(0.0), 1.0) - 1 / fn(np.array(-1 + 1 / W), np.array(0.0), 1.0))
     assert abs(float(d[H // 2, -1] - d[H // 2, 0]) - want) < 0.15 * abs(want)
     assert "cannot identify" not in cap.err and "reported focus is kept" in cap.err
+    assert "poorly determined" not in cap.err and cal.uncertainty["sd_rms_d"] < cal.uncertainty["limit_d"]
     # two captures of different worlds: nothing overlaps
     rgb_w, z_w = world(np.random.default_rng(99), 330, 500)
     rgb, z = turned_view(rgb_w, z_w, f_px, 0, 0, W, H)
@@ -132,3 +133,54 @@ def test_cli_from_scenes(tmp_path, capsys):
     rc = cli.main(["fit", "--from-scenes", str(caps[0]), str(lone), "--out", str(tmp_path / "x.json"), "-q"])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 1 and len(err) == 1 and "overlap" in err[0] and not (tmp_path / "x.json").exists()
+
+
+def test_a_poorly_determined_field_term_warns(tmp_path):
+    """The bootstrap over captures as a warning (`scenes.spread_check`): three views turned once each way (yaw -6,
+    pitch -6; yaw -6, pitch 0; yaw 0, pitch -6) pass the one-way refusal but their field term's bootstrap SD is
+    above a tenth of the frame spacing (0.025 D here): a replicate that drops one of them keeps a pair turned one
+    way, whose fit is loose. The nine views' SD is far under it and they do not warn. The spread is recorded in the
+    file either way. (It measures how much the fit rests on single captures, not its error: here the three views'
+    field term is 0.008 D RMS from the truth at 1 m, the nine's 0.005 D.)"""
+    from aat_deploy.calibrate.format import save_calibration
+
+    _, _, pupil = small_rf50()
+    scenes = [estimate_scene(f"view{k}", fr, rep) for k, (fr, rep) in enumerate(views())]
+    fn = truth_fn(TILT)
+    x, y = field_grid(H, W)
+    truth = 1 / fn(x, y, 1.0) - 1 / fn(np.array(0.0), np.array(0.0), 1.0)
+    got = {}
+    for name, sub in (("few", [0, 1, 3]), ("all", list(range(9)))):
+        res = fit_from_scenes([scenes[i] for i in sub], CameraIdentity(focal_length_mm=49.56), (W, H),
+                              sensor_mm=(36.0, 24.0), pupil_mm=pupil, n_boot=20)
+        u = res.calibration.uncertainty
+        err = float(np.sqrt(np.mean((in_focus_diopters(res.calibration, [1.0], H, W)[0] - 1.0 - truth) ** 2)))
+        got[name] = (res, u, err)
+    (few, uf, ef), (full, ua, ea) = got["few"], got["all"]
+    assert uf["limit_d"] == pytest.approx(0.1 * (2.0 - 0.25) / 7, rel=1e-3)  # 8 frames even over 0.25-2 D
+    assert uf["sd_rms_d"] > uf["limit_d"] and uf["warning"]
+    spread_warnings = [w for w in few.warnings if "poorly determined" in w]
+    assert len(spread_warnings) == 1 and "\n" not in spread_warnings[0]
+    assert f"{uf['sd_rms_d']:.3f} D" in spread_warnings[0]
+    assert ua["sd_rms_d"] < ua["limit_d"] / 2 and ua["warning"] == ""
+    assert not any("poorly determined" in w or "cannot be measured" in w for w in full.warnings)
+    assert ea < 0.01 and ef < 0.02, (ef, ea)  # the bias no bootstrap sees stays small on this world
+    save_calibration(few.calibration, tmp_path / "c.json")
+    back = load_calibration(tmp_path / "c.json").uncertainty
+    assert back["sd_rms_d"] == uf["sd_rms_d"] and back["warning"] == uf["warning"]
+
+
+def test_spread_check_without_enough_captures():
+    """Two captures (one pair) or no bootstrap replicates: the spread is not measurable, which is said (a
+    bootstrap over two captures reweights their one pair's samples alike, so its SD would read 0)."""
+    from aat_deploy.calibrate.scenes import SceneEstimate, spread_check
+
+    sc = lambda: SceneEstimate("s", np.zeros((2, 2)), np.ones((2, 2)), np.zeros((2, 2), np.uint8),
+                               np.linspace(0.1, 2.0, 8))
+    sd, field = np.zeros((9, 13)), np.full((9, 13), 0.05)
+    two = spread_check(sd, field, [sc(), sc()], 20)
+    assert "cannot be measured from 2 captures" in two["warning"] and two["sd_rms_d"] == 0.0
+    assert "cannot be measured" in spread_check(sd, field, [sc()] * 3, 1)["warning"]
+    ok = spread_check(np.full((9, 13), 0.02), field, [sc()] * 3, 20)
+    assert ok["warning"] == "" and ok["limit_d"] == pytest.approx(0.1 * 1.9 / 7, abs=1e-6)
+    assert "poorly determined" in spread_check(np.full((9, 13), 0.03), field, [sc()] * 3, 20)["warning"]
