@@ -34,7 +34,8 @@ def own_tiles(tile_px: int) -> tuple[int, int]:
     """(tile, overlap) px the runtime runs frames larger than an any-camera model's aat.tile_px in: tiles of that side
     (the net is worse the farther a pixel lies from the border of the images it trained on), an eighth of it
     overlapping and blended. An eighth (16 px of 128) scored 0.99 [0.97, 1.02]x the MAE of a quarter's overlap on 20
-    RF50 validation stacks and runs 1.44 instead of 1.87 px per frame pixel at 960 x 640 (BENCHMARKS.md, the any-camera
+    RF50 validation stacks (1.00 [0.98, 1.02]x on 60), 1.01 [0.99, 1.03]x on the held-out paper lens, and runs 1.44
+    instead of 1.87 px per frame pixel at 960 x 640; 8 px failed the held-out check (BENCHMARKS.md, the any-camera
     model's speed; benchmarks/probes/anycam_tiles.py --overlaps)."""
     return int(tile_px), int(tile_px) // 8
 
