@@ -395,7 +395,8 @@ def zone_scores(depth: np.ndarray, gt: np.ndarray) -> dict:
     return {"mae": float(err[valid].mean()), "mae_outer": float(err[outer].mean()), "mae_d": float(err_d.mean())}
 
 
-def part_depth(rig: Rig, cal, n: int, log) -> dict:
+def part_depth(rig: Rig, cal, n: int, log, extra: dict | None = None) -> dict:
+    """extra: more calibrations scored beside the four mappings ({name: CameraCalibration}, e.g. the blind fit's)."""
     from aat_deploy.focus import FocusConfig, classical_depth
     from aat_deploy.focus.measures import focus_volume
     from training.train.testsets import TestSetSpec, load_test_set
@@ -414,14 +415,16 @@ def part_depth(rig: Rig, cal, n: int, log) -> dict:
     if (cfg.measure, cfg.prefilter_px) != (rig.measure, rig.prefilter_px):
         raise SystemExit(f"bench_calibrate: part depth runs the classical method with its own measure "
                          f"({cfg.measure}), not the fit's ({rig.measure}): run --parts map,needs")
-    per = {k: [] for k in ("thin lens", "prescription map", "calibration", "oracle")}
+    extra = extra or {}
+    per = {k: [] for k in ("thin lens", "prescription map", "calibration", "oracle", *extra)}
     for it in items:
         vol = focus_volume(it.stack, cfg.measure, cfg.window_px, prefilter_px=cfg.prefilter_px)
         rep = np.asarray(it.focus_m, np.float64)
         true_m = rep / SCALE
         oracle = rig.truth(list(eff), true_m)
         runs = {"thin lens": dict(), "prescription map": dict(best_focus=rig.fmap),
-                "calibration": dict(calibration=cal), "oracle": dict(frame_diopters=oracle)}
+                "calibration": dict(calibration=cal), "oracle": dict(frame_diopters=oracle),
+                **{k: dict(calibration=c) for k, c in extra.items()}}
         for k, kw in runs.items():
             r = classical_depth(it.stack, rep, config=cfg, volume=vol, **kw)
             per[k].append({"scene": it.name, **zone_scores(r.depth_m, it.depth_m)})
@@ -433,6 +436,9 @@ def part_depth(rig: Rig, cal, n: int, log) -> dict:
         out[f"cal/oracle {z}"] = paired_ratio(per["calibration"], per["oracle"], z)
         out[f"cal/prescription {z}"] = paired_ratio(per["calibration"], per["prescription map"], z)
         out[f"prescription/oracle {z}"] = paired_ratio(per["prescription map"], per["oracle"], z)
+        for k in extra:
+            out[f"{k}/prescription {z}"] = paired_ratio(per[k], per["prescription map"], z)
+            out[f"{k}/calibration {z}"] = paired_ratio(per[k], per["calibration"], z)
     log(f"  {s.key}: MAE cal {out['calibration']['mae'][0]:.3f}, oracle {out['oracle']['mae'][0]:.3f}, "
         f"prescription {out['prescription map']['mae'][0]:.3f}, thin {out['thin lens']['mae'][0]:.3f} m")
     return out
@@ -507,7 +513,8 @@ def field_error(rig: Rig, pred: np.ndarray, truth: np.ndarray) -> float:
     return float(np.sqrt(np.mean((fp - ft) ** 2)))
 
 
-def part_blind(rig: Rig, chart_cal, n_worlds: int, log) -> list[dict]:
+def part_blind(rig: Rig, chart_cal, n_worlds: int, log) -> tuple[list[dict], object]:
+    """(rows, the blind calibration from every capture or None)."""
     from aat_deploy.calibrate import in_focus_diopters
     from aat_deploy.calibrate.fit import camera_identity_of
     from aat_deploy.calibrate.scenes import estimate_scene, fit_from_scenes
@@ -531,6 +538,7 @@ def part_blind(rig: Rig, chart_cal, n_worlds: int, log) -> list[dict]:
                                      {"focal_length_mm": round(rig.efl, 2), "f_number": round(rig.fno, 2)},
                                      (rig.w, rig.h), 1.0))
     rows = [{"captures": 0, **base}]
+    last = None
     for n in sorted({3, 9, 18, 27, len(scenes)}):
         if n > len(scenes):
             continue
@@ -540,6 +548,7 @@ def part_blind(rig: Rig, chart_cal, n_worlds: int, log) -> list[dict]:
             rows.append({"captures": n, "blind": None, "error": str(e)[:120]})
             continue
         err = field_error(rig, in_focus_diopters(res.calibration, rep, rig.h, rig.w), truth)
+        last = res.calibration if n == len(scenes) else last
         u = res.calibration.uncertainty  # the bootstrap's spread and the fit's own warning (scenes.spread_check)
         rows.append({"captures": n, "blind": err, "pairs": res.calibration.residuals["pairs"],
                      "samples": res.calibration.residuals["samples"], "sd_rms_d": u.get("sd_rms_d"),
@@ -547,10 +556,13 @@ def part_blind(rig: Rig, chart_cal, n_worlds: int, log) -> list[dict]:
                      "warned": bool(u.get("warning"))})
         log(f"  blind {n} captures: field RMS {err:.4f} D ({rows[-1]['pairs']} pairs), bootstrap SD "
             f"{u.get('sd_rms_d')} D, limit {u.get('limit_d')} D, warned {rows[-1]['warned']}")
-    return rows
+    return rows, last
 
 
 # -- tables ----------------------------------------------------------------------------------------------------------
+BLIND_MAPPINGS = ("blind calibration", "blind + chart focus error")  # part d's fit scored in part b (both parts run)
+
+
 def tables(res: dict) -> str:
     out = ["### a) The calibrated map against the copy's truth (diopters over every pixel)", "",
            "| lens | variant | focus error fitted | tiles | residual RMS | calibration RMS / p95, inside | "
@@ -585,7 +597,9 @@ def tables(res: dict) -> str:
         out += ["", "### b) Depth through the copy, classical method, four mappings of the reported focus", "",
                 "| lens | scenes | mapping | MAE (m) | MAE outer (m) | MAE (D) |", "|---|---|---|---|---|---|"]
         for lens, d in res["depth"].items():
-            for k in ("thin lens", "prescription map", "calibration", "oracle"):
+            for k in ("thin lens", "prescription map", "calibration", "oracle", *BLIND_MAPPINGS):
+                if k not in d:
+                    continue
                 md = fmt(d[k]["mae_d"]) if "mae_d" in d[k] else "-"  # runs before 2026-11-26 kept metres only
                 out.append(f"| {lens} | {d['scenes']} | {k} | {fmt(d[k]['mae'])} | {fmt(d[k]['mae_outer'])} | {md} |")
         out += ["", "| lens | calibration / oracle, MAE | outer | calibration / prescription map, MAE | outer | "
@@ -601,6 +615,13 @@ def tables(res: dict) -> str:
                        f"{fmt(d['cal/prescription mae'])} | {fmt(d['cal/prescription mae_outer'])} | "
                        f"{fmt(d['prescription/oracle mae'])} | {fmt(d['prescription/oracle mae_outer'])} | "
                        f"{thin[0]} | {thin[1]} | {in_d[0]} | {in_d[1]} |")
+        blind = [(lens, k, d) for lens, d in res["depth"].items() for k in BLIND_MAPPINGS if k in d]
+        if blind:
+            out += ["", "| lens | mapping | / prescription map, MAE | outer | MAE in D | / chart calibration, MAE | "
+                        "outer | MAE in D |", "|---|---|---|---|---|---|---|---|"]
+            for lens, k, d in blind:
+                out.append(f"| {lens} | {k} | " + " | ".join(fmt(d[f"{k}/{b} {z}"]) for b in ("prescription", "calibration")
+                                                             for z in ("mae", "mae_outer", "mae_d")) + " |")
     if res.get("needs"):
         out += ["", "### c) How many chart distances and frames (the copy)", "",
                 "| lens | chart distances (m) | sweep step (D) | frames | family | map RMS inside (D) | "
@@ -672,12 +693,20 @@ def main(argv=None) -> int:
             res["map"] += rows
         if "copy" not in fits:
             log(f"  {key}: the copy's sweeps were refused: no depth, needs or blind parts")
-        elif "depth" in parts:
-            res["depth"][key] = part_depth(rig, fits["copy"][0], a.n, log)
-        if "needs" in parts and "copy" in fits:
+            save(res, Path(a.out))
+            continue
+        extra = {}
+        if "blind" in parts:  # before depth, which then scores the blind fit from every capture as two more mappings
+            res["blind"][key], blind = part_blind(rig, fits["copy"][0], a.worlds, log)
+            if blind is not None:
+                # as fitted (the reported focus kept), and with the chart's reported-focus error (one known distance)
+                extra = {"blind calibration": blind,
+                         "blind + chart focus error": dataclasses.replace(blind, focus_error=fits["copy"][0].focus_error)}
+            save(res, Path(a.out))
+        if "depth" in parts:
+            res["depth"][key] = part_depth(rig, fits["copy"][0], a.n, log, extra)
+        if "needs" in parts:
             res["needs"][key] = part_needs(rig, fits["copy"][1], log)
-        if "blind" in parts and "copy" in fits:
-            res["blind"][key] = part_blind(rig, fits["copy"][0], a.worlds, log)
         save(res, Path(a.out))  # after every lens: a long run's finished lenses are kept
     print(tables(res))
     return 0

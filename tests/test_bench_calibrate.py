@@ -93,3 +93,30 @@ def test_blind_table_rows():
     assert "| rf50 | 9 | 36 | 0.0310 | 0.0123 | 0.0271 | no |" in lines
     assert "| rf50 | 27 | 105 | 0.0290 | - | - | - |" in lines
     assert any(ln.startswith("| rf50 | 3 | - | refused: the captures turn one way only") for ln in lines)
+
+
+def test_depth_table_with_the_blind_mappings():
+    """Part b's table with part d's blind fit scored as two more mappings: their rows and their paired ratios to the
+    prescription map and to the chart calibration (from the stored per-scene scores); a run without them prints no
+    such rows."""
+    rng = np.random.default_rng(0)
+    names = ("thin lens", "prescription map", "calibration", "oracle", *bc.BLIND_MAPPINGS)
+    per = {k: [{"scene": i, "mae": m, "mae_outer": m, "mae_d": m / 4}
+               for i, m in enumerate(rng.uniform(0.5, 1, 6) * (j + 1))] for j, k in enumerate(names)}
+    d = {"scenes": 6, "per_scene": per}
+    for k, v in per.items():
+        d[k] = {z: [float(np.mean([x[z] for x in v])), 0.0, 1.0] for z in ("mae", "mae_outer", "mae_d")}
+    for z in ("mae", "mae_outer", "mae_d"):
+        for a, b in (("calibration", "oracle"), ("calibration", "prescription map"), ("prescription map", "oracle")):
+            key = f"{'cal' if a == 'calibration' else 'prescription'}/{'oracle' if b == 'oracle' else 'prescription'}"
+            d[f"{key} {z}"] = bc.paired_ratio(per[a], per[b], z)
+        for k in bc.BLIND_MAPPINGS:
+            d[f"{k}/prescription {z}"] = bc.paired_ratio(per[k], per["prescription map"], z)
+            d[f"{k}/calibration {z}"] = bc.paired_ratio(per[k], per["calibration"], z)
+    text = bc.tables({"depth": {"rf50": d}})
+    assert "| rf50 | 6 | blind calibration |" in text and "| rf50 | 6 | blind + chart focus error |" in text
+    row = next(ln for ln in text.splitlines() if ln.startswith("| rf50 | blind calibration |"))
+    want = bc.paired_ratio(per["blind calibration"], per["prescription map"], "mae")
+    assert row.split(" | ")[2] == bc.fmt(want)
+    del d["blind calibration"], d["blind + chart focus error"]
+    assert "blind" not in bc.tables({"depth": {"rf50": d}})
