@@ -103,7 +103,8 @@ LENSES = {
                       ("lens_tolerance:element=2:decentre_x_mm=0.1", "sensor_tilt:tilt_x_deg=0.5:tilt_y_deg=-0.3",
                        f"focus_metadata:bias_d=0:scale={SCALE}", "noise"),
                       tolerance_table="cache/tolerance/auto"),
-    # the phone-sized Z35 (EFL 2.29 mm, 1.2 px of blur per diopter; its field curvature refuses its sweeps);
+    # the phone-sized Z35 (EFL 1.57 mm, 0.84 px of blur per diopter; until 2026-11-26 its aspheres were misread, giving
+    # EFL 2.29 mm and a field curvature that refused its sweeps: its rows need rerunning, BENCHMARKS.md);
     # its tolerances scaled to its size (3 um decentre, 0.1 deg tilt: each about 0.3-0.5 D at the edge), the charts
     # nearer and the sweeps designed in pixels of blur (a 0.04 D step would move its blur by 0.05 px)
     "z35": LensSetup("z35", "lenses/nikon_z35_f1.8_diffoptics.json", "models/psf_z35.onnx", (0.3, 0.6, 1.5),

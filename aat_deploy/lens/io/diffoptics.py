@@ -1,4 +1,4 @@
-"""DiffOptics .txt lens files (rows `type distance roc diameter material [asphere...]`)."""
+"""DiffOptics .txt lens files (rows `type distance roc diameter material [k a4 a6 ...]`)."""
 
 from __future__ import annotations
 
@@ -12,8 +12,10 @@ from .zemax import DEFAULT_ZMX_RESOLUTION
 
 
 def load_diffoptics_txt(path, resolution=DEFAULT_ZMX_RESOLUTION) -> Lens:
-    """DiffOptics text format: rows `O|S|A|I distance roc diameter material [k a2 a4 ...]`, where
-    `distance` is the gap from the previous row, `diameter` the full clear diameter."""
+    """DiffOptics text format: rows `O|S|A|I distance roc diameter material [k a4 a6 ...]`, where
+    `distance` is the gap from the previous row, `diameter` the full clear diameter. After the conic k the
+    coefficients start at r^4 (DiffOptics' Aspheric sag adds sum_i ai[i] r^(2i+4); an r^2 term would compete with
+    the radius), so they are stored behind a zero r^2 term."""
     path = Path(path)
     rows = []
     for lineno, line in enumerate(path.read_text(encoding="utf-8", errors="replace").splitlines(), start=1):
@@ -44,7 +46,7 @@ def load_diffoptics_txt(path, resolution=DEFAULT_ZMX_RESOLUTION) -> Lens:
                 semi_diameter_mm=diam / 2.0,
                 material=mat,
                 conic=k,
-                asphere_from_r2=tuple(extra[1:]),
+                asphere_from_r2=(0.0, *extra[1:]) if len(extra) > 1 else (),
             )
         )
     if stop is None:

@@ -7,6 +7,8 @@ import math
 
 import pytest
 from conftest import LENSES
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from aat_deploy.lens.io import LensFileError, lens_from_dict, load_lens, save_lens
 from aat_deploy.lens.materials import CauchyNdVd, UnknownMaterialError, parse_material
@@ -157,6 +159,60 @@ def test_legacy_json_uses_absolute_d_and_ai_from_r2(tmp_path):
     assert lens.stop_index == 2  # first surface with air on both sides
     assert lens.sensor.width_px == 640 and lens.sensor.half_diagonal_mm == pytest.approx(21.64)
 
+
+
+DIFFOPTICS_ROWS = """header line
+type distance roc diameter material
+O 0 0 0 AIR
+S 0 {roc} 4.0 1.5/60 {extra}
+S 1.0 -8.0 4.0 AIR
+A 0.5 0 3.0 OCCLUDER
+I 9.0 0 6.0 AIR
+"""
+
+
+def _format_sag(roc: float, k: float, a_from_r4: tuple[float, ...], r: float) -> float:
+    """The DiffOptics format's sag, written from its definition: conic base + a4 r^4 + a6 r^6 + ..."""
+    c = 1.0 / roc
+    z = c * r * r / (1.0 + math.sqrt(1.0 - (1.0 + k) * c * c * r * r))
+    return z + sum(a * r ** (4 + 2 * i) for i, a in enumerate(a_from_r4))
+
+
+def test_diffoptics_asphere_columns_are_k_then_r4_terms(tmp_path):
+    # `S ... material k a4 a6`: the first coefficient after the conic multiplies r^4 (read as r^2 before
+    # 2026-11-26, which changed the Z35's paraxial power: benchmarks/probes/z35_import.py).
+    p = tmp_path / "asph.txt"
+    p.write_text(DIFFOPTICS_ROWS.format(roc=5.0, extra="-0.5 1e-3 2e-5"))
+    s = load_lens(p).surfaces[0]
+    assert s.conic == -0.5 and s.asphere_from_r2 == (0.0, 1e-3, 2e-5)
+    # By hand at r = 1 mm: c = 0.2, 0.2 / (1 + sqrt(1 - 0.5 * 0.04)) = 0.1002526..., + 1e-3 + 2e-5.
+    assert s.sag(1.0) == pytest.approx(0.2 / (1.0 + math.sqrt(0.98)) + 1.02e-3, rel=1e-12)
+    assert s.paraxial_curvature_per_mm == pytest.approx(0.2)  # aspheric terms leave the paraxial power alone
+    p.write_text(DIFFOPTICS_ROWS.format(roc=5.0, extra="-0.5"))  # a conic alone
+    s = load_lens(p).surfaces[0]
+    assert s.conic == -0.5 and s.asphere_from_r2 == ()
+
+
+@settings(max_examples=40, deadline=None)
+@given(roc=st.floats(3.0, 50.0) | st.floats(-50.0, -3.0), k=st.floats(-2.0, 1.0),
+       a=st.lists(st.floats(-1e-3, 1e-3), min_size=1, max_size=4), r=st.floats(0.0, 1.5))
+def test_diffoptics_sag_matches_the_format_definition(tmp_path_factory, roc, k, a, r):
+    p = tmp_path_factory.mktemp("do") / "asph.txt"
+    p.write_text(DIFFOPTICS_ROWS.format(roc=repr(roc), extra=" ".join(map(repr, [k, *a]))))
+    s = load_lens(p).surfaces[0]
+    assert s.sag(r * r) == pytest.approx(_format_sag(roc, k, tuple(a), r), rel=1e-9, abs=1e-15)
+
+
+def test_diffoptics_z35_paraxial_focus_is_on_its_image_plane(shared_lenses):
+    # Independent evidence for the r^4-first reading: the file's last gap (0.043 mm, cover glass to `I`) puts its
+    # image plane at the paraxial focus within a micron; the r^2-first reading put the focus 0.52 mm behind it.
+    txt = load_lens(shared_lenses / "diffoptics_nikon_z35_f1.8_JPA2019090949.txt")
+    px = paraxial_data(txt, 587.5618)
+    assert px.bfl_mm == pytest.approx(txt.surfaces[-1].thickness_mm, abs=2e-3)
+    assert px.fno == pytest.approx(1.8, abs=0.05)  # the f/1.8 design, scaled
+    shipped = load_lens(LENSES / "nikon_z35_f1.8_diffoptics.json")  # our copy is the reader's, term for term
+    assert [s.asphere_from_r2 for s in shipped.surfaces] == [s.asphere_from_r2 for s in txt.surfaces]
+    assert [s.curvature_per_mm for s in shipped.surfaces] == [s.curvature_per_mm for s in txt.surfaces]
 
 def test_materials():
     m = parse_material("1.5168/64.17")
