@@ -10,8 +10,8 @@ PSF surrogate, procedural scenes textured with the held-out photographs (n per l
 scenes Middlebury 2014 Motorcycle and NYU Depth V2 0045 (none of them in any training data); the camera-like
 "fixed" schedule and the paper's protocol (focus distances spread over each image's own depth range). Held-out
 lenses: the paper's 50 mm, the Canon EF50 and the Nikon Z35 (DiffOptics' scaled version, a phone-sized 1.57 mm lens
-at 1.66 um pixels, so tested over 0.2-3 m; misread as a 2.29 mm lens until 2026-11-26, lenses/README.md); the RF50 is inside the training family (its PSFs are in 15 % of the
-training data).
+at 1.66 um pixels, so tested over 0.2-3 m; misread as a 2.29 mm lens until 2026-11-26, lenses/README.md); the RF50 is
+inside the training family (its PSFs are in 15 % of the training data).
 
 Methods, all as the runtime runs them:
 - `dfv_aat, lens map`: the any-camera model given the lens's best-focus map (`aat-infer --model dfv_aat --lens`);
