@@ -261,9 +261,8 @@ def spread_check(sd: np.ndarray, field_d: np.ndarray, scenes: list[SceneEstimate
     accuracy a calibration should have to matter to depth from focus on those stacks. With few captures the
     spread says how much the fit rests on single ones (a replicate without one of three may keep only a one-way
     pair), not its error: a bias common to all captures (the field term's constancy in focus) no bootstrap sees.
-    Returns {"sd_rms_d",
-    "field_rms_d", "limit_d", "warning"} (a one-line warning, "" when the spread is within the limit), as the
-    calibration file's `uncertainty` records them."""
+    Returns {"sd_rms_d", "field_rms_d", "limit_d", "warning"} (a one-line warning, "" when the spread is within the
+    limit), as the calibration file's `uncertainty` records them."""
     steps = np.concatenate([np.diff(np.sort(s.reported_d)) for s in scenes])
     limit = SPREAD_FRACTION * float(np.median(steps[steps > 0])) if (steps > 0).any() else math.nan
     rms = float(np.sqrt(np.mean(sd ** 2))) if replicates > 1 else math.nan
@@ -328,7 +327,8 @@ def fit_from_scenes(scenes: list[SceneEstimate], identity: CameraIdentity, size_
            "not_identified": NOT_IDENTIFIED, **(settings or {})}
     fe = FocusError("none", quantisation=None)
     cal = CameraCalibration(identity, size_px, fe, fp, None, sensor_mm, residuals,
-                            {"x": gx.tolist(), "y": gy.tolist(), "sd_d": np.round(sd, 6).tolist() if len(maps) > 1 else [],
+                            {"x": gx.tolist(), "y": gy.tolist(),
+                             "sd_d": np.round(sd, 6).tolist() if len(maps) > 1 else [],  # strict JSON: no NaN
                              "replicates": len(maps), "what": "bootstrap SD over captures of the field term",
                              **spread}, fit)
     if spread["warning"]:
