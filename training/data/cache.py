@@ -7,6 +7,8 @@ A cache folder (`cache_dir/<key>/`, key = `StackDataConfig.key()`, a hash of eve
     shards/<i>-of-<n>.json        what shard i of n did: its items, how many it rendered, when, in how long
     manifest.json                 once all items 0 .. n_items - 1 exist: the data config that defines them, the item
                                   count and the SHA-256 of every item file
+    sources.json                  the SHA-256 of the lens and PSF files the items were rendered from: the key holds
+                                  their paths, not their contents, so a file corrected in place is caught here
 
 Item files are byte-deterministic (an uncompressed zip with fixed timestamps, as np.savez lays it out otherwise),
 and an item depends only on (config, index), so a cache filled by n shards in any order, on any number of
@@ -16,8 +18,10 @@ Writes are atomic (a temporary file, then a rename): processes that write the sa
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
+import os
 import time
 import zipfile
 from pathlib import Path
@@ -28,6 +32,7 @@ from aat_deploy.io.atomic import atomic_file, write_text_atomic
 from training.devices.shard import Shard
 
 MANIFEST_FORMAT = "aat-stack-cache-v1"
+SOURCES = "sources.json"
 # Renders with focus varying over the field changed at c9c07bd (each anchor's PSF at its own cell size): their
 # keys carry this mark so renders cached before it are not read as current. Other renders did not change and keep
 # their keys.
@@ -108,3 +113,42 @@ def verify_manifest(cache: Path) -> list[str]:
     man = json.loads((cache / "manifest.json").read_text())
     return [name for name, h in man["items"].items()
             if not (cache / name).is_file() or sha256_file(cache / name) != h]
+
+
+@functools.lru_cache(maxsize=None)
+def _sha256_stat(path: str, mtime_ns: int, size: int) -> str:
+    return sha256_file(Path(path))
+
+
+def sha256_file_cached(path: Path) -> str:
+    """sha256_file, hashed once per process per (path, modification time, size): items are read many times."""
+    st = os.stat(path)
+    return _sha256_stat(str(Path(path).resolve()), st.st_mtime_ns, st.st_size)
+
+
+def check_sources(cache: Path, sources: dict[str, Path | None]) -> None:
+    """Refuse a cache folder rendered from other files than `sources` ({"lens": path, "psf": path or None}).
+
+    A folder with sources.json must name the same SHA-256 for every source, else ValueError (one line; nothing is
+    deleted). A folder without it gets it written: it cannot tell what was rendered before the record existed,
+    so it records the current files (the same bytes from every process, so concurrent writers agree)."""
+    cache = Path(cache)
+    now = {role: None if p is None else {"path": str(p), "sha256": sha256_file_cached(p)}
+           for role, p in sorted(sources.items())}
+    rec = cache / SOURCES
+    if not rec.is_file():
+        # a new folder, or one made before the record existed: what it already holds cannot be checked
+        cache.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(rec, json.dumps(now, indent=1, sort_keys=True) + "\n")
+        return
+    try:
+        old = json.loads(rec.read_text())
+    except ValueError as e:
+        raise ValueError(f"{rec}: not readable JSON ({e}); render into a fresh --cache directory") from None
+    for role, cur in now.items():
+        was = old.get(role)
+        if (was or {}).get("sha256") != (cur or {}).get("sha256"):
+            what = f"{cur['path']} now hashes {cur['sha256'][:12]}" if cur else "now none"
+            raise ValueError(f"{cache}: rendered from {role} {(was or {}).get('path')} with SHA-256 "
+                             f"{str((was or {}).get('sha256'))[:12]}, but {role} {what}: its items are of the old "
+                             f"file; render into a fresh --cache directory (nothing was deleted)")

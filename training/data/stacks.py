@@ -23,7 +23,7 @@ from aat_deploy.infer.normalise import normalise_scale, scaled
 from aat_deploy.lens.io import load_lens
 from aat_deploy.optics.field import pixel_fields
 from aat_deploy.render import effects as fx
-from training.data.cache import item_path, renderer_marks, save_item
+from training.data.cache import check_sources, item_path, renderer_marks, save_item
 from training.data.rgbd import load_middlebury_motorcycle
 from training.data.scenes import SceneConfig, procedural_scene
 from training.render.layered import LayeredConfig
@@ -133,9 +133,13 @@ class FocalStackDataset(Dataset):
         lens_src = None
         names = {str(e).split(":")[0] for e in cfg.effects}  # 'name:k=v' too
         # chromatic looks for its per-wavelength surrogates next to the lens's (else it ray-traces by itself)
-        if cfg.simulator == "aat" or "vignetting" in names or ("chromatic" in names and cfg.psf):
+        uses_psf = cfg.simulator == "aat" or "vignetting" in names or ("chromatic" in names and cfg.psf)
+        if uses_psf:
             lens_src = (OnnxPSF(_resolve(cfg.psf), self.lens, threads=1) if cfg.psf
                         else RayTracedPSF(self.lens, device=device))
+        # the files the items are rendered from, recorded in (and checked against) the cache folder
+        self.sources = {"lens": _resolve(cfg.lens), "psf": _resolve(cfg.psf) if uses_psf and cfg.psf else None}
+        self._sources_checked = False
         self.sim = Simulator(self.lens, lens_src, fx.parse(cfg.effect_list()), LayeredConfig(cell_px=cfg.cell_px),
                              device=device)
         self.schedule = FocusSchedule(cfg.focus_near_m, cfg.focus_far_m, cfg.stack_size, cfg.jitter_d)
@@ -219,10 +223,18 @@ class FocalStackDataset(Dataset):
     def is_cached(self, index: int) -> bool:
         return self.cache is not None and item_path(self.cache, index).is_file()
 
+    def check_sources(self) -> None:
+        """ValueError when the cache folder was rendered from other lens/PSF files than this config's (the key
+        holds their paths only); records them in a folder without the record. Once per dataset object."""
+        if self.cache is not None and not self._sources_checked:
+            check_sources(self.cache, self.sources)
+            self._sources_checked = True
+
     def load_or_render(self, index: int) -> dict:
         """Item `index` as numpy arrays, whole (not cropped): from the cache, else rendered (and cached)."""
         item = None
         if self.cache is not None:
+            self.check_sources()
             f = item_path(self.cache, index)
             if f.is_file():
                 try:

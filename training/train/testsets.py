@@ -138,6 +138,8 @@ def _real_rgbd(spec: TestSetSpec, ds, cache_dir: str | None, name: str, loader) 
     """A real RGB-D scene (loader() -> (linear RGB, depth m)) scaled to cover the sensor, rendered with the set's
     simulator and protocol, cached as <name>_<key>.npz."""
     f = Path(cache_dir) / f"{name}_{spec.key()}.npz" if cache_dir else None
+    if f is not None:
+        ds.check_sources()  # the set's lens and PSF files, as its procedural items' folder recorded them
     if f is not None and f.is_file():
         with np.load(f) as z:
             return TestItem(name, z["stack"].astype(np.float32), z["focus_m"], z["depth_m"], z["aif"])

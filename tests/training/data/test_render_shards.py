@@ -72,7 +72,7 @@ def test_shards_fill_the_same_cache_as_one_run_bit_for_bit(tmp_path, monkeypatch
     assert mod.main([cfg, "--workers", "1", "-q", "--shard", "1/3"]) == 0
     assert "5 of 5 items held, complete, manifest.json written" in capsys.readouterr().out
     a, b = _files(whole), _files(sharded)
-    assert sorted(a) == [f"{i:06d}.npz" for i in range(5)] + ["manifest.json"]
+    assert sorted(a) == [f"{i:06d}.npz" for i in range(5)] + ["manifest.json", "sources.json"]
     assert a == b  # every item and the manifest, byte for byte
     (key,) = [d for d in sharded.iterdir() if d.is_dir()]
     assert verify_manifest(key) == []

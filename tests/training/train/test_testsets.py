@@ -108,3 +108,17 @@ def test_varies_focus_follows_the_effects_hooks():
     varying = {n for n, cls in _REGISTRY.items() if fx.varies_focus([cls()])}
     assert {"sensor_tilt", "lens_tolerance"} <= varying
     assert not {"noise", "vignetting", "raw_pipeline", "focus_metadata"} & varying
+
+
+def test_a_lens_file_corrected_in_place_is_refused_for_the_middlebury_item(small_lens, tmp_path):
+    """The key holds the lens path, not its contents: the set's cache folder records the file's SHA-256, and even a
+    set of the Middlebury item alone (no procedural item read) refuses a cache rendered with the old file."""
+    lens = tmp_path / "lens.json"
+    lens.write_text(open(small_lens).read())
+    spec = _spec(str(lens), "fixed", n=0)
+    load_test_set(spec, str(tmp_path / "c"), progress=False)
+    assert list((tmp_path / "c").glob("middlebury_*.npz")) and list((tmp_path / "c").glob("*/sources.json"))
+    load_test_set(spec, str(tmp_path / "c"), progress=False)  # unchanged: read back
+    lens.write_text(lens.read_text() + " ")
+    with pytest.raises(ValueError, match=r"rendered from lens .*lens.json.*fresh --cache"):
+        load_test_set(spec, str(tmp_path / "c"), progress=False)
