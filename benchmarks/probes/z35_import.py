@@ -32,7 +32,7 @@ def hand_paraxial(txt: Path, a2: dict[int, float]) -> dict:
     """y-nu trace of the file's rows with index nd (material 'nd/V', AIR/OCCLUDER = 1); a2: row -> r^2 coefficient
     added to that surface's curvature (2 a2). Returns EFL, BFL (last surface to focus), the paraxial focus against
     the I plane (mm, + = behind it), the Petzval sum (1/mm) and the Petzval sag at the image-circle edge (um)."""
-    rows = [ln.split() for ln in txt.read_text().splitlines() if ln.split() and ln.split()[0] in "OSAI"]
+    rows = [ln.split() for ln in txt.read_text().splitlines() if ln.split() and ln.split()[0] in ("O", "S", "A", "I")]
     rows = [r for r in rows if r[0] != "O"]
     n_of = lambda m: 1.0 if m.upper() in ("AIR", "OCCLUDER") else float(m.split("/")[0])  # noqa: E731
     y, nu, n, petz = 1.0, 0.0, 1.0, 0.0
