@@ -22,6 +22,7 @@ the reported value) while the truth does not.
     python -m benchmarks.bench_diagnose_focus --fit-only --folders cache/bench_diagnose_focus/captures/scene2029 \
         --out results/diagnose_focus_tune2029.jsonl                                     # the tuning capture's sets
     python -m benchmarks.bench_diagnose_focus --systematic results/diagnose_focus_tune2029.jsonl  # tune SYSTEMATIC_D
+    python -m benchmarks.bench_diagnose_focus --fit-only --fresh 2 --out results/diagnose_focus_fresh.jsonl  # fresh test
 
 The tuning capture (scene 2029, rendered like the others with --scene-seed 2029 --seed 4) is not in the benchmark:
 `focusfit.SYSTEMATIC_D`, the family choice's only setting, is chosen on its sets alone (`--systematic`: the family
@@ -52,6 +53,10 @@ ROOT = Path(__file__).resolve().parents[1]
 CACHE = ROOT / "cache" / "bench_diagnose_focus"
 RESULTS_FILE = RESULTS / "diagnose_focus.jsonl"
 SCENES = ((2026, 1), (2027, 2), (2028, 3))  # (scene seed, noise seed); 2026/1 = the shipped sample
+# Fresh test captures (issue 32), declared before any of them was rendered or run (2026-11-26, 15:20 UTC): rendered
+# exactly like scenes 2027 and 2028 (make_sample_capture.py, next noise seeds), scene ids never used before. Test
+# material: nothing is chosen or tuned on them (the tuning capture is scene 2029). `--fresh N` runs the first N.
+FRESH_SCENES = ((2030, 5), (2031, 6), (2032, 7), (2033, 8))
 QUANT_STEP_D = 0.1
 BOUND_TOL_D = 0.002
 
@@ -81,22 +86,29 @@ def reported_d(kind: str, true_d: np.ndarray, capture_index: int) -> np.ndarray:
     return true_d + a * (true_d - 1.0) ** 2 - a / 3
 
 
+def rendered_capture(scene: int, seed: int, cache: Path) -> Path:
+    """cache/captures/scene<scene>: a capture rendered like the shipped sample (made once)."""
+    folder = cache / "captures" / f"scene{scene}"
+    if not (folder / "virtual_camera.json").exists():
+        print(f"rendering {folder} (scene {scene}, noise seed {seed})", flush=True)
+        subprocess.run([sys.executable, str(ROOT / "scripts" / "make_sample_capture.py"), "--out", str(folder),
+                        "--scene-seed", str(scene), "--seed", str(seed), "--force"], check=True, cwd=ROOT)
+    return folder
+
+
 def capture_folders(n: int, cache: Path) -> list[Path]:
     """The shipped sample and n - 1 captures rendered like it (made once into cache)."""
-    out = []
-    for k, (scene, seed) in enumerate(SCENES[:n]):
-        if k == 0:
-            out.append(ROOT / "captures" / "sample_rf50")
-            continue
-        folder = cache / "captures" / f"scene{scene}"
-        if not (folder / "virtual_camera.json").exists():
-            print(f"rendering {folder} (scene {scene}, noise seed {seed})", flush=True)
-            subprocess.run([sys.executable, str(ROOT / "scripts" / "make_sample_capture.py"), "--out", str(folder),
-                            "--scene-seed", str(scene), "--seed", str(seed), "--force"], check=True, cwd=ROOT)
-        out.append(folder)
     if n > len(SCENES):
         raise SystemExit(f"--captures: at most {len(SCENES)}")
-    return out
+    return [ROOT / "captures" / "sample_rf50" if k == 0 else rendered_capture(scene, seed, cache)
+            for k, (scene, seed) in enumerate(SCENES[:n])]
+
+
+def fresh_folders(n: int, cache: Path) -> list[Path]:
+    """The first n fresh test captures (`FRESH_SCENES`), rendered once into cache."""
+    if not 1 <= n <= len(FRESH_SCENES):
+        raise SystemExit(f"--fresh: 1 to {len(FRESH_SCENES)}")
+    return [rendered_capture(scene, seed, cache) for scene, seed in FRESH_SCENES[:n]]
 
 
 def make_copy(src: Path, root: Path, rep_m: np.ndarray) -> Path:
@@ -406,6 +418,9 @@ def main() -> None:
     ap.add_argument("--folders", nargs="+", help="these capture folders instead (e.g. the tuning capture "
                     "scene2029, rendered like the others with --scene-seed 2029 --seed 4, which is not in the "
                     "benchmark: focusfit.SYSTEMATIC_D was set on it)")
+    ap.add_argument("--fresh", type=int, metavar="N", help="the first N fresh test captures (FRESH_SCENES: scenes "
+                    "2030-2033, declared before they were rendered) instead; the monotone curve bends either way "
+                    "by their order, as for --captures")
     ap.add_argument("--kinds", help=f"only these sets (comma-separated of {', '.join(kinds())})")
     ap.add_argument("--sets", help="only these sets, in this order (comma-separated capture:kind, e.g. "
                     "scene2027:monotone; captures numbered as without it, so a set is the same set)")
@@ -448,7 +463,8 @@ def main() -> None:
     if unknown:
         raise SystemExit(f"--kinds: unknown {', '.join(sorted(unknown))}; known: {', '.join(kinds())}")
     cache, out = Path(a.cache), Path(a.out)
-    caps = [Path(f) for f in a.folders] if a.folders else capture_folders(a.captures, cache)
+    caps = ([Path(f) for f in a.folders] if a.folders else fresh_folders(a.fresh, cache) if a.fresh
+            else capture_folders(a.captures, cache))
     done = {(r["capture"], r["kind"]) for r in map(json.loads, out.read_text().splitlines())} if out.exists() else set()
     # kind by kind (every capture's untouched copy first): a run stopped early still covers every capture
     todo = [(k, c, n) for n in names for k, c in enumerate(caps) if (c.name, n) not in done]

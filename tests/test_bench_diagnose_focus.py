@@ -3,6 +3,7 @@ frame's interval holds the truth, the table's count of sets within 0.02 D, and t
 runs."""
 
 import numpy as np
+import pytest
 
 from benchmarks import bench_diagnose_focus as bench
 
@@ -82,3 +83,14 @@ def test_compare_counts_sets_whose_reported_focus_leaves_the_widened_interval(ca
     bench.compare([old], [new])
     assert "in some frame (`verdict.focus_measured`'s test): 1 before, 0 after, of 1; changed: a offset_+0.05" \
         in capsys.readouterr().out
+
+
+def test_fresh_test_captures_are_new_scenes():
+    """The fresh test captures (issue 32) share no scene id or noise seed with the benchmark's captures or the
+    tuning capture (scene 2029, noise seed 4), and --fresh refuses a count it does not have."""
+    fresh = {s for s, _ in bench.FRESH_SCENES}
+    assert len(fresh) == len(bench.FRESH_SCENES) >= 2
+    assert not fresh & ({s for s, _ in bench.SCENES} | {2029})
+    assert not {n for _, n in bench.FRESH_SCENES} & ({n for _, n in bench.SCENES} | {4})
+    with pytest.raises(SystemExit, match="--fresh"):
+        bench.fresh_folders(len(bench.FRESH_SCENES) + 1, bench.CACHE)
