@@ -41,7 +41,7 @@ from torch.utils.data import Dataset
 
 from aat_deploy.infer.normalise import normalise_scale, scaled
 from training.data import cameras as cams
-from training.data.cache import item_path, save_item
+from training.data.cache import check_sources, item_path, save_item, sources_state
 from training.data.rooms import RoomConfig, room_scene
 from training.data.scenes import SceneConfig, procedural_scene
 from training.render.parametric import Camera, ParametricSource
@@ -158,6 +158,7 @@ class AnyCamDataset(Dataset):
         self.base_cache = Path(cfg.cache_dir) / f"anycam_{base.key()}" if base and cfg.cache_dir else None
         self._donors = [AnyCamDataset._bare(d) for d in cfg.donor_configs()] if cfg.cache_dir else []
         self._traced: dict = {}
+        self.sources, self._sources_checked, self._donor_state = render_sources(cfg), None, {}
         # with only_cached, position j reads item self.items[j]: the cached ones, as found now
         self.items = [i for i in range(cfg.n_items) if not cfg.only_cached or self.is_cached(i)]
         if not self.items:
@@ -168,6 +169,7 @@ class AnyCamDataset(Dataset):
         """A dataset of `cfg` that only draws and names its cache (no item list, no donors of its own)."""
         d = cls.__new__(cls)
         d.cfg, d._traced, d._donors, d.items = cfg, {}, [], []
+        d.sources, d._sources_checked, d._donor_state = render_sources(cfg), None, {}
         d.cache = Path(cfg.cache_dir) / f"anycam_{cfg.key()}" if cfg.cache_dir else None
         d.base_cache = None
         return d
@@ -311,17 +313,35 @@ class AnyCamDataset(Dataset):
                 and a.far == b.far and np.array_equal(a.focus, b.focus) and a.kind == b.kind and a.info == b.info
                 and a.traced == b.traced and a.wide == b.wide)
 
+    def check_sources(self) -> str | None:
+        """ValueError (one line, nothing written) when the cache folder's sources.json names other lens/PSF files
+        than `render_sources`; else "verified", "recorded" (a new folder) or "unverified" (renders made before the
+        record: `training.data.cache.check_sources`); None without a cache. Once per dataset object."""
+        if self.cache is not None and self._sources_checked is None:
+            self._sources_checked = check_sources(self.cache, self.sources)
+        return self._sources_checked
+
+    def _may_adopt(self, donor: AnyCamDataset) -> bool:
+        """Whether a donor's renders may be adopted: its record names this config's files, or neither folder has a
+        record (unverified renders stay among unverified ones: never into a folder whose record vouches for them)."""
+        if donor.cache not in self._donor_state:
+            self._donor_state[donor.cache] = sources_state(donor.cache, self.sources)[0]
+        state = self._donor_state[donor.cache]
+        return state == "verified" or (state == "unverified" and self.check_sources() == "unverified")
+
     def is_cached(self, index: int) -> bool:
         """The item's render is in the cache and still valid (`stale`). An item this config shares with a donor
         config (`AnyCamConfig.donor_configs`: its `base_config`, whose items are all but the wide sweeps, and the
         same configs without the later draw limits; the same draws, so the same bytes: `same_draw`) found valid in
-        that config's cache is adopted first: hard-linked (else copied) into this cache."""
+        that config's cache is adopted first: hard-linked (else copied) into this cache, when the donor's record of
+        its sources allows (`_may_adopt`). A cache whose record names other files raises (`check_sources`)."""
         if self.cache is None:
             return False
+        self.check_sources()
         f = item_path(self.cache, index)
         for donor in self._donors if not f.is_file() else ():
             b = item_path(donor.cache, index)
-            if _valid(b, self.stale) and self.same_draw(donor, index):
+            if _valid(b, self.stale) and self._may_adopt(donor) and self.same_draw(donor, index):
                 f.parent.mkdir(parents=True, exist_ok=True)
                 tmp = f.with_suffix(f".adopt{os.getpid()}.tmp")  # each process its own
                 tmp.unlink(missing_ok=True)
@@ -361,6 +381,8 @@ class AnyCamDataset(Dataset):
         rendered and cached (frames as float16; the cache's layout and byte-deterministic files of
         `training.data.cache`, so sharded rendering fills it)."""
         f = item_path(self.cache, index) if self.cache is not None else None
+        if f is not None:
+            self.check_sources()
         if f is not None and (f.is_file() or self.is_cached(index)):
             try:
                 with np.load(f) as z:
@@ -467,6 +489,15 @@ def mosaic(parts: list[dict]) -> dict:
         out[k] = np.concatenate([np.concatenate([a[k], b[k]], -1), np.concatenate([c[k], d[k]], -1)], -2)
     out["focus_m"] = np.full_like(np.asarray(a["focus_m"]), np.nan)
     return out
+
+
+def render_sources(cfg: AnyCamConfig) -> dict[str, Path]:
+    """The lens and PSF files a config's renders read ({"<lens>_lens": path, "<lens>_psf": path} per traced lens;
+    none when traced_fraction is 0), recorded in its cache folder (`check_sources`). The parametric cameras read no
+    file; a traced lens's best-focus map is read with the items (`focus_maps`), not rendered into them."""
+    if not cfg.traced_fraction:
+        return {}
+    return {f"{name}_{role}": _resolve(p) for name, paths in TRACED.items() for role, p in zip(("lens", "psf"), paths)}
 
 
 @functools.lru_cache(maxsize=None)

@@ -8,7 +8,9 @@ A cache folder (`cache_dir/<key>/`, key = `StackDataConfig.key()`, a hash of eve
     manifest.json                 once all items 0 .. n_items - 1 exist: the data config that defines them, the item
                                   count and the SHA-256 of every item file
     sources.json                  the SHA-256 of the lens and PSF files the items were rendered from: the key holds
-                                  their paths, not their contents, so a file corrected in place is caught here
+                                  their paths, not their contents, so a file corrected in place is caught here.
+                                  Written into new folders only: a folder that held items before the record existed
+                                  is read as unverified (`check_sources`), never stamped with today's files
 
 Item files are byte-deterministic (an uncompressed zip with fixed timestamps, as np.savez lays it out otherwise),
 and an item depends only on (config, index), so a cache filled by n shards in any order, on any number of
@@ -22,6 +24,7 @@ import functools
 import hashlib
 import json
 import os
+import sys
 import time
 import zipfile
 from pathlib import Path
@@ -126,29 +129,69 @@ def sha256_file_cached(path: Path) -> str:
     return _sha256_stat(str(Path(path).resolve()), st.st_mtime_ns, st.st_size)
 
 
-def check_sources(cache: Path, sources: dict[str, Path | None]) -> None:
-    """Refuse a cache folder rendered from other files than `sources` ({"lens": path, "psf": path or None}).
-
-    A folder with sources.json must name the same SHA-256 for every source, else ValueError (one line; nothing is
-    deleted). A folder without it gets it written: it cannot tell what was rendered before the record existed,
-    so it records the current files (the same bytes from every process, so concurrent writers agree)."""
+def _held_items(cache: Path, also_held=()) -> bool:
+    """Whether a cache folder already holds rendered items (or `also_held` files rendered with it exist)."""
     cache = Path(cache)
-    now = {role: None if p is None else {"path": str(p), "sha256": sha256_file_cached(p)}
-           for role, p in sorted(sources.items())}
+    return (cache.is_dir() and (any(cache.glob("[0-9]*.npz")) or (cache / "manifest.json").is_file())) or any(
+        Path(f).is_file() for f in also_held)
+
+
+def sources_state(cache: Path, sources: dict[str, Path | None], also_held=()) -> tuple[str, str]:
+    """What a cache folder's record says of `sources` ({role: path or None}), without writing anything:
+    ("verified", "") when sources.json names the same SHA-256 for every role; ("changed", one-line reason) when it
+    names other files or cannot be read; ("unverified", one-line reason) when the folder holds items (or
+    `also_held` files exist) but no record: made before the record existed, so what they were rendered from cannot be
+    known; ("new", "") when it holds nothing yet."""
+    cache = Path(cache)
     rec = cache / SOURCES
     if not rec.is_file():
-        # a new folder, or one made before the record existed: what it already holds cannot be checked
-        cache.mkdir(parents=True, exist_ok=True)
-        write_text_atomic(rec, json.dumps(now, indent=1, sort_keys=True) + "\n")
-        return
+        if _held_items(cache, also_held):
+            return "unverified", (f"{cache}: made before caches recorded their sources ({SOURCES}): cannot check "
+                                  f"which lens/PSF files its items were rendered from; read as unverified")
+        return "new", ""
     try:
         old = json.loads(rec.read_text())
     except ValueError as e:
-        raise ValueError(f"{rec}: not readable JSON ({e}); render into a fresh --cache directory") from None
-    for role, cur in now.items():
+        return "changed", f"{rec}: not readable JSON ({e}); render into a fresh --cache directory"
+    for role, cur in _sources_now(sources).items():
         was = old.get(role)
         if (was or {}).get("sha256") != (cur or {}).get("sha256"):
             what = f"{cur['path']} now hashes {cur['sha256'][:12]}" if cur else "now none"
-            raise ValueError(f"{cache}: rendered from {role} {(was or {}).get('path')} with SHA-256 "
-                             f"{str((was or {}).get('sha256'))[:12]}, but {role} {what}: its items are of the old "
-                             f"file; render into a fresh --cache directory (nothing was deleted)")
+            return "changed", (f"{cache}: rendered from {role} {(was or {}).get('path')} with SHA-256 "
+                               f"{str((was or {}).get('sha256'))[:12]}, but {role} {what}: its items are of the old "
+                               f"file; render into a fresh --cache directory (nothing was deleted)")
+    return "verified", ""
+
+
+def _sources_now(sources: dict[str, Path | None]) -> dict:
+    return {role: None if p is None else {"path": str(p), "sha256": sha256_file_cached(p)}
+            for role, p in sorted(sources.items())}
+
+
+_WARNED: set[str] = set()
+
+
+def check_sources(cache: Path, sources: dict[str, Path | None], also_held=()) -> str:
+    """Check a cache folder against the files its items are rendered from (`sources`, {role: path or None}; e.g.
+    {"lens": ..., "psf": ...}) before reading or adding items; `sources_state` says how. Returns:
+
+    - "verified": its sources.json names the same SHA-256 for every role;
+    - "recorded": a new folder (no items): sources.json written now (the same bytes from every process);
+    - "unverified": items but no record (made before it existed): one warning line on stderr (once per process
+      and folder) and nothing written: stamping today's hashes would certify items that may be of older files.
+
+    A record naming other files: ValueError, one line, nothing written or deleted."""
+    cache = Path(cache)
+    state, why = sources_state(cache, sources, also_held)
+    if state == "changed":
+        raise ValueError(why)
+    if state == "unverified":
+        if str(cache) not in _WARNED:
+            _WARNED.add(str(cache))
+            print(f"warning: {why}", file=sys.stderr, flush=True)
+        return "unverified"
+    if state == "new":
+        cache.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(cache / SOURCES, json.dumps(_sources_now(sources), indent=1, sort_keys=True) + "\n")
+        return "recorded"
+    return "verified"

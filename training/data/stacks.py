@@ -139,7 +139,7 @@ class FocalStackDataset(Dataset):
                         else RayTracedPSF(self.lens, device=device))
         # the files the items are rendered from, recorded in (and checked against) the cache folder
         self.sources = {"lens": _resolve(cfg.lens), "psf": _resolve(cfg.psf) if uses_psf and cfg.psf else None}
-        self._sources_checked = False
+        self._sources_checked = None  # check_sources' answer, once known
         self.sim = Simulator(self.lens, lens_src, fx.parse(cfg.effect_list()), LayeredConfig(cell_px=cfg.cell_px),
                              device=device)
         self.schedule = FocusSchedule(cfg.focus_near_m, cfg.focus_far_m, cfg.stack_size, cfg.jitter_d)
@@ -223,12 +223,14 @@ class FocalStackDataset(Dataset):
     def is_cached(self, index: int) -> bool:
         return self.cache is not None and item_path(self.cache, index).is_file()
 
-    def check_sources(self) -> None:
+    def check_sources(self, also_held=()) -> str | None:
         """ValueError when the cache folder was rendered from other lens/PSF files than this config's (the key
-        holds their paths only); records them in a folder without the record. Once per dataset object."""
-        if self.cache is not None and not self._sources_checked:
-            check_sources(self.cache, self.sources)
-            self._sources_checked = True
+        holds their paths only); else how it stands (`training.data.cache.check_sources`: "verified", "recorded"
+        or "unverified"; None without a cache). Once per dataset object. also_held: files rendered with the
+        folder's items but kept outside it (a test set's real scenes)."""
+        if self.cache is not None and self._sources_checked is None:
+            self._sources_checked = check_sources(self.cache, self.sources, also_held)
+        return self._sources_checked
 
     def load_or_render(self, index: int) -> dict:
         """Item `index` as numpy arrays, whole (not cropped): from the cache, else rendered (and cached)."""

@@ -73,6 +73,18 @@ def _make_sets(cfg: TrainConfig, train_set: Dataset | None, val_set: Dataset | N
     return train_set, val_set
 
 
+def _data_sources(train_set, val_set) -> dict:
+    """How each cached split stands against the lens/PSF files it is rendered from (`check_sources` of
+    training.data.cache: "verified", "recorded" or "unverified"; a changed file raises): kept in each session's
+    record, so a run on renders made before the record says so."""
+    out = {}
+    for name, ds in (("train", train_set), ("val", val_set)):
+        check = getattr(ds, "check_sources", None)
+        if callable(check) and getattr(ds, "cache", None) is not None:
+            out[name] = check()
+    return out
+
+
 def _validate_and_log(model, val_set, cfg: TrainConfig, out_dir: Path, step: int, final: bool) -> dict:
     metrics, err_map = evaluate(model, val_set, cfg.val_items, cfg.loss.mask_focus_range)
     _log(out_dir, {"step": step, "val": metrics})
@@ -160,7 +172,7 @@ def _train(cfg, out_dir: Path, train_set, val_set, resume, stop_at_step, progres
     barrier(world)
     step0 = step
     sessions.append({"from_step": step, "device": str(device), "amp": amp_name(amp), "processes": world,
-                     "sync_bn": bool(sync_bn and world > 1)})
+                     "sync_bn": bool(sync_bn and world > 1), "data_sources": _data_sources(train_set, val_set)})
     if world > 1:
         ddp = DistributedDataParallel(model, device_ids=[device.index] if device.type == "cuda" else None)
     else:

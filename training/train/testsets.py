@@ -179,6 +179,9 @@ def load_test_set(spec: TestSetSpec, cache_dir: str | None = "cache/heldout", pr
     from tqdm import tqdm
 
     ds = _dataset(spec, cache_dir)
+    if cache_dir:  # the real scenes' files count as the folder's items: a folder without a record is unverified
+        ds.check_sources([Path(cache_dir) / f"{n}_{spec.key()}.npz"
+                          for n, on in (("middlebury", spec.middlebury), ("nyu", spec.nyu)) if on])
     out: dict[str, list[TestItem]] = {"procedural": []}
     kind = "validation" if spec.photo_split == "train" else "test"
     for i in tqdm(range(spec.n_procedural), desc=f"{kind} set {spec.protocol}", disable=not progress, unit="stack"):

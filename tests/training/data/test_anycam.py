@@ -269,14 +269,14 @@ def test_the_wide_sweep_config_covers_the_test_stacks_blur_change():
 
 
 def test_shared_items_are_adopted_from_the_base_cache_wide_ones_never(tmp_path):
-    from training.data.cache import item_path, save_item
+    from training.data.cache import check_sources, item_path, save_item
 
     cfg = _sweeps_config(wide_sweep_fraction=0.5, cache_dir=str(tmp_path))
     new = AnyCamDataset(cfg)
     shared = next(i for i in range(50) if not new.is_wide(i))
     wide = next(i for i in range(50) if new.is_wide(i))
     fake = {"frames": np.zeros((2, 3, 4, 4), np.float16), "render_version": np.int64(2), "camera": np.asarray("{}")}
-    new.base_cache.mkdir(parents=True)
+    check_sources(new.base_cache, new.sources)  # rendered with today's code: it records its sources first
     for i in (shared, wide):
         save_item(item_path(new.base_cache, i), fake)
     assert not item_path(new.cache, shared).exists()

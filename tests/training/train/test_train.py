@@ -291,6 +291,43 @@ def test_any_camera_net_trains_resumes_exactly_validates_and_exports(tmp_path):
 
 
 @pytest.mark.numerics
+def test_an_any_camera_run_resumes_on_renders_made_before_the_sources_record(tmp_path, capsys):
+    """`scripts/train_dfv_aat.sh dfv_aat_v6` on a new machine with today's code: the sixth run's config (shrunk) on
+    renders without sources.json (the v4-v6 data were made before it) resumes from its checkpoint through the CLI,
+    says once per folder that they cannot be checked, records them as unverified in the run and writes nothing
+    into the cache."""
+    from training.cli.train import main
+    from training.data.anycam import AnyCamConfig, AnyCamDataset
+    from training.data.cache import SOURCES
+    from training.train.config import load_config
+    from training.train.loop import train
+
+    v6 = json.loads((ROOT / "configs" / "anycam" / "dfv_aat_v6.json").read_text())
+    tiny = dict(n_items=4, height=32, width=32, margin_px=8, max_layers=16, cache_dir=str(tmp_path / "cache"))
+    folders = []
+    for split in ("data", "val_data"):
+        ds = AnyCamDataset(AnyCamConfig(**{**v6[split], **tiny, "only_cached": False}))
+        for i in range(4):
+            ds.load_or_render(i)
+        (ds.cache / SOURCES).unlink()  # as the code that rendered the v4-v6 data left its folders
+        folders.append(ds.cache)
+    listing = {f: f.stat().st_mtime_ns for d in folders for f in d.rglob("*")}
+    cfg_path = tmp_path / "dfv_aat_v6.json"
+    cfg_path.write_text(json.dumps({**v6, "data": {**v6["data"], **tiny}, "val_data": {**v6["val_data"], **tiny},
+                                    "steps": 4, "batch_size": 2, "warmup_steps": 1, "checkpoint_every": 2,
+                                    "val_every": 0, "val_items": 4, "log_every": 1}))
+    out = tmp_path / "runs" / "dfv_aat_v6"
+    train(load_config(cfg_path), out, stop_at_step=2, progress=False)  # the committed checkpoint
+    assert main(["--config", str(cfg_path), "--out", str(out), "--resume", "--no-progress"]) == 0
+    summary = json.loads((out / "train_summary.json").read_text())
+    assert summary["steps"] == 4 and [s["from_step"] for s in summary["sessions"]] == [0, 2]
+    assert all(s["data_sources"] == {"train": "unverified", "val": "unverified"} for s in summary["sessions"])
+    warned = [line for line in capsys.readouterr().err.splitlines() if "cannot check" in line]
+    assert sorted(w.split(": made before")[0].removeprefix("warning: ") for w in warned) == sorted(map(str, folders))
+    assert {f: f.stat().st_mtime_ns for d in folders for f in d.rglob("*")} == listing  # nothing written there
+
+
+@pytest.mark.numerics
 def test_the_best_validation_weights_are_kept(tmp_path):
     """best.pt holds the weights of the step whose validation MAE is the lowest logged (model.pt's format), across a
     resume; best.json names that step."""
