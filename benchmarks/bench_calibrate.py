@@ -5,9 +5,10 @@
 
 Lenses: rf50, paper50, ef50 (the 50 mm lenses with PSF surrogates and best-focus maps), cellphone (the phone lens,
 lenses/cellphone_asphere.json, in its working range: surrogate models/psf_cellphone.onnx over 0.05-2 m, charts at
-7-18 cm, depth stacks 0.07-0.5 m) and z35 (the phone-sized Z35 as DiffOptics scaled it: its sweeps are refused, the
-table says why). The phone-sized lenses' sweeps are designed from their blur per diopter (`sweep_diopters`: about
-1.2 px/D).
+7-18 cm, depth stacks 0.07-0.5 m) and z35 (the phone-sized Z35 as DiffOptics scaled it, 0.84 px of blur per
+diopter: its sweeps are refused, since its surrogate's 0.2-5 m focus range lets them reach under 4 px of blur beyond
+the chart; the table says so). The phone-sized lenses' sweeps are designed from their blur per diopter
+(`sweep_diopters`).
 
 Setup, per lens (its PSF surrogate, its best-focus map in lenses/best_focus/, its tolerance table):
 - **nominal**: the lens as its prescription says, sensor noise on (8000 e- full well);
@@ -103,10 +104,13 @@ LENSES = {
                       ("lens_tolerance:element=2:decentre_x_mm=0.1", "sensor_tilt:tilt_x_deg=0.5:tilt_y_deg=-0.3",
                        f"focus_metadata:bias_d=0:scale={SCALE}", "noise"),
                       tolerance_table="cache/tolerance/auto"),
-    # the phone-sized Z35 (EFL 1.57 mm, 0.84 px of blur per diopter; until 2026-11-26 its aspheres were misread, giving
-    # EFL 2.29 mm and a field curvature that refused its sweeps: its rows need rerunning, BENCHMARKS.md);
-    # its tolerances scaled to its size (3 um decentre, 0.1 deg tilt: each about 0.3-0.5 D at the edge), the charts
-    # nearer and the sweeps designed in pixels of blur (a 0.04 D step would move its blur by 0.05 px)
+    # the phone-sized Z35 (EFL 1.57 mm, 0.84 px of blur per diopter; its aspheres were misread until 2026-11-26);
+    # its tolerances scaled to its size (3 um decentre, 0.1 deg tilt: each about 0.3-0.5 D at the edge; the table:
+    # `python -m scripts.lens_tolerance_table lenses/nikon_z35_f1.8_diffoptics.json --out cache/tolerance
+    # --focus-m 0.2,0.6,5`), the charts nearer and the sweeps designed in pixels of blur (a 0.04 D step would move
+    # its blur by 0.03 px). Still refused: its surrogate's focus range (0.2-5 m) holds only 4 px of blur in all, so
+    # no sweep reaches the RF50's half-fall (HALF_FALL_PX) on both sides of a chart; it needs a surrogate and charts
+    # nearer (as the phone lens's: 0.05-2 m, charts at 7-18 cm)
     "z35": LensSetup("z35", "lenses/nikon_z35_f1.8_diffoptics.json", "models/psf_z35.onnx", (0.3, 0.6, 1.5),
                      ((12, 4), (-9, -3), (8, 0)),
                      ("lens_tolerance:element=3:decentre_x_mm=0.003", "sensor_tilt:tilt_x_deg=0.1:tilt_y_deg=-0.06",
@@ -130,6 +134,7 @@ NOMINAL = ("noise",)
 # (90 % within 4.1-4.8 px, all within 6.1 px). At least MIN_SWEEP_FRAMES frames; never beyond the PSF surrogate's
 # focus range (it clamps there: the frame would be rendered at another focus than its metadata says).
 SWEEP_STEP_PX, SWEEP_MARGIN_PX, MIN_SWEEP_FRAMES = 1.4, 10.0, 15
+HALF_FALL_PX = (3.4, 4.0)  # where the RF50's tile curves fall to half (px of blur from the peak)
 
 
 def sweep_diopters(rig, near_d: float, far_d: float) -> np.ndarray:
@@ -164,6 +169,23 @@ def tolerance_path(setup: LensSetup) -> Path:
 
     folder = ROOT / Path(setup.tolerance_table).parent
     return folder / table_name(load_lens(ROOT / setup.lens))
+
+
+def _repo_relative(path: Path) -> Path:
+    return path.relative_to(ROOT) if path.is_relative_to(ROOT) else path
+
+
+def check_tolerance_table(setup: LensSetup) -> None:
+    """SystemExit (one line, with the command that makes it) when the copy's tolerance table is not there: its
+    name carries the lens's optics key, so a corrected lens file (the Z35, 2026-11-26) needs a new one, and the
+    copy's renders would otherwise stop after the nominal sweeps."""
+    if not setup.tolerance_table:
+        return
+    t = tolerance_path(setup)
+    if not t.is_file():
+        raise SystemExit(f"{t}: no tolerance table for {setup.lens} (its optics key); make it with `python -m "
+                         f"scripts.lens_tolerance_table {setup.lens} --out {_repo_relative(t.parent)}` "
+                         "(add --focus-m for a lens not focused at 0.5-20 m)")
 
 
 class Rig:
@@ -347,6 +369,19 @@ def psf_growth(rig: Rig, object_m: float) -> dict:
         g = np.arange(k.shape[-1]) - k.shape[-1] // 2
         p = k / k.sum((-1, -2), keepdims=True)
         out[name] = (np.sqrt((p * (g[:, None] ** 2 + g[None, :] ** 2)).sum((-1, -2))) * sc).tolist()
+    out["reach_px"] = sweep_reach_px(rig)
+    return out
+
+
+def sweep_reach_px(rig: Rig) -> dict:
+    """{chart distance (m): [far, near]}: the thin-lens blur (px) the sweep reaches beyond the chart's centre on
+    its far and near side. A tile's focus curve must fall to half to count (`calibrate.peaks`), which on the RF50
+    takes HALF_FALL_PX: a sweep that cannot reach that far (clipped to the surrogate's focus range) leaves the
+    curves flat whatever the chart."""
+    out = {}
+    for d in rig.setup.distances_m:
+        fd = sweep_diopters(rig, 1.0 / d, 1.0 / d)
+        out[f"{d:g}"] = [float(rig.blur_px_per_d * (1.0 / d - fd[0])), float(rig.blur_px_per_d * (fd[-1] - 1.0 / d))]
     return out
 
 
@@ -564,6 +599,16 @@ def part_blind(rig: Rig, chart_cal, n_worlds: int, log) -> tuple[list[dict], obj
 BLIND_MAPPINGS = ("blind calibration", "blind + chart focus error")  # part d's fit scored in part b (both parts run)
 
 
+def reach_note(psf: dict) -> str:
+    """The refused row's note on how far its sweeps reach (runs before 2026-11-26 did not record it)."""
+    reach = psf.get("reach_px")
+    if not reach:
+        return ""
+    sides = ", ".join(f"{d} m {f:.1f} / {n:.1f}" for d, (f, n) in reach.items())
+    return (f"; the sweeps reach {sides} px of blur beyond the chart (far / near side), where the RF50's tile curves "
+            f"fall to half {HALF_FALL_PX[0]:.1f}-{HALF_FALL_PX[1]:.1f} px from their peak")
+
+
 def tables(res: dict) -> str:
     out = ["### a) The calibrated map against the copy's truth (diopters over every pixel)", "",
            "| lens | variant | focus error fitted | tiles | residual RMS | calibration RMS / p95, inside | "
@@ -578,7 +623,7 @@ def tables(res: dict) -> str:
                        f"the sweep's {p['focus_d'][0]:.2f}-{p['focus_d'][-1]:.2f} D, object at {p['object_m']:g} m;"
                        f" thin-lens defocus blur up to {max(p['defocus_blur_px']):.1f} px; best focus "
                        f"{p['field_curvature_d']['r0.5']:+.1f} D at radius 0.5, {p['field_curvature_d']['r1']:+.1f} D "
-                       "at the corner, from the axis's) | | | | | | | |")
+                       f"at the corner, from the axis's{reach_note(p)}) | | | | | | | |")
             continue
         fe = (f"{r['family']}" + (f" {r['scale']:.4f} [{r['scale_ci'][0]:.4f}, {r['scale_ci'][1]:.4f}]"
                                   if r["family"] == "scale" and r["scale_ci"] else "")
@@ -687,6 +732,7 @@ def main(argv=None) -> int:
     res: dict = {"map": [], "depth": {}, "needs": {}, "blind": {}}
     for key in a.lenses.split(","):
         setup = LENSES[key] if a.cell_px is None else dataclasses.replace(LENSES[key], cell_px=a.cell_px)
+        check_tolerance_table(setup)
         rig = Rig(setup, a.truth_map, a.measure, a.prefilter_px)
         log(f"{key}: {rig.lens.name}")
         rows, fits = part_map(rig, a.boot, log)

@@ -59,6 +59,48 @@ def test_every_copy_finds_its_tolerance_table():
         assert tol[0]._table_path(rig.ctx()).parent == bc.ROOT / "models"
 
 
+def test_a_missing_tolerance_table_is_one_line_with_its_command(tmp_path):
+    """A held-out lens's table lives under cache/ and is named by the lens's optics key: a corrected lens file
+    needs a new one, refused before any sweep is rendered, with the command that makes it."""
+    import dataclasses
+
+    setup = dataclasses.replace(bc.LENSES["z35"], tolerance_table=str(tmp_path / "auto"))
+    with pytest.raises(SystemExit) as e:
+        bc.check_tolerance_table(setup)
+    msg = str(e.value)
+    assert "\n" not in msg and str(tmp_path) in msg and "tolerance_" in msg
+    assert f"scripts.lens_tolerance_table {setup.lens} --out " in msg
+    bc.tolerance_path(setup).write_text("{}")  # there: passes
+    bc.check_tolerance_table(setup)
+    bc.check_tolerance_table(bc.LENSES["rf50"])  # next to its surrogate: not this check's
+
+
+def test_a_refused_row_says_how_far_its_sweeps_reach():
+    """How far a sweep reaches beyond its chart, in px of thin-lens blur: the RF50's fixed 0.3 D margin, the Z35's
+    clipped to its surrogate's focus range (0.2-5 m), which at 0.84 px/D leaves it under the 3.4 px a tile's curve
+    needs to fall to half on either side of every chart (why its rows are refused)."""
+    rf = bc.Rig(bc.LENSES["rf50"])
+    for d, (far, near) in bc.sweep_reach_px(rf).items():
+        assert far == pytest.approx(0.3 * rf.blur_px_per_d, rel=1e-6) and near == pytest.approx(far, rel=1e-6)
+        assert far > bc.HALF_FALL_PX[1]
+    z = bc.Rig(bc.LENSES["z35"])
+    assert 0.80 < z.blur_px_per_d < 0.88  # EFL 1.572 mm, F/1.77, 1.66 um pixels (the misread lens: 1.23)
+    flo, fhi = z.src.model.focus_range_m
+    reach = bc.sweep_reach_px(z)
+    assert list(reach) == ["0.3", "0.6", "1.5"]
+    for d, (far, near) in reach.items():
+        assert far == pytest.approx(z.blur_px_per_d * (1 / float(d) - 1 / fhi), rel=1e-6)
+        assert near == pytest.approx(z.blur_px_per_d * (1 / flo - 1 / float(d)), rel=1e-6)
+        assert min(far, near) < bc.HALF_FALL_PX[0]
+    row = {"lens": "z35", "variant": "nominal", "refused": "x: too few textured tiles", "psf": {
+        "rms_radius_px_centre": [0.2, 1.1], "rms_radius_px_x0.7": [0.3, 1.1], "focus_d": [0.2, 5.0], "object_m": 0.6,
+        "defocus_blur_px": [2.8], "field_curvature_d": {"r0.5": 0.5, "r1": 0.2}, "reach_px": reach}}
+    text = bc.tables({"map": [row]})
+    assert "the sweeps reach 0.3 m 2.6 / 1.4, 0.6 m 1.2 / 2.8, 1.5 m 0.4 / 3.7 px of blur beyond the chart" in text
+    del row["psf"]["reach_px"]  # a run before the field existed still prints
+    assert "refused: too few textured tiles" in bc.tables({"map": [row]})
+
+
 def test_world_views_are_the_same_rendered_or_cached(tmp_path, monkeypatch):
     """The blind part's views: the run that renders them and the runs that read them from the cache get the same
     frames (the cache's float16), so two runs of part d fit the same data."""

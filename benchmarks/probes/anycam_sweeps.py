@@ -3,6 +3,7 @@
     python -m benchmarks.probes.anycam_sweeps [--configs configs/anycam/dfv_aat.json configs/anycam/dfv_aat_v3.json]
         [--out results/anycam_sweeps.json] [--figure results/figures/anycam_sweeps.png]
         [--window-coverage [--coverage-split train|val] [--coverage-every N]]
+    python -m benchmarks.probes.anycam_sweeps --test-only z35 [--cache cache/heldout]
 
 Per sweep, in pixels of blur diameter: the total blur change k x (1/near - 1/far) (k: the defocus scale the net is
 told, px per diopter, at the sweep's geometric-mean focus) and the blur change per frame spacing, both for the
@@ -16,6 +17,8 @@ depth range). Prints quantiles and the shares under 9 px and within 20-120 px, a
 sweeps' working width; parametric best-focus maps past infinity or past half the far focus's diopters); writes JSON
 and a histogram.
 --window-coverage also reads the cached renders: how much of its sweep's depth each 128 px window spans.
+--test-only LENS ...: only those lenses' test rows (no training sweeps, no figure), printed and put into --out in
+place of the lenses' earlier test rows, the rest of the file kept (a lens file corrected since, as the Z35 was).
 """
 
 from __future__ import annotations
@@ -64,8 +67,9 @@ def map_far_ratio(cam, focus_m: np.ndarray) -> float:
     return float(least_map_diopters(cam, focus_m).min() * float(np.max(focus_m)))
 
 
-def test_sweeps(cache: Path) -> list[dict]:
-    """One row per test-protocol sweep: lens, protocol, total and per-spacing blur change (px)."""
+def test_sweeps(cache: Path, lenses: list[str] | None = None) -> list[dict]:
+    """One row per test-protocol sweep of `lenses` (default every held-out set's): lens, protocol, total and
+    per-spacing blur change (px)."""
     from aat_deploy.anycam.model import K_MAX_PX_PER_D
     from aat_deploy.calibrate.format import thin_lens_defocus_scale_px_per_d
     from aat_deploy.lens.io import load_lens
@@ -75,6 +79,8 @@ def test_sweeps(cache: Path) -> list[dict]:
 
     rows = []
     for key, spec in LENSES.items():
+        if lenses is not None and key not in lenses:
+            continue
         lens = load_lens(ROOT / spec["lens"])
         p = paraxial_data(lens)
 
@@ -160,6 +166,49 @@ def figure(train: dict, test: list[dict], path: Path) -> None:
     plt.close(fig)
 
 
+def test_summary(rows: list[dict]) -> dict:
+    """{"<lens> <protocol>": quantiles of the total and per-spacing blur change, frames} of test_sweeps' rows."""
+    groups: dict[str, list[dict]] = {}
+    for r in rows:
+        groups.setdefault(f"{r['lens']} {r['protocol']}", []).append(r)
+    return {k: {"span_px": stats([r["span_px"] for r in rs]), "step_px": stats([r["step_px"] for r in rs]),
+                "frames": rs[0]["frames"]} for k, rs in groups.items()}
+
+
+def print_test(test: dict) -> None:
+    for name, st in test.items():
+        s, r = st["span_px"], st["step_px"]
+        print(f"| test {name} ({st['frames']} frames) | {s['n']} | " + " / ".join(f"{s[f'p{q}']:.1f}" for q in QUANTILES)
+              + f" | {s['under_9px']:.0%} | {s['in_20_120px']:.0%} | {r['p5']:.1f} / {r['p50']:.1f} / {r['p95']:.1f} |")
+
+
+def test_only(lenses: list[str], cache: Path, out: Path) -> int:
+    """--test-only: the lenses' test rows, printed and put into `out` in place of their earlier rows (a lens's
+    paper-protocol row is dropped when its set is not cached under `cache`); the rest of `out` is kept."""
+    from benchmarks.bench_anycam import LENSES
+
+    unknown = sorted(set(lenses) - set(LENSES))
+    if unknown:
+        raise SystemExit(f"--test-only: unknown lens {', '.join(unknown)} (known: {', '.join(LENSES)})")
+    test = test_summary(test_sweeps(cache, lenses))
+    print("| sweeps | n | total blur change (px) p5 / p25 / p50 / p75 / p95 | under 9 px | 20-120 px "
+          "| blur per frame spacing as read (px) p5 / p50 / p95 |")
+    print("|---|---|---|---|---|---|")
+    print_test(test)
+    old = json.loads(out.read_text()) if out.is_file() else {"summary": {"training": {}, "test": {}}, "configs": []}
+    merged = {}  # the file's order, these lenses' rows where theirs were
+    for k, v in old["summary"].get("test", {}).items():
+        if k.split(" ")[0] not in lenses:
+            merged[k] = v
+        else:
+            merged.update({n: t for n, t in test.items() if n.split(" ")[0] == k.split(" ")[0]})
+    old["summary"]["test"] = {**merged, **test}
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(out, json.dumps(old, indent=1))
+    print(f"wrote {out} (test rows of {', '.join(lenses)})")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--configs", nargs="+", type=Path,
@@ -172,7 +221,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--coverage-split", choices=("train", "val"), default="train",
                     help="whose renders --window-coverage reads (default train)")
     ap.add_argument("--coverage-every", type=int, default=4, help="every n-th render (default 4)")
+    ap.add_argument("--test-only", nargs="+", metavar="LENS", default=None,
+                    help="only these lenses' test rows, put into --out in place of their earlier ones")
     a = ap.parse_args(argv)
+    if a.test_only is not None:
+        return test_only(a.test_only, a.cache, a.out)
     train = {c.stem: training_sweeps(c) for c in a.configs}
     test = test_sweeps(a.cache)
     summary = {"training": {}, "test": {}}
@@ -181,10 +234,7 @@ def main(argv: list[str] | None = None) -> int:
         summary["training"][name] = {
             g: {"span_px": stats([r["span_px"] for r in rs]), "dense_step_px": stats([r["dense_step_px"] for r in rs]),
                 "read_step_px": stats([r["read_step_px"] for r in rs])} for g, rs in groups.items() if rs}
-    for r in test:
-        summary["test"].setdefault(f"{r['lens']} {r['protocol']}", []).append(r)
-    summary["test"] = {k: {"span_px": stats([r["span_px"] for r in rs]), "step_px": stats([r["step_px"] for r in rs]),
-                           "frames": rs[0]["frames"]} for k, rs in summary["test"].items()}
+    summary["test"] = test_summary(test)
     print("| sweeps | n | total blur change (px) p5 / p25 / p50 / p75 / p95 | under 9 px | 20-120 px "
           "| blur per frame spacing as read (px) p5 / p50 / p95 |")
     print("|---|---|---|---|---|---|")
@@ -194,10 +244,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"| training {name}, {g} | {s['n']} | " + " / ".join(f"{s[f'p{q}']:.1f}" for q in QUANTILES)
                   + f" | {s['under_9px']:.0%} | {s['in_20_120px']:.0%} | {r['p5']:.1f} / {r['p50']:.1f} / "
                   f"{r['p95']:.1f} |")
-    for name, st in summary["test"].items():
-        s, r = st["span_px"], st["step_px"]
-        print(f"| test {name} ({st['frames']} frames) | {s['n']} | " + " / ".join(f"{s[f'p{q}']:.1f}" for q in QUANTILES)
-              + f" | {s['under_9px']:.0%} | {s['in_20_120px']:.0%} | {r['p5']:.1f} / {r['p50']:.1f} / {r['p95']:.1f} |")
+    print_test(summary["test"])
     print("\n| training sweeps | wide sweeps' working width (px) p50 / p90 / max | wide over 1,400 px "
           "| parametric maps past infinity | past half the far focus's diopters |\n|---|---|---|---|---|")
     for name, rows in train.items():
