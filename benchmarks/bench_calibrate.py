@@ -276,8 +276,10 @@ def sweep(rig: Rig, variant: str, i: int, progress=print) -> dict:
     cells = "" if s.cell_px == 64 else f"_cells{s.cell_px}"
     f = CACHE / f"{s.key}_{variant}_{d:g}m{cells}.npz"
     img, layout = chart_for(rig, d)
+    sources = sweep_sources(s)
     if f.is_file():
         z = np.load(f)
+        check_sweep_sources(f, z, sources)
         return {"frames": z["frames"].astype(np.float32), "reported_m": z["reported_m"], "true_m": z["true_m"],
                 "layout": layout, "distance_m": d}
     rgb, depth = chart_scene(img, layout, ChartPose(d, tx, ty), rig.w, rig.h, rig.f_px, rig.pupil)
@@ -292,9 +294,37 @@ def sweep(rig: Rig, variant: str, i: int, progress=print) -> dict:
     from aat_deploy.io.atomic import atomic_file
 
     with atomic_file(f) as tmp:
-        np.savez(tmp, frames=frames.astype(np.float16), reported_m=reported, true_m=true_m)
+        np.savez(tmp, frames=frames.astype(np.float16), reported_m=reported, true_m=true_m,
+                 sources=json.dumps(sources, sort_keys=True))
     return {"frames": frames.astype(np.float16).astype(np.float32), "reported_m": reported, "true_m": true_m,
             "layout": layout, "distance_m": d}
+
+
+def sweep_sources(setup: LensSetup) -> dict:
+    """{"lens": sha256, "psf": sha256} of the files a sweep is rendered from: its cache name holds the lens's key
+    only, so a lens file corrected in place (the Z35, 2026-11-26) would otherwise be read from its old sweeps."""
+    from training.data.cache import sha256_file_cached
+
+    return {"lens": sha256_file_cached(ROOT / setup.lens), "psf": sha256_file_cached(ROOT / setup.psf)}
+
+
+_UNVERIFIED: set[str] = set()
+
+
+def check_sweep_sources(path: Path, z, sources: dict) -> None:
+    """SystemExit (one line) when a cached sweep records other lens/PSF files than `sources`; a sweep cached before
+    the record existed is read as unverified, with one warning line per file (nothing written or deleted)."""
+    if "sources" not in z.files:
+        if str(path) not in _UNVERIFIED:
+            _UNVERIFIED.add(str(path))
+            print(f"warning: {path}: cached before sweeps recorded their lens/PSF files: read as unverified",
+                  file=sys.stderr, flush=True)
+        return
+    was = json.loads(str(z["sources"]))
+    diff = [f"{k} {str(was.get(k))[:12]} then, {v[:12]} now" for k, v in sources.items() if was.get(k) != v]
+    if diff:
+        raise SystemExit(f"{path}: rendered from other files ({'; '.join(diff)}): move it aside to render the sweep "
+                         "again (nothing was deleted)")
 
 
 def measures(rig: Rig, sweeps: list[dict], variant: str, keep_every: int = 1):

@@ -101,6 +101,33 @@ def test_a_refused_row_says_how_far_its_sweeps_reach():
     assert "refused: too few textured tiles" in bc.tables({"map": [row]})
 
 
+def test_a_cached_sweep_of_other_lens_files_is_refused(tmp_path, monkeypatch, capsys):
+    """A chart sweep's cache name holds the lens's key only: the sweep records the SHA-256 of its lens and PSF
+    files, and one of another file is refused in one line (kept); one cached before the record is read with a
+    warning."""
+    import json
+
+    rig = bc.Rig(bc.LENSES["z35"])
+    monkeypatch.setattr(bc, "CACHE", tmp_path)
+    f = tmp_path / "z35_nominal_0.3m.npz"
+    arrays = {"frames": np.zeros((3, 3, 4, 6), np.float16), "reported_m": np.array([3.0, 2.0, 1.0]),
+              "true_m": np.array([3.0, 2.0, 1.0])}
+    now = bc.sweep_sources(rig.setup)
+    assert set(now) == {"lens", "psf"} and all(len(v) == 64 for v in now.values())
+    np.savez(f, **arrays, sources=json.dumps({**now, "lens": "0" * 64}))
+    with pytest.raises(SystemExit) as e:
+        bc.sweep(rig, "nominal", 0, lambda m: None)
+    msg = str(e.value)
+    assert "\n" not in msg and str(f) in msg and "lens 000000000000 then" in msg and "psf" not in msg
+    assert f.is_file()
+    np.savez(f, **arrays, sources=json.dumps(now))  # the same files: read
+    assert bc.sweep(rig, "nominal", 0, lambda m: None)["frames"].shape == (3, 3, 4, 6)
+    np.savez(f, **arrays)  # cached before the record: read, with one warning
+    bc.sweep(rig, "nominal", 0, lambda m: None)
+    bc.sweep(rig, "nominal", 0, lambda m: None)
+    assert capsys.readouterr().err.count("read as unverified") == 1
+
+
 def test_world_views_are_the_same_rendered_or_cached(tmp_path, monkeypatch):
     """The blind part's views: the run that renders them and the runs that read them from the cache get the same
     frames (the cache's float16), so two runs of part d fit the same data."""
