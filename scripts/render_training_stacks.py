@@ -45,11 +45,13 @@ def _datasets(config_paths: list[str], split: str) -> dict:
         for name, data in parts:
             if data is None or (split != "both" and name != split):
                 continue
+            # every item of the config: a run may read only those cached (the any-camera data's only_cached), the
+            # renderer makes them all (and so starts on an empty cache)
+            data = {**data, "only_cached": False} if data.get("only_cached") else dict(data)
             ds = make_dataset(data, cfg.simulator, cfg.lens, cfg.effects)
             if ds.cache is None:
                 raise SystemExit(f"{p}: {name} data has no cache_dir: nothing to render into")
-            # every item of the config (a dataset may read fewer: the any-camera data's only_cached)
-            out.setdefault(str(ds.cache), (dict(data), cfg.simulator, cfg.lens, list(cfg.effects), ds.cfg.n_items))
+            out.setdefault(str(ds.cache), (data, cfg.simulator, cfg.lens, list(cfg.effects), ds.cfg.n_items))
     return out
 
 

@@ -13,7 +13,7 @@ Each item (deterministic in (seed, index), rendered once and cached as float16 l
   the camera at the item's place on its sensor.
 
 When read, a training item is cropped (and mirrored: the image and its maps together, which is the mirrored
-camera's render); `collate` then picks, per batch, how many frames and which (any S from 3 to 16, strided, random
+camera's render; with `crop_sizes` each batch is cropped to one side drawn for it, `batch_crop`); `collate` then picks, per batch, how many frames and which (any S from 3 to 16, strided, random
 or phone-like) and applies a camera's processing to every item with random settings (exposure, misalignment,
 sensor noise, RAW development, a phone's JPEG pipeline when the `phone_jpeg` effect exists), then normalises as the
 runtime does. So the cached renders serve endless stack sizes, schedules and camera effects.
@@ -59,8 +59,10 @@ RENDER_VERSION = 2
 @dataclass(frozen=True)
 class AnyCamConfig:
     """n_items renders of height x width px (+ margin_px rendered and dropped on every side); crop: side of the
-    random square crops read for training (0 = the whole render); camera_effects: apply a camera's processing
-    when reading; fixed_subsets: validation mode (frames and effects fixed per index, no crop)."""
+    random square crops read for training (0 = the whole render); crop_sizes: sides (px) to draw each batch's
+    crops from instead (one side per batch, `collate`; sides over the render's are capped to it); camera_effects:
+    apply a camera's processing when reading; fixed_subsets: validation mode (frames and effects fixed per index,
+    no crop)."""
 
     n_items: int = 3000
     seed: int = 0
@@ -89,11 +91,22 @@ class AnyCamConfig:
     # parametric best-focus maps stay within 1 / far_map_floor x the sweep's far focus (`cameras.limit_far_map`;
     # 0: as drawn, maps may pass infinity)
     far_map_floor: float = 0.0
+    crop_sizes: tuple[int, ...] = ()
+    # renders no larger than the camera's sensor (height x width capped to its rows and columns): at larger render
+    # sizes a window on a small working resolution (320 x 240 px phones) would reach past the sensor's corners,
+    # where its maps are extrapolated (12 % of the draws are under 256 px tall, a third under 384)
+    fit_sensor: bool = False
+
+    def __post_init__(self):
+        object.__setattr__(self, "crop_sizes", tuple(int(v) for v in self.crop_sizes))  # JSON gives a list
+        if any(v < 16 for v in self.crop_sizes):
+            raise ValueError(f"crop_sizes {list(self.crop_sizes)}: sides of at least 16 px")
 
     def key(self) -> str:
         """Hash of what defines the renders (not how they are read)."""
         d = asdict(self)
-        for k in ("n_items", "crop", "flips", "camera_effects", "fixed_subsets", "cache_dir", "only_cached", "mosaic"):
+        for k in ("n_items", "crop", "flips", "camera_effects", "fixed_subsets", "cache_dir", "only_cached", "mosaic",
+                  "crop_sizes"):
             d.pop(k)
         if d["max_layers"] == 128:
             d.pop("max_layers")  # the layered renderer's default (renders made before the field hash as before)
@@ -103,6 +116,8 @@ class AnyCamConfig:
             d.pop("wide_max_width_px")  # likewise
         if not d["far_map_floor"]:
             d.pop("far_map_floor")
+        if not d["fit_sensor"]:
+            d.pop("fit_sensor")
         d["version"] = 1
         return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:12]
 
@@ -245,6 +260,13 @@ class AnyCamDataset(Dataset):
                                      c.far_map_floor)
         return Sweep(cam, tuple(sensor_hw), near, far, focus, kind, info, traced, wide)
 
+    def render_hw(self, sensor_hw) -> tuple[int, int]:
+        """(rows, cols) of an item's render: the config's, capped to the camera's sensor with `fit_sensor`."""
+        c = self.cfg
+        if c.fit_sensor:
+            return min(c.height, int(sensor_hw[0])), min(c.width, int(sensor_hw[1]))
+        return c.height, c.width
+
     def render(self, index: int) -> dict:
         """Item `index` (numpy): frames (F, 3, h, w) linear float32, focus_m (F,) near -> far, depth_m (h, w),
         aif (3, h, w) linear, origin (row, col) on the sensor, sensor_hw, and what defines its focus map."""
@@ -256,14 +278,15 @@ class AnyCamDataset(Dataset):
         c = self.cfg
         rng = np.random.default_rng([c.seed, index, 35])
         m = c.margin_px
-        hh, ww = c.height + 2 * m, c.width + 2 * m
         sw = self.draw_sweep(rng, index)
+        h, w = self.render_hw(sw.sensor_hw)
+        hh, ww = h + 2 * m, w + 2 * m
         cam, sensor_hw, near, far, focus, kind, info, traced = (sw.cam, sw.sensor_hw, sw.near, sw.far, sw.focus,
                                                                 sw.kind, sw.info, sw.traced)
         if traced:
             lens, sim, fmap = self._traced_lens("rf50")
         hs, ws = sensor_hw
-        origin = (int(rng.integers(0, max(1, hs - c.height + 1))), int(rng.integers(0, max(1, ws - c.width + 1))))
+        origin = (int(rng.integers(0, max(1, hs - h + 1))), int(rng.integers(0, max(1, ws - w + 1))))
         if sw.wide:  # the sweep spans the scene's depth range (the paper's protocol), give or take a little
             s_near = near * float(np.exp(rng.uniform(-0.1, 0.05)))
             s_far = max(far * float(np.exp(rng.uniform(-0.15, 0.1))), s_near * 1.3)
@@ -289,7 +312,7 @@ class AnyCamDataset(Dataset):
             cfg = LayeredConfig(cell_px=c.cell_px, layer_blur_px=c.layer_blur_px, max_layers=c.max_layers)
             frames = np.stack([render_layered(img, depth, float(f), src,
                                               lambda r, q: field_of(r, q, sensor_hw, o), cfg) for f in focus])
-        sl = (slice(m, m + c.height), slice(m, m + c.width))
+        sl = (slice(m, m + h), slice(m, m + w))
         info.update({"schedule": kind, "focus_range_m": [near, far]})
         return {"frames": frames[:, :, sl[0], sl[1]].astype(np.float32), "focus_m": focus.astype(np.float64),
                 "depth_m": depth[sl].astype(np.float32), "aif": img[:, sl[0], sl[1]],
@@ -439,10 +462,11 @@ class AnyCamDataset(Dataset):
             s = int(rng.integers(cams.S_RANGE[0], cams.max_frames(_span_px(dense)) + 1))
             return _to_torch(finish(dense, rng, c.camera_effects, cams.subset(rng, len(item["focus_m"]), s=s)[0]))
         r0 = c0 = 0
-        if c.crop:
-            r0 = int(torch.randint(0, h - c.crop + 1, ()))
-            c0 = int(torch.randint(0, w - c.crop + 1, ()))
-            h = w = c.crop
+        crop = min(max(c.crop_sizes), h, w) if c.crop_sizes else c.crop  # variable: `collate` crops further
+        if crop:
+            r0 = int(torch.randint(0, h - crop + 1, ()))
+            c0 = int(torch.randint(0, w - crop + 1, ()))
+            h = w = crop
         maps, k = self.focus_maps(item, r0, c0, h, w)
         sl = (slice(r0, r0 + h), slice(c0, c0 + w))
         out = {"frames": item["frames"][:, :, sl[0], sl[1]], "maps": maps, "k": k, "focus_m": item["focus_m"],
@@ -461,10 +485,13 @@ class AnyCamDataset(Dataset):
         """One training batch: the same S for every item (drawn here), each item's frames a subset of its sweep,
         its camera's processing applied, normalised; see the module docstring for the keys. With chance
         cfg.mosaic (and a multiple of 4 items of one size) each 4 items become one image of twice the side
-        (`mosaic`)."""
+        (`mosaic`). With cfg.crop_sizes every item is first cropped to one side drawn for the batch
+        (`batch_crop`)."""
         rng = np.random.default_rng(items[0]["seed"])
         cap = cams.max_frames(float(np.median([_span_px(it) for it in items])))  # sweeps of little blur: few frames
         s = int(rng.integers(cams.S_RANGE[0], cap + 1))
+        if self.cfg.crop_sizes:
+            items = batch_crop(items, self.cfg.crop_sizes, np.random.default_rng([items[0]["seed"], 1]))
         out = []
         for it in items:
             r = np.random.default_rng(it["seed"])
@@ -475,6 +502,21 @@ class AnyCamDataset(Dataset):
                 and rng.random() < self.cfg.mosaic):
             out = [mosaic(out[i:i + 4]) for i in range(0, len(out), 4)]
         return {k: torch.stack([torch.from_numpy(np.ascontiguousarray(o[k])) for o in out]) for k in out[0]}
+
+
+def batch_crop(items: list[dict], sizes, rng: np.random.Generator) -> list[dict]:
+    """Items as `AnyCamDataset.__getitem__` reads them (frames (F, 3, h, w), maps (F, h, w), depth_m, aif) cropped to
+    one square side drawn from `sizes` for the whole batch (capped to the smallest item), each at a random place:
+    a net that runs on large tiles trains on large single scenes, and the batch still stacks."""
+    side = min(int(rng.choice(list(sizes))), *(min(it["depth_m"].shape) for it in items))
+    out = []
+    for it in items:
+        h, w = it["depth_m"].shape
+        r0, c0 = int(rng.integers(0, h - side + 1)), int(rng.integers(0, w - side + 1))
+        sl = (slice(r0, r0 + side), slice(c0, c0 + side))
+        out.append({**it, "frames": it["frames"][:, :, sl[0], sl[1]], "maps": it["maps"][:, sl[0], sl[1]],
+                    "depth_m": it["depth_m"][sl], "aif": it["aif"][:, sl[0], sl[1]]})
+    return out
 
 
 def mosaic(parts: list[dict]) -> dict:

@@ -17,7 +17,10 @@ def largest_training_image_px(data: dict) -> int:
     this size (aat.tile_px): the first run's net, trained on 128 px images, was 2.4x worse on whole 640 x 480 frames
     than on 128 px tiles, and on RF50 validation stacks 128 px tiles beat 96, 256 and whole frames
     (benchmarks/probes/anycam_tiles.py --split validation)."""
-    return int(data.get("crop") or min(data.get("height", 160), data.get("width", 160)))
+    render = min(data.get("height", 160), data.get("width", 160))
+    if data.get("crop_sizes"):  # crops of several sides: the largest (capped to the render)
+        return min(int(max(data["crop_sizes"])), render)
+    return int(data.get("crop") or render)
 
 
 def export_checkpoint(checkpoint, out, *, force: bool = False, extra: dict | None = None,

@@ -206,6 +206,75 @@ def test_mosaic_batches_lay_four_stacks_out_2x2_each_quadrant_its_own_camera(ds)
     assert torch.isfinite(loss) and np.isfinite(parts["frames_l1"])
 
 
+def test_variable_crops_one_side_per_batch_the_maps_cropped_with_the_frames(ds):
+    """cfg.crop_sizes: each batch draws one side for all its items (so it stacks), sides vary across batches, the
+    renders (same key) are reused, and every array of an item is cut at the same place: a focus map cut from the
+    item's own read equals the map computed for that window."""
+    from dataclasses import replace
+
+    from training.data.anycam import batch_crop
+    from training.train.export import largest_training_image_px
+
+    var = AnyCamDataset(replace(ds.cfg, crop_sizes=[16, 40, 64]))  # 64 > the 48 px renders: capped
+    assert var.cfg.crop_sizes == (16, 40, 64) and var.cache == ds.cache
+    torch.manual_seed(2)
+    sides = set()
+    for _ in range(8):
+        items = [var[i] for i in range(4)]
+        assert {it["depth_m"].shape for it in items} == {(48, 48)}  # read whole (at most the largest side)
+        batch = var.collate(items)
+        side = batch["stack"].shape[-1]
+        assert batch["stack"].shape[-2:] == batch["focus_diopters"].shape[-2:] == batch["depth_m"].shape[-2:] == (
+            side, side)
+        sides.add(side)
+    assert sides == {16, 40, 48}
+    # where it cuts: arrays that encode their own coordinates, cut alike
+    rc = np.arange(48 * 48, dtype=np.float32).reshape(48, 48)
+    item = {"frames": np.broadcast_to(rc, (5, 3, 48, 48)), "maps": np.broadcast_to(rc, (5, 48, 48)),
+            "depth_m": rc, "aif": np.broadcast_to(rc, (3, 48, 48)), "k": 1.0, "seed": 0}
+    for it in batch_crop([item, item], (24,), np.random.default_rng(0)):
+        corner = it["depth_m"][0, 0]
+        assert it["depth_m"].shape == (24, 24) and corner != 0
+        assert it["frames"][:, :, 0, 0].min() == it["maps"][:, 0, 0].max() == it["aif"][:, 0, 0].min() == corner
+    # the maps of a window of the real item are those focus_maps computes for that window
+    whole = var.load_or_render(1)
+    maps, _ = var.focus_maps(whole, 0, 0, 48, 48)
+    cut = batch_crop([{"frames": whole["frames"], "maps": maps, "depth_m": whole["depth_m"], "aif": whole["aif"],
+                       "k": 1.0, "seed": 0}], (20,), np.random.default_rng(5))[0]
+    r0, c0 = _where(whole["frames"], cut)
+    assert np.allclose(cut["maps"], var.focus_maps(whole, r0, c0, 20, 20)[0])
+    assert largest_training_image_px({"crop": 0, "crop_sizes": [128, 384], "height": 256, "width": 256}) == 256
+    assert largest_training_image_px({"crop": 0, "crop_sizes": [128, 192], "height": 256, "width": 256}) == 192
+
+
+def test_fit_sensor_caps_a_render_to_its_cameras_sensor_and_leaves_old_keys_alone(ds, tmp_path):
+    """fit_sensor: a render larger than its camera's sensor (a 320 x 240 px phone) is cut to the sensor's rows and
+    columns, so no pixel lies past the sensor's corners; off, the keys of earlier renders are unchanged."""
+    from dataclasses import replace
+
+    cfg = AnyCamConfig(n_items=400, seed=3, height=200, width=200, margin_px=4, crop=0, max_layers=8,
+                       wide_sweep_fraction=0.5, wide_max_width_px=1280, fit_sensor=True, cache_dir=str(tmp_path))
+    d = AnyCamDataset(cfg)
+    small = next(i for i in range(400) if d.draw_sweep(np.random.default_rng([3, i, 35]), i).sensor_hw[0] < 200)
+    sensor_hw = d.draw_sweep(np.random.default_rng([3, small, 35]), small).sensor_hw
+    item = d.load_or_render(small)
+    capped = tuple(min(v, 200) for v in sensor_hw)
+    assert item["depth_m"].shape == item["frames"].shape[-2:] == capped == d.render_hw(sensor_hw)
+    assert item["origin"][0] == 0 and tuple(item["sensor_hw"]) == tuple(sensor_hw)
+    assert d.render_hw((480, 640)) == (200, 200)
+    assert replace(cfg, fit_sensor=False).key() != cfg.key()
+    assert replace(ds.cfg, fit_sensor=False).key() == ds.cfg.key()  # the default adds nothing to a key
+
+
+def _where(frames: np.ndarray, cut: dict) -> tuple[int, int]:
+    """(row, col) of the window `cut` in the whole frames (found by matching every pixel)."""
+    s = cut["frames"].shape[-1]
+    hits = [(r, c) for r in range(frames.shape[-2] - s + 1) for c in range(frames.shape[-1] - s + 1)
+            if np.array_equal(frames[..., r:r + s, c:c + s], cut["frames"])]
+    assert len(hits) == 1
+    return hits[0]
+
+
 def test_wide_sweeps_are_large_sensors_wide_open_changing_the_blur_by_tens_of_pixels():
     """The third run's sweeps that look like the test stacks (benchmarks/probes/anycam_sweeps.py: the first runs'
     sweeps changed the blur by under 9 px in half the items, the held-out stacks by 50-80 px)."""

@@ -100,3 +100,23 @@ def test_shards_fill_the_same_cache_as_one_run_bit_for_bit(tmp_path, monkeypatch
     assert mod.main([cfg, "--workers", "1", "-q"]) == 0  # rank 0 of 2: items 0, 2, 4
     assert "shard 0/2: 1 rendered now" in capsys.readouterr().out and (key / "shards" / "0-of-2.json").is_file()
     assert _files(sharded) == a
+
+
+def test_an_any_camera_config_that_reads_only_cached_items_is_rendered_from_an_empty_cache(tmp_path, capsys):
+    """The seventh run's config shrunk (only_cached, crop_sizes, fit_sensor): its run reads only cached renders, so
+    the renderer must make them from nothing; the run then reads them, one crop side per batch."""
+    from training.train.config import load_config
+    from training.train.data import make_dataset
+
+    v7 = json.loads((ROOT / "configs" / "anycam" / "dfv_aat_v7.json").read_text())
+    tiny = {"n_items": 3, "height": 40, "width": 40, "margin_px": 4, "max_layers": 8, "cache_dir": str(tmp_path)}
+    p = tmp_path / "v7.json"
+    p.write_text(json.dumps({**v7, "data": {**v7["data"], **tiny, "crop_sizes": [16, 32]},
+                             "val_data": {**v7["val_data"], **tiny, "n_items": 1}}))
+    assert _script().main([str(p), "--workers", "1", "-q"]) == 0
+    out = capsys.readouterr().out
+    assert "3 of 3 items held, complete" in out and "1 of 1 items held, complete" in out
+    cfg = load_config(p)
+    ds = make_dataset(cfg.data, cfg.simulator, cfg.lens)
+    assert len(ds) == 3 and ds.check_sources() == "verified"
+    assert ds.collate([ds[i] for i in range(3)])["stack"].shape[-1] in (16, 32)
