@@ -291,12 +291,15 @@ def test_any_camera_net_trains_resumes_exactly_validates_and_exports(tmp_path):
 
 
 @pytest.mark.numerics
-def test_an_any_camera_run_resumes_on_renders_made_before_the_sources_record(tmp_path, capsys):
-    """`scripts/train_dfv_aat.sh dfv_aat_v6` on a new machine with today's code: the sixth run's config (shrunk) on
-    renders without sources.json (the v4-v6 data were made before it) resumes from its checkpoint through the CLI,
-    says once per folder that they cannot be checked, records them as unverified in the run and writes nothing
-    into the cache."""
-    from training.cli.train import main
+def test_an_any_camera_run_resumes_on_renders_made_before_the_sources_record(tmp_path):
+    """`scripts/train_dfv_aat.sh dfv_aat_v6` on a new machine with today's code (the script itself, in a copy of
+    the checkout's layout): the sixth run's config (shrunk) on renders without sources.json (the v4-v6 data were made
+    before it) resumes from its committed checkpoint, says once per folder that they cannot be checked, records them
+    as unverified in the run and writes nothing into the cache."""
+    import shutil
+    import subprocess
+    import sys
+
     from training.data.anycam import AnyCamConfig, AnyCamDataset
     from training.data.cache import SOURCES
     from training.train.config import load_config
@@ -312,17 +315,26 @@ def test_an_any_camera_run_resumes_on_renders_made_before_the_sources_record(tmp
         (ds.cache / SOURCES).unlink()  # as the code that rendered the v4-v6 data left its folders
         folders.append(ds.cache)
     listing = {f: f.stat().st_mtime_ns for d in folders for f in d.rglob("*")}
-    cfg_path = tmp_path / "dfv_aat_v6.json"
+    box = tmp_path / "checkout"  # the script runs configs/anycam/NAME.json and checkpoints/NAME/ of its checkout
+    (box / "scripts").mkdir(parents=True)
+    shutil.copy(ROOT / "scripts" / "train_dfv_aat.sh", box / "scripts")
+    cfg_path = box / "configs" / "anycam" / "dfv_aat_v6.json"
+    cfg_path.parent.mkdir(parents=True)
     cfg_path.write_text(json.dumps({**v6, "data": {**v6["data"], **tiny}, "val_data": {**v6["val_data"], **tiny},
                                     "steps": 4, "batch_size": 2, "warmup_steps": 1, "checkpoint_every": 2,
                                     "val_every": 0, "val_items": 4, "log_every": 1}))
-    out = tmp_path / "runs" / "dfv_aat_v6"
-    train(load_config(cfg_path), out, stop_at_step=2, progress=False)  # the committed checkpoint
-    assert main(["--config", str(cfg_path), "--out", str(out), "--resume", "--no-progress"]) == 0
-    summary = json.loads((out / "train_summary.json").read_text())
+    train(load_config(cfg_path), box / "checkpoints" / "dfv_aat_v6", stop_at_step=2, progress=False)  # committed
+    env = {**os.environ, "OUT": "cache/runs", "RETRIES": "1", "PYTHONPATH": str(ROOT),
+           "PATH": f"{Path(sys.executable).parent}:{os.environ.get('PATH', '')}"}
+    done = subprocess.run(["bash", str(box / "scripts" / "train_dfv_aat.sh"), "dfv_aat_v6"], env=env,
+                          capture_output=True, text=True, timeout=600)
+    log = (box / "cache" / "runs" / "dfv_aat_v6.log").read_text()
+    assert done.returncode == 0, done.stderr + log
+    assert "resumed from checkpoints/dfv_aat_v6" in done.stdout and "finished at step 4/4" in log
+    summary = json.loads((box / "cache" / "runs" / "dfv_aat_v6" / "train_summary.json").read_text())
     assert summary["steps"] == 4 and [s["from_step"] for s in summary["sessions"]] == [0, 2]
     assert all(s["data_sources"] == {"train": "unverified", "val": "unverified"} for s in summary["sessions"])
-    warned = [line for line in capsys.readouterr().err.splitlines() if "cannot check" in line]
+    warned = [line for line in log.splitlines() if "cannot check" in line]
     assert sorted(w.split(": made before")[0].removeprefix("warning: ") for w in warned) == sorted(map(str, folders))
     assert {f: f.stat().st_mtime_ns for d in folders for f in d.rglob("*")} == listing  # nothing written there
 
