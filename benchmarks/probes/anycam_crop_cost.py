@@ -8,11 +8,12 @@ seconds per training step at larger (or per-batch variable) crop sides, to plan 
 Renders: the config's training data (`data`) at each render side of `--sides` (height = width = side, its margin
 kept), items 0 .. items - 1, one thread, into cache/probes/anycam_crop_cost/ (resumable: an item's time is kept in
 the results file as soon as it is rendered; cached items are not timed again). Steps: the config trained from
-scratch on the largest side's renders with `data.crop_sizes` = each `--crops` entry (one side, or a list drawn per
-batch), on the renders of the full side only, no validation, no loader worker (data and step run one after the other: an upper bound for a run whose
-worker prepares the next batch meanwhile), into a temporary folder that is removed; the first `--skip` steps are
-not timed. Each row: wall seconds per step (data included) and the loop's own seconds per step (the net's forward,
-backward and update only). Results: results/anycam_crop_cost.json.
+scratch on the largest side's renders of the full side (fit_sensor cuts those of small sensors) with
+`data.crop_sizes` = each `--crops` entry (one side, or a list drawn per batch), no validation, no loader worker
+(data and step run one after the other: an upper bound for a run whose worker prepares the next batch meanwhile),
+into a temporary folder that is removed; the first `--skip` steps are not timed. Each row: wall seconds per step
+(data included) and the loop's own seconds per step (the net's forward, backward and update only). Results:
+results/anycam_crop_cost.json.
 """
 
 from __future__ import annotations

@@ -13,10 +13,11 @@ Each item (deterministic in (seed, index), rendered once and cached as float16 l
   the camera at the item's place on its sensor.
 
 When read, a training item is cropped (and mirrored: the image and its maps together, which is the mirrored
-camera's render; with `crop_sizes` each batch is cropped to one side drawn for it, `batch_crop`); `collate` then picks, per batch, how many frames and which (any S from 3 to 16, strided, random
-or phone-like) and applies a camera's processing to every item with random settings (exposure, misalignment,
-sensor noise, RAW development, a phone's JPEG pipeline when the `phone_jpeg` effect exists), then normalises as the
-runtime does. So the cached renders serve endless stack sizes, schedules and camera effects.
+camera's render; with `crop_sizes` each batch is cropped to one side drawn for it, `batch_crop`); `collate` then
+picks, per batch, how many frames and which (any S from 3 to 16, strided, random or phone-like) and applies a
+camera's processing to every item with random settings (exposure, misalignment, sensor noise, RAW development, a
+phone's JPEG pipeline when the `phone_jpeg` effect exists), then normalises as the runtime does. So the cached
+renders serve endless stack sizes, schedules and camera effects.
 
 A batch: "stack" (B, S, 3, H, W) normalised (docs/contracts.md), "focus_diopters" (B, S, H, W) object diopters in
 best focus per frame and pixel (1/m from the sensor plane), "defocus_px_per_d" (B, 1, H, W) blur-diameter growth

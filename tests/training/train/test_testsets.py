@@ -119,6 +119,12 @@ def test_a_lens_file_corrected_in_place_is_refused_for_the_middlebury_item(small
     load_test_set(spec, str(tmp_path / "c"), progress=False)
     assert list((tmp_path / "c").glob("middlebury_*.npz")) and list((tmp_path / "c").glob("*/sources.json"))
     load_test_set(spec, str(tmp_path / "c"), progress=False)  # unchanged: read back
+    (record,) = (tmp_path / "c").glob("*/sources.json")
+    saved = record.read_bytes()
+    record.unlink()  # a set rendered before the record: its Middlebury file makes the folder unverified, unstamped
+    load_test_set(spec, str(tmp_path / "c"), progress=False)
+    assert not record.exists()
+    record.write_bytes(saved)
     lens.write_text(lens.read_text() + " ")
     with pytest.raises(ValueError, match=r"rendered from lens .*lens.json.*fresh --cache"):
         load_test_set(spec, str(tmp_path / "c"), progress=False)
