@@ -56,7 +56,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aat_deploy.eval.stats import N_BOOT, bootstrap_mean, paired_ratio, zone_masks  # every DfF table's
+from aat_deploy.eval.stats import N_BOOT, bootstrap_mean, field_radius, paired_ratio, zone_masks  # every DfF table's
 from aat_deploy.eval.stats import fmt_interval as fmt
 from aat_deploy.optics.focus_table import diopter_grid  # the one even-in-diopters schedule
 from benchmarks import RESULTS
@@ -66,6 +66,8 @@ ROOT = Path(__file__).resolve().parents[1]
 CACHE = ROOT / "cache" / "calibrate"
 SCALE = 1.1  # the copy's reported distance / true distance
 TAPE_SD_MM = 2.0
+# field-radius bins of the map's error by radius (finer than the zones where the phone's outer field is steep)
+RADIUS_EDGES = (0.0, 0.33, 0.5, 0.66, 0.75, 0.84, 0.9, 1.0)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -368,12 +370,18 @@ def map_errors(rig: Rig, cal, effects: list[str], true_m: np.ndarray) -> dict:
              "thin lens": np.broadcast_to((1.0 / rep)[:, None, None], truth.shape)}
     out = {}
     zones = zone_masks(rig.h, rig.w)
+    rad = field_radius(rig.h, rig.w)
+    bins = {f"{lo:g}-{hi:g}": (rad >= lo) & (rad < hi if hi < 1 else rad <= hi)
+            for lo, hi in zip(RADIUS_EDGES[:-1], RADIUS_EDGES[1:])}
     for k, p in preds.items():
         if p is None:
             continue
         e = np.abs(p - truth)
+        d = p - truth
         out[k] = {"rms_d": float(np.sqrt(np.mean(e ** 2))), "p95_d": float(np.quantile(e, 0.95)),
-                  "zone_rms_d": {z: float(np.sqrt(np.mean(e[:, m] ** 2))) for z, m in zones.items()}}
+                  "zone_rms_d": {z: float(np.sqrt(np.mean(e[:, m] ** 2))) for z, m in zones.items()},
+                  "radius_rms_d": {b: float(np.sqrt(np.mean(e[:, m] ** 2))) for b, m in bins.items()},
+                  "radius_mean_d": {b: float(np.mean(d[:, m])) for b, m in bins.items()}}
     return out
 
 
@@ -447,7 +455,7 @@ def part_map(rig: Rig, n_boot: int, log) -> tuple[list, dict]:
                      "inside": e_in, "schedule": e_sched, "degree": res.model.degree, "radial": res.model.radial,
                      "focus_degree": res.model.focus_degree, "warnings": res.warnings,
                      "truth_family": truth_family(rig, eff, inside), "measure": rig.measure,
-                     "prefilter_px": rig.prefilter_px})
+                     "prefilter_px": rig.prefilter_px, "cell_px": s.cell_px})
         log(f"  {s.key} {variant}: family {fe.family} scale {fe.scale:.4f} bias {fe.bias_d:+.4f}; map RMS "
             f"{e_in['calibration']['rms_d']:.4f} D inside, {e_sched['calibration']['rms_d']:.4f} D on the schedule")
     return rows, fits
@@ -669,6 +677,15 @@ def tables(res: dict) -> str:
                    f"{i['prescription map']['rms_d']:.4f} | {i['thin lens']['rms_d']:.4f} | "
                    f"{s['calibration']['rms_d']:.4f} / {s['calibration']['p95_d']:.4f} | "
                    f"{s['prescription map']['rms_d']:.4f} |")
+    rad = [r for r in res.get("map", []) if "radius_rms_d" in r.get("inside", {}).get("calibration", {})]
+    if rad:  # runs before 2026-11-26 15:30 kept the zones only
+        bins = list(rad[0]["inside"]["calibration"]["radius_rms_d"])
+        out += ["", "#### a) by field radius, inside: calibration RMS (mean signed error, calibration - truth), D", "",
+                "| lens | variant | anchors (px) | " + " | ".join(bins) + " |", "|---|---|---|" + "---|" * len(bins)]
+        for r in rad:
+            c = r["inside"]["calibration"]
+            out.append(f"| {r['lens']} | {r['variant']} | {r.get('cell_px', 64)} | " + " | ".join(
+                f"{c['radius_rms_d'][b]:.3f} ({c['radius_mean_d'][b]:+.3f})" for b in bins) + " |")
     if res.get("depth"):
         out += ["", "### b) Depth through the copy, classical method, four mappings of the reported focus", "",
                 "| lens | scenes | mapping | MAE (m) | MAE outer (m) | MAE (D) |", "|---|---|---|---|---|---|"]

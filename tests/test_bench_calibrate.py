@@ -189,3 +189,40 @@ def test_depth_table_with_the_blind_mappings():
     assert row.split(" | ")[2] == bc.fmt(want)
     del d["blind calibration"], d["blind + chart focus error"]
     assert "blind" not in bc.tables({"depth": {"rf50": d}})
+
+
+def test_map_errors_by_field_radius():
+    """The map's error by field radius: the bins partition the frame (their squared errors add up to the whole
+    frame's) and a truth that departs from the thin lens by a known radial function reads that function's RMS
+    and mean in each bin."""
+    from aat_deploy.eval.stats import field_radius
+
+    h, w = 48, 64
+    rad = field_radius(h, w)
+
+    class Map:
+        def radius_px(self, h_, w_):
+            return field_radius(h_, w_)
+
+        def frame_diopters(self, focus_m, r):
+            return np.full((len(focus_m), np.size(r)), 1.0 / focus_m[0])  # the prescription map: the thin lens
+
+    class Rig:
+        fmap = Map()
+
+        def __init__(self):
+            self.h, self.w = h, w
+
+        def truth(self, effects, true_m):  # the thin lens plus 0.5 r^2 D nearer
+            return np.stack([np.full((h, w), 1.0 / f) + 0.5 * rad ** 2 for f in true_m])
+
+    true_m = np.array([0.5, 1.0, 2.0])
+    out = bc.map_errors(Rig(), None, ["noise"], true_m)["thin lens"]
+    n = {b: m.sum() for b, m in ((f"{lo:g}-{hi:g}", (rad >= lo) & ((rad < hi) if hi < 1 else (rad <= hi)))
+                                  for lo, hi in zip(bc.RADIUS_EDGES[:-1], bc.RADIUS_EDGES[1:]))}
+    assert sum(n.values()) == h * w and set(n) == set(out["radius_rms_d"])
+    total = sum(n[b] * out["radius_rms_d"][b] ** 2 for b in n) / (h * w)
+    assert total == pytest.approx(out["rms_d"] ** 2, rel=1e-5)
+    m = (rad >= 0.5) & (rad < 0.66)
+    assert out["radius_rms_d"]["0.5-0.66"] == pytest.approx(np.sqrt(np.mean((0.5 * rad[m] ** 2) ** 2)), rel=1e-5)
+    assert out["radius_mean_d"]["0.5-0.66"] == pytest.approx(-np.mean(0.5 * rad[m] ** 2), rel=1e-5)

@@ -205,8 +205,9 @@ def part_floor(key: str, object_m: float, half_px: float = 5.0, coarse_px: float
 ZONES = ((0.0, 0.33), (0.33, 0.66), (0.66, 0.9), (0.9, 1.01))
 
 
-def part_tiles_vs_truth(rig, ms) -> list[dict]:
-    """Per chart and field zone: measured tile peak minus the calibrated truth's peak for the tile's object (D)."""
+def part_tiles_vs_truth(rig, ms, zones=ZONES) -> list[dict]:
+    """Per chart and field zone ((lo, hi) field radii): measured tile peak minus the calibrated truth's peak for the
+    tile's object (D)."""
     r = rig.fmap.radius_px(rig.h, rig.w).astype(np.float64)
     f_grid = np.linspace(0.3, 25.0, 4000)
     rows = []
@@ -218,7 +219,7 @@ def part_tiles_vs_truth(rig, ms) -> list[dict]:
         t = rig.fmap.frame_diopters(1.0 / f_grid, rt)  # (F, N) the calibrated map
         peak = np.array([np.interp(true_d[j], t[:, j], f_grid) for j in range(len(rt))])
         e = m.peaks.peak_d[ok] - peak
-        for lo, hi in ZONES:
+        for lo, hi in zones:
             z = (rt >= lo) & (rt < hi)
             if z.any():
                 rows.append({"chart_m": rig.setup.distances_m[i], "zone": [lo, hi], "tiles": int(z.sum()),
