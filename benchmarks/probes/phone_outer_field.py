@@ -24,7 +24,15 @@ candidates at once:
 The patch: the top right of the frame (rows 0-192, columns 448-640: field radius 0.45-1, azimuths 8-62 deg), the
 chart's dead leaves at the sweeps' scale, grey, noise-free, rendered through the lens's surrogate over a dense sweep
 (0.2 D) with the torch-free renderer the sweeps use. Then (`--tiles`) the benchmark's nominal chart sweeps: every
-counted tile's peak minus each map's peak for its object, by chart and field zone (`calibrate_phone_offset`).
+counted tile's peak minus each map's peak for its object, by chart and field zone (`calibrate_phone_offset`),
+for the sweeps rendered with each of `--tile-cells` anchor spacings.
+
+`--region middle` (or `middle_diagonal`) puts the patch at field radius 0.2-0.8, where the phone's best focus is
+curved between the map's calibration radii 0.3, 0.5 and 0.6; `--renderer torch` renders it with the map
+calibration's simulator. `--map-points R,...` runs instead the map's own calibration procedure
+(`focus_calibration.measure_point`) at those radii, with the map's photographs or the chart's dead leaves
+(`--map-points-texture`), its sweep or a denser one (`--map-points-sweep`), its 64 px crop or another
+(`--map-points-crop`), against the map: BENCHMARKS.md, "The anchors against the 48-photograph map".
 """
 
 from __future__ import annotations
