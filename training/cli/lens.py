@@ -5,7 +5,8 @@
     aat-lens layout LENS --png out.png [--focus-m D]
     aat-lens focus-map LENS [--png out.png] [--force] [--no-calibrate] [--psf trace|PSF.onnx] [--out MAP.json]
                             [--stamp PSF.onnx] [--near-m M] [--calibrate-at M,M,...] [--sweep-d D]
-                            [--calibrate-radii R,R,...] [--calibrate-textures N] [--recalibrate MAP.json]
+                            [--calibrate-radii R,R,...] [--calibrate-textures N] [--calibrate-crop-px PX]
+                            [--recalibrate MAP.json]
     aat-lens focus-map --from-captures SWEEP_DIR [SWEEP_DIR ...] --chart chart.json --out mycam.json
                             [--distance-m D1,D2,...] [--force] ...   (the options of `aat-calibrate fit`)
 
@@ -193,7 +194,7 @@ def cmd_focus_map(a) -> int:
         fmap, points = make_focus_map(a.lens, True, a.psf, progress=not a.quiet, calibrate_at_m=a.calibrate_at,
                                       sweep_d=a.sweep_d, radii=a.calibrate_radii, traced=load_json(a.recalibrate),
                                       textures=a.calibrate_textures, measure=a.calibrate_measure,
-                                      prefilter_px=a.calibrate_prefilter_px)
+                                      prefilter_px=a.calibrate_prefilter_px, crop_px=a.calibrate_crop_px)
         fmap.save_json(out)
         print(f"wrote {out} ({time.time() - t0:.0f} s)")
         for p in points:
@@ -211,7 +212,7 @@ def cmd_focus_map(a) -> int:
         fmap, points = make_focus_map(a.lens, not a.no_calibrate, a.psf, progress=not a.quiet, near_m=a.near_m,
                                       calibrate_at_m=a.calibrate_at, sweep_d=a.sweep_d, radii=a.calibrate_radii,
                                       textures=a.calibrate_textures, measure=a.calibrate_measure,
-                                      prefilter_px=a.calibrate_prefilter_px)
+                                      prefilter_px=a.calibrate_prefilter_px, crop_px=a.calibrate_crop_px)
         fmap.save_json(out)
         print(f"wrote {out} ({time.time() - t0:.0f} s)")
         for p in points:
@@ -322,6 +323,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "calibrate better; BENCHMARKS.md). The map then belongs to that measure")
     p.add_argument("--calibrate-prefilter-px", type=float, default=None, metavar="PX",
                    help="that measure's pre-filter (Gaussian sigma, px; default the runtime's 1 px; narrowband: 0)")
+    p.add_argument("--calibrate-crop-px", type=int, default=None, metavar="PX",
+                   help="side of each calibration point's measured patch (px; default 64). Its peak is that of the "
+                        "best focus averaged over the patch: where the field is curved over 64 px (a phone lens's "
+                        "middle field) a smaller patch holds the point's own, with more textures per point")
     p.add_argument("--recalibrate", default=None, metavar="MAP.json",
                    help="calibrate this stored map of LENS again (its traced part kept, its calibration replaced; "
                         "needs --force) instead of tracing the lens anew")

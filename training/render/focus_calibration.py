@@ -185,7 +185,7 @@ def calibrate(lens, fmap: BestFocusMap, cfg: CalibrationConfig = CalibrationConf
 def make_focus_map(lens_path, calibrate_map: bool = True, psf: str = "trace", progress: bool = True,
                    near_m: float | None = None, calibrate_at_m=None, sweep_d: float | None = None,
                    radii=None, traced: BestFocusMap | None = None, textures: int | None = None,
-                   measure: str | None = None, prefilter_px: float | None = None
+                   measure: str | None = None, prefilter_px: float | None = None, crop_px: int | None = None
                    ) -> tuple[BestFocusMap, list[dict]]:
     """A lens file's best-focus map as `aat-lens focus-map` stores it: traced (training.optics.field_focus), then
     calibrated on rendered stacks (PSFs: "trace" or a surrogate .onnx), the lens file and the calibration points in
@@ -197,7 +197,9 @@ def make_focus_map(lens_path, calibrate_map: bool = True, psf: str = "trace", pr
     CalibrationConfig's; a lens whose best focus changes steeply at the edge needs them closer there); traced: a
     stored map of this lens whose traced part is kept (its calibration is made again) instead of tracing anew;
     textures: photo textures per point (None: CalibrationConfig's); measure / prefilter_px: the focus measure
-    whose peak is calibrated and its pre-filter (None: the runtime's, `aat_deploy.focus.FocusConfig`)."""
+    whose peak is calibrated and its pre-filter (None: the runtime's, `aat_deploy.focus.FocusConfig`); crop_px:
+    the side of each point's measured patch (None: CalibrationConfig's 64 px; where best focus is curved over the
+    patch, its peak is the curve's average over it, not the point's: a phone lens's middle field)."""
     from aat_deploy.lens.io import load_lens
     from training.optics.field_focus import best_focus_map
     from training.psf.geometry import focus_table_reaching
@@ -215,7 +217,8 @@ def make_focus_map(lens_path, calibrate_map: bool = True, psf: str = "trace", pr
     if calibrate_map:
         over = {k: v for k, v in (("focus_m", tuple(calibrate_at_m) if calibrate_at_m else None),
                                   ("sweep_d", sweep_d), ("radii", tuple(radii) if radii else None),
-                                  ("n_textures", textures), ("measure", measure), ("prefilter_px", prefilter_px))
+                                  ("n_textures", textures), ("measure", measure), ("prefilter_px", prefilter_px),
+                                  ("crop_px", crop_px))
                 if v is not None}
         fmap, points = calibrate(lens, fmap, CalibrationConfig(psf=psf, **over), progress=progress)
     notes = dict(fmap.notes)

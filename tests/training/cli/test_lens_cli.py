@@ -155,6 +155,8 @@ def test_focus_map_recalibrate_keeps_the_traced_map(tmp_path, monkeypatch, capsy
     # --calibrate-measure / --calibrate-prefilter-px: the map belongs to that measure (its notes say which)
     assert main(args + ["--force", "--calibrate-measure", "narrowband", "--calibrate-prefilter-px", "0"]) == 0
     assert (seen["cfg"].measure, seen["cfg"].prefilter_px) == ("narrowband", 0.0)
+    assert seen["cfg"].crop_px == 64  # the default patch unless given
+    assert main(args + ["--force", "--calibrate-crop-px", "16"]) == 0 and seen["cfg"].crop_px == 16
     with pytest.raises(SystemExit):
         main(args + ["--force", "--calibrate-measure", "fog"])
     phone = str(LENSES / "cellphone_asphere.json")
