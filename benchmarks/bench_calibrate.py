@@ -85,6 +85,7 @@ class LensSetup:
     schedule_m: tuple = (0.5, 10.0)  # the depth stacks' 8 frames (even in diopters) and their scenes' range (m)
     middlebury: bool = True  # Middlebury Motorcycle among the held-out stacks (its depths are 1-2 m)
     cell_px: int = 64  # the renderer's PSF anchor spacing (px) for the chart sweeps and the held-out stacks (--cell-px)
+    copy_name: str = "copy"  # the copy's chart sweeps' cache name (random copies, --copies: benchmarks/calibrate_copies)
 
     def schedule(self) -> np.ndarray:
         """The depth stacks' 8 true focus distances (m, near to far)."""
@@ -226,6 +227,16 @@ class Rig:
         self.pupil = p.total_track_mm + p.bfl_mm - p.entrance_pupil_z_mm
         self.blur_px_per_d = p.entrance_pupil_mm * p.efl_mm / s.pixel_mm / 1000.0  # thin lens, far focus
 
+    def with_setup(self, setup: LensSetup) -> "Rig":
+        """The same rig (lens, surrogate, map, measure) for another setup of the same lens (a random copy)."""
+        import copy
+
+        if setup.lens != self.setup.lens or setup.psf != self.setup.psf:
+            raise ValueError(f"Rig.with_setup: {setup.key} is another lens")
+        out = copy.copy(self)
+        out.setup = setup
+        return out
+
     def ctx(self):
         from aat_deploy.render import effects as fx
 
@@ -276,7 +287,7 @@ def sweep(rig: Rig, variant: str, i: int, progress=print) -> dict:
     d, (tx, ty) = s.distances_m[i], s.tilts[i]
     effects = effects_for(s, variant)
     cells = "" if s.cell_px == 64 else f"_cells{s.cell_px}"
-    f = CACHE / f"{s.key}_{variant}_{d:g}m{cells}.npz"
+    f = CACHE / f"{s.key}_{variant if variant == 'nominal' else s.copy_name}_{d:g}m{cells}.npz"
     img, layout = chart_for(rig, d)
     sources = sweep_sources(s)
     if f.is_file():
@@ -424,14 +435,14 @@ def sweep_reach_px(rig: Rig) -> dict:
 
 
 # -- parts -----------------------------------------------------------------------------------------------------------
-def part_map(rig: Rig, n_boot: int, log) -> tuple[list, dict]:
+def part_map(rig: Rig, n_boot: int, log, variants: tuple = ("nominal", "copy")) -> tuple[list, dict]:
     from aat_deploy.calibrate.sweep import SweepError
 
     rows, fits = [], {}
     s = rig.setup
     inside = diopter_grid(max(s.distances_m), min(s.distances_m), 10)
     schedule = s.schedule()
-    for variant in ("nominal", "copy"):
+    for variant in variants:
         sw = [sweep(rig, variant, i, log) for i in range(len(s.distances_m))]
         t0 = time.time()
         try:
@@ -762,20 +773,38 @@ def main(argv=None) -> int:
                     help="the renderer's PSF anchor spacing (px) for the sweeps and held-out stacks (default 64; a "
                          "phone's best focus moves by diopters over 64 px: benchmarks/probes/phone_outer_field.py); "
                          "renders cached apart")
+    ap.add_argument("--copies", type=int, default=0, metavar="K",
+                    help="instead of the parts: parts a and b on K random copies per lens (benchmarks/calibrate_copies:"
+                         " their distribution), resumed copy by copy from --out")
+    ap.add_argument("--copy-seed", type=int, default=2026, metavar="S", help="the random copies' seed")
     ap.add_argument("--tables", nargs="+", metavar="RESULT.json",
                     help="only print the tables of earlier runs' results, merged (BENCHMARKS.md's)")
     a = ap.parse_args(argv)
     if a.tables:
-        merged: dict = {"map": [], "depth": {}, "needs": {}, "blind": {}}
+        from benchmarks import calibrate_copies
+
+        merged: dict = {"map": [], "depth": {}, "needs": {}, "blind": {}, "copies": {}}
         for f in a.tables:
             r = json.loads(Path(f).read_text())
             merged["map"] += r.get("map", [])
-            for k in ("depth", "needs", "blind"):
+            for k in ("depth", "needs", "blind", "copies"):
                 merged[k].update(r.get(k, {}))
         print(tables(merged))
+        if merged["copies"]:
+            print("\n### Random copies\n\n" + calibrate_copies.tables(merged))
         return 0
     parts = set(a.parts.split(","))
     log = lambda m: print(m, file=sys.stderr, flush=True)
+    if a.copies:
+        from benchmarks import calibrate_copies
+
+        for key in a.lenses.split(","):
+            setup = LENSES[key] if a.cell_px is None else dataclasses.replace(LENSES[key], cell_px=a.cell_px)
+            check_tolerance_table(setup)
+            rig = Rig(setup, a.truth_map, a.measure, a.prefilter_px)
+            calibrate_copies.run(setup, rig, a.copies, a.copy_seed, a.n, a.boot, Path(a.out), log, save)
+        print(calibrate_copies.tables(json.loads(Path(a.out).read_text())))
+        return 0
     res: dict = {"map": [], "depth": {}, "needs": {}, "blind": {}}
     for key in a.lenses.split(","):
         setup = LENSES[key] if a.cell_px is None else dataclasses.replace(LENSES[key], cell_px=a.cell_px)

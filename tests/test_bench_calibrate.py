@@ -226,3 +226,61 @@ def test_map_errors_by_field_radius():
     m = (rad >= 0.5) & (rad < 0.66)
     assert out["radius_rms_d"]["0.5-0.66"] == pytest.approx(np.sqrt(np.mean((0.5 * rad[m] ** 2) ** 2)), rel=1e-5)
     assert out["radius_mean_d"]["0.5-0.66"] == pytest.approx(-np.mean(0.5 * rad[m] ** 2), rel=1e-5)
+
+
+# -- random copies (--copies K --copy-seed S: benchmarks/calibrate_copies) -------------------------------------------
+def _copies(key, k, seed=2026, n_el=5):
+    from benchmarks import calibrate_copies as cc
+
+    return [cc.draw_copy(bc.LENSES[key], n_el, seed, i) for i in range(k)]
+
+
+def test_random_copies_are_reproducible_from_the_seed_and_distinct():
+    a, b = _copies("ef50", 6), _copies("ef50", 6)
+    assert a == b  # the same seed draws the same copies
+    assert _copies("ef50", 3) == a[:3]  # K copies are the first K of a larger run (a run resumes copy by copy)
+    assert len({tuple(c["effects"]) for c in a}) == 6  # distinct
+    assert _copies("ef50", 6, seed=7) != a  # another seed, other copies
+    assert [c["effects"] for c in _copies("rf50", 3)] != [c["effects"] for c in a[:3]]  # each lens its own draws
+
+
+def test_random_copies_have_the_hand_chosen_copys_magnitudes():
+    """Decentre 0.1 mm and tilt hypot(0.5, 0.3) deg on the 50 mm lenses (5 um and hypot(0.3, 0.2) on the phone) in
+    random directions; the reported focus 1.1 x the true one and noise, as the hand-chosen copy."""
+    from aat_deploy.render import effects as fx
+
+    for key, dec, tilt, n_el in (("ef50", 0.1, np.hypot(0.5, 0.3), 5), ("cellphone", 0.005, np.hypot(0.3, 0.2), 6)):
+        cs = _copies(key, 40, n_el=n_el)
+        for c in cs:
+            assert np.hypot(*c["decentre_mm"]) == pytest.approx(dec, rel=1e-4)
+            assert np.hypot(*c["tilt_deg"]) == pytest.approx(tilt, rel=1e-4)
+            assert c["effects"][2:] == ["focus_metadata:bias_d=0:scale=1.1", "noise"]
+            parsed = fx.parse(c["effects"])  # the effects' own parser reads them back
+            lt = next(e for e in parsed if e.name == "lens_tolerance").params
+            assert (lt["element"], lt["decentre_x_mm"], lt["decentre_y_mm"]) == (c["element"], *c["decentre_mm"])
+        # random directions and elements: every element drawn, directions over the whole circle
+        assert {c["element"] for c in cs} == set(range(n_el))
+        ang = np.array([np.arctan2(c["tilt_deg"][1], c["tilt_deg"][0]) for c in cs])
+        assert np.histogram(ang, bins=4, range=(-np.pi, np.pi))[0].min() >= 3
+
+
+def test_a_random_copys_sweeps_are_cached_apart_from_the_hand_chosen_copys():
+    from benchmarks import calibrate_copies as cc
+
+    c = _copies("ef50", 1)[0]
+    s = cc.copy_setup(bc.LENSES["ef50"], 2026, c)
+    assert s.copy_name == "copy_s2026_0" and bc.LENSES["ef50"].copy_name == "copy"
+    assert bc.effects_for(s, "copy")[1] == c["effects"][1] and bc.effects_for(s, "nominal") == ["noise"]
+
+
+def test_copies_table_pools_by_hand():
+    from benchmarks import calibrate_copies as cc
+
+    def per(v):
+        return {m: [{"scene": str(i), "mae": x * f, "mae_outer": x * f, "mae_d": x * f} for i, x in enumerate(v)]
+                for m, f in (("thin lens", 1.0), ("prescription map", 1.0), ("calibration", 0.5), ("oracle", 0.5))}
+
+    copies = [{"depth": {"per_scene": per([1.0, 3.0])}}, {"depth": {"per_scene": per([2.0, 2.0])}}]
+    p = cc.pooled(copies)
+    assert p["calibration / prescription map mae"][0] == pytest.approx(0.5)
+    assert p["calibration / oracle mae_outer"][0] == pytest.approx(1.0)

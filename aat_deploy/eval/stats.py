@@ -9,7 +9,8 @@ training/train/heldout.py, the classical method's best-focus map, benchmarks/), 
   is given (the pixels need not be square); the radius in mm is this times the sensor's half-diagonal.
 - **Zones** (`zone_masks`): centre r < 0.33, middle 0.33 <= r <= 0.66, outer r > 0.66.
 - **Intervals**: percentile bootstrap, 95 % unless said. Over units with a per-unit score (`bootstrap_mean`:
-  scenes, captures); paired over the same scenes (`paired_ratio` of means, `paired_diff`); and for per-pixel
+  scenes, captures); paired over the same scenes (`paired_ratio` of means, `paired_diff`), and over scenes within groups
+  (`nested_paired_ratio`: groups resampled, then their scenes); and for per-pixel
   quantities, whose neighbours are not independent, a two-level Poisson bootstrap over (capture, tile)
   (`binned_bootstrap`, `ratio_bootstrap`).
 
@@ -93,6 +94,31 @@ def paired_ratio(a: Sequence[Mapping[str, float]], b: Sequence[Mapping[str, floa
     rng = np.random.default_rng(seed)
     idx = rng.integers(0, len(x), size=(n_boot, len(x)))
     return [est, *_quantiles(x[idx].mean(1) / y[idx].mean(1), level)]
+
+
+def nested_paired_ratio(a: Sequence[Sequence[Mapping[str, float]]], b: Sequence[Sequence[Mapping[str, float]]],
+                        key: str = "mae", n_boot: int = N_BOOT, seed: int = 4, level: float = 0.95) -> list[float]:
+    """[ratio, low, high]: mean of a[key] over every group's scenes / the same of b[key], where a[g] and b[g] are
+    the same scenes of group g (e.g. one lens copy) in the same order, with a two-level paired bootstrap: groups
+    resampled, then scenes within each resampled group (both mappings together). With one group the interval is
+    over its scenes alone (`paired_ratio`'s); NaN interval with one scene in all."""
+    xs = [np.array([s[key] for s in g], np.float64) for g in a]
+    ys = [np.array([s[key] for s in g], np.float64) for g in b]
+    if [len(x) for x in xs] != [len(y) for y in ys]:
+        raise ValueError("nested_paired_ratio: a and b must hold the same scenes per group")
+    est = float(np.concatenate(xs).mean() / np.concatenate(ys).mean())
+    if sum(len(x) for x in xs) < 2:
+        return [est, float("nan"), float("nan")]
+    rng = np.random.default_rng(seed)
+    reps = np.empty(n_boot)
+    for i in range(n_boot):
+        groups = rng.integers(0, len(xs), len(xs)) if len(xs) > 1 else [0]
+        sx = sy = 0.0
+        for g in groups:
+            j = rng.integers(0, len(xs[g]), len(xs[g]))
+            sx, sy = sx + xs[g][j].sum(), sy + ys[g][j].sum()
+        reps[i] = sx / sy
+    return [est, *_quantiles(reps, level)]
 
 
 def paired_diff(a: Sequence[Mapping[str, float]], b: Sequence[Mapping[str, float]], key: str = "psnr",

@@ -102,3 +102,25 @@ def test_fmt_interval():
     assert fmt_interval([0.25, 0.25, 0.25], 2) == "0.25"
     assert fmt_interval([0.25, float("nan"), float("nan")]) == "0.250"
     assert fmt_interval([float("nan")] * 3) == "–"
+
+
+def test_nested_paired_ratio_by_hand_and_its_two_levels():
+    from aat_deploy.eval.stats import nested_paired_ratio, paired_ratio
+
+    a = [[{"mae": 1.0}, {"mae": 3.0}], [{"mae": 2.0}, {"mae": 6.0}]]
+    b = [[{"mae": 2.0}, {"mae": 2.0}], [{"mae": 4.0}, {"mae": 4.0}]]
+    r = nested_paired_ratio(a, b, n_boot=500)
+    assert r[0] == pytest.approx(12.0 / 12.0) and r[1] <= r[0] <= r[2]
+    # one group: the point estimate is paired_ratio's and the interval resamples scenes only
+    one = nested_paired_ratio(a[:1], b[:1], n_boot=2000)
+    assert one[0] == pytest.approx(paired_ratio(a[0], b[0])[0])
+    # groups that differ widen the interval beyond the one that resamples scenes alone (pooled as one group)
+    rng = np.random.default_rng(0)
+    groups_a = [[{"mae": float(v)} for v in rng.normal(m, 0.05, 20)] for m in (0.5, 1.0, 1.5)]
+    groups_b = [[{"mae": 1.0} for _ in range(20)] for _ in range(3)]
+    nested = nested_paired_ratio(groups_a, groups_b, n_boot=1000)
+    flat = paired_ratio(sum(groups_a, []), sum(groups_b, []), n_boot=1000)
+    assert nested[0] == pytest.approx(flat[0])
+    assert nested[2] - nested[1] > 3 * (flat[2] - flat[1])
+    with pytest.raises(ValueError, match="same scenes"):
+        nested_paired_ratio(a, [b[0][:1], b[1]])
