@@ -18,10 +18,14 @@ if [ ! -f "$OUT/$n/last.pt" ] && [ -f "checkpoints/$n/last.pt" ]; then
   mkdir -p "$OUT/$n" && cp checkpoints/"$n"/* "$OUT/$n/" && echo "$n: resumed from checkpoints/$n"
 fi
 # a run killed from outside (the machine's memory is shared: the OOM killer) resumes from its last checkpoint
+# (not one refused for its inputs, exit 2: a changed lens/PSF file under the renders, a bad config)
 for attempt in $(seq 1 ${RETRIES:-20}); do
+  rc=0
   python -m training.cli.train --config configs/anycam/$n.json --out "$OUT/$n" --resume --no-progress \
-    >> "$OUT/$n.log" 2>&1 && exit 0
+    >> "$OUT/$n.log" 2>&1 || rc=$?
+  [ "$rc" -eq 0 ] && exit 0
   [ -f "$OUT/$n/model.pt" ] && exit 0
+  if [ "$rc" -eq 2 ]; then echo "$n: refused: $(tail -n 1 "$OUT/$n.log")" >&2; exit 2; fi
   echo "$n: attempt $attempt failed ($(date)); resuming in 60 s" >> "$OUT/$n.log"
   sleep 60
 done

@@ -130,8 +130,9 @@ def main_config(args: argparse.Namespace) -> int:
     try:
         res = train(cfg, out, resume=args.resume, progress=not args.no_progress, device=args.device, amp=args.amp)
     except (FileExistsError, ValueError, FileNotFoundError, InitError) as e:
+        # exit 2: the inputs are wrong and a retry cannot help (scripts/train_dfv_aat.sh stops on it)
         print(f"aat-train: {e}", file=sys.stderr)
-        return 1
+        return 2
     if int(os.environ.get("RANK", "0")) == 0:
         state = "finished" if res.finished else "stopped"
         spd = f", {res.seconds_per_step:.3f} s/step" if res.seconds_per_step else ""

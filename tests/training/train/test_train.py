@@ -206,7 +206,7 @@ def test_cli_trains_resumes_and_refuses(tmp_path, monkeypatch, capsys):
     assert main(args + ["--steps", "2"]) == 0
     assert "finished at step 2/2" in capsys.readouterr().out
     assert (out / "model.pt").exists() and (out / "val_metrics.json").exists()
-    assert main(args + ["--steps", "3"]) == 1
+    assert main(args + ["--steps", "3"]) == 2  # an input error: no retry helps
     assert "--resume" in capsys.readouterr().err
     assert main(args + ["--steps", "3", "--resume"]) == 0
     assert "finished at step 3/3" in capsys.readouterr().out
@@ -337,6 +337,42 @@ def test_an_any_camera_run_resumes_on_renders_made_before_the_sources_record(tmp
     warned = [line for line in log.splitlines() if "cannot check" in line]
     assert sorted(w.split(": made before")[0].removeprefix("warning: ") for w in warned) == sorted(map(str, folders))
     assert {f: f.stat().st_mtime_ns for d in folders for f in d.rglob("*")} == listing  # nothing written there
+
+
+def test_the_any_camera_script_stops_at_once_when_its_inputs_are_refused(tmp_path):
+    """A refusal (here: the renders' sources.json unreadable, as for a changed lens/PSF file) exits 2 with the
+    one-line reason, after one attempt: the script's crash retries (60 s apart) are for kills, not for inputs."""
+    import shutil
+    import subprocess
+    import sys
+    import time
+
+    from training.data.anycam import AnyCamConfig, AnyCamDataset
+    from training.data.cache import SOURCES
+
+    v6 = json.loads((ROOT / "configs" / "anycam" / "dfv_aat_v6.json").read_text())
+    tiny = dict(n_items=4, height=32, width=32, margin_px=8, max_layers=16, cache_dir=str(tmp_path / "cache"))
+    cache = AnyCamDataset(AnyCamConfig(**{**v6["data"], **tiny, "only_cached": False})).cache
+    cache.mkdir(parents=True, exist_ok=True)
+    (cache / SOURCES).write_text("{")
+    box = tmp_path / "checkout"
+    (box / "scripts").mkdir(parents=True)
+    shutil.copy(ROOT / "scripts" / "train_dfv_aat.sh", box / "scripts")
+    cfg = box / "configs" / "anycam" / "dfv_aat_v6.json"
+    cfg.parent.mkdir(parents=True)
+    cfg.write_text(json.dumps({**v6, "data": {**v6["data"], **tiny}, "val_data": {**v6["val_data"], **tiny},
+                               "steps": 2, "batch_size": 2, "val_every": 0}))
+    env = {**os.environ, "OUT": "cache/runs", "RETRIES": "20", "PYTHONPATH": str(ROOT),
+           "PATH": f"{Path(sys.executable).parent}:{os.environ.get('PATH', '')}"}
+    t0 = time.monotonic()
+    done = subprocess.run(["bash", str(box / "scripts" / "train_dfv_aat.sh"), "dfv_aat_v6"], env=env,
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 2, done.stderr
+    assert time.monotonic() - t0 < 60  # no retry slept
+    last = done.stderr.strip().splitlines()[-1]
+    assert last.startswith("dfv_aat_v6: refused: aat-train: ") and str(cache / SOURCES) in last
+    assert "attempt" not in (box / "cache" / "runs" / "dfv_aat_v6.log").read_text()
+    assert (cache / SOURCES).read_text() == "{"  # the input untouched
 
 
 @pytest.mark.numerics
