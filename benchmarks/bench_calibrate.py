@@ -775,7 +775,8 @@ def main(argv=None) -> int:
                          "renders cached apart")
     ap.add_argument("--copies", type=int, default=0, metavar="K",
                     help="instead of the parts: parts a and b on K random copies per lens (benchmarks/calibrate_copies:"
-                         " their distribution), resumed copy by copy from --out")
+                         " their distribution), resumed copy by copy from --out; with --parts departures only each "
+                         "copy's field departure from the prescription (seconds per copy, no renders)")
     ap.add_argument("--copy-seed", type=int, default=2026, metavar="S", help="the random copies' seed")
     ap.add_argument("--tables", nargs="+", metavar="RESULT.json",
                     help="only print the tables of earlier runs' results, merged (BENCHMARKS.md's)")
@@ -783,21 +784,33 @@ def main(argv=None) -> int:
     if a.tables:
         from benchmarks import calibrate_copies
 
-        merged: dict = {"map": [], "depth": {}, "needs": {}, "blind": {}, "copies": {}}
+        merged: dict = {"map": [], "depth": {}, "needs": {}, "blind": {}, "copies": {}, "departures": {}}
         for f in a.tables:
             r = json.loads(Path(f).read_text())
             merged["map"] += r.get("map", [])
-            for k in ("depth", "needs", "blind", "copies"):
+            for k in ("depth", "needs", "blind", "copies", "departures"):
                 merged[k].update(r.get(k, {}))
         print(tables(merged))
         if merged["copies"]:
             print("\n### Random copies\n\n" + calibrate_copies.tables(merged))
+        if merged["departures"]:
+            print("\n" + calibrate_copies.departure_table(merged))
         return 0
     parts = set(a.parts.split(","))
     log = lambda m: print(m, file=sys.stderr, flush=True)
     if a.copies:
         from benchmarks import calibrate_copies
 
+        if a.parts == "departures":  # only each copy's field departure from the prescription (no renders)
+            out = Path(a.out)
+            res = json.loads(out.read_text()) if out.is_file() else {}
+            for key in a.lenses.split(","):
+                check_tolerance_table(LENSES[key])
+                res.setdefault("departures", {})[key] = calibrate_copies.departures(
+                    LENSES[key], Rig(LENSES[key]), a.copies, a.copy_seed, log)
+                save(res, out)
+            print(calibrate_copies.departure_table(res))
+            return 0
         for key in a.lenses.split(","):
             setup = LENSES[key] if a.cell_px is None else dataclasses.replace(LENSES[key], cell_px=a.cell_px)
             check_tolerance_table(setup)

@@ -137,6 +137,40 @@ def run(base_setup, rig, k_copies: int, seed: int, n: int, n_boot: int, out_path
     return mine
 
 
+def departures(base_setup, rig, k_copies: int, seed: int, log) -> dict:
+    """Only the field departure from the prescription (D, all / outer) of copies 0..k_copies-1 (no renders:
+    seconds per copy), to show where the copies whose depth was run fall in the distribution."""
+    from aat_deploy.lens.io import load_lens
+    from aat_deploy.render.effects.lens_tolerance import elements
+    from benchmarks import bench_calibrate as B
+    from benchmarks.probes.calibrate_gain import amplitudes
+
+    n_el = len(elements(load_lens(B.ROOT / base_setup.lens)))
+    rows = []
+    for k in range(k_copies):
+        copy = draw_copy(base_setup, n_el, seed, k)
+        amp = amplitudes(rig.with_setup(copy_setup(base_setup, seed, copy)))["field terms"]
+        rows.append({**copy, "departure_d": {name: amp[name] for name in amp if name != "prescription (nominal lens)"}})
+        log(f"  {base_setup.key} copy {k}: departure {amp['copy - prescription']['all']:.4f} D")
+    dep = np.array([r["departure_d"]["copy - prescription"]["all"] for r in rows])
+    hand = amplitudes(rig.with_setup(base_setup))["field terms"]["copy - prescription"]
+    return {"seed": seed, "distribution": distribution(base_setup), "copies": rows, "hand_chosen_d": hand,
+            "quantiles_d": {q: float(np.quantile(dep, float(q))) for q in ("0.1", "0.25", "0.5", "0.75", "0.9")}}
+
+
+def departure_table(res: dict) -> str:
+    """Per lens: the departures' quantiles over the drawn copies, and the hand-chosen copy's departure."""
+    out = ["| lens | copies | field departure from the prescription (D): 10 / 25 / 50 / 75 / 90 % | "
+           "the hand-chosen copy's |", "|---|---|---|---|"]
+    for lens, d in res.get("departures", {}).items():
+        q = d["quantiles_d"]
+        h = d["hand_chosen_d"]["all"]
+        below = np.mean([c["departure_d"]["copy - prescription"]["all"] < h for c in d["copies"]])
+        out.append(f"| {lens} | {len(d['copies'])} | " + " / ".join(f"{q[k]:.4f}" for k in sorted(q, key=float))
+                   + f" | {h:.4f} ({100 * below:.0f} % of the copies depart less) |")
+    return "\n".join(out)
+
+
 def tables(res: dict) -> str:
     """Per copy and pooled, per lens (BENCHMARKS.md's)."""
     out = ["| lens | copy | decentred element, (x, y) mm | sensor tilt (x, y) deg | field departure from the "

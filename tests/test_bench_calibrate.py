@@ -284,3 +284,13 @@ def test_copies_table_pools_by_hand():
     p = cc.pooled(copies)
     assert p["calibration / prescription map mae"][0] == pytest.approx(0.5)
     assert p["calibration / oracle mae_outer"][0] == pytest.approx(1.0)
+
+
+def test_departure_table_quantiles_and_the_hand_chosen_copys_rank():
+    from benchmarks import calibrate_copies as cc
+
+    rows = [{"departure_d": {"copy - prescription": {"all": v, "outer": v}}} for v in (0.01, 0.02, 0.03, 0.04)]
+    res = {"departures": {"ef50": {"copies": rows, "hand_chosen_d": {"all": 0.025, "outer": 0.03},
+                                   "quantiles_d": {"0.5": 0.025, "0.1": 0.013}}}}
+    line = cc.departure_table(res).splitlines()[-1]
+    assert line == "| ef50 | 4 | 0.0130 / 0.0250 | 0.0250 (50 % of the copies depart less) |"
