@@ -25,9 +25,11 @@ import numpy as np
 from benchmarks import bench_diagnose_focus as bench
 
 
-def probe(folder, kind: str, index: int, model, lens, src, threads: int) -> None:
+def prepared_sweep(folder, kind: str, index: int, model, lens, src, threads: int, chain: list = ()):
+    """The set's capture (`CaptureData`), the first round's sweep (re-anchored, as `fitters.fit_focus_metadata`
+    fits it) before and after `focusrobust.prepare`, and the frames' true and reported focus (diopters, near to
+    far). chain: effects in the twin (the first round's twin has none; a later round's, those named before)."""
     from aat_deploy.diagnose import anchors, fitters, focusrobust
-    from aat_deploy.diagnose import focusfit as ff
     from aat_deploy.diagnose.inputs import load_capture_data
     from aat_deploy.diagnose.search import DiagnoseConfig
     from aat_deploy.diagnose.session import make_renderer
@@ -41,14 +43,22 @@ def probe(folder, kind: str, index: int, model, lens, src, threads: int) -> None
     data = [load_capture_data(root / folder.name, model)]
     cfg = DiagnoseConfig()
     factor = max(1, min(8, data[0].frames.shape[-1] // cfg.search_px))
-    full = [fitters.fit_curves(twins.render(c, c.aif_linear, [], seed=cfg.seed + i), factor)
+    full = [fitters.fit_curves(twins.render(c, c.aif_linear, list(chain), seed=cfg.seed + i), factor)
             for i, c in enumerate(data)]
-    state = fitters.FitState(twins, data, [c.aif_linear for c in data], [], fx.make, factor, cfg.fit_boot, cfg.seed,
-                             {}, full)
+    state = fitters.FitState(twins, data, [c.aif_linear for c in data], list(chain), fx.make, factor, cfg.fit_boot,
+                             cfg.seed, {}, full)
     # the sweep `fitters.fit_focus_metadata` fits (re-anchored at the estimates), made robust as it is
     sweep, _ = anchors.reanchored_sweep(state, fitters.focus_sweep(state, correct=False),
                                         lambda d: np.asarray(focusrobust.prepare(d)[1]["frame_focus_d"][-1]))
     prepared, _ = focusrobust.prepare(sweep)
+    return data[0], sweep, prepared, true_d, rep
+
+
+def probe(folder, kind: str, index: int, model, lens, src, threads: int) -> None:
+    from aat_deploy.diagnose import focusfit as ff
+    from aat_deploy.diagnose import focusrobust
+
+    _, _, prepared, true_d, _ = prepared_sweep(folder, kind, index, model, lens, src, threads)
     est = ff.frame_focus(prepared)
     k = ff.level_sensitivity(prepared, est)[0]
     res = prepared.capture - focusrobust.twin_at(prepared, true_d[None])
@@ -79,15 +89,23 @@ def main() -> None:
     model = DfFModel(str(bench.ROOT / "models" / "rf50_dfvnet_aat_field.onnx"), threads=a.threads)
     lens, _ = find_lens(model, None)
     src = find_surrogate(lens, None, a.threads)
-    folders = {f.name: (k, f) for k, f in enumerate(bench.capture_folders(3, bench.CACHE))}
-    folders["scene2029"] = (0, bench.CACHE / "captures" / "scene2029")  # run alone (--folders): index 0
     for spec in a.sets:
-        name, kind = spec.split(":")
-        if name not in folders or kind not in bench.kinds():
-            raise SystemExit(f"{spec}: unknown capture or kind (captures {', '.join(folders)}; kinds "
-                             f"{', '.join(bench.kinds())})")
-        index, folder = folders[name]
+        index, folder, kind = set_spec(spec)
         probe(folder, kind, index, model, lens, src, a.threads)
+
+
+def set_spec(spec: str):
+    """capture:kind -> (the capture's index as the benchmark numbers it, its folder, kind): the benchmark's
+    captures, the tuning capture scene2029 (run alone: index 0) and the fresh test captures (index in --fresh)."""
+    folders = {f"scene{s}": (0, bench.CACHE / "captures" / f"scene{s}") for s in (2029,)}
+    folders.update({f"scene{s}": (k, bench.CACHE / "captures" / f"scene{s}")
+                    for k, (s, _) in enumerate(bench.FRESH_SCENES)})
+    folders.update({f.name: (k, f) for k, f in enumerate(bench.capture_folders(3, bench.CACHE))})
+    name, _, kind = spec.partition(":")
+    if name not in folders or kind not in bench.kinds() or not folders[name][1].exists():
+        raise SystemExit(f"{spec}: unknown or unrendered capture, or unknown kind (captures "
+                         f"{', '.join(folders)}; kinds {', '.join(bench.kinds())})")
+    return folders[name][0], folders[name][1], kind
 
 
 if __name__ == "__main__":
