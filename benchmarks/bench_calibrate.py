@@ -816,7 +816,9 @@ def main(argv=None) -> int:
             check_tolerance_table(setup)
             rig = Rig(setup, a.truth_map, a.measure, a.prefilter_px)
             calibrate_copies.run(setup, rig, a.copies, a.copy_seed, a.n, a.boot, Path(a.out), log, save)
-        print(calibrate_copies.tables(json.loads(Path(a.out).read_text())))
+        done = json.loads(Path(a.out).read_text())
+        calibrate_copies.figure(done, RESULTS / "figures" / f"{Path(a.out).stem}.png")
+        print(calibrate_copies.tables(done))
         return 0
     res: dict = {"map": [], "depth": {}, "needs": {}, "blind": {}}
     for key in a.lenses.split(","):

@@ -171,6 +171,39 @@ def departure_table(res: dict) -> str:
     return "\n".join(out)
 
 
+def figure(res: dict, path: Path) -> None:
+    """PNG: per lens, each copy's calibration / prescription map MAE ratio (overall and outer field, 95 % interval
+    over its scenes) against its field departure from the prescription; the 0.8 target as a line."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from aat_deploy.io.atomic import atomic_file
+
+    lenses = {k: [c for c in m["copies"] if c["depth"]] for k, m in res.get("copies", {}).items()}
+    lenses = {k: v for k, v in lenses.items() if v}
+    if not lenses:
+        return
+    fig, axes = plt.subplots(1, len(lenses), figsize=(5.2 * len(lenses), 3.8), squeeze=False)
+    for ax, (lens, cs) in zip(axes[0], lenses.items()):
+        for z, mk, lab in (("mae", "o", "MAE"), ("mae_outer", "s", "MAE, outer field")):
+            x = [c["departure_d"]["copy - prescription"]["all"] for c in cs]
+            r = np.array([c["depth"][f"cal/prescription {z}"] for c in cs])
+            ax.errorbar(x, r[:, 0], yerr=[r[:, 0] - r[:, 1], r[:, 2] - r[:, 0]], fmt=mk, capsize=3, label=lab)
+        ax.axhline(0.8, color="k", ls="--", lw=1, label="target 0.8")
+        ax.axhline(1.0, color="grey", lw=1)
+        ax.set_title(f"{lens}: {len(cs)} random copies")
+        ax.set_xlabel("field departure from the prescription (D RMS)")
+        ax.set_ylabel("calibration / prescription map (95 % interval)")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_file(path) as tmp:
+        fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+
+
 def tables(res: dict) -> str:
     """Per copy and pooled, per lens (BENCHMARKS.md's)."""
     out = ["| lens | copy | decentred element, (x, y) mm | sensor tilt (x, y) deg | field departure from the "
