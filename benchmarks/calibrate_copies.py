@@ -21,7 +21,8 @@ Each copy gets parts a and b exactly as the hand-chosen one (its own chart sweep
 rendered through it, the four mappings), and its field's departure from the prescription's
 (`benchmarks.probes.calibrate_gain.amplitudes`: the RMS over the 8 depth frames of the copy's field term minus the
 nominal lens's). Pooled over copies and scenes: ratios of mean MAEs with a two-level bootstrap (copies resampled,
-then scenes within each; `aat_deploy.eval.stats.nested_paired_ratio`).
+and the held-out scenes, the same in every copy, resampled once per replicate for all of them: crossed;
+`aat_deploy.eval.stats.nested_paired_ratio`).
 """
 
 from __future__ import annotations
@@ -80,12 +81,15 @@ def copy_setup(setup, seed: int, copy: dict):
 
 
 def pooled(copies: list[dict]) -> dict:
-    """Ratios of mean MAEs pooled over copies and scenes, with the two-level bootstrap; each copy's own ratios."""
+    """Ratios of mean MAEs pooled over copies and scenes with the two-level bootstrap: copies resampled and the
+    scenes (the same in every copy) resampled once per replicate for all of them (crossed); "... nested": the
+    scenes drawn anew within each copy (narrower: it treats each copy's scenes as new ones)."""
     out = {}
     for a, b in RATIOS:
         for z in ZONES:
-            out[f"{a} / {b} {z}"] = nested_paired_ratio([c["depth"]["per_scene"][a] for c in copies],
-                                                         [c["depth"]["per_scene"][b] for c in copies], z)
+            pa, pb = [c["depth"]["per_scene"][a] for c in copies], [c["depth"]["per_scene"][b] for c in copies]
+            out[f"{a} / {b} {z}"] = nested_paired_ratio(pa, pb, z, crossed=True)
+            out[f"{a} / {b} {z} nested"] = nested_paired_ratio(pa, pb, z)
     return out
 
 

@@ -97,15 +97,21 @@ def paired_ratio(a: Sequence[Mapping[str, float]], b: Sequence[Mapping[str, floa
 
 
 def nested_paired_ratio(a: Sequence[Sequence[Mapping[str, float]]], b: Sequence[Sequence[Mapping[str, float]]],
-                        key: str = "mae", n_boot: int = N_BOOT, seed: int = 4, level: float = 0.95) -> list[float]:
+                        key: str = "mae", n_boot: int = N_BOOT, seed: int = 4, level: float = 0.95,
+                        crossed: bool = False) -> list[float]:
     """[ratio, low, high]: mean of a[key] over every group's scenes / the same of b[key], where a[g] and b[g] are
     the same scenes of group g (e.g. one lens copy) in the same order, with a two-level paired bootstrap: groups
-    resampled, then scenes within each resampled group (both mappings together). With one group the interval is
-    over its scenes alone (`paired_ratio`'s); NaN interval with one scene in all."""
+    resampled, then scenes within each resampled group (both mappings together). crossed: every group holds the
+    same scenes in the same order (each lens copy renders the same held-out scenes), so one draw of scene indices
+    per replicate serves every group: a scene hard for every copy stays one scene (independent draws per group
+    would average its weight out and narrow the interval). With one group the interval is over its scenes alone
+    (`paired_ratio`'s); NaN interval with one scene in all."""
     xs = [np.array([s[key] for s in g], np.float64) for g in a]
     ys = [np.array([s[key] for s in g], np.float64) for g in b]
     if [len(x) for x in xs] != [len(y) for y in ys]:
         raise ValueError("nested_paired_ratio: a and b must hold the same scenes per group")
+    if crossed and len({len(x) for x in xs}) > 1:
+        raise ValueError("nested_paired_ratio: crossed needs the same scenes in every group")
     est = float(np.concatenate(xs).mean() / np.concatenate(ys).mean())
     if sum(len(x) for x in xs) < 2:
         return [est, float("nan"), float("nan")]
@@ -113,9 +119,10 @@ def nested_paired_ratio(a: Sequence[Sequence[Mapping[str, float]]], b: Sequence[
     reps = np.empty(n_boot)
     for i in range(n_boot):
         groups = rng.integers(0, len(xs), len(xs)) if len(xs) > 1 else [0]
+        shared = rng.integers(0, len(xs[0]), len(xs[0])) if crossed else None
         sx = sy = 0.0
         for g in groups:
-            j = rng.integers(0, len(xs[g]), len(xs[g]))
+            j = shared if crossed else rng.integers(0, len(xs[g]), len(xs[g]))
             sx, sy = sx + xs[g][j].sum(), sy + ys[g][j].sum()
         reps[i] = sx / sy
     return [est, *_quantiles(reps, level)]

@@ -124,3 +124,21 @@ def test_nested_paired_ratio_by_hand_and_its_two_levels():
     assert nested[2] - nested[1] > 3 * (flat[2] - flat[1])
     with pytest.raises(ValueError, match="same scenes"):
         nested_paired_ratio(a, [b[0][:1], b[1]])
+
+
+def test_nested_paired_ratio_crossed_keeps_a_scene_hard_for_every_group():
+    """Groups that share their scenes (every lens copy renders the same held-out scenes): a scene where the ratio
+    differs in every group moves every group at once, so the crossed interval is wider than drawing the scenes anew
+    per group, and the point estimate is the same."""
+    from aat_deploy.eval.stats import nested_paired_ratio
+
+    rng = np.random.default_rng(1)
+    scene = rng.normal(1.0, 0.3, 15)  # each scene's own ratio, common to the groups
+    a = [[{"mae": float(s * (1 + rng.normal(0, 0.01)))} for s in scene] for _ in range(6)]
+    b = [[{"mae": 1.0} for _ in scene] for _ in range(6)]
+    crossed = nested_paired_ratio(a, b, crossed=True, n_boot=1000)
+    nested = nested_paired_ratio(a, b, n_boot=1000)
+    assert crossed[0] == nested[0]
+    assert crossed[2] - crossed[1] > 1.8 * (nested[2] - nested[1])
+    with pytest.raises(ValueError, match="crossed"):
+        nested_paired_ratio([a[0], a[1][:3]], [b[0], b[1][:3]], crossed=True)
