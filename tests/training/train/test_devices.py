@@ -115,7 +115,7 @@ def test_amp_bf16_loss_curve_follows_float32(tmp_path, net):
         curves[amp] = [json.loads(r)["total"] for r in (tmp_path / amp / "log.jsonl").read_text().splitlines()]
         summary = json.loads((tmp_path / amp / "train_summary.json").read_text())
         assert summary["sessions"] == [{"from_step": 0, "device": "cpu", "amp": amp, "processes": 1,
-                                        "sync_bn": False}]
+                                        "sync_bn": False, "data_sources": {}}]  # in-memory data: no cache
     f32, bf16 = curves["off"], curves["bf16"]
     assert f32 != bf16  # autocast really ran in bfloat16
     assert abs(bf16[0] - f32[0]) < 0.03 * f32[0]
@@ -191,7 +191,8 @@ def test_ddp_equals_one_process_with_the_same_effective_batch_and_resumes_single
     mp.spawn(_ddp_worker, args=(2, _free_port(), str(ddp_dir)), nprocs=2, join=True)
     at3 = load(ddp_dir / "last.pt")
     assert at3["step"] == 3 and at3["stacks_seen"] == 6 and not (ddp_dir / "model.pt").exists()
-    assert at3["sessions"] == [{"from_step": 0, "device": "cpu", "amp": "off", "processes": 2, "sync_bn": False}]
+    assert at3["sessions"] == [{"from_step": 0, "device": "cpu", "amp": "off", "processes": 2, "sync_bn": False,
+                                "data_sources": {}}]
     assert not list(ddp_dir.glob("*.tmp*"))  # one writer (rank 0), nothing half-written
 
     monkeypatch.setattr(loop, "build_model", _without_batchnorm(loop.build_model))
