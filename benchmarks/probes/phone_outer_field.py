@@ -125,7 +125,8 @@ def render_patch(rig, object_m: float, cell_px: int, region=REGION, renderer: st
         from training.render.sources import OnnxPSF
 
         torch.set_num_threads(1)
-        sim = Simulator(rig.lens, OnnxPSF.from_source(rig.src), fx.parse(["aberrations"]), TorchLayered(cell_px=cell_px))
+        sim = Simulator(rig.lens, OnnxPSF.from_source(rig.src), fx.parse(["aberrations"]),
+                        TorchLayered(cell_px=cell_px))
         st = sim.render_stack(torch.from_numpy(np.repeat(tex[None], 3, 0)), torch.full((n, n), object_m), 1.0 / fd,
                               origin=(r0, c0), rng=np.random.default_rng(0))
         return fd, st.frames.numpy().mean(1)
@@ -237,8 +238,9 @@ def map_points(fmap, radii: list[float], focus_m=(0.07, 0.1, 0.18), texture: str
                 continue
             d = p["traced_object_diopters"]
             mapped = float(truth_focus(fmap, 1.0 / d, np.array([r]))[0])
-            out.append({"texture": texture, "n_sweep": cfg.n_sweep, "crop_px": cfg.crop_px, "focus_m": f, "r": r, "object_d": d, "measure_peak_d": p["measure_peak_focus_diopters"],
-                        "map_peak_d": mapped, "measure_minus_map_d": p["measure_peak_focus_diopters"] - mapped})
+            out.append({"texture": texture, "n_sweep": cfg.n_sweep, "crop_px": cfg.crop_px, "focus_m": f, "r": r,
+                        "object_d": d, "measure_peak_d": p["measure_peak_focus_diopters"], "map_peak_d": mapped,
+                        "measure_minus_map_d": p["measure_peak_focus_diopters"] - mapped})
             print(f"  map point r {r:g}, focus {f:g} m: measure {p['measure_peak_focus_diopters']:.2f}, map "
                   f"{mapped:.2f} D", file=sys.stderr, flush=True)
     return out
@@ -267,26 +269,29 @@ def main(argv=None) -> int:
     ap.add_argument("--map-points-crop", default="", help="the map-point patches' side (px), comma-separated "
                     "(empty: the map's own)")
     ap.add_argument("--region", choices=sorted(REGIONS), default="outer",
-                    help="the patch: the top right (outer, radius 0.45-1), right of the centre (middle, 0.2-0.72) or on the "
-                         "diagonal (middle_diagonal, 0.2-0.8)")
+                    help="the patch: the top right (outer, radius 0.45-1), right of the centre (middle, 0.2-0.72) "
+                         "or on the diagonal (middle_diagonal, 0.2-0.8)")
     ap.add_argument("--out", default=None, help="default results/phone_outer_field.json (results/phone_"
                     "middle_field.json with --region middle)")
     a = ap.parse_args(argv)
     region, bins = REGIONS[a.region]
-    a.out = a.out or str(RESULTS / ("phone_outer_field.json" if a.region == "outer" else f"phone_{a.region}_field.json"))
+    a.out = a.out or str(RESULTS / ("phone_outer_field.json" if a.region == "outer"
+                                    else f"phone_{a.region}_field.json"))
     if a.map_points:
         from aat_deploy.io.atomic import write_text_atomic
 
         fm, radii = bc.Rig(bc.LENSES["cellphone"]).fmap, [float(r) for r in a.map_points.split(",")]
         pts = [q for t in a.map_points_texture.split(",") for n in a.map_points_sweep.split(",")
                for c in a.map_points_crop.split(",")
-               for q in map_points(fm, radii, texture=t, n_sweep=int(n) if n else None, crop_px=int(c) if c else None)]
+               for q in map_points(fm, radii, texture=t, n_sweep=int(n) if n else None,
+                                   crop_px=int(c) if c else None)]
         write_text_atomic(Path(a.out), json.dumps({"map_points": pts}, indent=1))
-        print("| texture | sweep frames | crop (px) | focus (m) | field radius | object (D) | measure's peak (D) | the map's"
-              " (D) | measure - map (D) |\n|---|---|---|---|---|---|---|---|---|")
+        print("| texture | sweep frames | crop (px) | focus (m) | field radius | object (D) | measure's peak (D) | "
+              "the map's (D) | measure - map (D) |\n|---|---|---|---|---|---|---|---|---|")
         for q in pts:
-            print(f"| {q['texture']} | {q['n_sweep']} | {q['crop_px']} | {q['focus_m']:g} | {q['r']:g} | {q['object_d']:.2f} | {q['measure_peak_d']:.2f} | "
-                  f"{q['map_peak_d']:.2f} | {q['measure_minus_map_d']:+.2f} |")
+            print(f"| {q['texture']} | {q['n_sweep']} | {q['crop_px']} | {q['focus_m']:g} | {q['r']:g} | "
+                  f"{q['object_d']:.2f} | {q['measure_peak_d']:.2f} | {q['map_peak_d']:.2f} | "
+                  f"{q['measure_minus_map_d']:+.2f} |")
         return 0
     rig = bc.Rig(bc.LENSES["cellphone"])
     maps = {}
@@ -356,8 +361,8 @@ def main(argv=None) -> int:
         print("\n| map | anchors (px) | chart (m) | field radius | tiles | tile peak - map's peak: mean (SD) (D) |\n"
               "|---|---|---|---|---|---|")
         for t in tiles:
-            print(f"| {t['map']} | {t.get('cell_px', 64)} | {t['chart_m']:g} | {t['zone'][0]:g}-{min(t['zone'][1], 1):g} "
-                  f"| {t['tiles']} | {t['mean_d']:+.3f} ({t['sd_d']:.3f}) |")
+            print(f"| {t['map']} | {t.get('cell_px', 64)} | {t['chart_m']:g} | "
+                  f"{t['zone'][0]:g}-{min(t['zone'][1], 1):g} | {t['tiles']} | {t['mean_d']:+.3f} ({t['sd_d']:.3f}) |")
     return 0
 
 
