@@ -22,7 +22,7 @@ the reported value) while the truth does not.
     python -m benchmarks.bench_diagnose_focus --fit-only --folders cache/bench_diagnose_focus/captures/scene2029 \
         --out results/diagnose_focus_tune2029.jsonl                                     # the tuning capture's sets
     python -m benchmarks.bench_diagnose_focus --systematic results/diagnose_focus_tune2029.jsonl  # tune SYSTEMATIC_D
-    python -m benchmarks.bench_diagnose_focus --fit-only --fresh 2 --out results/diagnose_focus_fresh.jsonl  # fresh test
+    python -m benchmarks.bench_diagnose_focus --fit-only --fresh 4 --out results/diagnose_focus_fresh_fitonly.jsonl
 
 The tuning capture (scene 2029, rendered like the others with --scene-seed 2029 --seed 4) is not in the benchmark:
 `focusfit.SYSTEMATIC_D`, the family choice's only setting, is chosen on its sets alone (`--systematic`: the family
