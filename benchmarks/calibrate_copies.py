@@ -36,8 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
-from aat_deploy.eval.stats import nested_paired_ratio
 from aat_deploy.eval.stats import fmt_interval as fmt
+from aat_deploy.eval.stats import nested_paired_ratio
 
 MAPPINGS = ("thin lens", "prescription map", "calibration", "oracle")
 RATIOS = (("calibration", "prescription map"), ("calibration", "oracle"), ("prescription map", "oracle"),
