@@ -1,6 +1,7 @@
 """The smooth model fitted to tile observations: "a frame reporting focus r diopters has the object at D diopters in
 focus at field (x, y)" -> the reported-focus error (`FocusError`, a family) and the field term (`FieldPoly`), with
-the model order chosen by cross-validation, the family by BIC, and bootstrap intervals (numpy only).
+the model order chosen by cross-validation, the family by BIC, and bootstrap intervals (numpy, its BLAS at one
+thread: `machine.one_blas_thread`).
 
     D_i = g(r_i) + sum_k sum_j c[k, j] phi_k(x_i, y_i) P_j(tau(g(r_i)))
 
@@ -28,6 +29,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ..machine import one_blas_thread
 from .format import FieldPoly, FocusError, poly_terms
 
 FAMILY_PARAMS = {"none": 0, "offset": 1, "scale": 1, "monotone": 3}
@@ -159,13 +161,17 @@ def _focus_error(name: str, p: np.ndarray, r_range: tuple[float, float]) -> Focu
     return FocusError("monotone", map_d=tuple(float(v) for pair in zip(xs, ys) for v in pair))
 
 
+@one_blas_thread()  # many small solves: threads that meet after each step wait for any other process (machine.py)
 def fit_family(obs: Observations, name: str, degree: int, focus_degree: int, iterations: int = 6,
-               weight: np.ndarray | None = None, radial: int = 0) -> tuple[FocusError, FieldPoly, np.ndarray] | None:
-    """One family at one model order: (FocusError, FieldPoly, residuals (N,)) or None if it cannot be fitted."""
+               weight: np.ndarray | None = None, radial: int = 0, columns: np.ndarray | None = None
+               ) -> tuple[FocusError, FieldPoly, np.ndarray] | None:
+    """One family at one model order: (FocusError, FieldPoly, residuals (N,)) or None if it cannot be fitted.
+    columns: `FieldBasis(degree, radial, obs.aspect).columns(obs.x, obs.y)` when the caller has them (the same for
+    every family, fold and replicate)."""
     w = obs.weight if weight is None else weight
     r, d = obs.reported_d, obs.object_d
     fb = FieldBasis(degree, radial, obs.aspect)
-    basis = fb.columns(obs.x, obs.y)  # (N, K)
+    basis = fb.columns(obs.x, obs.y) if columns is None else columns  # (N, K)
     nk = basis.shape[1]
     fam, off = _family_columns(name, r)
     r_range = (float(r.min()), float(r.max()))
@@ -232,6 +238,7 @@ def spatial_folds(obs: Observations, k: int = 5, blocks: int = 4) -> np.ndarray:
     return perm[by * blocks + bx]
 
 
+@one_blas_thread()
 def choose_order(obs: Observations, family: str, focus_degrees: tuple[int, ...], degrees=DEGREES, radials=RADIAL
                  ) -> tuple[int, int, int, list]:
     """(degree, radial, focus_degree, table) minimising the spatial-block CV RMS residual (each held-out fold
@@ -244,11 +251,12 @@ def choose_order(obs: Observations, family: str, focus_degrees: tuple[int, ...],
             for rad in radials:
                 if rad and not FieldBasis(deg, rad).powers():
                     continue  # no radial power beyond the monomials: the same model as rad = 0
+                cols = FieldBasis(deg, rad, obs.aspect).columns(obs.x, obs.y)
                 err, n = 0.0, 0
                 for f in np.unique(folds):
                     test = folds == f
                     w = np.where(test, 0.0, obs.weight)
-                    res = fit_family(obs, family, deg, fd, weight=w, radial=rad)
+                    res = fit_family(obs, family, deg, fd, weight=w, radial=rad, columns=cols)
                     if res is None:
                         err = math.inf
                         break
@@ -270,13 +278,16 @@ def families_for(obs: Observations) -> tuple[str, ...]:
     return tuple(f for f in FAMILY_PARAMS if f != "monotone" or n >= 3)
 
 
+@one_blas_thread()
 def fit_all(obs: Observations, degree: int, focus_degree: int, families=None,
-            weight: np.ndarray | None = None, radial: int = 0) -> dict:
+            weight: np.ndarray | None = None, radial: int = 0, columns: np.ndarray | None = None) -> dict:
     """{family: (FocusError, FieldPoly, residuals, BIC)} for every family (default: `families_for`) that can be
-    fitted."""
+    fitted (columns: as `fit_family`'s)."""
     out = {}
+    if columns is None:
+        columns = FieldBasis(degree, radial, obs.aspect).columns(obs.x, obs.y)
     for name in families or families_for(obs):
-        res = fit_family(obs, name, degree, focus_degree, weight=weight, radial=radial)
+        res = fit_family(obs, name, degree, focus_degree, weight=weight, radial=radial, columns=columns)
         if res is not None:
             out[name] = (*res, bic(obs, res[2], FAMILY_PARAMS[name], weight))
     return out
@@ -287,6 +298,7 @@ def select(fits: dict) -> str:
     return min(fits, key=lambda n: (round(fits[n][3], 9), FAMILY_PARAMS[n]))
 
 
+@one_blas_thread()
 def fit_model(obs: Observations, degree: int | None = None, focus_degree: int | None = None,
               radial: int | None = None) -> ModelFit:
     """The model on all observations: order by CV (what is not given), family by BIC. With one sweep the field
@@ -321,6 +333,7 @@ class Bootstrap:
     replicates: int
 
 
+@one_blas_thread()
 def bootstrap(obs: Observations, fit: ModelFit, n_boot: int = 100, seed: int = 0, level: float = 0.95,
               grid: tuple[int, int] = (9, 13)) -> Bootstrap:
     """Poisson weights per tile, times per sweep when there are >= 3 sweeps; each replicate refits every family at
@@ -335,6 +348,7 @@ def bootstrap(obs: Observations, fit: ModelFit, n_boot: int = 100, seed: int = 0
     lo, hi = fit.field.focus_range_d
     mid_t = 0.5 * (lo + hi)
     maps = []
+    cols = FieldBasis(fit.degree, fit.radial, obs.aspect).columns(obs.x, obs.y)
     for _ in range(n_boot):
         w = obs.weight * rng.poisson(1.0, len(obs))
         if len(sweeps) >= 3:
@@ -342,7 +356,7 @@ def bootstrap(obs: Observations, fit: ModelFit, n_boot: int = 100, seed: int = 0
             w = w * ws[np.searchsorted(sweeps, obs.sweep)]
         if w.sum() <= 0:
             continue
-        fits = fit_all(obs, fit.degree, fit.focus_degree, weight=w, radial=fit.radial)
+        fits = fit_all(obs, fit.degree, fit.focus_degree, weight=w, radial=fit.radial, columns=cols)
         if not fits:
             continue
         wins[select(fits)] += 1

@@ -5,6 +5,7 @@ focus's error, and the stored monomials must be the functions fitted."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from aat_deploy.calibrate.model import FieldBasis, Observations, fit_all, fit_model
 from benchmarks.probes.family_split import ASPECT, constant_vif, phone_observations, rho2, truth  # the phone's tiles
@@ -105,6 +106,36 @@ def test_a_small_offset_is_told_from_the_field_term_at_a_phones_tile_scatter():
         assert abs(float(fit.predict(0.0, 0.0, 10.18) - truth(0.0, 0.0, 10.0))) < 0.05
         none = fit_model(phone_observations(bias_d=0.0, noise_d=0.15, seed=seed))
         assert none.focus.family == "none", (seed, none.focus)
+
+
+def test_the_fits_solve_at_one_blas_thread(monkeypatch):
+    """The model's many small least-squares solves run numpy's BLAS at one thread (`machine.one_blas_thread`):
+    threaded, each waited at every step for any process holding a core, and the test above took 30 minutes in CI
+    beside a training run (3 s a fit on one thread, 50 s on two with one core held). The limit is lifted after."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    from aat_deploy.calibrate.model import bootstrap, fit_family
+
+    def blas_threads():
+        return {i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"}
+
+    if not blas_threads():
+        pytest.skip("numpy here has no BLAS that threadpoolctl can set")
+    seen = []
+    lstsq = np.linalg.lstsq
+
+    def spy(*a, **k):
+        seen.append(blas_threads())
+        return lstsq(*a, **k)
+
+    monkeypatch.setattr(np.linalg, "lstsq", spy)
+    obs = phone_observations()
+    with threadpool_limits(limits=2, user_api="blas"):  # a 2-core machine's default, whatever runs this
+        fit = fit_model(obs, degree=2, focus_degree=1, radial=None)  # the radial order by cross-validation
+        bootstrap(obs, fit, n_boot=2)
+        fit_family(obs, "offset", 2, 1, radial=12)
+        assert blas_threads() == {2}
+    assert len(seen) > 20 and all(s == {1} for s in seen), seen
 
 
 def test_bic_weighs_the_pattern_within_a_frames_cell():
