@@ -4,6 +4,7 @@ of it kept (the Z35's row after its lens file was corrected)."""
 import json
 
 import numpy as np
+import pytest
 
 from benchmarks.probes import anycam_sweeps
 
@@ -33,3 +34,31 @@ def test_test_only_replaces_one_lens_rows_and_keeps_the_rest(tmp_path):
     assert row["frames"] == 8 and row["span_px"]["n"] == 1
     assert abs(row["span_px"]["p50"] - hand) < 0.01 * hand, (row["span_px"]["p50"], hand)
     assert abs(row["step_px"]["p50"] - row["span_px"]["p50"] / 7) < 1e-9
+
+
+def test_figure_only_draws_the_files_test_rows_and_checks_its_training_rows(tmp_path, monkeypatch):
+    """--figure-only: the figure from the results file's test rows (as --test-only left them) and the configs'
+    training sweeps drawn again, nothing else written; training sweeps that no longer reproduce the file's are
+    refused (the histogram would not be the file's)."""
+    rows = [{"span_px": float(v)} for v in np.geomspace(2, 90, 50)]
+    monkeypatch.setattr(anycam_sweeps, "training_sweeps", lambda config: rows)
+    drawn = []
+    figure = anycam_sweeps.figure
+    monkeypatch.setattr(anycam_sweeps, "figure", lambda *a: drawn.extend(figure(*a)))
+    fixed = {"span_px": {"n": 1, "p5": 3.96, "p50": 3.96, "p95": 3.96}, "frames": 8}
+    paper = {"span_px": {"n": 24, "p5": 0.65, "p50": 2.52, "p95": 3.39}, "frames": 8}
+    results = {"summary": {"training": {"cfg": {"all": {"span_px": anycam_sweeps.stats([r["span_px"] for r in rows])}}},
+                           "test": {"z35 fixed": fixed, "z35 paper": paper}}, "configs": ["cfg.json"]}
+    out, png = tmp_path / "sweeps.json", tmp_path / "sweeps.png"
+    out.write_text(json.dumps(results))
+    before = out.read_text()
+    argv = ["--figure-only", "--configs", str(tmp_path / "cfg.json"), "--out", str(out), "--figure", str(png)]
+    assert anycam_sweeps.main(argv) == 0
+    assert png.is_file() and out.read_text() == before
+    assert drawn == [("z35 fixed", 3.96), ("z35 paper", 2.52)]
+    results["summary"]["training"]["cfg"]["all"]["span_px"]["p50"] += 0.01
+    out.write_text(json.dumps(results))
+    with pytest.raises(SystemExit, match="differ"):
+        anycam_sweeps.main(argv)
+    with pytest.raises(SystemExit, match="no training rows of other"):
+        anycam_sweeps.main([*argv[:2], str(tmp_path / "other.json"), *argv[3:]])

@@ -4,6 +4,7 @@
         [--out results/anycam_sweeps.json] [--figure results/figures/anycam_sweeps.png]
         [--window-coverage [--coverage-split train|val] [--coverage-every N]]
     python -m benchmarks.probes.anycam_sweeps --test-only z35 [--cache cache/heldout]
+    python -m benchmarks.probes.anycam_sweeps --figure-only [--configs ...] [--out ...] [--figure ...]
 
 Per sweep, in pixels of blur diameter: the total blur change k x (1/near - 1/far) (k: the defocus scale the net is
 told, px per diopter, at the sweep's geometric-mean focus) and the blur change per frame spacing, both for the
@@ -15,10 +16,13 @@ them; k at most K_MAX_PX_PER_D, as the runtime brings frames to) with `bench_any
 paper protocol's focus distances as its cached test sets hold them (only where cached; they follow each scene's
 depth range). Prints quantiles and the shares under 9 px and within 20-120 px, and the draw limits' quantities (wide
 sweeps' working width; parametric best-focus maps past infinity or past half the far focus's diopters); writes JSON
-and a histogram.
+and a histogram of the training sweeps with the test rows as the JSON holds them (a line per lens's fixed protocol,
+the median and 5-95 % band of its paper protocol's stacks).
 --window-coverage also reads the cached renders: how much of its sweep's depth each 128 px window spans.
 --test-only LENS ...: only those lenses' test rows (no training sweeps, no figure), printed and put into --out in
 place of the lenses' earlier test rows, the rest of the file kept (a lens file corrected since, as the Z35 was).
+--figure-only: the figure again from --out's test rows and the configs' training sweeps (drawn again, no rendering,
+no cache; refused if they no longer match the file's), nothing else written: after --test-only.
 """
 
 from __future__ import annotations
@@ -143,27 +147,40 @@ def stats(x) -> dict:
             "under_9px": float(np.mean(x < 9.0)), "in_20_120px": float(np.mean((x >= 20) & (x <= 120)))}
 
 
-def figure(train: dict, test: list[dict], path: Path) -> None:
+def figure(train: dict, test: dict, path: Path) -> list[tuple[str, float]]:
+    """Per config a histogram of its training sweeps' total blur change, with `test` (`test_summary`: "<lens>
+    <protocol>" -> quantiles) drawn on it: a red line per lens's fixed protocol, a blue line at the median of its
+    paper-protocol stacks over their 5-95 % band. Returns the lines drawn: (row name, px)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     bins = np.geomspace(0.5, 400, 40)
-    fig, ax = plt.subplots(1, len(train), figsize=(5 * len(train), 3.4), squeeze=False)
+    fig, ax = plt.subplots(1, len(train), figsize=(5 * len(train), 3.9), squeeze=False)
+    drawn = []
     for a, (name, rows) in zip(ax[0], train.items()):
-        a.hist([r["span_px"] for r in rows], bins=bins, color="0.6", label=f"training sweeps ({name})")
-        for r in test:
-            a.axvline(r["span_px"], color="r" if r["protocol"] == "fixed" else "b", lw=0.6, alpha=0.6)
+        a.hist([r["span_px"] for r in rows], bins=bins, color="0.6", label="training sweeps (the config's items)")
+        for row, st in test.items():
+            lens, protocol = row.split(" ")
+            s = st["span_px"]
+            colour = "r" if protocol == "fixed" else "b"
+            if s["n"] > 1:
+                a.axvspan(s["p5"], s["p95"], color=colour, alpha=0.08, lw=0, zorder=0)
+            a.axvline(s["p50"], color=colour, lw=0.8, alpha=0.7)
+            a.text(s["p50"], 0.98, f" {lens}", color=colour, fontsize=6, rotation=90, va="top", ha="right",
+                   transform=a.get_xaxis_transform())
+            drawn.append((row, float(s["p50"])))
         a.set(xscale="log", xlabel="total blur change over the sweep (px)", ylabel="items", title=name)
-        a.plot([], [], "r", label="test, fixed protocol (per lens)")
-        a.plot([], [], "b", label="test, paper protocol (per cached stack)")
-        a.legend(fontsize=7)
-    fig.tight_layout()
+    ax[0, 0].plot([], [], "r", label="test, fixed protocol (per lens)")
+    ax[0, 0].plot([], [], "b", label="test, paper protocol (per lens: median, 5-95 % of its stacks)")
+    fig.legend(*ax[0, 0].get_legend_handles_labels(), loc="lower center", ncol=3, fontsize=7, frameon=False)
+    fig.tight_layout(rect=(0, 0.06, 1, 1))
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_file(path) as tmp:
         fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)
+    return drawn
 
 
 def test_summary(rows: list[dict]) -> dict:
@@ -209,6 +226,30 @@ def test_only(lenses: list[str], cache: Path, out: Path) -> int:
     return 0
 
 
+def figure_only(configs: list[Path], out: Path, path: Path) -> int:
+    """--figure-only: `figure` from `out`'s test rows and the configs' training sweeps drawn again, which must
+    reproduce the file's training quantiles (else the histogram would not be the file's: SystemExit)."""
+    if not out.is_file():
+        raise SystemExit(f"--figure-only: {out}: no such results file (run the probe without --figure-only)")
+    summary = json.loads(out.read_text())["summary"]
+    train = {}
+    for c in configs:
+        stored = summary["training"].get(c.stem, {}).get("all")
+        if stored is None:
+            raise SystemExit(f"--figure-only: {out} has no training rows of {c.stem} (its: "
+                             f"{', '.join(summary['training'])})")
+        rows = training_sweeps(c)
+        now = stats([r["span_px"] for r in rows])
+        if any(not np.isclose(now[k], v, rtol=1e-9, atol=0) for k, v in stored["span_px"].items()):
+            raise SystemExit(f"--figure-only: {c.stem}'s training sweeps drawn now differ from {out}'s "
+                             f"(p50 {now['p50']:.3f} px here, {stored['span_px']['p50']:.3f} there): run the probe "
+                             "whole")
+        train[c.stem] = rows
+    figure(train, summary["test"], path)
+    print(f"wrote {path} (test rows of {out}: {', '.join(summary['test'])})")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--configs", nargs="+", type=Path,
@@ -223,9 +264,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--coverage-every", type=int, default=4, help="every n-th render (default 4)")
     ap.add_argument("--test-only", nargs="+", metavar="LENS", default=None,
                     help="only these lenses' test rows, put into --out in place of their earlier ones")
+    ap.add_argument("--figure-only", action="store_true",
+                    help="only the figure, from --out's test rows and the configs' training sweeps drawn again")
     a = ap.parse_args(argv)
     if a.test_only is not None:
         return test_only(a.test_only, a.cache, a.out)
+    if a.figure_only:
+        return figure_only(a.configs, a.out, a.figure)
     train = {c.stem: training_sweeps(c) for c in a.configs}
     test = test_sweeps(a.cache)
     summary = {"training": {}, "test": {}}
@@ -267,7 +312,7 @@ def main(argv: list[str] | None = None) -> int:
                       f"{'-' if w1 is None else f'{w1:.2f}'} | {'-' if w2 is None else f'{w2:.2f}'} |")
     a.out.parent.mkdir(parents=True, exist_ok=True)
     write_text_atomic(a.out, json.dumps({"summary": summary, "configs": [str(c) for c in a.configs]}, indent=1))
-    figure(train, test, a.figure)
+    figure(train, summary["test"], a.figure)
     print(f"wrote {a.out} and {a.figure}")
     return 0
 
