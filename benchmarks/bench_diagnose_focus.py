@@ -23,6 +23,7 @@ the reported value) while the truth does not.
         --out results/diagnose_focus_tune2029.jsonl                                     # the tuning capture's sets
     python -m benchmarks.bench_diagnose_focus --systematic results/diagnose_focus_tune2029.jsonl  # tune SYSTEMATIC_D
     python -m benchmarks.bench_diagnose_focus --fit-only --fresh 4 --out results/diagnose_focus_fresh_fitonly.jsonl
+    python -m benchmarks.bench_diagnose_focus --fit-only --fresh2 4 --out results/diagnose_focus_fresh2_fitonly.jsonl
 
 The tuning capture (scene 2029, rendered like the others with --scene-seed 2029 --seed 4) is not in the benchmark:
 `focusfit.SYSTEMATIC_D`, the family choice's only setting, is chosen on its sets alone (`--systematic`: the family
@@ -57,6 +58,11 @@ SCENES = ((2026, 1), (2027, 2), (2028, 3))  # (scene seed, noise seed); 2026/1 =
 # exactly like scenes 2027 and 2028 (make_sample_capture.py, next noise seeds), scene ids never used before. Test
 # material: nothing is chosen or tuned on them (the tuning capture is scene 2029). `--fresh N` runs the first N.
 FRESH_SCENES = ((2030, 5), (2031, 6), (2032, 7), (2033, 8))
+# The second round of fresh test captures (issue 32, the end-of-curve precision fix), declared 2026-11-26 18:36 UTC,
+# before any of them was rendered or run and before the fix was run on anything but stored fits: rendered exactly
+# like scenes 2027-2033, scene ids and noise seeds never used before (scenes 2030-2033 were looked at and are
+# development material now). Test material: nothing is chosen or tuned on them. `--fresh2 N` runs the first N.
+FRESH_SCENES_2 = ((2034, 9), (2035, 10), (2036, 11), (2037, 12))
 QUANT_STEP_D = 0.1
 BOUND_TOL_D = 0.002
 
@@ -104,11 +110,11 @@ def capture_folders(n: int, cache: Path) -> list[Path]:
             for k, (scene, seed) in enumerate(SCENES[:n])]
 
 
-def fresh_folders(n: int, cache: Path) -> list[Path]:
-    """The first n fresh test captures (`FRESH_SCENES`), rendered once into cache."""
-    if not 1 <= n <= len(FRESH_SCENES):
-        raise SystemExit(f"--fresh: 1 to {len(FRESH_SCENES)}")
-    return [rendered_capture(scene, seed, cache) for scene, seed in FRESH_SCENES[:n]]
+def fresh_folders(n: int, cache: Path, scenes: tuple = FRESH_SCENES, flag: str = "--fresh") -> list[Path]:
+    """The first n fresh test captures (`FRESH_SCENES`, or `FRESH_SCENES_2`), rendered once into cache."""
+    if not 1 <= n <= len(scenes):
+        raise SystemExit(f"{flag}: 1 to {len(scenes)}")
+    return [rendered_capture(scene, seed, cache) for scene, seed in scenes[:n]]
 
 
 def make_copy(src: Path, root: Path, rep_m: np.ndarray) -> Path:
@@ -421,6 +427,8 @@ def main() -> None:
     ap.add_argument("--fresh", type=int, metavar="N", help="the first N fresh test captures (FRESH_SCENES: scenes "
                     "2030-2033, declared before they were rendered) instead; the monotone curve bends either way "
                     "by their order, as for --captures")
+    ap.add_argument("--fresh2", type=int, metavar="N", help="the first N of the second fresh test captures "
+                    "(FRESH_SCENES_2: scenes 2034-2037, declared before they were rendered) instead")
     ap.add_argument("--kinds", help=f"only these sets (comma-separated of {', '.join(kinds())})")
     ap.add_argument("--sets", help="only these sets, in this order (comma-separated capture:kind, e.g. "
                     "scene2027:monotone; captures numbered as without it, so a set is the same set)")
@@ -464,6 +472,7 @@ def main() -> None:
         raise SystemExit(f"--kinds: unknown {', '.join(sorted(unknown))}; known: {', '.join(kinds())}")
     cache, out = Path(a.cache), Path(a.out)
     caps = ([Path(f) for f in a.folders] if a.folders else fresh_folders(a.fresh, cache) if a.fresh
+            else fresh_folders(a.fresh2, cache, FRESH_SCENES_2, "--fresh2") if a.fresh2
             else capture_folders(a.captures, cache))
     done = {(r["capture"], r["kind"]) for r in map(json.loads, out.read_text().splitlines())} if out.exists() else set()
     # kind by kind (every capture's untouched copy first): a run stopped early still covers every capture
