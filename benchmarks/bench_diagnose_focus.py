@@ -157,6 +157,7 @@ def score(kind: str, family: str, true_d: np.ndarray, rep_d: np.ndarray, res: di
             "frames_on_bound": int(on_bound.sum()), "verdict": res.get("verdict"), "named": named,
             "robust": f.get("robust"), "frame_focus_sd_d": f.get("frame_focus_sd_d"),
             "frame_systematic_d": f.get("frame_systematic_d"), "corrected_sd_d": f.get("corrected_sd_d"),
+            "frame_consistency": f.get("frame_consistency"),
             "undetermined_covers": undetermined_covers(f, true_d),
             "frames_undetermined": int(np.sum(f.get("frames_undetermined") or [])),
             "families": [{k: x.get(k) for k in ("family", "k", "score", "true_d")} for x in f.get("families", [])]}
@@ -192,6 +193,34 @@ def reported_outside(row: dict, z: float = 1.959964) -> bool | None:
     corr = np.asarray(fams[row["family"]]["true_d"], np.float64)[0]
     sd = np.asarray(row["corrected_sd_d"], np.float64)[0]
     return bool(np.any(np.abs(rep - corr) > z * sd))
+
+
+def rescored(row: dict, commit: str) -> dict | None:
+    """The row as the current code's `focusfit.fit_metadata` would end it, from the row's stored fits (every
+    family's corrected focus, the per-frame estimates' bootstrap spread and systematic errors): the corrected
+    focus's standard error (`corrected_sd` times max(1, `frame_consistency`)), the frames reported undetermined and
+    whether their 95 % intervals hold the truth. The family, the corrected focus and everything before them are the
+    row's (the change of issue 32's end-of-curve fix comes after them). None for rows without the stored fits."""
+    from aat_deploy.diagnose import focusfit as ff
+
+    fams = {x["family"]: x for x in row.get("families") or []}
+    if row.get("family") not in fams or "per_frame" not in fams or row.get("frame_systematic_d") is None:
+        return None
+    rep = np.asarray(fams["none"]["true_d"], np.float64)
+    fit = ff.FamilyFit(row["family"], int(fams[row["family"]]["k"]), {}, np.asarray(fams[row["family"]]["true_d"],
+                                                                                     np.float64), 0.0)
+    sd = np.asarray(row["frame_focus_sd_d"], np.float64)
+    sys_d = np.asarray(row["frame_systematic_d"], np.float64)
+    frames = np.isfinite(rep).astype(np.float64)
+    cons = ff.frame_consistency(fit, rep, np.asarray(fams["per_frame"]["true_d"], np.float64), sd, frames, sys_d)
+    tsd = ff.corrected_sd(fit, rep, sd, frames, sys_d) * np.maximum(1.0, cons)
+    und = (tsd >= ff.UNDETERMINED_SD_D) & (frames > 0)
+    true_d = fit.true_d[0] - np.asarray(row["corrected_err_d"], np.float64)  # the row's truth (to 1e-4 D)
+    z = 1.959964
+    covers = [bool(abs(c - t) <= z * e) for c, t, e, u in zip(fit.true_d[0], true_d, tsd[0], und[0]) if u]
+    return {**row, "corrected_sd_d": np.round(tsd, 5).tolist(), "frame_consistency": np.round(cons, 3).tolist(),
+            "frames_undetermined": int(und[0].sum()), "undetermined_covers": covers, "rescored_from": row.get("commit"),
+            "commit": commit}
 
 
 SYSTEMATIC_GRID_D = (0.005, 0.0075, 0.01, 0.013, 0.015, 0.02, 0.025, 0.03, 0.04, 0.05)
@@ -443,6 +472,9 @@ def main() -> None:
     ap.add_argument("--table", nargs="*", metavar="RESULTS", help="only print the table of these results files")
     ap.add_argument("--compare", nargs=2, metavar=("OLD", "NEW"), help="only compare two results files set by set "
                     "(family, corrected focus, its standard errors, undetermined frames)")
+    ap.add_argument("--rescore", nargs=2, metavar=("OLD", "NEW"), help="only rewrite a results file's rows from their "
+                    "stored fits as the current code ends the focus fit (`rescored`: standard errors, undetermined "
+                    "frames) into NEW, for --compare OLD NEW")
     ap.add_argument("--systematic", nargs="+", metavar="RESULTS", help="only print the family choice's hits per "
                     "setting of its systematic allowance (focusfit.SYSTEMATIC_D) on these results (rows with the "
                     "stored fits); tune it on the tuning capture's rows only")
@@ -453,6 +485,14 @@ def main() -> None:
     if a.compare:
         old, new = ([json.loads(x) for x in Path(f).read_text().splitlines() if x.strip()] for f in a.compare)
         compare(old, new)
+        return
+    if a.rescore:
+        commit = os.environ.get("AAT_COMMIT") or subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+        rows = [json.loads(x) for x in Path(a.rescore[0]).read_text().splitlines() if x.strip()]
+        new = [rescored(r, commit) for r in rows]
+        Path(a.rescore[1]).write_text("".join(json.dumps(r) + "\n" for r in new if r is not None))
+        print(f"{sum(r is not None for r in new)}/{len(rows)} rows rescored into {a.rescore[1]}")
         return
     if a.systematic:
         systematic_table([json.loads(x) for f in a.systematic for x in Path(f).read_text().splitlines() if x.strip()])

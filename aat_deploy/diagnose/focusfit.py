@@ -407,6 +407,42 @@ def corrected_sd(fit: FamilyFit, reported_d: np.ndarray, frame_sd: np.ndarray, f
     return np.sqrt(np.maximum(np.einsum("nsi,ij,nsj->ns", jac, cov, jac), 0.0))
 
 
+def frame_consistency(fit: FamilyFit, reported_d: np.ndarray, frame_d: np.ndarray, frame_sd: np.ndarray,
+                      frames: np.ndarray, systematic_d: float | np.ndarray = SYSTEMATIC_D,
+                      length_d: float = ERROR_CORRELATION_D) -> np.ndarray:
+    """(n, S) every frame's standardised residual: how far its own estimate frame_d (the `per_frame` family's focus)
+    lies from the chosen family's corrected focus, in units of the standard deviation the error model of
+    `corrected_sd` gives that difference. Under that model the family's focus is the least-squares fit of the
+    estimates e, f = P e with P = J (J^T W J)^-1 J^T W, so the residual e - f = (I - P) e has the covariance
+    (I - P) C (I - P)^T, C the estimates' error covariance (sigma_i sigma_j times `error_correlation`). It is the
+    one check inside the captures of that model at each frame: a frame whose residual is several of its standard
+    deviations has an error the model does not allow for, in its estimate or in the family's value there (issue 32:
+    scene 2030's monotone curve 0.027 D off at its nearest frame, 1.7 of its standard errors, its own estimate 0.005
+    D off, residual 2.2 standard deviations). 0 where the family leaves a frame to its own estimate (the residual's
+    variance vanishes: a quantisation bin, `per_frame`; a difference there is the bin's bound, not a misfit) and for
+    `none` (no error model)."""
+    rep = np.asarray(reported_d, np.float64)
+    jac, widths = family_design(fit.name, rep, fit.true_d, frames)
+    out = np.zeros(rep.shape)
+    if not widths:
+        return out
+    real = np.asarray(frames) > 0
+    sigma = np.sqrt(np.asarray(frame_sd, np.float64) ** 2 + np.asarray(systematic_d) ** 2) * np.ones(rep.shape)
+    j = jac[real]  # (N, k) the real frames of every capture
+    sig = sigma[real]
+    w = 1.0 / sig ** 2
+    proj = j @ np.linalg.pinv(j.T @ (j * w[:, None])) @ (j * w[:, None]).T  # (N, N) f = P e
+    corr = error_correlation(fit.true_d, frames, length_d)  # (n, S, S), each capture its own block
+    idx = np.argwhere(real)
+    block = corr[idx[:, 0][:, None], idx[:, 1][:, None], idx[:, 1][None, :]] * (idx[:, 0][:, None] == idx[:, 0][None, :])
+    m = np.eye(len(sig)) - proj
+    var = np.einsum("ij,jk,ik->i", m, sig[:, None] * block * sig[None, :], m)  # diag of (I - P) C (I - P)^T
+    resid = (np.asarray(frame_d, np.float64) - fit.true_d)[real]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out[real] = np.where(var > 1e-9 * sig ** 2, np.abs(resid) / np.sqrt(var), 0.0)
+    return out
+
+
 def score_families(fits: dict[str, FamilyFit], frame_sd: np.ndarray, frames: np.ndarray,
                    systematic_d: float | np.ndarray = SYSTEMATIC_D) -> None:
     """Every family's score (`FamilyFit.score`, lower is better): -2 log of its evidence given the per-frame
@@ -453,8 +489,11 @@ class MetadataFit:
     on_bound: np.ndarray | None = None  # (n, S) the per-frame estimate sits on its +-MAX_ERROR_D search bound
     frame_sd: np.ndarray | None = None  # (n, S) the per-frame estimates' bootstrap spread, diopters
     frame_sys: np.ndarray | None = None  # (n, S) their systematic error (`frame_systematic`), diopters
-    true_d_sd: np.ndarray | None = None  # (n, S) the corrected focus's standard error, systematic included
+    true_d_sd: np.ndarray | None = None  # (n, S) the corrected focus's standard error, systematic included, scaled
+    # by max(1, consistency): what the error model gives (`corrected_sd`) times how much more the frame's own
+    # estimate and the family disagree than that model allows (`frame_consistency`)
     undetermined: np.ndarray | None = None  # (n, S) frames whose true_d_sd >= UNDETERMINED_SD_D
+    consistency: np.ndarray | None = None  # (n, S) every frame's standardised residual (`frame_consistency`)
 
     def summary(self) -> dict:
         b = self.best
@@ -464,6 +503,7 @@ class MetadataFit:
                 "frame_focus_sd_d": [] if self.frame_sd is None else np.round(self.frame_sd, 5).tolist(),
                 "frame_systematic_d": [] if self.frame_sys is None else np.round(self.frame_sys, 5).tolist(),
                 "corrected_sd_d": [] if self.true_d_sd is None else np.round(self.true_d_sd, 5).tolist(),
+                "frame_consistency": [] if self.consistency is None else np.round(self.consistency, 3).tolist(),
                 "error_correlation_d": ERROR_CORRELATION_D,  # the frames' errors' correlation length it assumes
                 "frames_undetermined": [] if self.undetermined is None else self.undetermined.tolist(),
                 "families": [{"family": f.name, "k": f.k, "ss": f.ss, "score": f.score, "true_d": f.true_d.tolist(),
@@ -518,9 +558,13 @@ def fit_metadata(data: SweepData, n_boot: int = 50, seed: int = 0, level: float 
     pci = {k: [float(np.quantile(v, a)), float(np.quantile(v, 1 - a))] for k, v in par_reps.items() if v}
     total = max(sum(wins.values()), 1)
     bound = (np.abs(np.abs(fits["per_frame"].true_d - data.reported_d) - MAX_ERROR_D) < 2e-3) & (data.frames > 0)
-    tsd = corrected_sd(best, data.reported_d, sd, data.frames, sys_d)
+    # the error model's standard error, scaled where the frame's own estimate and the family disagree by more than
+    # that model allows (Birge's ratio, the Particle Data Group's scale factor for inconsistent measurements: the
+    # maximum-likelihood scale of the model's variance from the frame's one residual, never below 1)
+    cons = frame_consistency(best, data.reported_d, fits["per_frame"].true_d, sd, data.frames, sys_d)
+    tsd = corrected_sd(best, data.reported_d, sd, data.frames, sys_d) * np.maximum(1.0, cons)
     return MetadataFit(best, fits, ci, pci, {k: v / total for k, v in wins.items()}, bound, sd, sys_d, tsd,
-                       (tsd >= UNDETERMINED_SD_D) & (data.frames > 0))
+                       (tsd >= UNDETERMINED_SD_D) & (data.frames > 0), cons)
 
 
 # --- field-dependent focus (sensor tilt, lens tolerances) ---------------------------------------------------

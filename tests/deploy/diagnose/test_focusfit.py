@@ -374,3 +374,55 @@ def test_a_far_frame_alone_in_its_bin_is_reported_undetermined_with_an_interval_
     assert fit.undetermined[0, 0] and fit.summary()["frames_undetermined"][0][0]
     assert err[0] <= 1.96 * fit.true_d_sd[0, 0]
     assert np.all(err[~fit.undetermined[0]] <= 0.02)
+
+
+def test_frame_consistency_is_the_standardised_residual_by_hand():
+    """An offset over n frames with equal independent errors s (length_d 0): the offset is the estimates' mean, the
+    residual e_i - f has the variance s^2 (1 - 1/n), so a frame whose estimate is 0.03 D from the offset has the
+    consistency 0.03 / (s sqrt(1 - 1/n)); with correlated errors the residual's variance is the diagonal of
+    (I - P) C (I - P)^T, computed here directly. A family that leaves each frame to its own estimate (a quantisation
+    bin, per_frame) and `none` give 0, and padding frames 0."""
+    rep = np.array([[1.6, 1.3, 1.0, 0.7, np.nan]])
+    frames = np.isfinite(rep).astype(np.float64)
+    sd, sys_d = np.full((1, 5), 0.004), np.full((1, 5), 0.01)
+    s = math.hypot(0.004, 0.01)
+    off = ff.FamilyFit("offset", 1, {}, rep - 0.05, 0.0)
+    est = rep - 0.05 + np.array([[0.03, -0.01, -0.01, -0.01, 0.0]])
+    got = ff.frame_consistency(off, rep, est, sd, frames, sys_d, length_d=0.0)
+    assert np.allclose(got[0, :4], np.abs(est - off.true_d)[0, :4] / (s * math.sqrt(1 - 1 / 4)))
+    assert got[0, 4] == 0
+    length = 0.3
+    got = ff.frame_consistency(off, rep, est, sd, frames, sys_d, length_d=length)
+    d = off.true_d[0, :4]
+    cov = s * s * np.exp(-np.abs(d[:, None] - d[None]) / length)
+    m = np.eye(4) - np.full((4, 4), 0.25)  # the offset is the mean (equal weights)
+    assert np.allclose(got[0, :4], np.abs(est - off.true_d)[0, :4] / np.sqrt(np.diag(m @ cov @ m.T)), rtol=1e-9)
+    rq = (np.round(TRUE_D / 0.1) * 0.1)[None]
+    for name in ("quantisation", "per_frame"):
+        fit = ff.FamilyFit(name, 8, {}, rq - 0.01, 0.0)
+        assert np.all(ff.frame_consistency(fit, rq, rq - 0.03, np.full((1, 8), 0.004), np.ones((1, 8))) == 0)
+    assert np.all(ff.frame_consistency(ff.FamilyFit("none", 0, {}, rq, 0.0), rq, rq - 0.03,
+                                       np.full((1, 8), 0.004), np.ones((1, 8))) == 0)
+
+
+def test_a_curve_end_its_own_frame_disagrees_with_is_reported_undetermined():
+    """Scene 2030's monotone set as stored (`results/diagnose_focus_fresh_fitonly.jsonl`, rounded; issue 32:
+    development evidence, not a tuned case): the 3-knot curve 0.027
+    D off at the nearest frame with a standard error of 0.016 D (determined under the 1-standard-error rule), the
+    frame's own estimate 0.005 D off: their difference is 2.2 of its standard deviations, so the standard error is
+    scaled by 2.2 and the frame is undetermined, its 95 % interval holding the truth; frames whose estimate agrees
+    with the curve keep their standard error."""
+    true = np.array([1.6667, 1.4524, 1.2381, 1.0239, 0.8095, 0.5952, 0.381, 0.1667])
+    rep = np.array([[1.6778, 1.4396, 1.2104, 0.9906, 0.7798, 0.5783, 0.3859, 0.2028]])
+    f = true + np.array([-0.0269, -0.0106, -0.0013, 0.0027, 0.0031, 0.0015, -0.0007, -0.0019])
+    e = true + np.array([-0.0049, -0.0119, -0.0037, -0.0123, 0.0053, 0.0161, 0.005, -0.0149])
+    sd = np.array([[0.00273, 0.00296, 0.00238, 0.00251, 0.0015, 0.00172, 0.00354, 0.00177]])
+    sys_d = np.array([[0.01761, 0.01608, 0.01125, 0.01, 0.01, 0.01, 0.01, 0.01196]])
+    fit = ff.FamilyFit("monotone", 3, {}, f[None], 0.0)
+    frames = np.ones((1, 8))
+    base = ff.corrected_sd(fit, rep, sd, frames, sys_d)[0]
+    cons = ff.frame_consistency(fit, rep, e[None], sd, frames, sys_d)[0]
+    scaled = base * np.maximum(1.0, cons)
+    assert base[0] < ff.UNDETERMINED_SD_D <= scaled[0]  # the case discriminates: determined before
+    assert abs(f[0] - true[0]) <= 1.96 * scaled[0]
+    assert np.all(scaled[cons <= 1] == base[cons <= 1])
