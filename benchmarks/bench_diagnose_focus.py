@@ -195,12 +195,14 @@ def reported_outside(row: dict, z: float = 1.959964) -> bool | None:
     return bool(np.any(np.abs(rep - corr) > z * sd))
 
 
-def rescored(row: dict, commit: str) -> dict | None:
+def rescored(row: dict, commit: str, consistency: bool | None = None) -> dict | None:
     """The row as the current code's `focusfit.fit_metadata` would end it, from the row's stored fits (every
     family's corrected focus, the per-frame estimates' bootstrap spread and systematic errors): the corrected
-    focus's standard error (`corrected_sd` times max(1, `frame_consistency`)), the frames reported undetermined and
+    focus's standard error (`corrected_sd`, times max(1, `frame_consistency`) with the consistency scale), the
+    frames reported undetermined and
     whether their 95 % intervals hold the truth. The family, the corrected focus and everything before them are the
-    row's (the change of issue 32's end-of-curve fix comes after them). None for rows without the stored fits."""
+    row's (the consistency scale tried for issue 32 comes after them). consistency: with the consistency scale or
+    without it (None: as the code, `focusfit.SCALE_BY_CONSISTENCY`). None for rows without the stored fits."""
     from aat_deploy.diagnose import focusfit as ff
 
     fams = {x["family"]: x for x in row.get("families") or []}
@@ -213,7 +215,8 @@ def rescored(row: dict, commit: str) -> dict | None:
     sys_d = np.asarray(row["frame_systematic_d"], np.float64)
     frames = np.isfinite(rep).astype(np.float64)
     cons = ff.frame_consistency(fit, rep, np.asarray(fams["per_frame"]["true_d"], np.float64), sd, frames, sys_d)
-    tsd = ff.corrected_sd(fit, rep, sd, frames, sys_d) * np.maximum(1.0, cons)
+    on = ff.SCALE_BY_CONSISTENCY if consistency is None else consistency
+    tsd = ff.corrected_sd(fit, rep, sd, frames, sys_d) * (np.maximum(1.0, cons) if on else 1.0)
     und = (tsd >= ff.UNDETERMINED_SD_D) & (frames > 0)
     true_d = fit.true_d[0] - np.asarray(row["corrected_err_d"], np.float64)  # the row's truth (to 1e-4 D)
     z = 1.959964
@@ -475,6 +478,8 @@ def main() -> None:
     ap.add_argument("--rescore", nargs=2, metavar=("OLD", "NEW"), help="only rewrite a results file's rows from their "
                     "stored fits as the current code ends the focus fit (`rescored`: standard errors, undetermined "
                     "frames) into NEW, for --compare OLD NEW")
+    ap.add_argument("--consistency", choices=("on", "off"), help="with --rescore: with or without the consistency "
+                    "scale (`focusfit.frame_consistency`; default: as the code, focusfit.SCALE_BY_CONSISTENCY)")
     ap.add_argument("--systematic", nargs="+", metavar="RESULTS", help="only print the family choice's hits per "
                     "setting of its systematic allowance (focusfit.SYSTEMATIC_D) on these results (rows with the "
                     "stored fits); tune it on the tuning capture's rows only")
@@ -490,7 +495,7 @@ def main() -> None:
         commit = os.environ.get("AAT_COMMIT") or subprocess.run(
             ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
         rows = [json.loads(x) for x in Path(a.rescore[0]).read_text().splitlines() if x.strip()]
-        new = [rescored(r, commit) for r in rows]
+        new = [rescored(r, commit, None if a.consistency is None else a.consistency == "on") for r in rows]
         Path(a.rescore[1]).write_text("".join(json.dumps(r) + "\n" for r in new if r is not None))
         print(f"{sum(r is not None for r in new)}/{len(rows)} rows rescored into {a.rescore[1]}")
         return

@@ -2,6 +2,8 @@
 frame's interval holds the truth, the table's count of sets within 0.02 D, and the set-by-set comparison of two
 runs."""
 
+import math
+
 import numpy as np
 import pytest
 
@@ -108,3 +110,27 @@ def test_second_fresh_test_captures_are_new_scenes():
     assert not seeds & {n for _, n in earlier}
     with pytest.raises(SystemExit, match="--fresh2"):
         bench.fresh_folders(len(bench.FRESH_SCENES_2) + 1, bench.CACHE, bench.FRESH_SCENES_2, "--fresh2")
+
+
+def test_rescored_rows_follow_the_consistency_scale():
+    """`rescored` from a row's stored fits: without the consistency scale it reproduces the row's standard errors
+    (the code that wrote the row); with it a frame whose own estimate is far from the offset (about 4 standard
+    deviations of their difference) gets a larger one."""
+    from aat_deploy.diagnose import focusfit as ff
+
+    rep = [[1.6, 1.3, 1.0, 0.7]]
+    f = [[1.55, 1.25, 0.95, 0.65]]
+    s = math.hypot(0.004, 0.01)
+    resid = 4 * s * math.sqrt(1 - 1 / 4)
+    fams = [{"family": "none", "k": 0, "true_d": rep}, {"family": "offset", "k": 1, "true_d": f},
+            {"family": "per_frame", "k": 4, "true_d": [[1.55 + resid, 1.25, 0.95, 0.65]]}]
+    row = {"family": "offset", "families": fams, "frame_focus_sd_d": [[0.004] * 4], "frame_systematic_d": [[0.01] * 4],
+           "corrected_err_d": [0.001] * 4, "commit": "old"}
+    base = ff.corrected_sd(ff.FamilyFit("offset", 1, {}, np.asarray(f), 0.0), np.asarray(rep), np.full((1, 4), 0.004),
+                           np.ones((1, 4)), np.full((1, 4), 0.01))
+    off = bench.rescored(row, "new", consistency=False)
+    assert np.allclose(off["corrected_sd_d"], np.round(base, 5)) and off["frames_undetermined"] == 0
+    on = bench.rescored(row, "new", consistency=True)
+    assert on["frame_consistency"][0][0] > 1
+    assert on["corrected_sd_d"][0][0] > off["corrected_sd_d"][0][0]
+    assert on["rescored_from"] == "old" and on["commit"] == "new"
