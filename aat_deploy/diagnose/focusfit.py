@@ -69,7 +69,7 @@ ERROR_CORRELATION_D = 0.135
 # own estimate against the family's value)? Off: tried for issue 32 (the tuning capture unchanged by it; on the
 # development scenes it caught scene 2030's monotone end frame and gave up scene 2031's), then judged on fresh
 # held-out scenes 2034-2037 (BENCHMARKS.md): it turned 1 of 3 sets with a wrong determined frame undetermined and
-# gave up 9 sets whose every frame was within 0.02 D (sets within 0.02 D 40/44 -> 32/44; determined frames within
+# gave up 8 sets whose every frame was within 0.02 D (sets within 0.02 D 40/44 -> 32/44; determined frames within
 # 0.02 D 345/351 -> 335/340): no gain. The residual is still reported (`focus.frame_consistency`)
 SCALE_BY_CONSISTENCY = False
 
