@@ -780,6 +780,8 @@ def main(argv=None) -> int:
     ap.add_argument("--copy-seed", type=int, default=2026, metavar="S", help="the random copies' seed")
     ap.add_argument("--tables", nargs="+", metavar="RESULT.json",
                     help="only print the tables of earlier runs' results, merged (BENCHMARKS.md's)")
+    ap.add_argument("--figure", metavar="PNG", help="with --tables: also draw the random copies' gain against their "
+                    "departure, every lens, the hand-chosen copies among them where the merged results hold them")
     a = ap.parse_args(argv)
     if a.tables:
         from benchmarks import calibrate_copies
@@ -795,6 +797,8 @@ def main(argv=None) -> int:
             print("\n### Random copies\n\n" + calibrate_copies.tables(merged))
         if merged["departures"]:
             print("\n" + calibrate_copies.departure_table(merged))
+        if a.figure:
+            calibrate_copies.figure(merged, Path(a.figure))
         return 0
     parts = set(a.parts.split(","))
     log = lambda m: print(m, file=sys.stderr, flush=True)

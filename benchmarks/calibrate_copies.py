@@ -175,9 +175,21 @@ def departure_table(res: dict) -> str:
     return "\n".join(out)
 
 
+def hand_chosen(res: dict, lens: str) -> dict | None:
+    """The lens's hand-chosen copy (bench_calibrate b) where `res` holds both its depth (res["depth"][lens], from
+    calibrate_depth_<lens>.json) and its departure (res["departures"][lens]["hand_chosen_d"]): {"departure_d",
+    "cal/prescription mae", "... mae_outer", "... mae_d"} (each ratio [point, lo, hi]); None otherwise."""
+    d, dep = res.get("depth", {}).get(lens), res.get("departures", {}).get(lens)
+    if not d or not dep or "cal/prescription mae" not in d:
+        return None
+    return {"departure_d": dep["hand_chosen_d"]["all"],
+            **{f"cal/prescription {z}": d[f"cal/prescription {z}"] for z in ZONES if f"cal/prescription {z}" in d}}
+
+
 def figure(res: dict, path: Path) -> None:
     """PNG: per lens, each copy's calibration / prescription map MAE ratio (overall and outer field, 95 % interval
-    over its scenes) against its field departure from the prescription; the 0.8 target as a line."""
+    over its scenes) against its field departure from the prescription; the 0.8 target as a line; where `res`
+    also holds the hand-chosen copy's depth and departure (`hand_chosen`), its ratios as open markers."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -194,7 +206,14 @@ def figure(res: dict, path: Path) -> None:
         for z, mk, lab in (("mae", "o", "MAE"), ("mae_outer", "s", "MAE, outer field")):
             x = [c["departure_d"]["copy - prescription"]["all"] for c in cs]
             r = np.array([c["depth"][f"cal/prescription {z}"] for c in cs])
-            ax.errorbar(x, r[:, 0], yerr=[r[:, 0] - r[:, 1], r[:, 2] - r[:, 0]], fmt=mk, capsize=3, label=lab)
+            ax.errorbar(x, r[:, 0], yerr=[r[:, 0] - r[:, 1], r[:, 2] - r[:, 0]], fmt=mk, capsize=3, label=lab,
+                        color="C0" if z == "mae" else "C1")
+        h = hand_chosen(res, lens)
+        for z, mk, c in (("mae", "o", "C0"), ("mae_outer", "s", "C1")):
+            if h and f"cal/prescription {z}" in h:
+                v = h[f"cal/prescription {z}"]
+                ax.errorbar([h["departure_d"]], [v[0]], yerr=[[v[0] - v[1]], [v[2] - v[0]]], fmt=mk, mfc="none",
+                            color=c, capsize=3, ls="none", label=f"hand-chosen copy, {'MAE' if z == 'mae' else 'outer'}")
         ax.axhline(0.8, color="k", ls="--", lw=1, label="target 0.8")
         ax.axhline(1.0, color="grey", lw=1)
         ax.set_title(f"{lens}: {len(cs)} random copies")

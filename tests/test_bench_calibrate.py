@@ -294,3 +294,16 @@ def test_departure_table_quantiles_and_the_hand_chosen_copys_rank():
                                    "quantiles_d": {"0.5": 0.025, "0.1": 0.013}}}}
     line = cc.departure_table(res).splitlines()[-1]
     assert line == "| ef50 | 4 | 0.0130 / 0.0250 | 0.0250 (50 % of the copies depart less) |"
+
+
+def test_the_hand_chosen_copy_is_read_from_its_depth_and_departure_and_drawn(tmp_path):
+    from benchmarks import calibrate_copies as cc
+
+    ratio = {f"cal/prescription {z}": [0.8, 0.7, 0.9] for z in ("mae", "mae_outer", "mae_d")}
+    res = {"depth": {"rf50": ratio}, "departures": {"rf50": {"hand_chosen_d": {"all": 0.05, "outer": 0.07}}}}
+    assert cc.hand_chosen(res, "rf50") == {"departure_d": 0.05, **ratio}
+    assert cc.hand_chosen(res, "ef50") is None and cc.hand_chosen({"depth": res["depth"]}, "rf50") is None
+    copy = {"departure_d": {"copy - prescription": {"all": 0.02, "outer": 0.03}}, "depth": ratio}
+    res["copies"] = {"rf50": {"copies": [copy]}}
+    cc.figure(res, tmp_path / "f.png")
+    assert (tmp_path / "f.png").stat().st_size > 0
