@@ -48,6 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
+from aat_deploy.io.atomic import atomic_file
 from benchmarks import RESULTS
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -494,9 +495,13 @@ def main() -> None:
     if a.rescore:
         commit = os.environ.get("AAT_COMMIT") or subprocess.run(
             ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
-        rows = [json.loads(x) for x in Path(a.rescore[0]).read_text().splitlines() if x.strip()]
+        src, dst = Path(a.rescore[0]), Path(a.rescore[1])
+        if dst.exists():  # the input itself included: rescoring never overwrites a results file
+            raise SystemExit(f"{dst}: exists; --rescore writes a new file (choose another name)")
+        rows = [json.loads(x) for x in src.read_text().splitlines() if x.strip()]
         new = [rescored(r, commit, None if a.consistency is None else a.consistency == "on") for r in rows]
-        Path(a.rescore[1]).write_text("".join(json.dumps(r) + "\n" for r in new if r is not None))
+        with atomic_file(dst) as tmp:
+            tmp.write_text("".join(json.dumps(r) + "\n" for r in new if r is not None))
         print(f"{sum(r is not None for r in new)}/{len(rows)} rows rescored into {a.rescore[1]}")
         return
     if a.systematic:

@@ -134,3 +134,33 @@ def test_rescored_rows_follow_the_consistency_scale():
     assert on["frame_consistency"][0][0] > 1
     assert on["corrected_sd_d"][0][0] > off["corrected_sd_d"][0][0]
     assert on["rescored_from"] == "old" and on["commit"] == "new"
+
+
+def test_rescore_writes_a_new_file_and_never_overwrites_one(tmp_path, monkeypatch):
+    """`--rescore OLD NEW` writes NEW (rows without stored fits are left out) and refuses a NEW that exists, the
+    input itself included, leaving it as it was."""
+    import json
+    import sys
+
+    rep = [[1.6, 1.3, 1.0, 0.7]]
+    f = [[1.55, 1.25, 0.95, 0.65]]
+    fams = [{"family": "none", "k": 0, "true_d": rep}, {"family": "offset", "k": 1, "true_d": f},
+            {"family": "per_frame", "k": 4, "true_d": f}]
+    row = {"family": "offset", "families": fams, "frame_focus_sd_d": [[0.004] * 4], "frame_systematic_d": [[0.01] * 4],
+           "corrected_err_d": [0.001] * 4, "commit": "old"}
+    old = tmp_path / "old.jsonl"
+    old.write_text(json.dumps(row) + "\n" + json.dumps({"family": "none"}) + "\n")
+    before = old.read_bytes()
+    monkeypatch.setenv("AAT_COMMIT", "new")
+    new = tmp_path / "new.jsonl"
+    monkeypatch.setattr(sys, "argv", ["bench", "--rescore", str(old), str(new)])
+    bench.main()
+    rows = [json.loads(x) for x in new.read_text().splitlines()]
+    assert len(rows) == 1 and rows[0]["commit"] == "new" and rows[0]["rescored_from"] == "old"
+    for dst in (old, new):
+        kept = dst.read_bytes()
+        monkeypatch.setattr(sys, "argv", ["bench", "--rescore", str(old), str(dst)])
+        with pytest.raises(SystemExit, match="exists"):
+            bench.main()
+        assert dst.read_bytes() == kept
+    assert old.read_bytes() == before
