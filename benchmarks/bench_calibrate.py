@@ -265,6 +265,28 @@ class Rig:
             out.append((sh.reshape(h, w) + fd))
         return np.stack(out).astype(np.float32)
 
+    def truth_at(self, effects: list[str], x, y, true_focus_m) -> np.ndarray:
+        """(S, N) float64: `truth` at normalised field points x, y (N,) (x right, y up, -1..1 from edge to edge)
+        instead of every pixel: what a tile at (x, y) should see (benchmarks/probes/phone_map_budget.py)."""
+        from aat_deploy.render import effects as fx
+
+        fn = fx.focus_at(fx.parse(effects), self.ctx())
+        x, y = np.asarray(x, np.float64).ravel(), np.asarray(y, np.float64).ravel()
+        sw, sh = (float(v) for v in self.fmap.sensor_mm)
+        r2 = (np.hypot(x * sw / 2, y * sh / 2) / (0.5 * np.hypot(sw, sh))) ** 2
+        shift = self.fmap.shift_diopters(calibrated=True)  # (R, F)
+        rr = self.fmap.radius ** 2
+        i = np.clip(np.searchsorted(rr, r2) - 1, 0, len(rr) - 2)
+        t = np.clip((r2 - rr[i]) / (rr[i + 1] - rr[i]), 0, 1)
+        n = np.arange(r2.size)
+        out = []
+        for f in np.ravel(true_focus_m):
+            fd = 1.0 / (np.asarray(fn(x, y, float(f)), np.float64) * np.ones_like(x) if fn is not None
+                        else np.full(x.shape, float(f)))
+            per_r = np.stack([np.interp(fd, self.fmap.focus_diopters, row) for row in shift])  # (R, N)
+            out.append(per_r[i, n] * (1 - t) + per_r[i + 1, n] * t + fd)
+        return np.stack(out)
+
 
 # -- the chart sweeps ------------------------------------------------------------------------------------------------
 def chart_for(rig: Rig, distance_m: float):

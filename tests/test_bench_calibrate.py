@@ -307,3 +307,19 @@ def test_the_hand_chosen_copy_is_read_from_its_depth_and_departure_and_drawn(tmp
     res["copies"] = {"rf50": {"copies": [copy]}}
     cc.figure(res, tmp_path / "f.png")
     assert (tmp_path / "f.png").stat().st_size > 0
+
+
+def test_truth_at_field_points_is_the_truth_at_those_pixels():
+    """Rig.truth_at (a tile's truth, benchmarks/probes/phone_map_budget) agrees with Rig.truth's per-pixel map on the
+    phone's copy (sensor tilt and decentre: a field-varying focus), at pixel centres across the frame."""
+    from aat_deploy.calibrate.format import field_grid
+
+    rig = bc.Rig(bc.LENSES["cellphone"])
+    eff = bc.effects_for(rig.setup, "copy")
+    true_m = np.array([0.07, 0.1, 0.18])
+    full = rig.truth(eff, true_m)
+    gx, gy = field_grid(rig.h, rig.w)
+    rows, cols = np.array([0, 17, 240, 479, 479]), np.array([0, 600, 320, 3, 639])
+    at = rig.truth_at(eff, gx[rows, cols], gy[rows, cols], true_m)
+    np.testing.assert_allclose(at, full[:, rows, cols], atol=2e-4)
+    assert np.ptp(at[1]) > 1.0  # the corners differ from the centre by diopters: the test can tell points apart

@@ -126,11 +126,17 @@ class FocusError:
 class FieldPoly:
     """sum_k sum_j coefficients[k, j] x^terms[k][0] y^terms[k][1] P_j(tau): terms (K, 2) non-negative exponents,
     coefficients (K, J) with J - 1 the degree in the on-axis focus (Legendre P_j), focus_range_d [lo, hi] the
-    calibrated on-axis focus (tau = -1..1 over it, held beyond)."""
+    calibrated on-axis focus (tau = -1..1 over it, held beyond). radius_max: None, or the field radius
+    (`field_radius_of` with `aspect`, the frames' width / height: 1 at the corners) beyond which the terms are
+    held along the radius: a point farther out is evaluated at the point of radius_max in its direction (the
+    farthest the calibration measured; a high-order polynomial extrapolated into corners no tile saw is not a
+    measurement)."""
 
     terms: np.ndarray
     coefficients: np.ndarray
     focus_range_d: tuple[float, float]
+    radius_max: float | None = None
+    aspect: float = 1.0
 
     def __post_init__(self):
         t = np.asarray(self.terms)
@@ -151,6 +157,15 @@ class FieldPoly:
         object.__setattr__(self, "terms", t.astype(np.int64))
         object.__setattr__(self, "coefficients", c)
         object.__setattr__(self, "focus_range_d", (lo, hi))
+        a = float(self.aspect)
+        if not (math.isfinite(a) and 1e-3 <= a <= 1e3):
+            raise ValueError(f"aspect {self.aspect!r} must be a frame's width / height (0.001..1000)")
+        object.__setattr__(self, "aspect", a)
+        if self.radius_max is not None:
+            r = float(self.radius_max)
+            if not (math.isfinite(r) and 0 < r <= 2):
+                raise ValueError(f"radius_max {self.radius_max!r} must be a field radius in (0, 2]")
+            object.__setattr__(self, "radius_max", r)
 
     def tau(self, t_d) -> np.ndarray:
         lo, hi = self.focus_range_d
@@ -165,8 +180,12 @@ class FieldPoly:
         return leg @ self.coefficients.T
 
     def basis(self, x, y) -> np.ndarray:
-        """(K, ...) the terms at field points x, y (broadcast)."""
+        """(K, ...) the terms at field points x, y (broadcast), held beyond radius_max."""
         x, y = np.broadcast_arrays(np.asarray(x, np.float64), np.asarray(y, np.float64))
+        if self.radius_max is not None:
+            r = field_radius_of(x, y, self.aspect)
+            s = np.where(r > self.radius_max, self.radius_max / np.maximum(r, 1e-300), 1.0)
+            x, y = x * s, y * s
         return np.stack([x ** a * y ** b for a, b in self.terms])
 
     def __call__(self, x, y, t_d) -> np.ndarray:
@@ -176,13 +195,23 @@ class FieldPoly:
         return np.tensordot(w, b, 1)
 
     def to_dict(self) -> dict:
-        return {"terms": self.terms.tolist(), "coefficients": np.round(self.coefficients, 9).tolist(),
-                "focus_range_d": [float(v) for v in self.focus_range_d]}
+        d = {"terms": self.terms.tolist(), "coefficients": np.round(self.coefficients, 9).tolist(),
+             "focus_range_d": [float(v) for v in self.focus_range_d]}
+        if self.radius_max is not None:  # absent: never held (files made before 2026-11-26, evening)
+            d["radius_max"] = round(self.radius_max, 6)
+            d["aspect"] = round(self.aspect, 9)
+        return d
 
     @classmethod
     def from_dict(cls, d: dict) -> FieldPoly:
+        r = d.get("radius_max")
+        if r is not None and (isinstance(r, bool) or not isinstance(r, (int, float))):
+            raise ValueError(f"radius_max must be a number, got {r!r}"[:200])
+        a = d.get("aspect", 1.0)
+        if isinstance(a, bool) or not isinstance(a, (int, float)):
+            raise ValueError(f"aspect must be a number, got {a!r}"[:200])
         return cls(np.array(d["terms"]), np.array(d["coefficients"], np.float64),
-                   tuple(float(v) for v in d["focus_range_d"]))
+                   tuple(float(v) for v in d["focus_range_d"]), None if r is None else float(r), float(a))
 
 
 def field_grid(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
@@ -190,6 +219,13 @@ def field_grid(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
     x = (2 * (np.arange(width) + 0.5) / width - 1)[None, :]
     y = (1 - 2 * (np.arange(height) + 0.5) / height)[:, None]
     return np.broadcast_to(x, (height, width)), np.broadcast_to(y, (height, width))
+
+
+def field_radius_of(x, y, aspect: float) -> np.ndarray:
+    """Field radius (0 centre, 1 corner) at normalised field x, y of frames of width / height aspect (square
+    pixels): sqrt((aspect^2 x^2 + y^2) / (aspect^2 + 1)), the best-focus maps' radius (`model.FieldBasis`'s rho)."""
+    x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
+    return np.sqrt((aspect ** 2 * x ** 2 + y ** 2) / (aspect ** 2 + 1.0))
 
 
 def poly_terms(degree: int, constant: bool) -> np.ndarray:

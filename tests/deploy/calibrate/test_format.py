@@ -279,3 +279,38 @@ def test_diagnosis_takes_the_calibrations_focus_error():
     assert info["family"] == "scale" and cap.focus_m[1] == 1.1  # the input is not changed
     a = build_parser().parse_args(["root", "--model", "m.onnx", "--out", "o", "--calibration", "cam.json"])
     assert a.calibration == "cam.json"
+
+
+def test_field_term_held_beyond_radius_max(tmp_path):
+    """radius_max holds the field term along the radius beyond the farthest measured point: unchanged inside it,
+    beyond it the value at radius_max in the same direction; stored, read back, and absent in older files."""
+    from aat_deploy.calibrate.format import field_radius_of
+
+    terms = np.array([[12, 0], [0, 12], [1, 0]])  # a steep edge (x^12, y^12) and a tilt
+    fp = FieldPoly(terms, np.array([[5.0], [3.0], [0.2]]), (1.0, 2.0))
+    held = FieldPoly(terms, fp.coefficients, (1.0, 2.0), radius_max=0.9, aspect=4 / 3)
+    x, y = np.meshgrid(np.linspace(-1, 1, 41), np.linspace(-1, 1, 31))
+    r = field_radius_of(x, y, 4 / 3)
+    a, b = fp(x, y, [1.5])[0], held(x, y, [1.5])[0]
+    inside = r <= 0.9
+    np.testing.assert_array_equal(a[inside], b[inside])
+    assert np.abs(a[~inside] - b[~inside]).max() > 0.5  # the extrapolation it replaces was steep
+    s = 0.9 / r[~inside]
+    np.testing.assert_allclose(b[~inside], fp(x[~inside] * s, y[~inside] * s, [1.5])[0], atol=1e-12)
+    # a corner point reads its direction's value at radius 0.9, whatever how far out it lies
+    u = np.array([0.8, 1.0]) / np.hypot(4 / 3 * 0.8, 1.0) * np.sqrt(1 + (4 / 3) ** 2)  # radius 1 along (0.8, 1)
+    assert held(u[0], u[1], [1.5])[0] == pytest.approx(held(u[0] * 0.95, u[1] * 0.95, [1.5])[0], abs=1e-12)
+    # stored and read back; a file without it is extrapolated, as before
+    cal = make_cal()
+    cal = CameraCalibration(cal.camera, cal.size_px, cal.focus_error, held, cal.blur, cal.sensor_mm)
+    back = load_calibration(save_calibration(cal, tmp_path / "held.json"))
+    assert back.best_focus.radius_max == 0.9 and back.best_focus.aspect == pytest.approx(4 / 3)
+    np.testing.assert_allclose(back.best_focus(x, y, [1.5]), held(x, y, [1.5]), atol=1e-6)  # stored to 1e-9
+    assert "radius_max" not in FieldPoly(terms, fp.coefficients, (1.0, 2.0)).to_dict()
+    assert FieldPoly.from_dict(fp.to_dict()).radius_max is None
+    d = json.loads((tmp_path / "held.json").read_text())
+    for bad in ("x", -0.5, True):
+        d["best_focus"]["radius_max"] = bad
+        (tmp_path / "bad.json").write_text(json.dumps(d))
+        with pytest.raises(CalibrationError, match="radius_max"):
+            load_calibration(tmp_path / "bad.json")

@@ -1,0 +1,259 @@
+"""What the phone's chart calibration error is made of (issue 33, part a: 0.210 D RMS on the copy against 0.02 D):
+the fit, the tiles, the truth's definition and the corners no tile sees, each measured on bench_calibrate's own
+phone sweeps and fit.
+
+    OMP_NUM_THREADS=1 python -m benchmarks.probes.phone_map_budget [--variants nominal,copy] \
+        [--truth-map results/cellphone_map_crop16.json] [--out results/phone_map_budget.json]   # 1-3 min, sweeps cached
+
+Per variant (bench_calibrate's phone setup, 64 px anchors, its sweeps from cache/calibrate/):
+
+- **measured**: the fit on the measured tiles, exactly part a's (`bench_calibrate.fit`);
+- **ideal tiles**: the same counted tiles (positions, objects, sweeps, outliers dropped as the fit dropped them),
+  each peaking exactly where the truth puts its object in focus (`Rig.truth_at`): the fit's own error (field model
+  order, interpolation between tiles, extrapolation beyond them), with no measurement in it;
+- **ideal tiles, every chart tile**: also the tiles the sweeps left unbracketed (their peak beyond the sweep): what
+  tiles in the corners would buy;
+- **the tiles' bias**: each measured tile against the truth: the truth's in-focus object at the tile for the frame of
+  its measured peak, minus the tile's object (D of object; + the tile peaks where the truth has a nearer object in
+  focus), by field radius: the chart's rendering, texture and the measure, which no fit removes;
+- **held beyond the tiles**: either fit with its field term held along the radius beyond the farthest counted tile
+  (the stored calibration's `field_radius_max`), instead of extrapolated;
+- **the truth's definition** (with --truth-map): the same fits scored against a second truth map (e.g. the one
+  calibrated on 16 px crops instead of 64, `aat-lens focus-map --calibrate-crop-px 16`), and the RMS of the two
+  truths' difference.
+
+Errors are RMS over the pixels and the 10 reported focus settings of part a's "inside" (the charts' range), split
+into pixels **covered** (inside the convex hull of the counted tiles' centres, over all sweeps) and **beyond** (the
+corners), and by field radius (bench_calibrate's bins).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks import RESULTS
+
+F_GRID_D = np.arange(1.0, 25.0 + 1e-9, 0.01)  # true focus (D) searched for a tile's ideal peak
+
+
+def ideal_reported_d(rig, effects: list[str], scale: float, x, y, object_d) -> np.ndarray:
+    """(N,) the reported focus (D) at which the truth has each tile's object in focus (NaN beyond F_GRID_D)."""
+    t = rig.truth_at(effects, x, y, 1.0 / F_GRID_D)  # (F, N), increasing along F
+    out = np.full(len(object_d), np.nan)
+    for j, o in enumerate(object_d):
+        col = t[:, j]
+        if np.all(np.diff(col) > 0) and col[0] <= o <= col[-1]:
+            out[j] = np.interp(o, col, F_GRID_D)
+    return out / scale  # reported distance = scale x true: reported diopters = true / scale
+
+
+def tile_table(res, rig, effects, scale) -> dict:
+    """Every on-chart textured tile of every sweep: x, y, object_d, sweep, cell, counted, measured reported_d."""
+    cols = {k: [] for k in ("x", "y", "object_d", "sweep", "counted", "reported_d", "frames_d")}
+    for i, m in enumerate(res.sweeps_measured):
+        pk = m.peaks
+        keep = (pk.why == "") | (pk.why == "unbracketed")
+        x, y = pk.grid.field()
+        cols["x"].append(x[keep])
+        cols["y"].append(y[keep])
+        cols["object_d"].append(m.object_d[keep])
+        cols["sweep"].append(np.full(int(keep.sum()), i))
+        cols["counted"].append((pk.why == "")[keep])
+        cols["reported_d"].append(pk.peak_d[keep])
+        cols["frames_d"].append([pk.reported_d] * int(keep.sum()))
+    out = {k: (np.concatenate(v) if k != "frames_d" else sum(v, [])) for k, v in cols.items()}
+    out["ideal_d"] = ideal_reported_d(rig, effects, scale, out["x"], out["y"], out["object_d"])
+    return out
+
+
+def observations_of(tiles: dict, keep: np.ndarray, reported: np.ndarray, aspect: float):
+    from aat_deploy.calibrate.model import Observations
+
+    idx = np.flatnonzero(keep)
+    cell = np.array([tiles["sweep"][j] * 10_000 + int(np.clip(np.searchsorted(tiles["frames_d"][j], reported[j]), 0,
+                                                                 len(tiles["frames_d"][j]))) for j in idx], np.int64)
+    return Observations(tiles["x"][idx], tiles["y"][idx], reported[idx], tiles["object_d"][idx],
+                        tiles["sweep"][idx].astype(np.int64), cell, aspect=aspect)
+
+
+def covered_mask(x, y, h: int, w: int) -> np.ndarray:
+    """(H, W) pixels inside the convex hull of tile centres x, y (normalised field)."""
+    from scipy.spatial import Delaunay
+
+    from aat_deploy.calibrate.format import field_grid
+
+    gx, gy = field_grid(h, w)
+    tri = Delaunay(np.column_stack([x, y]))
+    return tri.find_simplex(np.column_stack([gx.ravel(), gy.ravel()])).reshape(h, w) >= 0
+
+
+def errors(pred: np.ndarray, truth: np.ndarray, covered: np.ndarray) -> dict:
+    from aat_deploy.eval.stats import field_radius
+    from benchmarks.bench_calibrate import RADIUS_EDGES
+
+    h, w = truth.shape[1:]
+    rad = field_radius(h, w)
+    d = pred - truth
+    rms = lambda m: float(np.sqrt(np.mean(d[:, m] ** 2))) if m.any() else None
+    bins = {f"{lo:g}-{hi:g}": (rad >= lo) & (rad < hi if hi < 1 else rad <= hi)
+            for lo, hi in zip(RADIUS_EDGES[:-1], RADIUS_EDGES[1:])}
+    return {"rms_d": float(np.sqrt(np.mean(d ** 2))), "covered_rms_d": rms(covered), "beyond_rms_d": rms(~covered),
+            "radius_rms_d": {k: rms(m) for k, m in bins.items()},
+            "radius_mean_d": {k: float(np.mean(d[:, m])) for k, m in bins.items()}}
+
+
+def held(cal, radius_max: float):
+    """The calibration with its field term held along the radius beyond radius_max (`FieldPoly.radius_max`)."""
+    w, h = cal.size_px
+    return dataclasses.replace(cal, best_focus=dataclasses.replace(cal.best_focus, radius_max=float(radius_max),
+                                                                   aspect=w / h))
+
+
+def extrapolated(cal):
+    """The calibration with its field term extrapolated everywhere (no radius_max)."""
+    return dataclasses.replace(cal, best_focus=dataclasses.replace(cal.best_focus, radius_max=None))
+
+
+def run_variant(rig, variant: str, truths: dict, log) -> dict:
+    from aat_deploy.calibrate import in_focus_diopters
+    from aat_deploy.calibrate.fit import fit_calibration
+    from aat_deploy.calibrate.format import field_radius_of
+    from aat_deploy.calibrate.model import fit_model
+    from benchmarks import bench_calibrate as B
+
+    s = rig.setup
+    eff = B.effects_for(s, variant)
+    scale = B.SCALE if any(e.startswith("focus_metadata") for e in eff) else 1.0
+    sweeps = [B.sweep(rig, variant, i, log) for i in range(len(s.distances_m))]
+    ms = B.measures(rig, sweeps, variant)
+    res = fit_calibration(ms, n_boot=0)
+    res.sweeps_measured = ms
+    obs = res.observations  # after the fit's outlier pass
+    tiles = tile_table(res, rig, eff, scale)
+    aspect = rig.w / rig.h
+    # the counted tiles the fit kept (its outlier pass dropped some): matched by position, sweep and peak
+    key = lambda sw, x, y: (int(sw), round(float(x), 6), round(float(y), 6))
+    kept = {key(*v) for v in zip(obs.sweep, obs.x, obs.y)}
+    fit_kept = np.array([tiles["counted"][j] and key(tiles["sweep"][j], tiles["x"][j], tiles["y"][j]) in kept
+                         for j in range(len(tiles["x"]))])
+    ok_ideal = np.isfinite(tiles["ideal_d"])
+    inside = B.diopter_grid(max(s.distances_m), min(s.distances_m), 10)
+    rep_m = inside * scale
+    covered = covered_mask(obs.x, obs.y, rig.h, rig.w)
+    r_max = float(np.max(field_radius_of(obs.x, obs.y, obs.aspect)))
+    fits = {"measured": extrapolated(res.calibration)}
+    info = {"measured": {"tiles": int(len(obs)), "degree": res.model.degree, "radial": res.model.radial,
+                         "focus_degree": res.model.focus_degree, "family": res.calibration.focus_error.family}}
+    for name, keep in (("ideal tiles", fit_kept & ok_ideal),
+                       ("ideal tiles, every chart tile", ok_ideal)):
+        o = observations_of(tiles, keep, tiles["ideal_d"], aspect)
+        m = fit_model(o)
+        fits[name] = dataclasses.replace(res.calibration, focus_error=m.focus, best_focus=m.field)
+        info[name] = {"tiles": int(len(o)), "degree": m.degree, "radial": m.radial, "focus_degree": m.focus_degree,
+                      "family": m.focus.family, "residual_rms_d": float(np.sqrt(np.mean(m.residual_d ** 2)))}
+        log(f"  {variant} {name}: {len(o)} tiles, order {m.degree}/{m.radial}/{m.focus_degree}, {m.focus.family}")
+    fits["measured, held beyond the tiles"] = held(res.calibration, r_max)
+    fits["ideal tiles, held beyond the tiles"] = held(fits["ideal tiles"], r_max)
+    out = {"variant": variant, "fits": info, "tile_radius_max": r_max, "covered_share": float(covered.mean()),
+           "scores": {}}
+    for tname, fmap in truths.items():
+        rig_t = dataclasses.replace(rig) if fmap is None else _with_map(rig, fmap)
+        truth = rig_t.truth(eff, inside)
+        out["scores"][tname] = {k: errors(in_focus_diopters(c, rep_m, rig.h, rig.w), truth, covered)
+                                for k, c in fits.items()}
+    # the tiles' bias: the truth's in-focus object at the tile for its measured peak's frame, minus its object
+    c = tiles["counted"] & fit_kept
+    xs, ys, od, rd = tiles["x"][c], tiles["y"][c], tiles["object_d"][c], tiles["reported_d"][c]
+    t_at = np.array([rig.truth_at(eff, [xs[j]], [ys[j]], [1.0 / (rd[j] * scale)])[0, 0] for j in range(len(xs))])
+    bias = t_at - od
+    rad = field_radius_of(xs, ys, aspect)
+    edges = B.RADIUS_EDGES
+    out["tile_bias"] = {f"{lo:g}-{hi:g}": {"n": int(np.sum(sel := (rad >= lo) & (rad < hi if hi < 1 else rad <= hi))),
+                                           "mean_d": float(np.mean(bias[sel])) if sel.any() else None,
+                                           "sd_d": float(np.std(bias[sel])) if sel.any() else None}
+                        for lo, hi in zip(edges[:-1], edges[1:])}
+    out["tile_bias_rms_d"] = float(np.sqrt(np.mean(bias ** 2)))
+    un = ~tiles["counted"]
+    out["unbracketed"] = {"n": int(un.sum()), "of": int(len(un)),
+                          "radius": [float(v) for v in np.quantile(field_radius_of(tiles["x"][un], tiles["y"][un],
+                                                                                   aspect), [0, 0.5, 1])]
+                          if un.any() else None,
+                          "per_sweep": [int(np.sum(un & (tiles["sweep"] == i))) for i in range(len(sweeps))]}
+    if len(truths) > 1:
+        names = list(truths)
+        t0 = _with_map(rig, truths[names[0]]).truth(eff, inside) if truths[names[0]] else rig.truth(eff, inside)
+        t1 = _with_map(rig, truths[names[1]]).truth(eff, inside)
+        out["truths_differ"] = errors(t1, t0, covered)
+    return out
+
+
+def _with_map(rig, path):
+    import copy
+
+    from aat_deploy.focus.bestfocus import load_json
+    from benchmarks.bench_calibrate import ROOT
+
+    if path is None:
+        return rig
+    r = copy.copy(rig)
+    r.fmap = load_json(ROOT / path)
+    return r
+
+
+def main(argv=None) -> int:
+    from benchmarks import bench_calibrate as B
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--variants", default="nominal,copy")
+    ap.add_argument("--truth-map", default=None, help="a second truth map scored beside the lens's (a repo path)")
+    ap.add_argument("--out", default=str(RESULTS / "phone_map_budget.json"))
+    a = ap.parse_args(argv)
+    log = lambda m: print(m, file=sys.stderr, flush=True)
+    rig = B.Rig(B.LENSES["cellphone"])
+    truths = {"lens map (64 px crops)": None}
+    if a.truth_map:
+        truths[Path(a.truth_map).stem] = a.truth_map
+    res = {"truths": {k: v or "lenses/best_focus/cellphone_asphere.json" for k, v in truths.items()},
+           "variants": [run_variant(rig, v, truths, log) for v in a.variants.split(",")]}
+    from aat_deploy.io.atomic import write_text_atomic
+
+    Path(a.out).parent.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(Path(a.out), json.dumps(res, indent=1, default=float))
+    print(table(res))
+    return 0
+
+
+def table(res: dict) -> str:
+    out = []
+    for v in res["variants"]:
+        out.append(f"\n{v['variant']}: counted tiles reach field radius {v['tile_radius_max']:.3f}; "
+                   f"{100 * v['covered_share']:.1f} % of the pixels inside their hull; unbracketed "
+                   f"{v['unbracketed']['n']} of {v['unbracketed']['of']} chart tiles (per sweep "
+                   f"{v['unbracketed']['per_sweep']}, radius {v['unbracketed']['radius']}); tiles' bias RMS "
+                   f"{v['tile_bias_rms_d']:.3f} D")
+        for tname, sc in v["scores"].items():
+            out.append(f"\nagainst {tname}:\n")
+            bins = list(next(iter(sc.values()))["radius_rms_d"])
+            out.append("| fit | RMS (D) | covered | beyond | " + " | ".join(bins) + " |")
+            out.append("|---|---|---|---|" + "---|" * len(bins))
+            for k, e in sc.items():
+                cells = [f"{e['radius_rms_d'][b]:.3f} ({e['radius_mean_d'][b]:+.2f})" for b in bins]
+                beyond = "-" if e["beyond_rms_d"] is None else f"{e['beyond_rms_d']:.3f}"
+                out.append(f"| {k} | {e['rms_d']:.3f} | {e['covered_rms_d']:.3f} | {beyond} | " + " | ".join(cells)
+                           + " |")
+        if "truths_differ" in v:
+            e = v["truths_differ"]
+            out.append(f"\nthe two truths differ by {e['rms_d']:.3f} D RMS (covered {e['covered_rms_d']:.3f})")
+        out.append("\ntiles' bias (D of object, measured against the truth), by field radius: " + ", ".join(
+            f"{k} {b['mean_d']:+.3f} (SD {b['sd_d']:.3f}, n {b['n']})" for k, b in v["tile_bias"].items() if b["n"]))
+    return "\n".join(out)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
