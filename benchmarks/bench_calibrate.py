@@ -86,6 +86,13 @@ class LensSetup:
     middlebury: bool = True  # Middlebury Motorcycle among the held-out stacks (its depths are 1-2 m)
     cell_px: int = 64  # the renderer's PSF anchor spacing (px) for the chart sweeps and the held-out stacks (--cell-px)
     copy_name: str = "copy"  # the copy's chart sweeps' cache name (random copies, --copies: benchmarks/calibrate_copies)
+    inside_m: tuple | None = None  # part a's "inside" range (m; None: the charts' nearest and farthest distance)
+    sweep_key: str | None = None  # the sweeps' cache name (None: key): a setup that adds charts reuses the others'
+
+    def inside(self) -> np.ndarray:
+        """Part a's 10 reported-focus settings "inside" (true focus, m, near to far: even in diopters)."""
+        lo, hi = self.inside_m or (min(self.distances_m), max(self.distances_m))
+        return diopter_grid(hi, lo, 10)
 
     def schedule(self) -> np.ndarray:
         """The depth stacks' 8 true focus distances (m, near to far)."""
@@ -131,6 +138,13 @@ LENSES = {
                             f"focus_metadata:bias_d=0:scale={SCALE}", "noise"),
                            step_d=None, margin_d=None, schedule_m=(0.07, 0.5), middlebury=False),
 }
+# The phone with a fourth chart nearer than its working range (5.5 cm, appended so the other three keep their
+# sweeps, seeds and tape errors; part a scored over the same 7-18 cm): under its field curvature the edge of a frame
+# focused at 7 cm has objects at 4.5-5.5 cm in focus, which no chart at 7 cm or farther shows there
+# (benchmarks/probes/phone_map_budget.py); a chart at 5.5 cm is sharp at the edge for frames focused at 7-9 cm.
+LENSES["cellphone_near"] = dataclasses.replace(
+    LENSES["cellphone"], key="cellphone_near", distances_m=(0.07, 0.1, 0.18, 0.055),
+    tilts=((12, 4), (-9, -3), (8, 0), (6, 3)), inside_m=(0.07, 0.18), sweep_key="cellphone")
 NOMINAL = ("noise",)
 # Sweeps designed in pixels of blur (setups without step_d / margin_d): the RF50's sweeps are 1.4 px of thin-lens
 # blur per step and reach 10 px beyond the chart; their tiles' focus curves fall to half 3.4-4.0 px from the peak
@@ -309,7 +323,7 @@ def sweep(rig: Rig, variant: str, i: int, progress=print) -> dict:
     d, (tx, ty) = s.distances_m[i], s.tilts[i]
     effects = effects_for(s, variant)
     cells = "" if s.cell_px == 64 else f"_cells{s.cell_px}"
-    f = CACHE / f"{s.key}_{variant if variant == 'nominal' else s.copy_name}_{d:g}m{cells}.npz"
+    f = CACHE / f"{s.sweep_key or s.key}_{variant if variant == 'nominal' else s.copy_name}_{d:g}m{cells}.npz"
     img, layout = chart_for(rig, d)
     sources = sweep_sources(s)
     if f.is_file():
@@ -462,7 +476,7 @@ def part_map(rig: Rig, n_boot: int, log, variants: tuple = ("nominal", "copy")) 
 
     rows, fits = [], {}
     s = rig.setup
-    inside = diopter_grid(max(s.distances_m), min(s.distances_m), 10)
+    inside = s.inside()
     schedule = s.schedule()
     for variant in variants:
         sw = [sweep(rig, variant, i, log) for i in range(len(s.distances_m))]
@@ -555,10 +569,10 @@ def part_needs(rig: Rig, sweeps: list[dict], log) -> list[dict]:
     """Map RMS (inside the full calibrated range and on the schedule) with subsets of distances and frames."""
     s = rig.setup
     eff = effects_for(s, "copy")
-    inside = diopter_grid(max(s.distances_m), min(s.distances_m), 10)
+    inside = s.inside()
     schedule = s.schedule()
     rows = []
-    subsets = [(1,), (0, 2), (0, 1, 2)]
+    subsets = [(1,), (0, 2), (0, 1, 2)] + ([tuple(range(len(s.distances_m)))] if len(s.distances_m) > 3 else [])
     for sub in subsets:
         for every in (1, 2, 3):
             chosen = [sweeps[i] for i in sub]

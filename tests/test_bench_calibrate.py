@@ -323,3 +323,42 @@ def test_truth_at_field_points_is_the_truth_at_those_pixels():
     at = rig.truth_at(eff, gx[rows, cols], gy[rows, cols], true_m)
     np.testing.assert_allclose(at, full[:, rows, cols], atol=2e-4)
     assert np.ptp(at[1]) > 1.0  # the corners differ from the centre by diopters: the test can tell points apart
+
+
+def test_the_phone_with_a_near_chart_keeps_the_phones_charts_range_and_sweeps(tmp_path, monkeypatch):
+    """cellphone_near adds a chart at 5.5 cm after the phone's three: the same first three charts (distances, tilts,
+    the copy), the same part a range (7-18 cm, not down to 5.5 cm), and the three sweeps read from the phone's cache
+    names (their seeds and tape errors follow the order, unchanged)."""
+    p, n = bc.LENSES["cellphone"], bc.LENSES["cellphone_near"]
+    assert n.distances_m[:3] == p.distances_m and n.tilts[:3] == p.tilts and n.copy_effects == p.copy_effects
+    assert n.distances_m[3] == 0.055 and len(n.tilts) == 4
+    np.testing.assert_array_equal(n.inside(), p.inside())
+    assert n.inside().max() == pytest.approx(0.18) and n.inside().min() == pytest.approx(0.07)
+    names = []
+
+    class Stop(Exception):
+        pass
+
+    def fake_chart_for(rig, d):
+        return None, None
+
+    monkeypatch.setattr(bc, "CACHE", tmp_path)
+    monkeypatch.setattr(bc, "chart_for", fake_chart_for)
+    monkeypatch.setattr(bc, "sweep_sources", lambda s: {})
+    real_is_file = bc.Path.is_file
+
+    def spy(self):
+        names.append(self.name)
+        raise Stop
+
+    monkeypatch.setattr(bc.Path, "is_file", spy)
+
+    class R:
+        setup = n
+
+    for i in range(4):
+        with pytest.raises(Stop):
+            bc.sweep(R(), "copy", i)
+    monkeypatch.setattr(bc.Path, "is_file", real_is_file)
+    assert names == ["cellphone_copy_0.07m.npz", "cellphone_copy_0.1m.npz", "cellphone_copy_0.18m.npz",
+                     "cellphone_copy_0.055m.npz"]

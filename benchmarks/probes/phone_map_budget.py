@@ -2,7 +2,7 @@
 the fit, the tiles, the truth's definition and the corners no tile sees, each measured on bench_calibrate's own
 phone sweeps and fit.
 
-    OMP_NUM_THREADS=1 python -m benchmarks.probes.phone_map_budget [--variants nominal,copy] \
+    OMP_NUM_THREADS=1 python -m benchmarks.probes.phone_map_budget [--variants nominal,copy] [--setup cellphone] \
         [--truth-map results/cellphone_map_crop16.json] [--out results/phone_map_budget.json]   # 1-3 min, sweeps cached
 
 Per variant (bench_calibrate's phone setup, 64 px anchors, its sweeps from cache/calibrate/):
@@ -13,9 +13,9 @@ Per variant (bench_calibrate's phone setup, 64 px anchors, its sweeps from cache
   order, interpolation between tiles, extrapolation beyond them), with no measurement in it;
 - **ideal tiles, every chart tile**: also the tiles the sweeps left unbracketed (their peak beyond the sweep): what
   tiles in the corners would buy;
-- **the tiles' bias**: each measured tile against the truth: the truth's in-focus object at the tile for the frame of
-  its measured peak, minus the tile's object (D of object; + the tile peaks where the truth has a nearer object in
-  focus), by field radius: the chart's rendering, texture and the measure, which no fit removes;
+- **the tiles' bias**: each measured tile against the truth: the tile's object minus the truth's in-focus object at
+  the tile for the frame of its measured peak (D of object: what a fit through the tile reads minus the truth, the
+  sign of the map's error), by field radius: the chart's rendering, texture and the measure, which no fit removes;
 - **held beyond the tiles**: either fit with its field term held along the radius beyond the farthest counted tile
   (the stored calibration's `field_radius_max`), instead of extrapolated;
 - **the truth's definition** (with --truth-map): the same fits scored against a second truth map (e.g. the one
@@ -42,15 +42,22 @@ from benchmarks import RESULTS
 F_GRID_D = np.arange(1.0, 25.0 + 1e-9, 0.01)  # true focus (D) searched for a tile's ideal peak
 
 
-def ideal_reported_d(rig, effects: list[str], scale: float, x, y, object_d) -> np.ndarray:
-    """(N,) the reported focus (D) at which the truth has each tile's object in focus (NaN beyond F_GRID_D)."""
-    t = rig.truth_at(effects, x, y, 1.0 / F_GRID_D)  # (F, N), increasing along F
+def ideal_reported_d(t: np.ndarray, object_d: np.ndarray, scale: float) -> np.ndarray:
+    """(N,) the reported focus (D) at which the truth t (F, N) over true focus F_GRID_D has each tile's object in
+    focus: the first crossing (NaN when the object is never in focus over F_GRID_D)."""
     out = np.full(len(object_d), np.nan)
     for j, o in enumerate(object_d):
         col = t[:, j]
-        if np.all(np.diff(col) > 0) and col[0] <= o <= col[-1]:
-            out[j] = np.interp(o, col, F_GRID_D)
+        k = int(np.argmax(col >= o))
+        if col[k] >= o and k > 0 and col[k] > col[k - 1]:
+            out[j] = F_GRID_D[k - 1] + (o - col[k - 1]) / (col[k] - col[k - 1]) * (F_GRID_D[k] - F_GRID_D[k - 1])
     return out / scale  # reported distance = scale x true: reported diopters = true / scale
+
+
+def truth_at_reported(t: np.ndarray, reported_d: np.ndarray, scale: float) -> np.ndarray:
+    """(N,) the truth's in-focus object at each tile for a frame reporting reported_d (its true focus scale x)."""
+    return np.array([np.interp(r * scale, F_GRID_D, t[:, j]) if np.isfinite(r) else np.nan
+                     for j, r in enumerate(reported_d)])
 
 
 def tile_table(res, rig, effects, scale) -> dict:
@@ -68,7 +75,8 @@ def tile_table(res, rig, effects, scale) -> dict:
         cols["reported_d"].append(pk.peak_d[keep])
         cols["frames_d"].append([pk.reported_d] * int(keep.sum()))
     out = {k: (np.concatenate(v) if k != "frames_d" else sum(v, [])) for k, v in cols.items()}
-    out["ideal_d"] = ideal_reported_d(rig, effects, scale, out["x"], out["y"], out["object_d"])
+    out["truth_f"] = rig.truth_at(effects, out["x"], out["y"], 1.0 / F_GRID_D)  # (F, N), rising along F
+    out["ideal_d"] = ideal_reported_d(out["truth_f"], out["object_d"], scale)
     return out
 
 
@@ -89,11 +97,32 @@ def covered_mask(x, y, h: int, w: int) -> np.ndarray:
     from aat_deploy.calibrate.format import field_grid
 
     gx, gy = field_grid(h, w)
-    tri = Delaunay(np.column_stack([x, y]))
+    tri = Delaunay(np.column_stack([x, y]), qhull_options="QJ")
     return tri.find_simplex(np.column_stack([gx.ravel(), gy.ravel()])).reshape(h, w) >= 0
 
 
-def errors(pred: np.ndarray, truth: np.ndarray, covered: np.ndarray) -> dict:
+def observed_mask(obs, reported_d: np.ndarray, h: int, w: int, step: int = 4) -> np.ndarray:
+    """(S, H, W) pixel-frames inside the convex hull of the counted tiles' (x, y, reported focus): where the
+    surface D(x, y, F) was measured. A chart shows objects of a few diopters' range; under strong field curvature
+    the edge of a frame focused near has a nearer object in focus than any chart showed there, and the field term
+    there is extrapolated in focus though the frame lies inside the calibrated on-axis range. Computed every
+    step px."""
+    from scipy.spatial import Delaunay
+
+    from aat_deploy.calibrate.format import field_grid
+
+    gx, gy = field_grid(h, w)
+    gx, gy = gx[::step, ::step], gy[::step, ::step]
+    tri = Delaunay(np.column_stack([obs.x, obs.y, obs.reported_d]), qhull_options="QJ")
+    out = []
+    for r in reported_d:
+        pts = np.column_stack([gx.ravel(), gy.ravel(), np.full(gx.size, r)])
+        m = (tri.find_simplex(pts) >= 0).reshape(gx.shape)
+        out.append(np.repeat(np.repeat(m, step, 0), step, 1)[:h, :w])
+    return np.stack(out)
+
+
+def errors(pred: np.ndarray, truth: np.ndarray, covered: np.ndarray, observed: np.ndarray | None = None) -> dict:
     from aat_deploy.eval.stats import field_radius
     from benchmarks.bench_calibrate import RADIUS_EDGES
 
@@ -103,8 +132,13 @@ def errors(pred: np.ndarray, truth: np.ndarray, covered: np.ndarray) -> dict:
     rms = lambda m: float(np.sqrt(np.mean(d[:, m] ** 2))) if m.any() else None
     bins = {f"{lo:g}-{hi:g}": (rad >= lo) & (rad < hi if hi < 1 else rad <= hi)
             for lo, hi in zip(RADIUS_EDGES[:-1], RADIUS_EDGES[1:])}
+    ex = {}
+    if observed is not None:
+        ex = {"observed_rms_d": float(np.sqrt(np.mean(d[observed] ** 2))) if observed.any() else None,
+              "unobserved_rms_d": float(np.sqrt(np.mean(d[~observed] ** 2))) if (~observed).any() else None,
+              "observed_share": float(observed.mean())}
     return {"rms_d": float(np.sqrt(np.mean(d ** 2))), "covered_rms_d": rms(covered), "beyond_rms_d": rms(~covered),
-            "radius_rms_d": {k: rms(m) for k, m in bins.items()},
+            **ex, "radius_rms_d": {k: rms(m) for k, m in bins.items()},
             "radius_mean_d": {k: float(np.mean(d[:, m])) for k, m in bins.items()}}
 
 
@@ -143,9 +177,10 @@ def run_variant(rig, variant: str, truths: dict, log) -> dict:
     fit_kept = np.array([tiles["counted"][j] and key(tiles["sweep"][j], tiles["x"][j], tiles["y"][j]) in kept
                          for j in range(len(tiles["x"]))])
     ok_ideal = np.isfinite(tiles["ideal_d"])
-    inside = B.diopter_grid(max(s.distances_m), min(s.distances_m), 10)
+    inside = s.inside()
     rep_m = inside * scale
     covered = covered_mask(obs.x, obs.y, rig.h, rig.w)
+    observed = observed_mask(obs, 1.0 / rep_m, rig.h, rig.w)
     r_max = float(np.max(field_radius_of(obs.x, obs.y, obs.aspect)))
     fits = {"measured": extrapolated(res.calibration)}
     info = {"measured": {"tiles": int(len(obs)), "degree": res.model.degree, "radial": res.model.radial,
@@ -163,15 +198,15 @@ def run_variant(rig, variant: str, truths: dict, log) -> dict:
     out = {"variant": variant, "fits": info, "tile_radius_max": r_max, "covered_share": float(covered.mean()),
            "scores": {}}
     for tname, fmap in truths.items():
-        rig_t = dataclasses.replace(rig) if fmap is None else _with_map(rig, fmap)
-        truth = rig_t.truth(eff, inside)
-        out["scores"][tname] = {k: errors(in_focus_diopters(c, rep_m, rig.h, rig.w), truth, covered)
+        truth = _with_map(rig, fmap).truth(eff, inside)
+        out["scores"][tname] = {k: errors(in_focus_diopters(c, rep_m, rig.h, rig.w), truth, covered, observed)
                                 for k, c in fits.items()}
-    # the tiles' bias: the truth's in-focus object at the tile for its measured peak's frame, minus its object
+    out["observed_share"] = float(observed.mean())
+    # the tiles' bias: the tile's object minus the truth's in-focus object at the tile for its measured peak's frame
+    # (what a fit through the tile reads minus the truth: the sign of the map's error)
     c = tiles["counted"] & fit_kept
-    xs, ys, od, rd = tiles["x"][c], tiles["y"][c], tiles["object_d"][c], tiles["reported_d"][c]
-    t_at = np.array([rig.truth_at(eff, [xs[j]], [ys[j]], [1.0 / (rd[j] * scale)])[0, 0] for j in range(len(xs))])
-    bias = t_at - od
+    xs, ys, od = tiles["x"][c], tiles["y"][c], tiles["object_d"][c]
+    bias = od - truth_at_reported(tiles["truth_f"][:, c], tiles["reported_d"][c], scale)
     rad = field_radius_of(xs, ys, aspect)
     edges = B.RADIUS_EDGES
     out["tile_bias"] = {f"{lo:g}-{hi:g}": {"n": int(np.sum(sel := (rad >= lo) & (rad < hi if hi < 1 else rad <= hi))),
@@ -187,9 +222,9 @@ def run_variant(rig, variant: str, truths: dict, log) -> dict:
                           "per_sweep": [int(np.sum(un & (tiles["sweep"] == i))) for i in range(len(sweeps))]}
     if len(truths) > 1:
         names = list(truths)
-        t0 = _with_map(rig, truths[names[0]]).truth(eff, inside) if truths[names[0]] else rig.truth(eff, inside)
+        t0 = _with_map(rig, truths[names[0]]).truth(eff, inside)
         t1 = _with_map(rig, truths[names[1]]).truth(eff, inside)
-        out["truths_differ"] = errors(t1, t0, covered)
+        out["truths_differ"] = errors(t1, t0, covered, observed)
     return out
 
 
@@ -211,15 +246,17 @@ def main(argv=None) -> int:
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--variants", default="nominal,copy")
+    ap.add_argument("--setup", default="cellphone", help="bench_calibrate's setup (cellphone_near: a fourth chart at "
+                    "5.5 cm)")
     ap.add_argument("--truth-map", default=None, help="a second truth map scored beside the lens's (a repo path)")
     ap.add_argument("--out", default=str(RESULTS / "phone_map_budget.json"))
     a = ap.parse_args(argv)
     log = lambda m: print(m, file=sys.stderr, flush=True)
-    rig = B.Rig(B.LENSES["cellphone"])
+    rig = B.Rig(B.LENSES[a.setup])
     truths = {"lens map (64 px crops)": None}
     if a.truth_map:
         truths[Path(a.truth_map).stem] = a.truth_map
-    res = {"truths": {k: v or "lenses/best_focus/cellphone_asphere.json" for k, v in truths.items()},
+    res = {"setup": a.setup, "distances_m": list(rig.setup.distances_m), "truths": {k: v or "lenses/best_focus/cellphone_asphere.json" for k, v in truths.items()},
            "variants": [run_variant(rig, v, truths, log) for v in a.variants.split(",")]}
     from aat_deploy.io.atomic import write_text_atomic
 
@@ -233,23 +270,27 @@ def table(res: dict) -> str:
     out = []
     for v in res["variants"]:
         out.append(f"\n{v['variant']}: counted tiles reach field radius {v['tile_radius_max']:.3f}; "
-                   f"{100 * v['covered_share']:.1f} % of the pixels inside their hull; unbracketed "
+                   f"{100 * v['covered_share']:.1f} % of the pixels inside their hull, {100 * v['observed_share']:.1f} % "
+                   f"of the pixel-frames inside their (x, y, F) hull; unbracketed "
                    f"{v['unbracketed']['n']} of {v['unbracketed']['of']} chart tiles (per sweep "
                    f"{v['unbracketed']['per_sweep']}, radius {v['unbracketed']['radius']}); tiles' bias RMS "
                    f"{v['tile_bias_rms_d']:.3f} D")
         for tname, sc in v["scores"].items():
             out.append(f"\nagainst {tname}:\n")
             bins = list(next(iter(sc.values()))["radius_rms_d"])
-            out.append("| fit | RMS (D) | covered | beyond | " + " | ".join(bins) + " |")
-            out.append("|---|---|---|---|" + "---|" * len(bins))
+            out.append("| fit | RMS (D) | covered (x, y) | beyond | observed (x, y, F) | not observed | "
+                       + " | ".join(bins) + " |")
+            out.append("|---|---|---|---|---|---|" + "---|" * len(bins))
             for k, e in sc.items():
                 cells = [f"{e['radius_rms_d'][b]:.3f} ({e['radius_mean_d'][b]:+.2f})" for b in bins]
                 beyond = "-" if e["beyond_rms_d"] is None else f"{e['beyond_rms_d']:.3f}"
-                out.append(f"| {k} | {e['rms_d']:.3f} | {e['covered_rms_d']:.3f} | {beyond} | " + " | ".join(cells)
-                           + " |")
+                nob = "-" if e.get("unobserved_rms_d") is None else f"{e['unobserved_rms_d']:.3f}"
+                out.append(f"| {k} | {e['rms_d']:.3f} | {e['covered_rms_d']:.3f} | {beyond} | "
+                           f"{e['observed_rms_d']:.3f} | {nob} | " + " | ".join(cells) + " |")
         if "truths_differ" in v:
             e = v["truths_differ"]
-            out.append(f"\nthe two truths differ by {e['rms_d']:.3f} D RMS (covered {e['covered_rms_d']:.3f})")
+            out.append(f"\nthe two truths differ by {e['rms_d']:.3f} D RMS (covered {e['covered_rms_d']:.3f}, "
+                       f"observed {e['observed_rms_d']:.3f})")
         out.append("\ntiles' bias (D of object, measured against the truth), by field radius: " + ", ".join(
             f"{k} {b['mean_d']:+.3f} (SD {b['sd_d']:.3f}, n {b['n']})" for k, b in v["tile_bias"].items() if b["n"]))
     return "\n".join(out)
