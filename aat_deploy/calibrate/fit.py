@@ -8,12 +8,12 @@ is written (the CLI writes atomically).
 from __future__ import annotations
 
 import datetime
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from .. import __version__
-from .format import CameraCalibration, CameraIdentity, FieldPoly, poly_terms
+from .format import CameraCalibration, CameraIdentity, FieldPoly, field_radius_of, poly_terms
 from .model import Observations, bootstrap, fit_model, with_intervals
 from .peaks import blur_slope, relative_blur_px
 from .sweep import SweepError, SweepMeasurement, identity_differences
@@ -118,6 +118,14 @@ def fit_blur(measures: list[SweepMeasurement], model) -> tuple[FieldPoly | None,
     return FieldPoly(terms, sol.reshape(len(terms), fd + 1), (lo, hi)), obs
 
 
+def held_beyond_tiles(field_poly: FieldPoly, obs: Observations) -> FieldPoly:
+    """The field term held along the radius beyond the farthest tile (`FieldPoly.radius_max`): there no tile
+    measured it, and its radial powers (to rho^12) extrapolated into the corners went 0.9 D wrong on the benchmark's
+    phone lens (0.6 D held; BENCHMARKS.md, "What the phone's error is made of")."""
+    r = float(np.max(field_radius_of(obs.x, obs.y, obs.aspect)))
+    return replace(field_poly, radius_max=r, aspect=obs.aspect)
+
+
 def fit_calibration(measures: list[SweepMeasurement], n_boot: int = 100, degree: int | None = None,
                     focus_degree: int | None = None, sensor_mm: tuple[float, float] | None = None,
                     settings: dict | None = None, progress=None, radial: int | None = None) -> FitResult:
@@ -147,6 +155,7 @@ def fit_calibration(measures: list[SweepMeasurement], n_boot: int = 100, degree:
     if boot.support.get(fe.family, 0) < 0.5:
         warnings.append(f"the focus-error family {fe.family!r} is chosen by only {100 * boot.support.get(fe.family, 0):.0f}"
                         f" % of bootstrap replicates ({', '.join(f'{k} {100 * v:.0f} %' for k, v in boot.support.items() if v)})")
+    fit = replace(fit, field=held_beyond_tiles(fit.field, obs))
     if progress:
         progress("blur")
     blur, blur_obs = fit_blur(measures, fit)
@@ -179,6 +188,7 @@ def fit_calibration(measures: list[SweepMeasurement], n_boot: int = 100, degree:
     first = measures[0].sweep
     fitinfo = {"method": "chart", "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
                "version": __version__, "degree": fit.degree, "radial_degree": fit.radial,
+               "field_radius_max": fit.field.radius_max,
                "focus_degree": fit.focus_degree,
                "order_cv": fit.cv, "working_scale": first.scale, **(settings or {})}
     cal = CameraCalibration(identity, first.size_px, fe, fit.field, blur, sensor_mm, residuals, uncertainty, fitinfo)

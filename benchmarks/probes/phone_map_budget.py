@@ -39,7 +39,7 @@ import numpy as np
 
 from benchmarks import RESULTS
 
-F_GRID_D = np.arange(1.0, 25.0 + 1e-9, 0.01)  # true focus (D) searched for a tile's ideal peak
+F_GRID_D = np.round(np.arange(0.5, 19.99 + 1e-9, 0.01), 6)  # true focus (D) searched for a tile's ideal peak (the focus table: 5 cm)
 
 
 def ideal_reported_d(t: np.ndarray, object_d: np.ndarray, scale: float) -> np.ndarray:

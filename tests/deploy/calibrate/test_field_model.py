@@ -154,3 +154,35 @@ def test_bic_weighs_the_pattern_within_a_frames_cell():
     assert bic(obs, frame + 1.2 * base, 1) > bic(obs, frame + base, 1) + 50
     assert bic(obs, 1.5 * frame + base, 1) > bic(obs, frame + base, 1)
     assert bic(obs, frame + base, 2) > bic(obs, frame + base, 1)  # a parameter costs log(cells)
+
+
+def test_the_field_term_is_held_beyond_the_farthest_tile():
+    """Tiles of the phone's charts only to field radius 0.8: beyond it the fitted field term's radial powers
+    extrapolate by up to 2 D, differently with each draw of tile noise; held along the radius (`fit.held_beyond_tiles`,
+    what `aat-calibrate fit` stores) it is off by no more than the lens's own change beyond the farthest tile, and
+    unchanged inside."""
+    from aat_deploy.calibrate.fit import held_beyond_tiles
+    from aat_deploy.calibrate.format import field_radius_of
+
+    x, y = np.meshgrid(np.linspace(-1, 1, 64), np.linspace(-1, 1, 48))
+    worst = {"extrapolated": 0.0, "held": 0.0}
+    for seed in range(3):
+        o = phone_observations(noise_d=0.05, seed=seed)
+        o = o.subset(field_radius_of(o.x, o.y, o.aspect) <= 0.8)
+        m = fit_model(o)
+        h = held_beyond_tiles(m.field, o)
+        assert h.radius_max == pytest.approx(float(np.max(field_radius_of(o.x, o.y, o.aspect))))
+        r = field_radius_of(x, y, ASPECT)
+        out = r > h.radius_max
+        s = np.where(out, h.radius_max / r, 1.0)
+        for f in (6.0, 10.0):
+            t = m.focus.true_diopters(np.array([f]))
+            tr = truth(x, y, np.full(x.shape, f))
+            ex, he = t + m.field(x, y, t)[0], t + h(x, y, t)[0]
+            np.testing.assert_array_equal(ex[~out], he[~out])
+            change = truth(x * s, y * s, np.full(x.shape, f)) - tr  # the lens's own change beyond the tiles
+            rms = lambda a: float(np.sqrt(np.mean(a[out] ** 2)))
+            assert rms(he - tr) <= rms(change) + 0.1, (seed, f)
+            worst["extrapolated"] = max(worst["extrapolated"], rms(ex - tr))
+            worst["held"] = max(worst["held"], rms(he - tr))
+    assert worst["held"] < 0.6 * worst["extrapolated"], worst

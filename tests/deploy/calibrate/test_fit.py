@@ -186,6 +186,12 @@ def test_recovers_sensor_tilt_and_focus_scale():
     want = float(1 / fn(np.array(1 - 1 / W), np.array(0.0), 1.0) - 1 / fn(np.array(-1 + 1 / W), np.array(0.0), 1.0))
     assert abs(got - want) < 0.1 * abs(want), (got, want)
     assert cal.residuals["rms_d"] < 0.01
+    # the field term is held beyond the farthest tile the fit used, and the file says how far that is
+    from aat_deploy.calibrate.format import field_radius_of
+
+    o = res.observations
+    assert cal.best_focus.radius_max == pytest.approx(float(np.max(field_radius_of(o.x, o.y, o.aspect))))
+    assert cal.best_focus.aspect == pytest.approx(W / H) and cal.fit["field_radius_max"] == cal.best_focus.radius_max
     # and a calibration that knows nothing of the copy (the thin lens's own focus) is far off
     assert float(np.sqrt(np.mean(map_error(cal.__class__(cal.camera, cal.size_px, type(cal.focus_error)(),
                                                          dataclasses.replace(cal.best_focus, coefficients=0 *
