@@ -145,7 +145,8 @@ class MetricAccumulator:
     add(pred_m (H, W), gt_m (H, W), aif_pred (3, H, W) | None, aif_ref (3, H, W) | None) per image;
     result() -> means over images (depth metrics over images with >= 1 valid pixel; 'psnr', 'ssim' over
     images with an all-in-focus reference) plus 'n_images'; error_map() -> (H, W) mean |p - g| over the images
-    where each pixel is valid (NaN where never valid). Every image must have the same size for the map.
+    where each pixel is valid (NaN where never valid). The map needs every image at one size: images of several
+    sizes (e.g. renders no larger than each camera's sensor) still give every metric, and `has_error_map` is False.
     """
 
     def __init__(self, focus_range_mask: bool = False, data_range: float = 1.0):
@@ -154,6 +155,12 @@ class MetricAccumulator:
         self.rows: list[dict[str, float]] = []
         self._err_sum: np.ndarray | None = None
         self._err_n: np.ndarray | None = None
+        self._sizes: set[tuple[int, ...]] = set()
+
+    @property
+    def has_error_map(self) -> bool:
+        """True when images were added and all had one size."""
+        return len(self._sizes) == 1
 
     def add(self, pred_m: np.ndarray, gt_m: np.ndarray, aif_pred: np.ndarray | None = None,
             aif_ref: np.ndarray | None = None, focus_m: np.ndarray | None = None) -> dict[str, float]:
@@ -170,12 +177,12 @@ class MetricAccumulator:
         self.rows.append(row)
         m = valid_mask(gt_m, rng)
         err = np.where(m, np.abs(np.asarray(pred_m, np.float64) - np.where(m, gt_m, 0)), 0.0)
+        self._sizes.add(err.shape)
         if self._err_sum is None:
             self._err_sum, self._err_n = np.zeros(err.shape), np.zeros(err.shape)
-        elif self._err_sum.shape != err.shape:
-            raise ValueError(f"MetricAccumulator: image size {err.shape} differs from {self._err_sum.shape}")
-        self._err_sum += err
-        self._err_n += m
+        if self.has_error_map:  # a per-pixel mean has no meaning across sizes: stop the map, keep the metrics
+            self._err_sum += err
+            self._err_n += m
         return row
 
     def result(self) -> dict[str, float]:
@@ -191,5 +198,7 @@ class MetricAccumulator:
     def error_map(self) -> np.ndarray:
         if self._err_sum is None:
             raise ValueError("MetricAccumulator: no images added")
+        if not self.has_error_map:
+            raise ValueError(f"MetricAccumulator: no error map: image sizes differ ({sorted(self._sizes)})")
         with np.errstate(invalid="ignore", divide="ignore"):
             return np.where(self._err_n > 0, self._err_sum / np.maximum(self._err_n, 1), np.nan)

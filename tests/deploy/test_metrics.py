@@ -73,8 +73,18 @@ def test_error_map_mean_over_valid_images():
     acc2 = MetricAccumulator()
     acc2.add(np.array([[1.0]]), np.array([[0.0]]))
     assert np.isnan(acc2.error_map()[0, 0])
-    with pytest.raises(ValueError, match="differs"):
-        acc.add(np.zeros((2, 2)), np.ones((2, 2)))
+    assert acc.has_error_map
+
+
+def test_images_of_several_sizes_give_metrics_but_no_error_map():
+    acc = MetricAccumulator()
+    acc.add(np.array([[1.0, 2.0]]), np.array([[2.0, 4.0]]))  # errors 1, 2
+    acc.add(np.zeros((2, 2)), np.ones((2, 2)))  # error 1 everywhere
+    assert acc.result()["mae"] == pytest.approx((1.5 + 1.0) / 2)
+    assert not acc.has_error_map
+    with pytest.raises(ValueError, match="sizes differ"):
+        acc.error_map()
+    assert not MetricAccumulator().has_error_map
 
 
 def test_focus_range_mask_in_accumulator():

@@ -14,9 +14,10 @@ from training.nets.model import DfFNet, predict
 
 @torch.no_grad()
 def evaluate(model: DfFNet, dataset: Dataset, max_items: int | None = None, focus_range_mask: bool = False,
-             ) -> tuple[dict[str, float], np.ndarray]:
+             ) -> tuple[dict[str, float], np.ndarray | None]:
     """Run `model` (via predict: sorted, padded, cropped; float32, on the model's device) over up to `max_items`
-    items, one at a time. Returns (metrics averaged over images, error map (H, W) mean |depth - gt| in metres)."""
+    items, one at a time. Returns (metrics averaged over images, error map (H, W) mean |depth - gt| in metres, or
+    None when the items differ in size)."""
     dev = next(model.parameters()).device
     was_training = model.training
     model.eval()
@@ -45,4 +46,4 @@ def evaluate(model: DfFNet, dataset: Dataset, max_items: int | None = None, focu
                     None if aif_ref is None else np.asarray(aif_ref), focus_m=np.asarray(item["focus_m"]))
     finally:
         model.train(was_training)
-    return acc.result(), acc.error_map()
+    return acc.result(), (acc.error_map() if acc.has_error_map else None)

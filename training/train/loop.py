@@ -91,7 +91,8 @@ def _validate_and_log(model, val_set, cfg: TrainConfig, out_dir: Path, step: int
     _keep_best(model, cfg, out_dir, step, metrics)
     if final:
         (out_dir / "val_metrics.json").write_text(json.dumps(metrics, indent=1))
-        np.save(out_dir / "val_error_map_m.npy", err_map.astype(np.float32))
+        if err_map is not None:  # None: validation items of several sizes
+            np.save(out_dir / "val_error_map_m.npy", err_map.astype(np.float32))
     return metrics
 
 

@@ -146,6 +146,25 @@ def test_training_learns_and_evaluates(tmp_path):
     assert again["mae"] == pytest.approx(after["mae"], rel=1e-5)
 
 
+
+def test_validation_items_of_several_sizes_are_scored_without_an_error_map(tmp_path):
+    """Renders no larger than each camera's sensor differ in size (configs/anycam/dfv_aat_v7.json): validation
+    scores them all and skips only the per-pixel map, instead of stopping the run at its first validation."""
+    from torch.utils.data import ConcatDataset
+
+    from training.train.evaluate import evaluate
+    from training.train.loop import train
+
+    val_set = ConcatDataset([TwoPlaneStacks(n=2, size=32, seed=1), TwoPlaneStacks(n=2, size=24, seed=2)])
+    cfg = train_config(net="dfvnet", steps=2, batch_size=2, checkpoint_every=2, log_every=1, val_items=4)
+    res = train(cfg, tmp_path / "run", train_set=TwoPlaneStacks(n=4), val_set=val_set, progress=False)
+    assert res.val_metrics["n_images"] == 4 and np.isfinite(res.val_metrics["mae"])
+    assert not (tmp_path / "run" / "val_error_map_m.npy").exists()
+    model = __import__("training.nets.model", fromlist=["x"]).build_model("dfvnet", "small")
+    metrics, emap = evaluate(model, val_set)
+    assert emap is None and metrics["n_images"] == 4
+    assert evaluate(model, TwoPlaneStacks(n=2, size=24))[1].shape == (24, 24)
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
