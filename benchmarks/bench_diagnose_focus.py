@@ -24,6 +24,7 @@ the reported value) while the truth does not.
     python -m benchmarks.bench_diagnose_focus --systematic results/diagnose_focus_tune2029.jsonl  # tune SYSTEMATIC_D
     python -m benchmarks.bench_diagnose_focus --fit-only --fresh 4 --out results/diagnose_focus_fresh_fitonly.jsonl
     python -m benchmarks.bench_diagnose_focus --fit-only --fresh2 4 --out results/diagnose_focus_fresh2_fitonly.jsonl
+    python -m benchmarks.bench_diagnose_focus --fit-only --fresh3 4 --out results/diagnose_focus_fresh3_fitonly.jsonl
 
 The tuning capture (scene 2029, rendered like the others with --scene-seed 2029 --seed 4) is not in the benchmark:
 `focusfit.SYSTEMATIC_D`, the family choice's only setting, is chosen on its sets alone (`--systematic`: the family
@@ -64,6 +65,11 @@ FRESH_SCENES = ((2030, 5), (2031, 6), (2032, 7), (2033, 8))
 # like scenes 2027-2033, scene ids and noise seeds never used before (scenes 2030-2033 were looked at and are
 # development material now). Test material: nothing is chosen or tuned on them. `--fresh2 N` runs the first N.
 FRESH_SCENES_2 = ((2034, 9), (2035, 10), (2036, 11), (2037, 12))
+# The third round (issue 32: per-value searches run to convergence, the family chosen with the capture's own error
+# scale), declared 2026-11-26 21:15 UTC, before any of them was rendered or run: rendered exactly like scenes
+# 2027-2037, scene ids and noise seeds never used before (scenes 2030-2037 were looked at and are development
+# material now). Test material: nothing is chosen or tuned on them. `--fresh3 N` runs the first N.
+FRESH_SCENES_3 = ((2038, 13), (2039, 14), (2040, 15), (2041, 16))
 QUANT_STEP_D = 0.1
 BOUND_TOL_D = 0.002
 
@@ -158,7 +164,7 @@ def score(kind: str, family: str, true_d: np.ndarray, rep_d: np.ndarray, res: di
             "frames_on_bound": int(on_bound.sum()), "verdict": res.get("verdict"), "named": named,
             "robust": f.get("robust"), "frame_focus_sd_d": f.get("frame_focus_sd_d"),
             "frame_systematic_d": f.get("frame_systematic_d"), "corrected_sd_d": f.get("corrected_sd_d"),
-            "frame_consistency": f.get("frame_consistency"),
+            "frame_consistency": f.get("frame_consistency"), "error_scale": f.get("error_scale"),
             "undetermined_covers": undetermined_covers(f, true_d),
             "frames_undetermined": int(np.sum(f.get("frames_undetermined") or [])),
             "families": [{k: x.get(k) for k in ("family", "k", "score", "true_d")} for x in f.get("families", [])]}
@@ -196,33 +202,47 @@ def reported_outside(row: dict, z: float = 1.959964) -> bool | None:
     return bool(np.any(np.abs(rep - corr) > z * sd))
 
 
-def rescored(row: dict, commit: str, consistency: bool | None = None) -> dict | None:
+def rescored(row: dict, commit: str, consistency: bool | None = None, residual_scale: bool | None = None
+             ) -> dict | None:
     """The row as the current code's `focusfit.fit_metadata` would end it, from the row's stored fits (every
-    family's corrected focus, the per-frame estimates' bootstrap spread and systematic errors): the corrected
-    focus's standard error (`corrected_sd`, times max(1, `frame_consistency`) with the consistency scale), the
-    frames reported undetermined and
-    whether their 95 % intervals hold the truth. The family, the corrected focus and everything before them are the
-    row's (the consistency scale tried for issue 32 comes after them). consistency: with the consistency scale or
-    without it (None: as the code, `focusfit.SCALE_BY_CONSISTENCY`). None for rows without the stored fits."""
+    family's corrected focus, the per-frame estimates' bootstrap spread and systematic errors): the capture's error
+    scale (`error_scale`, with the residual scale), the family chosen with it (`score_families`, `select`; its
+    corrected focus the row's fit of that family), the corrected focus's standard error (`corrected_sd`, times
+    max(1, `frame_consistency`) with the consistency scale), the frames reported undetermined and whether their 95 %
+    intervals hold the truth. Everything before the choice is the row's; the bootstrap's support and the settings'
+    intervals are the row's too (they need the replicates), so a row whose family changed keeps its old `support`
+    (`family_rescored` says it changed). consistency, residual_scale: with or without the consistency scale (issue
+    32, off) and the residual scale (`focusfit.SCALE_BY_RESIDUALS`); None: as the code. None for rows without the
+    stored fits."""
     from aat_deploy.diagnose import focusfit as ff
 
     fams = {x["family"]: x for x in row.get("families") or []}
     if row.get("family") not in fams or "per_frame" not in fams or row.get("frame_systematic_d") is None:
         return None
     rep = np.asarray(fams["none"]["true_d"], np.float64)
-    fit = ff.FamilyFit(row["family"], int(fams[row["family"]]["k"]), {}, np.asarray(fams[row["family"]]["true_d"],
-                                                                                     np.float64), 0.0)
+    fits = {k: ff.FamilyFit(k, int(x["k"]), {}, np.asarray(x["true_d"], np.float64), 0.0) for k, x in fams.items()}
     sd = np.asarray(row["frame_focus_sd_d"], np.float64)
     sys_d = np.asarray(row["frame_systematic_d"], np.float64)
     frames = np.isfinite(rep).astype(np.float64)
-    cons = ff.frame_consistency(fit, rep, np.asarray(fams["per_frame"]["true_d"], np.float64), sd, frames, sys_d)
+    use_scale = ff.SCALE_BY_RESIDUALS if residual_scale is None else residual_scale
+    scale = ff.error_scale(fits, sd, frames, sys_d) if use_scale else 1.0
+    sys_s = ff.scaled_systematic(sd, sys_d, scale)
+    ff.score_families(fits, sd, frames, sys_s)
+    fit = ff.select(fits)
+    cons = ff.frame_consistency(fit, rep, fits["per_frame"].true_d, sd, frames, sys_d)
     on = ff.SCALE_BY_CONSISTENCY if consistency is None else consistency
     tsd = ff.corrected_sd(fit, rep, sd, frames, sys_d) * (np.maximum(1.0, cons) if on else 1.0)
     und = (tsd >= ff.UNDETERMINED_SD_D) & (frames > 0)
-    true_d = fit.true_d[0] - np.asarray(row["corrected_err_d"], np.float64)  # the row's truth (to 1e-4 D)
+    old = fits[row["family"]].true_d[0]
+    true_d = old - np.asarray(row["corrected_err_d"], np.float64)  # the row's truth (to 1e-4 D)
+    err = fit.true_d[0] - true_d
     z = 1.959964
     covers = [bool(abs(c - t) <= z * e) for c, t, e, u in zip(fit.true_d[0], true_d, tsd[0], und[0]) if u]
-    return {**row, "corrected_sd_d": np.round(tsd, 5).tolist(), "frame_consistency": np.round(cons, 3).tolist(),
+    return {**row, "family": fit.name, "family_ok": fit.name == row.get("family_true", fit.name),
+            "family_rescored": fit.name != row["family"], "corrected_err_d": err.round(4).tolist(),
+            "corrected_max_err_d": float(np.abs(err).max()), "error_scale": round(scale, 4),
+            "families": [{**x, "score": fits[x["family"]].score} for x in row["families"]],
+            "corrected_sd_d": np.round(tsd, 5).tolist(), "frame_consistency": np.round(cons, 3).tolist(),
             "frames_undetermined": int(und[0].sum()), "undetermined_covers": covers, "rescored_from": row.get("commit"),
             "commit": commit}
 
@@ -462,6 +482,8 @@ def main() -> None:
                     "by their order, as for --captures")
     ap.add_argument("--fresh2", type=int, metavar="N", help="the first N of the second fresh test captures "
                     "(FRESH_SCENES_2: scenes 2034-2037, declared before they were rendered) instead")
+    ap.add_argument("--fresh3", type=int, metavar="N", help="the first N of the third fresh test captures "
+                    "(FRESH_SCENES_3: scenes 2038-2041, declared before they were rendered) instead")
     ap.add_argument("--kinds", help=f"only these sets (comma-separated of {', '.join(kinds())})")
     ap.add_argument("--sets", help="only these sets, in this order (comma-separated capture:kind, e.g. "
                     "scene2027:monotone; captures numbered as without it, so a set is the same set)")
@@ -481,6 +503,8 @@ def main() -> None:
                     "frames) into NEW, for --compare OLD NEW")
     ap.add_argument("--consistency", choices=("on", "off"), help="with --rescore: with or without the consistency "
                     "scale (`focusfit.frame_consistency`; default: as the code, focusfit.SCALE_BY_CONSISTENCY)")
+    ap.add_argument("--residual-scale", choices=("on", "off"), help="with --rescore: with or without the capture's "
+                    "error scale (`focusfit.error_scale`; default: as the code, focusfit.SCALE_BY_RESIDUALS)")
     ap.add_argument("--systematic", nargs="+", metavar="RESULTS", help="only print the family choice's hits per "
                     "setting of its systematic allowance (focusfit.SYSTEMATIC_D) on these results (rows with the "
                     "stored fits); tune it on the tuning capture's rows only")
@@ -499,7 +523,8 @@ def main() -> None:
         if dst.exists():  # the input itself included: rescoring never overwrites a results file
             raise SystemExit(f"{dst}: exists; --rescore writes a new file (choose another name)")
         rows = [json.loads(x) for x in src.read_text().splitlines() if x.strip()]
-        new = [rescored(r, commit, None if a.consistency is None else a.consistency == "on") for r in rows]
+        new = [rescored(r, commit, None if a.consistency is None else a.consistency == "on",
+                        None if a.residual_scale is None else a.residual_scale == "on") for r in rows]
         with atomic_file(dst) as tmp:
             tmp.write_text("".join(json.dumps(r) + "\n" for r in new if r is not None))
         print(f"{sum(r is not None for r in new)}/{len(rows)} rows rescored into {a.rescore[1]}")
@@ -523,6 +548,7 @@ def main() -> None:
     cache, out = Path(a.cache), Path(a.out)
     caps = ([Path(f) for f in a.folders] if a.folders else fresh_folders(a.fresh, cache) if a.fresh
             else fresh_folders(a.fresh2, cache, FRESH_SCENES_2, "--fresh2") if a.fresh2
+            else fresh_folders(a.fresh3, cache, FRESH_SCENES_3, "--fresh3") if a.fresh3
             else capture_folders(a.captures, cache))
     done = {(r["capture"], r["kind"]) for r in map(json.loads, out.read_text().splitlines())} if out.exists() else set()
     # kind by kind (every capture's untouched copy first): a run stopped early still covers every capture
