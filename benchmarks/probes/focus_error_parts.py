@@ -119,9 +119,13 @@ def main() -> None:
         correlated_choice(rows)
     print(buf.getvalue(), end="")
     if a.out:
-        Path(a.out).write_text(f"# Where the per-frame focus estimates' errors come from\n\n"
-                               f"`python -m benchmarks.probes.focus_error_parts {' '.join(a.results)}`\n\n"
-                               + buf.getvalue())
+        if Path(a.out).resolve() in {Path(f).resolve() for f in a.results}:  # never write over an input
+            raise SystemExit(f"{a.out}: is one of the results read; choose another --out")
+        from aat_deploy.io.atomic import write_text_atomic
+
+        write_text_atomic(Path(a.out), f"# Where the per-frame focus estimates' errors come from\n\n"
+                          f"`python -m benchmarks.probes.focus_error_parts {' '.join(a.results)}`\n\n"
+                          + buf.getvalue())
 
 
 if __name__ == "__main__":
