@@ -25,6 +25,8 @@ def main() -> None:
     ap.add_argument("--force", action="store_true")
     ap.add_argument("--scene-seed", type=int, default=2026, help="the procedural scene (2026: the shipped sample)")
     ap.add_argument("--seed", type=int, default=1, help="the noise draw (1: the shipped sample)")
+    ap.add_argument("--effects", default="vignetting,noise", help="aat-render's extra effects (the sample's: "
+                    "vignetting,noise; others only for probes, e.g. vignetting alone for a noiseless copy)")
     args = ap.parse_args()
     from aat_deploy.io.color import linear_to_srgb
     from training.cli.render import main as render
@@ -39,7 +41,7 @@ def main() -> None:
         np.save(f"{d}/depth.npy", depth)
         argv = [f"{d}/rgb.png", f"{d}/depth.npy", "--lens", str(ROOT / "lenses/canon_rf50mm_f1.8.json"),
                 "--focus-m", ",".join(f"{f:.4f}" for f in focus), "--out", args.out,
-                "--effects", "vignetting,noise", "--seed", str(args.seed)]
+                "--effects", args.effects, "--seed", str(args.seed)]
         render(argv + (["--force"] if args.force else []))
 
 
