@@ -31,7 +31,10 @@ def build_parser() -> argparse.ArgumentParser:
     add_list_option(p, "--list-effects", print_effects, "list the registered effects and exit")
     p.add_argument("root", metavar="ROOT", help="a capture folder with ground truth, or a folder of them")
     p.add_argument("--model", required=True, help="the DfF model (.onnx) to diagnose")
-    p.add_argument("--out", required=True, help="report folder (diagnosis.json, report.md, PNGs, diagnosis.rrd)")
+    p.add_argument("--out", required=True, help="report folder (diagnosis.json, report.md, PNGs, diagnosis.rrd; "
+                   "corrected_focus/<capture>/capture.json only when the diagnosis names a focus-metadata error "
+                   "that its focus fit measured: otherwise the fit's distances are in the report, marked not "
+                   "recommended, and no capture.json is written)")
     p.add_argument("--lens", help="lens file the model was trained for (default: found in lenses/ by name)")
     p.add_argument("--psf", help="PSF surrogate (.onnx) of that lens (default: found in models/; else ray tracing)")
     p.add_argument("--effects", help="only try these registered effects (comma-separated; default all)")
@@ -87,7 +90,10 @@ def _main(argv: list[str] | None) -> int:
     u = res.get("unexplained_share")
     print(f"gap {'significant' if res['gap_significant'] else 'not significant'}; {res['verdict'].replace('_', ' ')}"
           + "".join(f"; {e['effect']} ({e['share_shown']:.0%} of the gap)" for e in causes)
-          + (f"; unexplained {u['shown']:.0%}" if u else "") + f"; report in {out / 'report.md'}")
+          + (f"; unexplained {u['shown']:.0%}" if u else "")
+          + (f"; corrected focus distances in {out / 'corrected_focus'}"
+             if (res.get("focus") or {}).get("corrected_recommended") else "")
+          + f"; report in {out / 'report.md'}")
     return 0
 
 

@@ -139,10 +139,14 @@ def focus_section(d: dict) -> list[str]:
     for fam in f["families"]:
         lines.append(f"| {fam['family']} | {fam['k']} | {fam['score']:.1f} | {f['support'].get(fam['family'], 0):.0%} |")
     if f["family"] != "none":
-        lines += ["", "Corrected focus distances (m, 95 % interval, the per-frame estimates' systematic error "
-                  "included); drop-in `capture.json` files are in `corrected_focus/<capture>/` (copy one into its "
-                  "capture folder to use it with `aat-infer`):", "",
-                  "| capture | reported (m) | corrected (m) |", "|---|---|---|"]
+        if f.get("corrected_recommended"):
+            lines += ["", "Corrected focus distances (m, 95 % interval, the per-frame estimates' systematic error "
+                      "included); drop-in `capture.json` files are in `corrected_focus/<capture>/` (copy one into "
+                      "its capture folder to use it with `aat-infer`):", ""]
+        else:
+            lines += ["", f"The fit's corrected focus distances, **{f.get('corrected_note') or 'not recommended'}** "
+                      "(m, 95 % interval, the per-frame estimates' systematic error included):", ""]
+        lines += ["| capture | reported (m) | corrected (m) |", "|---|---|---|"]
         undetermined = 0
         for c in f["corrected_focus"]:
             rep = ", ".join(f"{x:.3f}" for x in c["reported_m"])
@@ -162,9 +166,12 @@ def focus_section(d: dict) -> list[str]:
 
 def write_focus_corrections(out: Path, d: dict) -> list[Path]:
     """corrected_focus/<capture>/capture.json (the capture folder's sidecar format, docs/contracts.md) for every
-    capture, when the images support a focus-metadata error; the user's folders are never touched."""
+    capture, only when the diagnosis recommends the corrected focus (`focus.corrected_recommended`,
+    `verdict.correction_advice`: focus metadata named and its fit's evidence measured an error); the user's folders
+    are never touched. Not written, rather than written marked: a sidecar is a drop-in, and `aat-infer` reads its
+    distances, not its note."""
     f = d.get("focus")
-    if not f or f["family"] == "none":
+    if not f or f["family"] == "none" or not f.get("corrected_recommended"):
         return []
     written = []
     for c in f["corrected_focus"]:

@@ -423,6 +423,6 @@ def diagnose(model: DfFModel, twins, captures: list[CaptureData], cfg: DiagnoseC
         "config": asdict(cfg),
         "twin_renders": twins.renders,
         "search_factor": diag.factor,
-        "focus": focus_summary(evaluated, ranked or seen),
+        "focus": focus_summary(evaluated, ranked or seen, cfg.min_focus_support),
     }
     return out, diag, chain

@@ -137,17 +137,48 @@ def annotate_shares(entries: list[dict], ranked: list[dict], cfg: DiagnoseConfig
 
 
 
-def focus_summary(evaluated: list[dict], ranked: list[dict]) -> dict | None:
+def focus_summary(evaluated: list[dict], ranked: list[dict], min_support: float = 0.95) -> dict | None:
     """What the images say about the focus metadata (docs/diagnosis.md, "Focus errors"): the error family the fit
     chose with its settings, intervals and support, and every capture's corrected focus distances, from the
-    round in which `focus_metadata` was named (else its first fit); whether it was named and explains the gap."""
+    round in which `focus_metadata` was named (else its first fit); whether it was named and explains the gap, and
+    whether the corrected distances are recommended (`correction_advice`: `corrected_recommended`,
+    `corrected_note`)."""
     fits = [e for e in evaluated if e["effect"] == "focus_metadata" and e.get("fit", {}).get("focus_fit")]
     if not fits:
         return None
     named = next((e for e in ranked if e["effect"] == "focus_metadata"), None)
     e = named if named is not None and named.get("fit", {}).get("focus_fit") else fits[0]
+    ok, note = correction_advice(e, named is not None, min_support)
     return {**e["fit"]["focus_fit"], "corrected_focus": e["fit"]["corrected_focus"], "round": e["round"],
-            "named": named is not None, "explains_gap": bool(named and named.get("explains_gap"))}
+            "named": named is not None, "explains_gap": bool(named and named.get("explains_gap")),
+            "corrected_recommended": ok, "corrected_note": note}
+
+
+def correction_advice(entry: dict, named: bool, min_support: float = 0.95) -> tuple[bool, str | None]:
+    """Whether the diagnosis recommends the focus fit's corrected focus distances (the drop-in
+    `corrected_focus/<capture>/capture.json`), and why not: only when the diagnosis itself names focus metadata
+    (among the causes it ranks, or, with no significant gap, among the effects the images show) AND the fit's
+    own evidence measured an error (`focus_measured`: an error family in at least `min_support` of the bootstrap
+    replicates, some reported focus outside its corrected interval). The fit chooses a family on every set; a twin
+    that lacks an effect the captures have (vignetting, the RAW development) bends its per-frame estimates like a
+    gentle curve where the frames see little in focus (issue 32, scene 2038's untouched copy: family `monotone`,
+    corrected up to 0.044 D off, while the diagnosis named noise and vignetting). Recommending those distances then
+    would make a right capture.json worse. (True, None) when recommended; (False, None) when the family is `none`
+    (nothing to correct)."""
+    f = (entry.get("fit") or {}).get("focus_fit") or {}
+    if f.get("family", "none") == "none":
+        return False, None
+    if not named:
+        return False, (f"not recommended: the fit's best family is {f['family']}, but the diagnosis does not name "
+                       "focus metadata (the twin's other misfits can bend the per-frame estimates like a focus "
+                       "error); the reported focus distances stand, and no capture.json was written")
+    if not focus_measured(entry, min_support):
+        share = 1.0 - (f.get("support") or {}).get("none", 0.0)
+        return False, (f"not recommended: the fit's evidence does not hold (it needs an error family in at least "
+                       f"{min_support:.0%} of the bootstrap replicates, here {share:.0%}, and some reported focus "
+                       "outside its corrected 95 % interval); the reported focus distances stand, and no "
+                       "capture.json was written")
+    return True, None
 
 
 def shrink_summary(diag: GapAnalysis, base: Scored, ranked: list[dict], chain: list[Scored]) -> dict | None:

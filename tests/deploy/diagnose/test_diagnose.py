@@ -492,3 +492,44 @@ def test_report_marks_undetermined_frames_with_their_interval():
     assert "1.000 (0.980 … 1.020) |" in text and "1 frame(s) **undetermined**" in text
     f["corrected_focus"][0]["undetermined"] = [False, False]
     assert "undetermined" not in "\n".join(focus_section({"focus": f}))
+
+
+def test_corrected_capture_json_only_when_the_diagnosis_names_a_measured_focus_error(tmp_path):
+    """The drop-in corrected capture.json is written only when the diagnosis recommends it
+    (`verdict.correction_advice`): focus metadata named AND its fit's evidence measured an error. Issue 32, scene
+    2038's untouched copy: the first round's fit chose `monotone` (corrected up to 0.044 D off) while the whole
+    diagnosis named noise and vignetting, not focus metadata; the old code wrote that capture.json anyway, making
+    right distances worse. Then the report shows the fit's distances marked not recommended, with the reason."""
+    from aat_deploy.diagnose.report import focus_section, write_focus_corrections
+    from aat_deploy.diagnose.verdict import focus_summary
+
+    def entry(support):
+        fit = {"focus_fit": {"family": "monotone", "params": {"map_d": [1.7, 1.6]}, "params_ci": {},
+                             "support": support, "families": [{"family": "monotone", "k": 3, "score": 1.0}]},
+               "corrected_focus": [{"capture": "c", "files": ["f0.dng", "f1.dng"], "reported_m": [0.6, 6.0],
+                                    "corrected_m": [0.62, 5.2], "ci_m": [[0.61, 0.63], [5.0, 5.4]],
+                                    "total_ci_m": [[0.61, 0.63], [5.0, 5.4]], "undetermined": [False, False]}]}
+        return {"effect": "focus_metadata", "round": 1, "fit": fit, "explains_gap": True}
+
+    sure = {"monotone": 1.0, "none": 0.0}
+    # not named (2038's untouched copy): nothing written, the report says why
+    f = focus_summary([entry(sure)], [{"effect": "noise"}, {"effect": "vignetting"}])
+    assert f["family"] == "monotone" and not f["named"] and not f["corrected_recommended"]
+    assert "does not name focus metadata" in f["corrected_note"]
+    assert write_focus_corrections(tmp_path / "a", {"focus": f}) == []
+    assert not (tmp_path / "a" / "corrected_focus").exists()
+    text = "\n".join(focus_section({"focus": f}))
+    assert "**not recommended" in text and "corrected_focus/<capture>/" not in text
+    assert "0.620 (0.610 … 0.630)" in text  # the fit's distances are still shown
+    # named, but the fit's own evidence does not hold (an error family in too few replicates): nothing written
+    weak = entry({"monotone": 0.7, "none": 0.3})
+    f = focus_summary([weak], [weak])
+    assert f["named"] and not f["corrected_recommended"] and "70%" in f["corrected_note"]
+    assert write_focus_corrections(tmp_path / "b", {"focus": f}) == []
+    # named and measured: written, and the report points to it
+    good = entry(sure)
+    f = focus_summary([good], [good])
+    assert f["corrected_recommended"] and f["corrected_note"] is None
+    (path,) = write_focus_corrections(tmp_path / "c", {"focus": f})
+    assert [x["focus_m"] for x in json.loads(path.read_text())["frames"]] == [0.62, 5.2]
+    assert "corrected_focus/<capture>/" in "\n".join(focus_section({"focus": f}))
