@@ -25,6 +25,7 @@ the reported value) while the truth does not.
     python -m benchmarks.bench_diagnose_focus --fit-only --fresh 4 --out results/diagnose_focus_fresh_fitonly.jsonl
     python -m benchmarks.bench_diagnose_focus --fit-only --fresh2 4 --out results/diagnose_focus_fresh2_fitonly.jsonl
     python -m benchmarks.bench_diagnose_focus --fit-only --fresh3 4 --out results/diagnose_focus_fresh3_fitonly.jsonl
+    python -m benchmarks.bench_diagnose_focus --fit-only --fresh4 4 --out results/diagnose_focus_fresh4_fitonly.jsonl
 
 The tuning capture (scene 2029, rendered like the others with --scene-seed 2029 --seed 4) is not in the benchmark:
 `focusfit.SYSTEMATIC_D`, the family choice's only setting, is chosen on its sets alone (`--systematic`: the family
@@ -70,6 +71,12 @@ FRESH_SCENES_2 = ((2034, 9), (2035, 10), (2036, 11), (2037, 12))
 # 2027-2037, scene ids and noise seeds never used before (scenes 2030-2037 were looked at and are development
 # material now). Test material: nothing is chosen or tuned on them. `--fresh3 N` runs the first N.
 FRESH_SCENES_3 = ((2038, 13), (2039, 14), (2040, 15), (2041, 16))
+# The fourth round (issue 32: each frame's systematic error never below the level misfit the capture shows times its
+# level sensitivity, `focusfit.SYSTEMATIC_FROM_LEVEL`), declared 2026-11-27 00:55 UTC, before any of them was
+# rendered or run and before the change was run on anything but stored fits: rendered exactly like scenes
+# 2027-2041, scene ids and noise seeds never used before (scenes 2030-2041 were looked at and are development
+# material now). Test material: nothing is chosen or tuned on them. `--fresh4 N` runs the first N.
+FRESH_SCENES_4 = ((2042, 17), (2043, 18), (2044, 19), (2045, 20))
 QUANT_STEP_D = 0.1
 BOUND_TOL_D = 0.002
 
@@ -484,6 +491,8 @@ def main() -> None:
                     "(FRESH_SCENES_2: scenes 2034-2037, declared before they were rendered) instead")
     ap.add_argument("--fresh3", type=int, metavar="N", help="the first N of the third fresh test captures "
                     "(FRESH_SCENES_3: scenes 2038-2041, declared before they were rendered) instead")
+    ap.add_argument("--fresh4", type=int, metavar="N", help="the first N of the fourth fresh test captures "
+                    "(FRESH_SCENES_4: scenes 2042-2045, declared before they were rendered) instead")
     ap.add_argument("--kinds", help=f"only these sets (comma-separated of {', '.join(kinds())})")
     ap.add_argument("--sets", help="only these sets, in this order (comma-separated capture:kind, e.g. "
                     "scene2027:monotone; captures numbered as without it, so a set is the same set)")
@@ -549,6 +558,7 @@ def main() -> None:
     caps = ([Path(f) for f in a.folders] if a.folders else fresh_folders(a.fresh, cache) if a.fresh
             else fresh_folders(a.fresh2, cache, FRESH_SCENES_2, "--fresh2") if a.fresh2
             else fresh_folders(a.fresh3, cache, FRESH_SCENES_3, "--fresh3") if a.fresh3
+            else fresh_folders(a.fresh4, cache, FRESH_SCENES_4, "--fresh4") if a.fresh4
             else capture_folders(a.captures, cache))
     done = {(r["capture"], r["kind"]) for r in map(json.loads, out.read_text().splitlines())} if out.exists() else set()
     # kind by kind (every capture's untouched copy first): a run stopped early still covers every capture
