@@ -88,6 +88,7 @@ class LensSetup:
     copy_name: str = "copy"  # the copy's chart sweeps' cache name (random copies, --copies: benchmarks/calibrate_copies)
     inside_m: tuple | None = None  # part a's "inside" range (m; None: the charts' nearest and farthest distance)
     sweep_key: str | None = None  # the sweeps' cache name (None: key): a setup that adds charts reuses the others'
+    fit_distance: tuple = ()  # indices of the charts whose distance the fit takes as an unknown (the tape's only a start)
 
     def inside(self) -> np.ndarray:
         """Part a's 10 reported-focus settings "inside" (true focus, m, near to far: even in diopters)."""
@@ -142,9 +143,11 @@ LENSES = {
 # sweeps, seeds and tape errors; part a scored over the same 7-18 cm): under its field curvature the edge of a frame
 # focused at 7 cm has objects at 4.5-5.5 cm in focus, which no chart at 7 cm or farther shows there
 # (benchmarks/probes/phone_map_budget.py); a chart at 5.5 cm is sharp at the edge for frames focused at 7-9 cm.
+# Its distance is an unknown of the fit (`aat-calibrate fit --distance-m ...,~0.055`): the tape's 2 mm would put it
+# 0.6 D off (its draw here is -1.8 mm), and the fit finds it from the sweeps' consistency.
 LENSES["cellphone_near"] = dataclasses.replace(
     LENSES["cellphone"], key="cellphone_near", distances_m=(0.07, 0.1, 0.18, 0.055),
-    tilts=((12, 4), (-9, -3), (8, 0), (6, 3)), inside_m=(0.07, 0.18), sweep_key="cellphone")
+    tilts=((12, 4), (-9, -3), (8, 0), (6, 3)), inside_m=(0.07, 0.18), sweep_key="cellphone", fit_distance=(3,))
 NOMINAL = ("noise",)
 # Sweeps designed in pixels of blur (setups without step_d / margin_d): the RF50's sweeps are 1.4 px of thin-lens
 # blur per step and reach 10 px beyond the chart; their tiles' focus curves fall to half 3.4-4.0 px from the peak
@@ -384,13 +387,14 @@ def measures(rig: Rig, sweeps: list[dict], variant: str, keep_every: int = 1):
     out = []
     for sw in sweeps:
         tape = sw["distance_m"] + rng.normal(0, TAPE_SD_MM / 1000)
+        free = rig.setup.distances_m.index(sw["distance_m"]) in rig.setup.fit_distance
         idx = np.arange(0, len(sw["reported_m"]), keep_every)
         ident = {"make": "aat", "model": "virtual camera", "lens": rig.lens.name,
                  "focal_length_mm": round(rig.efl, 2), "f_number": round(rig.fno, 2)}
         s = Sweep(Path(f"{rig.setup.key}_{variant}_{sw['distance_m']:g}m"), sw["frames"][idx], sw["reported_m"][idx],
                   ident, (rig.w, rig.h), 1.0)
         out.append(measure_sweep(s, sw["layout"], distance_m=tape, measure=rig.measure,
-                                 prefilter_px=rig.prefilter_px))
+                                 prefilter_px=rig.prefilter_px, fit_distance=free))
     return out
 
 

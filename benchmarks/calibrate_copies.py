@@ -62,7 +62,8 @@ def distribution(setup) -> dict:
 def draw_copy(setup, n_elements: int, seed: int, k: int) -> dict:
     """Copy k of the lens (its settings and effects, bench_calibrate's syntax), reproducible from (seed, lens, k)."""
     d = distribution(setup)
-    rng = np.random.default_rng([seed, zlib.crc32(setup.key.encode()), k])
+    # the lens's key: a setup that adds a chart to a lens's (cellphone_near) draws the lens's own copies
+    rng = np.random.default_rng([seed, zlib.crc32((setup.sweep_key or setup.key).encode()), k])
     element = int(rng.integers(0, n_elements))
     theta, phi = rng.uniform(0.0, 2 * math.pi, 2)
     short = lambda v: float(f"{v:.6g}")  # as the effect string carries it (6 significant digits)

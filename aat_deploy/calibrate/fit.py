@@ -32,12 +32,14 @@ class FitResult:
     blur_obs: dict
     sweeps: list
     warnings: list[str] = field(default_factory=list)
+    measures: list = field(default_factory=list)  # the sweeps as fitted (a fitted chart distance's objects moved)
 
 
 def observations(measures: list[SweepMeasurement]) -> Observations:
     """Every counted tile of every sweep; cells = (sweep, interval between the two frames the peak lies between);
     the frames' aspect (the field radius's shape)."""
     cols = {k: [] for k in ("x", "y", "reported_d", "object_d", "sweep", "cell")}
+    dz = []
     for i, m in enumerate(measures):
         ok = m.peaks.counted
         x, y = m.peaks.grid.field()
@@ -49,9 +51,11 @@ def observations(measures: list[SweepMeasurement]) -> Observations:
         cols["object_d"].append(m.object_d[ok])
         cols["sweep"].append(np.full(int(ok.sum()), i))
         cols["cell"].append(i * 10_000 + interval)
+        dz.append(m.object_dz()[ok] if m.fit_distance else np.zeros(int(ok.sum())))
     w, h = measures[0].sweep.size_px
+    free = any(m.fit_distance for m in measures)
     return Observations(*(np.concatenate(cols[k]).astype(np.float64 if k not in ("sweep", "cell") else np.int64)
-                          for k in cols), aspect=w / h)
+                          for k in cols), aspect=w / h, dz=np.concatenate(dz).astype(np.float64) if free else None)
 
 
 def camera_identity(measures: list[SweepMeasurement]) -> CameraIdentity:
@@ -118,6 +122,17 @@ def fit_blur(measures: list[SweepMeasurement], model) -> tuple[FieldPoly | None,
     return FieldPoly(terms, sol.reshape(len(terms), fd + 1), (lo, hi)), obs
 
 
+FIT_DISTANCE_ITERATIONS = 4
+FITTED = "fitted (an unknown of the model: the sweeps' consistency)"
+
+
+def _same_tiles(new: Observations, old: Observations) -> Observations:
+    """new's tiles that old kept (old: after the outlier pass), matched by sweep and position."""
+    key = lambda o: [(int(s), round(float(x), 9), round(float(y), 9)) for s, x, y in zip(o.sweep, o.x, o.y)]
+    kept = set(key(old))
+    return new.subset(np.array([k in kept for k in key(new)], bool))
+
+
 def held_beyond_tiles(field_poly: FieldPoly, obs: Observations) -> FieldPoly:
     """The field term held along the radius beyond the farthest tile (`FieldPoly.radius_max`): there no tile
     measured it, and its radial powers (to rho^12) extrapolated into the corners went 0.9 D wrong on the benchmark's
@@ -134,6 +149,10 @@ def fit_calibration(measures: list[SweepMeasurement], n_boot: int = 100, degree:
     if not measures:
         raise SweepError("no sweeps to fit")
     identity = camera_identity(measures)
+    if all(m.fit_distance for m in measures):
+        raise SweepError(f"{measures[0].sweep.path}: every chart distance is to be fitted: at least one sweep needs "
+                         "a measured distance (the reported focus's error is measured against it)")
+    start = {i: m.chart_distance_m for i, m in enumerate(measures) if m.fit_distance}
     obs = observations(measures)
     if len(obs) < MIN_TILES:
         raise SweepError(f"{measures[0].sweep.path}: only {len(obs)} tiles with a bracketed focus peak over all "
@@ -148,6 +167,16 @@ def fit_calibration(measures: list[SweepMeasurement], n_boot: int = 100, degree:
         fit = fit_model(obs, fit.degree, fit.focus_degree, fit.radial)
         warnings.append(f"{int(bad.sum())} of {len(bad)} tiles left out as outliers (peak more than "
                         f"{max(5 * mad, 0.005):.3f} D off the first fit)")
+    if start:
+        # fitted chart distances: the model's linearised shift, the tiles' objects recomputed at the new distance,
+        # refitted (Gauss-Newton) until the shift is below a micrometre
+        for _ in range(FIT_DISTANCE_ITERATIONS):
+            if max(abs(v) for v in fit.shifts_mm.values()) < 1e-3:
+                break
+            measures = [m.at_distance(m.chart_distance_m + fit.shifts_mm.get(i, 0.0) / 1000.0, FITTED)
+                        if i in start else m for i, m in enumerate(measures)]
+            obs = _same_tiles(observations(measures), obs)
+            fit = fit_model(obs, fit.degree, fit.focus_degree, fit.radial)
     if progress:
         progress("bootstrap")
     boot = bootstrap(obs, fit, n_boot=n_boot)
@@ -163,8 +192,14 @@ def fit_calibration(measures: list[SweepMeasurement], n_boot: int = 100, degree:
     per_sweep = []
     for i, m in enumerate(measures):
         r = res[obs.sweep == i]
+        extra = {}
+        if i in start:  # the distance as given, and the fitted one's bootstrap interval (mm of shift from it)
+            ci = boot.shifts_mm.get(i)
+            extra = {"distance_given_m": round(start[i], 5),
+                     "distance_ci_m": None if ci is None else [round(m.chart_distance_m + v / 1000.0, 5) for v in ci]}
         per_sweep.append({"sweep": str(m.sweep.path), "tiles": int(len(r)),
-                          "chart_distance_m": round(m.chart_distance_m, 4), "distance_from": m.geometry.how,
+                          "chart_distance_m": round(m.chart_distance_m, 5 if i in start else 4),
+                          "distance_from": m.geometry.how, **extra,
                           "reported_focus_m": [round(float(v), 4) for v in m.sweep.reported_m],
                           "mean_d": float(np.mean(r)) if len(r) else None,
                           "rms_d": float(np.sqrt(np.mean(r ** 2))) if len(r) else None,
@@ -192,5 +227,5 @@ def fit_calibration(measures: list[SweepMeasurement], n_boot: int = 100, degree:
                "focus_degree": fit.focus_degree,
                "order_cv": fit.cv, "working_scale": first.scale, **(settings or {})}
     cal = CameraCalibration(identity, first.size_px, fe, fit.field, blur, sensor_mm, residuals, uncertainty, fitinfo)
-    return FitResult(cal, obs, fit, blur_obs, per_sweep, warnings)
+    return FitResult(cal, obs, fit, blur_obs, per_sweep, warnings, measures)
 

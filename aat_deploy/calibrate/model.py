@@ -99,6 +99,7 @@ class Observations:
     cell: np.ndarray
     weight: np.ndarray | None = None
     aspect: float = 1.0
+    dz: np.ndarray | None = None  # (N,) D of object per mm of the sweep's chart distance, where it is fitted; else 0
 
     def __post_init__(self):
         if self.weight is None:
@@ -109,7 +110,24 @@ class Observations:
 
     def subset(self, keep: np.ndarray) -> Observations:
         return Observations(*(getattr(self, k)[keep] for k in ("x", "y", "reported_d", "object_d", "sweep", "cell",
-                                                                  "weight")), aspect=self.aspect)
+                                                                  "weight")), aspect=self.aspect,
+                            dz=None if self.dz is None else self.dz[keep])
+
+    def free_sweeps(self) -> np.ndarray:
+        """The sweeps whose chart distance is fitted (an unknown of the model: `distance_columns`)."""
+        if self.dz is None:
+            return np.zeros(0, np.int64)
+        return np.unique(self.sweep[self.dz != 0])
+
+
+def distance_columns(obs: Observations) -> np.ndarray:
+    """(N, F) one column per sweep whose chart distance is fitted (`Observations.dz`): a shift of that chart's
+    distance by delta mm moves its tiles' objects by dz * delta diopters (linearised; `fit.fit_calibration`
+    iterates with the objects recomputed). Model: object_d + dz delta = g(r) + field."""
+    free = obs.free_sweeps()
+    if not len(free):
+        return np.zeros((len(obs), 0))
+    return np.stack([-np.where(obs.sweep == s, obs.dz, 0.0) for s in free], 1)
 
 
 @dataclass
@@ -126,6 +144,7 @@ class ModelFit:
     focus_degree: int = 0
     cv: list = field(default_factory=list)
     radial: int = 0
+    shifts_mm: dict = field(default_factory=dict)  # {sweep: its chart distance's fitted shift (mm)}
 
     def predict(self, x, y, reported_d) -> np.ndarray:
         """In-focus object diopters at field (x, y) for reported focus diopters (all broadcast together)."""
@@ -163,17 +182,22 @@ def _focus_error(name: str, p: np.ndarray, r_range: tuple[float, float]) -> Focu
 
 @one_blas_thread()  # many small solves: threads that meet after each step wait for any other process (machine.py)
 def fit_family(obs: Observations, name: str, degree: int, focus_degree: int, iterations: int = 6,
-               weight: np.ndarray | None = None, radial: int = 0, columns: np.ndarray | None = None
-               ) -> tuple[FocusError, FieldPoly, np.ndarray] | None:
+               weight: np.ndarray | None = None, radial: int = 0, columns: np.ndarray | None = None,
+               shifts: dict | None = None) -> tuple[FocusError, FieldPoly, np.ndarray] | None:
     """One family at one model order: (FocusError, FieldPoly, residuals (N,)) or None if it cannot be fitted.
     columns: `FieldBasis(degree, radial, obs.aspect).columns(obs.x, obs.y)` when the caller has them (the same for
-    every family, fold and replicate)."""
+    every family, fold and replicate). Sweeps whose chart distance is fitted (`Observations.dz`) get one unknown
+    each (`distance_columns`); shifts, when given, receives {sweep: fitted shift of its distance, mm}; the residuals
+    are against the shifted objects."""
     w = obs.weight if weight is None else weight
     r, d = obs.reported_d, obs.object_d
     fb = FieldBasis(degree, radial, obs.aspect)
     basis = fb.columns(obs.x, obs.y) if columns is None else columns  # (N, K)
     nk = basis.shape[1]
     fam, off = _family_columns(name, r)
+    dist = distance_columns(obs)
+    fam = np.column_stack([fam, dist])
+    n_fam = fam.shape[1] - dist.shape[1]
     r_range = (float(r.min()), float(r.max()))
     t = r.copy()
     sw = np.sqrt(np.maximum(w, 0))
@@ -187,7 +211,8 @@ def fit_family(obs: Observations, name: str, degree: int, focus_degree: int, ite
         sol, *_ = np.linalg.lstsq(a * sw[:, None], (d - off) * sw, rcond=None)
         if not np.all(np.isfinite(sol)):
             return None
-        p, c = sol[:fam.shape[1]], sol[fam.shape[1]:].reshape(nk, focus_degree + 1)
+        p, c = sol[:n_fam], sol[fam.shape[1]:].reshape(nk, focus_degree + 1)
+        delta = sol[n_fam:fam.shape[1]]
         fe = _focus_error(name, p, r_range)
         if fe is None:
             return None
@@ -203,7 +228,10 @@ def fit_family(obs: Observations, name: str, degree: int, focus_degree: int, ite
         t = t_new
     tt = fe.true_diopters(r)
     pred = tt + (np.polynomial.legendre.legvander(fp.tau(tt), focus_degree) @ fit_c.T * basis).sum(1)
-    return fe, fp, d - pred
+    if shifts is not None:
+        shifts.clear()
+        shifts.update({int(k): float(v) for k, v in zip(obs.free_sweeps(), delta)})
+    return fe, fp, d - dist @ delta - pred
 
 
 def bic(obs: Observations, residual: np.ndarray, k: int, weight: np.ndarray | None = None) -> float:
@@ -317,7 +345,10 @@ def fit_model(obs: Observations, degree: int | None = None, focus_degree: int | 
         raise ValueError("no focus-error family could be fitted to the tiles")
     best = select(fits)
     fe, fp, res, _ = fits[best]
-    return ModelFit(fe, fp, res, fits, degree, focus_degree, table, radial)
+    shifts: dict = {}
+    if len(obs.free_sweeps()):
+        fit_family(obs, best, degree, focus_degree, radial=radial, shifts=shifts)
+    return ModelFit(fe, fp, res, fits, degree, focus_degree, table, radial, shifts)
 
 
 @dataclass
@@ -331,6 +362,7 @@ class Bootstrap:
     grid_y: np.ndarray
     map_sd: np.ndarray
     replicates: int
+    shifts_mm: dict = field(default_factory=dict)  # {sweep: [lo, hi]} of a fitted chart distance's shift (mm)
 
 
 @one_blas_thread()
@@ -348,14 +380,15 @@ def bootstrap(obs: Observations, fit: ModelFit, n_boot: int = 100, seed: int = 0
     lo, hi = fit.field.focus_range_d
     mid_t = 0.5 * (lo + hi)
     maps = []
+    shift_draws: dict[int, list] = {}
     cols = FieldBasis(fit.degree, fit.radial, obs.aspect).columns(obs.x, obs.y)
     for _ in range(n_boot):
         w = obs.weight * rng.poisson(1.0, len(obs))
         if len(sweeps) >= 3:
             ws = rng.poisson(1.0, len(sweeps))
             w = w * ws[np.searchsorted(sweeps, obs.sweep)]
-        if w.sum() <= 0:
-            continue
+        if w.sum() <= 0 or (len(obs.free_sweeps()) and w[~np.isin(obs.sweep, obs.free_sweeps())].sum() <= 0):
+            continue  # (a replicate without any sweep of a measured distance cannot measure the focus error)
         fits = fit_all(obs, fit.degree, fit.focus_degree, weight=w, radial=fit.radial, columns=cols)
         if not fits:
             continue
@@ -365,13 +398,21 @@ def bootstrap(obs: Observations, fit: ModelFit, n_boot: int = 100, seed: int = 0
             params["bias_d"].append(fe.bias_d)
             params["scale"].append(fe.scale)
             maps.append(fp(xx, yy, [mid_t])[0])
+            if len(obs.free_sweeps()) and w[np.isin(obs.sweep, obs.free_sweeps())].sum() > 0:
+                sh: dict = {}
+                fit_family(obs, fit.focus.family, fit.degree, fit.focus_degree, weight=w, radial=fit.radial,
+                           columns=cols, shifts=sh)
+                for k, v in sh.items():
+                    if w[obs.sweep == k].sum() > 0:
+                        shift_draws.setdefault(k, []).append(v)
     a = (1 - level) / 2
     total = max(sum(wins.values()), 1)
     keys = {"offset": ["bias_d"], "scale": ["scale"]}.get(fit.focus.family, [])
     intervals = {k: [float(np.quantile(params[k], a)), float(np.quantile(params[k], 1 - a))]
                  for k in keys if params[k]}
     sd = np.std(np.array(maps), 0) if len(maps) > 1 else np.full((ny, nx), np.nan)
-    return Bootstrap({k: v / total for k, v in wins.items()}, intervals, gx, gy, sd, len(maps))
+    shifts = {k: [float(np.quantile(v, a)), float(np.quantile(v, 1 - a))] for k, v in shift_draws.items() if v}
+    return Bootstrap({k: v / total for k, v in wins.items()}, intervals, gx, gy, sd, len(maps), shifts)
 
 
 def with_intervals(fe: FocusError, boot: Bootstrap) -> FocusError:

@@ -126,7 +126,10 @@ class Geometry:
 @dataclass
 class SweepMeasurement:
     """A measured sweep: peaks; object_d (ny, nx) the tiles' object diopters from the sensor plane; view; geometry;
-    chart_distance_m on the optical axis (measured or from the pose)."""
+    chart_distance_m on the optical axis (measured or from the pose); depth_ratio (H, W) the chart plane's
+    distance from the pupil at each pixel over the one at the frame centre (what a change of the chart's distance
+    scales); fit_distance: the chart distance is an unknown of the fit, chart_distance_m only its start
+    (`fit.fit_calibration`)."""
 
     sweep: Sweep
     peaks: SweepPeaks
@@ -134,6 +137,32 @@ class SweepMeasurement:
     view: object
     geometry: Geometry
     chart_distance_m: float
+    depth_ratio: np.ndarray | None = None
+    fit_distance: bool = False
+
+    def object_dz(self) -> np.ndarray:
+        """(ny, nx) D of each tile's object per mm of the chart's distance on the axis (negative: farther is fewer
+        diopters); zeros without depth_ratio."""
+        if self.depth_ratio is None:
+            return np.zeros_like(self.object_d)
+        z_mm = self._z_mm(self.chart_distance_m)
+        return self.peaks.grid.mean(-1000.0 * self.depth_ratio / z_mm ** 2)
+
+    def _z_mm(self, distance_m: float) -> np.ndarray:
+        pupil = self.geometry.pupil_to_sensor_mm
+        return (1000.0 * distance_m - pupil) * self.depth_ratio + pupil
+
+    def at_distance(self, distance_m: float, how: str) -> SweepMeasurement:
+        """The same sweep with the chart at another distance on the axis (its tiles' objects recomputed)."""
+        from dataclasses import replace
+
+        z_mm = self._z_mm(distance_m)
+        if not np.all(z_mm > 0):
+            raise SweepError(f"{self.sweep.path}: a chart distance of {distance_m:.4g} m puts the chart's plane "
+                             "behind the camera")
+        geo = replace(self.geometry, how=how)
+        return replace(self, object_d=self.peaks.grid.mean(1000.0 / z_mm), chart_distance_m=float(distance_m),
+                       geometry=geo)
 
 
 def tile_px_for(width: int) -> int:
@@ -144,10 +173,13 @@ def tile_px_for(width: int) -> int:
 def measure_sweep(sweep: Sweep, layout: ChartLayout, distance_m: float | None = None,
                   pupil_to_sensor_mm: float | None = None, sensor_mm: tuple[float, float] | None = None,
                   measure: str = "mlap2", window_px: float = 15.0, prefilter_px: float = 1.0,
-                  estimator: str = "gauss", tile_px: int | None = None) -> SweepMeasurement:
+                  estimator: str = "gauss", tile_px: int | None = None, fit_distance: bool = False
+                  ) -> SweepMeasurement:
     """The chart's distance at every tile and every tile's focus peak. distance_m: measured from the sensor plane
     to the chart point at the frame centre (recommended); without it the distance comes from the pose, with the
-    focal length in pixels from the EXIF focal length and sensor_mm, else fitted from the chart's perspective."""
+    focal length in pixels from the EXIF focal length and sensor_mm, else fitted from the chart's perspective.
+    fit_distance: the distance (measured or from the pose) is only a start, fitted with the model from the
+    sweeps' consistency (`fit.fit_calibration`; a chart too near for a tape's millimetre)."""
     s, _, h, w = sweep.frames.shape
     view = best_view(sweep.frames, layout)
     if view is None:
@@ -209,5 +241,6 @@ def measure_sweep(sweep: Sweep, layout: ChartLayout, distance_m: float | None = 
         raise SweepError(f"{sweep.path}: the sweep does not bracket the chart: {int(unbracketed.sum())} of {n_tex} "
                          f"textured tiles are sharpest in the first or last frame (reported focus {near:.3g}..{far:.3g}"
                          f" m, chart at {lo:.3g}..{hi:.3g} m): extend the sweep beyond the chart on both sides")
-    return SweepMeasurement(sweep, pk, object_d, view, geo, axis_m)
+    ratio = (1000.0 * depth - pupil) / (1000.0 * axis_m - pupil)
+    return SweepMeasurement(sweep, pk, object_d, view, geo, axis_m, ratio.astype(np.float32), bool(fit_distance))
 

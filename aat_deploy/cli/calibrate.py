@@ -52,6 +52,23 @@ def _floats(text: str) -> list[float]:
     return v
 
 
+class Distances(list):
+    """--distance-m's metres (floats); fitted: the indices given as `~D` (only a start: the fit finds them)."""
+
+    fitted: frozenset = frozenset()
+
+
+def _distances(text: str) -> Distances:
+    """'D1,D2,~D3': metres per sweep; a leading ~ marks a distance the fit takes as an unknown (a chart too near
+    for a tape's millimetre; at least one must be measured)."""
+    parts = [t.strip() for t in text.split(",") if t.strip()]
+    out = Distances(_floats(",".join(t.lstrip("~") for t in parts)) if parts else _floats(text))
+    out.fitted = frozenset(i for i, t in enumerate(parts) if t.startswith("~"))
+    if len(out.fitted) == len(out):
+        raise argparse.ArgumentTypeError(f"every distance of {text!r} is marked ~ (fitted): measure at least one")
+    return out
+
+
 def prog(args) -> str:
     """The command's name in messages: `fit` also runs as `aat-lens focus-map --from-captures`, which sets it."""
     return getattr(args, "prog", None) or "aat-calibrate"
@@ -113,6 +130,7 @@ def cmd_fit(args) -> int:
         print(f"{prog(args)}: error: {e}", file=sys.stderr)
         return EXIT_USAGE
     cfg = FocusConfig()
+    fitted = getattr(args.distance_m, "fitted", frozenset())  # ~D: the fit finds that chart's distance
     measures, failed = [], 0
     for i, s in enumerate(sweeps):
         _say(args, f"{prog(args)}: measuring {s} ({i + 1}/{len(sweeps)})")
@@ -121,7 +139,8 @@ def cmd_fit(args) -> int:
                             allow_outside_links=args.allow_outside_links)
             measures.append(measure_sweep(sw, layout, None if args.distance_m is None else args.distance_m[i],
                                           args.pupil_to_sensor_mm, args.sensor_mm, cfg.measure, cfg.window_px,
-                                          cfg.prefilter_px))
+                                          cfg.prefilter_px,
+                                          fit_distance=i in fitted))
         except CaptureError as e:
             print(f"{prog(args)}: error: {e}", file=sys.stderr)
             failed += 1
@@ -129,7 +148,8 @@ def cmd_fit(args) -> int:
         print(f"{prog(args)}: {failed} of {len(sweeps)} sweeps unusable: nothing written", file=sys.stderr)
         return EXIT_FAILED
     settings = {"sweeps": [str(s) for s in sweeps], "chart": str(args.chart),
-                "distance_m": args.distance_m, "measure": cfg.measure, "window_px": cfg.window_px,
+                "distance_m": args.distance_m, "distance_fitted": sorted(fitted), "measure": cfg.measure,
+                "window_px": cfg.window_px,
                 "prefilter_px": cfg.prefilter_px, "estimator": "gauss", "max_side": args.max_side}
     try:
         res = fit_calibration(measures, n_boot=args.boot, sensor_mm=args.sensor_mm, settings=settings,
@@ -217,6 +237,11 @@ def summary(cal, out: Path | None = None, png: Path | None = None) -> dict:
          "focus_range_m": [round(near, 4), round(far, 4)],
          "residual_rms_d": cal.residuals.get("rms_d"), "residual_p95_d": cal.residuals.get("p95_d"),
          "tiles": cal.residuals.get("tiles")}
+    fitted = [{"sweep": p["sweep"], "chart_distance_m": p["chart_distance_m"], "given_m": p["distance_given_m"],
+               "interval_m": p.get("distance_ci_m")}
+              for p in cal.residuals.get("per_sweep", []) if "distance_given_m" in p]
+    if fitted:  # charts whose distance the fit found (--distance-m ~D)
+        d["fitted_distances"] = fitted
     return {k: v for k, v in d.items() if v is not None}
 
 
@@ -312,8 +337,10 @@ def add_fit_options(f: argparse.ArgumentParser) -> None:
     f.add_argument("--chart", help="the chart's layout (chart.json from `aat-calibrate chart`)")
     f.add_argument("--from-scenes", action="store_true", help="no chart: the folders are ordinary stacks of one "
                    "camera turned between them (blind calibration of the field term; docs/calibration.md)")
-    f.add_argument("--distance-m", type=_floats, metavar="D1,D2,...",
-                   help="per sweep, metres from the sensor plane to the chart at the frame centre (measured)")
+    f.add_argument("--distance-m", type=_distances, metavar="D1,D2,...",
+                   help="per sweep, metres from the sensor plane to the chart at the frame centre (measured); ~D: "
+                        "only a start, the fit finds it (a chart nearer than a tape's millimetre allows; at least "
+                        "one measured)")
     f.add_argument("--pupil-to-sensor-mm", type=float, help="entrance pupil's distance in front of the sensor "
                    "(default: the EXIF focal length)")
     f.add_argument("--sensor-mm", type=lambda t: _pair(t, "--sensor-mm"), metavar="W,H",

@@ -167,7 +167,7 @@ def run_variant(rig, variant: str, truths: dict, log) -> dict:
     sweeps = [B.sweep(rig, variant, i, log) for i in range(len(s.distances_m))]
     ms = B.measures(rig, sweeps, variant)
     res = fit_calibration(ms, n_boot=0)
-    res.sweeps_measured = ms
+    res.sweeps_measured = res.measures  # as fitted: a chart whose distance the fit found has its tiles' objects there
     obs = res.observations  # after the fit's outlier pass
     tiles = tile_table(res, rig, eff, scale)
     aspect = rig.w / rig.h

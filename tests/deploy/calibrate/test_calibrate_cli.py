@@ -301,3 +301,28 @@ def test_aat_lens_focus_map_from_captures_is_the_same_fit(rig, tmp_path, capsys)
             lens_main(argv)
         assert e.value.code == 2
     capsys.readouterr()
+
+
+def test_a_chart_distance_marked_fitted_is_found_by_the_fit(rig, tmp_path, capsys):
+    """`--distance-m 0.6,~1.03`: the second chart (truly at 1.0 m) given 30 mm off as only a start; the fit finds
+    its distance (the summary's `fitted_distances`, the file's per-sweep `distance_given_m`) and the map as with
+    both measured. Every distance marked ~ is a usage error with nothing written."""
+    out = tmp_path / "cam.json"
+    rc = cli.main(["fit", str(rig / "sweep0"), str(rig / "sweep1"), "--chart", str(rig / "chart.json"),
+                   "--distance-m", "0.6,~1.03", "--out", str(out), "--boot", "20", "-q"])
+    cap = capsys.readouterr()
+    assert rc == 0, cap.err
+    summary = json.loads(cap.out.strip().splitlines()[-1])
+    (fd,) = summary["fitted_distances"]
+    assert fd["given_m"] == pytest.approx(1.03) and abs(fd["chart_distance_m"] - 1.0) < 0.01, fd
+    cal = load_calibration(out)
+    per = cal.residuals["per_sweep"]
+    assert per[0]["distance_from"] == "measured distance" and "distance_given_m" not in per[0]
+    assert per[1]["distance_from"].startswith("fitted") and per[1]["chart_distance_m"] == fd["chart_distance_m"]
+    assert cal.fit["distance_fitted"] == [1]
+    assert float(in_focus_diopters(cal, [1.1], H, W)[0, H // 2, W // 2]) == pytest.approx(1.0, abs=0.01)
+    with pytest.raises(SystemExit) as e:
+        cli.main(["fit", str(rig / "sweep0"), str(rig / "sweep1"), "--chart", str(rig / "chart.json"),
+                  "--distance-m", "~0.6,~1.0", "--out", str(tmp_path / "none.json"), "-q"])
+    assert e.value.code == 2 and "measure at least one" in capsys.readouterr().err.strip().splitlines()[-1]
+    assert not (tmp_path / "none.json").exists()

@@ -143,6 +143,22 @@ def test_pose_from_markers_agrees_with_the_rendered_pose():
     np.testing.assert_allclose((z_c * ratio + pupil) / 1000, depth, rtol=0.004)
 
 
+def test_a_measured_sweep_moved_to_another_distance_is_measured_there():
+    """`SweepMeasurement.at_distance` (what the fit does with a chart distance it finds) gives the tiles' objects
+    that measuring at that distance gives, and `object_dz` is their derivative per mm; every chart distance to be
+    fitted is refused (the reported focus's error needs one measured)."""
+    sweep, layout, _, _, _ = render_sweep(0.7, (12.0, 3.0, 0.0), "")
+    pupil = small_rf50()[2]
+    a = measure_sweep(sweep, layout, distance_m=0.7, pupil_to_sensor_mm=pupil, fit_distance=True)
+    b = measure_sweep(sweep, layout, distance_m=0.72, pupil_to_sensor_mm=pupil)
+    moved = a.at_distance(0.72, "fitted")
+    np.testing.assert_allclose(moved.object_d, b.object_d, rtol=1e-5)
+    assert moved.chart_distance_m == 0.72 and moved.geometry.how == "fitted" and moved.fit_distance
+    np.testing.assert_allclose(a.object_dz() * 20.0, b.object_d - a.object_d, rtol=0.05)
+    with pytest.raises(SweepError, match="at least one sweep needs a measured distance"):
+        fit_calibration([a], n_boot=0)
+
+
 def test_tile_peaks_of_a_thin_lens_sweep_are_the_chart_distance():
     """Thin-lens blur is symmetric in diopters: each tile's peak is its object's diopters (RMS 0.003 D, all within
     0.01 D, no bias beyond 0.001 D)."""
