@@ -89,6 +89,7 @@ class LensSetup:
     inside_m: tuple | None = None  # part a's "inside" range (m; None: the charts' nearest and farthest distance)
     sweep_key: str | None = None  # the sweeps' cache name (None: key): a setup that adds charts reuses the others'
     fit_distance: tuple = ()  # indices of the charts whose distance the fit takes as an unknown (the tape's only a start)
+    step_px: float | None = None  # the sweeps' step in px of thin-lens blur where designed from it (None: SWEEP_STEP_PX)
 
     def inside(self) -> np.ndarray:
         """Part a's 10 reported-focus settings "inside" (true focus, m, near to far: even in diopters)."""
@@ -144,10 +145,14 @@ LENSES = {
 # focused at 7 cm has objects at 4.5-5.5 cm in focus, which no chart at 7 cm or farther shows there
 # (benchmarks/probes/phone_map_budget.py); a chart at 5.5 cm is sharp at the edge for frames focused at 7-9 cm.
 # Its distance is an unknown of the fit (`aat-calibrate fit --distance-m ...,~0.055`): the tape's 2 mm would put it
-# 0.6 D off (its draw here is -1.8 mm), and the fit finds it from the sweeps' consistency.
+# 0.6 D off (its draw here is -1.8 mm), and the fit finds it from the sweeps' consistency. Its sweeps are twice as
+# dense (0.7 px of blur per step, 0.55 D: 21-33 frames): with the near chart that took part a from 0.153-0.166 to
+# 0.130-0.138 D on the hand-chosen copy and the three random ones (without it, 0.155-0.188 to 0.191-0.209 D);
+# BENCHMARKS.md, "The phone's near chart".
 LENSES["cellphone_near"] = dataclasses.replace(
     LENSES["cellphone"], key="cellphone_near", distances_m=(0.07, 0.1, 0.18, 0.055),
-    tilts=((12, 4), (-9, -3), (8, 0), (6, 3)), inside_m=(0.07, 0.18), sweep_key="cellphone", fit_distance=(3,))
+    tilts=((12, 4), (-9, -3), (8, 0), (6, 3)), inside_m=(0.07, 0.18), sweep_key="cellphone", fit_distance=(3,),
+    step_px=0.7)
 NOMINAL = ("noise",)
 # Sweeps designed in pixels of blur (setups without step_d / margin_d): the RF50's sweeps are 1.4 px of thin-lens
 # blur per step and reach 10 px beyond the chart; their tiles' focus curves fall to half 3.4-4.0 px from the peak
@@ -167,7 +172,7 @@ def sweep_diopters(rig, near_d: float, far_d: float) -> np.ndarray:
     flo, fhi = rig.src.model.focus_range_m
     lo, hi = max(far_d - SWEEP_MARGIN_PX / rig.blur_px_per_d, 1.0 / fhi), \
         min(near_d + SWEEP_MARGIN_PX / rig.blur_px_per_d, 1.0 / flo)
-    step = min(SWEEP_STEP_PX / rig.blur_px_per_d, (hi - lo) / (MIN_SWEEP_FRAMES - 1))
+    step = min((s.step_px or SWEEP_STEP_PX) / rig.blur_px_per_d, (hi - lo) / (MIN_SWEEP_FRAMES - 1))
     return np.linspace(lo, hi, int(np.ceil((hi - lo) / step - 1e-9)) + 1)
 
 
@@ -326,6 +331,7 @@ def sweep(rig: Rig, variant: str, i: int, progress=print) -> dict:
     d, (tx, ty) = s.distances_m[i], s.tilts[i]
     effects = effects_for(s, variant)
     cells = "" if s.cell_px == 64 else f"_cells{s.cell_px}"
+    cells += "" if s.step_px is None else f"_step{s.step_px:g}px"
     f = CACHE / f"{s.sweep_key or s.key}_{variant if variant == 'nominal' else s.copy_name}_{d:g}m{cells}.npz"
     img, layout = chart_for(rig, d)
     sources = sweep_sources(s)
@@ -506,7 +512,11 @@ def part_map(rig: Rig, n_boot: int, log, variants: tuple = ("nominal", "copy")) 
                      "inside": e_in, "schedule": e_sched, "degree": res.model.degree, "radial": res.model.radial,
                      "focus_degree": res.model.focus_degree, "warnings": res.warnings,
                      "truth_family": truth_family(rig, eff, inside), "measure": rig.measure,
-                     "prefilter_px": rig.prefilter_px, "cell_px": s.cell_px})
+                     "prefilter_px": rig.prefilter_px, "cell_px": s.cell_px,
+                     "fitted_distances": [{k: p.get(k) for k in ("chart_distance_m", "distance_given_m",
+                                                                  "distance_ci_m")} | {"true_m": s.distances_m[i]}
+                                          for i, p in enumerate(cal.residuals["per_sweep"])
+                                          if "distance_given_m" in p]})
         log(f"  {s.key} {variant}: family {fe.family} scale {fe.scale:.4f} bias {fe.bias_d:+.4f}; map RMS "
             f"{e_in['calibration']['rms_d']:.4f} D inside, {e_sched['calibration']['rms_d']:.4f} D on the schedule")
     return rows, fits
@@ -728,6 +738,12 @@ def tables(res: dict) -> str:
                    f"{i['prescription map']['rms_d']:.4f} | {i['thin lens']['rms_d']:.4f} | "
                    f"{s['calibration']['rms_d']:.4f} / {s['calibration']['p95_d']:.4f} | "
                    f"{s['prescription map']['rms_d']:.4f} |")
+    fitted = [(r, f) for r in res.get("map", []) for f in r.get("fitted_distances", [])]
+    if fitted:  # charts whose distance the fit found (runs before 2026-11-27 fitted none)
+        out += ["", "Chart distances fitted (`--distance-m ...,~D`): " + "; ".join(
+            f"{r['lens']} {r['variant']}: {f['chart_distance_m'] * 1000:.2f} mm (given {f['distance_given_m'] * 1000:.2f}, "
+            f"true {f['true_m'] * 1000:.2f}" + (f", 95 % {f['distance_ci_m'][0] * 1000:.2f}-{f['distance_ci_m'][1] * 1000:.2f}"
+                                               if f.get("distance_ci_m") else "") + ")" for r, f in fitted)]
     rad = [r for r in res.get("map", []) if "radius_rms_d" in r.get("inside", {}).get("calibration", {})]
     if rad:  # runs before 2026-11-26 15:30 kept the zones only
         bins = list(rad[0]["inside"]["calibration"]["radius_rms_d"])
@@ -759,6 +775,17 @@ def tables(res: dict) -> str:
                        f"{fmt(d['cal/prescription mae'])} | {fmt(d['cal/prescription mae_outer'])} | "
                        f"{fmt(d['prescription/oracle mae'])} | {fmt(d['prescription/oracle mae_outer'])} | "
                        f"{thin[0]} | {thin[1]} | {in_d[0]} | {in_d[1]} |")
+        # setups of one lens scored on the same scenes through the same copy (the oracle's MAE per scene equal: e.g.
+        # cellphone and cellphone_near): their calibrations paired
+        same = [(a, b) for i, a in enumerate(res["depth"]) for b in list(res["depth"])[i + 1:]
+                if res["depth"][a]["per_scene"]["oracle"] == res["depth"][b]["per_scene"]["oracle"]]
+        if same:
+            out += ["", "| calibration of / calibration of (the same scenes and copy) | MAE | outer | MAE in D |",
+                    "|---|---|---|---|"]
+            for a, b in same:
+                pa, pb = res["depth"][b]["per_scene"]["calibration"], res["depth"][a]["per_scene"]["calibration"]
+                out.append(f"| {b} / {a} | " + " | ".join(fmt(paired_ratio(pa, pb, z)) for z in
+                                                          ("mae", "mae_outer", "mae_d")) + " |")
         blind = [(lens, k, d) for lens, d in res["depth"].items() for k in BLIND_MAPPINGS if k in d]
         if blind:
             out += ["", "| lens | mapping | / prescription map, MAE | outer | MAE in D | / chart calibration, MAE | "

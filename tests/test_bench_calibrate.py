@@ -326,12 +326,29 @@ def test_truth_at_field_points_is_the_truth_at_those_pixels():
 
 
 def test_the_phone_with_a_near_chart_keeps_the_phones_charts_range_and_sweeps(tmp_path, monkeypatch):
-    """cellphone_near adds a chart at 5.5 cm after the phone's three: the same first three charts (distances, tilts,
-    the copy), the same part a range (7-18 cm, not down to 5.5 cm), and the three sweeps read from the phone's cache
-    names (their seeds and tape errors follow the order, unchanged)."""
+    """cellphone_near adds a chart at 5.5 cm after the phone's three, its distance fitted (`fit_distance`): the
+    same first three charts (distances, tilts, the copy), the same part a range (7-18 cm, not down to 5.5 cm), the
+    lens's own random copies, and its sweeps twice as dense (0.7 px of blur per step), cached apart from the
+    phone's under the phone's names with the step (their seeds and tape errors follow the order, unchanged)."""
     p, n = bc.LENSES["cellphone"], bc.LENSES["cellphone_near"]
     assert n.distances_m[:3] == p.distances_m and n.tilts[:3] == p.tilts and n.copy_effects == p.copy_effects
     assert n.distances_m[3] == 0.055 and len(n.tilts) == 4
+    assert n.fit_distance == (3,) and p.fit_distance == () and n.step_px == 0.7 and p.step_px is None
+    assert _copies("cellphone_near", 3, n_el=6) == _copies("cellphone", 3, n_el=6)
+
+    class Rig:  # sweep_diopters' needs: the setup, the lens's blur per diopter, its surrogate's focus range
+        blur_px_per_d = 1.26
+
+        class src:
+            class model:
+                focus_range_m = (0.05, 2.0)
+
+    coarse, fine = Rig(), Rig()
+    coarse.setup, fine.setup = p, n
+    a, b = bc.sweep_diopters(coarse, 14.0, 11.0), bc.sweep_diopters(fine, 14.0, 11.0)
+    assert a[0] == b[0] and a[-1] == b[-1]  # the same reach
+    assert np.mean(np.diff(a)) == pytest.approx(1.4 / 1.26, rel=0.1) and np.mean(np.diff(b)) == pytest.approx(
+        0.7 / 1.26, rel=0.1) and len(b) >= 2 * len(a) - 2
     np.testing.assert_array_equal(n.inside(), p.inside())
     assert n.inside().max() == pytest.approx(0.18) and n.inside().min() == pytest.approx(0.07)
     names = []
@@ -360,5 +377,5 @@ def test_the_phone_with_a_near_chart_keeps_the_phones_charts_range_and_sweeps(tm
         with pytest.raises(Stop):
             bc.sweep(R(), "copy", i)
     monkeypatch.setattr(bc.Path, "is_file", real_is_file)
-    assert names == ["cellphone_copy_0.07m.npz", "cellphone_copy_0.1m.npz", "cellphone_copy_0.18m.npz",
-                     "cellphone_copy_0.055m.npz"]
+    assert names == ["cellphone_copy_0.07m_step0.7px.npz", "cellphone_copy_0.1m_step0.7px.npz",
+                     "cellphone_copy_0.18m_step0.7px.npz", "cellphone_copy_0.055m_step0.7px.npz"]

@@ -13,7 +13,8 @@ the PNG carries its dpi; check a marker's size with a ruler). fit: per sweep the
 and each tile's focus peak; the smooth per-position best-focus model, the reported focus's error and the blur
 growth, with bootstrap intervals; writes mycam.json (format aat-camera-calibration-v1, docs/contracts.md) and
 mycam.png (the maps). Nothing is written when any sweep is unusable (one line each). --distance-m: per sweep, the
-distance from the camera's sensor plane to the chart at the frame centre (tape or laser meter). shoot: the
+distance from the camera's sensor plane to the chart at the frame centre (tape or laser meter); ~D marks one the
+fit finds (a chart too near for a tape's millimetre; at least one measured). shoot: the
 virtual camera photographs the chart at a pose through a lens with any registered effects (a sweep folder of
 DNGs with the true geometry in virtual_camera.json; torch-free with the lens's PSF surrogate). --from-scenes: no
 chart; ordinary stacks from a camera turned between them: the field term under which their estimates agree
