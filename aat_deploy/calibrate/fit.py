@@ -153,6 +153,7 @@ def fit_calibration(measures: list[SweepMeasurement], n_boot: int = 100, degree:
         raise SweepError(f"{measures[0].sweep.path}: every chart distance is to be fitted: at least one sweep needs "
                          "a measured distance (the reported focus's error is measured against it)")
     start = {i: m.chart_distance_m for i, m in enumerate(measures) if m.fit_distance}
+    from_pose = {i for i in start if measures[i].geometry.how == "pose"}  # `--distance-m ...,~`: the markers' start
     obs = observations(measures)
     if len(obs) < MIN_TILES:
         raise SweepError(f"{measures[0].sweep.path}: only {len(obs)} tiles with a bracketed focus peak over all "
@@ -193,10 +194,12 @@ def fit_calibration(measures: list[SweepMeasurement], n_boot: int = 100, degree:
     for i, m in enumerate(measures):
         r = res[obs.sweep == i]
         extra = {}
-        if i in start:  # the distance as given, and the fitted one's bootstrap interval (mm of shift from it)
+        if i in start:  # the distance as started, and the fitted one's bootstrap interval (mm of shift from it)
             ci = boot.shifts_mm.get(i)
             extra = {"distance_given_m": round(start[i], 5),
                      "distance_ci_m": None if ci is None else [round(m.chart_distance_m + v / 1000.0, 5) for v in ci]}
+            if i in from_pose:  # the start was the chart's marker pose, not a number given
+                extra["distance_start_from"] = "marker pose"
         per_sweep.append({"sweep": str(m.sweep.path), "tiles": int(len(r)),
                           "chart_distance_m": round(m.chart_distance_m, 5 if i in start else 4),
                           "distance_from": m.geometry.how, **extra,

@@ -21,11 +21,12 @@ from ..capture.raw import load_frame
 from ..errors import CaptureError
 from .chart import ChartLayout
 from .peaks import SweepPeaks, TileGrid, tile_peaks
-from .pose import best_view, focal_from_view, intrinsics_matrix, plane_depth_mm, pose_from_view
+from .pose import best_view, focal_from_view, focal_profile_rel, intrinsics_matrix, plane_depth_mm, pose_from_view
 
 MIN_TEXTURED_SHARE = 0.1  # of the frame's tiles: a chart covering less says little about the field
 MIN_BRACKETED_SHARE = 0.5
 MIN_FRAMES = 5
+MAX_START_FOCAL_REL = 0.1  # a bare `~`'s start from the pose: a focal length within 10 % (the fit does the rest)
 
 
 class SweepError(CaptureError):
@@ -178,8 +179,9 @@ def measure_sweep(sweep: Sweep, layout: ChartLayout, distance_m: float | None = 
     """The chart's distance at every tile and every tile's focus peak. distance_m: measured from the sensor plane
     to the chart point at the frame centre (recommended); without it the distance comes from the pose, with the
     focal length in pixels from the EXIF focal length and sensor_mm, else fitted from the chart's perspective.
-    fit_distance: the distance (measured or from the pose) is only a start, fitted with the model from the
-    sweeps' consistency (`fit.fit_calibration`; a chart too near for a tape's millimetre)."""
+    fit_distance: the distance (measured, or without distance_m from the pose: `--distance-m ...,~`) is only a
+    start, fitted with the model from the sweeps' consistency (`fit.fit_calibration`; a chart too near for a tape's
+    millimetre). SweepError (one line naming the folder) when a distance is needed from markers that give no pose."""
     s, _, h, w = sweep.frames.shape
     view = best_view(sweep.frames, layout)
     if view is None:
@@ -207,20 +209,38 @@ def measure_sweep(sweep: Sweep, layout: ChartLayout, distance_m: float | None = 
         geo = Geometry(pupil, "measured distance", f_px, notes)
         axis_m = float(distance_m)
     else:
+        if fit_distance:  # a bare `~`: the fit's start is the marker pose
+            why = f"{sweep.path}: a distance marked ~ alone starts from the chart's marker pose, and there is none"
+            fix = ("give a start (~D, metres from the sensor plane to the chart at the frame centre), or "
+                   "--sensor-mm with EXIF focal length, or tilt the chart 15-30 degrees so its perspective gives "
+                   "the focal length")
+        else:
+            why = f"{sweep.path}: no chart distance"
+            fix = ("give --distance-m (measured from the sensor plane to the chart at the frame centre), or "
+                   "--sensor-mm with EXIF focal length, or tilt the chart 15-30 degrees so its perspective gives the "
+                   "focal length")
         if f_px is None:
             f_px, rel = focal_from_view(view, w, h)
             if not (math.isfinite(f_px) and rel < 0.01):
-                raise SweepError(f"{sweep.path}: no chart distance and the focal length in pixels is unknown: give "
-                                 "--distance-m (measured from the sensor plane to the chart at the frame centre), "
-                                 "or --sensor-mm with EXIF focal length, or tilt the chart 15-30 degrees so its "
-                                 "perspective gives the focal length")
+                raise SweepError(f"{why}: the focal length in pixels is unknown: {fix}")
+            if fit_distance:  # the start's own check (OpenCV's rel reads 0 % even for a chart square to the camera)
+                rel = focal_profile_rel(view, f_px, w, h)
+                if not rel < MAX_START_FOCAL_REL:
+                    raise SweepError(f"{why}: the chart is too square to the camera for its perspective to give the "
+                                     f"focal length in pixels ({f'+-{100 * rel:.0f} %' if math.isfinite(rel) else 'undetermined'}): {fix}")
             notes.append(f"focal length {f_px:.1f} px fitted from the chart's perspective (+-{100 * rel:.2g} %)")
-        r, t, _ = pose_from_view(view, intrinsics_matrix(f_px, w, h))
-        z = plane_depth_mm(r, t, intrinsics_matrix(f_px, w, h), uu, vv)
+        k = intrinsics_matrix(f_px, w, h)
+        try:
+            r, t, _ = pose_from_view(view, k)
+        except (ValueError, cv2.error):
+            raise SweepError(f"{why}: the markers' pose could not be solved: {fix}") from None
+        z = plane_depth_mm(r, t, k, uu, vv)
         depth = (z + pupil) / 1000.0
-        geo = Geometry(pupil, "pose", f_px, notes + ["chart distance from the marker pose (no --distance-m): its "
-                                                     "error scales every distance of this sweep"])
-        axis_m = float(plane_depth_mm(r, t, intrinsics_matrix(f_px, w, h), cx, cy) + pupil) / 1000.0
+        axis_m = float(plane_depth_mm(r, t, k, cx, cy) + pupil) / 1000.0
+        if not (math.isfinite(axis_m) and axis_m > 0):
+            raise SweepError(f"{why}: the markers' pose puts the chart behind the camera (markers mismatched?)")
+        geo = Geometry(pupil, "pose", f_px, notes + ([] if fit_distance else [
+            "chart distance from the marker pose (no --distance-m): its error scales every distance of this sweep"]))
     if not np.all(depth > 0):
         raise SweepError(f"{sweep.path}: the chart's plane passes behind the camera (markers mismatched?)")
     mask = view.chart_mask(h, w, layout, margin_mm=0.02 * min(layout.size_mm))

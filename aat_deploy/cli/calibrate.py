@@ -14,7 +14,8 @@ and each tile's focus peak; the smooth per-position best-focus model, the report
 growth, with bootstrap intervals; writes mycam.json (format aat-camera-calibration-v1, docs/contracts.md) and
 mycam.png (the maps). Nothing is written when any sweep is unusable (one line each). --distance-m: per sweep, the
 distance from the camera's sensor plane to the chart at the frame centre (tape or laser meter); ~D marks one the
-fit finds (a chart too near for a tape's millimetre; at least one measured). shoot: the
+fit finds (a chart too near for a tape's millimetre; at least one measured), D only its start; a bare ~ starts it
+from the chart's marker pose (no tape at all). shoot: the
 virtual camera photographs the chart at a pose through a lens with any registered effects (a sweep folder of
 DNGs with the true geometry in virtual_camera.json; torch-free with the lens's PSF surrogate). --from-scenes: no
 chart; ordinary stacks from a camera turned between them: the field term under which their estimates agree
@@ -54,19 +55,26 @@ def _floats(text: str) -> list[float]:
 
 
 class Distances(list):
-    """--distance-m's metres (floats); fitted: the indices given as `~D` (only a start: the fit finds them)."""
+    """--distance-m's metres per sweep (float, or None for a bare `~`); fitted: the indices marked `~` (`~D`: D is
+    only a start; bare `~`: the start is the chart's marker pose; the fit finds them)."""
 
     fitted: frozenset = frozenset()
 
 
 def _distances(text: str) -> Distances:
-    """'D1,D2,~D3': metres per sweep; a leading ~ marks a distance the fit takes as an unknown (a chart too near
-    for a tape's millimetre; at least one must be measured)."""
+    """'D1,D2,~D3,~': metres per sweep; a leading ~ marks a distance the fit takes as an unknown (a chart too near
+    for a tape's millimetre), the number after it only the start; a bare ~ starts it from the chart's marker pose.
+    At least one must be measured."""
     parts = [t.strip() for t in text.split(",") if t.strip()]
-    out = Distances(_floats(",".join(t.lstrip("~") for t in parts)) if parts else _floats(text))
-    out.fitted = frozenset(i for i, t in enumerate(parts) if t.startswith("~"))
-    if len(out.fitted) == len(out):
+    if not parts:
+        _floats(text)  # raises: no numbers
+    fitted = frozenset(i for i, t in enumerate(parts) if t.startswith("~"))
+    if len(fitted) == len(parts):
         raise argparse.ArgumentTypeError(f"every distance of {text!r} is marked ~ (fitted): measure at least one")
+    given = [t.lstrip("~").strip() for t in parts]
+    nums = iter(_floats(",".join(g for g in given if g)))
+    out = Distances(next(nums) if g else None for g in given)
+    out.fitted = fitted
     return out
 
 
@@ -239,9 +247,9 @@ def summary(cal, out: Path | None = None, png: Path | None = None) -> dict:
          "residual_rms_d": cal.residuals.get("rms_d"), "residual_p95_d": cal.residuals.get("p95_d"),
          "tiles": cal.residuals.get("tiles")}
     fitted = [{"sweep": p["sweep"], "chart_distance_m": p["chart_distance_m"], "given_m": p["distance_given_m"],
-               "interval_m": p.get("distance_ci_m")}
+               "start_from": p.get("distance_start_from", "--distance-m"), "interval_m": p.get("distance_ci_m")}
               for p in cal.residuals.get("per_sweep", []) if "distance_given_m" in p]
-    if fitted:  # charts whose distance the fit found (--distance-m ~D)
+    if fitted:  # charts whose distance the fit found (--distance-m ~D, or ~ from the marker pose)
         d["fitted_distances"] = fitted
     return {k: v for k, v in d.items() if v is not None}
 
@@ -341,7 +349,7 @@ def add_fit_options(f: argparse.ArgumentParser) -> None:
     f.add_argument("--distance-m", type=_distances, metavar="D1,D2,...",
                    help="per sweep, metres from the sensor plane to the chart at the frame centre (measured); ~D: "
                         "only a start, the fit finds it (a chart nearer than a tape's millimetre allows; at least "
-                        "one measured)")
+                        "one measured); a bare ~: the fit finds it starting from the chart's marker pose")
     f.add_argument("--pupil-to-sensor-mm", type=float, help="entrance pupil's distance in front of the sensor "
                    "(default: the EXIF focal length)")
     f.add_argument("--sensor-mm", type=lambda t: _pair(t, "--sensor-mm"), metavar="W,H",

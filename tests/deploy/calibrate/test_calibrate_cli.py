@@ -321,8 +321,45 @@ def test_a_chart_distance_marked_fitted_is_found_by_the_fit(rig, tmp_path, capsy
     assert per[1]["distance_from"].startswith("fitted") and per[1]["chart_distance_m"] == fd["chart_distance_m"]
     assert cal.fit["distance_fitted"] == [1]
     assert float(in_focus_diopters(cal, [1.1], H, W)[0, H // 2, W // 2]) == pytest.approx(1.0, abs=0.01)
-    with pytest.raises(SystemExit) as e:
-        cli.main(["fit", str(rig / "sweep0"), str(rig / "sweep1"), "--chart", str(rig / "chart.json"),
-                  "--distance-m", "~0.6,~1.0", "--out", str(tmp_path / "none.json"), "-q"])
-    assert e.value.code == 2 and "measure at least one" in capsys.readouterr().err.strip().splitlines()[-1]
-    assert not (tmp_path / "none.json").exists()
+    # a bare ~: no tape at all, the start is the chart's marker pose (focal length from its perspective); the fit
+    # finds the same distance as from the tape's start, and the file says where the start came from
+    out2 = tmp_path / "cam2.json"
+    rc = cli.main(["fit", str(rig / "sweep0"), str(rig / "sweep1"), "--chart", str(rig / "chart.json"),
+                   "--distance-m", "0.6,~", "--out", str(out2), "--boot", "20", "-q"])
+    cap = capsys.readouterr()
+    assert rc == 0, cap.err
+    (fd2,) = json.loads(cap.out.strip().splitlines()[-1])["fitted_distances"]
+    assert fd2["start_from"] == "marker pose" and fd["start_from"] == "--distance-m"
+    assert fd2["given_m"] != pytest.approx(1.03) and abs(fd2["given_m"] - 1.0) < 0.05, fd2  # the pose's start
+    assert abs(fd2["chart_distance_m"] - fd["chart_distance_m"]) < 0.0005 and abs(fd2["chart_distance_m"] - 1.0) < 0.01
+    cal2 = load_calibration(out2)
+    per2 = cal2.residuals["per_sweep"]
+    assert per2[1]["distance_start_from"] == "marker pose" and "distance_start_from" not in per[1]
+    assert per2[1]["distance_from"].startswith("fitted") and per2[1]["distance_given_m"] == fd2["given_m"]
+    assert cal2.fit["distance_m"] == [0.6, None] and cal2.fit["distance_fitted"] == [1]
+    assert float(in_focus_diopters(cal2, [1.1], H, W)[0, H // 2, W // 2]) == pytest.approx(1.0, abs=0.01)
+    for every in ("~0.6,~1.0", "~,~", "~0.6,~"):
+        with pytest.raises(SystemExit) as e:
+            cli.main(["fit", str(rig / "sweep0"), str(rig / "sweep1"), "--chart", str(rig / "chart.json"),
+                      "--distance-m", every, "--out", str(tmp_path / "none.json"), "-q"])
+        assert e.value.code == 2 and "measure at least one" in capsys.readouterr().err.strip().splitlines()[-1]
+        assert not (tmp_path / "none.json").exists()
+
+
+def test_a_bare_fitted_distance_without_a_marker_pose_is_one_line_with_nothing_written(rig, tmp_path, capsys):
+    """`--distance-m 0.6,~` where the second chart is square to the camera: with no EXIF focal length in pixels
+    (no --sensor-mm) its perspective cannot give the focal length, so the markers give no pose to start from: one
+    line naming the sweep folder, exit 1, nothing written."""
+    square = tmp_path / "square"
+    assert cli.main(["shoot", "--chart", str(rig / "chart.png"), "--lens", str(rig / "small_rf50.json"),
+                     "--distance-m", "1.0", "--step-d", "0.1", "--effects", "focus_metadata:bias_d=0:scale=1.1",
+                     "--out", str(square), "-q"]) == 0
+    capsys.readouterr()
+    out = tmp_path / "cam.json"
+    rc = cli.main(["fit", str(rig / "sweep0"), str(square), "--chart", str(rig / "chart.json"),
+                   "--distance-m", "0.6,~", "--out", str(out), "--boot", "20", "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 1 and not out.exists() and not out.with_suffix(".png").exists()
+    (line,) = [e for e in err if e.startswith("aat-calibrate: error:")]
+    assert f"{square}: a distance marked ~ alone starts from the chart's marker pose, and there is none" in line
+    assert "too square" in line and "~D" in line and err[-1].endswith("nothing written")
