@@ -187,28 +187,29 @@ def pose_from_view(view: ChartView, k: np.ndarray) -> tuple[np.ndarray, np.ndarr
 
 
 def focal_from_view(view: ChartView, width: int, height: int) -> tuple[float, float]:
-    """(f_px, relative uncertainty) from one tilted view, principal point at the centre, square pixels, no
-    distortion (Zhang's constraints on one homography, refined by OpenCV's calibration). A chart square to the
-    camera leaves the focal length undetermined: the uncertainty is then large (or infinite)."""
+    """(f_px, relative standard error) from one tilted view, principal point at the centre, square pixels, no
+    distortion (Zhang's constraints on one homography, refined by OpenCV's calibration). The error is
+    `focal_profile_rel`'s: OpenCV's own deviation reads 0 % with the aspect ratio fixed, even for a chart square
+    to the camera, which leaves the focal length undetermined (a large or infinite error)."""
     obj = np.column_stack([view.object_mm, np.zeros(len(view.object_mm))]).astype(np.float32)
     k0 = intrinsics_matrix(float(max(width, height)), width, height)
     flags = (cv2.CALIB_USE_INTRINSIC_GUESS | cv2.CALIB_FIX_PRINCIPAL_POINT | cv2.CALIB_FIX_ASPECT_RATIO
              | cv2.CALIB_ZERO_TANGENT_DIST | cv2.CALIB_FIX_K1 | cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3)
     try:
-        rms, k, _, _, _, std_in, _, _ = cv2.calibrateCameraExtended(
+        _, k, *_ = cv2.calibrateCameraExtended(
             [obj], [view.image_px.astype(np.float32)], (width, height), k0, np.zeros(5), flags=flags)
     except cv2.error:
         return math.nan, math.inf
     f = float(k[0, 0])
-    sd = float(std_in.ravel()[0]) if std_in is not None and std_in.size else math.inf
-    return f, (sd / f if f > 0 and math.isfinite(sd) else math.inf)
+    if not (math.isfinite(f) and f > 0):
+        return math.nan, math.inf
+    return f, focal_profile_rel(view, f, width, height)
 
 
 def focal_profile_rel(view: ChartView, f_px: float, width: int, height: int, step: float = 0.1) -> float:
     """Relative standard error of a focal length in pixels from the markers themselves: the curvature of the PnP
     reprojection's sum of squares in the focal length's log (f_px x (1 +- step)), against the residual's own
-    variance. A chart square to the camera leaves the sum flat: inf. (`focal_from_view`'s OpenCV deviation is not
-    this: with the aspect ratio fixed it reads 0 % even for a square chart.)"""
+    variance. A chart square to the camera leaves the sum flat: inf."""
     n = 2 * len(view.image_px)
     if not (math.isfinite(f_px) and f_px > 0) or n <= 7:
         return math.inf

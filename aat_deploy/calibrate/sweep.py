@@ -21,11 +21,12 @@ from ..capture.raw import load_frame
 from ..errors import CaptureError
 from .chart import ChartLayout
 from .peaks import SweepPeaks, TileGrid, tile_peaks
-from .pose import best_view, focal_from_view, focal_profile_rel, intrinsics_matrix, plane_depth_mm, pose_from_view
+from .pose import best_view, focal_from_view, intrinsics_matrix, plane_depth_mm, pose_from_view
 
 MIN_TEXTURED_SHARE = 0.1  # of the frame's tiles: a chart covering less says little about the field
 MIN_BRACKETED_SHARE = 0.5
 MIN_FRAMES = 5
+MAX_POSE_FOCAL_REL = 0.01  # a distance from the pose alone: its error is the focal length's (1 %: 0.01 D at 1 m)
 MAX_START_FOCAL_REL = 0.1  # a bare `~`'s start from the pose: a focal length within 10 % (the fit does the rest)
 
 
@@ -221,13 +222,12 @@ def measure_sweep(sweep: Sweep, layout: ChartLayout, distance_m: float | None = 
                    "focal length")
         if f_px is None:
             f_px, rel = focal_from_view(view, w, h)
-            if not (math.isfinite(f_px) and rel < 0.01):
-                raise SweepError(f"{why}: the focal length in pixels is unknown: {fix}")
-            if fit_distance:  # the start's own check (OpenCV's rel reads 0 % even for a chart square to the camera)
-                rel = focal_profile_rel(view, f_px, w, h)
-                if not rel < MAX_START_FOCAL_REL:
-                    raise SweepError(f"{why}: the chart is too square to the camera for its perspective to give the "
-                                     f"focal length in pixels ({f'+-{100 * rel:.0f} %' if math.isfinite(rel) else 'undetermined'}): {fix}")
+            limit = MAX_START_FOCAL_REL if fit_distance else MAX_POSE_FOCAL_REL
+            if not (math.isfinite(f_px) and rel < limit):
+                got = f"+-{100 * rel:.1f} %" if math.isfinite(rel) else "undetermined"
+                raise SweepError(f"{why}: the chart is too square to the camera (or too small in the frame): its "
+                                 f"perspective gives the focal length in pixels only to {got} "
+                                 f"(need under {100 * limit:.0f} %): {fix}")
             notes.append(f"focal length {f_px:.1f} px fitted from the chart's perspective (+-{100 * rel:.2g} %)")
         k = intrinsics_matrix(f_px, w, h)
         try:

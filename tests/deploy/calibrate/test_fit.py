@@ -143,6 +143,22 @@ def test_pose_from_markers_agrees_with_the_rendered_pose():
     np.testing.assert_allclose((z_c * ratio + pupil) / 1000, depth, rtol=0.004)
 
 
+def test_the_focal_length_from_a_chart_states_its_own_error_and_a_square_chart_gives_no_distance():
+    """`focal_from_view`'s relative error is the markers' own (OpenCV's deviation read 0 % with the aspect ratio
+    fixed, even square to the camera): on the tilted chart it is a few % and covers the true error; square to the
+    camera it is over 10 %, and a sweep with neither a distance nor EXIF focal length is refused in one line
+    naming it (before, that check could never refuse)."""
+    sweep, layout, _, _, _ = render_sweep(0.8, (18.0, -7.0, 4.0), "")
+    f_px = small_rf50()[1]
+    f_fit, rel = focal_from_view(best_view(sweep.frames, layout), W, H)
+    assert 0.001 < rel < 0.1 and abs(f_fit / f_px - 1) < 3 * rel, (f_fit / f_px, rel)
+    square, layout, _, _, _ = render_sweep(0.8, (0.0, 0.0, 0.0), "")
+    assert not focal_from_view(best_view(square.frames, layout), W, H)[1] < 0.1
+    with pytest.raises(SweepError, match="too square to the camera") as e:
+        measure_sweep(square, layout, distance_m=None, pupil_to_sensor_mm=small_rf50()[2])
+    assert str(square.path) in str(e.value) and "\n" not in str(e.value)
+
+
 def test_a_measured_sweep_moved_to_another_distance_is_measured_there():
     """`SweepMeasurement.at_distance` (what the fit does with a chart distance it finds) gives the tiles' objects
     that measuring at that distance gives, and `object_dz` is their derivative per mm; every chart distance to be
