@@ -385,6 +385,11 @@ def check_sweep_sources(path: Path, z, sources: dict) -> None:
                          "again (nothing was deleted)")
 
 
+def measured_setup(rig: Rig, variant: str, progress=print) -> list:
+    """Every chart of `rig`'s setup shot through `variant` and measured (what the probes start from)."""
+    return measures(rig, [sweep(rig, variant, i, progress) for i in range(len(rig.setup.distances_m))], variant)
+
+
 def measures(rig: Rig, sweeps: list[dict], variant: str, keep_every: int = 1):
     """Measured sweeps as `aat-calibrate fit` measures them (tape-measured distances)."""
     from aat_deploy.calibrate.sweep import Sweep, measure_sweep

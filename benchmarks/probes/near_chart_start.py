@@ -28,8 +28,7 @@ def main(argv=None) -> int:
     log = lambda m: print(m, file=sys.stderr, flush=True)
     setup = B.LENSES["cellphone_near"]
     rig = B.Rig(setup)
-    sw = [B.sweep(rig, a.variant, i, log) for i in range(len(setup.distances_m))]
-    ms = B.measures(rig, sw, a.variant)
+    ms = B.measured_setup(rig, a.variant, log)
     free = setup.fit_distance[0]
     eff = B.effects_for(setup, a.variant)
     rows = []

@@ -27,8 +27,7 @@ def main(argv=None) -> int:
     log = lambda m: print(m, file=sys.stderr, flush=True)
     setup = B.LENSES["cellphone_near"]
     rig = B.Rig(setup)
-    sw = [B.sweep(rig, a.variant, i, log) for i in range(len(setup.distances_m))]
-    ms = B.measures(rig, sw, a.variant)
+    ms = B.measured_setup(rig, a.variant, log)
     eff = B.effects_for(setup, a.variant)
     rows = []
     for fd in (None, 1, 2, 3):
