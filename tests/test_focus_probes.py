@@ -1,8 +1,11 @@
 """The issue-32 probes' arithmetic on hand-made cases: a frame's focus error split over regions
 (`benchmarks/probes/focus_frame_regions.py`) and a family refitted to the per-frame estimates
-(`benchmarks/probes/focus_family_on_estimates.py`)."""
+(`benchmarks/probes/focus_family_on_estimates.py`), and the systematic allowances compared from stored fits
+(`benchmarks/probes/focus_systematic_level.py`)."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 
@@ -43,3 +46,104 @@ def test_a_family_refitted_to_the_estimates_is_their_weighted_least_squares():
     assert np.allclose(fe.refit(row), rep - b)
     assert abs(b - 0.05) < 0.002
     assert fe.refit(dict(row, family="quantisation")) is None  # not linear in its parameters: not refitted
+
+
+def level_sweep():
+    """A far scene (every region 2-6 m away) seen over the shipped sample's focus (0.6-6 m), its curves a third as
+    steep as `tests/deploy/diagnose/test_focusfit.py`'s and the frames' levels off by 0.15 log (sd): most frames see
+    nothing in focus, the level misfit times the nearest frame's sensitivity exceeds the median-scaled allowance."""
+    from aat_deploy.diagnose import focusfit as ff
+
+    rng = np.random.default_rng(0)
+    true = np.linspace(1 / 0.6, 1 / 6.0, 8)[None]
+    grid = np.arange(0.0, 2.2, 0.06)
+    depth = rng.uniform(0.17, 0.5, size=54)
+    peak = lambda dd, f: -np.log1p(((f[..., None, :] - dd[:, None]) / 0.15) ** 2) * 1.5
+    cap = np.stack([peak(depth[r:r + 1], true[0])[0] for r in range(54)])[None] / 3
+    cap = cap + rng.normal(0, 0.4, size=(1, 54, 1)) + rng.normal(0, 0.005, size=cap.shape) + rng.normal(0, 0.15, 8)
+    xy = np.stack([np.tile(np.linspace(-0.9, 0.9, 9), 6), np.repeat(np.linspace(0.8, -0.8, 6), 9)], 1)
+    return ff.SweepData(grid, peak(depth, grid)[None] / 3, cap, true.copy(), true.copy(), xy), true
+
+
+def level_rows(true: np.ndarray) -> list[dict]:
+    """Stored fits of one scene: its untouched copy and a copy reported at 1.1 x the distance, both fitted exactly
+    (their per-frame estimates the truth)."""
+    t = true.tolist()
+    common = {"capture": "scene", "frame_focus_sd_d": [[0.004] * 8], "frame_systematic_d": [[0.01] * 8],
+              "corrected_err_d": [0.0] * 8, "frame_max_err_d": 0.0, "frames_on_bound": 0, "focus_named": False,
+              "commit": "old", "fit_only": True}
+    none = {**common, "kind": "none", "family": "none", "family_true": "none", "reported_max_err_d": 0.0,
+            "families": [{"family": "none", "k": 0, "true_d": t}, {"family": "offset", "k": 1, "true_d": t},
+                         {"family": "per_frame", "k": 8, "true_d": t}]}
+    rep = (true / 1.1).tolist()
+    scale = {**common, "kind": "scale_1.1", "family": "scale", "family_true": "scale",
+             "reported_max_err_d": float(np.abs(true / 1.1 - true).max()),
+             "families": [{"family": "none", "k": 0, "true_d": rep}, {"family": "scale", "k": 1, "true_d": t},
+                          {"family": "per_frame", "k": 8, "true_d": t}]}
+    return [none, scale]
+
+
+def test_focus_systematic_level_compares_each_allowance_on_the_untouched_copys_sweep(monkeypatch):
+    """`focus_systematic_level.variants`: each row's allowance is computed on its scene's untouched copy's sweep at
+    the row's own per-frame estimates, by the formula its variant names (capped at MAX_ERROR_D); the code now is
+    `frame_systematic(from_level=True)` and on a scene where most frames see nothing in focus it gives the nearest
+    frame more than the median scaling; the scene's level misfit and sensitivities are reported; rows of a scene
+    whose sweep is not cached, or without a stored allowance, are left out."""
+    from aat_deploy.diagnose import focusfit as ff
+    from benchmarks.probes import focus_systematic_level as fsl
+
+    data, true = level_sweep()
+    monkeypatch.setattr(fsl, "prepared_none", lambda cap, cache: data if cap == "scene" else None)
+    rows = level_rows(true) + [{**level_rows(true)[1], "capture": "uncached"},
+                               {**level_rows(true)[1], "kind": "scale_0.9", "frame_systematic_d": None}]
+    out, info = fsl.variants(rows, Path("unused"))
+    m, k = ff.level_misfit(data, true)[0], ff.level_sensitivity(data, true)[0]
+    assert set(info) == {"scene"} and info["scene"][0] == m and np.array_equal(info["scene"][1], k)
+    assert m > 0.005  # the frames' levels off (an untouched far scene's misfit is under 0.005 log)
+    median = ff.frame_systematic(data, true, from_level=False)[0]
+    lev = m * np.abs(k)
+    want = {"median": median, "level_max": np.maximum(ff.SYSTEMATIC_D, lev),
+            "level_quadrature": np.hypot(ff.SYSTEMATIC_D, lev), "median_or_level": ff.frame_systematic(data, true)[0]}
+    for name, w in want.items():
+        assert [(r["capture"], r["kind"]) for r in out[name]] == [("scene", "none"), ("scene", "scale_1.1")]
+        for r in out[name]:
+            assert np.allclose(r["frame_systematic_d"][0], np.round(np.minimum(w, ff.MAX_ERROR_D), 5), atol=1e-9)
+            assert r["rescored_from"] == "old"
+    now = np.asarray(out["median_or_level"][0]["frame_systematic_d"][0])
+    assert now[0] > 1.5 * median[0] and np.all(now >= np.round(median, 5))
+
+
+def test_focus_systematic_level_writes_its_tables_and_never_over_an_input(monkeypatch, tmp_path, capsys):
+    """The probe's command: the scene's level misfit and each variant's rescored table, to stdout and (--out) a
+    markdown file; an --out that is one of the results read is refused before anything is written."""
+    import json
+    import sys
+
+    import pytest
+
+    from benchmarks.probes import focus_systematic_level as fsl
+
+    data, true = level_sweep()
+    monkeypatch.setattr(fsl, "prepared_none", lambda cap, cache: data)
+    src = tmp_path / "fits.jsonl"
+    src.write_text("".join(json.dumps(r) + "\n" for r in level_rows(true)))
+    before = src.read_bytes()
+    out = tmp_path / "out.md"
+    monkeypatch.setattr(sys, "argv", ["probe", str(src), "--out", str(out)])
+    fsl.main()
+    text = out.read_text()
+    assert text.startswith("# Systematic allowance from the capture's level misfit")
+    assert f"| scene | {ff_misfit(data, true):.3f} |" in text
+    for label in fsl.VARIANTS.values():
+        assert f"### {label}, rescored from the stored fits" in text
+    assert "- scene: family right" in capsys.readouterr().out
+    monkeypatch.setattr(sys, "argv", ["probe", str(src), "--out", str(src)])
+    with pytest.raises(SystemExit, match="is one of the results read"):
+        fsl.main()
+    assert src.read_bytes() == before
+
+
+def ff_misfit(data, true) -> float:
+    from aat_deploy.diagnose import focusfit as ff
+
+    return float(ff.level_misfit(data, true)[0])
