@@ -392,21 +392,33 @@ def measured_setup(rig: Rig, variant: str, progress=print) -> list:
 
 def measures(rig: Rig, sweeps: list[dict], variant: str, keep_every: int = 1):
     """Measured sweeps as `aat-calibrate fit` measures them (tape-measured distances)."""
-    from aat_deploy.calibrate.sweep import Sweep, measure_sweep
+    from aat_deploy.calibrate.sweep import measure_sweep
 
     rng = np.random.default_rng(7)
     out = []
     for sw in sweeps:
         tape = sw["distance_m"] + rng.normal(0, TAPE_SD_MM / 1000)
         free = rig.setup.distances_m.index(sw["distance_m"]) in rig.setup.fit_distance
-        idx = np.arange(0, len(sw["reported_m"]), keep_every)
-        ident = {"make": "aat", "model": "virtual camera", "lens": rig.lens.name,
-                 "focal_length_mm": round(rig.efl, 2), "f_number": round(rig.fno, 2)}
-        s = Sweep(Path(f"{rig.setup.key}_{variant}_{sw['distance_m']:g}m"), sw["frames"][idx], sw["reported_m"][idx],
-                  ident, (rig.w, rig.h), 1.0)
-        out.append(measure_sweep(s, sw["layout"], distance_m=tape, measure=rig.measure,
-                                 prefilter_px=rig.prefilter_px, fit_distance=free))
+        out.append(measure_sweep(as_sweep(rig, sw, variant, keep_every), sw["layout"], distance_m=tape,
+                                 measure=rig.measure, prefilter_px=rig.prefilter_px, fit_distance=free))
     return out
+
+
+def as_sweep(rig: Rig, sw: dict, variant: str, keep_every: int = 1):
+    """One of `sweep`'s chart sweeps as `aat-calibrate fit` reads it from a folder (its EXIF: the virtual camera's
+    make, model, lens, focal length and f-number)."""
+    from aat_deploy.calibrate.sweep import Sweep
+
+    idx = np.arange(0, len(sw["reported_m"]), keep_every)
+    ident = {"make": "aat", "model": "virtual camera", "lens": rig.lens.name,
+             "focal_length_mm": round(rig.efl, 2), "f_number": round(rig.fno, 2)}
+    return Sweep(Path(f"{rig.setup.key}_{variant}_{sw['distance_m']:g}m"), sw["frames"][idx], sw["reported_m"][idx],
+                 ident, (rig.w, rig.h), 1.0)
+
+
+def sensor_mm(rig: Rig) -> tuple[float, float]:
+    """The virtual camera's sensor size (mm, width and height), as a user gives it with --sensor-mm."""
+    return (float(rig.lens.sensor.width_mm), float(rig.lens.sensor.height_mm))
 
 
 def truth_family(rig: Rig, effects: list[str], true_m: np.ndarray) -> dict:
