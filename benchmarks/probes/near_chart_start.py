@@ -111,7 +111,6 @@ def pose_table(res: dict) -> str:
 
 
 def main(argv=None) -> int:
-    from aat_deploy.calibrate.fit import fit_calibration
     from benchmarks import bench_calibrate as B
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -140,15 +139,12 @@ def main(argv=None) -> int:
     for start in (float(v) / 1000 for v in a.starts_mm.split(",")):
         m2 = list(ms)
         m2[free] = dataclasses.replace(ms[free].at_distance(start, "tape"), fit_distance=True)
-        res = fit_calibration(m2, n_boot=0)
-        e = B.map_errors(rig, res.calibration, eff, setup.inside())["calibration"]
-        rows.append({"start_m": start, "fitted_m": res.calibration.residuals["per_sweep"][free]["chart_distance_m"],
-                     "family": res.calibration.focus_error.family, "map_rms_inside_d": e["rms_d"]})
+        rows.append(fitted(rig, m2, free, eff))
         print(json.dumps(rows[-1]), flush=True)
     from aat_deploy.io.atomic import write_text_atomic
 
-    write_text_atomic(Path(a.out or RESULTS / "phone_near_chart_start.json"), json.dumps({"variant": a.variant, "true_m": setup.distances_m[free],
-                                                "rows": rows}, indent=1))
+    write_text_atomic(Path(a.out or RESULTS / "phone_near_chart_start.json"),
+                      json.dumps({"variant": a.variant, "true_m": setup.distances_m[free], "rows": rows}, indent=1))
     return 0
 
 
