@@ -55,6 +55,16 @@ DFVNET_CONFIGS = {
 }
 
 
+def window_mean(x: Tensor, k: int) -> Tensor:
+    """Mean over a k x k window (k odd) centred on each cell, cells outside the image excluded; separable, so its
+    cost grows with k, not k^2, and it is exactly the 2-D mean (the valid cells form a rectangle).
+    (N, C, h, w) -> (N, C, h, w)"""
+    if k < 1 or k % 2 == 0:
+        raise ValueError(f"window_mean: the window must be odd and positive, got {k}")
+    x = F.avg_pool2d(x, (k, 1), 1, (k // 2, 0), count_include_pad=False)
+    return F.avg_pool2d(x, (1, k), 1, (0, k // 2), count_include_pad=False)
+
+
 class PyramidPool2d(nn.Module):
     """Context from a global mean and fixed-window means (stride 1, 'same', padded cells excluded), each
     projected by a 1x1 conv, concatenated with the input and fused by a 3x3 conv. (N, C, h, w) -> (N, C_out, h, w)."""
@@ -66,8 +76,14 @@ class PyramidPool2d(nn.Module):
         self.fuse = nn.Sequential(ConvBNReLU2d(c_in + c_branch * (len(windows) + 1), c_fuse, 3),
                                   ConvBNReLU2d(c_fuse, c_out, 3))
 
+    # The "global" branch's window (feature pixels, odd) or None for the whole image. A net trained on images of
+    # n feature pixels sees the same mean through any window >= 2n - 1, so a window keeps its context the size it
+    # trained on when it runs on whole frames, where the image mean is out of its training distribution.
+    global_window: int | None = None
+
     def forward(self, x: Tensor) -> Tensor:
-        outs = [x, self.proj[0](x.mean((2, 3), keepdim=True)).expand(-1, -1, x.shape[2], x.shape[3])]
+        ctx = x.mean((2, 3), keepdim=True) if self.global_window is None else window_mean(x, self.global_window)
+        outs = [x, self.proj[0](ctx).expand(-1, -1, x.shape[2], x.shape[3])]
         for k, proj in zip(self.windows, self.proj[1:]):
             outs.append(proj(F.avg_pool2d(x, k, 1, k // 2, count_include_pad=False)))
         return self.fuse(torch.cat(outs, 1))

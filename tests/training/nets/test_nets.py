@@ -190,3 +190,40 @@ def test_field_aware_nets_use_the_field(net):
     # padding continues the coordinate ramp
     ramp = torch.arange(5.0)[None, None, None].expand(1, 2, 3, 5)
     assert torch.allclose(pad_field(ramp, 4)[0, 0, 0], torch.arange(8.0))
+
+
+def test_window_mean_is_the_excluding_2d_mean_and_the_global_mean_when_it_covers_the_image():
+    import torch.nn.functional as F
+
+    from training.nets.dfvnet import window_mean
+
+    g = torch.Generator().manual_seed(0)
+    x = torch.randn(2, 3, 8, 5, generator=g)
+    ref = F.avg_pool2d(x, 5, 1, 2, count_include_pad=False)
+    assert torch.allclose(window_mean(x, 5), ref, atol=1e-6)
+    # hand-computed corner: a 3 x 3 window at (0, 0) holds the 2 x 2 cells inside the image
+    assert torch.isclose(window_mean(x, 3)[0, 0, 0, 0], x[0, 0, :2, :2].mean(), atol=1e-6)
+    # a window of 2n - 1 or more sees the whole image from every cell (8 rows: 15)
+    assert torch.allclose(window_mean(x, 15), x.mean((2, 3), keepdim=True).expand_as(x), atol=1e-6)
+    assert not torch.allclose(window_mean(x, 13), x.mean((2, 3), keepdim=True).expand_as(x), atol=1e-3)
+    with pytest.raises(ValueError, match="odd"):
+        window_mean(x, 4)
+
+
+def test_context_window_changes_nothing_on_images_it_covers_and_localises_larger_ones():
+    from training.nets.dfvnet import PyramidPool2d
+
+    torch.manual_seed(0)
+    pool = PyramidPool2d(4, 2, 6, 4, (3,)).eval()
+    small, big = torch.randn(1, 4, 4, 4), torch.randn(1, 4, 20, 30)
+    with torch.no_grad():
+        a_small, a_big = pool(small), pool(big)
+        pool.global_window = 7
+        b_small, b_big = pool(small), pool(big)
+    assert torch.allclose(a_small, b_small, atol=1e-6)
+    assert not torch.allclose(a_big, b_big, atol=1e-4)
+    # far from the window, a change to one corner no longer reaches the other
+    big2 = big.clone()
+    big2[..., :4, :4] += 5.0
+    with torch.no_grad():
+        assert torch.allclose(pool(big2)[..., -1, -1], b_big[..., -1, -1], atol=1e-6)
