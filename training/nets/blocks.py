@@ -62,6 +62,21 @@ class ResBlock3d(nn.Module):
         return self.relu(self.body(x) + x)
 
 
+PAD_MODES = ("zeros", "reflect", "replicate")
+
+
+def set_padding_mode(module: nn.Module, mode: str) -> nn.Module:
+    """Every padded 2-D and 3-D conv in `module` pads with `mode` (PAD_MODES) instead of zeros; the weights and
+    their names are unchanged. Zero padding marks the image border, which a net trained on small images can take
+    as a cue that whole frames, whose centre is far from any border, never give (docs/training.md)."""
+    if mode not in PAD_MODES:
+        raise ValueError(f"padding mode must be one of {PAD_MODES}, got {mode!r}")
+    for m in module.modules():
+        if isinstance(m, (nn.Conv2d, nn.Conv3d)) and any(p > 0 for p in m.padding):
+            m.padding_mode = mode
+    return module
+
+
 def init_weights(module: nn.Module) -> None:
     """Kaiming-normal (fan-out, ReLU) for every conv, unit/zero batch norm; the same for 2-D and 3-D layers."""
     for m in module.modules():

@@ -28,6 +28,7 @@ from training.nets.blocks import (
     ConvBNReLU3d,
     ResBlock3d,
     init_weights,
+    set_padding_mode,
 )
 
 
@@ -36,7 +37,8 @@ class DFVNetConfig:
     """encoder: ResNet-18 stage widths (/4, /8, /16, /32). features: top-down widths at /32, /16, /8, /4.
     context: channels per pyramid-pooling branch and of its fusion conv; pool_windows: fixed pooling windows
     (feature pixels at /32) besides the global mean. levels: decoder levels (1..4). decoder: 3-D widths per
-    level (/4, /8, /16, /32); blocks: residual 3-D blocks per level."""
+    level (/4, /8, /16, /32); blocks: residual 3-D blocks per level. pad_mode: the convs' padding
+    (blocks.PAD_MODES; zeros as published)."""
 
     encoder: tuple[int, int, int, int] = (64, 128, 256, 512)
     features: tuple[int, int, int, int] = (128, 64, 32, 16)
@@ -46,6 +48,7 @@ class DFVNetConfig:
     levels: int = 2
     decoder: tuple[int, int, int, int] = (16, 32, 64, 128)
     blocks: tuple[int, int, int, int] = (2, 3, 3, 3)
+    pad_mode: str = "zeros"
 
 
 DFVNET_CONFIGS = {
@@ -190,6 +193,7 @@ class DFVNet(nn.Module):
                                        cfg.pool_windows if i >= 2 else None))
         self.decoders = nn.ModuleList(decs)
         init_weights(self)
+        set_padding_mode(self, cfg.pad_mode)
 
     def volume(self, feat: Tensor, b: int, s: int) -> Tensor:
         """(B*S, C, h, w) -> focus volume (B, C, S, h, w); differential: slice i = f(i) - f(i+1), last kept."""

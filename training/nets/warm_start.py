@@ -218,15 +218,29 @@ def recalibrate(model: DfFNet, folded: list[tuple[nn.Module, torch.Tensor]], ite
     return n
 
 
+def same_tensors(model: nn.Module, net: str, size: str) -> bool:
+    """Whether a `net` of `size` has exactly `model`'s tensors (names and shapes): sizes that differ only in how
+    the net computes, e.g. its padding (training.nets.dfvaat "small_replicate"), share their weights."""
+    from training.nets.model import build_model
+    from training.nets.registry import UnknownNet
+
+    try:
+        other = build_model(net, size, getattr(model, "field_channels", 0)).state_dict()
+    except (UnknownNet, KeyError, ValueError):
+        return False
+    mine = model.state_dict()
+    return other.keys() == mine.keys() and all(other[k].shape == mine[k].shape for k in mine)
+
+
 def init_model(model: DfFNet, path, dataset=None, n_items: int = 8) -> dict:
     """Load `path` (.onnx from training.nets.export, or a model.pt / last.pt checkpoint) into `model`, which must
-    be the same net and size. ONNX: folded BatchNorms are recalibrated on the first `n_items` of `dataset`
+    be the same net and size, or a size with the same tensors (`same_tensors`). ONNX: folded BatchNorms are recalibrated on the first `n_items` of `dataset`
     (if given) and the result is checked against onnxruntime. Returns a short description (for logs)."""
     path = Path(path)
     if not path.is_file():
         raise InitError(f"{path}: no such --init file")
     net, size = init_kind(path)
-    if (net, size) != (model.name, model.size):
+    if net != model.name or (size != model.size and not same_tensors(model, net, size)):
         raise InitError(f"{path}: is a {net or '?'} {size or '?'} model; the run trains a {model.name} {model.size}")
     if path.suffix.lower() != ".onnx":
         from training.train.checkpoint import load
@@ -253,4 +267,4 @@ def init_model(model: DfFNet, path, dataset=None, n_items: int = 8) -> dict:
             "rel_diff_vs_onnxruntime": float(err)}
 
 
-__all__ = ["InitError", "init_kind", "init_model", "load_onnx_weights", "module_path", "recalibrate"]
+__all__ = ["InitError", "init_kind", "init_model", "load_onnx_weights", "module_path", "recalibrate", "same_tensors"]

@@ -83,3 +83,31 @@ def test_roundtrip_with_trained_statistics_and_recalibration(tmp_path):
     assert init_model(again, ckpt)["kind"] == "checkpoint"
     with torch.no_grad():  # the same weights through the same kernels in one process: bit for bit
         assert torch.equal(again.eval()(stack, focus)[0], ref)
+
+
+def test_a_size_with_the_same_tensors_starts_from_the_other(tmp_path):
+    """The any-camera net padded with edge values ("small_replicate") has the "small" net's tensors: it starts from a
+    "small" checkpoint, pads differently (so computes something else near the border), and the full DFVNet does not."""
+    from training.nets.blocks import set_padding_mode
+    from training.nets.warm_start import same_tensors
+
+    torch.manual_seed(0)
+    src = build_model("dfvaat", "small").eval()
+    ckpt = tmp_path / "last.pt"
+    torch.save({"model": src.state_dict(), "config": {"net": "dfvaat", "size": "small"}}, ckpt)
+    dst = build_model("dfvaat", "small_replicate")
+    assert same_tensors(dst, "dfvaat", "small")
+    assert init_model(dst, ckpt)["kind"] == "checkpoint"
+    for k, v in src.state_dict().items():
+        assert torch.equal(dst.state_dict()[k], v), k
+    pads = {m.padding_mode for m in dst.modules() if isinstance(m, (torch.nn.Conv2d, torch.nn.Conv3d))
+            and any(p > 0 for p in m.padding)}
+    assert pads == {"replicate"}
+    assert not same_tensors(build_model("dfvnet", "small"), "dfvnet", "full")
+    with pytest.raises(InitError, match="dfvnet small"):
+        bad = tmp_path / "small.pt"
+        torch.save({"model": build_model("dfvnet", "small").state_dict(),
+                    "config": {"net": "dfvnet", "size": "small"}}, bad)
+        init_model(build_model("dfvnet", "full"), bad)
+    with pytest.raises(ValueError, match="padding mode"):
+        set_padding_mode(dst, "circularish")
