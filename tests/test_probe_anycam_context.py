@@ -24,3 +24,28 @@ def test_errmap_never_overwrites(tmp_path, capsys):
         anycam_errmap.main(["--model", str(tmp_path / "m.onnx"), "--out", str(out)])
     assert "fig.png: exists" in capsys.readouterr().err
     assert out.read_bytes() == b"mine"
+
+
+def test_border_probe_squares_and_its_three_ways():
+    import numpy as np
+
+    from benchmarks.probes.anycam_border import squares, three_ways
+
+    assert squares(640, 960, 128, 128) == [(y, x) for y in (128, 256, 384) for x in (128, 256, 384, 512, 640)]
+    assert squares(300, 300, 128, 128) == []
+    rng = np.random.default_rng(0)
+    stack = rng.random((3, 3, 384, 384)).astype(np.float32)
+    maps = rng.random((4, 384, 384)).astype(np.float32)
+    seen = []
+
+    def infer(st, mp):  # the "depth" is the first frame's red channel plus the first map: shows what was passed
+        seen.append(st.shape[-2:])
+        assert st.shape[-2:] == mp.shape[-2:]
+        return st[0, 0] + mp[0]
+
+    alone, mirrored, true = three_ways(infer, stack, maps, 128, 160, 64, 32)
+    want = stack[0, 0, 128:192, 160:224] + maps[0, 128:192, 160:224]
+    assert seen == [(64, 64), (128, 128), (128, 128)]
+    # the square itself is the same three ways; only what surrounds it differs
+    for d in (alone, mirrored, true):
+        np.testing.assert_array_equal(d, want)
