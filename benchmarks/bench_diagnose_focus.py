@@ -306,18 +306,22 @@ def systematic_table(rows: list[dict]) -> float | None:
     return best
 
 
-def focus_fit_only(model, twins, data: list) -> dict:
+def focus_fit_only(model, twins, data: list, chain: str = "") -> dict:
     """The first round's focus fit alone (`fitters.fit_focus_metadata` on the twin without extra effects, binned
-    as the diagnosis bins it, with its binning correction), in the diagnosis's answer layout."""
+    as the diagnosis bins it, with its binning correction), in the diagnosis's answer layout. chain: effects in the
+    twin instead (comma-separated, at their default settings: a later round's twin, e.g. the capture's own
+    noise,vignetting,raw_pipeline; a probe, not what the diagnosis's first round fits)."""
     from aat_deploy.diagnose import fitters
     from aat_deploy.diagnose.search import DiagnoseConfig
     from aat_deploy.render import effects as fx
 
     cfg = DiagnoseConfig()
+    effects = fx.parse(chain.split(",")) if chain else []
     factor = max(1, min(8, data[0].frames.shape[-1] // cfg.search_px))
-    full = [fitters.fit_curves(twins.render(c, c.aif_linear, [], seed=cfg.seed + i), factor) for i, c in enumerate(data)]
-    state = fitters.FitState(twins, data, [c.aif_linear for c in data], [], fx.make, factor, cfg.fit_boot, cfg.seed,
-                             {}, full)
+    full = [fitters.fit_curves(twins.render(c, c.aif_linear, effects, seed=cfg.seed + i), factor)
+            for i, c in enumerate(data)]
+    state = fitters.FitState(twins, data, [c.aif_linear for c in data], effects, fx.make, factor, cfg.fit_boot,
+                             cfg.seed, {}, full)
     rep = fitters.fit_focus_metadata(state).report
     return {"focus": {**rep["focus_fit"], "corrected_focus": rep["corrected_focus"]}, "ranked_effects": [],
             "image_effects": [], "causes": [], "verdict": None}
@@ -504,6 +508,11 @@ def main() -> None:
     ap.add_argument("--fit-only", action="store_true", help="only the focus fit of the first round (the twin "
                     "without extra effects), not the whole diagnosis: minutes instead of a quarter hour per set, "
                     "for development; its rows are marked fit_only")
+    ap.add_argument("--fit-chain", default="", help="with --fit-only: these effects in the twin (comma-separated, "
+                    "default settings; e.g. noise,vignetting,raw_pipeline, how the captures were made), as a later "
+                    "round's focus fit sees them; rows carry fit_chain")
+    ap.add_argument("--noise-floor", action="store_true", help="with --fit-chain: the twin's noise carried by its "
+                    "expectation in the focus sweep (`fitters.NOISE_FLOOR`, `noisefloor`); rows carry noise_floor")
     ap.add_argument("--table", nargs="*", metavar="RESULTS", help="only print the table of these results files")
     ap.add_argument("--compare", nargs=2, metavar=("OLD", "NEW"), help="only compare two results files set by set "
                     "(family, corrected focus, its standard errors, undetermined frames)")
@@ -518,6 +527,12 @@ def main() -> None:
                     "setting of its systematic allowance (focusfit.SYSTEMATIC_D) on these results (rows with the "
                     "stored fits); tune it on the tuning capture's rows only")
     a = ap.parse_args()
+    if a.fit_chain and not a.fit_only:
+        raise SystemExit("--fit-chain: only with --fit-only")
+    if a.noise_floor:
+        from aat_deploy.diagnose import fitters
+
+        fitters.NOISE_FLOOR = True
     if a.table is not None:
         table([json.loads(x) for f in (a.table or [a.out]) for x in Path(f).read_text().splitlines() if x.strip()])
         return
@@ -587,7 +602,7 @@ def main() -> None:
         twins = make_renderer(model, lens, src, torch_free=True, threads=a.threads)  # a fresh render cache per set
         data = [load_capture_data(root / cap.name, model)]
         if a.fit_only:
-            res = focus_fit_only(model, twins, data)
+            res = focus_fit_only(model, twins, data, a.fit_chain)
         else:
             res, _, _ = diagnose(model, twins, data, DiagnoseConfig(max_effects=a.rounds))
             (root / "diagnosis.json").write_text(json.dumps(res, indent=1, default=float))
@@ -595,6 +610,7 @@ def main() -> None:
         row = {"capture": cap.name, **score(kind, kinds()[kind][0], true_d, rep, res),
                "seconds": round(time.time() - t0, 1), "cpu_seconds": round(time.process_time() - c0, 1),
                "model": Path(a.model).name, "fit_only": a.fit_only,
+               **({"fit_chain": a.fit_chain} if a.fit_chain else {}), **({"noise_floor": True} if a.noise_floor else {}),
                "commit": commit}
         rows.append(row)
         with out.open("a") as f:

@@ -25,10 +25,12 @@ import numpy as np
 from benchmarks import bench_diagnose_focus as bench
 
 
-def prepared_sweep(folder, kind: str, index: int, model, lens, src, threads: int, chain: list = ()):
+def prepared_sweep(folder, kind: str, index: int, model, lens, src, threads: int, chain: list = (),
+                   noise_floor: bool | None = None):
     """The set's capture (`CaptureData`), the first round's sweep (re-anchored, as `fitters.fit_focus_metadata`
     fits it) before and after `focusrobust.prepare`, and the frames' true and reported focus (diopters, near to
-    far). chain: effects in the twin (the first round's twin has none; a later round's, those named before)."""
+    far). chain: effects in the twin (the first round's twin has none; a later round's, those named before).
+    noise_floor: the twin's noise by its expectation (`noisefloor`; None: as the fit, `fitters.NOISE_FLOOR`)."""
     from aat_deploy.diagnose import anchors, fitters, focusrobust
     from aat_deploy.diagnose.inputs import load_capture_data
     from aat_deploy.diagnose.search import DiagnoseConfig
@@ -48,7 +50,8 @@ def prepared_sweep(folder, kind: str, index: int, model, lens, src, threads: int
     state = fitters.FitState(twins, data, [c.aif_linear for c in data], list(chain), fx.make, factor, cfg.fit_boot,
                              cfg.seed, {}, full)
     # the sweep `fitters.fit_focus_metadata` fits (re-anchored at the estimates), made robust as it is
-    sweep, _ = anchors.reanchored_sweep(state, fitters.focus_sweep(state, correct=False),
+    sweep, _ = anchors.reanchored_sweep(state, fitters.focus_sweep(
+        state, correct=False, noise_floor=fitters.NOISE_FLOOR if noise_floor is None else noise_floor),
                                         lambda d: np.asarray(focusrobust.prepare(d)[1]["frame_focus_d"][-1]))
     prepared, _ = focusrobust.prepare(sweep)
     return data[0], sweep, prepared, true_d, rep

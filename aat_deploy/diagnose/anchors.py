@@ -11,7 +11,9 @@ frames' focus is estimated, the full-resolution twin is rendered there too and t
 both anchor sets (`reanchored_sweep`).
 
 The full-resolution curves are the twin's without the effects that act frame by frame (exposure, misalignment),
-as the sweep is: a fitted exposure in the chain would otherwise enter the correction as focus.
+as the sweep is: a fitted exposure in the chain would otherwise enter the correction as focus. When the sweep
+carries the noise by its expectation (`noisefloor`), both renders leave the noise out: the correction is the
+noiseless measure's, added under the floor.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from aat_deploy.diagnose import focusfit as ff
+from aat_deploy.diagnose import noisefloor
 from aat_deploy.diagnose.binned import bin_frames
 from aat_deploy.diagnose.compare import focus_curves
 from aat_deploy.infer.normalise import normalise_stack
@@ -64,12 +67,14 @@ def reanchored_sweep(state, raw: ff.SweepData, estimate) -> tuple[ff.SweepData, 
     lies REANCHOR_D or more from it, at the estimates too (`estimate(sweep) -> (n, S)` diopters: the per-frame
     focus). Returns the sweep and a report (where it was anchored)."""
     chain = [e for e in state.chain if not state.tb.has_stack_hook(e)]
+    if raw.floor_c is not None:  # the sweep carries the noise by its expectation: correct the noiseless measure
+        chain = noisefloor.quiet(chain)
     s_n = [len(c.focus_m) for c in state.caps]
     base = [raw.base_d[i, :s] for i, s in enumerate(s_n)]
     own = [np.asarray(state.twins.true_focus(c, state.chain, state.seed + i), np.float64).ravel()
            for i, c in enumerate(state.caps)]  # the full-resolution twin's own focus, bit for bit (its render cached)
     anchors = [[a] for a in anchor_deltas(state, chain, own)]
-    data = raw.with_twin(raw.twin + correction(raw.grid_d, anchors))
+    data = raw.with_correction(correction(raw.grid_d, anchors))
     est = np.asarray(estimate(data), np.float64)
     rep = {"anchors_d": [b.round(4).tolist() for b in base]}
     moved = [np.max(np.abs(est[i, :s] - base[i])) for i, s in enumerate(s_n)]
@@ -77,6 +82,6 @@ def reanchored_sweep(state, raw: ff.SweepData, estimate) -> tuple[ff.SweepData, 
         extra = anchor_deltas(state, chain, [1.0 / np.clip(est[i, :s], raw.grid_d[0], raw.grid_d[-1])
                                              for i, s in enumerate(s_n)])
         anchors = [a + [x] for a, x in zip(anchors, extra)]
-        data = raw.with_twin(raw.twin + correction(raw.grid_d, anchors))
+        data = raw.with_correction(correction(raw.grid_d, anchors))
         rep["reanchored_d"] = [x[0].round(4).tolist() for x in extra]
     return data, rep

@@ -23,15 +23,18 @@ from statistics import NormalDist
 
 import numpy as np
 
-from aat_deploy.diagnose import anchors, focusrobust
+from aat_deploy.diagnose import anchors, focusrobust, noisefloor
 from aat_deploy.diagnose import focusfit as ff
 from aat_deploy.diagnose.binned import bin_frames, binned_capture
 from aat_deploy.diagnose.compare import focus_curves, image_distances, region_brightness, region_index, region_shifts
 from aat_deploy.diagnose.optimise import grid_then_golden
-from aat_deploy.infer.normalise import normalise_stack
+from aat_deploy.infer.normalise import normalise_scale, normalise_stack, scaled
 
 SWEEP_STEP_D = 0.06  # focus sweep spacing (diopters); curves are interpolated between (Catmull-Rom)
 SWEEP_MARGIN_D = ff.MAX_ERROR_D + 0.05
+# whether the focus-metadata fit's sweep carries the twin's noise by its expectation (`noisefloor`) instead of a
+# binned draw. Off: tried on scene 2038 (issue 32; docs/diagnosis.md, Limits, "Scene 2038"), not adopted.
+NOISE_FLOOR = False
 MIN_TEXTURE_LOG = 0.5  # a region whose twin focus measure varies less than this over the sweep says nothing
 
 
@@ -78,14 +81,17 @@ class FitState:
 
 
 # --- focus sweep ------------------------------------------------------------------------------------------------
-def focus_sweep(state: FitState, step_d: float = SWEEP_STEP_D, correct: bool = True) -> ff.SweepData:
+def focus_sweep(state: FitState, step_d: float = SWEEP_STEP_D, correct: bool = True,
+                noise_floor: bool = False) -> ff.SweepData:
     """The twin with the chain's effects rendered (binned) at a ladder of focus distances covering every capture's
     reported and assumed focus +- SWEEP_MARGIN_D, its region focus measures against the capture frames'. Effects
     whose settings differ frame by frame (`stack` hooks) are left out of the sweep. Cached by the chain's
     effects (a later round that only adds noise re-applies it to the cached optics). correct: add the binning
-    correction (when the full-resolution twin's curves are known)."""
+    correction (when the full-resolution twin's curves are known). noise_floor: carry the chain's noise by its
+    expected focus measure, scaled for a RAW development, instead of a draw (`noisefloor`; where it applies)."""
     tb = state.tb
     chain = [e for e in state.chain if not tb.has_stack_hook(e)]
+    analytic = noise_floor and noisefloor.applies(chain)
     rep = [1.0 / c.focus_m for c in state.caps_b]
     base = [1.0 / tb.true_focus(c, state.chain, state.seed + i) for i, c in enumerate(state.caps_b)]
     allf = np.concatenate(rep + base)
@@ -93,15 +99,29 @@ def focus_sweep(state: FitState, step_d: float = SWEEP_STEP_D, correct: bool = T
     fr = tb.focus_range_m()
     lo, hi = max(lo, 1.0 / fr[1], 0.011), min(hi, 1.0 / fr[0])
     grid = np.arange(lo, hi + 1e-9, step_d)
-    key = (tuple(tb.spec(e) for e in chain), float(grid[0]), len(grid))
+    key = (tuple(tb.spec(e) for e in chain), float(grid[0]), len(grid)) + (("noise_floor",) if analytic else ())
     if key not in state.sweep_cache:
-        twin_curves, twin_lum = [], []
+        twin_curves, twin_lum, signal_c, floor_c = [], [], [], []
+        factor_c = noisefloor.developed_factor(chain, state.factor) if analytic else None
         for i, (c, a) in enumerate(zip(state.caps_b, state.aifs_b)):
-            stack = normalise_stack(np.clip(tb.linear(c, a, chain, state.seed + i, focus_true_m=1.0 / grid), 0, None))
-            twin_curves.append(focus_curves(stack, ff.FIT_GRID).mean(-1))
+            if analytic:
+                lin = np.clip(tb.linear(c, a, noisefloor.quiet(chain), state.seed + i, focus_true_m=1.0 / grid), 0, None)
+                scale = float(normalise_scale(lin))
+                stack = scaled(lin, scale)
+                sig = focus_curves(stack, ff.FIT_GRID)  # (R, K, C) log
+                flo = noisefloor.floor(lin, scale, noisefloor.noise_of(chain).binned(state.factor), factor_c,
+                                       ff.FIT_GRID)
+                signal_c.append(sig)
+                floor_c.append(flo)
+                twin_curves.append(noisefloor.compose(sig, flo))
+            else:
+                stack = normalise_stack(np.clip(tb.linear(c, a, chain, state.seed + i, focus_true_m=1.0 / grid), 0,
+                                                None))
+                twin_curves.append(focus_curves(stack, ff.FIT_GRID).mean(-1))
             twin_lum.append(region_brightness(stack, ff.FIT_GRID).mean(-1))
-        state.sweep_cache[key] = (np.stack(twin_curves), np.stack(twin_lum))  # (n, R, K), (n, R)
-    twin, twin_lum = state.sweep_cache[key]
+        state.sweep_cache[key] = (np.stack(twin_curves), np.stack(twin_lum),  # (n, R, K), (n, R)
+                                  np.stack(signal_c) if analytic else None, np.stack(floor_c) if analytic else None)
+    twin, twin_lum, signal_c, floor_c = state.sweep_cache[key]
     s_max = max(len(r) for r in rep)
     cap = np.full((len(rep), twin.shape[1], s_max), np.nan)
     cap_lum = np.full_like(cap, np.nan)
@@ -113,12 +133,13 @@ def focus_sweep(state: FitState, step_d: float = SWEEP_STEP_D, correct: bool = T
         rep_d[i] = np.concatenate([rep[i], np.full(s_max - s, rep[i][-1])])
         base_d[i] = np.concatenate([base[i], np.full(s_max - s, base[i][-1])])
     weight = (twin.max(2) - twin.min(2) > MIN_TEXTURE_LOG).astype(np.float64)
-    if correct and state.full_curves is not None:
-        twin = twin + binning_correction(state, chain, grid, base)
     rows, cols = ff.FIT_GRID
     r, q = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")
     xy = np.stack([2 * (q.ravel() + 0.5) / cols - 1, 1 - 2 * (r.ravel() + 0.5) / rows], 1)
-    return ff.SweepData(grid, twin, cap, rep_d, base_d, xy, weight, cap_lum, twin_lum)
+    data = ff.SweepData(grid, twin, cap, rep_d, base_d, xy, weight, cap_lum, twin_lum, signal_c, floor_c)
+    if correct and state.full_curves is not None:
+        data = data.with_correction(binning_correction(state, chain, grid, base, analytic))
+    return data
 
 
 def fit_curves(stack: np.ndarray, factor: int) -> np.ndarray:
@@ -127,17 +148,22 @@ def fit_curves(stack: np.ndarray, factor: int) -> np.ndarray:
     return focus_curves(normalise_stack(bin_frames(stack, factor)), ff.FIT_GRID).mean(-1)
 
 
-def binning_correction(state: FitState, chain: list, grid: np.ndarray, base: list) -> np.ndarray:
+def binning_correction(state: FitState, chain: list, grid: np.ndarray, base: list,
+                       noise_floor: bool = False) -> np.ndarray:
     """(n, R, K) what the binned renderer misses against the binned full-resolution twin, per region, as a
     function of focus: the difference of their focus measures at the twin's own frames (where both exist),
     interpolated in focus over the sweep (flat beyond). A binned render cannot reproduce a nearly sharp PSF's
     sub-pixel phases (binning averages four of them), which biases the focus of the frames whose content is
-    nearly sharp by up to 0.03 D on the shipped sample; the full-resolution twin is rendered anyway."""
+    nearly sharp by up to 0.03 D on the shipped sample; the full-resolution twin is rendered anyway. noise_floor:
+    both without the noise (the sweep carries it by its expectation, `noisefloor`): the correction of the
+    noiseless measure."""
     out = []
     for i, (c, a) in enumerate(zip(state.caps_b, state.aifs_b)):
-        lin = state.tb.linear(c, a, chain, state.seed + i)
+        lin = state.tb.linear(c, a, noisefloor.quiet(chain) if noise_floor else chain, state.seed + i)
         own = focus_curves(normalise_stack(np.clip(lin, 0, None)), ff.FIT_GRID).mean(-1)  # (R, S)
-        delta = state.full_curves[i] - own
+        full = state.full_curves[i] if not noise_floor else fit_curves(
+            state.twins.render(state.caps[i], state.aifs[i], noisefloor.quiet(chain), seed=state.seed + i), state.factor)
+        delta = full - own
         order = np.argsort(base[i])
         out.append(np.stack([np.interp(grid, base[i][order], dr[order]) for dr in delta]))
     return np.stack(out)
@@ -156,9 +182,10 @@ def fit_focus_metadata(state: FitState) -> Fitted:
     corrected focus distances of every capture (metres, with intervals)."""
     if state.full_curves is not None:  # the binning correction anchored at the frames' estimated focus too
         sweep, anchored = anchors.reanchored_sweep(
-            state, focus_sweep(state, correct=False), lambda d: np.asarray(focusrobust.prepare(d)[1]["frame_focus_d"][-1]))
+            state, focus_sweep(state, correct=False, noise_floor=NOISE_FLOOR),
+            lambda d: np.asarray(focusrobust.prepare(d)[1]["frame_focus_d"][-1]))
     else:
-        sweep, anchored = focus_sweep(state), {}
+        sweep, anchored = focus_sweep(state, noise_floor=NOISE_FLOOR), {}
     data, robust = focusrobust.prepare(sweep)
     fit = ff.fit_metadata(data, n_boot=state.n_boot, seed=state.seed)
     rep = {"focus_fit": {**fit.summary(), "robust": {**robust, **anchored}}, "corrected_focus": []}

@@ -94,7 +94,10 @@ class SweepData:
     weight (n, R): 0 for regions without texture (their focus measure does not change with focus). Captures
     with fewer frames are padded: NaN in `capture` (and any reported value) counts nothing. capture_lum (n, R, S)
     and twin_lum (n, R): log region-mean luminance of the capture frames and of the twin (mean over the sweep),
-    for the frames' exposure (`focusrobust`); None = not measured."""
+    for the frames' exposure (`focusrobust`); None = not measured. signal_c (n, R, K, C) and floor_c (n, R, K, C):
+    when the twin's noise is carried by its expectation (`noisefloor`), the noiseless per-channel log focus measures
+    and the noise's expected measure, of which `twin` is composed (a binning correction goes under the floor:
+    `with_correction`); None otherwise."""
 
     grid_d: np.ndarray
     twin: np.ndarray
@@ -105,6 +108,8 @@ class SweepData:
     weight: np.ndarray | None = None
     capture_lum: np.ndarray | None = None
     twin_lum: np.ndarray | None = None
+    signal_c: np.ndarray | None = None
+    floor_c: np.ndarray | None = None
 
     def __post_init__(self):
         n, r, _ = self.capture.shape
@@ -116,6 +121,15 @@ class SweepData:
     def with_twin(self, twin: np.ndarray) -> SweepData:
         """The same sweep with other twin curves (n, R, K)."""
         return dataclasses.replace(self, twin=twin)
+
+    def with_correction(self, delta: np.ndarray) -> SweepData:
+        """The sweep with a binning correction delta (n, R, K, log units) added to the twin: to the noiseless
+        measure under the noise floor when the noise is carried by its expectation (`noisefloor.compose`)."""
+        if self.floor_c is None:
+            return self.with_twin(self.twin + delta)
+        from aat_deploy.diagnose.noisefloor import compose
+
+        return self.with_twin(compose(self.signal_c + delta[..., None], self.floor_c))
 
     @property
     def frames(self) -> np.ndarray:

@@ -60,13 +60,15 @@ def set_spec(spec: str):
     return idx[scene], folder, kind
 
 
-def sweep_of(spec: str, cache: Path, threads: int, chain: str = ""):
+def sweep_of(spec: str, cache: Path, threads: int, chain: str = "", noise_floor: bool = False):
     """(the reanchored sweep before `prepare`, true_d, reported_d, gt inverse depth per region (R, 3)), cached.
-    chain: effects in the twin (comma-separated; the first round's twin has none)."""
+    chain: effects in the twin (comma-separated; the first round's twin has none). noise_floor: its noise by its
+    expectation (`noisefloor`), cached apart."""
     from aat_deploy.diagnose import focusfit as ff
 
     index, folder, kind = set_spec(spec)
-    path = cache / f"{spec.replace(':', '_')}{'__' + chain.replace(',', '_') if chain else ''}.npz"
+    floor = "__floor" if "noise" in chain.split(",") and noise_floor else ""
+    path = cache / f"{spec.replace(':', '_')}{'__' + chain.replace(',', '_') if chain else ''}{floor}.npz"
     if not path.exists():
         from aat_deploy.diagnose.compare import region_index
         from aat_deploy.diagnose.lookup import find_lens, find_surrogate
@@ -78,7 +80,8 @@ def sweep_of(spec: str, cache: Path, threads: int, chain: str = ""):
         from aat_deploy.render import effects as fx
 
         effects = fx.parse(chain.split(",")) if chain else []
-        cap, sweep, _, true_d, rep = flp.prepared_sweep(folder, kind, index, model, lens, src, threads, effects)
+        cap, sweep, _, true_d, rep = flp.prepared_sweep(folder, kind, index, model, lens, src, threads, effects,
+                                                        noise_floor)
         h, w = cap.gt_m.shape
         reg = region_index(h, w, ff.FIT_GRID)
         inv = 1.0 / cap.gt_m
@@ -115,18 +118,19 @@ def estimates(sweep, true_d: np.ndarray) -> dict:
             "no floors": ff.frame_focus(base, start=t), "_prepared": prepared, "_at_truth": at_truth, "_base": base}
 
 
-def report(spec: str, cache: Path, threads: int, chain: str = "") -> str:
+def report(spec: str, cache: Path, threads: int, chain: str = "", noise_floor: bool = False) -> str:
     from aat_deploy.diagnose import focusfit as ff
     from aat_deploy.diagnose import focusrobust as fr
 
-    sweep, true_d, rep, gt_q, gt_all = sweep_of(spec, cache, threads, chain)
+    sweep, true_d, rep, gt_q, gt_all = sweep_of(spec, cache, threads, chain, noise_floor)
     est = estimates(sweep, true_d)
     base, at_truth = est["_base"], est["_at_truth"]
     used = sweep.weight[0] > 0
     peaks = sweep.grid_d[sweep.twin[0].argmax(-1)]
     out = io.StringIO()
     with redirect_stdout(out):
-        print(f"\n### {spec}{f' (the twin with {chain})' if chain else ''}\n")
+        floor = ", its noise by its expectation (`noisefloor`)" if noise_floor and "noise" in chain.split(",") else ""
+        print(f"\n### {spec}{f' (the twin with {chain}{floor})' if chain else ''}\n")
         print(f"- ground truth inverse depth 5/50/95 %: {gt_all[0]:.3f} / {gt_all[1]:.3f} / {gt_all[2]:.3f} D; "
               f"regions' twin curves peak at {np.quantile(peaks[used], 0.1):.2f}-{np.quantile(peaks[used], 0.9):.2f} "
               f"D (10-90 %, {int(used.sum())} regions used); frames at {true_d.min():.3f}-{true_d.max():.3f} D")
@@ -289,6 +293,8 @@ def main() -> None:
     ap.add_argument("--nuisance", nargs="+", metavar="RESULTS", help="also: the family choice on these stored fits "
                     "with a level misfit read as focus profiled out (`nuisance_choice`), for the scenes whose "
                     "untouched sweep is cached")
+    ap.add_argument("--noise-floor", action="store_true", help="a twin with noise: its sweep carries the noise by its "
+                    "expectation, scaled for the RAW development (`noisefloor`), not a binned draw")
     ap.add_argument("--out", help="also write the output here (markdown)")
     ap.add_argument("--aif16", type=int, nargs="*", default=[], metavar="SCENE", help="first make these scenes' "
                     "variant with a 16-bit all-in-focus image (`aif16_variant`), then analyse the sets")
@@ -298,7 +304,7 @@ def main() -> None:
     for scene in a.aif16:
         aif16_variant(scene)
     chains = ["" if c == "none" else c for c in a.chain]
-    text = "".join(report(s, Path(a.cache), a.threads, c) for c in chains for s in a.sets)
+    text = "".join(report(s, Path(a.cache), a.threads, c, a.noise_floor) for c in chains for s in a.sets)
     if a.nuisance:
         text += nuisance_choice(a.nuisance, Path(a.cache), a.threads)
     print(text, end="")
@@ -308,6 +314,7 @@ def main() -> None:
         write_text_atomic(Path(a.out), "# Why a scene's per-frame focus estimates are compressed (issue 32)\n\n"
                           f"`python -m benchmarks.probes.focus_scene_coverage {' '.join(a.sets)}"
                           f"{' --chain ' + ' '.join(c or 'none' for c in chains) if any(chains) else ''}"
+                          f"{' --noise-floor' if a.noise_floor else ''}"
                           f"{' --nuisance ' + ' '.join(a.nuisance) if a.nuisance else ''}`\n" + text)
 
 
