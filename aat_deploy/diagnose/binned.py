@@ -11,7 +11,9 @@ half the depth layers at b = 2), and only the effects that pass are rendered at 
 
 Effects follow with `Effect.binned(b)`: noise keeps its statistics after binning (b^2 the full well, b the read
 noise), pixel-unit settings scale, and the RAW development, which binning averages away, is left out (an
-approximation for the search only; the final scoring is at full resolution).
+approximation for the search only; the final scoring is at full resolution). The binned development's noise is
+not the binned independent noise (demosaicking correlates it): `noisefloor` carries a developed twin's noise in the
+focus sweep by its expectation, scaled for that, where asked (`fitters.NOISE_FLOOR`).
 """
 
 from __future__ import annotations

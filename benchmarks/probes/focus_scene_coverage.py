@@ -67,8 +67,8 @@ def sweep_of(spec: str, cache: Path, threads: int, chain: str = "", noise_floor:
     from aat_deploy.diagnose import focusfit as ff
 
     index, folder, kind = set_spec(spec)
-    floor = "__floor" if "noise" in chain.split(",") and noise_floor else ""
-    path = cache / f"{spec.replace(':', '_')}{'__' + chain.replace(',', '_') if chain else ''}{floor}.npz"
+    floor = "__floor" if noise_floor and "noise" in [c.split(":")[0] for c in chain.split(",")] else ""
+    path = cache / f"{spec.replace(':', '_')}{'__' + chain.replace(',', '_').replace(':', '_') if chain else ''}{floor}.npz"
     if not path.exists():
         from aat_deploy.diagnose.compare import region_index
         from aat_deploy.diagnose.lookup import find_lens, find_surrogate
@@ -129,7 +129,8 @@ def report(spec: str, cache: Path, threads: int, chain: str = "", noise_floor: b
     peaks = sweep.grid_d[sweep.twin[0].argmax(-1)]
     out = io.StringIO()
     with redirect_stdout(out):
-        floor = ", its noise by its expectation (`noisefloor`)" if noise_floor and "noise" in chain.split(",") else ""
+        floor = (", its noise by its expectation (`noisefloor`)"
+                 if noise_floor and "noise" in [c.split(":")[0] for c in chain.split(",")] else "")
         print(f"\n### {spec}{f' (the twin with {chain}{floor})' if chain else ''}\n")
         print(f"- ground truth inverse depth 5/50/95 %: {gt_all[0]:.3f} / {gt_all[1]:.3f} / {gt_all[2]:.3f} D; "
               f"regions' twin curves peak at {np.quantile(peaks[used], 0.1):.2f}-{np.quantile(peaks[used], 0.9):.2f} "
