@@ -64,6 +64,7 @@ from benchmarks import RESULTS
 ROOT = Path(__file__).resolve().parents[1]
 
 CACHE = ROOT / "cache" / "calibrate"
+SOFT_SENSOR_PX = 0.7  # = aat_deploy.calibrate.chart.SOFT_SENSOR_PX (tests/test_bench_calibrate.py checks it)
 SCALE = 1.1  # the copy's reported distance / true distance
 TAPE_SD_MM = 2.0
 # field-radius bins of the map's error by radius (finer than the zones where the phone's outer field is steep)
@@ -90,6 +91,11 @@ class LensSetup:
     sweep_key: str | None = None  # the sweeps' cache name (None: key): a setup that adds charts reuses the others'
     fit_distance: tuple = ()  # indices of the charts whose distance the fit takes as an unknown (the tape's only a start)
     step_px: float | None = None  # the sweeps' step in px of thin-lens blur where designed from it (None: SWEEP_STEP_PX)
+    chart_texture: str = "dead leaves"  # the chart's texture: `aat-calibrate chart`'s, or a probe's
+    # (benchmarks/probes/chart_texture.texture_for: sweeps cached under their own name)
+    # the texture's softening in sensor px at the chart (`aat-calibrate chart --frame-px`'s; 0: the sharp dead
+    # leaves of the sweeps before 2026-11-27 05:00 UTC, cached without the `_soft` suffix)
+    chart_soften_px: float = SOFT_SENSOR_PX
 
     def inside(self) -> np.ndarray:
         """Part a's 10 reported-focus settings "inside" (true focus, m, near to far: even in diopters)."""
@@ -316,9 +322,22 @@ def chart_for(rig: Rig, distance_m: float):
 
     w_mm = 1.3 * rig.w / rig.f_px * 1000 * distance_m
     frac = rig.setup.marker_frac
-    return make_chart(ChartSpec(size_mm=(w_mm, w_mm * rig.h / rig.w), markers=(6, 4),
-                                marker_mm=None if frac is None else frac * w_mm / 6,
-                                dpi=25.4 * 3 * rig.w / (w_mm / 1.3), seed=int(distance_m * 1000)))
+    from aat_deploy.calibrate.chart import texture_sigma_for
+
+    soften = rig.setup.chart_soften_px
+    spec = ChartSpec(size_mm=(w_mm, w_mm * rig.h / rig.w), markers=(6, 4),
+                     marker_mm=None if frac is None else frac * w_mm / 6,
+                     dpi=25.4 * CHART_PX_PER_PX * rig.w / (w_mm / 1.3), seed=int(distance_m * 1000),
+                     texture_sigma_mm=texture_sigma_for(w_mm / 1.3, rig.w, soften) if soften > 0 else 0.0)
+    if rig.setup.chart_texture == "dead leaves":
+        return make_chart(spec)
+    from benchmarks.probes.chart_texture import texture_for
+
+    name = rig.setup.chart_texture
+    return make_chart(spec, texture_for(name, spec, CHART_PX_PER_PX), texture_name=name)
+
+
+CHART_PX_PER_PX = 3  # the benchmark's chart image pixels per sensor pixel at the chart's distance (centre)
 
 
 def sweep(rig: Rig, variant: str, i: int, progress=print) -> dict:
@@ -332,6 +351,8 @@ def sweep(rig: Rig, variant: str, i: int, progress=print) -> dict:
     effects = effects_for(s, variant)
     cells = "" if s.cell_px == 64 else f"_cells{s.cell_px}"
     cells += "" if s.step_px is None else f"_step{s.step_px:g}px"
+    cells += "" if s.chart_texture == "dead leaves" else f"_tex-{s.chart_texture}"
+    cells += f"_soft{s.chart_soften_px:g}px" if s.chart_soften_px > 0 else ""
     f = CACHE / f"{s.sweep_key or s.key}_{variant if variant == 'nominal' else s.copy_name}_{d:g}m{cells}.npz"
     img, layout = chart_for(rig, d)
     sources = sweep_sources(s)

@@ -109,7 +109,7 @@ def test_a_cached_sweep_of_other_lens_files_is_refused(tmp_path, monkeypatch, ca
 
     rig = bc.Rig(bc.LENSES["z35"])
     monkeypatch.setattr(bc, "CACHE", tmp_path)
-    f = tmp_path / "z35_nominal_0.3m.npz"
+    f = tmp_path / "z35_nominal_0.3m_soft0.7px.npz"
     arrays = {"frames": np.zeros((3, 3, 4, 6), np.float16), "reported_m": np.array([3.0, 2.0, 1.0]),
               "true_m": np.array([3.0, 2.0, 1.0])}
     now = bc.sweep_sources(rig.setup)
@@ -377,5 +377,50 @@ def test_the_phone_with_a_near_chart_keeps_the_phones_charts_range_and_sweeps(tm
         with pytest.raises(Stop):
             bc.sweep(R(), "copy", i)
     monkeypatch.setattr(bc.Path, "is_file", real_is_file)
-    assert names == ["cellphone_copy_0.07m_step0.7px.npz", "cellphone_copy_0.1m_step0.7px.npz",
-                     "cellphone_copy_0.18m_step0.7px.npz", "cellphone_copy_0.055m_step0.7px.npz"]
+    assert names == ["cellphone_copy_0.07m_step0.7px_soft0.7px.npz", "cellphone_copy_0.1m_step0.7px_soft0.7px.npz",
+                     "cellphone_copy_0.18m_step0.7px_soft0.7px.npz", "cellphone_copy_0.055m_step0.7px_soft0.7px.npz"]
+
+
+def test_the_benchmarks_chart_is_aat_calibrates_softened_chart_cached_apart_from_the_sharp_one(tmp_path, monkeypatch):
+    """Every setup's chart is `aat-calibrate chart --frame-px`'s: the dead leaves softened by SOFT_SENSOR_PX camera
+    pixels where the chart spans the frame (its image has CHART_PX_PER_PX pixels per camera pixel there), the
+    markers drawn sharp; its sweeps are cached under names of their own (`_soft0.7px`), the sharp dead leaves'
+    (chart_soften_px = 0, before 2026-11-27) under their old names."""
+    import dataclasses
+
+    from aat_deploy.calibrate import chart
+
+    assert bc.SOFT_SENSOR_PX == chart.SOFT_SENSOR_PX == 0.7
+    assert all(s.chart_soften_px == chart.SOFT_SENSOR_PX for s in bc.LENSES.values())
+
+    class R:
+        w, h, f_px = 640, 480, 500.0  # a camera: its frame and focal length (px)
+        setup = bc.LENSES["cellphone_near"]
+
+    img, layout = bc.chart_for(R(), 0.1)
+    assert layout.spec["texture_sigma_mm"] * layout.px_per_mm == pytest.approx(0.7 * bc.CHART_PX_PER_PX)
+    frame_mm = layout.size_mm[0] / 1.3
+    assert layout.spec["texture_sigma_mm"] == pytest.approx(chart.texture_sigma_for(frame_mm, R.w))
+    R.setup = dataclasses.replace(bc.LENSES["cellphone_near"], chart_soften_px=0.0)
+    sharp, layout0 = bc.chart_for(R(), 0.1)
+    assert layout0.spec["texture_sigma_mm"] == 0.0 and np.abs(sharp.astype(int) - img).mean() > 5
+
+    names = []
+
+    class Stop(Exception):
+        pass
+
+    monkeypatch.setattr(bc, "CACHE", tmp_path)
+    monkeypatch.setattr(bc, "chart_for", lambda rig, d: (None, None))
+    monkeypatch.setattr(bc, "sweep_sources", lambda s: {})
+
+    def spy(self):
+        names.append(self.name)
+        raise Stop
+
+    monkeypatch.setattr(bc.Path, "is_file", spy)
+    for setup in (bc.LENSES["rf50"], dataclasses.replace(bc.LENSES["rf50"], chart_soften_px=0.0)):
+        R.setup = setup
+        with pytest.raises(Stop):
+            bc.sweep(R(), "nominal", 0)
+    assert names == ["rf50_nominal_0.6m_soft0.7px.npz", "rf50_nominal_0.6m.npz"]

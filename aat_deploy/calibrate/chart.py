@@ -4,7 +4,12 @@ from which its pose, and so every pixel's true distance, is measured (`aat-calib
 The texture is a "dead leaves" image (ISO 19567-2's texture target; Cao, Guichard, Hornung 2010): opaque discs of
 random grey with radii distributed as r^-3 between `leaf_min_mm` and `leaf_max_mm`, drawn until the chart is
 covered. It is statistically the same at every scale, so the focus measure sees texture at any chart distance and
-focal length. Markers (OpenCV's predefined ArUco dictionary `DICT_4X4_250`) sit on a regular grid, each on a white
+focal length. Its sharp disc edges put far more of its power at the finest detail than photographs have (at 0.25-0.5
+cycles per pixel 17 % against 3 %), and where a lens is astigmatic the focus measure then peaks elsewhere than on
+the scenes depth from focus will see: `texture_sigma_mm` softens the texture (not the markers) with a Gaussian,
+and `texture_sigma_for` sets it to SOFT_SENSOR_PX pixels of the camera's image where the chart fills the frame
+(`aat-calibrate chart --frame-px W`), which gives the texture the photographs' share of fine detail
+(benchmarks/probes/chart_texture.py; docs/calibration.md). Markers (OpenCV's predefined ArUco dictionary `DICT_4X4_250`) sit on a regular grid, each on a white
 quiet zone one module wide; the texture fills everything between them.
 
 Coordinates: chart millimetres with the origin at the chart's centre, x right, y down (as printed, seen from the
@@ -29,6 +34,11 @@ FORMAT = "aat-chart-v1"
 DICTIONARY = "DICT_4X4_250"
 MARKER_BITS = 4  # modules of data per side; plus a black border of one module on each side
 QUIET_MODULES = 1.0  # white margin around each marker, in modules
+# the texture's softening (Gaussian SD) in pixels of the camera's image where the chart fills the frame: the
+# value whose finest band's power share (0.25-0.5 cycles/px, 3.3 %) is the nearest, on a 0.1 px grid, to the
+# training photographs' (2.9 %; the dead leaves' 16.5 %), chosen so before any sweep was rendered with it
+# (benchmarks/probes/chart_texture.py --spectra)
+SOFT_SENSOR_PX = 0.7
 
 
 class ChartError(CaptureError):
@@ -40,7 +50,8 @@ class ChartSpec:
     """size_mm (W, H) of the printed chart; markers (nx, ny) on a regular grid; marker_mm: side of a marker
     (black border included; default: a quarter of the grid spacing, at most the spacing minus the quiet zone);
     dpi: pixels per inch of the image; leaf_min_mm / leaf_max_mm: the texture's smallest and largest disc radius
-    (defaults: 1.5 px and a tenth of the shorter side); seed: the texture's random draw."""
+    (defaults: 1.5 px and a tenth of the shorter side); seed: the texture's random draw; texture_sigma_mm: the
+    texture's Gaussian softening (SD, chart mm; 0: sharp discs; `texture_sigma_for`)."""
 
     size_mm: tuple[float, float] = (600.0, 400.0)
     markers: tuple[int, int] = (6, 4)
@@ -49,9 +60,12 @@ class ChartSpec:
     leaf_min_mm: float | None = None
     leaf_max_mm: float | None = None
     seed: int = 0
+    texture_sigma_mm: float = 0.0
 
     def __post_init__(self):
         w, h = self.size_mm
+        if not (math.isfinite(self.texture_sigma_mm) and self.texture_sigma_mm >= 0):
+            raise ValueError(f"texture softening {self.texture_sigma_mm} mm: give a number >= 0")
         nx, ny = self.markers
         if not (w > 0 and h > 0 and math.isfinite(w) and math.isfinite(h)):
             raise ValueError(f"chart size {self.size_mm} mm: give two positive numbers")
@@ -167,15 +181,40 @@ def dead_leaves(height: int, width: int, r_min_px: float, r_max_px: float, rng: 
     return img
 
 
-def make_chart(spec: ChartSpec = ChartSpec()) -> tuple[np.ndarray, ChartLayout]:
-    """The chart image (H, W) uint8 (print it at spec.dpi) and its layout."""
+def texture_sigma_for(frame_width_mm: float, frame_px: int, sensor_px: float = SOFT_SENSOR_PX) -> float:
+    """The texture's softening (mm of chart) that is `sensor_px` pixels of an image frame_px pixels wide whose
+    width spans frame_width_mm of the chart (a chart filling the frame: its width)."""
+    if not (frame_px > 0 and frame_width_mm > 0):
+        raise ValueError(f"frame of {frame_px} px over {frame_width_mm} mm: give positive numbers")
+    return float(sensor_px) * float(frame_width_mm) / float(frame_px)
+
+
+def chart_px(spec: ChartSpec) -> tuple[int, int]:
+    """(W, H) pixels of the chart image."""
+    px = spec.px_per_mm
+    return int(round(spec.size_mm[0] * px)), int(round(spec.size_mm[1] * px))
+
+
+def make_chart(spec: ChartSpec = ChartSpec(), texture: np.ndarray | None = None,
+               texture_name: str | None = None) -> tuple[np.ndarray, ChartLayout]:
+    """The chart image (H, W) uint8 (print it at spec.dpi) and its layout. texture: another (H, W) uint8
+    sRGB-encoded texture than the dead leaves, the markers drawn on it as on them (`chart_px` gives its size;
+    texture_name goes into the layout's spec); a probe's, e.g. a mosaic of photographs
+    (benchmarks/probes/chart_texture.py)."""
     px = spec.px_per_mm
     w_mm, h_mm = spec.size_mm
-    wp, hp = int(round(w_mm * px)), int(round(h_mm * px))
+    wp, hp = chart_px(spec)
     rng = np.random.default_rng(spec.seed)
     leaf_min = spec.leaf_min_mm if spec.leaf_min_mm is not None else 1.5 / px
     leaf_max = spec.leaf_max_mm if spec.leaf_max_mm is not None else 0.1 * min(w_mm, h_mm)
-    img = dead_leaves(hp, wp, leaf_min * px, leaf_max * px, rng)
+    if texture is None:
+        img = dead_leaves(hp, wp, leaf_min * px, leaf_max * px, rng)
+    else:
+        if texture.shape != (hp, wp) or texture.dtype != np.uint8:
+            raise ValueError(f"chart texture {texture.shape} {texture.dtype}: ({hp}, {wp}) uint8 expected")
+        img = texture.copy()
+    if spec.texture_sigma_mm > 0:
+        img = cv2.GaussianBlur(img, (0, 0), spec.texture_sigma_mm * px)
     dictionary = aruco_dictionary(DICTIONARY)
     nx, ny = spec.markers
     side = spec.marker_side_mm
@@ -202,7 +241,9 @@ def make_chart(spec: ChartSpec = ChartSpec()) -> tuple[np.ndarray, ChartLayout]:
             ids.append(k)
             corners.append([[xa, ya], [xb, ya], [xb, yb], [xa, yb]])
     s = {"size_mm": list(spec.size_mm), "markers": list(spec.markers), "marker_mm": side, "dpi": spec.dpi,
-         "leaf_min_mm": leaf_min, "leaf_max_mm": leaf_max, "seed": spec.seed, "texture": "dead leaves, r^-3"}
+         "leaf_min_mm": leaf_min, "leaf_max_mm": leaf_max, "seed": spec.seed,
+         "texture": "dead leaves, r^-3" if texture is None else (texture_name or "given"),
+         "texture_sigma_mm": float(spec.texture_sigma_mm)}
     return img, ChartLayout((w_mm, h_mm), np.array(ids), np.array(corners, np.float64), DICTIONARY, (wp, hp), px, s)
 
 

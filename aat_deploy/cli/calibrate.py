@@ -1,6 +1,7 @@
 """aat-calibrate: calibrate a camera from focus sweeps of a flat chart, without its optical prescription.
 
-    aat-calibrate chart --out chart.png [--size-mm 600,400] [--markers 6,4] [--marker-mm M] [--dpi 150] [--seed N] [--force]
+    aat-calibrate chart --out chart.png [--size-mm 600,400] [--markers 6,4] [--marker-mm M] [--dpi 150] [--seed N]
+                      [--frame-px W | --texture-sigma-mm S] [--force]
     aat-calibrate fit SWEEP_DIR [SWEEP_DIR ...] --chart chart.json --out mycam.json [--distance-m D1,D2,...]
                       [--pupil-to-sensor-mm P] [--sensor-mm W,H] [--max-side 1600] [--boot 100] [--force]
     aat-calibrate fit --from-scenes CAPTURE_DIR [CAPTURE_DIR ...] --out mycam.json [--sensor-mm W,H] [--force]
@@ -9,7 +10,8 @@
     aat-calibrate show mycam.json [--png maps.png]
 
 chart: a printable target (dead-leaves texture and ArUco markers) and chart.json, its layout (print at 100 %:
-the PNG carries its dpi; check a marker's size with a ruler). fit: per sweep the chart's pose from its markers
+the PNG carries its dpi; check a marker's size with a ruler); --frame-px W (your image's width) softens the
+texture to the fine detail photographs have. fit: per sweep the chart's pose from its markers
 and each tile's focus peak; the smooth per-position best-focus model, the reported focus's error and the blur
 growth, with bootstrap intervals; writes mycam.json (format aat-camera-calibration-v1, docs/contracts.md) and
 mycam.png (the maps). Nothing is written when any sweep is unusable (one line each). --distance-m: per sweep, the
@@ -90,17 +92,20 @@ def _say(args, msg: str) -> None:
 
 # -- chart -------------------------------------------------------------------------------------------------------
 def cmd_chart(args) -> int:
-    from ..calibrate.chart import ChartSpec, write_chart
+    from ..calibrate.chart import ChartSpec, texture_sigma_for, write_chart
 
     try:
+        sigma = args.texture_sigma_mm
+        if args.frame_px is not None:
+            sigma = texture_sigma_for(float(args.size_mm[0]), args.frame_px)
         spec = ChartSpec(size_mm=args.size_mm, markers=tuple(int(v) for v in args.markers), dpi=args.dpi,
-                         marker_mm=args.marker_mm, seed=args.seed)
+                         marker_mm=args.marker_mm, seed=args.seed, texture_sigma_mm=sigma)
         png, js = write_chart(args.out, spec, force=args.force)
     except (ValueError, CaptureError) as e:
         print(f"aat-calibrate: error: {e}", file=sys.stderr)
         return EXIT_USAGE
     print(json.dumps({"chart": str(png), "layout": str(js), "size_mm": list(spec.size_mm), "dpi": spec.dpi,
-                      "marker_mm": round(spec.marker_side_mm, 3)}))
+                      "marker_mm": round(spec.marker_side_mm, 3), "texture_sigma_mm": round(spec.texture_sigma_mm, 4)}))
     return EXIT_OK
 
 
@@ -372,6 +377,13 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--marker-mm", type=float, help="marker side in mm (default: a quarter of their spacing)")
     c.add_argument("--dpi", type=float, default=150.0, help="image resolution for printing (default 150)")
     c.add_argument("--seed", type=int, default=0, help="the texture's random seed")
+    soft = c.add_mutually_exclusive_group()
+    soft.add_argument("--frame-px", type=int, metavar="W",
+                      help="your camera image's width in pixels: the texture is softened to 0.7 of its pixels where "
+                      "the chart fills the frame's width, as fine as photographs' detail (recommended; "
+                      "docs/calibration.md)")
+    soft.add_argument("--texture-sigma-mm", type=float, default=0.0, metavar="S",
+                      help="the texture's softening (Gaussian SD, mm of chart; default 0: sharp dead leaves)")
     c.add_argument("--force", action="store_true", help="overwrite existing files")
     f = subparser(sub, "fit", "fit a camera calibration to chart sweeps")
     f.add_argument("sweeps", nargs="+", metavar="SWEEP_DIR", help="one capture folder per chart position (with "
