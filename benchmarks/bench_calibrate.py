@@ -433,8 +433,14 @@ def as_sweep(rig: Rig, sw: dict, variant: str, keep_every: int = 1):
     idx = np.arange(0, len(sw["reported_m"]), keep_every)
     ident = {"make": "aat", "model": "virtual camera", "lens": rig.lens.name,
              "focal_length_mm": round(rig.efl, 2), "f_number": round(rig.fno, 2)}
-    return Sweep(Path(f"{rig.setup.key}_{variant}_{sw['distance_m']:g}m"), sw["frames"][idx], sw["reported_m"][idx],
+    return Sweep(Path(sweep_name(rig.setup, variant, sw["distance_m"])), sw["frames"][idx], sw["reported_m"][idx],
                  ident, (rig.w, rig.h), 1.0)
+
+
+def sweep_name(setup: LensSetup, variant: str, distance_m: float) -> str:
+    """A chart sweep's name as the fit reports it (its folder's): the setup, the copy (a random copy's own name,
+    `copy_s2026_0`, not the variant's `copy`) and the chart's distance."""
+    return f"{setup.key}_{variant if variant == 'nominal' else setup.copy_name}_{distance_m:g}m"
 
 
 def sensor_mm(rig: Rig) -> tuple[float, float]:

@@ -424,3 +424,24 @@ def test_the_benchmarks_chart_is_aat_calibrates_softened_chart_cached_apart_from
         with pytest.raises(Stop):
             bc.sweep(R(), "nominal", 0)
     assert names == ["rf50_nominal_0.6m_soft0.7px.npz", "rf50_nominal_0.6m.npz"]
+
+
+def test_a_random_copys_sweeps_are_named_after_the_copy():
+    """The fit names each sweep (its warnings, `residuals.per_sweep`) after its copy, not the variant: a random
+    copy's sweeps were all named `..._copy_...` before, like the hand-chosen copy's."""
+    from benchmarks import calibrate_copies as cc
+
+    base = bc.LENSES["cellphone_near"]
+    s = cc.copy_setup(base, 2026, _copies("cellphone_near", 1, n_el=6)[0])
+
+    class R:
+        setup, w, h, efl, fno = s, 8, 6, 5.6, 2.8
+
+        class lens:
+            name = "phone"
+
+    sw = {"distance_m": 0.055, "frames": np.zeros((3, 3, 6, 8), np.float32), "reported_m": np.array([3.0, 2.0, 1.0])}
+    assert bc.as_sweep(R(), sw, "copy").path.name == "cellphone_near_copy_s2026_0_0.055m"
+    assert bc.as_sweep(R(), sw, "nominal").path.name == "cellphone_near_nominal_0.055m"
+    R.setup = base
+    assert bc.as_sweep(R(), sw, "copy").path.name == "cellphone_near_copy_0.055m"
