@@ -185,16 +185,15 @@ def rig_for(base_rig, texture: str, variant: str):
 
 
 def run_one(base_rig, texture: str, variant: str, log) -> dict:
-    from aat_deploy.calibrate.fit import fit_calibration
     from benchmarks import bench_calibrate as B
     from benchmarks.probes import phone_map_budget as P
 
     rig, v = rig_for(base_rig, texture, variant)
     t0 = time.time()
-    out = P.run_variant(rig, v, {"lens map (64 px crops)": None}, log)
+    keep: dict = {}
+    out = P.run_variant(rig, v, {"lens map (64 px crops)": None}, log, keep=keep)
     eff = B.effects_for(rig.setup, v)
-    sweeps = [B.sweep(rig, v, i, log) for i in range(len(rig.setup.distances_m))]
-    res = fit_calibration(B.measures(rig, sweeps, v), n_boot=0)
+    res = keep["fit"]  # bench_calibrate.fit's with n_boot=0: the map part a scores (its bootstrap only adds intervals)
     e = B.map_errors(rig, res.calibration, eff, rig.setup.inside())["calibration"]
     sc = out["scores"]["lens map (64 px crops)"]
     fitted = [p for p in res.calibration.residuals["per_sweep"] if "distance_given_m" in p]

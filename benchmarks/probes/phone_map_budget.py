@@ -154,7 +154,8 @@ def extrapolated(cal):
     return dataclasses.replace(cal, best_focus=dataclasses.replace(cal.best_focus, radius_max=None))
 
 
-def run_variant(rig, variant: str, truths: dict, log) -> dict:
+def run_variant(rig, variant: str, truths: dict, log, keep: dict | None = None) -> dict:
+    """keep: a dict that receives the measured fit (`fit_calibration`'s result) under "fit" (probes/chart_texture)."""
     from aat_deploy.calibrate import in_focus_diopters
     from aat_deploy.calibrate.fit import fit_calibration
     from aat_deploy.calibrate.format import field_radius_of
@@ -167,6 +168,8 @@ def run_variant(rig, variant: str, truths: dict, log) -> dict:
     sweeps = [B.sweep(rig, variant, i, log) for i in range(len(s.distances_m))]
     ms = B.measures(rig, sweeps, variant)
     res = fit_calibration(ms, n_boot=0)
+    if keep is not None:
+        keep["fit"] = res
     res.sweeps_measured = res.measures  # as fitted: a chart whose distance the fit found has its tiles' objects there
     obs = res.observations  # after the fit's outlier pass
     tiles = tile_table(res, rig, eff, scale)
