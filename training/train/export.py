@@ -23,6 +23,15 @@ def largest_training_image_px(data: dict) -> int:
     return int(data.get("crop") or render)
 
 
+def tile_px_for(model, data: dict) -> int:
+    """aat.tile_px of an any-camera net: the largest training image (`largest_training_image_px`) for zero-padded
+    nets, which read the image border as a cue; 0 (whole frames) for nets padded otherwise, whose error no longer
+    depends on it (the padding ablation: whole frames 0.954 [0.900, 0.976]x 128 px tiles, a square amid a mirrored
+    margin 0.993x the square alone; benchmarks/probes/anycam_border.py, docs/training.md)."""
+    pad = getattr(getattr(getattr(model, "net", None), "cfg", None), "pad_mode", "zeros")
+    return largest_training_image_px(data) if pad == "zeros" else 0
+
+
 def export_checkpoint(checkpoint, out, *, force: bool = False, extra: dict | None = None,
                       ) -> tuple[dict[str, str], float]:
     """checkpoint: a run's model.pt (or last.pt). Writes `out` (atomic, no overwrite unless force) and returns
@@ -36,7 +45,7 @@ def export_checkpoint(checkpoint, out, *, force: bool = False, extra: dict | Non
         md = focus_map_metadata(model, effects=["camera_processing"], stack_range=cfg.stack_range,
                                 config_hash=cfg.hash(), k_range=(0.3, K_MAX_PX_PER_D),
                                 extra={"train_steps": cfg.steps, "config_name": cfg.name,
-                                       "tile_px": str(largest_training_image_px(cfg.data)), **(extra or {})})
+                                       "tile_px": str(tile_px_for(model, cfg.data)), **(extra or {})})
         return md, export_focus_map_onnx(model, out, md, force=force)
     lens = load_lens(resolve_lens_path(cfg.lens))
     md = dff_metadata(model, lens, simulator=cfg.simulator, effects=list(cfg.effects),

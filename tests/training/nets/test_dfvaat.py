@@ -138,3 +138,14 @@ def test_the_export_of_the_first_runs_checkpoint_matches_its_first_export_and_ha
         dmax = float((1.0 / fd.clamp_min(MIN_DIOPTERS)).max())
         for o, c, scale in zip(old, cur, (dmax, float(stack.max()), dmax)):
             assert o.shape == c.shape and float(np.abs(o - c).max()) < 1e-5 * scale, shp
+
+
+def test_tile_px_follows_the_padding():
+    """Zero-padded any-camera nets run in tiles of their largest training image; edge-padded ones on whole frames."""
+    from training.nets.dfvaat import build
+    from training.train.export import tile_px_for
+
+    data = {"height": 256, "width": 256, "crop_sizes": [128, 192, 256]}
+    assert tile_px_for(build("small"), data) == 256
+    assert tile_px_for(build("small"), {"height": 128, "width": 128}) == 128
+    assert tile_px_for(build("small_replicate"), data) == 0
