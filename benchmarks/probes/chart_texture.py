@@ -282,17 +282,10 @@ def main(argv=None) -> int:
                 row = run_one(base, t, v, log)
                 rows = [r for r in rows if (r["texture"], r["variant"]) != (t, v)] + [row]
                 res["rows"] = rows
-                _save(out_path, res)
-    _save(out_path, res)
+                B.save(res, out_path)
+    B.save(res, out_path)
     print(table(res))
     return 0
-
-
-def _save(path: Path, res: dict) -> None:
-    from aat_deploy.io.atomic import write_text_atomic
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(path, json.dumps(res, indent=1, default=float))
 
 
 if __name__ == "__main__":
