@@ -1,6 +1,6 @@
 """Runtime inference: onnxruntime (what `aat-infer` runs) vs torch eager on the same net and input.
 
-    OMP_WAIT_POLICY=PASSIVE python -m benchmarks.bench_runtime [--sizes small] [--hw 640x960] [--stack 8]
+    OMP_WAIT_POLICY=PASSIVE python -m benchmarks.bench_runtime [--sizes small] [--hw 640x960] [--stack 8] [--anycam-size S]
         [--nets dfvnet,aifnet,dfvaat] [--threads 2] [--tile N] [--rounds 5] [--json results/runtime.json]
 
 For each net, a freshly built model (weights do not change the speed) is exported exactly as the shipped
@@ -43,6 +43,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--tile", type=int, default=None,
                     help="the any-camera net's tile (px; default: the largest image configs/anycam/dfv_aat.json "
                          "trains on, what its export writes as aat.tile_px)")
+    ap.add_argument("--anycam-size", default=None,
+                    help="the any-camera net's size (training.nets.dfvaat.CONFIGS, e.g. small_replicate: edge-value "
+                         "padding, which adds Pad nodes; default: each --sizes value)")
     ap.add_argument("--rounds", type=int, default=5,
                     help="with dfvnet and dfvaat: rounds in which the DFVNet and the any-camera net's ways run in turn "
                          "(0: none)")
@@ -65,7 +68,8 @@ def main(argv: list[str] | None = None) -> None:
     for size in args.sizes.split(","):
         for net in args.nets.split(","):
             if net == "dfvaat":
-                more, runtimes[("dfvaat", size)] = any_camera(size, stack, focus, threads, args.tile)
+                more, runtimes[("dfvaat", size)] = any_camera(args.anycam_size or size, stack, focus, threads,
+                                                              args.tile)
                 rows.extend(more)
                 continue
             torch.manual_seed(0)

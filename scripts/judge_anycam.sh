@@ -5,18 +5,26 @@
 # TILE: the side (px) dfv_aat runs in, 0 = whole frames; default the model's aat.tile_px. Choose it on validation
 # stacks first (step 1 prints them), never on the test scenes below.
 # Results: results/anycam_LABEL.json (+ _z35), results/runtime_anycam_LABEL.json, results/figures/anycam_real_LABEL.
-# Every bench_anycam command skips the rows its results file already holds, so rerunning continues after a kill.
+# Every bench_anycam command skips the rows its results file already holds, so a rerun continues there after a kill
+# (steps 1, 4 and 5 run again in full).
 # LOCK=/path/to/lock runs each heavy command under that flock (a lane of a shared machine); one thread each.
+# DRY=1 prints the commands instead of running them.
 set -euo pipefail
-cd "$(dirname "$0")/.."
 [ $# -ge 2 ] || { echo "usage: scripts/judge_anycam.sh MODEL.onnx LABEL [TILE]" >&2; exit 2; }
-model=$1 label=$2
-[ -f "$model" ] || { echo "$model: no such model" >&2; exit 2; }
+[ -f "$1" ] || { echo "$1: no such model" >&2; exit 2; }
+model=$(realpath "$1") label=$2
+cd "$(dirname "$0")/.."
 export OMP_WAIT_POLICY=PASSIVE OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}"
 # bench_runtime's own default is the tile of configs/anycam/dfv_aat.json, so name the model's own one
 tile=${3:-$(python -c "import onnxruntime as o, sys
 print(o.InferenceSession(sys.argv[1]).get_modelmeta().custom_metadata_map.get('aat.tile_px', ''))" "$model")}
-run() { if [ -n "${LOCK:-}" ]; then flock "$LOCK" nice -n 10 "$@"; else nice -n 10 "$@"; fi; }
+run() {
+  if [ -n "${DRY:-}" ]; then echo "$*"; return; fi  # DRY=1: print the commands only
+  if [ -n "${LOCK:-}" ]; then flock "$LOCK" nice -n 10 "$@"; else nice -n 10 "$@"; fi
+}
+# the speed row times a fresh net of the model's own size (its padding adds Pad nodes)
+size=$(python -c "import onnxruntime as o, sys
+print(o.InferenceSession(sys.argv[1]).get_modelmeta().custom_metadata_map.get('aat.size', 'small'))" "$model")
 tile_arg=(); [ -n "$tile" ] && tile_arg=(--tile "$tile")
 tiles=$(echo "$tile,0,256,128" | tr ',' '\n' | awk 'NF && !seen[$0]++' | paste -sd,)
 
@@ -38,7 +46,7 @@ done
 run "${B[@]}" --lenses --tables stack_size
 run "${B[@]}" --lenses --tables schedule
 # 4. speed against today's DfF net at the same size
-run python -m benchmarks.bench_runtime --nets dfvnet,dfvaat --threads 1 "${tile_arg[@]}" \
+run python -m benchmarks.bench_runtime --nets dfvnet,dfvaat --anycam-size "$size" --threads 1 "${tile_arg[@]}" \
   --json "results/runtime_anycam_${label}.json"
 # 5. the real stacks: shown, not scored
 run python -m scripts.make_real_gallery --model "$model" --methods focus,dfv_aat --stacks lytro_lightfield \

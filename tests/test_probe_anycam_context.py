@@ -39,13 +39,21 @@ def test_border_probe_squares_and_its_three_ways():
     seen = []
 
     def infer(st, mp):  # the "depth" is the first frame's red channel plus the first map: shows what was passed
-        seen.append(st.shape[-2:])
+        seen.append((st.copy(), mp.copy()))
         assert st.shape[-2:] == mp.shape[-2:]
         return st[0, 0] + mp[0]
 
     alone, mirrored, true = three_ways(infer, stack, maps, 128, 160, 64, 32)
     want = stack[0, 0, 128:192, 160:224] + maps[0, 128:192, 160:224]
-    assert seen == [(64, 64), (128, 128), (128, 128)]
+    sq, msq = stack[:, :, 128:192, 160:224], maps[:, 128:192, 160:224]
+    (s0, m0), (s1, m1), (s2, m2) = seen
+    np.testing.assert_array_equal(s0, sq)
+    np.testing.assert_array_equal(m0, msq)
+    # the margin is the square mirrored (stack and maps alike), or the frame around it
+    np.testing.assert_array_equal(s1, np.pad(sq, ((0, 0), (0, 0), (32, 32), (32, 32)), mode="reflect"))
+    np.testing.assert_array_equal(m1, np.pad(msq, ((0, 0), (32, 32), (32, 32)), mode="reflect"))
+    np.testing.assert_array_equal(s2, stack[:, :, 96:224, 128:256])
+    np.testing.assert_array_equal(m2, maps[:, 96:224, 128:256])
     # the square itself is the same three ways; only what surrounds it differs
     for d in (alone, mirrored, true):
         np.testing.assert_array_equal(d, want)

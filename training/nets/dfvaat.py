@@ -36,9 +36,9 @@ MIN_DIOPTERS = 1e-3  # 1 km: depth of a pixel whose interpolated focus is at or 
 EXTRA_CHANNELS = 2
 # the small DFVNet with a slightly narrower context fusion, so that the conditioning leaves the parameter count at or
 # below the small DFVNet's (902,806)
-# "small_replicate": the same net padding with its edge values (training.nets.blocks.set_padding_mode; reflection
-# fails on 32 px images), which hardly marks the image border: do the nets fail on whole frames because zero
-# padding does? (docs/training.md)
+# "small_replicate": the same net padding with its edge values on every padded axis, the 3-D convs' frame axis
+# included (training.nets.blocks.set_padding_mode; reflection fails on 32 px images), which hardly marks the image
+# border: do the nets fail on whole frames because zero padding does? (docs/training.md)
 CONFIGS = {"small": replace(DFVNET_CONFIGS["small"], context_fuse=62)}
 CONFIGS["small_replicate"] = replace(CONFIGS["small"], pad_mode="replicate")
 

@@ -242,6 +242,9 @@ def init_model(model: DfFNet, path, dataset=None, n_items: int = 8) -> dict:
     net, size = init_kind(path)
     if net != model.name or (size != model.size and not same_tensors(model, net, size)):
         raise InitError(f"{path}: is a {net or '?'} {size or '?'} model; the run trains a {model.name} {model.size}")
+    if size != model.size and path.suffix.lower() == ".onnx":  # its padding is in the graph, not in the weights
+        raise InitError(f"{path}: an ONNX file starts only a {size} net (its padding is part of the graph); start the "
+                        f"{model.size} net from the run's checkpoint (model.pt / last.pt)")
     if path.suffix.lower() != ".onnx":
         from training.train.checkpoint import load
 

@@ -142,6 +142,8 @@ def test_the_export_of_the_first_runs_checkpoint_matches_its_first_export_and_ha
 
 def test_tile_px_follows_the_padding():
     """Zero-padded any-camera nets run in tiles of their largest training image; edge-padded ones on whole frames."""
+    from dataclasses import replace
+
     from training.nets.dfvaat import build
     from training.train.export import tile_px_for
 
@@ -149,3 +151,6 @@ def test_tile_px_follows_the_padding():
     assert tile_px_for(build("small"), data) == 256
     assert tile_px_for(build("small"), {"height": 128, "width": 128}) == 128
     assert tile_px_for(build("small_replicate"), data) == 0
+    untested = build("small")
+    untested.net.cfg = replace(untested.net.cfg, pad_mode="reflect")
+    assert tile_px_for(untested, data) == 256

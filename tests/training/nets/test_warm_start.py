@@ -111,3 +111,6 @@ def test_a_size_with_the_same_tensors_starts_from_the_other(tmp_path):
         init_model(build_model("dfvnet", "full"), bad)
     with pytest.raises(ValueError, match="padding mode"):
         set_padding_mode(dst, "circularish")
+    # an ONNX file carries its padding in the graph: it starts only its own size
+    with pytest.raises(InitError, match="starts only a small net"):
+        init_model(build_model("dfvaat", "small_replicate"), ROOT / "models" / "reproduce" / "dfv_aat_v1.onnx")
