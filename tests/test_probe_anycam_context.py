@@ -1,4 +1,5 @@
-"""probes/anycam_context and anycam_errmap: argument checks made before any export or render."""
+"""probes/anycam_context, anycam_errmap, anycam_border and anycam_precise_bn: argument checks made before any
+export or render."""
 
 import pytest
 
@@ -57,3 +58,16 @@ def test_border_probe_squares_and_its_three_ways():
     # the square itself is the same three ways; only what surrounds it differs
     for d in (alone, mirrored, true):
         np.testing.assert_array_equal(d, want)
+
+
+def test_precise_bn_probe_refuses_bad_counts_and_missing_checkpoints(tmp_path, capsys):
+    from benchmarks.probes import anycam_precise_bn
+
+    ck = tmp_path / "last.pt"
+    ck.write_bytes(b"")
+    with pytest.raises(SystemExit):
+        anycam_precise_bn.main([str(ck), "--stacks", str(tmp_path), "--batches", "0,-5"])
+    assert "--batches: counts >= 0, got [0, -5]" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        anycam_precise_bn.main([str(tmp_path / "none.pt"), "--stacks", str(tmp_path)])
+    assert "no such checkpoint: " in capsys.readouterr().err
