@@ -31,6 +31,7 @@ import torch
 from torch import nn
 
 from aat_deploy.errors import AatError
+from training.nets import registry
 from training.nets.export import PARITY_TOL
 from training.nets.model import DfFNet, pad_to_multiple, sort_by_focus
 
@@ -245,6 +246,11 @@ def init_model(model: DfFNet, path, dataset=None, n_items: int = 8) -> dict:
     if size != model.size and path.suffix.lower() == ".onnx":  # its padding is in the graph, not in the weights
         raise InitError(f"{path}: an ONNX file starts only a {size} net (its padding is part of the graph); start the "
                         f"{model.size} net from the run's checkpoint (model.pt / last.pt)")
+    if path.suffix.lower() == ".onnx" and registry.get(model.name).focus_maps:
+        # its graph computes the focus conditioning from slices of the weights (training.nets.dfvaat.cond_bias):
+        # they do not map back onto the net's tensors by name
+        raise InitError(f"{path}: the any-camera net ({model.name}) starts only from a training checkpoint "
+                        "(model.pt / last.pt, e.g. checkpoints/dfv_aat_v1/), not from its ONNX export")
     if path.suffix.lower() != ".onnx":
         from training.train.checkpoint import load
 

@@ -114,3 +114,13 @@ def test_a_size_with_the_same_tensors_starts_from_the_other(tmp_path):
     # an ONNX file carries its padding in the graph: it starts only its own size
     with pytest.raises(InitError, match="starts only a small net"):
         init_model(build_model("dfvaat", "small_replicate"), ROOT / "models" / "reproduce" / "dfv_aat_v1.onnx")
+
+
+def test_the_any_camera_net_refuses_its_onnx_export_in_one_line_and_starts_from_its_checkpoint():
+    """Its ONNX graph computes the focus conditioning from slices of the weights, which do not map back by name
+    (it once failed deep in the parity check); its committed checkpoint starts it."""
+    net = build_model("dfvaat", "small")
+    with pytest.raises(InitError, match=r"dfv_aat_v1\.onnx: the any-camera net \(dfvaat\) starts only from a training "
+                                        r"checkpoint"):
+        init_model(net, ROOT / "models" / "reproduce" / "dfv_aat_v1.onnx")
+    assert init_model(net, ROOT / "checkpoints" / "dfv_aat_v1" / "last.pt")["kind"] == "checkpoint"
