@@ -167,13 +167,17 @@ def score(kind: str, family: str, true_d: np.ndarray, rep_d: np.ndarray, res: di
             "corrected_err_d": (corr_d - true_d).round(4).tolist(),
             "corrected_max_err_d": float(np.abs(corr_d - true_d).max()),
             "reported_max_err_d": float(np.abs(rep_d - true_d).max()),
-            "frame_err_d": (per - true_d).round(4).tolist(), "frame_max_err_d": float(np.abs(per - true_d).max()),
+            # a noise-dominated frame has no estimate (null: NaN here); the largest error is the others'
+            "frame_err_d": (per - true_d).round(4).tolist(),
+            "frame_max_err_d": float(np.nanmax(np.abs(per - true_d))) if np.isfinite(per).any() else None,
             "frames_on_bound": int(on_bound.sum()), "verdict": res.get("verdict"), "named": named,
             "robust": f.get("robust"), "frame_focus_sd_d": f.get("frame_focus_sd_d"),
             "frame_systematic_d": f.get("frame_systematic_d"), "corrected_sd_d": f.get("corrected_sd_d"),
             "frame_consistency": f.get("frame_consistency"), "error_scale": f.get("error_scale"),
             "undetermined_covers": undetermined_covers(f, true_d),
             "frames_undetermined": int(np.sum(f.get("frames_undetermined") or [])),
+            "frames_noise_dominated": (f.get("frames_noise_dominated") or [[]])[0],
+            "frame_noise_share": (f.get("frame_noise_share") or [[]])[0], "focus_twin": f.get("focus_twin"),
             "families": [{k: x.get(k) for k in ("family", "k", "score", "true_d")} for x in f.get("families", [])]}
 
 
@@ -193,7 +197,8 @@ def undetermined_frames(row: dict) -> np.ndarray:
     from aat_deploy.diagnose import focusfit as ff
 
     sd = np.asarray(row.get("corrected_sd_d") or [[0.0] * len(row["corrected_err_d"])], np.float64)[0]
-    return sd >= ff.UNDETERMINED_SD_D
+    dom = np.asarray(row.get("frames_noise_dominated") or [False] * len(sd), bool)  # undetermined whatever their sd
+    return (sd >= ff.UNDETERMINED_SD_D) | dom
 
 
 def reported_outside(row: dict, z: float = 1.959964) -> bool | None:

@@ -16,9 +16,12 @@ Torch-free and training-free: effects are made through `FitState.make` (the regi
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from statistics import NormalDist
 
 import numpy as np
@@ -28,6 +31,7 @@ from aat_deploy.diagnose import focusfit as ff
 from aat_deploy.diagnose.binned import bin_frames, binned_capture
 from aat_deploy.diagnose.compare import focus_curves, image_distances, region_brightness, region_index, region_shifts
 from aat_deploy.diagnose.optimise import grid_then_golden
+from aat_deploy.errors import CaptureError
 from aat_deploy.infer.normalise import normalise_scale, normalise_stack, scaled
 
 SWEEP_STEP_D = 0.06  # focus sweep spacing (diopters); curves are interpolated between (Catmull-Rom)
@@ -35,6 +39,10 @@ SWEEP_MARGIN_D = ff.MAX_ERROR_D + 0.05
 # whether the focus-metadata fit's sweep carries the twin's noise by its expectation (`noisefloor`) instead of a
 # binned draw. Off: tried on scene 2038 (issue 32; docs/diagnosis.md, Limits, "Scene 2038"), not adopted.
 NOISE_FLOOR = False
+# whether the focus-metadata fit of RAW captures reads focus on its own twin with the capture's development,
+# vignetting and noise by its expectation, the full well fitted against it (`focus_twin`; issue 32)
+FOCUS_TWIN = True
+FULL_WELL_RANGE_E = (300.0, 1e6)  # the full wells `full_well_on_floor` searches (electrons)
 MIN_TEXTURE_LOG = 0.5  # a region whose twin focus measure varies less than this over the sweep says nothing
 
 
@@ -101,7 +109,7 @@ def focus_sweep(state: FitState, step_d: float = SWEEP_STEP_D, correct: bool = T
     grid = np.arange(lo, hi + 1e-9, step_d)
     key = (tuple(tb.spec(e) for e in chain), float(grid[0]), len(grid)) + (("noise_floor",) if analytic else ())
     if key not in state.sweep_cache:
-        twin_curves, twin_lum, signal_c, floor_c = [], [], [], []
+        twin_curves, twin_lum, signal_c, floor_c, read_c = [], [], [], [], []
         factor_c = noisefloor.developed_factor(chain, state.factor) if analytic else None
         for i, (c, a) in enumerate(zip(state.caps_b, state.aifs_b)):
             if analytic:
@@ -109,10 +117,11 @@ def focus_sweep(state: FitState, step_d: float = SWEEP_STEP_D, correct: bool = T
                 scale = float(normalise_scale(lin))
                 stack = scaled(lin, scale)
                 sig = focus_curves(stack, ff.FIT_GRID)  # (R, K, C) log
-                flo = noisefloor.floor(lin, scale, noisefloor.noise_of(chain).binned(state.factor), factor_c,
-                                       ff.FIT_GRID)
+                nb = noisefloor.noise_of(chain).binned(state.factor)
+                flo = noisefloor.floor(lin, scale, nb, factor_c, ff.FIT_GRID)
                 signal_c.append(sig)
                 floor_c.append(flo)
+                read_c.append(np.broadcast_to(noisefloor.read_part(scale, nb, factor_c), flo.shape))
                 twin_curves.append(noisefloor.compose(sig, flo))
             else:
                 stack = normalise_stack(np.clip(tb.linear(c, a, chain, state.seed + i, focus_true_m=1.0 / grid), 0,
@@ -120,8 +129,9 @@ def focus_sweep(state: FitState, step_d: float = SWEEP_STEP_D, correct: bool = T
                 twin_curves.append(focus_curves(stack, ff.FIT_GRID).mean(-1))
             twin_lum.append(region_brightness(stack, ff.FIT_GRID).mean(-1))
         state.sweep_cache[key] = (np.stack(twin_curves), np.stack(twin_lum),  # (n, R, K), (n, R)
-                                  np.stack(signal_c) if analytic else None, np.stack(floor_c) if analytic else None)
-    twin, twin_lum, signal_c, floor_c = state.sweep_cache[key]
+                                  np.stack(signal_c) if analytic else None, np.stack(floor_c) if analytic else None,
+                                  np.stack(read_c) if analytic else None)
+    twin, twin_lum, signal_c, floor_c, read_c = state.sweep_cache[key]
     s_max = max(len(r) for r in rep)
     cap = np.full((len(rep), twin.shape[1], s_max), np.nan)
     cap_lum = np.full_like(cap, np.nan)
@@ -136,7 +146,7 @@ def focus_sweep(state: FitState, step_d: float = SWEEP_STEP_D, correct: bool = T
     rows, cols = ff.FIT_GRID
     r, q = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")
     xy = np.stack([2 * (q.ravel() + 0.5) / cols - 1, 1 - 2 * (r.ravel() + 0.5) / rows], 1)
-    data = ff.SweepData(grid, twin, cap, rep_d, base_d, xy, weight, cap_lum, twin_lum, signal_c, floor_c)
+    data = ff.SweepData(grid, twin, cap, rep_d, base_d, xy, weight, cap_lum, twin_lum, signal_c, floor_c, read_c)
     if correct and state.full_curves is not None:
         data = data.with_correction(binning_correction(state, chain, grid, base, analytic))
     return data
@@ -176,19 +186,139 @@ def shifted_focus_d(table, focus_d: np.ndarray, dz_mm: np.ndarray) -> np.ndarray
     return np.interp(np.clip(z, table.sensor_z_mm[0], table.sensor_z_mm[-1]), table.sensor_z_mm, table.diopters)
 
 
+def captures_raw(state: FitState) -> bool:
+    """Whether every capture's frames are RAW files (developed by the runtime, as `raw_pipeline` develops a twin)."""
+    from aat_deploy.capture.imagefile import frame_kind
+
+    for c in state.caps:
+        files = list(getattr(c, "files", []) or [])
+        if not files:
+            return False
+        path = Path(c.path) / files[0]
+        try:
+            with path.open("rb") as f:
+                if frame_kind(path, f.read(1 << 16)) != "raw":
+                    return False
+        except (OSError, ValueError, CaptureError):
+            return False
+    return True
+
+
+def lighting_misfit(state: FitState, chain: list) -> float:
+    """How differently the binned twin with `chain` (no noise drawn) is lit across the field from the captures: per
+    capture, every region's median over the frames of the log luminance ratio (capture over twin), less its median
+    over the regions, squared and summed (a global exposure counts nothing)."""
+    total = 0.0
+    for i, (c, a, real) in enumerate(zip(state.caps_b, state.aifs_b, state.real_b)):
+        lin = np.clip(state.tb.linear(c, a, noisefloor.quiet(chain), state.seed + i), 0, None)
+        res = region_brightness(real, ff.FIT_GRID) - region_brightness(normalise_stack(lin), ff.FIT_GRID)
+        per = np.median(res, 1)
+        total += float(np.sum((per - np.median(per)) ** 2))
+    return total
+
+
+def focus_twin(state: FitState) -> tuple[FitState, dict] | None:
+    """The twin the focus-metadata fit reads focus on, when the captures are RAW files (`FOCUS_TWIN`; issue 32):
+    the round's chain with the capture's own nuisances put in first, whatever the greedy search has named so far,
+    so that the focus is fitted after them: the RAW development (`raw_pipeline`, the runtime's), vignetting when
+    it brings the twin's lighting across the field closer to the captures' (`lighting_misfit`), and the noise
+    carried by its expectation (`noisefloor`), at a reference full well that `fit_focus_metadata` then refits
+    against the expected floor (`full_well_on_floor`; a noise the chain has, fitted on binned draws, is replaced).
+    None (the chain as it is, noise drawn) for other captures (a phone's JPEG: its processing changes the noise
+    the floor assumes), when an effect after the noise is not a development, or when the model's own simulator
+    renders noise."""
+    if not captures_raw(state):
+        return None
+    base = {e.name for e in getattr(state.twins, "base", [])}
+    if "noise" in base:
+        return None
+    n = noisefloor.noise_of(state.chain)
+    if n is not None and not noisefloor.applies(state.chain):
+        return None
+    chain = [e for e in state.chain if e.name != "noise"]
+    names = base | {e.name for e in chain}
+    rep: dict = {"added": []}
+    if "raw_pipeline" not in names:
+        chain.append(state.make("raw_pipeline"))
+        rep["added"].append("raw_pipeline")
+    if "vignetting" not in names:
+        with_v = chain + [state.make("vignetting")]
+        m0, m1 = lighting_misfit(state, chain), lighting_misfit(state, with_v)
+        rep["lighting_misfit"] = {"without_vignetting": m0, "with_vignetting": m1}
+        if m1 < m0:
+            chain = with_v
+            rep["added"].append("vignetting")
+    chain.append(state.make("noise"))  # the reference full well: refitted on the expected floor
+    twin = copy.copy(state)
+    twin.chain = chain
+    rep["chain"] = [e.name for e in chain]
+    return twin, rep
+
+
+def full_well_on_floor(data: ff.SweepData, full_well_e: float) -> tuple[float | None, dict]:
+    """The full well (electrons) whose expected noise floor (`noisefloor`) makes the sweep `data` (made with
+    `full_well_e`, its floor) fit the captures best, every frame's focus free (`focusfit.frame_focus`) and each
+    frame's exposure corrected as `focusrobust.prepare` corrects it: grid then golden-section search in log
+    electrons over FULL_WELL_RANGE_E. None when no floor fits better than none (or the best is at the noiseless
+    end)."""
+    base = dataclasses.replace(data, capture=data.capture - 2.0 * focusrobust.frame_gains_log(data)[:, None, :])
+    seen: dict[float, float] = {}
+
+    def cost(u: float) -> float:
+        if u not in seen:
+            d = base.with_full_well(full_well_e / math.exp(u) if math.isfinite(u) else 0.0)
+            seen[u] = ff.residual_ss(d, ff.frame_focus(d, start=data.base_d))
+        return seen[u]
+
+    lo, hi = (math.log(x) for x in FULL_WELL_RANGE_E)
+    u, v = grid_then_golden(cost, lo, hi, n=8, tol=0.05)
+    none = cost(math.inf)
+    rep = {"full_well_e": math.exp(u), "ss": v, "ss_without": none,
+           "profile": {f"{math.exp(k):.0f}": val for k, val in sorted(seen.items()) if math.isfinite(k)}}
+    if u > hi - 0.3 or v >= none:
+        return None, rep
+    return _sig(math.exp(u), 2), rep
+
+
 def fit_focus_metadata(state: FitState) -> Fitted:
     """The focus-metadata error family the images support (`focusfit.fit_metadata`, on the sweep made robust to
     the frames' exposure, the capture's noise floor and poorly matched regions: `focusrobust.prepare`) and the
-    corrected focus distances of every capture (metres, with intervals)."""
-    if state.full_curves is not None:  # the binning correction anchored at the frames' estimated focus too
+    corrected focus distances of every capture (metres, with intervals). With RAW captures (`FOCUS_TWIN`) the sweep
+    is the `focus_twin`'s: the development, vignetting and the noise by its expected floor, the full well fitted
+    against that floor (`full_well_on_floor`). Frames whose expected measure is mostly noise there
+    (`focusfit.noise_share` at their estimates, at least NOISE_DOMINATED_SHARE) are left out of the fit and reported
+    undetermined, without an estimate."""
+    made = focus_twin(state) if FOCUS_TWIN else None
+    st, floor_on, twin_rep = (made[0], True, made[1]) if made is not None else (state, NOISE_FLOOR, {})
+    fitted: dict = {}
+
+    def with_noise(d: ff.SweepData) -> ff.SweepData:
+        """The sweep at the full well fitted against its expected floor (fitted once, on the first sweep seen)."""
+        if made is None or d.floor_c is None:
+            return d
+        if "ratio" not in fitted:
+            fw0 = float(noisefloor.noise_of(st.chain).params["full_well_e"])
+            fw, rep = full_well_on_floor(d, fw0)
+            fitted.update(ratio=0.0 if fw is None else fw0 / fw, report={**rep, "fitted_full_well_e": fw})
+        return d.with_full_well(fitted["ratio"])
+
+    if st.full_curves is not None:  # the binning correction anchored at the frames' estimated focus too
         sweep, anchored = anchors.reanchored_sweep(
-            state, focus_sweep(state, correct=False, noise_floor=NOISE_FLOOR),
-            lambda d: np.asarray(focusrobust.prepare(d)[1]["frame_focus_d"][-1]))
+            st, focus_sweep(st, correct=False, noise_floor=floor_on),
+            lambda d: np.asarray(focusrobust.prepare(with_noise(d))[1]["frame_focus_d"][-1]))
     else:
-        sweep, anchored = focus_sweep(state, noise_floor=NOISE_FLOOR), {}
+        sweep, anchored = focus_sweep(st, noise_floor=floor_on), {}
+    sweep = with_noise(sweep)
     data, robust = focusrobust.prepare(sweep)
-    fit = ff.fit_metadata(data, n_boot=state.n_boot, seed=state.seed)
-    rep = {"focus_fit": {**fit.summary(), "robust": {**robust, **anchored}}, "corrected_focus": []}
+    share = ff.noise_share(data, np.asarray(robust["frame_focus_d"][-1]) if robust["frame_focus_d"] else data.base_d)
+    dom = (share >= ff.NOISE_DOMINATED_SHARE) & (data.frames > 0)
+    if dom.any():  # fitted again without them: their curves are the floor's, and would drive the family
+        data, robust = focusrobust.prepare(ff.without_frames(sweep, dom))
+    fit = ff.fit_metadata(data, n_boot=state.n_boot, seed=state.seed, excluded=dom, share=share)
+    if made is not None:
+        twin_rep = {**twin_rep, "noise": fitted.get("report")}
+    rep = {"focus_fit": {**fit.summary(), "robust": {**robust, **anchored},
+                         **({"focus_twin": twin_rep} if made is not None else {})}, "corrected_focus": []}
     z = NormalDist().inv_cdf(0.975)
     for i, c in enumerate(state.caps):
         s = len(c.focus_m)
@@ -199,7 +329,8 @@ def fit_focus_metadata(state: FitState) -> Fitted:
             # the systematic part included (`focusfit.corrected_sd`): frames it leaves undetermined are flagged
             "total_ci_m": [[1.0 / (d + z * e), 1.0 / max(d - z * e, 1e-6)]
                            for d, e in zip(fit.best.true_d[i, :s], fit.true_d_sd[i, :s])],
-            "undetermined": fit.undetermined[i, :s].tolist()})
+            "undetermined": fit.undetermined[i, :s].tolist(),
+            "noise_dominated": fit.noise_dominated[i, :s].tolist()})
     return Fitted(None if fit.best.name == "none" else _rounded(fit.best.params), rep)
 
 

@@ -84,6 +84,11 @@ SCALE_BY_RESIDUALS = True
 # `monotone`). The forms tried before it, instead of the median scaling: max(SYSTEMATIC_D, m k) 83/96 and 73/88;
 # SYSTEMATIC_D and m k in quadrature 86/96 and 75/88, but it misses a misfit in one frame that sees nothing in focus
 SYSTEMATIC_FROM_LEVEL = True
+# a frame whose expected focus measure (the twin's, noise carried by its expectation: `noisefloor`) is at least this
+# share noise at its focus, summed over its textured regions and channels, is undetermined: its curves are the
+# floor's, so a misfit of the noise level reads as focus (issue 32, scene 2038's frames 0-2, 95-110 % noise, whose
+# estimates ran to their bounds). 0.5: the noise's expected energy at least the signal's; not tuned
+NOISE_DOMINATED_SHARE = 0.5
 
 
 @dataclass
@@ -110,6 +115,7 @@ class SweepData:
     twin_lum: np.ndarray | None = None
     signal_c: np.ndarray | None = None
     floor_c: np.ndarray | None = None
+    floor_read_c: np.ndarray | None = None  # the read noise's part of floor_c (the rest is the shot noise's)
 
     def __post_init__(self):
         n, r, _ = self.capture.shape
@@ -129,7 +135,20 @@ class SweepData:
             return self.with_twin(self.twin + delta)
         from aat_deploy.diagnose.noisefloor import compose
 
-        return self.with_twin(compose(self.signal_c + delta[..., None], self.floor_c))
+        sig = self.signal_c + delta[..., None]
+        return dataclasses.replace(self, twin=compose(sig, self.floor_c), signal_c=sig)
+
+    def with_full_well(self, ratio: float) -> SweepData:
+        """The sweep whose expected noise floor is that of a full well 1 / ratio times the one it was made with
+        (ratio 0: no noise): the shot noise's part of the floor scales with the ratio, the read noise's with its
+        square (both variances over the full well's square, `noisefloor.floor`)."""
+        if self.floor_c is None:
+            raise ValueError("the sweep carries no expected noise floor")
+        from aat_deploy.diagnose.noisefloor import compose
+
+        read = self.floor_read_c if self.floor_read_c is not None else np.zeros_like(self.floor_c)
+        fl = (self.floor_c - read) * ratio + read * ratio ** 2
+        return dataclasses.replace(self, twin=compose(self.signal_c, fl), floor_c=fl, floor_read_c=read * ratio ** 2)
 
     @property
     def frames(self) -> np.ndarray:
@@ -184,6 +203,40 @@ def profiled_ss(data: SweepData, d: np.ndarray, weight: np.ndarray | None = None
 def residual_ss(data: SweepData, d: np.ndarray, weight: np.ndarray | None = None) -> float:
     """`profiled_ss` of one focus assignment (n, S) or (n, R, S)."""
     return float(profiled_ss(data, np.asarray(d, np.float64), weight))
+
+
+def noise_share(data: SweepData, d: np.ndarray) -> np.ndarray:
+    """(n, S) the share of every frame's expected focus measure that is the noise's, at frame focus d (n, S): the
+    twin's expected noise energy N over its total S + N (`noisefloor`: S the noiseless measure, binning correction
+    included, N the floor), each summed over the frame's textured regions and the channels (linear in focus between
+    sweep steps). From the twin alone, not from the capture. Zeros when the sweep carries no expected floor."""
+    n, r, s = data.capture.shape
+    if data.floor_c is None or data.signal_c is None:
+        return np.zeros((n, s))
+    g = data.grid_d
+    u = np.interp(np.clip(np.asarray(d, np.float64), g[0], g[-1]), g, np.arange(len(g)))  # (n, S)
+    i = np.clip(np.floor(u).astype(np.intp), 0, len(g) - 2)
+    t = (u - i)[:, None, :, None]
+    ni = np.arange(n)[:, None, None]
+    ri = np.arange(r)[None, :, None]
+    ii = i[:, None, :]
+
+    def at(x):  # (n, R, K, C) -> (n, R, S, C)
+        return x[ni, ri, ii] * (1 - t) + x[ni, ri, ii + 1] * t
+
+    sig, flo = at(np.exp(data.signal_c)), at(data.floor_c)
+    w = (data.weight > 0).astype(np.float64)[:, :, None, None]
+    tot = np.sum(w * (sig + flo), axis=(1, 3))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(tot > 0, np.sum(w * flo, axis=(1, 3)) / tot, 0.0)
+
+
+def without_frames(data: SweepData, mask: np.ndarray) -> SweepData:
+    """The sweep with the frames in mask (n, S) left out (their capture curves and luminance NaN, as padding):
+    nothing is fitted on them."""
+    m = np.asarray(mask, bool)[:, None, :]
+    lum = None if data.capture_lum is None else np.where(m, np.nan, data.capture_lum)
+    return dataclasses.replace(data, capture=np.where(m, np.nan, data.capture), capture_lum=lum)
 
 
 # --- metadata error families --------------------------------------------------------------------------------
@@ -461,7 +514,8 @@ def error_correlation(focus_d: np.ndarray, frames: np.ndarray, length_d: float =
 
 
 def corrected_sd(fit: FamilyFit, reported_d: np.ndarray, frame_sd: np.ndarray, frames: np.ndarray,
-                 systematic_d: float | np.ndarray = SYSTEMATIC_D, length_d: float = ERROR_CORRELATION_D) -> np.ndarray:
+                 systematic_d: float | np.ndarray = SYSTEMATIC_D, length_d: float = ERROR_CORRELATION_D,
+                 at: np.ndarray | None = None) -> np.ndarray:
     """(n, S) the standard error (diopters) of a family's corrected focus, the per-frame estimates' systematic
     error included: the family's least-squares parameters, weighted W = 1 / (frame_sd^2 + systematic_d^2) as if
     the frames' errors were independent, carried to every frame through J (`family_design`), with the covariance
@@ -477,7 +531,8 @@ def corrected_sd(fit: FamilyFit, reported_d: np.ndarray, frame_sd: np.ndarray, f
     (width^2 / 12) in the covariance made a frame alone in a 0.1 D bin look known to 0.020 D while its estimate,
     which is its corrected focus, was known to 0.028 D (scene 2027's nearest frame, issue 32). A bin does bound a
     frame's true focus, but a frame known no better than its bin is not determined to 0.02 D either way (a 0.1 D
-    bin's standard deviation is 0.029 D)."""
+    bin's standard deviation is 0.029 D). at (n, S): the frames to give it for (default: frames); a frame left out of the
+    fit (`fit_metadata`'s excluded) gets the family's value's error there, from the others."""
     rep = np.asarray(reported_d, np.float64)
     jac, widths = family_design(fit.name, rep, fit.true_d, frames)
     if not widths:
@@ -490,6 +545,8 @@ def corrected_sd(fit: FamilyFit, reported_d: np.ndarray, frame_sd: np.ndarray, f
     scaled = jac * np.where(real, 1.0 / sigma, 0.0)[..., None]  # W J sigma: the errors in units of their sigma
     meat = np.einsum("nsi,nst,ntj->ij", scaled, error_correlation(fit.true_d, frames, length_d), scaled)
     cov = bread @ meat @ bread
+    if at is not None:
+        jac = np.where(np.asarray(at, bool)[..., None], family_design(fit.name, rep, fit.true_d, frames)[0], 0.0)
     return np.sqrt(np.maximum(np.einsum("nsi,ij,nsj->ns", jac, cov, jac), 0.0))
 
 
@@ -614,13 +671,22 @@ class MetadataFit:
     undetermined: np.ndarray | None = None  # (n, S) frames whose true_d_sd >= UNDETERMINED_SD_D
     consistency: np.ndarray | None = None  # (n, S) every frame's standardised residual (`frame_consistency`)
     error_scale: float = 1.0  # the capture's error scale (`error_scale`) the family choice used
+    noise_share: np.ndarray | None = None  # (n, S) the noise's share of every frame's expected measure (`noise_share`)
+    noise_dominated: np.ndarray | None = None  # (n, S) frames left out as noise-dominated: undetermined, no estimate
 
     def summary(self) -> dict:
         b = self.best
+        dom = self.noise_dominated if self.noise_dominated is not None else np.zeros(b.true_d.shape, bool)
+
+        def est(x):  # a noise-dominated frame has no estimate: null
+            return [[None if m else v for v, m in zip(row, mrow)] for row, mrow in zip(np.asarray(x).tolist(), dom)]
+
         return {"family": b.name, "params": b.params, "params_ci": self.params_ci, "support": self.support,
-                "frame_focus_d": self.fits["per_frame"].true_d.tolist(),
+                "frame_focus_d": est(self.fits["per_frame"].true_d),
+                "frames_noise_dominated": dom.tolist(),
+                "frame_noise_share": [] if self.noise_share is None else np.round(self.noise_share, 4).tolist(),
                 "frames_on_bound": [] if self.on_bound is None else self.on_bound.tolist(),
-                "frame_focus_sd_d": [] if self.frame_sd is None else np.round(self.frame_sd, 5).tolist(),
+                "frame_focus_sd_d": [] if self.frame_sd is None else est(np.round(self.frame_sd, 5)),
                 "frame_systematic_d": [] if self.frame_sys is None else np.round(self.frame_sys, 5).tolist(),
                 "corrected_sd_d": [] if self.true_d_sd is None else np.round(self.true_d_sd, 5).tolist(),
                 "frame_consistency": [] if self.consistency is None else np.round(self.consistency, 3).tolist(),
@@ -647,11 +713,16 @@ def boot_weights(data: SweepData, rng: np.random.Generator) -> tuple[np.ndarray,
     return data.weight * rng.poisson(1.0, size=(n, r)) * wc, data.frames * wc
 
 
-def fit_metadata(data: SweepData, n_boot: int = 50, seed: int = 0, level: float = 0.95) -> MetadataFit:
+def fit_metadata(data: SweepData, n_boot: int = 50, seed: int = 0, level: float = 0.95,
+                 excluded: np.ndarray | None = None, share: np.ndarray | None = None) -> MetadataFit:
     """Every family fitted on the sweep; bootstrap replicates (captures and regions resampled) refit them, which
     gives the per-frame estimates' spread; the family is chosen by its evidence on the per-frame estimates
     (`score_families`), in the fit and in every replicate (each family's `support`), with intervals of the chosen
-    family's settings and corrected focus."""
+    family's settings and corrected focus. excluded (n, S): frames left out of the fit (noise-dominated: their
+    curves NaN in `data`, `without_frames`), reported undetermined, with no per-frame estimate (the `per_frame`
+    curve between the others is not one) and the family's value there as their corrected focus, with that
+    value's error (`corrected_sd` at them); share (n, S): the noise shares it was judged by, reported."""
+    exc = np.zeros(data.reported_d.shape, bool) if excluded is None else np.asarray(excluded, bool)
     fits = fit_families(data)
     rng = np.random.default_rng(seed)
     reps = []
@@ -692,11 +763,14 @@ def fit_metadata(data: SweepData, n_boot: int = 50, seed: int = 0, level: float 
     # least-squares fit of the estimates would (docs/diagnosis.md); scaling them too gave up 3 development sets whose
     # every frame was within 0.02 D and caught no wrong one
     cons = frame_consistency(best, data.reported_d, fits["per_frame"].true_d, sd, data.frames, sys_d)
-    tsd = corrected_sd(best, data.reported_d, sd, data.frames, sys_d)
+    tsd = corrected_sd(best, data.reported_d, sd, data.frames, sys_d, at=(data.frames > 0) | exc)
     if SCALE_BY_CONSISTENCY:
         tsd = tsd * np.maximum(1.0, cons)
+    if exc.any() and best.name != "none":  # a left-out frame no parameter of the family reaches (its own bin or value)
+        free = ~np.any(family_design(best.name, data.reported_d, best.true_d, data.frames)[0] != 0, axis=-1)
+        tsd = np.where(exc & free, 2 * MAX_ERROR_D / math.sqrt(12), tsd)  # nothing places it: the search range's sd
     return MetadataFit(best, fits, ci, pci, {k: v / total for k, v in wins.items()}, bound, sd, sys_d, tsd,
-                       (tsd >= UNDETERMINED_SD_D) & (data.frames > 0), cons, scale)
+                       ((tsd >= UNDETERMINED_SD_D) & (data.frames > 0)) | exc, cons, scale, share, exc)
 
 
 # --- field-dependent focus (sensor tilt, lens tolerances) ---------------------------------------------------

@@ -106,6 +106,13 @@ def floor(linear: np.ndarray, scale: float, noise, factor_c: np.ndarray, grid: t
     return out
 
 
+def read_part(scale: float, noise, factor_c: np.ndarray) -> np.ndarray:
+    """(C,) the read noise's part of `floor` (the same in every region and frame): its variance (read / full well)^2
+    through the Laplacian's squared taps, scaled like `floor`. The rest of the floor is the shot noise's."""
+    fw, rd = float(noise.params["full_well_e"]), float(noise.params["read_noise_e"])
+    return float(_LAP2.sum()) * (rd / fw) ** 2 * np.asarray(factor_c, np.float64) / scale ** 2
+
+
 def compose(signal_log_c: np.ndarray, floor_c: np.ndarray) -> np.ndarray:
     """(..., C) per-channel log noiseless focus measures and (..., C) floors -> (...) the channel mean of
     log(S + N), as `focus_curves(...).mean(-1)` of the noisy stack would be in expectation (per channel)."""
