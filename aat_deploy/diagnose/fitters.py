@@ -33,6 +33,7 @@ from aat_deploy.diagnose.compare import focus_curves, image_distances, region_br
 from aat_deploy.diagnose.optimise import grid_then_golden
 from aat_deploy.errors import CaptureError
 from aat_deploy.infer.normalise import normalise_scale, normalise_stack, scaled
+from aat_deploy.render.effects import NeedsTorch
 
 SWEEP_STEP_D = 0.06  # focus sweep spacing (diopters); curves are interpolated between (Catmull-Rom)
 SWEEP_MARGIN_D = ff.MAX_ERROR_D + 0.05
@@ -243,11 +244,15 @@ def focus_twin(state: FitState) -> tuple[FitState, dict] | None:
         rep["added"].append("raw_pipeline")
     if "vignetting" not in names:
         with_v = chain + [state.make("vignetting")]
-        m0, m1 = lighting_misfit(state, chain), lighting_misfit(state, with_v)
-        rep["lighting_misfit"] = {"without_vignetting": m0, "with_vignetting": m1}
-        if m1 < m0:
-            chain = with_v
-            rep["added"].append("vignetting")
+        try:
+            m0, m1 = lighting_misfit(state, chain), lighting_misfit(state, with_v)
+        except NeedsTorch as e:  # no lens source to render it without torch: left out
+            rep["lighting_misfit"] = {"skipped": str(e)}
+        else:
+            rep["lighting_misfit"] = {"without_vignetting": m0, "with_vignetting": m1}
+            if m1 < m0:
+                chain = with_v
+                rep["added"].append("vignetting")
     chain.append(state.make("noise"))  # the reference full well: refitted on the expected floor
     twin = copy.copy(state)
     twin.chain = chain
@@ -309,12 +314,7 @@ def fit_focus_metadata(state: FitState) -> Fitted:
     else:
         sweep, anchored = focus_sweep(st, noise_floor=floor_on), {}
     sweep = with_noise(sweep)
-    data, robust = focusrobust.prepare(sweep)
-    share = ff.noise_share(data, np.asarray(robust["frame_focus_d"][-1]) if robust["frame_focus_d"] else data.base_d)
-    dom = (share >= ff.NOISE_DOMINATED_SHARE) & (data.frames > 0)
-    if dom.any():  # fitted again without them: their curves are the floor's, and would drive the family
-        data, robust = focusrobust.prepare(ff.without_frames(sweep, dom))
-    fit = ff.fit_metadata(data, n_boot=state.n_boot, seed=state.seed, excluded=dom, share=share)
+    fit, robust = focusrobust.fit_robust(sweep, n_boot=state.n_boot, seed=state.seed)
     if made is not None:
         twin_rep = {**twin_rep, "noise": fitted.get("report")}
     rep = {"focus_fit": {**fit.summary(), "robust": {**robust, **anchored},

@@ -141,3 +141,21 @@ def prepare(data: ff.SweepData, cfg: RobustConfig = RobustConfig()) -> tuple[ff.
         w = out.weight[data.weight > 0]
         rep["weight_spread"] = [round(float(np.quantile(w, q)), 3) for q in (0.1, 0.5, 0.9)] if w.size else []
     return out, rep
+
+
+def fit_robust(sweep: ff.SweepData, n_boot: int = 50, seed: int = 0, cfg: RobustConfig = RobustConfig()
+               ) -> tuple[ff.MetadataFit, dict]:
+    """The focus-metadata fit (`focusfit.fit_metadata`) on the sweep made robust (`prepare`), without the frames
+    whose expected focus measure is mostly noise: where the sweep carries the noise by its expectation, every
+    frame's noise share at its per-frame estimate (`focusfit.noise_share`, from the twin alone); frames at or over
+    `focusfit.NOISE_DOMINATED_SHARE` are left out (`focusfit.without_frames`), the sweep prepared again without
+    them, and they are reported undetermined, with no estimate (issue 32: scene 2038's nearest frames, 95-110 %
+    noise, read a 4 % misfit of the noise level as their +-0.4 D bound). Returns the fit and `prepare`'s report."""
+    data, robust = prepare(sweep, cfg)
+    est = np.asarray(robust["frame_focus_d"][-1]) if robust.get("frame_focus_d") else np.asarray(sweep.base_d)
+    share = ff.noise_share(data, est)
+    dom = (share >= ff.NOISE_DOMINATED_SHARE) & (sweep.frames > 0)
+    if dom.any():  # their curves are the floor's: they would drive the family too
+        data, robust = prepare(ff.without_frames(sweep, dom), cfg)
+        robust["noise_dominated_at_d"] = np.round(np.where(dom, est, np.nan), 4).tolist()
+    return ff.fit_metadata(data, n_boot=n_boot, seed=seed, excluded=dom, share=share), robust

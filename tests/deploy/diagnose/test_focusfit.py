@@ -530,3 +530,33 @@ def test_the_consistency_scale_makes_a_curve_end_its_own_frame_disagrees_with_un
     assert base[0] < ff.UNDETERMINED_SD_D <= scaled[0]  # the case discriminates: determined before
     assert abs(f[0] - true[0]) <= 1.96 * scaled[0]
     assert np.all(scaled[cons <= 1] == base[cons <= 1])
+
+
+def test_noise_share_is_the_floors_share_of_the_expected_energy_by_hand():
+    """`noise_share`: N / (S + N) summed over a frame's textured regions and channels, linear in focus between
+    sweep steps; regions without texture count nothing; zeros without an expected floor."""
+    grid = np.array([0.0, 0.5, 1.0])
+    sig = np.log(np.array([[[4.0, 2.0], [1.0, 1.0], [0.0 + 1e-300, 1e-300]],  # region 0: S at the steps, 2 channels
+                           [[9.0, 9.0], [9.0, 9.0], [9.0, 9.0]]]))[None]  # region 1: (1, 2, 3, 2)
+    flo = np.ones_like(sig)
+    cap = np.zeros((1, 2, 2))
+    data = ff.SweepData(grid, np.zeros((1, 2, 3)), cap, np.array([[0.25, 1.0]]), np.array([[0.25, 1.0]]),
+                        np.zeros((2, 2)), weight=np.array([[1.0, 0.0]]), signal_c=sig, floor_c=flo)
+    share = ff.noise_share(data, np.array([[0.25, 1.0]]))
+    # frame 0 at 0.25 D: region 0's S = (2.5, 1.5), N = (1, 1): 2 / 6; frame 1 at 1.0 D: S = 0, all noise
+    assert share == pytest.approx(np.array([[2 / 6, 1.0]]), abs=1e-9)
+    assert np.all(ff.noise_share(dataclasses.replace(data, floor_c=None), np.array([[0.25, 1.0]])) == 0)
+
+
+def test_with_full_well_scales_shot_and_read_noise_apart():
+    """A full well k times smaller: the shot noise's floor k times larger, the read noise's k^2 times; ratio 0 is
+    no noise (the noiseless measure)."""
+    grid = np.array([0.0, 0.5, 1.0])
+    sig = np.zeros((1, 1, 3, 1))
+    data = ff.SweepData(grid, np.zeros((1, 1, 3)), np.zeros((1, 1, 2)), np.array([[0.2, 0.8]]),
+                        np.array([[0.2, 0.8]]), np.zeros((1, 2)), signal_c=sig, floor_c=np.full(sig.shape, 0.5),
+                        floor_read_c=np.full(sig.shape, 0.1))
+    d2 = data.with_full_well(2.0)
+    assert np.allclose(d2.floor_c, 0.4 * 2 + 0.1 * 4) and np.allclose(d2.floor_read_c, 0.4)
+    assert np.allclose(d2.twin, np.log(1 + 1.2))
+    assert np.allclose(data.with_full_well(0.0).twin, 0.0)

@@ -118,3 +118,71 @@ def test_truth_beyond_the_search_bound_is_flagged():
     fit = ff.fit_metadata(fr.prepare(data)[0], n_boot=0)
     flagged = np.asarray(fit.summary()["frames_on_bound"])
     assert flagged[0, 0] and flagged.sum() == 1
+
+
+# --- frames whose expected focus measure is mostly noise (issue 32, scene 2038) ---------------------------------
+NOISY_REPORTED_D = 1.0 / np.array([0.6, 0.69, 0.81, 0.98, 1.23, 1.68, 2.62, 6.0])  # near to far
+
+
+def noisy_far_sweep(true_d: np.ndarray, rep_d: np.ndarray, floor_misfit: float = 0.96, floor_log: float = -4.5,
+                    seed: int = 0, n_regions: int = 54) -> ff.SweepData:
+    """A scene whose content lies at 0.3-0.6 D seen by frames at 1.67-0.17 D, its twin carrying the noise by its
+    expectation (signal_c, floor_c: a floor floor_log under the peaks), the capture's floor floor_misfit times the
+    twin's (a 4 % misfit of the noise level), plus a level per region and a little noise: like scene 2038, whose
+    nearest frames' expected measure is almost all noise."""
+    from aat_deploy.diagnose.noisefloor import compose
+
+    rng = np.random.default_rng(seed)
+    n, s = true_d.shape
+    grid = np.arange(0.0, 2.2, 0.06)
+    depth = rng.uniform(0.3, 0.6, size=(n, n_regions))
+
+    def sig(f):  # (n, R, M, 1) the noiseless log measure: a peak of width 0.15 D at every region's depth
+        f = np.broadcast_to(f, (n, f.shape[-1]))
+        x = (f[:, None, :] - depth[..., None]) / 0.15
+        return (-np.log1p(x * x) * 1.5)[..., None]
+
+    signal_c = sig(grid)
+    floor_c = np.full(signal_c.shape, np.exp(floor_log))
+    cap = compose(sig(true_d), floor_misfit * np.exp(floor_log) * np.ones((n, n_regions, s, 1)))
+    cap = cap + rng.normal(0, 0.4, size=(n, n_regions, 1)) + rng.normal(0, 0.01, size=cap.shape)
+    return ff.SweepData(grid, compose(signal_c, floor_c), cap, rep_d, rep_d.copy(), np.zeros((n_regions, 2)),
+                        signal_c=signal_c, floor_c=floor_c, floor_read_c=np.zeros_like(floor_c))
+
+
+@pytest.mark.parametrize("name,report", [("none", lambda t: t), ("scale", lambda t: t / 1.1),
+                                         ("offset", lambda t: t + 0.05)])
+def test_noise_dominated_frames_are_undetermined_not_estimates(name, report):
+    """Frames whose expected measure is mostly noise read a 4 % misfit of the noise level as focus: the plain fit
+    gives the nearest frame an estimate 0.1-0.3 D off. `fit_robust` leaves them out by the twin's own signal and
+    noise energies: no estimate (null), reported undetermined, the family fitted on the others and right, every
+    frame's corrected focus (the family's) within 0.02 D, nothing on a bound."""
+    true = NOISY_REPORTED_D[None].copy()
+    rep = report(true)
+    data = noisy_far_sweep(true, rep)
+    plain = ff.fit_metadata(fr.prepare(data)[0], n_boot=10)
+    assert plain.fits["per_frame"].true_d[0, 0] - true[0, 0] > 0.1  # the old behaviour: an estimate, far off
+    fit, robust = fr.fit_robust(data, n_boot=10)
+    dom = fit.noise_dominated[0]
+    assert dom[:3].all() and not dom[4:].any(), fit.noise_share
+    assert np.all(fit.noise_share[0, :3] >= ff.NOISE_DOMINATED_SHARE)
+    assert fit.undetermined[0, :3].all()
+    summ = fit.summary()
+    assert summ["frame_focus_d"][0][:3] == [None, None, None] and None not in summ["frame_focus_d"][0][3:]
+    assert summ["frames_noise_dominated"][0][:3] == [True] * 3
+    assert fit.best.name == name
+    assert np.abs(fit.best.true_d - true).max() < 0.02
+    assert not fit.on_bound.any()
+    assert "noise_dominated_at_d" in robust
+
+
+def test_without_an_expected_floor_no_frame_is_left_out():
+    """A sweep that draws its noise (or has none) carries no expected floor: nothing is judged noise-dominated and
+    the fit is `fit_metadata`'s on the prepared sweep."""
+    true = bracket(2)
+    data = sweep(true, true / 1.05)
+    fit, _ = fr.fit_robust(data, n_boot=5)
+    assert not fit.noise_dominated.any() and np.all(fit.noise_share == 0)
+    ref = ff.fit_metadata(fr.prepare(data)[0], n_boot=5)
+    assert fit.best.name == ref.best.name and np.allclose(fit.best.true_d, ref.best.true_d)
+    assert None not in fit.summary()["frame_focus_d"][0]

@@ -75,3 +75,24 @@ def test_applies_only_where_the_noise_is_last_but_a_development():
     assert not nf.applies([raw]) and not nf.applies([])
     assert not nf.applies([noise, make("phone_jpeg")])
     assert [e.name for e in nf.quiet([make("vignetting"), noise, raw])] == ["vignetting", "raw_pipeline"]
+
+
+@pytest.mark.parametrize("true_fw", [4000.0, 12000.0])
+def test_full_well_is_fitted_against_the_expected_floor(true_fw):
+    """`fitters.full_well_on_floor`: a sweep made with the expected floor of 8000 e- and captures whose floor is
+    that of another full well (every frame's focus free): the full well found to 10 %; a capture without noise
+    gives none."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_focusrobust import NOISY_REPORTED_D, noisy_far_sweep
+
+    from aat_deploy.diagnose import fitters
+
+    true = NOISY_REPORTED_D[None].copy()
+    data = noisy_far_sweep(true, true, floor_misfit=8000.0 / true_fw, floor_log=-3.5)
+    fw, rep = fitters.full_well_on_floor(data, 8000.0)
+    assert fw == pytest.approx(true_fw, rel=0.1), rep
+    quiet = noisy_far_sweep(true, true, floor_misfit=0.0, floor_log=-3.5)
+    assert fitters.full_well_on_floor(quiet, 8000.0)[0] is None
