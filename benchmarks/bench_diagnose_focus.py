@@ -197,8 +197,7 @@ def undetermined_frames(row: dict) -> np.ndarray:
     from aat_deploy.diagnose import focusfit as ff
 
     sd = np.asarray(row.get("corrected_sd_d") or [[0.0] * len(row["corrected_err_d"])], np.float64)[0]
-    dom = np.asarray(row.get("frames_noise_dominated") or [False] * len(sd), bool)  # undetermined whatever their sd
-    return (sd >= ff.UNDETERMINED_SD_D) | dom
+    return sd >= ff.UNDETERMINED_SD_D
 
 
 def reported_outside(row: dict, z: float = 1.959964) -> bool | None:

@@ -672,7 +672,7 @@ class MetadataFit:
     consistency: np.ndarray | None = None  # (n, S) every frame's standardised residual (`frame_consistency`)
     error_scale: float = 1.0  # the capture's error scale (`error_scale`) the family choice used
     noise_share: np.ndarray | None = None  # (n, S) the noise's share of every frame's expected measure (`noise_share`)
-    noise_dominated: np.ndarray | None = None  # (n, S) frames left out as noise-dominated: undetermined, no estimate
+    noise_dominated: np.ndarray | None = None  # (n, S) frames left out as noise-dominated: no estimate of their own
 
     def summary(self) -> dict:
         b = self.best
@@ -719,9 +719,11 @@ def fit_metadata(data: SweepData, n_boot: int = 50, seed: int = 0, level: float 
     gives the per-frame estimates' spread; the family is chosen by its evidence on the per-frame estimates
     (`score_families`), in the fit and in every replicate (each family's `support`), with intervals of the chosen
     family's settings and corrected focus. excluded (n, S): frames left out of the fit (noise-dominated: their
-    curves NaN in `data`, `without_frames`), reported undetermined, with no per-frame estimate (the `per_frame`
-    curve between the others is not one) and the family's value there as their corrected focus, with that
-    value's error (`corrected_sd` at them); share (n, S): the noise shares it was judged by, reported."""
+    curves NaN in `data`, `without_frames`): no per-frame estimate (the `per_frame` curve between the others is not
+    one; null in `summary`), and the family's value there as their corrected focus, with that value's error
+    (`corrected_sd` at them: what the other frames give it through the family; the search range's where no
+    parameter reaches it), undetermined by the same rule as every frame; share (n, S): the noise shares they were
+    judged by, reported."""
     exc = np.zeros(data.reported_d.shape, bool) if excluded is None else np.asarray(excluded, bool)
     fits = fit_families(data)
     rng = np.random.default_rng(seed)
@@ -770,7 +772,7 @@ def fit_metadata(data: SweepData, n_boot: int = 50, seed: int = 0, level: float 
         free = ~np.any(family_design(best.name, data.reported_d, best.true_d, data.frames)[0] != 0, axis=-1)
         tsd = np.where(exc & free, 2 * MAX_ERROR_D / math.sqrt(12), tsd)  # nothing places it: the search range's sd
     return MetadataFit(best, fits, ci, pci, {k: v / total for k, v in wins.items()}, bound, sd, sys_d, tsd,
-                       ((tsd >= UNDETERMINED_SD_D) & (data.frames > 0)) | exc, cons, scale, share, exc)
+                       (tsd >= UNDETERMINED_SD_D) & ((data.frames > 0) | exc), cons, scale, share, exc)
 
 
 # --- field-dependent focus (sensor tilt, lens tolerances) ---------------------------------------------------

@@ -149,8 +149,9 @@ def fit_robust(sweep: ff.SweepData, n_boot: int = 50, seed: int = 0, cfg: Robust
     whose expected focus measure is mostly noise: where the sweep carries the noise by its expectation, every
     frame's noise share at its per-frame estimate (`focusfit.noise_share`, from the twin alone); frames at or over
     `focusfit.NOISE_DOMINATED_SHARE` are left out (`focusfit.without_frames`), the sweep prepared again without
-    them, and they are reported undetermined, with no estimate (issue 32: scene 2038's nearest frames, 95-110 %
-    noise, read a 4 % misfit of the noise level as their +-0.4 D bound). Returns the fit and `prepare`'s report."""
+    them, and they get no estimate of their own, only the family's value with its error (issue 32: scene 2038's
+    nearest frames, 95-110 % noise, read a 4 % misfit of the noise level as their +-0.4 D bound). Returns the fit
+    and `prepare`'s report."""
     data, robust = prepare(sweep, cfg)
     est = np.asarray(robust["frame_focus_d"][-1]) if robust.get("frame_focus_d") else np.asarray(sweep.base_d)
     share = ff.noise_share(data, est)

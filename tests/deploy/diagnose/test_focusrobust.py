@@ -155,8 +155,9 @@ def noisy_far_sweep(true_d: np.ndarray, rep_d: np.ndarray, floor_misfit: float =
 def test_noise_dominated_frames_are_undetermined_not_estimates(name, report):
     """Frames whose expected measure is mostly noise read a 4 % misfit of the noise level as focus: the plain fit
     gives the nearest frame an estimate 0.1-0.3 D off. `fit_robust` leaves them out by the twin's own signal and
-    noise energies: no estimate (null), reported undetermined, the family fitted on the others and right, every
-    frame's corrected focus (the family's) within 0.02 D, nothing on a bound."""
+    noise energies: no estimate (null, flagged), the family fitted on the others and right, every frame's corrected
+    focus (the family's) within 0.02 D, nothing on a bound; a left-out frame is undetermined where the family leaves
+    it free (`per_frame`: nothing places it) and has the family's standard error otherwise."""
     true = NOISY_REPORTED_D[None].copy()
     rep = report(true)
     data = noisy_far_sweep(true, rep)
@@ -166,7 +167,15 @@ def test_noise_dominated_frames_are_undetermined_not_estimates(name, report):
     dom = fit.noise_dominated[0]
     assert dom[:3].all() and not dom[4:].any(), fit.noise_share
     assert np.all(fit.noise_share[0, :3] >= ff.NOISE_DOMINATED_SHARE)
-    assert fit.undetermined[0, :3].all()
+    assert np.all(fit.undetermined == (fit.true_d_sd >= ff.UNDETERMINED_SD_D))
+    if name != "none":
+        assert np.all(fit.true_d_sd[0, :3] > 0)  # the family's error carried to them
+    pf = ff.fit_metadata(ff.without_frames(fr.prepare(data)[0], fit.noise_dominated), n_boot=5,
+                         excluded=fit.noise_dominated)
+    pf = dataclasses.replace(pf, best=pf.fits["per_frame"])
+    free = ff.corrected_sd(pf.best, data.reported_d, pf.frame_sd, data.frames * ~fit.noise_dominated, pf.frame_sys,
+                           at=np.ones(data.reported_d.shape, bool))
+    assert np.all(free[0, :3] == 0)  # per_frame reaches no left-out frame: fit_metadata gives it the search range
     summ = fit.summary()
     assert summ["frame_focus_d"][0][:3] == [None, None, None] and None not in summ["frame_focus_d"][0][3:]
     assert summ["frames_noise_dominated"][0][:3] == [True] * 3
