@@ -484,6 +484,33 @@ def compare(old: list[dict], new: list[dict]) -> None:
     print(f"frames undetermined: {sum(int(undetermined_frames(a[k]).sum()) for k in both)} before, "
           f"{sum(int(undetermined_frames(b[k]).sum()) for k in both)} after; newly undetermined in the {len(fine)} "
           f"sets with an error that were within 0.02 D before: {new_und}")
+    by_scene(a, b, both)
+
+
+def by_scene(a: dict, b: dict, both: list) -> None:
+    """Per capture, the sets in both runs against issue 32's targets, before -> after: family right; corrected
+    focus within 0.02 D of the truth in every frame with no frame reported undetermined (the table's count) and in
+    every frame whatever the flags; the untouched copy blaming focus; sets with an estimate on a bound; the per-frame
+    estimates' largest error a set (median over the sets; noise-dominated frames, which have none, left out); and the
+    frames without an estimate of their own (noise-dominated)."""
+    print("\n| capture | sets | family right | within 0.02 D (no frame undetermined) | within 0.02 D (every frame) | "
+          "untouched blaming focus | sets with an estimate on a bound | per-frame largest error, median (D) | "
+          "frames without an estimate |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for cap in sorted({k[0] for k in both}):
+        keys = [k for k in both if k[0] == cap]
+        cells = []
+        for f in (lambda r: r["family_ok"],
+                  lambda r: r["kind"] != "none" and r["corrected_max_err_d"] <= 0.02 and not r.get("frames_undetermined"),
+                  lambda r: r["kind"] != "none" and r["corrected_max_err_d"] <= 0.02,
+                  lambda r: r["kind"] == "none" and (r["focus_named"] or r["family"] != "none"),
+                  lambda r: r["frames_on_bound"] > 0):
+            cells.append(f"{sum(bool(f(a[k])) for k in keys)} -> {sum(bool(f(b[k])) for k in keys)}")
+        med = [np.median([r[k]["frame_max_err_d"] if r[k].get("frame_max_err_d") is not None else np.nan
+                          for k in keys]) for r in (a, b)]
+        nodom = [sum(int(np.sum(r[k].get("frames_noise_dominated") or [])) for k in keys) for r in (a, b)]
+        print(f"| {cap} | {len(keys)} | " + " | ".join(cells) + f" | {med[0]:.3f} -> {med[1]:.3f} | "
+              f"{nodom[0]} -> {nodom[1]} |")
 
 
 def main() -> None:
@@ -518,7 +545,9 @@ def main() -> None:
     ap.add_argument("--noise-floor", action="store_true", help="with --fit-chain: the twin's noise carried by its "
                     "expectation in the focus sweep (`fitters.NOISE_FLOOR`, `noisefloor`); rows carry noise_floor")
     ap.add_argument("--table", nargs="*", metavar="RESULTS", help="only print the table of these results files")
-    ap.add_argument("--compare", nargs=2, metavar=("OLD", "NEW"), help="only compare two results files set by set "
+    ap.add_argument("--like", nargs="+", metavar="RESULTS", help="with --table: only the sets (capture, kind) these "
+                    "results files have (to tabulate an older run on the sets of a newer one)")
+    ap.add_argument("--compare", nargs=2, metavar=("OLD", "NEW"), help="only compare two results files (each may be several joined by commas) set by set "
                     "(family, corrected focus, its standard errors, undetermined frames)")
     ap.add_argument("--rescore", nargs=2, metavar=("OLD", "NEW"), help="only rewrite a results file's rows from their "
                     "stored fits as the current code ends the focus fit (`rescored`: standard errors, undetermined "
@@ -538,10 +567,15 @@ def main() -> None:
 
         fitters.NOISE_FLOOR = True
     if a.table is not None:
-        table([json.loads(x) for f in (a.table or [a.out]) for x in Path(f).read_text().splitlines() if x.strip()])
+        rows = [json.loads(x) for f in (a.table or [a.out]) for x in Path(f).read_text().splitlines() if x.strip()]
+        if a.like:  # only the sets (capture, kind) of these results files
+            keep = {(r["capture"], r["kind"]) for f in a.like for r in map(json.loads, Path(f).read_text().splitlines())}
+            rows = [r for r in rows if (r["capture"], r["kind"]) in keep]
+        table(rows)
         return
     if a.compare:
-        old, new = ([json.loads(x) for x in Path(f).read_text().splitlines() if x.strip()] for f in a.compare)
+        old, new = ([json.loads(x) for g in f.split(",") for x in Path(g).read_text().splitlines() if x.strip()]
+                    for f in a.compare)  # each side: one results file, or several joined by commas
         compare(old, new)
         return
     if a.rescore:
