@@ -77,6 +77,12 @@ FRESH_SCENES_3 = ((2038, 13), (2039, 14), (2040, 15), (2041, 16))
 # 2027-2041, scene ids and noise seeds never used before (scenes 2030-2041 were looked at and are development
 # material now). Test material: nothing is chosen or tuned on them. `--fresh4 N` runs the first N.
 FRESH_SCENES_4 = ((2042, 17), (2043, 18), (2044, 19), (2045, 20))
+# The fifth round (issue 32: RAW captures' focus fitted on the focus twin, with the development, vignetting and the
+# noise by its expected floor, the full well fitted against it; noise-dominated frames left out, without an
+# estimate), declared 2026-11-27 07:14 UTC, before any of them was rendered or run: rendered exactly like scenes
+# 2027-2045, scene ids and noise seeds never used before (scenes 2030-2045 were looked at and are development
+# material now). Test material: nothing is chosen or tuned on them. `--fresh5 N` runs the first N.
+FRESH_SCENES_5 = ((2046, 21), (2047, 22), (2048, 23), (2049, 24))
 QUANT_STEP_D = 0.1
 BOUND_TOL_D = 0.002
 
@@ -528,6 +534,8 @@ def main() -> None:
                     "(FRESH_SCENES_3: scenes 2038-2041, declared before they were rendered) instead")
     ap.add_argument("--fresh4", type=int, metavar="N", help="the first N of the fourth fresh test captures "
                     "(FRESH_SCENES_4: scenes 2042-2045, declared before they were rendered) instead")
+    ap.add_argument("--fresh5", type=int, metavar="N", help="the first N of the fifth fresh test captures "
+                    "(FRESH_SCENES_5: scenes 2046-2049, declared before they were rendered) instead")
     ap.add_argument("--kinds", help=f"only these sets (comma-separated of {', '.join(kinds())})")
     ap.add_argument("--sets", help="only these sets, in this order (comma-separated capture:kind, e.g. "
                     "scene2027:monotone; captures numbered as without it, so a set is the same set)")
@@ -612,6 +620,7 @@ def main() -> None:
             else fresh_folders(a.fresh2, cache, FRESH_SCENES_2, "--fresh2") if a.fresh2
             else fresh_folders(a.fresh3, cache, FRESH_SCENES_3, "--fresh3") if a.fresh3
             else fresh_folders(a.fresh4, cache, FRESH_SCENES_4, "--fresh4") if a.fresh4
+            else fresh_folders(a.fresh5, cache, FRESH_SCENES_5, "--fresh5") if a.fresh5
             else capture_folders(a.captures, cache))
     done = {(r["capture"], r["kind"]) for r in map(json.loads, out.read_text().splitlines())} if out.exists() else set()
     # kind by kind (every capture's untouched copy first): a run stopped early still covers every capture

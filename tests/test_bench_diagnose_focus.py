@@ -142,6 +142,22 @@ def test_fourth_fresh_test_captures_are_new_scenes():
         bench.fresh_folders(len(bench.FRESH_SCENES_4) + 1, bench.CACHE, bench.FRESH_SCENES_4, "--fresh4")
 
 
+def test_fifth_fresh_test_captures_are_new_scenes():
+    """The fifth fresh test captures (issue 32, declared before the focus twin of RAW captures was run on new
+    material) share no scene id or noise seed with the benchmark's captures, the tuning capture (scene 2029, noise
+    seed 4) or the earlier fresh captures (scenes 2030-2045, looked at since), and --fresh5 refuses a count it does
+    not have."""
+    fresh = {s for s, _ in bench.FRESH_SCENES_5}
+    seeds = {n for _, n in bench.FRESH_SCENES_5}
+    assert len(fresh) == len(seeds) == len(bench.FRESH_SCENES_5) >= 2
+    earlier = (*bench.SCENES, (2029, 4), *bench.FRESH_SCENES, *bench.FRESH_SCENES_2, *bench.FRESH_SCENES_3,
+               *bench.FRESH_SCENES_4)
+    assert not fresh & {s for s, _ in earlier}
+    assert not seeds & {n for _, n in earlier}
+    with pytest.raises(SystemExit, match="--fresh5"):
+        bench.fresh_folders(len(bench.FRESH_SCENES_5) + 1, bench.CACHE, bench.FRESH_SCENES_5, "--fresh5")
+
+
 def test_rescored_rows_follow_the_consistency_scale():
     """`rescored` from a row's stored fits: without the consistency scale it reproduces the row's standard errors
     (the code that wrote the row); with it a frame whose own estimate is far from the offset (about 4 standard
