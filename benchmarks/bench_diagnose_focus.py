@@ -496,7 +496,8 @@ def compare(old: list[dict], new: list[dict]) -> None:
 def by_scene(a: dict, b: dict, both: list) -> None:
     """Per capture, the sets in both runs against issue 32's targets, before -> after: family right; corrected
     focus within 0.02 D of the truth in every frame with no frame reported undetermined (the table's count) and in
-    every frame whatever the flags; the untouched copy blaming focus; sets with an estimate on a bound; the per-frame
+    every frame whatever the flags (undetermined: `undetermined_frames`, from the rows' standard errors, the rule of
+    the current code); the untouched copy blaming focus; sets with an estimate on a bound; the per-frame
     estimates' largest error a set (median over the sets; noise-dominated frames, which have none, left out); and the
     frames without an estimate of their own (noise-dominated)."""
     print("\n| capture | sets | family right | within 0.02 D (no frame undetermined) | within 0.02 D (every frame) | "
@@ -507,7 +508,7 @@ def by_scene(a: dict, b: dict, both: list) -> None:
         keys = [k for k in both if k[0] == cap]
         cells = []
         for f in (lambda r: r["family_ok"],
-                  lambda r: r["kind"] != "none" and r["corrected_max_err_d"] <= 0.02 and not r.get("frames_undetermined"),
+                  lambda r: r["kind"] != "none" and r["corrected_max_err_d"] <= 0.02 and not undetermined_frames(r).any(),
                   lambda r: r["kind"] != "none" and r["corrected_max_err_d"] <= 0.02,
                   lambda r: r["kind"] == "none" and (r["focus_named"] or r["family"] != "none"),
                   lambda r: r["frames_on_bound"] > 0):
