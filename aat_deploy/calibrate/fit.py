@@ -165,7 +165,7 @@ def fit_calibration(measures: list[SweepMeasurement], n_boot: int = 100, degree:
     warnings: list[str] = []
     if bad.any():
         obs = obs.subset(~bad)
-        fit = fit_model(obs, fit.degree, fit.focus_degree, fit.radial)
+        fit = fit_model(obs, fit.degree, fit.focus_degree, fit.radial, fit.low_focus_degree)
         warnings.append(f"{int(bad.sum())} of {len(bad)} tiles left out as outliers (peak more than "
                         f"{max(5 * mad, 0.005):.3f} D off the first fit)")
     if start:
@@ -177,7 +177,7 @@ def fit_calibration(measures: list[SweepMeasurement], n_boot: int = 100, degree:
             measures = [m.at_distance(m.chart_distance_m + fit.shifts_mm.get(i, 0.0) / 1000.0, FITTED)
                         if i in start else m for i, m in enumerate(measures)]
             obs = _same_tiles(observations(measures), obs)
-            fit = fit_model(obs, fit.degree, fit.focus_degree, fit.radial)
+            fit = fit_model(obs, fit.degree, fit.focus_degree, fit.radial, fit.low_focus_degree)
     if progress:
         progress("bootstrap")
     boot = bootstrap(obs, fit, n_boot=n_boot)
@@ -227,7 +227,7 @@ def fit_calibration(measures: list[SweepMeasurement], n_boot: int = 100, degree:
     fitinfo = {"method": "chart", "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
                "version": __version__, "degree": fit.degree, "radial_degree": fit.radial,
                "field_radius_max": fit.field.radius_max,
-               "focus_degree": fit.focus_degree,
+               "focus_degree": fit.focus_degree, "low_focus_degree": fit.low_focus_degree, "edge_focus_cv": fit.edge_cv,
                "order_cv": fit.cv, "working_scale": first.scale, **(settings or {})}
     cal = CameraCalibration(identity, first.size_px, fe, fit.field, blur, sensor_mm, residuals, uncertainty, fitinfo)
     return FitResult(cal, obs, fit, blur_obs, per_sweep, warnings, measures)

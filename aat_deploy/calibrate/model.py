@@ -36,6 +36,10 @@ FAMILY_PARAMS = {"none": 0, "offset": 1, "scale": 1, "monotone": 3}
 DEGREES = (2, 3, 4, 5, 6)
 RADIAL = (0, 8, 12)  # the radial powers' highest degree (0: none); 12 is the format's MAX_DEGREE
 MONOTONE_KNOTS = 9
+MAX_FOCUS_DEGREE = 2  # the field term's highest Legendre degree in focus (as the sweeps allow: `fit_model`)
+LOW_FOCUS_DEGREES: tuple = (None,)  # the non-edge functions' degrees in focus the CV tries (None: focus_degree's)
+EDGE_POWER = 8  # radial powers from rho^8 on are the edge's (`FieldBasis.edge_powers`)
+EDGE_FOCUS_DEGREE = 3  # the edge powers' degree in focus where cross-validation over frames wants it (`choose_edge_focus`)
 
 
 @dataclass(frozen=True)
@@ -82,6 +86,28 @@ class FieldBasis:
     @property
     def size(self) -> int:
         return len(poly_terms(self.degree, constant=False)) + len(self.powers())
+
+    @property
+    def n_mono(self) -> int:
+        """How many of the functions are monomials (the first ones; the radial powers follow)."""
+        return len(poly_terms(self.degree, constant=False))
+
+    def edge_powers(self) -> list[int]:
+        """The radial powers rho^2m with 2m >= EDGE_POWER: those that live at the field's edge (rho^8 is 0.03 at
+        radius 0.65), where a phone lens's best focus moves with focus in more than a parabola (`focus_mask`)."""
+        return [p for p in self.powers() if p >= EDGE_POWER]
+
+    def focus_mask(self, focus_degree: int, low_focus_degree: int | None = None) -> np.ndarray:
+        """(K, J) which (function, Legendre degree in focus) pairs are fitted: every function to focus_degree, or,
+        with low_focus_degree, only the edge powers (`edge_powers`) to focus_degree and the others (monomials:
+        tilt, decentre; the low radial powers: the field's curvature) to low_focus_degree."""
+        j = np.arange(focus_degree + 1)[None, :]
+        low = focus_degree if low_focus_degree is None else min(low_focus_degree, focus_degree)
+        degs = [low] * self.n_mono + [focus_degree if p >= EDGE_POWER else low for p in self.powers()]
+        return j <= np.array(degs)[:, None]
+
+    def params(self, focus_degree: int, low_focus_degree: int | None = None) -> int:
+        return int(self.focus_mask(focus_degree, low_focus_degree).sum())
 
 
 @dataclass
@@ -145,6 +171,8 @@ class ModelFit:
     cv: list = field(default_factory=list)
     radial: int = 0
     shifts_mm: dict = field(default_factory=dict)  # {sweep: its chart distance's fitted shift (mm)}
+    low_focus_degree: int | None = None  # the non-edge functions' degree in focus (`FieldBasis.focus_mask`)
+    edge_cv: dict | None = None  # `choose_edge_focus`'s table, where it was asked
 
     def predict(self, x, y, reported_d) -> np.ndarray:
         """In-focus object diopters at field (x, y) for reported focus diopters (all broadcast together)."""
@@ -183,17 +211,20 @@ def _focus_error(name: str, p: np.ndarray, r_range: tuple[float, float]) -> Focu
 @one_blas_thread()  # many small solves: threads that meet after each step wait for any other process (machine.py)
 def fit_family(obs: Observations, name: str, degree: int, focus_degree: int, iterations: int = 6,
                weight: np.ndarray | None = None, radial: int = 0, columns: np.ndarray | None = None,
-               shifts: dict | None = None) -> tuple[FocusError, FieldPoly, np.ndarray] | None:
+               shifts: dict | None = None, low_focus_degree: int | None = None
+               ) -> tuple[FocusError, FieldPoly, np.ndarray] | None:
     """One family at one model order: (FocusError, FieldPoly, residuals (N,)) or None if it cannot be fitted.
     columns: `FieldBasis(degree, radial, obs.aspect).columns(obs.x, obs.y)` when the caller has them (the same for
     every family, fold and replicate). Sweeps whose chart distance is fitted (`Observations.dz`) get one unknown
     each (`distance_columns`); shifts, when given, receives {sweep: fitted shift of its distance, mm}; the residuals
-    are against the shifted objects."""
+    are against the shifted objects. low_focus_degree: the degree in focus of every function but the edge powers
+    (`FieldBasis.focus_mask`; None: focus_degree for all)."""
     w = obs.weight if weight is None else weight
     r, d = obs.reported_d, obs.object_d
     fb = FieldBasis(degree, radial, obs.aspect)
     basis = fb.columns(obs.x, obs.y) if columns is None else columns  # (N, K)
     nk = basis.shape[1]
+    mask = fb.focus_mask(focus_degree, low_focus_degree).ravel()  # (K * J,) the fitted (function, focus) pairs
     fam, off = _family_columns(name, r)
     dist = distance_columns(obs)
     fam = np.column_stack([fam, dist])
@@ -206,12 +237,14 @@ def fit_family(obs: Observations, name: str, degree: int, focus_degree: int, ite
         lo, hi = float(t.min()), float(t.max())
         tau = FieldPoly(np.array([[1, 0]]), np.zeros((1, 1)), (lo, hi)).tau(t)  # the stored form's tau
         leg = np.polynomial.legendre.legvander(tau, focus_degree)  # (N, J)
-        field_cols = (basis[:, :, None] * leg[:, None, :]).reshape(len(r), -1)
+        field_cols = (basis[:, :, None] * leg[:, None, :]).reshape(len(r), -1)[:, mask]
         a = np.column_stack([fam, field_cols])
         sol, *_ = np.linalg.lstsq(a * sw[:, None], (d - off) * sw, rcond=None)
         if not np.all(np.isfinite(sol)):
             return None
-        p, c = sol[:n_fam], sol[fam.shape[1]:].reshape(nk, focus_degree + 1)
+        c = np.zeros(nk * (focus_degree + 1))
+        c[mask] = sol[fam.shape[1]:]
+        p, c = sol[:n_fam], c.reshape(nk, focus_degree + 1)
         delta = sol[n_fam:fam.shape[1]]
         fe = _focus_error(name, p, r_range)
         if fe is None:
@@ -267,36 +300,105 @@ def spatial_folds(obs: Observations, k: int = 5, blocks: int = 4) -> np.ndarray:
 
 
 @one_blas_thread()
-def choose_order(obs: Observations, family: str, focus_degrees: tuple[int, ...], degrees=DEGREES, radials=RADIAL
-                 ) -> tuple[int, int, int, list]:
+def choose_order(obs: Observations, family: str, focus_degrees: tuple[int, ...], degrees=DEGREES, radials=RADIAL,
+                 low_focus_degrees: tuple[int | None, ...] = (None,)) -> tuple[int, int, int, list]:
     """(degree, radial, focus_degree, table) minimising the spatial-block CV RMS residual (each held-out fold
     predicted by the fit on the others); ties within 2 % go to the smaller model (fewer parameters, then lower
-    degrees)."""
+    degrees). low_focus_degrees: the non-edge functions' degrees in focus tried (None: focus_degree); the table's
+    rows say which (`low_focus_degree`), and the pick's is `table_pick(table)["low_focus_degree"]`."""
     folds = spatial_folds(obs)
     table = []
     for fd in focus_degrees:
-        for deg in degrees:
-            for rad in radials:
-                if rad and not FieldBasis(deg, rad).powers():
-                    continue  # no radial power beyond the monomials: the same model as rad = 0
-                cols = FieldBasis(deg, rad, obs.aspect).columns(obs.x, obs.y)
-                err, n = 0.0, 0
-                for f in np.unique(folds):
-                    test = folds == f
-                    w = np.where(test, 0.0, obs.weight)
-                    res = fit_family(obs, family, deg, fd, weight=w, radial=rad, columns=cols)
-                    if res is None:
-                        err = math.inf
-                        break
-                    err += float(np.sum(obs.weight[test] * res[2][test] ** 2))
-                    n += float(obs.weight[test].sum())
-                table.append({"degree": deg, "radial": rad, "focus_degree": fd,
-                              "params": FieldBasis(deg, rad).size * (fd + 1),
-                              "cv_rms_d": math.sqrt(err / max(n, 1e-12)) if math.isfinite(err) else math.inf})
+        for mfd in low_focus_degrees:
+            if mfd is not None and mfd >= fd:
+                continue  # the same model as None
+            for deg in degrees:
+                for rad in radials:
+                    if rad and not FieldBasis(deg, rad).powers():
+                        continue  # no radial power beyond the monomials: the same model as rad = 0
+                    if mfd is not None and not FieldBasis(deg, rad).edge_powers():
+                        continue  # no edge power: the same model as focus degree mfd
+                    cols = FieldBasis(deg, rad, obs.aspect).columns(obs.x, obs.y)
+                    err, n = 0.0, 0
+                    for f in np.unique(folds):
+                        test = folds == f
+                        w = np.where(test, 0.0, obs.weight)
+                        res = fit_family(obs, family, deg, fd, weight=w, radial=rad, columns=cols,
+                                         low_focus_degree=mfd)
+                        if res is None:
+                            err = math.inf
+                            break
+                        err += float(np.sum(obs.weight[test] * res[2][test] ** 2))
+                        n += float(obs.weight[test].sum())
+                    row = {"degree": deg, "radial": rad, "focus_degree": fd,
+                           "params": FieldBasis(deg, rad).params(fd, mfd),
+                           "cv_rms_d": math.sqrt(err / max(n, 1e-12)) if math.isfinite(err) else math.inf}
+                    if mfd is not None:
+                        row["low_focus_degree"] = mfd
+                    table.append(row)
+    pick = table_pick(table)
+    return pick["degree"], pick["radial"], pick["focus_degree"], table
+
+
+def table_pick(table: list) -> dict:
+    """The CV table's chosen row: the smallest model within 2 % of the best CV RMS."""
     best = min(t["cv_rms_d"] for t in table)
     ok = [t for t in table if t["cv_rms_d"] <= best * 1.02]
-    pick = min(ok, key=lambda t: (t["params"], t["degree"], t["radial"]))
-    return pick["degree"], pick["radial"], pick["focus_degree"], table
+    return min(ok, key=lambda t: (t["params"], t["degree"], t["radial"]))
+
+
+def cell_folds(obs: Observations, k: int = 5) -> np.ndarray:
+    """(N,) fold index: the cells (one sweep's tiles peaking between the same two frames) assigned to folds at
+    random (seeded): a held-out fold is a set of focus intervals, which tests how the model follows focus."""
+    cells = np.unique(obs.cell)
+    perm = np.random.default_rng(0).permutation(len(cells)) % k
+    return perm[np.searchsorted(cells, obs.cell)]
+
+
+@one_blas_thread()
+def cv_rms(obs: Observations, family: str, degree: int, radial: int, focus_degree: int, folds: np.ndarray,
+           low_focus_degree: int | None = None) -> float:
+    """RMS residual of each fold's tiles predicted by the fit on the others."""
+    cols = FieldBasis(degree, radial, obs.aspect).columns(obs.x, obs.y)
+    err, n = 0.0, 0.0
+    for f in np.unique(folds):
+        test = folds == f
+        res = fit_family(obs, family, degree, focus_degree, weight=np.where(test, 0.0, obs.weight), radial=radial,
+                         columns=cols, low_focus_degree=low_focus_degree)
+        if res is None:
+            return math.inf
+        err += float(np.sum(obs.weight[test] * res[2][test] ** 2))
+        n += float(obs.weight[test].sum())
+    return math.sqrt(err / max(n, 1e-12))
+
+
+def choose_edge_focus(obs: Observations, family: str, degree: int, radial: int, focus_degree: int
+                      ) -> tuple[int, int | None, dict | None]:
+    """(focus_degree, low_focus_degree, table): whether the edge powers (`FieldBasis.edge_powers`) follow focus
+    one degree further (EDGE_FOCUS_DEGREE) than the rest of the field term, by cross-validation over frame cells
+    (`cell_folds`: the question is how the model follows focus, which spatial blocks do not test), the larger
+    model only where it is more than 2 % better. Needs a sweep per Legendre degree (as `fit_model`'s cap) and
+    a quadratic chosen for the rest; else the order as it is (table None).
+
+    Why: a phone lens's best focus at the field's edge does not move with focus as a parabola. Under its
+    astigmatism the focus measure follows the sagittal focus near and the middle between the foci farther
+    (BENCHMARKS.md, "The phone's outer field"), so at field radius 0.8 the in-focus object's offset from the
+    axis's rises, falls and rises again over 5-20 D. With tiles made exactly from the truth the quadratic misses
+    that by 0.17 D RMS at radius 0.75-0.84 (the edge cubic: 0.05 D). The monomials (tilt, decentre) and the low
+    radial powers (the field's curvature) stay quadratic: given the cubic too, they follow the measured tiles'
+    noise in the middle of the field (benchmarks/probes/phone_map_model.py)."""
+    n_sweeps = len(np.unique(obs.sweep))
+    fb = FieldBasis(degree, radial, obs.aspect)
+    if focus_degree != 2 or n_sweeps - 1 < EDGE_FOCUS_DEGREE or not fb.edge_powers():
+        return focus_degree, None, None
+    folds = cell_folds(obs)
+    base = cv_rms(obs, family, degree, radial, focus_degree, folds)
+    edge = cv_rms(obs, family, degree, radial, EDGE_FOCUS_DEGREE, folds, focus_degree)
+    table = {"cells": int(len(np.unique(obs.cell))), "cv_rms_d": {str(focus_degree): base,
+                                                                  f"edge {EDGE_FOCUS_DEGREE}": edge}}
+    if edge < base / 1.02:
+        return EDGE_FOCUS_DEGREE, focus_degree, table
+    return focus_degree, None, table
 
 
 def families_for(obs: Observations) -> tuple[str, ...]:
@@ -308,14 +410,16 @@ def families_for(obs: Observations) -> tuple[str, ...]:
 
 @one_blas_thread()
 def fit_all(obs: Observations, degree: int, focus_degree: int, families=None,
-            weight: np.ndarray | None = None, radial: int = 0, columns: np.ndarray | None = None) -> dict:
+            weight: np.ndarray | None = None, radial: int = 0, columns: np.ndarray | None = None,
+            low_focus_degree: int | None = None) -> dict:
     """{family: (FocusError, FieldPoly, residuals, BIC)} for every family (default: `families_for`) that can be
     fitted (columns: as `fit_family`'s)."""
     out = {}
     if columns is None:
         columns = FieldBasis(degree, radial, obs.aspect).columns(obs.x, obs.y)
     for name in families or families_for(obs):
-        res = fit_family(obs, name, degree, focus_degree, weight=weight, radial=radial, columns=columns)
+        res = fit_family(obs, name, degree, focus_degree, weight=weight, radial=radial, columns=columns,
+                         low_focus_degree=low_focus_degree)
         if res is not None:
             out[name] = (*res, bic(obs, res[2], FAMILY_PARAMS[name], weight))
     return out
@@ -328,27 +432,36 @@ def select(fits: dict) -> str:
 
 @one_blas_thread()
 def fit_model(obs: Observations, degree: int | None = None, focus_degree: int | None = None,
-              radial: int | None = None) -> ModelFit:
+              radial: int | None = None, low_focus_degree: int | None = None,
+              max_focus_degree: int = MAX_FOCUS_DEGREE, low_focus_degrees: tuple = LOW_FOCUS_DEGREES,
+              edge_focus: bool = True) -> ModelFit:
     """The model on all observations: order by CV (what is not given), family by BIC. With one sweep the field
-    term cannot depend on focus (focus_degree 0); with two at most linearly."""
+    term cannot depend on focus (focus_degree 0); with two at most linearly; never beyond max_focus_degree.
+    low_focus_degree: the non-edge functions' degree in focus when the order is given (`FieldBasis.focus_mask`);
+    when it is chosen, the CV tries low_focus_degrees (None: focus_degree for every function), and then, with
+    edge_focus, whether the edge powers follow focus one degree further (`choose_edge_focus`)."""
     n_sweeps = len(np.unique(obs.sweep))
-    max_fd = min(2, n_sweeps - 1)
+    max_fd = min(max_focus_degree, n_sweeps - 1)
     table = []
+    edge_cv = None
     if degree is None or focus_degree is None or radial is None:
         fds = (focus_degree,) if focus_degree is not None else tuple(range(max_fd + 1))
         degs = (degree,) if degree is not None else DEGREES
         rads = (radial,) if radial is not None else RADIAL
         fam = "monotone" if "monotone" in families_for(obs) else "scale"
-        degree, radial, focus_degree, table = choose_order(obs, fam, fds, degs, rads)
-    fits = fit_all(obs, degree, focus_degree, radial=radial)
+        degree, radial, focus_degree, table = choose_order(obs, fam, fds, degs, rads, low_focus_degrees)
+        low_focus_degree = table_pick(table).get("low_focus_degree")
+        if edge_focus and low_focus_degree is None:
+            focus_degree, low_focus_degree, edge_cv = choose_edge_focus(obs, fam, degree, radial, focus_degree)
+    fits = fit_all(obs, degree, focus_degree, radial=radial, low_focus_degree=low_focus_degree)
     if not fits:
         raise ValueError("no focus-error family could be fitted to the tiles")
     best = select(fits)
     fe, fp, res, _ = fits[best]
     shifts: dict = {}
     if len(obs.free_sweeps()):
-        fit_family(obs, best, degree, focus_degree, radial=radial, shifts=shifts)
-    return ModelFit(fe, fp, res, fits, degree, focus_degree, table, radial, shifts)
+        fit_family(obs, best, degree, focus_degree, radial=radial, shifts=shifts, low_focus_degree=low_focus_degree)
+    return ModelFit(fe, fp, res, fits, degree, focus_degree, table, radial, shifts, low_focus_degree, edge_cv)
 
 
 @dataclass
@@ -389,7 +502,8 @@ def bootstrap(obs: Observations, fit: ModelFit, n_boot: int = 100, seed: int = 0
             w = w * ws[np.searchsorted(sweeps, obs.sweep)]
         if w.sum() <= 0 or (len(obs.free_sweeps()) and w[~np.isin(obs.sweep, obs.free_sweeps())].sum() <= 0):
             continue  # (a replicate without any sweep of a measured distance cannot measure the focus error)
-        fits = fit_all(obs, fit.degree, fit.focus_degree, weight=w, radial=fit.radial, columns=cols)
+        fits = fit_all(obs, fit.degree, fit.focus_degree, weight=w, radial=fit.radial, columns=cols,
+                       low_focus_degree=fit.low_focus_degree)
         if not fits:
             continue
         wins[select(fits)] += 1
@@ -401,7 +515,7 @@ def bootstrap(obs: Observations, fit: ModelFit, n_boot: int = 100, seed: int = 0
             if len(obs.free_sweeps()) and w[np.isin(obs.sweep, obs.free_sweeps())].sum() > 0:
                 sh: dict = {}
                 fit_family(obs, fit.focus.family, fit.degree, fit.focus_degree, weight=w, radial=fit.radial,
-                           columns=cols, shifts=sh)
+                           columns=cols, shifts=sh, low_focus_degree=fit.low_focus_degree)
                 for k, v in sh.items():
                     if w[obs.sweep == k].sum() > 0:
                         shift_draws.setdefault(k, []).append(v)

@@ -240,3 +240,70 @@ def test_a_near_charts_distance_is_fitted_from_the_sweeps_consistency():
         assert not taped.shifts_mm and set(fitted.shifts_mm) == {3}
         assert e["taped"] > e["three"] and e["taped"] > 2 * e["true"], (seed, e)
         assert e["fitted"] < e["true"] + 0.005 and e["fitted"] < e["three"] + 0.005, (seed, e)
+
+
+FOUR_CHARTS = ((0.07, 0.4), (0.1, -0.3), (0.18, 0.2), (0.055, 0.3))  # (distance m, tilt): the phone's and a near one
+
+
+def _tiles_of(surface, charts=FOUR_CHARTS, noise_d: float = 0.05, seed: int = 0, step_d: float = 0.55):
+    """Tiles (24 x 18 per chart) of tilted charts, each peaking at the frame (true focus, D) where surface(x, y,
+    f (F,)) -> (F, N) has its object in focus, plus Gaussian noise; cells of frames step_d apart."""
+    rng = np.random.default_rng(seed)
+    x, y = np.meshgrid((np.arange(24) + 0.5) / 12 - 1, 1 - (np.arange(18) + 0.5) / 9)
+    f_grid = np.linspace(2.0, 20.0, 1801)
+    t_grid = surface(x.ravel(), y.ravel(), f_grid)
+    cols = {k: [] for k in ("x", "y", "reported_d", "object_d", "sweep", "cell")}
+    for i, (dist, tilt) in enumerate(charts):
+        obj = (1.0 / (dist * (1 + tilt * 0.3 * x))).ravel()
+        f = np.array([np.interp(obj[j], t_grid[:, j], f_grid, left=np.nan, right=np.nan) for j in range(obj.size)])
+        ok = np.isfinite(f)
+        rep = f[ok] + rng.normal(0, noise_d, int(ok.sum()))
+        for k, v in (("x", x.ravel()[ok]), ("y", y.ravel()[ok]), ("reported_d", rep), ("object_d", obj[ok]),
+                     ("sweep", np.full(int(ok.sum()), i)), ("cell", i * 10_000 + np.floor(rep / step_d).astype(int))):
+            cols[k].append(v)
+    return Observations(*(np.concatenate(cols[k]) for k in cols), aspect=ASPECT)
+
+
+def _measure_map(x, y, f):
+    """The phone's calibrated map (where the focus measure peaks): under its astigmatism the in-focus object's
+    offset at the field's edge rises, falls and rises again with focus (BENCHMARKS.md, "The phone's outer field")."""
+    from benchmarks.probes.family_split import phone_map
+
+    return phone_map().frame_diopters(1.0 / f, np.sqrt(rho2(x, y)), calibrated=True)
+
+
+def _zone_error(fit, surface, lo: float, hi: float) -> float:
+    """RMS (D) of the model against surface at field radius lo..hi, frames truly focused at 5.6-14.3 D (part a's)."""
+    x, y = np.meshgrid(np.linspace(-1, 1, 41), np.linspace(-1, 1, 31))
+    r = np.sqrt(rho2(x, y))
+    x, y = x[(r >= lo) & (r < hi)], y[(r >= lo) & (r < hi)]
+    e = [fit.predict(x, y, np.full(x.shape, t)) - surface(x, y, np.array([t]))[0] for t in np.linspace(5.6, 14.3, 6)]
+    return float(np.sqrt(np.mean(np.concatenate(e) ** 2)))
+
+
+def test_the_edge_follows_focus_beyond_a_parabola_where_frames_say_so():
+    """Four charts' tiles (0.05 D noise) from the phone's calibrated map: cross-validation over frame cells gives
+    the edge powers (rho^8..) a cubic in focus, the rest of the field term stays quadratic, and the map at field
+    radius 0.66-0.9 is within 0.09 D (a quadratic for all: 0.17 D), no worse inside 0.66. Three charts cannot ask
+    for it (a Legendre degree per sweep); a surface that is smooth in focus does not get it."""
+    for seed in (0, 1):
+        obs = _tiles_of(_measure_map, seed=seed)
+        new, quad = fit_model(obs), fit_model(obs, edge_focus=False)
+        assert (new.focus_degree, new.low_focus_degree) == (3, 2), (seed, new.focus_degree, new.edge_cv)
+        assert quad.focus_degree == 2 and quad.low_focus_degree is None and quad.edge_cv is None
+        edge, edge_quad = _zone_error(new, _measure_map, 0.66, 0.9), _zone_error(quad, _measure_map, 0.66, 0.9)
+        assert edge < 0.09 and edge_quad > 0.15, (seed, edge, edge_quad)
+        assert _zone_error(new, _measure_map, 0, 0.66) < _zone_error(quad, _measure_map, 0, 0.66) + 0.005
+        # the stored polynomial is the fitted model: the edge powers' cubic, the monomials' parabola
+        fb = FieldBasis(new.degree, new.radial, ASPECT)
+        assert fb.focus_mask(3, 2).sum() < fb.size * 4 and new.field.coefficients.shape[1] == 4
+        three = fit_model(_tiles_of(_measure_map, FOUR_CHARTS[:3], seed=seed))
+        assert three.edge_cv is None and three.focus_degree <= 2
+
+    def smooth(x, y, f):  # curvature steep at the edge, changing slowly (linearly) with focus
+        u = rho2(x, y)[None, :]
+        return f[:, None] + (1.5 * u + 2.0 * u ** 4) * (1 + 0.02 * f[:, None])
+
+    fit = fit_model(_tiles_of(smooth))
+    assert fit.low_focus_degree is None and fit.focus_degree <= 2
+    assert _zone_error(fit, smooth, 0, 0.9) < 0.02
