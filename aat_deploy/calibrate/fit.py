@@ -14,7 +14,7 @@ import numpy as np
 
 from .. import __version__
 from .format import CameraCalibration, CameraIdentity, FieldPoly, field_radius_of, poly_terms
-from .model import Observations, bootstrap, fit_model, with_intervals
+from .model import Observations, bootstrap, fit_model, refit_edge, with_intervals
 from .peaks import blur_slope, relative_blur_px
 from .sweep import SweepError, SweepMeasurement, identity_differences
 
@@ -165,7 +165,11 @@ def fit_calibration(measures: list[SweepMeasurement], n_boot: int = 100, degree:
     warnings: list[str] = []
     if bad.any():
         obs = obs.subset(~bad)
-        fit = fit_model(obs, fit.degree, fit.focus_degree, fit.radial, fit.low_focus_degree)
+        if focus_degree is None:  # chosen: the edge powers' degree in focus again, on the tiles kept
+            fit = refit_edge(obs, fit)
+        else:
+            fit = replace(fit_model(obs, fit.degree, fit.focus_degree, fit.radial, fit.low_focus_degree),
+                          cv=fit.cv, edge_cv=fit.edge_cv)
         warnings.append(f"{int(bad.sum())} of {len(bad)} tiles left out as outliers (peak more than "
                         f"{max(5 * mad, 0.005):.3f} D off the first fit)")
     if start:
@@ -177,7 +181,8 @@ def fit_calibration(measures: list[SweepMeasurement], n_boot: int = 100, degree:
             measures = [m.at_distance(m.chart_distance_m + fit.shifts_mm.get(i, 0.0) / 1000.0, FITTED)
                         if i in start else m for i, m in enumerate(measures)]
             obs = _same_tiles(observations(measures), obs)
-            fit = fit_model(obs, fit.degree, fit.focus_degree, fit.radial, fit.low_focus_degree)
+            fit = replace(fit_model(obs, fit.degree, fit.focus_degree, fit.radial, fit.low_focus_degree),
+                          cv=fit.cv, edge_cv=fit.edge_cv)
     if progress:
         progress("bootstrap")
     boot = bootstrap(obs, fit, n_boot=n_boot)
