@@ -483,7 +483,22 @@ def map_errors(rig: Rig, cal, effects: list[str], true_m: np.ndarray) -> dict:
                   "zone_rms_d": {z: float(np.sqrt(np.mean(e[:, m] ** 2))) for z, m in zones.items()},
                   "radius_rms_d": {b: float(np.sqrt(np.mean(e[:, m] ** 2))) for b, m in bins.items()},
                   "radius_mean_d": {b: float(np.mean(d[:, m])) for b, m in bins.items()}}
+        if k == "calibration" and cal.best_focus.radius_max is not None:
+            out[k].update(tile_coverage(d, cal.best_focus.radius_max, cal.best_focus.aspect))
     return out
+
+
+def tile_coverage(d: np.ndarray, radius_max: float, aspect: float) -> dict:
+    """The map's error d (S, H, W) split where tiles measured the field and where not: RMS within the farthest
+    counted tile's field radius (the calibration's `best_focus.radius_max`, with its frames' aspect) and beyond it,
+    where the file holds its field term along the radius (no tile measured it), and the pixels' share beyond."""
+    from aat_deploy.calibrate.format import field_grid, field_radius_of
+
+    x, y = field_grid(*d.shape[1:])
+    beyond = field_radius_of(x, y, aspect) > radius_max
+    rms = lambda m: float(np.sqrt(np.mean(d[:, m] ** 2))) if m.any() else None
+    return {"tiles_radius_max": float(radius_max), "within_tiles_rms_d": rms(~beyond),
+            "beyond_tiles_rms_d": rms(beyond), "beyond_tiles_share": float(beyond.mean())}
 
 
 def fit(rig: Rig, variant: str, sweeps: list[dict], n_boot: int, keep_every: int = 1):
@@ -793,11 +808,16 @@ def tables(res: dict) -> str:
     if rad:  # runs before 2026-11-26 15:30 kept the zones only
         bins = list(rad[0]["inside"]["calibration"]["radius_rms_d"])
         out += ["", "#### a) by field radius, inside: calibration RMS (mean signed error, calibration - truth), D", "",
-                "| lens | variant | anchors (px) | " + " | ".join(bins) + " |", "|---|---|---|" + "---|" * len(bins)]
+                "| lens | variant | anchors (px) | " + " | ".join(bins) + " | within the tiles' radius / beyond (share) |",
+                "|---|---|---|" + "---|" * len(bins) + "---|"]
         for r in rad:
             c = r["inside"]["calibration"]
+            cov = (f"{c['within_tiles_rms_d']:.3f} / " + ("-" if c["beyond_tiles_rms_d"] is None else
+                                                           f"{c['beyond_tiles_rms_d']:.3f}")
+                   + f" ({100 * c['beyond_tiles_share']:.1f} % beyond radius {c['tiles_radius_max']:.3f})"
+                   if "within_tiles_rms_d" in c else "-")  # runs before 2026-11-27 07:00 did not split it
             out.append(f"| {r['lens']} | {r['variant']} | {r.get('cell_px', 64)} | " + " | ".join(
-                f"{c['radius_rms_d'][b]:.3f} ({c['radius_mean_d'][b]:+.3f})" for b in bins) + " |")
+                f"{c['radius_rms_d'][b]:.3f} ({c['radius_mean_d'][b]:+.3f})" for b in bins) + f" | {cov} |")
     if res.get("depth"):
         out += ["", "### b) Depth through the copy, classical method, four mappings of the reported focus", "",
                 "| lens | scenes | mapping | MAE (m) | MAE outer (m) | MAE (D) |", "|---|---|---|---|---|---|"]

@@ -445,3 +445,21 @@ def test_a_random_copys_sweeps_are_named_after_the_copy():
     assert bc.as_sweep(R(), sw, "nominal").path.name == "cellphone_near_nominal_0.055m"
     R.setup = base
     assert bc.as_sweep(R(), sw, "copy").path.name == "cellphone_near_copy_0.055m"
+
+
+def test_the_maps_error_is_split_where_tiles_measured_the_field():
+    """Within the farthest tile's field radius (the file's `best_focus.radius_max`) and beyond it, where the field
+    term is held: the two parts' squared errors add up to the whole frame's, and an error only beyond reads 0
+    within."""
+    from aat_deploy.calibrate.format import field_grid, field_radius_of
+
+    h, w = 48, 64
+    x, y = field_grid(h, w)
+    rad = field_radius_of(x, y, w / h)
+    d = np.stack([np.where(rad > 0.8, 0.5, 0.0), np.where(rad > 0.8, -0.3, 0.0)])
+    out = bc.tile_coverage(d, 0.8, w / h)
+    share = float(np.mean(rad > 0.8))
+    assert out["within_tiles_rms_d"] == 0 and out["beyond_tiles_share"] == pytest.approx(share)
+    assert out["beyond_tiles_rms_d"] == pytest.approx(np.sqrt((0.25 + 0.09) / 2))
+    assert out["beyond_tiles_rms_d"] ** 2 * share == pytest.approx(np.mean(d ** 2))
+    assert bc.tile_coverage(d, 2.0, w / h)["beyond_tiles_rms_d"] is None
