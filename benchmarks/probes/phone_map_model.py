@@ -5,7 +5,8 @@ measured tiles of the same rendered development sweeps. No held-out scene is use
 cross-validation over the sweep's own tiles, never by the truth.
 
     OMP_NUM_THREADS=1 python -m benchmarks.probes.phone_map_model --dump [--variants ...]   # 1-2 min per variant
-    python -m benchmarks.probes.phone_map_model [--variants ...] [--out results/phone_map_model.json]  # seconds
+    python -m benchmarks.probes.phone_map_model [--variants ...] [--out results/phone_map_model.json]  # 3 min
+    python -m benchmarks.probes.phone_map_model --tried --variants copy,nominal    # the forms tried, 1 min
 
 --dump measures bench_calibrate's `cellphone_near` sweeps (the softened chart, cached under cache/calibrate/), fits
 them as part a does, and keeps per variant, in cache/mapmodel/ (a few MB): the fit's tiles (after its outlier
@@ -145,6 +146,109 @@ def evaluate(variant: str, log) -> dict:
     return out
 
 
+# -- the forms tried (--tried): fixed orders of the model's own basis, and radial splines ------------------------------
+def _bspline(u: np.ndarray, inner: np.ndarray, lo: float, hi: float, k: int = 3) -> np.ndarray:
+    """(N, nb) clamped cubic B-splines on [lo, hi] with inner knots, u clipped (held beyond)."""
+    from scipy.interpolate import BSpline
+
+    u = np.clip(u, lo, hi)
+    t = np.r_[[lo] * (k + 1), inner, [hi] * (k + 1)]
+    nb = len(t) - k - 1
+    out = np.stack([np.nan_to_num(BSpline(t, np.eye(nb)[i], k, extrapolate=False)(u)) for i in range(nb)], 1)
+    out[u >= hi, -1] = 1.0
+    return out
+
+
+def spline_fit(o, n_u: int, n_t: int, degree: int = 2, focus_degree: int = 2, t_range=(4.0, 19.0)):
+    """The field term as B-splines in rho^2 (n_u intervals) times B-splines in the on-axis focus (n_t intervals),
+    plus monomials to `degree` times Legendre polynomials to `focus_degree`, every column minus its value at the frame
+    centre; the reported focus's family a scale (iterated as `model.fit_family`). Returns predict(x, y, rep_d)."""
+    from aat_deploy.calibrate.format import field_radius_of
+    from aat_deploy.calibrate.model import FieldBasis
+
+    fb = FieldBasis(degree, 0, o.aspect)
+    a2 = o.aspect ** 2 / (1 + o.aspect ** 2)
+    lo, hi = t_range
+
+    def cols(x, y, t):
+        def raw(x, y):
+            u = a2 * x * x + (1 - a2) * y * y
+            bu = _bspline(u, np.linspace(0, 1, n_u + 1)[1:-1], 0.0, 1.0)
+            bt = _bspline(t, np.linspace(lo, hi, n_t + 1)[1:-1], lo, hi)
+            leg = np.polynomial.legendre.legvander(np.clip(2 * (t - lo) / (hi - lo) - 1, -1, 1), focus_degree)
+            return np.column_stack([(bu[:, :, None] * bt[:, None, :]).reshape(len(x), -1),
+                                    (fb.columns(x, y)[:, :, None] * leg[:, None, :]).reshape(len(x), -1)])
+        return raw(x, y) - raw(np.zeros_like(x), np.zeros_like(y))
+
+    s = 1.0
+    for _ in range(8):
+        a = np.column_stack([o.reported_d, cols(o.x, o.y, s * o.reported_d)])
+        sol, *_ = np.linalg.lstsq(a, o.object_d, rcond=None)
+        if abs(sol[0] - s) < 1e-9:
+            break
+        s = float(sol[0])
+    r_max = float(np.max(field_radius_of(o.x, o.y, o.aspect)))
+
+    def predict(x, y, rep_d):
+        r = field_radius_of(x, y, o.aspect)
+        k = np.where(r > r_max, r_max / np.maximum(r, 1e-300), 1.0)
+        xs, ys = (x * k).ravel(), (y * k).ravel()
+        return np.stack([sol[0] * rd + (cols(xs, ys, np.full(xs.shape, sol[0] * rd)) @ sol[1:]).reshape(x.shape)
+                         for rd in rep_d])
+    return predict, r_max
+
+
+TRIED_ORDERS = {"quadratic in focus (degree 3, rho^12)": (3, 12, 2, None),
+                "the whole field term cubic in focus": (3, 12, 3, None),
+                "the whole field term quartic in focus": (3, 12, 4, None),
+                "edge powers cubic, the rest quadratic": (3, 12, 3, 2)}
+TRIED_SPLINES = {"splines: 6 radial x 3 focus intervals + monomials 2": (6, 3),
+                 "splines: 8 x 4": (8, 4), "splines: 12 x 6": (12, 6)}
+
+
+def tried(variant: str, log) -> dict:
+    from aat_deploy.calibrate.fit import held_beyond_tiles
+    from aat_deploy.calibrate.model import fit_model
+
+    d = load(variant)
+    out = {}
+    for pre, label in (("ideal_", "ideal tiles"), ("meas_", "measured tiles")):
+        o = obs_of(d, pre)
+        rows = {}
+        for name, (deg, rad, fd, low) in TRIED_ORDERS.items():
+            f = fit_model(o, deg, fd, rad, low)
+            fp = held_beyond_tiles(f.field, o)
+            row = {}
+            for part, (rep, truth) in {"inside": (d["reported_d"], d["truth"]),
+                                        "schedule": (d["sched_reported_d"], d["sched_truth"])}.items():
+                t = f.focus.true_diopters(rep)
+                row[part] = scores(t[:, None, None] + fp(d["gx"], d["gy"], t), truth, d, fp.radius_max)
+            rows[name] = row
+        if pre == "ideal_":
+            for name, (nu, nt) in TRIED_SPLINES.items():
+                pred, r_max = spline_fit(o, nu, nt)
+                rows[name] = {part: scores(pred(d["gx"], d["gy"], rep), truth, d, r_max) for part, (rep, truth) in
+                              {"inside": (d["reported_d"], d["truth"]),
+                               "schedule": (d["sched_reported_d"], d["sched_truth"])}.items()}
+        for name, r in rows.items():
+            log(f"{variant} {label} {name}: inside {r['inside']['rms_d']:.3f}, schedule {r['schedule']['rms_d']:.3f}")
+        out[label] = rows
+    return out
+
+
+def tried_table(res: dict) -> str:
+    lines = ["| variant | tiles | form | inside RMS | within / beyond the tiles' radius | 0-0.33 / 0.33-0.5 / 0.5-0.66 / "
+             "0.66-0.75 / 0.75-0.84 / 0.84-0.9 / 0.9-1 | schedule RMS |", "|---|---|---|---|---|---|---|"]
+    for v, labels in res["tried"].items():
+        for label, rows in labels.items():
+            for name, r in rows.items():
+                i = r["inside"]
+                lines.append(f"| {v} | {label} | {name} | {i['rms_d']:.3f} | {i['within_tiles_rms_d']:.3f} / "
+                             f"{i['beyond_tiles_rms_d']:.3f} | " + " / ".join(f"{x:.3f}" for x in i["radius_rms_d"].values())
+                             + f" | {r['schedule']['rms_d']:.3f} |")
+    return "\n".join(lines)
+
+
 def table(res: dict) -> str:
     lines = ["| variant | tiles | model | order (degree, radial, focus, rest's focus) | residual (D) | inside RMS | "
              "within the tiles' radius / beyond | 0.66-0.75 / 0.75-0.84 / 0.84-0.9 / 0.9-1 | schedule RMS |",
@@ -159,6 +263,19 @@ def table(res: dict) -> str:
                              f"{i['beyond_tiles_rms_d']:.3f} | " + " / ".join(f"{rb[b]:.3f}" for b in
                                                                              ("0.66-0.75", "0.75-0.84", "0.84-0.9", "0.9-1"))
                              + f" | {r['schedule']['rms_d']:.3f} |")
+    for v in res["variants"]:
+        if v["variant"] != "copy":
+            continue
+        for label, rows in v["tiles"].items():
+            names = list(rows)
+            d0 = rows[names[0]]["diagonal_r0.8"]
+            fd, tr = np.array(d0["true_focus_d"]), np.array(d0["truth_d"])
+            lines += ["", f"copy, {label}: in-focus object minus the frame's on-axis focus (D) at field radius "
+                      f"{d0['radius']:.2f} on the diagonal, truth / " + " / ".join(names), "",
+                      "| frame's true focus (D) | truth | " + " | ".join(names) + " |", "|---|---|" + "---|" * len(names)]
+            for i in range(0, len(fd), 4):
+                lines.append(f"| {fd[i]:.1f} | {tr[i] - fd[i]:+.2f} | " + " | ".join(
+                    f"{rows[k]['diagonal_r0.8']['fit_d'][i] - fd[i]:+.2f}" for k in names) + " |")
     return "\n".join(lines)
 
 
@@ -166,7 +283,9 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--dump", action="store_true")
     ap.add_argument("--variants", default=",".join(VARIANTS))
-    ap.add_argument("--out", default=str(RESULTS / "phone_map_model.json"))
+    ap.add_argument("--tried", action="store_true", help="the forms tried, at fixed orders, and radial splines "
+                    "(results/phone_map_model_tried.json with the default --out)")
+    ap.add_argument("--out", default=None)
     a = ap.parse_args(argv)
     log = lambda m: print(m, file=sys.stderr, flush=True)
     if a.dump:
@@ -175,6 +294,13 @@ def main(argv=None) -> int:
         return 0
     from aat_deploy.io.atomic import write_text_atomic
 
+    if a.tried:
+        out = Path(a.out or RESULTS / "phone_map_model_tried.json")
+        res = {"setup": "cellphone_near", "tried": {v: tried(v, log) for v in a.variants.split(",")}}
+        write_text_atomic(out, json.dumps(res, indent=1, default=float))
+        print(tried_table(res))
+        return 0
+    a.out = a.out or str(RESULTS / "phone_map_model.json")
     res = {"setup": "cellphone_near", "chart": "dead leaves softened 0.7 px", "truth": "lenses/best_focus/cellphone_asphere.json",
            "variants": [evaluate(v, log) for v in a.variants.split(",")]}
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
