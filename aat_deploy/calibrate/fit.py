@@ -175,14 +175,26 @@ def fit_calibration(measures: list[SweepMeasurement], n_boot: int = 100, degree:
     if start:
         # fitted chart distances: the model's linearised shift, the tiles' objects recomputed at the new distance,
         # refitted (Gauss-Newton) until the shift is below a micrometre
-        for _ in range(FIT_DISTANCE_ITERATIONS):
-            if max(abs(v) for v in fit.shifts_mm.values()) < 1e-3:
-                break
-            measures = [m.at_distance(m.chart_distance_m + fit.shifts_mm.get(i, 0.0) / 1000.0, FITTED)
-                        if i in start else m for i, m in enumerate(measures)]
-            obs = _same_tiles(observations(measures), obs)
-            fit = replace(fit_model(obs, fit.degree, fit.focus_degree, fit.radial, fit.low_focus_degree),
-                          cv=fit.cv, edge_cv=fit.edge_cv)
+        def fit_distances(measures, obs, fit):
+            for _ in range(FIT_DISTANCE_ITERATIONS):
+                if max(abs(v) for v in fit.shifts_mm.values()) < 1e-3:
+                    break
+                measures = [m.at_distance(m.chart_distance_m + fit.shifts_mm.get(i, 0.0) / 1000.0, FITTED)
+                            if i in start else m for i, m in enumerate(measures)]
+                obs = _same_tiles(observations(measures), obs)
+                fit = replace(fit_model(obs, fit.degree, fit.focus_degree, fit.radial, fit.low_focus_degree),
+                              cv=fit.cv, edge_cv=fit.edge_cv)
+            return measures, obs, fit
+
+        measures, obs, fit = fit_distances(measures, obs, fit)
+        if focus_degree is None and fit.edge_cv:
+            # the edge powers' degree chosen again with the charts at their fitted distances (the choice above saw
+            # the tiles of a chart to be fitted at its starting distance); a changed choice refits the distances
+            again = refit_edge(obs, fit)
+            if (again.focus_degree, again.low_focus_degree) != (fit.focus_degree, fit.low_focus_degree):
+                measures, obs, fit = fit_distances(measures, obs, again)
+            else:
+                fit = replace(fit, edge_cv=again.edge_cv)
     if progress:
         progress("bootstrap")
     boot = bootstrap(obs, fit, n_boot=n_boot)

@@ -363,3 +363,35 @@ def test_a_bare_fitted_distance_without_a_marker_pose_is_one_line_with_nothing_w
     (line,) = [e for e in err if e.startswith("aat-calibrate: error:")]
     assert f"{square}: a distance marked ~ alone starts from the chart's marker pose, and there is none" in line
     assert "too square" in line and "~D" in line and err[-1].endswith("nothing written")
+
+
+def test_the_edge_degree_is_chosen_on_the_tiles_at_the_fitted_distance(rig, tmp_path, capsys, monkeypatch):
+    """Where the edge powers' degree in focus is chosen (four sweeps or more, `model.refit_edge`), it is chosen
+    again after the chart distances marked ~ are fitted: on the tiles' objects at the fitted distance, not at the
+    start. Spied on two sweeps by marking every fit as one where the choice was asked (the rig has too few sweeps
+    to ask it)."""
+    from dataclasses import replace as dc_replace
+
+    from aat_deploy.calibrate import fit as fit_mod
+
+    seen = []
+    real_fit_model = fit_mod.fit_model
+
+    def asked(*a, **k):  # every fit looks like one whose edge degree was chosen
+        return dc_replace(real_fit_model(*a, **k), edge_cv={"cells": 0})
+
+    def spy(obs, f):
+        seen.append(np.asarray(obs.object_d[obs.sweep == 1]).copy())
+        return f
+
+    monkeypatch.setattr(fit_mod, "fit_model", asked)
+    monkeypatch.setattr(fit_mod, "refit_edge", spy)
+    out = tmp_path / "cam.json"
+    rc = cli.main(["fit", str(rig / "sweep0"), str(rig / "sweep1"), "--chart", str(rig / "chart.json"),
+                   "--distance-m", "0.6,~1.03", "--out", str(out), "--boot", "5", "-q"])
+    assert rc == 0, capsys.readouterr().err
+    assert seen, "the edge degree was never chosen again after the distance fit"
+    # the median tile's object distance (m): about 1 % short of the chart's axial distance on this tilted chart
+    d_last = 1.0 / float(np.median(seen[-1]))
+    fitted = load_calibration(out).residuals["per_sweep"][1]["chart_distance_m"]  # 0.999 (truly 1.0; start 1.03)
+    assert abs(d_last - fitted) < 0.015 and 1.03 - d_last > 0.03, (d_last, fitted)
