@@ -468,7 +468,7 @@ def refit_edge(obs: Observations, fit: ModelFit) -> ModelFit:
     """`fit`'s order on obs with the edge powers' degree in focus chosen again (`choose_edge_focus`): after the
     fit's outlier pass, whose tiles (a few, 5 robust SDs off) otherwise weigh most in the squared errors the
     cross-validation compares (on the benchmark's nominal phone: 0.2185 against 0.2191 D with them, 0.2196
-    against 0.1846 D without)."""
+    against 0.1845 D without)."""
     fd = fit.low_focus_degree if fit.low_focus_degree is not None else fit.focus_degree
     fam = "monotone" if "monotone" in families_for(obs) else "scale"
     fd, low, table = choose_edge_focus(obs, fam, fit.degree, fit.radial, fd)
