@@ -470,7 +470,7 @@ def compare(old: list[dict], new: list[dict]) -> None:
         same_corr = np.allclose(x["corrected_err_d"], y["corrected_err_d"], atol=1e-4)
         print(f"| {key[0]} {key[1]} | {'yes' if x['family'] == y['family'] else 'NO'} | "
               f"{'yes' if same_corr else 'NO'} | {100 * rel:.2f} % | "
-              f"{x.get('frames_undetermined', 0)} -> {y.get('frames_undetermined', 0)} | "
+              f"{int(undetermined_frames(x).sum())} -> {int(undetermined_frames(y).sum())} | "
               f"{'yes' if (x.get('verdict'), x.get('named')) == (y.get('verdict'), y.get('named')) else 'NO'} |")
     fams = sum(a[k]["family"] == b[k]["family"] for k in both)
     corr = sum(np.allclose(a[k]["corrected_err_d"], b[k]["corrected_err_d"], atol=1e-4) for k in both)

@@ -40,9 +40,10 @@ def test_table_counts_an_undetermined_set_as_not_within_and_the_last_row_of_a_se
 
 
 def test_compare_says_what_moved_between_two_runs(capsys):
-    old = [_row("a", "quantised", 0.042, sd=0.02), _row("b", "scale_0.9", 0.004)]
-    new = [_row("a", "quantised", 0.042, und=1, sd=0.0276), _row("b", "scale_0.9", 0.004),
-           _row("c", "none", 0.0)]
+    old = [_row("a", "quantised", 0.042), _row("b", "scale_0.9", 0.004)]
+    new = [_row("a", "quantised", 0.042), _row("b", "scale_0.9", 0.004), _row("c", "none", 0.0)]
+    old[0]["corrected_sd_d"], new[0]["corrected_sd_d"] = [[0.015, 0.01]], [[0.0207, 0.01]]
+    # the undetermined column follows the rule (standard error >= 0.02 D), not a row's stored count (here stale, 0)
     bench.compare(old, new)
     out = capsys.readouterr().out
     assert "2 sets in both" in out and "| a quantised | yes | yes | 38.00 % | 0 -> 1 | yes |" in out
