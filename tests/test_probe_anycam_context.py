@@ -71,3 +71,8 @@ def test_precise_bn_probe_refuses_bad_counts_and_missing_checkpoints(tmp_path, c
     with pytest.raises(SystemExit):
         anycam_precise_bn.main([str(tmp_path / "none.pt"), "--stacks", str(tmp_path)])
     assert "no such checkpoint: " in capsys.readouterr().err
+    out = tmp_path / "mine.json"
+    out.write_text("mine")
+    with pytest.raises(SystemExit):
+        anycam_precise_bn.main([str(ck), "--stacks", str(tmp_path), "--out", str(out)])
+    assert "mine.json: exists" in capsys.readouterr().err and out.read_text() == "mine"

@@ -41,13 +41,14 @@ def _train_batches(cfg, stacks: str, n: int):
 
 def score(checkpoint: Path, stacks: str, batches: list[int], save: Path | None = None) -> dict:
     from training.nets import registry
+    from training.train.checkpoint import load
     from training.train.data import make_dataset
     from training.train.evaluate import evaluate
     from training.train.loop import load_trained
     from training.train.precise_bn import recompute_bn_stats
 
     model, cfg = load_trained(checkpoint)
-    step = int(torch.load(checkpoint, map_location="cpu", weights_only=False).get("step", -1))
+    step = int(load(checkpoint).get("step", -1))
     val = make_dataset({**cfg.val_data, "cache_dir": stacks}, cfg.simulator, cfg.lens, cfg.effects)
     if registry.get(cfg.net).focus_maps:
         from training.nets.dfvaat import train_levels as forward_levels
@@ -74,6 +75,8 @@ def score(checkpoint: Path, stacks: str, batches: list[int], save: Path | None =
     if save is not None and batches[-1]:
         save.mkdir(parents=True, exist_ok=True)
         dst = save / f"{cfg.name}_{checkpoint.stem}_pbn{batches[-1]}.pt"
+        if dst.exists():
+            raise FileExistsError(f"{dst}: exists (never overwritten)")
         torch.save({"model": model.state_dict(), "config": cfg.to_dict(), "config_hash": cfg.hash(),
                     "step": step, "precise_bn_batches": batches[-1]}, dst)
         print(f"wrote {dst}", flush=True)
@@ -94,6 +97,8 @@ def main(argv: list[str] | None = None) -> int:
     missing = [str(c) for c in a.checkpoints if not c.is_file()]
     if missing:
         ap.error(f"no such checkpoint: {', '.join(missing)}")
+    if a.out and a.out.exists():
+        ap.error(f"{a.out}: exists (choose another --out)")
     torch.set_num_threads(1)
     out = [score(c, a.stacks, batches, a.save) for c in a.checkpoints]
     if a.out:
