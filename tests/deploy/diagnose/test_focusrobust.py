@@ -195,3 +195,26 @@ def test_without_an_expected_floor_no_frame_is_left_out():
     ref = ff.fit_metadata(fr.prepare(data)[0], n_boot=5)
     assert fit.best.name == ref.best.name and np.allclose(fit.best.true_d, ref.best.true_d)
     assert None not in fit.summary()["frame_focus_d"][0]
+
+
+@pytest.mark.parametrize("family", ["quantisation", "per_frame"])
+def test_left_out_frame_no_parameter_reaches_gets_the_search_ranges_sd(family, monkeypatch):
+    """A left-out (noise-dominated) frame that no parameter of the chosen family reaches (its own quantisation bin,
+    or `per_frame`'s own value) is placed by nothing: `fit_metadata` gives it the search range's standard error,
+    2 x MAX_ERROR_D / sqrt(12) = 0.231 D (a uniform over +-0.4 D), so it is reported undetermined; the frames the
+    fit used keep their own (smaller) errors. The choice is forced to `family` (`select` patched), since which
+    family the far noisy sweep chooses is not the point here."""
+    true = NOISY_REPORTED_D[None].copy()
+    rep = np.round(true / 0.1) * 0.1  # every frame alone in its 0.1 D bin: a quantisation value per frame
+    data = noisy_far_sweep(true, rep)
+    dom = fr.fit_robust(data, n_boot=0)[0].noise_dominated  # the frames `fit_robust` leaves out: the nearest three
+    assert dom[0, :3].all() and not dom[0, 3:].any()
+    prepared = ff.without_frames(fr.prepare(data)[0], dom)
+    assert family in ff.fit_families(prepared)
+    monkeypatch.setattr(ff, "select", lambda fits: fits[family])
+    fit = ff.fit_metadata(prepared, n_boot=5, excluded=dom)
+    assert fit.best.name == family
+    search_sd = 2 * ff.MAX_ERROR_D / np.sqrt(12)
+    assert np.allclose(fit.true_d_sd[0, :3], search_sd), fit.true_d_sd
+    assert fit.undetermined[0, :3].all()
+    assert np.all(fit.true_d_sd[0, 3:] < 0.1), fit.true_d_sd  # the fitted frames: their own errors, not the range's
