@@ -19,6 +19,14 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 
 
+def sample_scene(scene_seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """The procedural scene --scene-seed makes: (rgb (640, 960, 3) linear in [0, 1], depth (640, 960) metres, 0.7-5 m)."""
+    from training.data.scenes import SceneConfig, procedural_scene
+
+    return procedural_scene(SceneConfig(height=640, width=960, near_m=0.7, far_m=5.0),
+                            np.random.default_rng(scene_seed))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--out", default=str(ROOT / "captures/sample_rf50"))
@@ -30,11 +38,9 @@ def main() -> None:
     args = ap.parse_args()
     from aat_deploy.io.color import linear_to_srgb
     from training.cli.render import main as render
-    from training.data.scenes import SceneConfig, procedural_scene
     from training.render.schedule import FocusSchedule
 
-    rgb, depth = procedural_scene(SceneConfig(height=640, width=960, near_m=0.7, far_m=5.0),
-                                  np.random.default_rng(args.scene_seed))
+    rgb, depth = sample_scene(args.scene_seed)
     focus = FocusSchedule(0.6, 6.0, 8).distances()
     with tempfile.TemporaryDirectory() as d:
         cv2.imwrite(f"{d}/rgb.png", np.round(linear_to_srgb(rgb)[..., ::-1] * 65535).astype(np.uint16))

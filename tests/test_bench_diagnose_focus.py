@@ -211,3 +211,23 @@ def test_rescore_writes_a_new_file_and_never_overwrites_one(tmp_path, monkeypatc
             bench.main()
         assert dst.read_bytes() == kept
     assert old.read_bytes() == before
+
+
+def test_sixth_fresh_test_captures_are_new_scenes_chosen_by_the_declared_rule(tmp_path):
+    """The sixth fresh test captures (issue 32, a held-out test of the noise rule): candidates and noise seeds share
+    nothing with every earlier set (scenes 2026-2049, noise seeds 1-24); the rule, on development scenes' ground truth
+    only, keeps scene 2038 (far, little texture) and not 2035 (far, textured) nor 2037 (little texture, content nearer); --fresh6
+    refuses a count it does not have. (The candidates themselves are not screened here: that is the run's.)"""
+    earlier = (*bench.SCENES, (2029, 4), *bench.FRESH_SCENES, *bench.FRESH_SCENES_2, *bench.FRESH_SCENES_3,
+               *bench.FRESH_SCENES_4, *bench.FRESH_SCENES_5)
+    assert not set(bench.FRESH6_CANDIDATES) & {s for s, _ in earlier}
+    assert min(bench.FRESH6_CANDIDATES) > max(s for s, _ in earlier)
+    assert not set(bench.FRESH6_NOISE_SEEDS) & {n for _, n in earlier}
+    assert len(set(bench.FRESH6_NOISE_SEEDS)) == bench.FRESH6_K >= 2
+    st = {s: bench.scene_stats(s) for s in (2035, 2037, 2038)}
+    assert st[2038]["near_d"] == pytest.approx(0.595, abs=0.01) and st[2038]["texture"] == pytest.approx(0.007, abs=0.001)
+    assert bench.fresh6_keeps(st[2038])
+    assert not bench.fresh6_keeps(st[2035]) and st[2035]["near_d"] <= bench.FRESH6_MAX_NEAR_D  # texture rules it out
+    assert not bench.fresh6_keeps(st[2037]) and st[2037]["texture"] <= bench.FRESH6_MAX_TEXTURE  # too near
+    with pytest.raises(SystemExit, match="--fresh6"):
+        bench.fresh6_scenes(bench.FRESH6_K + 1, tmp_path)
