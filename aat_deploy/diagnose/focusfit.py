@@ -116,6 +116,9 @@ class SweepData:
     signal_c: np.ndarray | None = None
     floor_c: np.ndarray | None = None
     floor_read_c: np.ndarray | None = None  # the read noise's part of floor_c (the rest is the shot noise's)
+    # (n, S) frames left out of the fit (`without_frames`): their curves NaN like padding, but their reported focus is
+    # the metadata's as much as any frame's (the quantisation grid is detected from it too: `reported_values`)
+    left_out: np.ndarray | None = None
 
     def __post_init__(self):
         n, r, _ = self.capture.shape
@@ -236,7 +239,22 @@ def without_frames(data: SweepData, mask: np.ndarray) -> SweepData:
     nothing is fitted on them."""
     m = np.asarray(mask, bool)[:, None, :]
     lum = None if data.capture_lum is None else np.where(m, np.nan, data.capture_lum)
-    return dataclasses.replace(data, capture=np.where(m, np.nan, data.capture), capture_lum=lum)
+    out = m[:, 0, :] & (data.frames > 0)
+    if data.left_out is not None:
+        out = out | np.asarray(data.left_out, bool)
+    return dataclasses.replace(data, capture=np.where(m, np.nan, data.capture), capture_lum=lum, left_out=out)
+
+
+def reported_values(data: SweepData) -> np.ndarray:
+    """The distinct reported values (diopters, ascending) of every frame the metadata reports: the fitted frames and
+    those left out of the fit (`without_frames`), not padding. The quantisation grid is a property of the metadata,
+    which every frame has: detected from the frames left in alone, a grid loses the values of the frames left out (issue
+    32, scene 2038's quantised set: 1.7 ... 0.2 D on a 0.1 D grid, frames 0-2 left out, the five values left all
+    multiples of 0.2 D, so 0.2 D bins)."""
+    keep = data.frames > 0
+    if data.left_out is not None:
+        keep = keep | np.asarray(data.left_out, bool)
+    return np.unique(np.round(np.asarray(data.reported_d, np.float64)[keep], 9))
 
 
 # --- metadata error families --------------------------------------------------------------------------------
@@ -383,7 +401,7 @@ def fit_families(data: SweepData, weight: np.ndarray | None = None, frames: np.n
         if np.all(np.diff(ys) > 0):  # a curve that turns back is no focus encoder's
             fits["monotone"] = FamilyFit("monotone", 3, {"bias_d": 0.0, "map_d": _knots(xs, ys)}, d, ss(d),
                                          detail={"knots_reported_d": kx.tolist(), "knots_true_d": ky.tolist()})
-    q = quantiser(values)
+    q = quantiser(reported_values(data))  # every reported value, the left-out frames' too: the metadata's grid
     start = fits["offset"].true_d if start is None else np.asarray(start, np.float64)
     if q is not None:
         half = bin_half_width_d(values, q)
@@ -400,13 +418,14 @@ def fit_families(data: SweepData, weight: np.ndarray | None = None, frames: np.n
     return fits
 
 
-def family_design(name: str, reported_d: np.ndarray, true_d: np.ndarray, frames: np.ndarray
-                  ) -> tuple[np.ndarray, list[float]]:
+def family_design(name: str, reported_d: np.ndarray, true_d: np.ndarray, frames: np.ndarray,
+                  quant: tuple[str, float] | None = None) -> tuple[np.ndarray, list[float]]:
     """How a family's parameters move the frames' focus near its fit, and the range each may take (its search
     range: the uniform prior of `score_families`): J (n, S, k), d true_d / d parameter, and the k prior widths.
     offset: b in +-MAX_ERROR_D; scale: log s over SCALE_RANGE (d true / d log s = true); monotone: the 3 knots'
     true values, each +-MAX_ERROR_D (the parabola's Lagrange basis at the reported focus); quantisation: each
-    distinct value's true focus inside its bin; per_frame: each inside +-MAX_ERROR_D."""
+    distinct value's true focus inside its bin (quant: the quantiser the fit used, `fit_quantiser`, detected from every
+    reported value; None: from the values of `frames`); per_frame: each inside +-MAX_ERROR_D."""
     rep = np.asarray(reported_d, np.float64)
     values = np.unique(np.round(rep[frames > 0], 9))
     masks = [np.isclose(rep, v, atol=1e-9).astype(np.float64) for v in values]
@@ -420,10 +439,15 @@ def family_design(name: str, reported_d: np.ndarray, true_d: np.ndarray, frames:
         kx = np.array([values[0], values[len(values) // 2], values[-1]])
         return np.stack([parabola(rep, kx, np.eye(3)[j]) for j in range(3)], -1), [2 * MAX_ERROR_D] * 3
     if name == "quantisation":
-        return np.stack(masks, -1), (2 * bin_half_width_d(values, quantiser(values))).tolist()
+        return np.stack(masks, -1), (2 * bin_half_width_d(values, quant or quantiser(values))).tolist()
     if name == "per_frame":
         return np.stack(masks, -1), [2 * MAX_ERROR_D] * len(values)
     raise ValueError(f"unknown focus-error family {name!r}")
+
+
+def fit_quantiser(f: FamilyFit) -> tuple[str, float] | None:
+    """The quantiser a `quantisation` fit used (its detail), for `family_design`; None for the other families."""
+    return (f.detail["quantiser"], f.detail["step_d"]) if "quantiser" in f.detail else None
 
 
 def level_sensitivity(data: SweepData, d: np.ndarray, step_d: float = 0.01) -> np.ndarray:
@@ -534,7 +558,7 @@ def corrected_sd(fit: FamilyFit, reported_d: np.ndarray, frame_sd: np.ndarray, f
     bin's standard deviation is 0.029 D). at (n, S): the frames to give it for (default: frames); a frame left out of the
     fit (`fit_metadata`'s excluded) gets the family's value's error there, from the others."""
     rep = np.asarray(reported_d, np.float64)
-    jac, widths = family_design(fit.name, rep, fit.true_d, frames)
+    jac, widths = family_design(fit.name, rep, fit.true_d, frames, fit_quantiser(fit))
     if not widths:
         return np.zeros(rep.shape)
     real = frames > 0
@@ -546,7 +570,8 @@ def corrected_sd(fit: FamilyFit, reported_d: np.ndarray, frame_sd: np.ndarray, f
     meat = np.einsum("nsi,nst,ntj->ij", scaled, error_correlation(fit.true_d, frames, length_d), scaled)
     cov = bread @ meat @ bread
     if at is not None:
-        jac = np.where(np.asarray(at, bool)[..., None], family_design(fit.name, rep, fit.true_d, frames)[0], 0.0)
+        jac = np.where(np.asarray(at, bool)[..., None], family_design(fit.name, rep, fit.true_d, frames, fit_quantiser(fit))[0],
+                       0.0)
     return np.sqrt(np.maximum(np.einsum("nsi,ij,nsj->ns", jac, cov, jac), 0.0))
 
 
@@ -565,7 +590,7 @@ def frame_consistency(fit: FamilyFit, reported_d: np.ndarray, frame_d: np.ndarra
     variance vanishes: a quantisation bin, `per_frame`; a difference there is the bin's bound, not a misfit) and for
     `none` (no error model)."""
     rep = np.asarray(reported_d, np.float64)
-    jac, widths = family_design(fit.name, rep, fit.true_d, frames)
+    jac, widths = family_design(fit.name, rep, fit.true_d, frames, fit_quantiser(fit))
     out = np.zeros(rep.shape)
     if not widths:
         return out
@@ -608,7 +633,7 @@ def score_families(fits: dict[str, FamilyFit], frame_sd: np.ndarray, frames: np.
     inv = np.where(use, 1.0 / (np.asarray(frame_sd, np.float64) ** 2 + np.asarray(systematic_d) ** 2), 0.0)
     for f in fits.values():
         chi2 = float(np.sum(np.where(use, (f.true_d - e) ** 2, 0.0) * inv))
-        jac, widths = family_design(f.name, rep, f.true_d, frames)
+        jac, widths = family_design(f.name, rep, f.true_d, frames, fit_quantiser(f))
         k = jac.shape[-1]
         logdet = float(np.linalg.slogdet(np.einsum("nsi,ns,nsj->ij", jac, inv, jac))[1]) if k else 0.0
         f.score = chi2 + logdet - k * math.log(2 * math.pi) + 2 * sum(math.log(w) for w in widths)
@@ -722,9 +747,12 @@ def fit_metadata(data: SweepData, n_boot: int = 50, seed: int = 0, level: float 
     curves NaN in `data`, `without_frames`): no per-frame estimate (the `per_frame` curve between the others is not
     one; null in `summary`), and the family's value there as their corrected focus, with that value's error
     (`corrected_sd` at them: what the other frames give it through the family; the search range's where no
-    parameter reaches it), undetermined by the same rule as every frame; share (n, S): the noise shares they were
+    parameter reaches it, every one under `none`), undetermined by the same rule as every frame; their reported values
+    count in the quantisation grid's detection (`reported_values`); share (n, S): the noise shares they were
     judged by, reported."""
     exc = np.zeros(data.reported_d.shape, bool) if excluded is None else np.asarray(excluded, bool)
+    if exc.any():  # their reported values are the metadata's too (`reported_values`), however the sweep was made
+        data = dataclasses.replace(data, left_out=exc if data.left_out is None else np.asarray(data.left_out, bool) | exc)
     fits = fit_families(data)
     rng = np.random.default_rng(seed)
     reps = []
@@ -768,9 +796,13 @@ def fit_metadata(data: SweepData, n_boot: int = 50, seed: int = 0, level: float 
     tsd = corrected_sd(best, data.reported_d, sd, data.frames, sys_d, at=(data.frames > 0) | exc)
     if SCALE_BY_CONSISTENCY:
         tsd = tsd * np.maximum(1.0, cons)
-    if exc.any() and best.name != "none":  # a left-out frame no parameter of the family reaches (its own bin or value)
-        free = ~np.any(family_design(best.name, data.reported_d, best.true_d, data.frames)[0] != 0, axis=-1)
-        tsd = np.where(exc & free, 2 * MAX_ERROR_D / math.sqrt(12), tsd)  # nothing places it: the search range's sd
+    if exc.any():  # a left-out frame no parameter of the family reaches (its own bin or value; every frame under none)
+        jac = family_design(best.name, data.reported_d, best.true_d, data.frames, fit_quantiser(best))[0]
+        free = ~np.any(jac != 0, axis=-1)
+        # nothing measured places it: the search range's sd. Under `none` too: its corrected focus there is the reported
+        # one by the family's assumption alone (no parameter carries the other frames' evidence to it), and a
+        # standard error of 0 claimed a frame the fit never saw (scene 2038's quantised set, 0.048 D off, claimed)
+        tsd = np.where(exc & free, 2 * MAX_ERROR_D / math.sqrt(12), tsd)
     return MetadataFit(best, fits, ci, pci, {k: v / total for k, v in wins.items()}, bound, sd, sys_d, tsd,
                        (tsd >= UNDETERMINED_SD_D) & ((data.frames > 0) | exc), cons, scale, share, exc)
 

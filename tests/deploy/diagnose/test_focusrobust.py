@@ -218,3 +218,45 @@ def test_left_out_frame_no_parameter_reaches_gets_the_search_ranges_sd(family, m
     assert np.allclose(fit.true_d_sd[0, :3], search_sd), fit.true_d_sd
     assert fit.undetermined[0, :3].all()
     assert np.all(fit.true_d_sd[0, 3:] < 0.1), fit.true_d_sd  # the fitted frames: their own errors, not the range's
+
+
+def test_quantisation_grid_is_detected_from_every_reported_value():
+    """The quantisation grid is the metadata's, which every frame has: with the nearest three frames left out
+    (noise-dominated), the values left (1.0, 0.8, 0.6, 0.4, 0.2 D) are all multiples of 0.2 D, but the capture reports
+    1.7, 1.4, 1.2 D too, so the step is 0.1 D and every bin 0.1 D wide, in the fit and in its price
+    (`family_design`), whether the sweep says which frames were left out (`without_frames`) or only `fit_metadata`'s
+    excluded does (issue 32, scene 2038: detected from the frames left in, the step was 0.2 D)."""
+    true = NOISY_REPORTED_D[None].copy()
+    rep = np.round(true / 0.1) * 0.1
+    data = noisy_far_sweep(true, rep)
+    dom = fr.fit_robust(data, n_boot=0)[0].noise_dominated
+    assert dom[0, :3].all() and not dom[0, 3:].any()
+    left_in = np.unique(np.round(rep[~dom], 9))
+    assert ff.quantiser(left_in) == ("diopter", 0.2)  # what the frames left in alone say
+    prepared = fr.prepare(data)[0]
+    cut = ff.without_frames(prepared, dom)
+    q = ff.fit_families(cut)["quantisation"]
+    assert (q.detail["quantiser"], q.detail["step_d"]) == ("diopter", 0.1)  # the old code: 0.2
+    assert np.array_equal(cut.left_out, dom)
+    assert np.allclose(ff.reported_values(cut), np.unique(np.round(rep, 9)))
+    fit = ff.fit_metadata(dataclasses.replace(cut, left_out=None), n_boot=3, excluded=dom)  # excluded alone
+    q = fit.fits["quantisation"]
+    assert q.detail["step_d"] == 0.1
+    _, widths = ff.family_design("quantisation", rep, q.true_d, cut.frames, ff.fit_quantiser(q))
+    assert np.allclose(widths, 0.1) and len(widths) == 5  # one bin value per fitted frame, each 0.1 D wide
+    assert np.all(np.abs(q.true_d - rep)[0, 3:] <= 0.05 + 1e-9)  # inside the 0.1 D bins
+
+
+def test_left_out_frames_are_undetermined_under_none():
+    """`none` has no parameter: its corrected focus at a left-out frame is the reported one by the family's assumption
+    alone, with nothing measured there. It is reported undetermined with the search range's standard error (0.231 D),
+    not determined with a standard error of 0 (issue 32: scene 2038's quantised set, read as `none`, claimed its
+    left-out frames 0.048 D off); the fitted frames keep `none`'s 0."""
+    true = NOISY_REPORTED_D[None].copy()
+    fit, _ = fr.fit_robust(noisy_far_sweep(true, true.copy()), n_boot=5)
+    assert fit.best.name == "none"
+    dom = fit.noise_dominated[0]
+    assert dom[:3].all() and not dom[3:].any()
+    assert np.allclose(fit.true_d_sd[0, dom], 2 * ff.MAX_ERROR_D / np.sqrt(12))
+    assert fit.undetermined[0, dom].all() and not fit.undetermined[0, ~dom].any()
+    assert np.all(fit.true_d_sd[0, ~dom] == 0)
