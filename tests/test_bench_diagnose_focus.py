@@ -231,3 +231,19 @@ def test_sixth_fresh_test_captures_are_new_scenes_chosen_by_the_declared_rule(tm
     assert not bench.fresh6_keeps(st[2037]) and st[2037]["texture"] <= bench.FRESH6_MAX_TEXTURE  # too near
     with pytest.raises(SystemExit, match="--fresh6"):
         bench.fresh6_scenes(bench.FRESH6_K + 1, tmp_path)
+
+
+def test_seventh_fresh_test_captures_follow_the_sixth_rounds_rule_on_unused_candidates(tmp_path):
+    """The seventh fresh test captures (issue 32, the grid from every reported value): candidates start after the last
+    scene the sixth round screened (its fourth kept, 2182: candidates 2050-2182 were screened, 2065, 2073, 2141 and 2182
+    kept and looked at since), share nothing with the earlier sets (scenes 2026-2049), the noise seeds nothing with
+    1-28; the rule is the sixth round's (`fresh6_keeps`); --fresh7 refuses a count it does not have and keeps its
+    screening statistics apart from the sixth round's."""
+    earlier = (*bench.SCENES, (2029, 4), *bench.FRESH_SCENES, *bench.FRESH_SCENES_2, *bench.FRESH_SCENES_3,
+               *bench.FRESH_SCENES_4, *bench.FRESH_SCENES_5, (2065, 25), (2073, 26), (2141, 27), (2182, 28))
+    assert min(bench.FRESH7_CANDIDATES) == 2183 > max(s for s, _ in earlier)
+    assert not set(bench.FRESH7_NOISE_SEEDS) & ({n for _, n in earlier} | set(bench.FRESH6_NOISE_SEEDS))
+    assert set(bench.FRESH7_NOISE_SEEDS) == set(range(29, 33)) and bench.FRESH7_K == 4
+    with pytest.raises(SystemExit, match="--fresh7"):
+        bench.fresh6_scenes(bench.FRESH7_K + 1, tmp_path, bench.FRESH7_CANDIDATES, bench.FRESH7_NOISE_SEEDS, "fresh7")
+    assert not (tmp_path / "fresh7_stats.json").exists()
