@@ -111,7 +111,7 @@ FRESH6_NOISE_SEEDS = (25, 26, 27, 28)
 FRESH6_K = len(FRESH6_NOISE_SEEDS)
 # The seventh round (issue 32: the quantisation grid detected from every reported value, the frames left out of the
 # fit included, and a left-out frame under `none` undetermined, `focusfit.reported_values`, 45e04dd), declared
-# 2026-11-27 10:16 UTC, before any candidate was rendered, screened or run. Why: the sixth round (2065, 2073, 2141,
+# 2026-11-27 10:09 UTC (committed 00e4d34), before any candidate was rendered, screened or run. Why: the sixth round (2065, 2073, 2141,
 # 2182, now development material) missed the targets on far scenes with little texture, where frames are left out
 # (quantised sets 3/4 wrong: the grid read from the frames left in), and the fix was made on development scenes (2038
 # and the sixth round's) only, so it has not met held-out data. The same declared selection rule as the sixth round
