@@ -307,3 +307,44 @@ def test_the_edge_follows_focus_beyond_a_parabola_where_frames_say_so():
     fit = fit_model(_tiles_of(smooth))
     assert fit.low_focus_degree is None and fit.focus_degree <= 2
     assert _zone_error(fit, smooth, 0, 0.9) < 0.02
+
+
+def test_the_order_is_chosen_again_on_the_tiles_the_outlier_pass_keeps():
+    """Tiles of the phone's four charts (0.05 D noise) with 16 of the 48 beyond field radius 0.9 put 1.5-2.5 D off
+    (as tiles reaching the frame's corners, where its focus curves have two peaks, were on the benchmark): the first
+    fit's cross-validations, which the gross tiles dominate, choose another field order than on clean tiles (on seed
+    1 rho^8, the benchmark's case; on seed 2 degree 2). After the outlier pass the whole order is chosen again on the tiles kept
+    (`fit.robust_fit`) and is the clean tiles' order; re-choosing only the edge powers' degree in focus (the rule
+    before 2026-11-27) keeps the first fit's order, and the map at radius 0.66-1 is worse (seed 1: 0.141 against 0.128 D; seed 2
+    about the same, 0.200 against 0.198 D, its outlier pass having dropped clean corner tiles too)."""
+    import dataclasses
+
+    from aat_deploy.calibrate.fit import robust_fit
+    from aat_deploy.calibrate.format import field_radius_of
+    from aat_deploy.calibrate.model import refit_edge
+
+    order = lambda f: (f.degree, f.radial, f.low_focus_degree, f.focus_degree)
+    for seed in (1, 2):
+        clean = _tiles_of(_measure_map, seed=seed)
+        rng = np.random.default_rng(seed)
+        pick = rng.choice(np.flatnonzero(field_radius_of(clean.x, clean.y, clean.aspect) > 0.9), 16, replace=False)
+        rep = clean.reported_d.copy()
+        rep[pick] += rng.choice([-1, 1], 16) * rng.uniform(1.5, 2.5, 16)
+        dirty = dataclasses.replace(clean, reported_d=rep)
+        first, want = fit_model(dirty), fit_model(clean)
+        assert order(first) != order(want), seed  # the gross tiles move the first fit's choice
+        fit, kept, warning = robust_fit(dirty)
+        assert set(pick) <= set(np.flatnonzero(~np.isin(np.arange(len(dirty)), _kept_index(dirty, kept))))
+        assert order(fit) == order(want) and "tiles left out as outliers" in warning, (seed, order(fit))
+        before = refit_edge(kept, first)  # the rule before: the first fit's order, the edge degree chosen again
+        assert (before.degree, before.radial) == (first.degree, first.radial) != (want.degree, want.radial)
+        now, then = _zone_error(fit, _measure_map, 0.66, 1.0), _zone_error(before, _measure_map, 0.66, 1.0)
+        assert now < then - (0.01 if seed == 1 else 0.0), (seed, now, then)  # seed 1: 0.128 against 0.141 D
+
+
+def _kept_index(obs, kept) -> np.ndarray:
+    """Indices into obs of the tiles in kept (matched by sweep, position and object)."""
+    key = lambda o: list(zip(o.sweep.tolist(), np.round(o.x, 9).tolist(), np.round(o.y, 9).tolist(),
+                             np.round(o.object_d, 9).tolist()))
+    k = set(key(kept))
+    return np.array([i for i, t in enumerate(key(obs)) if t in k], np.int64)
