@@ -411,8 +411,9 @@ def measured_setup(rig: Rig, variant: str, progress=print) -> list:
     return measures(rig, [sweep(rig, variant, i, progress) for i in range(len(rig.setup.distances_m))], variant)
 
 
-def measures(rig: Rig, sweeps: list[dict], variant: str, keep_every: int = 1):
-    """Measured sweeps as `aat-calibrate fit` measures them (tape-measured distances)."""
+def measures(rig: Rig, sweeps: list[dict], variant: str, keep_every: int = 1, tiles_to_edges: bool = False):
+    """Measured sweeps as `aat-calibrate fit` measures them (tape-measured distances); tiles_to_edges: the tiles
+    spread from edge to edge (`peaks.TileGrid`, benchmarks/probes/corner_tiles.py) instead of the fit's centred grid."""
     from aat_deploy.calibrate.sweep import measure_sweep
 
     rng = np.random.default_rng(7)
@@ -421,7 +422,8 @@ def measures(rig: Rig, sweeps: list[dict], variant: str, keep_every: int = 1):
         tape = sw["distance_m"] + rng.normal(0, TAPE_SD_MM / 1000)
         free = rig.setup.distances_m.index(sw["distance_m"]) in rig.setup.fit_distance
         out.append(measure_sweep(as_sweep(rig, sw, variant, keep_every), sw["layout"], distance_m=tape,
-                                 measure=rig.measure, prefilter_px=rig.prefilter_px, fit_distance=free))
+                                 measure=rig.measure, prefilter_px=rig.prefilter_px, fit_distance=free,
+                                 tiles_to_edges=tiles_to_edges))
     return out
 
 

@@ -34,37 +34,70 @@ SIGMAS_PX = np.concatenate([np.arange(0.0, 3.0, 0.25), np.arange(3.0, 8.0, 0.5),
 
 @dataclass
 class TileGrid:
-    """tile_px square tiles over an (H, W) frame, centred (the remainder split between the borders)."""
+    """tile_px square tiles over an (H, W) frame: floor(side / tile_px) tiles per side, centred, the remainder an
+    unmeasured border (what `aat-calibrate fit` uses); or, with to_edges, spread from edge to edge:
+    ceil(side / tile_px) tiles per side, the outermost flush with the frame's borders and the rest evenly between
+    (integer starts), neighbours overlapping by under a pixel where tile_px does not divide the side, so that the
+    tiles reach the frame's corners (on a 640 x 480 frame in 27 px tiles the farthest tile centre lies at field
+    radius 0.953 instead of 0.920; benchmarks/probes/corner_tiles.py and BENCHMARKS.md, "The tiles and the
+    frame's corners", for why it is not the fit's default). Where tile_px divides both sides the two are the same
+    grid."""
 
     height: int
     width: int
     tile_px: int
+    to_edges: bool = False
+
+    def __post_init__(self):
+        if not 1 <= self.tile_px <= min(self.height, self.width):
+            raise ValueError(f"tiles of {self.tile_px} px on a {self.width} x {self.height} px frame")
+
+    def _starts(self, side: int) -> np.ndarray:
+        t = self.tile_px
+        if not self.to_edges:
+            n = side // t
+            return (side - n * t) // 2 + np.arange(n, dtype=np.int64) * t
+        n = -(-side // t)
+        return np.round(np.linspace(0, side - t, n)).astype(np.int64) if n > 1 else np.zeros(1, np.int64)
+
+    @property
+    def starts(self) -> tuple[np.ndarray, np.ndarray]:
+        """Row starts (ny,) and column starts (nx,) of the tiles (px)."""
+        return self._starts(self.height), self._starts(self.width)
 
     @property
     def shape(self) -> tuple[int, int]:
-        return self.height // self.tile_px, self.width // self.tile_px
+        rows, cols = self.starts
+        return len(rows), len(cols)
 
     @property
-    def origin(self) -> tuple[int, int]:
-        ny, nx = self.shape
-        return (self.height - ny * self.tile_px) // 2, (self.width - nx * self.tile_px) // 2
+    def contiguous(self) -> bool:
+        """The tiles abut (no overlap): the centred grid, or tile_px dividing both sides."""
+        return not self.to_edges or (self.height % self.tile_px == 0 and self.width % self.tile_px == 0)
 
     def mean(self, img: np.ndarray) -> np.ndarray:
         """(..., H, W) -> (..., ny, nx) tile means."""
-        ny, nx = self.shape
-        r0, c0 = self.origin
         t = self.tile_px
-        x = img[..., r0:r0 + ny * t, c0:c0 + nx * t]
-        return x.reshape(*x.shape[:-2], ny, t, nx, t).mean((-3, -1))
+        ny, nx = self.shape
+        rows, cols = self.starts
+        if self.contiguous:
+            r0, c0 = int(rows[0]), int(cols[0])
+            x = img[..., r0:r0 + ny * t, c0:c0 + nx * t]
+            return x.reshape(*x.shape[:-2], ny, t, nx, t).mean((-3, -1))
+        x = np.stack([img[..., c:c + t].mean(-1) for c in cols], -1)  # (..., H, nx)
+        return np.stack([x[..., r:r + t, :].mean(-2) for r in rows], -2)
+
+    def owner(self) -> tuple[np.ndarray, np.ndarray]:
+        """(H,) tile row and (W,) tile column each pixel belongs to (the tile whose centre is nearest)."""
+        u, v = self.centres_px()
+        return (np.argmin(np.abs(np.arange(self.height)[:, None] - v[:, 0][None]), 1),
+                np.argmin(np.abs(np.arange(self.width)[:, None] - u[0][None]), 1))
 
     def centres_px(self) -> tuple[np.ndarray, np.ndarray]:
         """(ny, nx) pixel coordinates u (column), v (row) of the tile centres (OpenCV convention)."""
-        ny, nx = self.shape
-        r0, c0 = self.origin
+        rows, cols = self.starts
         t = self.tile_px
-        v = r0 + (np.arange(ny) + 0.5) * t - 0.5
-        u = c0 + (np.arange(nx) + 0.5) * t - 0.5
-        return np.meshgrid(u, v)
+        return np.meshgrid(cols + t / 2 - 0.5, rows + t / 2 - 0.5)
 
     def field(self) -> tuple[np.ndarray, np.ndarray]:
         """(ny, nx) normalised field x (right), y (up) of the tile centres."""
@@ -119,13 +152,15 @@ def relative_blur_px(frames: np.ndarray, sharpest: np.ndarray, grid: TileGrid,
     """(S, ny, nx) Gaussian sigma (px) that takes each tile's sharpest frame to frame s (NaN beyond the grid's
     largest sigma). frames (S, 3, H, W) linear; sharpest (ny, nx) frame index per tile."""
     g = grey(frames)  # (S, H, W)
-    s, h, w = g.shape
+    s = g.shape[0]
     ny, nx = grid.shape
-    r0, c0 = grid.origin
-    t = grid.tile_px
     # the composite of each tile's sharpest frame (every pixel of a tile from its own sharpest frame)
-    idx = np.zeros((h, w), np.int64)
-    idx[r0:r0 + ny * t, c0:c0 + nx * t] = np.repeat(np.repeat(sharpest, t, 0), t, 1)
+    # (pixels of no tile, the centred grid's border, from the first frame)
+    row, col = grid.owner()
+    (rows, cols), t = grid.starts, grid.tile_px
+    inside = ((np.arange(g.shape[1]) >= rows[0]) & (np.arange(g.shape[1]) < rows[-1] + t))[:, None] & \
+        ((np.arange(g.shape[2]) >= cols[0]) & (np.arange(g.shape[2]) < cols[-1] + t))[None, :]
+    idx = np.where(inside, sharpest[row[:, None], col[None, :]], 0)
     ref = np.take_along_axis(g, idx[None], 0)[0]
     sse = np.empty((len(sigmas), s, ny, nx))
     for i, sg in enumerate(sigmas):

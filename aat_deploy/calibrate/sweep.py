@@ -175,14 +175,16 @@ def tile_px_for(width: int) -> int:
 def measure_sweep(sweep: Sweep, layout: ChartLayout, distance_m: float | None = None,
                   pupil_to_sensor_mm: float | None = None, sensor_mm: tuple[float, float] | None = None,
                   measure: str = "mlap2", window_px: float = 15.0, prefilter_px: float = 1.0,
-                  estimator: str = "gauss", tile_px: int | None = None, fit_distance: bool = False
-                  ) -> SweepMeasurement:
+                  estimator: str = "gauss", tile_px: int | None = None, fit_distance: bool = False,
+                  tiles_to_edges: bool = False) -> SweepMeasurement:
     """The chart's distance at every tile and every tile's focus peak. distance_m: measured from the sensor plane
     to the chart point at the frame centre (recommended); without it the distance comes from the pose, with the
     focal length in pixels from the EXIF focal length and sensor_mm, else fitted from the chart's perspective.
     fit_distance: the distance (measured, or without distance_m from the pose: `--distance-m ...,~`) is only a
     start, fitted with the model from the sweeps' consistency (`fit.fit_calibration`; a chart too near for a tape's
-    millimetre). SweepError (one line naming the folder) when a distance is needed from markers that give no pose."""
+    millimetre). tiles_to_edges: tiles spread from edge to edge instead of centred (`peaks.TileGrid`; a probe's,
+    not the fit's default). SweepError (one line naming the folder) when a distance is needed from markers that give
+    no pose."""
     s, _, h, w = sweep.frames.shape
     view = best_view(sweep.frames, layout)
     if view is None:
@@ -198,7 +200,7 @@ def measure_sweep(sweep: Sweep, layout: ChartLayout, distance_m: float | None = 
                      + ": give --pupil-to-sensor-mm if known")
     else:
         pupil = float(pupil_to_sensor_mm)
-    grid = TileGrid(h, w, tile_px or tile_px_for(w))
+    grid = TileGrid(h, w, tile_px or tile_px_for(w), to_edges=tiles_to_edges)
     uu, vv = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
     cx, cy = (w - 1) / 2, (h - 1) / 2
     f_px = None

@@ -175,6 +175,48 @@ def test_a_measured_sweep_moved_to_another_distance_is_measured_there():
         fit_calibration([a], n_boot=0)
 
 
+def test_tiles_reach_the_frames_corners():
+    """With to_edges the tiles run from edge to edge: on a 640 x 480 frame in 27 px tiles (the benchmark's phone) the
+    outermost are flush with the borders and the farthest tile centre lies at field radius 0.953 (the fit's centred
+    grid: 23 x 17 tiles, a 9-10 px border never measured, 0.920). Each tile's mean is its own pixels'; a tile that
+    divides the frame gives the centred grid, unchanged; the blur growth runs on either."""
+    from aat_deploy.calibrate.format import field_radius_of
+    from aat_deploy.calibrate.peaks import relative_blur_px
+
+    centred = TileGrid(480, 640, 27)
+    assert centred.shape == (17, 23) and centred.starts[0][0] == 10 and centred.starts[1][0] == 9
+    x, y = centred.field()
+    assert float(field_radius_of(x, y, 640 / 480).max()) == pytest.approx(0.9198, abs=2e-4)
+    g = TileGrid(480, 640, 27, to_edges=True)
+    rows, cols = g.starts
+    assert g.shape == (18, 24) and rows[0] == cols[0] == 0 and rows[-1] == 480 - 27 and cols[-1] == 640 - 27
+    assert np.all(np.diff(rows) >= 26) and np.all(np.diff(cols) >= 26)  # overlaps under a pixel's worth
+    x, y = g.field()
+    assert float(field_radius_of(x, y, 640 / 480).max()) == pytest.approx(0.9528, abs=2e-4)
+    img = np.random.default_rng(0).random((2, 480, 640))
+    m = g.mean(img)
+    for i in (0, 7, 17):
+        for j in (0, 11, 23):
+            np.testing.assert_allclose(m[:, i, j], img[:, rows[i]:rows[i] + 27, cols[j]:cols[j] + 27].mean((-2, -1)))
+    r, c = g.owner()  # every pixel belongs to a tile that holds it
+    assert np.all((np.arange(480) >= rows[r]) & (np.arange(480) < rows[r] + 27))
+    assert np.all((np.arange(640) >= cols[c]) & (np.arange(640) < cols[c] + 27))
+    even = TileGrid(640, 960, 40, to_edges=True)
+    assert even.contiguous and even.shape == (16, 24) and even.starts[1].tolist() == TileGrid(640, 960, 40).starts[1].tolist()
+    np.testing.assert_array_equal(even.starts[1], np.arange(24) * 40)
+    img = img[:, :400, :600]
+    np.testing.assert_array_equal(TileGrid(400, 600, 40, to_edges=True).mean(img),
+                                  img.reshape(2, 10, 40, 15, 40).mean((-3, -1)))
+    # the blur growth's tiles: a frame blurred by a known sigma from the sharp one reads that sigma in every tile
+    import cv2
+
+    sharp = np.random.default_rng(1).random((96, 130)).astype(np.float32)
+    frames = np.stack([np.repeat(f[None], 3, 0) for f in (sharp, cv2.GaussianBlur(sharp, (0, 0), 2.0))])
+    for grid in (TileGrid(96, 130, 27), TileGrid(96, 130, 27, to_edges=True)):
+        sig = relative_blur_px(frames, np.zeros(grid.shape, np.int64), grid)
+        assert sig.shape == (2,) + grid.shape and np.all(np.abs(sig[1] - 2.0) < 0.2) and np.all(sig[0] < 0.2)
+
+
 def test_tile_peaks_of_a_thin_lens_sweep_are_the_chart_distance():
     """Thin-lens blur is symmetric in diopters: each tile's peak is its object's diopters (RMS 0.003 D, all within
     0.01 D, no bias beyond 0.001 D)."""
