@@ -87,7 +87,7 @@ FRESH_SCENES_4 = ((2042, 17), (2043, 18), (2044, 19), (2045, 20))
 # material now). Test material: nothing is chosen or tuned on them. `--fresh5 N` runs the first N.
 FRESH_SCENES_5 = ((2046, 21), (2047, 22), (2048, 23), (2049, 24))
 # The sixth round (issue 32: a held-out test of the noise rule, `focusfit.NOISE_DOMINATED_SHARE`: frames whose expected
-# measure is at least half noise are left out, without an estimate of their own), declared 2026-11-27 09:31 UTC,
+# measure is at least half noise are left out, without an estimate of their own), declared 2026-11-27 09:30 UTC (committed b7b953c),
 # before any candidate scene was rendered, screened or run (the code: the focus twin as adopted in 26a7f4b, the
 # first-round fit). Why: scenes 2030-2049 held one scene like 2038 (far, little texture: its nearest frames
 # noise-dominated), a development scene, so the rule has never met held-out data. The scenes are chosen from
