@@ -36,12 +36,13 @@ SIGMAS_PX = np.concatenate([np.arange(0.0, 3.0, 0.25), np.arange(3.0, 8.0, 0.5),
 class TileGrid:
     """tile_px square tiles over an (H, W) frame: floor(side / tile_px) tiles per side, centred, the remainder an
     unmeasured border (what `aat-calibrate fit` uses); or, with to_edges, spread from edge to edge:
-    ceil(side / tile_px) tiles per side, the outermost flush with the frame's borders and the rest evenly between
-    (integer starts), neighbours overlapping by under a pixel where tile_px does not divide the side, so that the
-    tiles reach the frame's corners (on a 640 x 480 frame in 27 px tiles the farthest tile centre lies at field
-    radius 0.953 instead of 0.920; benchmarks/probes/corner_tiles.py and BENCHMARKS.md, "The tiles and the
-    frame's corners", for why it is not the fit's default). Where tile_px divides both sides the two are the same
-    grid."""
+    ceil(side / tile_px) = n tiles per side, the outermost flush with the frame's borders and the rest evenly between
+    (integer starts), neighbours overlapping by (n * tile_px - side) / (n - 1) px on average where tile_px does not
+    divide the side (0.35 px on the phone's 640 x 480 in 27 px tiles, each overlap 0 or 1 px; (tile_px - 1) / k px
+    on a side of k tiles and one pixel), so that the tiles reach the frame's corners (on a 640 x 480 frame in 27 px
+    tiles the farthest tile centre lies at field radius 0.953 instead of 0.920; benchmarks/probes/corner_tiles.py
+    and BENCHMARKS.md, "The tiles and the frame's corners", for why it is not the fit's default). Where tile_px
+    divides both sides the two are the same grid. ValueError for a tile_px outside 1 to the frame's shorter side."""
 
     height: int
     width: int

@@ -217,6 +217,17 @@ def test_tiles_reach_the_frames_corners():
         assert sig.shape == (2,) + grid.shape and np.all(np.abs(sig[1] - 2.0) < 0.2) and np.all(sig[0] < 0.2)
 
 
+def test_a_tile_grid_refuses_tiles_the_frame_cannot_hold():
+    """TileGrid refuses a tile size of 0 or one larger than the frame's shorter side (either grid): without it the
+    centred grid had no tiles and the edge grid a negative start. A tile as large as the shorter side is one row."""
+    for to_edges in (False, True):
+        for bad in (0, 481):
+            with pytest.raises(ValueError, match="px frame"):
+                TileGrid(480, 640, bad, to_edges=to_edges)
+        g = TileGrid(480, 640, 480, to_edges=to_edges)
+        assert g.shape[0] == 1 and g.starts[0].tolist() == [0]
+
+
 def test_tile_peaks_of_a_thin_lens_sweep_are_the_chart_distance():
     """Thin-lens blur is symmetric in diopters: each tile's peak is its object's diopters (RMS 0.003 D, all within
     0.01 D, no bias beyond 0.001 D)."""
