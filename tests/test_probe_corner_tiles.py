@@ -22,6 +22,13 @@ def test_out_is_kept_and_unknown_variants_are_refused(tmp_path, capsys):
     assert len(err) == 1 and "unknown variant" in err[0] and not (tmp_path / "d.json").exists()
 
 
+def test_an_unknown_variant_late_in_the_list_is_refused_before_any_is_run(tmp_path, capsys, monkeypatch):
+    ran = []
+    monkeypatch.setattr(ct, "run", lambda v, log: ran.append(v) or {})
+    assert ct.main(["--out", str(tmp_path / "d.json"), "--variants", "nominal,copy_s1_9x"]) == 2
+    assert ran == [] and "copy_s1_9x" in capsys.readouterr().err and not (tmp_path / "d.json").exists()
+
+
 def test_drop_beyond_uncounts_only_the_tiles_beyond_the_radius():
     grid = TileGrid(480, 640, 27, to_edges=True)
     why = np.full(grid.shape, "", dtype=object).astype(str)

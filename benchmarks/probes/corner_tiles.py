@@ -190,12 +190,14 @@ def main(argv=None) -> int:
     if out.exists() and not a.force:
         print(f"{out}: exists; give --force to overwrite it (nothing was run)", file=sys.stderr)
         return 2
+    variants = a.variants.split(",")
+    unknown = [v for v in variants if v not in VARIANTS]
+    if unknown:  # before any variant is run: a typo late in the list would otherwise cost the runs before it
+        print(f"corner_tiles: unknown variant {unknown[0]!r} (one of {', '.join(VARIANTS)})", file=sys.stderr)
+        return 2
     log = lambda m: print(m, file=sys.stderr, flush=True)
     res = {"setup": "cellphone_near (development sweeps; no held-out scene)", "variants": {}}
-    for v in a.variants.split(","):
-        if v not in VARIANTS:
-            print(f"corner_tiles: unknown variant {v!r} (one of {', '.join(VARIANTS)})", file=sys.stderr)
-            return 2
+    for v in variants:
         res["variants"][v] = run(v, log)
     from aat_deploy.io.atomic import write_text_atomic
 
