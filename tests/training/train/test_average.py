@@ -77,3 +77,21 @@ def test_the_average_checkpoint_keeps_the_steps_and_refuses_two_runs(tmp_path):
     torch.testing.assert_close(got["model"]["0.weight"], (_state(0)["0.weight"] + _state(1)["0.weight"]) / 2)
     with pytest.raises(ValueError, match="more than one run"):
         averaged_checkpoint(paths)
+
+
+def test_the_probe_refuses_a_missing_folder_no_batches_and_an_existing_save(tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        swa_main([str(tmp_path / "nope"), "--from-step", "0", "--stacks", str(tmp_path)])
+    assert "no such folder" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        swa_main([str(tmp_path), "--from-step", "0", "--stacks", str(tmp_path), "--bn-batches", "0"])
+    assert "--bn-batches" in capsys.readouterr().err
+    for i, step in enumerate((200, 400)):
+        torch.save({"model": _state(i), "config": {"name": "v9"}, "step": step}, tmp_path / f"step_{step:05d}.pt")
+    save = tmp_path / "saved"
+    save.mkdir()
+    kept = save / "v9_swa200-400_pbn50.pt"
+    kept.write_bytes(b"kept")
+    with pytest.raises(SystemExit):
+        swa_main([str(tmp_path), "--from-step", "0", "--stacks", str(tmp_path), "--bn-batches", "50", "--save", str(save)])
+    assert "never overwritten" in capsys.readouterr().err and kept.read_bytes() == b"kept"
