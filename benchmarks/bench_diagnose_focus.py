@@ -106,7 +106,8 @@ FRESH_SCENES_5 = ((2046, 21), (2047, 22), (2048, 23), (2049, 24))
 # runs the first N.
 FRESH6_CANDIDATES = range(2050, 2650)
 FRESH6_MAX_NEAR_D = 0.85  # the 99th percentile of the scene's inverse depth (diopters), at most
-FRESH6_MAX_TEXTURE = 0.02  # mean squared Laplacian of the 4 x 4 binned luminance / mean luminance^2 (1/px^2), at most
+# mean squared Laplacian of the 4 x 4 binned luminance / mean luminance^2 (1/px^4, binned pixels), at most
+FRESH6_MAX_TEXTURE = 0.02
 FRESH6_NOISE_SEEDS = (25, 26, 27, 28)
 FRESH6_K = len(FRESH6_NOISE_SEEDS)
 # The seventh round (issue 32: the quantisation grid detected from every reported value, the frames left out of the
@@ -174,7 +175,8 @@ def capture_folders(n: int, cache: Path) -> list[Path]:
 def scene_stats(scene: int) -> dict:
     """The sixth round's selection statistics of a procedural scene (`sample_scene`, its ground truth only: no render,
     no diagnosis): near_d, the 99th percentile of its inverse depth (diopters); texture, the mean squared Laplacian of
-    its linear luminance (RGB mean) binned 4 x 4 by area averaging, over the luminance's mean squared (1/px^2)."""
+    its linear luminance (RGB mean) binned 4 x 4 by area averaging, over the luminance's mean squared (1/px^4 in
+    binned pixels: the Laplacian is per px^2, squared)."""
     import cv2
 
     from scripts.make_sample_capture import sample_scene
