@@ -76,3 +76,42 @@ def test_precise_bn_probe_refuses_bad_counts_and_missing_checkpoints(tmp_path, c
     with pytest.raises(SystemExit):
         anycam_precise_bn.main([str(ck), "--stacks", str(tmp_path), "--out", str(out)])
     assert "mine.json: exists" in capsys.readouterr().err and out.read_text() == "mine"
+
+
+def test_precise_bn_probe_saves_atomically(tmp_path, monkeypatch):
+    """score's --save writes through a temporary file: a write that fails half-way leaves no file at its name (a
+    half-written net there would be refused as existing by the next run, and read as a net by the export)."""
+    from pathlib import Path
+    from types import SimpleNamespace
+
+    import torch
+
+    import training.nets.registry
+    import training.train.checkpoint
+    import training.train.data
+    import training.train.evaluate
+    import training.train.loop
+    import training.train.precise_bn
+    from benchmarks.probes import anycam_precise_bn
+
+    cfg = SimpleNamespace(name="v9", val_data={}, simulator=None, lens=None, effects=None, net="x", val_items=1,
+                          loss=SimpleNamespace(mask_focus_range=True), field_channels=0,
+                          to_dict=lambda: {"name": "v9"}, hash=lambda: "h")
+    monkeypatch.setattr(training.train.loop, "load_trained", lambda path: (torch.nn.Linear(2, 2), cfg))
+    monkeypatch.setattr(training.train.checkpoint, "load", lambda path: {"step": 7})
+    monkeypatch.setattr(training.train.data, "make_dataset", lambda *a, **k: None)
+    monkeypatch.setattr(training.train.evaluate, "evaluate",
+                        lambda *a, **k: ({"mae": 1.0, "rmse": 1.0, "abs_rel": 0.1}, None))
+    monkeypatch.setattr(training.nets.registry, "get", lambda name: SimpleNamespace(focus_maps=False))
+    monkeypatch.setattr(training.train.precise_bn, "recompute_bn_stats", lambda model, batches, forward: 5)
+    monkeypatch.setattr(anycam_precise_bn, "_train_batches", lambda cfg, stacks, n: [])
+
+    def half_write(obj, path):
+        Path(path).write_bytes(b"half")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(torch, "save", half_write)
+    save = tmp_path / "saved"
+    with pytest.raises(OSError, match="disk full"):
+        anycam_precise_bn.score(tmp_path / "last.pt", str(tmp_path), [0, 5], save)
+    assert list(save.iterdir()) == []

@@ -41,7 +41,7 @@ def _train_batches(cfg, stacks: str, n: int):
 
 def score(checkpoint: Path, stacks: str, batches: list[int], save: Path | None = None) -> dict:
     from training.nets import registry
-    from training.train.checkpoint import load
+    from training.train.checkpoint import load, save_atomic
     from training.train.data import make_dataset
     from training.train.evaluate import evaluate
     from training.train.loop import load_trained
@@ -77,8 +77,8 @@ def score(checkpoint: Path, stacks: str, batches: list[int], save: Path | None =
         dst = save / f"{cfg.name}_{checkpoint.stem}_pbn{batches[-1]}.pt"
         if dst.exists():
             raise FileExistsError(f"{dst}: exists (never overwritten)")
-        torch.save({"model": model.state_dict(), "config": cfg.to_dict(), "config_hash": cfg.hash(),
-                    "step": step, "precise_bn_batches": batches[-1]}, dst)
+        save_atomic({"model": model.state_dict(), "config": cfg.to_dict(), "config_hash": cfg.hash(),
+                     "step": step, "precise_bn_batches": batches[-1]}, dst)  # a stopped run leaves no half file
         print(f"wrote {dst}", flush=True)
     return {"checkpoint": str(checkpoint), "run": cfg.name, "step": step, "val_items": cfg.val_items, "rows": rows}
 
