@@ -254,7 +254,8 @@ def reported_values(data: SweepData) -> np.ndarray:
     keep = data.frames > 0
     if data.left_out is not None:
         keep = keep | np.asarray(data.left_out, bool)
-    return np.unique(np.round(np.asarray(data.reported_d, np.float64)[keep], 9))
+    vals = np.asarray(data.reported_d, np.float64)[keep]
+    return np.unique(np.round(vals[np.isfinite(vals)], 9))  # a padding frame marked left out reports nothing
 
 
 # --- metadata error families --------------------------------------------------------------------------------

@@ -239,6 +239,9 @@ def test_quantisation_grid_is_detected_from_every_reported_value():
     assert (q.detail["quantiser"], q.detail["step_d"]) == ("diopter", 0.1)  # the old code: 0.2
     assert np.array_equal(cut.left_out, dom)
     assert np.allclose(ff.reported_values(cut), np.unique(np.round(rep, 9)))
+    # a frame without a reported value (padding, NaN) marked left out adds nothing to the grid
+    pad = dataclasses.replace(cut, reported_d=np.where(dom, np.nan, cut.reported_d))
+    assert np.allclose(ff.reported_values(pad), np.unique(np.round(rep[~dom], 9)))
     fit = ff.fit_metadata(dataclasses.replace(cut, left_out=None), n_boot=3, excluded=dom)  # excluded alone
     q = fit.fits["quantisation"]
     assert q.detail["step_d"] == 0.1
