@@ -115,3 +115,31 @@ def test_precise_bn_probe_saves_atomically(tmp_path, monkeypatch):
     with pytest.raises(OSError, match="disk full"):
         anycam_precise_bn.score(tmp_path / "last.pt", str(tmp_path), [0, 5], save)
     assert list(save.iterdir()) == []
+
+
+def test_fit_gap_probe_refuses_bad_counts_missing_checkpoints_and_an_existing_out(tmp_path, capsys):
+    from benchmarks.probes import anycam_fit_gap
+
+    ck = tmp_path / "last.pt"
+    ck.write_bytes(b"x")
+    for argv, msg in (([str(ck), "--stacks", str(tmp_path), "--n", "0"], "at least 1"),
+                      ([str(ck), "--stacks", str(tmp_path), "--n-train", "0"], "at least 1"),
+                      ([str(tmp_path / "none.pt"), "--stacks", str(tmp_path)], "no such checkpoint")):
+        with pytest.raises(SystemExit):
+            anycam_fit_gap.main(argv)
+        assert msg in capsys.readouterr().err
+    out = tmp_path / "rows.json"
+    out.write_text("[]")
+    with pytest.raises(SystemExit):
+        anycam_fit_gap.main([str(ck), "--stacks", str(tmp_path), "--out", str(out)])
+    assert "exists" in capsys.readouterr().err and out.read_text() == "[]"
+
+
+def test_fit_gap_item_spread_by_hand():
+    import numpy as np
+
+    from benchmarks.probes.anycam_fit_gap import item_spread
+
+    e = np.array([1.0] * 19 + [81.0])  # 20 items: the worst 5 % is one item, 81 of a sum of 100
+    got = item_spread(e)
+    assert got == {"n": 20, "median_m": 1.0, "mean_m": 5.0, "max_m": 81.0, "worst_5pct_share": 0.81}
