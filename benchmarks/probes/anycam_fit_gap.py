@@ -7,7 +7,7 @@ For each checkpoint (model.pt, last.pt, or a kept step_NNNNN.pt), the validation
 config's training renders (the ones it trained on, drawn as its validation items are: fixed sweeps, no flips or
 mosaics) and on the first N of its validation renders (the same generator with their own seed, never trained on),
 one item at a time as the run's own validation scores them (the focus-range mask as the run's), and each item's MAE over all its pixels, unmasked: its
-median, mean, largest, and the share of the sum the worst 5 % hold. A gap that grows over a run while the validation error stalls says the net fits its renders
+median, mean, largest, the share of the sum the worst 5 % hold, and the worst item's sweep. A gap that grows over a run while the validation error stalls says the net fits its renders
 rather than the task: more distinct renders, not more steps. Training and validation renders only: no held-out lens
 or test scene.
 """
@@ -23,18 +23,24 @@ import torch
 
 
 @torch.no_grad()
-def per_item_mae(model, ds, n: int) -> np.ndarray:
+def per_item_mae(model, ds, n: int) -> tuple[np.ndarray, dict]:
     """(n,) each item's mean |depth - truth| (m) over all its pixels (no focus-range mask), a focus-map net's
-    prediction as `evaluate` makes it."""
+    prediction as `evaluate` makes it; and the worst item's particulars (index, its frames' mean in-focus diopters,
+    the truth's depth range and the prediction's median, m)."""
     from training.nets.dfvaat import predict
 
-    out = []
+    out, worst = [], {}
     for i in range(min(n, len(ds))):
         it = ds[i]
         pred = predict(model, it["stack"][None].float(), it["focus_diopters"][None].float(),
                        it["defocus_px_per_d"][None].float())["depth_m"][0].numpy()
-        out.append(float(np.abs(pred - np.asarray(it["depth_m"])).mean()))
-    return np.array(out)
+        gt = np.asarray(it["depth_m"])
+        out.append(float(np.abs(pred - gt).mean()))
+        if out[-1] == max(out):
+            worst = {"index": i, "mae_m": out[-1], "frames_mean_diopters": [
+                round(float(v), 4) for v in np.asarray(it["focus_diopters"]).mean((1, 2))],
+                "truth_m": [float(gt.min()), float(gt.max())], "predicted_median_m": float(np.median(pred))}
+    return np.array(out), worst
 
 
 def item_spread(e: np.ndarray) -> dict:
@@ -64,7 +70,8 @@ def gap(checkpoint: Path, stacks: str, n: int, n_train: int | None = None) -> di
         k = (n_train or n) if split == "train" else n
         metrics, _ = evaluate(model, ds, k, cfg.loss.mask_focus_range)
         row[f"{split}_mae_m"] = metrics["mae"]
-        row[f"{split}_items"] = item_spread(per_item_mae(model, ds, k))
+        e, worst = per_item_mae(model, ds, k)
+        row[f"{split}_items"] = {**item_spread(e), "worst": worst}
     row["validation_over_train"] = row["validation_mae_m"] / row["train_mae_m"]
     print(f"{cfg.name} step {row['step']:6d}: MAE training renders {row['train_mae_m']:.4f} m, validation renders "
           f"{row['validation_mae_m']:.4f} m ({row['validation_over_train']:.2f}x); per item, unmasked: median "
