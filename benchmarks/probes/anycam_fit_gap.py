@@ -91,11 +91,9 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     if a.n < 1 or (a.n_train is not None and a.n_train < 1):
         ap.error(f"--n, --n-train: at least 1, got {a.n}, {a.n_train}")
-    missing = [str(c) for c in a.checkpoints if not c.is_file()]
-    if missing:
-        ap.error(f"no such checkpoint: {', '.join(missing)}")
-    if a.out and a.out.exists():
-        ap.error(f"{a.out}: exists (choose another --out)")
+    from benchmarks.probes.anycam_precise_bn import refuse_missing_or_existing
+
+    refuse_missing_or_existing(ap, a.checkpoints, a.out)
     torch.set_num_threads(1)
     rows = [gap(c, a.stacks, a.n, a.n_train) for c in a.checkpoints]
     if a.out:

@@ -83,6 +83,15 @@ def score(checkpoint: Path, stacks: str, batches: list[int], save: Path | None =
     return {"checkpoint": str(checkpoint), "run": cfg.name, "step": step, "val_items": cfg.val_items, "rows": rows}
 
 
+def refuse_missing_or_existing(ap: argparse.ArgumentParser, checkpoints: list[Path], out: Path | None) -> None:
+    """The checkpoint probes' argument checks, made before any work: every checkpoint a file, --out not there yet."""
+    missing = [str(c) for c in checkpoints if not c.is_file()]
+    if missing:
+        ap.error(f"no such checkpoint: {', '.join(missing)}")
+    if out and out.exists():
+        ap.error(f"{out}: exists (choose another --out)")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("checkpoints", type=Path, nargs="+", help="runs' model.pt, last.pt or best.pt")
@@ -94,11 +103,7 @@ def main(argv: list[str] | None = None) -> int:
     batches = [int(b) for b in a.batches.split(",")]
     if any(b < 0 for b in batches):
         ap.error(f"--batches: counts >= 0, got {batches}")
-    missing = [str(c) for c in a.checkpoints if not c.is_file()]
-    if missing:
-        ap.error(f"no such checkpoint: {', '.join(missing)}")
-    if a.out and a.out.exists():
-        ap.error(f"{a.out}: exists (choose another --out)")
+    refuse_missing_or_existing(ap, a.checkpoints, a.out)
     torch.set_num_threads(1)
     out = [score(c, a.stacks, batches, a.save) for c in a.checkpoints]
     if a.out:
