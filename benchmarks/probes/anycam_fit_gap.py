@@ -3,13 +3,13 @@
     OMP_WAIT_POLICY=PASSIVE python -m benchmarks.probes.anycam_fit_gap CHECKPOINT [CHECKPOINT ...]
         --stacks cache/stacks [--n 64] [--out results/anycam_fit_gap_v9.json]
 
-For each checkpoint (model.pt, last.pt, or a kept step_NNNNN.pt), the validation MAE (m) on the first N items of its
+For each checkpoint (model.pt, last.pt, or a kept step_NNNNN.pt): the validation MAE (m) on the first N items of its
 config's training renders (the ones it trained on, drawn as its validation items are: fixed sweeps, no flips or
 mosaics) and on the first N of its validation renders (the same generator with their own seed, never trained on),
-one item at a time as the run's own validation scores them (the focus-range mask as the run's), and each item's MAE over all its pixels, unmasked: its
-median, mean, largest, the share of the sum the worst 5 % hold, and the worst item's sweep. A gap that grows over a run while the validation error stalls says the net fits its renders
-rather than the task: more distinct renders, not more steps. Training and validation renders only: no held-out lens
-or test scene.
+one item at a time as the run's own validation scores them (with its focus-range mask); and each item's MAE over
+all its pixels, unmasked: their median, mean, largest, the share of the sum the worst 5 % hold, and the worst
+item's sweep. A gap that grows over a run while the validation error stalls says the net fits its renders rather
+than the task. Training and validation renders only: no held-out lens or test scene.
 """
 
 from __future__ import annotations
