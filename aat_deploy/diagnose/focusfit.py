@@ -559,11 +559,11 @@ def corrected_sd(fit: FamilyFit, reported_d: np.ndarray, frame_sd: np.ndarray, f
     bin's standard deviation is 0.029 D). at (n, S): the frames to give it for (default: frames); a frame left out of the
     fit (`fit_metadata`'s excluded) gets the family's value's error there, from the others."""
     rep = np.asarray(reported_d, np.float64)
-    jac, widths = family_design(fit.name, rep, fit.true_d, frames, fit_quantiser(fit))
+    design, widths = family_design(fit.name, rep, fit.true_d, frames, fit_quantiser(fit))
     if not widths:
         return np.zeros(rep.shape)
     real = frames > 0
-    jac = np.where(real[..., None], jac, 0.0)  # padding frames (NaN) count nothing
+    jac = np.where(real[..., None], design, 0.0)  # padding frames (NaN) count nothing
     sigma = np.sqrt(np.asarray(frame_sd, np.float64) ** 2 + np.asarray(systematic_d) ** 2)
     inv = np.where(real, 1.0 / sigma ** 2, 0.0)
     bread = np.linalg.pinv(np.einsum("nsi,ns,nsj->ij", jac, inv, jac))
@@ -571,8 +571,7 @@ def corrected_sd(fit: FamilyFit, reported_d: np.ndarray, frame_sd: np.ndarray, f
     meat = np.einsum("nsi,nst,ntj->ij", scaled, error_correlation(fit.true_d, frames, length_d), scaled)
     cov = bread @ meat @ bread
     if at is not None:
-        jac = np.where(np.asarray(at, bool)[..., None], family_design(fit.name, rep, fit.true_d, frames, fit_quantiser(fit))[0],
-                       0.0)
+        jac = np.where(np.asarray(at, bool)[..., None], design, 0.0)  # the same design, at the frames asked for
     return np.sqrt(np.maximum(np.einsum("nsi,ij,nsj->ns", jac, cov, jac), 0.0))
 
 
