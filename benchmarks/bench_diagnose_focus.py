@@ -305,8 +305,8 @@ def reported_outside(row: dict, z: float = 1.959964) -> bool | None:
     return bool(np.any(np.abs(rep - corr) > z * sd))
 
 
-def rescored(row: dict, commit: str, consistency: bool | None = None, residual_scale: bool | None = None
-             ) -> dict | None:
+def rescored(row: dict, commit: str, consistency: bool | None = None, residual_scale: bool | None = None,
+             on_estimates: bool = False) -> dict | None:
     """The row as the current code's `focusfit.fit_metadata` would end it, from the row's stored fits (every
     family's corrected focus, the per-frame estimates' bootstrap spread and systematic errors): the capture's error
     scale (`error_scale`, with the residual scale), the family chosen with it (`score_families`, `select`; its
@@ -315,8 +315,10 @@ def rescored(row: dict, commit: str, consistency: bool | None = None, residual_s
     intervals hold the truth. Everything before the choice is the row's; the bootstrap's support and the settings'
     intervals are the row's too (they need the replicates), so a row whose family changed keeps its old `support`
     (`family_rescored` says it changed). consistency, residual_scale: with or without the consistency scale (issue
-    32, off) and the residual scale (`focusfit.SCALE_BY_RESIDUALS`); None: as the code. None for rows without the
-    stored fits."""
+    32, off) and the residual scale (`focusfit.SCALE_BY_RESIDUALS`); None: as the code. on_estimates: the families
+    refitted to the row's per-frame estimates first (`focusfit.fit_on_estimates`, as `fit_metadata` does with
+    `FAMILIES_ON_ESTIMATES`); False: the row's own fits. Frames the row left out (`frames_noise_dominated`) count
+    nothing, and get `focusfit.left_out_sd`. None for rows without the stored fits."""
     from aat_deploy.diagnose import focusfit as ff
 
     fams = {x["family"]: x for x in row.get("families") or []}
@@ -324,9 +326,17 @@ def rescored(row: dict, commit: str, consistency: bool | None = None, residual_s
         return None
     rep = np.asarray(fams["none"]["true_d"], np.float64)
     fits = {k: ff.FamilyFit(k, int(x["k"]), {}, np.asarray(x["true_d"], np.float64), 0.0) for k, x in fams.items()}
+    exc = np.asarray(row.get("frames_noise_dominated") or np.zeros(rep.shape[-1], bool), bool)[None]
     sd = np.asarray(row["frame_focus_sd_d"], np.float64)
+    sd = np.where(np.isfinite(sd), sd, 0.0)  # a left-out frame's is null
     sys_d = np.asarray(row["frame_systematic_d"], np.float64)
-    frames = np.isfinite(rep).astype(np.float64)
+    frames = (np.isfinite(rep) & ~exc).astype(np.float64)
+    old = fits[row["family"]].true_d[0]
+    quant = ff.quantiser(np.unique(np.round(rep[np.isfinite(rep)], 9)))  # every reported value's grid, as the fit's
+    if "quantisation" in fits and quant is not None:
+        fits["quantisation"].detail = {"quantiser": quant[0], "step_d": quant[1]}
+    if on_estimates:
+        fits = ff.fit_on_estimates(fits, rep, sd, frames, sys_d, quant)
     use_scale = ff.SCALE_BY_RESIDUALS if residual_scale is None else residual_scale
     scale = ff.error_scale(fits, sd, frames, sys_d) if use_scale else 1.0
     sys_s = ff.scaled_systematic(sd, sys_d, scale)
@@ -334,9 +344,9 @@ def rescored(row: dict, commit: str, consistency: bool | None = None, residual_s
     fit = ff.select(fits)
     cons = ff.frame_consistency(fit, rep, fits["per_frame"].true_d, sd, frames, sys_d)
     on = ff.SCALE_BY_CONSISTENCY if consistency is None else consistency
-    tsd = ff.corrected_sd(fit, rep, sd, frames, sys_d) * (np.maximum(1.0, cons) if on else 1.0)
-    und = (tsd >= ff.UNDETERMINED_SD_D) & (frames > 0)
-    old = fits[row["family"]].true_d[0]
+    tsd = ff.corrected_sd(fit, rep, sd, frames, sys_d, at=(frames > 0) | exc) * (np.maximum(1.0, cons) if on else 1.0)
+    tsd = ff.left_out_sd(fit, rep, frames, exc, tsd)
+    und = (tsd >= ff.UNDETERMINED_SD_D) & ((frames > 0) | exc)
     true_d = old - np.asarray(row["corrected_err_d"], np.float64)  # the row's truth (to 1e-4 D)
     err = fit.true_d[0] - true_d
     z = 1.959964
@@ -344,7 +354,7 @@ def rescored(row: dict, commit: str, consistency: bool | None = None, residual_s
     return {**row, "family": fit.name, "family_ok": fit.name == row.get("family_true", fit.name),
             "family_rescored": fit.name != row["family"], "corrected_err_d": err.round(4).tolist(),
             "corrected_max_err_d": float(np.abs(err).max()), "error_scale": round(scale, 4),
-            "families": [{**x, "score": fits[x["family"]].score} for x in row["families"]],
+            "families": [{"family": k, "k": f.k, "score": f.score, "true_d": f.true_d.tolist()} for k, f in fits.items()],
             "corrected_sd_d": np.round(tsd, 5).tolist(), "frame_consistency": np.round(cons, 3).tolist(),
             "frames_undetermined": int(und[0].sum()), "undetermined_covers": covers, "rescored_from": row.get("commit"),
             "commit": commit}

@@ -183,6 +183,30 @@ def test_rescored_rows_follow_the_consistency_scale():
     assert on["rescored_from"] == "old" and on["commit"] == "new"
 
 
+def test_rescored_refits_the_families_to_the_estimates_without_the_left_out_frames():
+    """`rescored(on_estimates=True)`: the families refitted to the row's per-frame estimates (`fit_on_estimates`), a
+    frame the row left out (noise-dominated, its spread null) counting nothing: the offset is the weighted mean of
+    the other frames' (reported - estimate), not the row's curve fit; the left-out frame gets the offset's value and
+    the error the offset carries to it (finite, not the search range's)."""
+    rep = np.array([[1.63, 1.31, 0.97, 0.72]])  # on no quantisation grid
+    truth = rep[0] - 0.05
+    est = rep - np.array([[0.2, 0.05, 0.05, 0.05]])  # the left-out frame's 'estimate' is the per_frame curve's
+    fams = [{"family": "none", "k": 0, "true_d": rep.tolist()}, {"family": "offset", "k": 1, "true_d": (rep - 0.03).tolist()},
+            {"family": "per_frame", "k": 4, "true_d": est.tolist()}]
+    row = {"family": "offset", "family_true": "offset", "families": fams, "frame_focus_sd_d": [[None, 0.004, 0.004, 0.004]],
+           "frame_systematic_d": [[0.03, 0.01, 0.01, 0.01]], "corrected_err_d": [0.02] * 4,
+           "frames_noise_dominated": [True, False, False, False], "commit": "old"}
+    curves = bench.rescored(row, "new")
+    assert curves["family"] == "offset" and np.allclose(curves["corrected_err_d"], 0.02)  # the row's own fit
+    on = bench.rescored(row, "new", on_estimates=True)
+    assert on["family"] == "offset"
+    assert np.allclose(np.array(on["corrected_err_d"]), 0.0, atol=1e-4)  # b = 0.05 from frames 1-3 alone
+    assert np.allclose(np.array([r for r in [x for x in on["families"] if x["family"] == "offset"][0]["true_d"]][0]),
+                       truth)
+    sd = np.array(on["corrected_sd_d"][0])
+    assert np.isfinite(sd).all() and sd[0] == pytest.approx(sd[1], rel=0.3) and sd[0] < 0.02
+
+
 def test_rescore_writes_a_new_file_and_never_overwrites_one(tmp_path, monkeypatch):
     """`--rescore OLD NEW` writes NEW (rows without stored fits are left out) and refuses a NEW that exists, the
     input itself included, leaving it as it was."""

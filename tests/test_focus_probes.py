@@ -48,6 +48,24 @@ def test_a_family_refitted_to_the_estimates_is_their_weighted_least_squares():
     assert fe.refit(dict(row, family="quantisation")) is None  # not linear in its parameters: not refitted
 
 
+def test_the_model_averaging_variant_adds_the_competing_familys_spread_where_it_is_asked_for():
+    """`sd_variants`: a scale chosen (score 10) over a curve (score 12, weight e^-1 of the scale's) whose focus is
+    0.05 D away at a left-out frame 0: model averaging adds p (0.05)^2, p = e^-1 / (1 + e^-1) = 0.269, there (sd
+    0.026 D: undetermined), at every frame or at the left-out frame only; as fitted the set is claimed and 0.03 D off."""
+    row = {"kind": "scale_1.1", "family": "scale", "error_scale": 1.5, "frames_noise_dominated": [True, False],
+           "corrected_sd_d": [[0.01, 0.005]], "corrected_err_d": [0.03, 0.0],
+           "families": [{"family": "scale", "score": 10.0, "true_d": [[1.0, 0.5]]},
+                        {"family": "monotone", "score": 12.0, "true_d": [[1.05, 0.5]]},
+                        {"family": "per_frame", "score": 0.0, "true_d": [[9.0, 9.0]]}]}  # never averaged in
+    v = fe.sd_variants([row])
+    assert v["as fitted"]["claimed_wrong"] == 1 and v["as fitted"]["covered"] == 1
+    for name in ("model averaging, every frame", "model averaging, left-out frames"):
+        assert v[name]["claimed_wrong"] == 0 and v[name]["covered"] == 2
+    p = np.exp(-1) / (1 + np.exp(-1))
+    assert np.hypot(0.01, 0.05 * np.sqrt(p)) > 0.02 > np.hypot(0.01, 0.0)
+    assert v["times the error scale"]["claimed_wrong"] == 1  # 0.015 D: still claimed
+
+
 def level_sweep():
     """A far scene (every region 2-6 m away) seen over the shipped sample's focus (0.6-6 m), its curves a third as
     steep as `tests/deploy/diagnose/test_focusfit.py`'s and the frames' levels off by 0.15 log (sd): most frames see

@@ -20,8 +20,9 @@ Metadata error models (`FAMILIES`), each mapping the reported focus (diopters) t
   10^(1/40) steps or fixed diopter steps, detected from the reported values; one parameter per value);
 - `per_frame`: each distinct reported value its own true focus within +-MAX_ERROR_D: every frame's effective
   focus, the model of last resort.
-Each is fitted by least squares on the curves; the family is chosen by its evidence with the frames as
-observations: the `per_frame` estimates, each with its precision (the bootstrap's spread and a systematic
+The per-frame focus (`per_frame`) is fitted by least squares on the curves; every other family by weighted least
+squares on those per-frame estimates, with the error model its evidence scores it with (`fit_on_estimates`), and the
+family is chosen by that evidence with the frames as observations: the `per_frame` estimates, each with its precision (the bootstrap's spread and a systematic
 SYSTEMATIC_D), each family's chi2 distance from them and the price of its parameters' search ranges (Laplace's
 approximation, `score_families`). The regions of one frame share its focus
 error and the twin's misfit, so counting them as independent observations would let every extra parameter look
@@ -76,6 +77,14 @@ SCALE_BY_CONSISTENCY = False
 # choose the family with every frame's error scaled by the capture's own error scale (`error_scale`, >= 1: the
 # monotone curve's residuals over their degrees of freedom)? (issue 32; the standard errors keep the model's errors)
 SCALE_BY_RESIDUALS = True
+# fit the families' parameters to the per-frame estimates by the weighted least squares their evidence scores
+# (`fit_on_estimates`), not to the curves? (issue 32, scene 2359.) The curves weigh each frame by its regions'
+# information alone (bootstrap spread 0.001-0.004 D), not by its systematic error (0.01-0.03 D), and their cost is
+# nearly flat along a common shift of the frames (the levels profiled out), so a twin misfit in two frames moved a
+# scale until the frames between sat 0.02 D off their own estimates: judged on the stored fits of every development
+# set run with converged searches (288 sets: `python -m benchmarks.probes.focus_families_on_estimates`), family
+# right 281 -> 282, within 0.02 D 240 -> 244 of 264, determined-and-wrong 10 -> 7; no other set changed
+FAMILIES_ON_ESTIMATES = True
 # each frame's systematic error never below the level misfit the capture itself shows times the frame's own level
 # sensitivity (`frame_systematic`, `level_misfit`; issue 32, scene 2038), besides SYSTEMATIC_D scaled against the
 # median frame's sensitivity? Judged on the stored fits of development scenes 2034-2041
@@ -611,6 +620,80 @@ def frame_consistency(fit: FamilyFit, reported_d: np.ndarray, frame_d: np.ndarra
     return out
 
 
+def fit_on_estimates(fits: dict[str, FamilyFit], reported_d: np.ndarray, frame_sd: np.ndarray, frames: np.ndarray,
+                     systematic_d: float | np.ndarray = SYSTEMATIC_D, quant: tuple[str, float] | None = None,
+                     ss: Callable[[np.ndarray], float] | None = None) -> dict[str, FamilyFit]:
+    """The families refitted to the `per_frame` estimates e of fits (n, S) by weighted least squares, W = 1 /
+    (frame_sd^2 + systematic_d^2) on the frames with frames > 0: the chi2 `score_families` prices, so the evidence's
+    Laplace approximation sits at its own optimum, and the fit `corrected_sd` and `frame_consistency` assume (f = P e).
+    offset b and scale s in closed form (clipped to their search ranges), the monotone parabola's 3 knots by linear
+    least squares (dropped if the curve turns back, as `fit_families` does), each quantisation bin's value the
+    weighted mean of its frames' estimates clipped to its bin (quant: the grid, from every reported value; None: no
+    `quantisation`), made non-decreasing. `none` and `per_frame` are kept; a frame with frames == 0 (left out of the
+    fit, padding) gets the family's value at its reported focus. ss(d): the curves' sum of squares to report (NaN
+    without)."""
+    rep = np.asarray(reported_d, np.float64)
+    e = fits["per_frame"].true_d
+    use = (np.asarray(frames) > 0) & np.isfinite(rep)
+    w = np.where(use, 1.0 / (np.asarray(frame_sd, np.float64) ** 2 + np.asarray(systematic_d) ** 2), 0.0)
+    rep0, e0 = np.where(use, rep, 0.0), np.where(use, e, 0.0)
+
+    def fam(name, k, params, d, detail=None):
+        return FamilyFit(name, k, params, d, ss(d) if ss else math.nan, detail=detail or {})
+
+    out = {"none": fits["none"]}
+    b = float(np.clip(np.sum(w * (rep0 - e0)) / w.sum(), -MAX_ERROR_D, MAX_ERROR_D))
+    out["offset"] = fam("offset", 1, {"bias_d": b, "scale": 1.0}, rep - b)
+    s = float(np.clip(np.sum(w * rep0 * e0) / np.sum(w * rep0 * rep0), *SCALE_RANGE))
+    out["scale"] = fam("scale", 1, {"bias_d": 0.0, "scale": s}, rep * s)
+    values = np.unique(np.round(rep[use], 9))
+    masks = [np.isclose(rep, v, atol=1e-9) & use for v in values]
+    if len(values) >= 3:
+        kx = np.array([values[0], values[len(values) // 2], values[-1]])
+        basis = np.nan_to_num(np.stack([parabola(rep, kx, np.eye(3)[j]) for j in range(3)], -1))  # (n, S, 3)
+        ky = np.linalg.solve(np.einsum("nsi,ns,nsj->ij", basis, w, basis), np.einsum("nsi,ns,ns->i", basis, w, e0))
+        ky = np.clip(ky, kx - MAX_ERROR_D, kx + MAX_ERROR_D)
+        xs = np.linspace(values[0], values[-1], 9)
+        ys = parabola(xs, kx, ky)
+        if np.all(np.diff(ys) > 0):  # a curve that turns back is no focus encoder's
+            out["monotone"] = fam("monotone", 3, {"bias_d": 0.0, "map_d": _knots(xs, ys)}, parabola(rep, kx, ky),
+                                  {"knots_reported_d": kx.tolist(), "knots_true_d": ky.tolist()})
+    if quant is not None:
+        half = bin_half_width_d(values, quant)
+        tv = isotonic(np.array([np.clip(np.sum(w[m] * e[m]) / np.sum(w[m]), v - h, v + h)
+                                for m, v, h in zip(masks, values, half)]))
+        # a frame left out of the fit alone in its bin gets its bin's centre, the reported value: the bins' rounding
+        # errors are independent, so the curve through the others (their rounding carried to it) was no better than
+        # the bin and ran to its far edge (scene 2141: 0.098 D off)
+        alone = ~np.any([np.isclose(rep, v, atol=1e-9) for v in values], axis=0)
+        out["quantisation"] = fam("quantisation", len(values), {"bias_d": 0.0, "map_d": _knots(values, tv)},
+                                  np.where(alone, rep, curve(rep, values, tv)), {"quantiser": quant[0], "step_d": quant[1]})
+    out["per_frame"] = fits["per_frame"]
+    return out
+
+
+def left_out_sd(fit: FamilyFit, reported_d: np.ndarray, frames: np.ndarray, excluded: np.ndarray, sd: np.ndarray
+                ) -> np.ndarray:
+    """sd (n, S), the corrected focus's standard error (`corrected_sd`), with the search range's (0.23 D) at every frame
+    left out of the fit (excluded) that no parameter of the family reaches (its own bin or value; every frame under
+    `none`): nothing measured places it. Under `none` too: its corrected focus there is the reported one by the
+    family's assumption alone (no parameter carries the other frames' evidence to it), and a standard error of 0
+    claimed a frame the fit never saw (scene 2038's quantised set, 0.048 D off, claimed). Alone in a quantisation bin
+    and placed at its centre (`fit_on_estimates`), the bin's: width / sqrt(12), 0.029 D for 0.1 D (the truth anywhere
+    in it)."""
+    exc = np.asarray(excluded, bool)
+    if not exc.any():
+        return sd
+    quant = fit_quantiser(fit)
+    jac = family_design(fit.name, reported_d, fit.true_d, frames, quant)[0]
+    free = 2 * MAX_ERROR_D / math.sqrt(12)
+    rep = np.asarray(reported_d, np.float64)
+    if quant is not None:  # a quantisation bin bounds it, its value the bin's centre (`fit_on_estimates`): the bin's sd
+        free = np.where(np.isclose(fit.true_d, rep, atol=1e-9),
+                        np.minimum(free, 2 * bin_half_width_d(rep, quant) / math.sqrt(12)), free)
+    return np.where(exc & ~np.any(jac != 0, axis=-1), free, sd)
+
+
 def score_families(fits: dict[str, FamilyFit], frame_sd: np.ndarray, frames: np.ndarray,
                    systematic_d: float | np.ndarray = SYSTEMATIC_D) -> None:
     """Every family's score (`FamilyFit.score`, lower is better): -2 log of its evidence given the per-frame
@@ -766,6 +849,11 @@ def fit_metadata(data: SweepData, n_boot: int = 50, seed: int = 0, level: float 
     sd = np.std([rf["per_frame"].true_d for rf, _ in reps], 0) if len(reps) > 1 else np.zeros(data.reported_d.shape)
     # each frame's systematic error at the fit's own per-frame estimates, held for every replicate
     sys_d = frame_systematic(data, fits["per_frame"].true_d)
+    if FAMILIES_ON_ESTIMATES:  # every family where its evidence is scored: on the estimates, each replicate's on its own
+        quant = quantiser(reported_values(data))
+        fits = fit_on_estimates(fits, data.reported_d, sd, data.frames, sys_d, quant,
+                                lambda d: float(profiled_ss(data, d)))
+        reps = [(fit_on_estimates(rf, data.reported_d, sd, fr, sys_d, quant), fr) for rf, fr in reps]
     # ... times the capture's own error scale (`error_scale`: the curve's residuals), for the choice
     scale = error_scale(fits, sd, data.frames, sys_d) if SCALE_BY_RESIDUALS else 1.0
     sys_s = scaled_systematic(sd, sys_d, scale)
@@ -796,13 +884,7 @@ def fit_metadata(data: SweepData, n_boot: int = 50, seed: int = 0, level: float 
     tsd = corrected_sd(best, data.reported_d, sd, data.frames, sys_d, at=(data.frames > 0) | exc)
     if SCALE_BY_CONSISTENCY:
         tsd = tsd * np.maximum(1.0, cons)
-    if exc.any():  # a left-out frame no parameter of the family reaches (its own bin or value; every frame under none)
-        jac = family_design(best.name, data.reported_d, best.true_d, data.frames, fit_quantiser(best))[0]
-        free = ~np.any(jac != 0, axis=-1)
-        # nothing measured places it: the search range's sd. Under `none` too: its corrected focus there is the reported
-        # one by the family's assumption alone (no parameter carries the other frames' evidence to it), and a
-        # standard error of 0 claimed a frame the fit never saw (scene 2038's quantised set, 0.048 D off, claimed)
-        tsd = np.where(exc & free, 2 * MAX_ERROR_D / math.sqrt(12), tsd)
+    tsd = left_out_sd(best, data.reported_d, data.frames, exc, tsd)
     return MetadataFit(best, fits, ci, pci, {k: v / total for k, v in wins.items()}, bound, sd, sys_d, tsd,
                        (tsd >= UNDETERMINED_SD_D) & ((data.frames > 0) | exc), cons, scale, share, exc)
 

@@ -12,6 +12,15 @@ compares both with the truth, frame by frame (`|error| / standard error`: the re
 
     python -m benchmarks.probes.focus_family_on_estimates results/diagnose_focus_tune2029_v2.jsonl \\
         [RESULTS.jsonl ...] [--out results/focus_family_on_estimates.md]
+
+`--choice` (2026-11-27, `focusfit.FAMILIES_ON_ESTIMATES`): every family refitted to the estimates and the whole
+choice redone (`bench_diagnose_focus.rescored` with and without `on_estimates`: error scale, evidence, standard
+errors, undetermined and left-out frames), the benchmark's summary for both, variants of the standard error
+(`sd_variants`), a JSON summary, and every set whose family, corrected focus or claim changed; the files together (a
+set in several counts once, its last row):
+
+    python -m benchmarks.probes.focus_family_on_estimates --choice RESULTS.jsonl ... \\
+        --out results/focus_families_on_estimates_choice.md     # and its .json
 """
 
 from __future__ import annotations
@@ -30,26 +39,62 @@ LINEAR = ("offset", "scale", "monotone")
 
 
 def refit(row: dict) -> np.ndarray | None:
-    """(S,) the row's chosen family fitted to its per-frame estimates by weighted least squares (diopters); None
-    for families that are not linear in their parameters or rows without the stored fits."""
+    """(S,) the row's chosen family fitted to its per-frame estimates by weighted least squares (diopters,
+    `focusfit.fit_on_estimates`, weights 1 / (spread^2 + systematic^2)); None for families that are not linear in
+    their parameters or rows without the stored fits."""
     from aat_deploy.diagnose import focusfit as ff
 
     fams = {f["family"]: f for f in row.get("families") or []}
     if row["family"] not in LINEAR or "per_frame" not in fams or not row.get("frame_systematic_d"):
         return None
-    rep = np.asarray(fams["none"]["true_d"], np.float64)
-    est = np.asarray(fams["per_frame"]["true_d"], np.float64)
-    frames = np.ones_like(rep)
-    jac, _ = ff.family_design(row["family"], rep, np.asarray(fams[row["family"]]["true_d"], np.float64), frames)
-    # offset: d = rep - b (J = -1 about rep); scale: d = rep * s (J = d at the fit; linear in s through rep);
-    # monotone: d = basis . knots (J = basis)
-    base = rep if row["family"] == "offset" else np.zeros_like(rep)
-    if row["family"] == "scale":
-        jac = rep[..., None]
-    sigma2 = np.asarray(row["frame_focus_sd_d"], np.float64) ** 2 + np.asarray(row["frame_systematic_d"]) ** 2
-    a = jac[0] / sigma2[0][:, None]
-    p = np.linalg.solve(jac[0].T @ a, a.T @ (est - base)[0])
-    return base[0] + jac[0] @ p
+    fits = {k: ff.FamilyFit(k, int(fams[k].get("k", 0)), {}, np.asarray(fams[k]["true_d"], np.float64), 0.0)
+            for k in ("none", "per_frame")}
+    sd = np.asarray(row["frame_focus_sd_d"], np.float64)
+    exc = np.asarray(row.get("frames_noise_dominated") or np.zeros(sd.shape[-1], bool), bool)[None]
+    out = ff.fit_on_estimates(fits, fits["none"].true_d, np.where(np.isfinite(sd), sd, 0.0), (~exc).astype(float),
+                              np.asarray(row["frame_systematic_d"], np.float64))
+    return out[row["family"]].true_d[0] if row["family"] in out else None
+
+
+def choice(rows: list[dict]) -> dict:
+    """The benchmark's summary with the row's own fits and with every family refitted to the estimates (the whole
+    choice redone both ways, `bench_diagnose_focus.rescored`), and the sets that changed."""
+    from benchmarks import bench_diagnose_focus as bench
+
+    rows = list({(r["capture"], r["kind"]): r for r in rows}.values())
+    both = [(bench.rescored(r, "curves"), bench.rescored(r, "estimates", on_estimates=True)) for r in rows]
+    both = [(a, b) for a, b in both if a is not None]
+    for i, name in enumerate(("fitted to the curves (the rows' own fits, rescored)", "fitted to the estimates")):
+        print(f"\n#### {name}\n")
+        bench.table([x[i] for x in both])
+
+    summary = {"sets": len(both), "fitted_to": {}, "standard_error_variants": sd_variants([b for _, b in both])}
+    for i, name in enumerate(("curves", "estimates")):
+        rs = [x[i] for x in both]
+        err = [r for r in rs if r["kind"] != "none"]
+        summary["fitted_to"][name] = {
+            "family_right": sum(r["family_ok"] for r in rs),
+            "within_0.02_d": sum(r["corrected_max_err_d"] <= 0.02 and not r["frames_undetermined"] for r in err),
+            "claimed_over_0.02_d": sum(r["corrected_max_err_d"] > 0.02 and not r["frames_undetermined"] for r in err),
+            "sets_with_an_error": len(err), "largest_error_d": max(r["corrected_max_err_d"] for r in rs),
+            "untouched_blaming_focus": sum(r["family"] != "none" for r in rs if r["kind"] == "none")}
+    print("\n#### the corrected focus's standard error, variants (fitted to the estimates)\n")
+    print("| standard error | within 0.02 D, every frame determined | claimed determined, over 0.02 D | undetermined, "
+          "every frame within 0.02 D | frames whose 95 % interval holds the truth |\n|---|---|---|---|---|")
+    for name, v in summary["standard_error_variants"].items():
+        print(f"| {name} | {v['within']}/{v['sets_with_an_error']} | {v['claimed_wrong']} | {v['undetermined_within']} | "
+              f"{v['covered']}/{v['frames']} |")
+    print("\n```json\n" + json.dumps(summary, indent=1) + "\n```")
+
+    def claim(r):
+        return "undetermined" if r["frames_undetermined"] else "claimed"
+
+    print("\n| set | curves: family, max error (D), claim | estimates: family, max error (D), claim |\n|---|---|---|")
+    for a, b in sorted(both, key=lambda x: (x[0]["capture"], x[0]["kind"])):
+        if (a["family"], claim(a)) != (b["family"], claim(b)) or abs(a["corrected_max_err_d"] - b["corrected_max_err_d"]) > 0.005:
+            print(f"| {a['capture']} {a['kind']} | {a['family']}, {a['corrected_max_err_d']:.3f}, {claim(a)} | "
+                  f"{b['family']}, {b['corrected_max_err_d']:.3f}, {claim(b)} |")
+    return summary
 
 
 def table(rows: list[dict]) -> None:
@@ -84,19 +129,67 @@ def table(rows: list[dict]) -> None:
               f"{int(np.sum(zo <= 1.959964))}/{len(zo)} vs {int(np.sum(zn <= 1.959964))}/{len(zn)}")
 
 
+def sd_variants(rows: list[dict]) -> dict:
+    """Rescored rows (`bench_diagnose_focus.rescored`): sets within 0.02 D with every frame determined, sets claimed
+    determined but over 0.02 D, sets undetermined though every frame is within 0.02 D, and frames whose 95 % interval
+    holds the truth, with the rows' standard errors; times their error scale (`focusfit.error_scale`); and with the
+    choice's own uncertainty added, sum_k p_k (f_k - f_chosen)^2, p_k proportional to exp(-score_k / 2) over the
+    families but `per_frame` (Bayesian model averaging's spread about the chosen family's focus), at every frame or at
+    the left-out frames only."""
+    from aat_deploy.diagnose import focusfit as ff
+
+    out = {}
+    for name in ("as fitted", "times the error scale", "model averaging, every frame",
+                 "model averaging, left-out frames"):
+        v = {"within": 0, "claimed_wrong": 0, "undetermined_within": 0, "covered": 0, "frames": 0, "sets_with_an_error": 0}
+        for r in rows:
+            sd = np.asarray(r["corrected_sd_d"], np.float64)[0]
+            err = np.abs(np.asarray(r["corrected_err_d"], np.float64))
+            fams = {x["family"]: x for x in r["families"] if x["family"] != "per_frame"}
+            if name == "times the error scale":
+                sd = sd * r["error_scale"]
+            elif name.startswith("model averaging"):
+                best = np.asarray(fams[r["family"]]["true_d"], np.float64)[0]
+                low = min(x["score"] for x in fams.values())
+                p = {k: np.exp(-(x["score"] - low) / 2) for k, x in fams.items()}
+                add = sum(p[k] * (np.asarray(fams[k]["true_d"], np.float64)[0] - best) ** 2 for k in p) / sum(p.values())
+                if name.endswith("left-out frames"):
+                    add = add * np.asarray(r.get("frames_noise_dominated") or np.zeros(len(sd), bool), bool)
+                sd = np.sqrt(sd ** 2 + add)
+            und = bool(np.any(sd >= ff.UNDETERMINED_SD_D))
+            v["covered"] += int(np.sum(err <= 1.959964 * sd + 1e-4))  # the rows' errors are rounded to 1e-4 D
+            v["frames"] += len(err)
+            if r["kind"] == "none":
+                continue
+            v["sets_with_an_error"] += 1
+            v["within"] += int(not und and err.max() <= 0.02)
+            v["claimed_wrong"] += int(not und and err.max() > 0.02)
+            v["undetermined_within"] += int(und and err.max() <= 0.02)
+        out[name] = v
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("results", nargs="+", help="bench_diagnose_focus results files; each gets its own table")
-    ap.add_argument("--out", default=str(RESULTS / "focus_family_on_estimates.md"))
+    ap.add_argument("--choice", action="store_true", help="the whole choice redone with the families refitted to the "
+                    "estimates, all files together")
+    ap.add_argument("--out", default=None)
     a = ap.parse_args()
+    out = a.out or str(RESULTS / ("focus_families_on_estimates_choice.md" if a.choice else
+                                  "focus_family_on_estimates.md"))
     buf = io.StringIO()
     with redirect_stdout(buf):
-        for f in a.results:
+        if a.choice:
+            summary = choice([json.loads(x) for f in a.results for x in Path(f).read_text().splitlines() if x.strip()])
+            Path(out).with_suffix(".json").write_text(json.dumps({"files": a.results, **summary}, indent=1) + "\n")
+        for f in [] if a.choice else a.results:
             print(f"\n### {f}\n")
             table([json.loads(x) for x in Path(f).read_text().splitlines() if x.strip()])
     print(buf.getvalue())
-    Path(a.out).write_text(f"# `python -m benchmarks.probes.focus_family_on_estimates {' '.join(a.results)}`\n"
-                           + buf.getvalue())
+    flag = "--choice " if a.choice else ""
+    Path(out).write_text(f"# `python -m benchmarks.probes.focus_family_on_estimates {flag}{' '.join(a.results)}`\n"
+                         + buf.getvalue())
 
 
 if __name__ == "__main__":

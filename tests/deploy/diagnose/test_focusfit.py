@@ -53,8 +53,10 @@ def test_each_family_is_recovered(name, report):
     fit = ff.fit_metadata(sweep(true, rep), n_boot=20)
     assert fit.best.name == name
     assert np.abs(fit.best.true_d - true).max() < 0.02  # corrected focus within 0.02 D of the truth
-    lo, hi = fit.true_d_ci[..., 0], fit.true_d_ci[..., 1]
-    assert np.mean((lo - 0.01 <= true) & (true <= hi + 0.01)) > 0.9
+    # the interval the report gives (`total_ci_m`: +-1.96 standard errors, the systematic part included) holds the
+    # truth. Not the bootstrap's, which resamples regions only: the sine read as a parabola fitted with each frame's
+    # systematic error (`fit_on_estimates`) leaves the far frame 0.015 D off (its systematic error 0.041 D)
+    assert np.mean(np.abs(fit.best.true_d - true) <= 1.96 * fit.true_d_sd + 1e-9) > 0.9
     if name == "offset":
         assert fit.best.params["bias_d"] == pytest.approx(0.08, abs=0.01)
         assert fit.params_ci["bias_d"][0] <= 0.08 + 0.01 and fit.params_ci["bias_d"][1] >= 0.08 - 0.01
@@ -137,17 +139,11 @@ TRUE_D = np.linspace(1 / 0.6, 1 / 6.0, 8)  # the shipped sample's focus, 0.6 to 
 
 
 def hand_fits(rep: np.ndarray, est: np.ndarray, sd: np.ndarray) -> dict:
-    """The families fitted by weighted least squares to per-frame estimates est (1, S) of frames reported at rep
-    (1, S) with spread sd (1, S), as `fit_families` fits them to the curves (here: to the frames' focus)."""
-    w = 1.0 / (sd ** 2 + ff.SYSTEMATIC_D ** 2)
-    b = float(np.sum(w * (rep - est)) / w.sum())
-    s = float(np.sum(w * rep * est) / np.sum(w * rep * rep))
-    kx = np.array([rep.min(), np.unique(rep)[4], rep.max()])
-    basis = np.stack([ff.parabola(rep, kx, np.eye(3)[j]) for j in range(3)], -1)[0]  # (S, 3)
-    ky = np.linalg.solve(basis.T @ (w[0, :, None] * basis), basis.T @ (w[0] * est[0]))
-    fits = {"none": (0, rep), "offset": (1, rep - b), "scale": (1, rep * s), "monotone": (3, (basis @ ky)[None]),
-            "per_frame": (8, est)}
-    return {k: ff.FamilyFit(k, kk, {}, np.asarray(t, np.float64), 0.0) for k, (kk, t) in fits.items()}
+    """The families fitted to per-frame estimates est (1, S) of frames reported at rep (1, S) with spread sd (1, S),
+    as `fit_metadata` fits them (`fit_on_estimates`, weighted least squares, systematic error SYSTEMATIC_D)."""
+    fits = {"none": ff.FamilyFit("none", 0, {}, np.asarray(rep, np.float64), 0.0),
+            "per_frame": ff.FamilyFit("per_frame", rep.shape[-1], {}, np.asarray(est, np.float64), 0.0)}
+    return ff.fit_on_estimates(fits, rep, sd, np.ones_like(sd))
 
 
 def bic_choice(fits: dict, sd: np.ndarray) -> str:
@@ -325,6 +321,27 @@ def test_a_far_scene_reported_with_a_distance_scale_is_fitted_as_a_scale():
     assert np.abs(fit.fits["per_frame"].true_d - true).max() <= 0.004
     assert fit.best.name == "scale"
     assert np.abs(fit.best.true_d - true).max() < 0.02
+
+
+def test_a_twin_misfit_in_two_frames_does_not_bend_the_scale():
+    """Issue 32, scene 2359: a twin misfit in two frames (here their level, -0.1 log in frames 2 and 7 of the far scene,
+    as a noise floor or a development the twin gets wrong leaves) moves their own estimates by 0.01-0.03 D. Fitted on the
+    curves, whose cost weighs each frame by its regions' information alone and is nearly flat along a common shift of
+    the frames, the scale followed them: 1.140 for 1.15, every frame 0.014 D off at the near end. Fitted on the
+    estimates with their systematic errors (`fit_on_estimates`, the chi2 the evidence scores), 0.005 D."""
+    data, true = far_scene_sweep(seed=1)
+    cap = data.capture.copy()
+    cap[:, :, [2, 7]] -= 0.1
+    data = dataclasses.replace(data, capture=cap, reported_d=true / 1.15, base_d=true / 1.15)
+    fit = ff.fit_metadata(data, n_boot=10)
+    assert fit.best.name == "scale"
+    assert fit.best.params["scale"] == pytest.approx(1.15, abs=0.006)
+    assert np.abs(fit.best.true_d - true).max() < 0.008
+    # the fit is the weighted least squares of the estimates: no other scale brings the evidence's chi2 lower
+    e = fit.fits["per_frame"].true_d
+    w = 1.0 / (fit.frame_sd ** 2 + fit.frame_sys ** 2)
+    chi2 = [float(np.sum(w * (data.reported_d * s - e) ** 2)) for s in fit.best.params["scale"] * (1 + np.array([-1e-3, 0, 1e-3]))]
+    assert chi2[1] <= min(chi2[0], chi2[2])
 
 
 def test_an_offset_is_not_read_as_a_curve_bent_by_an_unsure_frame():

@@ -200,10 +200,13 @@ def test_without_an_expected_floor_no_frame_is_left_out():
 @pytest.mark.parametrize("family", ["quantisation", "per_frame"])
 def test_left_out_frame_no_parameter_reaches_gets_the_search_ranges_sd(family, monkeypatch):
     """A left-out (noise-dominated) frame that no parameter of the chosen family reaches (its own quantisation bin,
-    or `per_frame`'s own value) is placed by nothing: `fit_metadata` gives it the search range's standard error,
-    2 x MAX_ERROR_D / sqrt(12) = 0.231 D (a uniform over +-0.4 D), so it is reported undetermined; the frames the
-    fit used keep their own (smaller) errors. The choice is forced to `family` (`select` patched), since which
-    family the far noisy sweep chooses is not the point here."""
+    or `per_frame`'s own value) is placed by nothing measured: under `per_frame` `fit_metadata` gives it the search
+    range's standard error, 2 x MAX_ERROR_D / sqrt(12) = 0.231 D (a uniform over +-0.4 D); alone in its quantisation
+    bin, the bin bounds it: its value is the bin's centre, the reported value, and its standard error the bin's, 0.1
+    D / sqrt(12) = 0.029 D (the truth anywhere in it; before: the curve through the other bins' values, which carried
+    their independent rounding to it and ran to its bin's far edge, 0.098 D off on scene 2141, with 0.231 D). Either
+    way it is reported undetermined; the frames the fit used keep their own (smaller) errors. The choice is forced to
+    `family` (`select` patched), since which family the far noisy sweep chooses is not the point here."""
     true = NOISY_REPORTED_D[None].copy()
     rep = np.round(true / 0.1) * 0.1  # every frame alone in its 0.1 D bin: a quantisation value per frame
     data = noisy_far_sweep(true, rep)
@@ -214,9 +217,12 @@ def test_left_out_frame_no_parameter_reaches_gets_the_search_ranges_sd(family, m
     monkeypatch.setattr(ff, "select", lambda fits: fits[family])
     fit = ff.fit_metadata(prepared, n_boot=5, excluded=dom)
     assert fit.best.name == family
-    search_sd = 2 * ff.MAX_ERROR_D / np.sqrt(12)
-    assert np.allclose(fit.true_d_sd[0, :3], search_sd), fit.true_d_sd
+    free_sd = 2 * (0.05 if family == "quantisation" else ff.MAX_ERROR_D) / np.sqrt(12)
+    assert np.allclose(fit.true_d_sd[0, :3], free_sd), fit.true_d_sd
     assert fit.undetermined[0, :3].all()
+    if family == "quantisation":
+        assert np.allclose(fit.best.true_d[0, :3], rep[0, :3])
+        assert np.all(np.abs(fit.best.true_d - true)[0, :3] <= 1.96 * free_sd)
     assert np.all(fit.true_d_sd[0, 3:] < 0.1), fit.true_d_sd  # the fitted frames: their own errors, not the range's
 
 
