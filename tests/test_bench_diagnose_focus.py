@@ -271,3 +271,17 @@ def test_seventh_fresh_test_captures_follow_the_sixth_rounds_rule_on_unused_cand
     with pytest.raises(SystemExit, match="--fresh7"):
         bench.fresh6_scenes(bench.FRESH7_K + 1, tmp_path, bench.FRESH7_CANDIDATES, bench.FRESH7_NOISE_SEEDS, "fresh7")
     assert not (tmp_path / "fresh7_stats.json").exists()
+
+
+def test_eighth_fresh_test_captures_follow_the_sixth_rounds_rule_on_unused_candidates(tmp_path):
+    """The eighth fresh test captures (issue 32, the families fitted to the estimates): candidates start after the last
+    scene the seventh round screened (its fourth kept, 2369: candidates 2183-2369 were screened, 2222, 2304, 2359 and
+    2369 kept and looked at since), the noise seeds share nothing with 1-32; the rule is the sixth round's; --fresh8
+    refuses a count it does not have and keeps its screening statistics apart."""
+    assert min(bench.FRESH8_CANDIDATES) == 2370 > 2369 == max(s for s in (2222, 2304, 2359, 2369))
+    used = set(range(1, 25)) | set(bench.FRESH6_NOISE_SEEDS) | set(bench.FRESH7_NOISE_SEEDS)
+    assert used == set(range(1, 33)) and not set(bench.FRESH8_NOISE_SEEDS) & used
+    assert set(bench.FRESH8_NOISE_SEEDS) == set(range(33, 37)) and bench.FRESH8_K == 4
+    with pytest.raises(SystemExit, match="--fresh8"):
+        bench.fresh6_scenes(bench.FRESH8_K + 1, tmp_path, bench.FRESH8_CANDIDATES, bench.FRESH8_NOISE_SEEDS, "fresh8")
+    assert not (tmp_path / "fresh8_stats.json").exists()
