@@ -143,3 +143,35 @@ def test_fit_gap_item_spread_by_hand():
     e = np.array([1.0] * 19 + [81.0])  # 20 items: the worst 5 % is one item, 81 of a sum of 100
     got = item_spread(e)
     assert got == {"n": 20, "median_m": 1.0, "mean_m": 5.0, "max_m": 81.0, "worst_5pct_share": 0.81}
+
+
+def test_stack_curve_probe_refuses_before_any_work(tmp_path, capsys):
+    from benchmarks.probes import anycam_stack_curve
+
+    ck = tmp_path / "step_00200.pt"
+    ck.write_bytes(b"")
+    out = tmp_path / "curve.json"
+    with pytest.raises(SystemExit):
+        anycam_stack_curve.main([str(ck), "--n", "0", "--out", str(out)])
+    assert "--n: at least 1 stack" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        anycam_stack_curve.main([str(tmp_path / "none.pt"), "--out", str(out)])
+    assert "no such checkpoint" in capsys.readouterr().err
+    out.write_text("mine")
+    with pytest.raises(SystemExit):
+        anycam_stack_curve.main([str(ck), "--out", str(out)])
+    assert "curve.json: exists" in capsys.readouterr().err
+    assert out.read_text() == "mine"
+
+
+def test_stack_curve_errors_by_hand():
+    import numpy as np
+
+    from benchmarks.probes.anycam_stack_curve import stack_errors
+
+    truth = np.array([[1.0, 2.0], [4.0, 0.0]])  # 0: no truth, left out
+    depth = np.array([[2.0, 2.0], [2.0, 9.0]])
+    e = stack_errors(depth, truth)
+    assert e["mae_m"] == pytest.approx((1 + 0 + 2) / 3)
+    assert e["mae_d"] == pytest.approx((0.5 + 0 + 0.25) / 3)  # |1/2 - 1/1|, 0, |1/2 - 1/4|
+    assert e["median_m"] == pytest.approx(1.0)

@@ -49,20 +49,12 @@ def main(argv: list[str] | None = None) -> int:
     from aat_deploy.anycam.model import FocusMapModel, mapping_from_args
     from aat_deploy.focus import classical_depth
     from aat_deploy.focus.bestfocus import for_lens
-    from training.train.testsets import load_test_set
 
     tiles = [int(t) for t in a.tiles.split(",")]
     settings = [(t, o) for t in tiles
                 for o in ([t // 4] if a.overlaps is None or t == 0 else [int(v) for v in a.overlaps.split(",")])]
     lens = ROOT / LENSES[a.lens]["lens"]
-    spec = test_spec(a.lens, "fixed", a.n, real=False)
-    if a.split == "validation":
-        from dataclasses import replace
-
-        from benchmarks.select_focus_noise import VAL_SEED
-
-        spec = replace(spec, seed=VAL_SEED, photo_split="train")
-    items = load_test_set(spec, a.cache, progress=False)["procedural"]
+    items = fixed_stacks(a.lens, a.split, a.n, a.cache)
     model = FocusMapModel(a.model, threads=a.threads, mapping=mapping_from_args(lens=lens))
     fmap, _ = for_lens(lens, compute=False)
     labels = [("whole frame" if t == 0 else f"tiles of {t} px" + (f", {o} overlapping" if a.overlaps else ""))
@@ -93,6 +85,21 @@ def main(argv: list[str] | None = None) -> int:
         write_text_atomic(a.json, json.dumps({"model": str(a.model), "lens": a.lens, "split": a.split,
                                               "labels": labels, "mae_m": rows}, indent=1))
     return 0
+
+
+def fixed_stacks(lens_key: str, split: str, n: int, cache) -> list:
+    """The first n procedural stacks of a lens's fixed protocol: its held-out test scenes ("test"), or validation
+    scenes of training photographs with their own seed ("validation", the RF50 only: what may choose a setting)."""
+    from training.train.testsets import load_test_set
+
+    spec = test_spec(lens_key, "fixed", n, real=False)
+    if split == "validation":
+        from dataclasses import replace
+
+        from benchmarks.select_focus_noise import VAL_SEED
+
+        spec = replace(spec, seed=VAL_SEED, photo_split="train")
+    return load_test_set(spec, cache, progress=False)["procedural"]
 
 
 def px_run_per_px(h: int, w: int, tile: int, overlap: int, multiple: int) -> float:

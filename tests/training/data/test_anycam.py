@@ -441,3 +441,21 @@ def replace_cfg(cfg: AnyCamConfig, **kw) -> AnyCamConfig:
     from dataclasses import replace
 
     return replace(cfg, **kw)
+
+
+def test_processed_fraction_leaves_items_clean_and_keeps_the_earlier_draws(ds):
+    from dataclasses import replace
+
+    val = lambda **kw: AnyCamDataset(replace(ds.cfg, fixed_subsets=True, **kw))  # noqa: E731
+    old, one, clean, off = val(), val(processed_fraction=1.0), val(processed_fraction=0.0), val(camera_effects=False)
+    for i in range(3):
+        assert torch.equal(old[i]["stack"], one[i]["stack"])  # 1 draws nothing: the earlier runs' items
+        assert torch.equal(clean[i]["stack"], off[i]["stack"])  # 0: the frames as rendered, normalised
+    assert any(not torch.equal(old[i]["stack"], clean[i]["stack"]) for i in range(3))
+    cfg = replace(ds.cfg, processed_fraction=0.3)
+    assert cfg.key() == ds.cfg.key()  # how renders are read, not what they are: the same cache
+    share = np.mean([cfg.processes(np.random.default_rng([9, s])) for s in range(4000)])
+    assert abs(share - 0.3) < 0.03
+    assert not replace(cfg, camera_effects=False).processes(np.random.default_rng(0))
+    with pytest.raises(ValueError, match="processed_fraction 1.5"):
+        replace(ds.cfg, processed_fraction=1.5)
