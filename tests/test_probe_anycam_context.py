@@ -175,3 +175,29 @@ def test_stack_curve_errors_by_hand():
     assert e["mae_m"] == pytest.approx((1 + 0 + 2) / 3)
     assert e["mae_d"] == pytest.approx((0.5 + 0 + 0.25) / 3)  # |1/2 - 1/1|, 0, |1/2 - 1/4|
     assert e["median_m"] == pytest.approx(1.0)
+
+
+def test_choose_takes_the_lowest_on_one_dozen_and_judges_on_another(tmp_path, capsys):
+    import json
+
+    from benchmarks.probes import anycam_choose
+
+    sel = {"first": 12, "classical_lens_map": {"mae_m": [1.0, 1.0]},
+           "rows": [{"step": 400, "mae_m": [0.5, 0.7]}, {"step": 200, "mae_m": [0.6, 0.6]},
+                    {"step": 600, "mae_m": [0.9, 0.5]}]}
+    assert anycam_choose.choose(sel)["step"] == 200  # 0.6, tied with 400: the earlier step
+    sel["rows"][2]["mae_m"] = [0.9, 0.1]
+    assert anycam_choose.choose(sel)["step"] == 600  # the lowest mean, not the lowest stack
+    cur = {"first": 0, "classical_lens_map": {"mae_m": [2.0, 4.0], "mae_d": [0.2, 0.4]},
+           "rows": [{"step": 200, "mae_m": [1.0, 2.0], "mae_d": [0.1, 0.1]}]}
+    j = anycam_choose.judge(200, cur, [2.0, 2.0, 9.0])
+    assert j["mae_m"] == 1.5 and j["classical_mae_m"] == 3.0 and j["first_run_tiles_mae_m"] == 2.0
+    assert j["vs_classical_m"][0] == 0.5 and j["vs_classical_d"][0] == pytest.approx(1 / 3)
+    assert j["vs_first_run_tiles_m"][0] == 0.75
+    a, b, first = tmp_path / "s.json", tmp_path / "j.json", tmp_path / "f.json"
+    a.write_text(json.dumps(sel))
+    b.write_text(json.dumps({**cur, "first": 12}))
+    first.write_text(json.dumps({"mae_m": [[2.0], [2.0]]}))
+    with pytest.raises(SystemExit):
+        anycam_choose.main([str(a), str(b), "--first-run", str(first)])
+    assert "score the same stacks" in capsys.readouterr().err

@@ -1,0 +1,90 @@
+"""Choose an any-camera run's checkpoint on one dozen RF50 validation stacks and judge it on another (exploratory).
+
+    python -m benchmarks.probes.anycam_choose results/anycam_stack_curve_v9_select.json
+        results/anycam_stack_curve_v9.json [--first-run results/anycam_tiles_overlap_rf50_val.json] [--out OUT.json]
+
+The rule declared in docs/training.md ("The ninth run along its steps"): among the checkpoints `anycam_stack_curve`
+scored on the choosing stacks (`--first 12`), the one with the lowest mean whole-frame MAE (m); it is then judged on
+the judging stacks (the first 12, scored by the same probe), paired over those stacks with 95 % bootstrap intervals
+(`aat_deploy.eval.stats.paired_ratio`) against the classical method with the lens map, in metres and in diopters,
+and against the first run in 128 px tiles (`anycam_tiles` on the same stacks: its first rows, column 0). Validation
+stacks only (training photographs): no held-out lens or test scene.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def choose(select: dict) -> dict:
+    """The row of `select` (an anycam_stack_curve result) with the lowest mean MAE (m); ties: the earlier step."""
+    return min(sorted(select["rows"], key=lambda r: r["step"]), key=lambda r: float(np.mean(r["mae_m"])))
+
+
+def judge(step: int, curve: dict, first_run_mae_m: list[float] | None) -> dict:
+    """The judging stacks' scores of checkpoint `step` (in `curve`, an anycam_stack_curve result) against the
+    classical method and the first run: means and paired ratios [point, low, high]."""
+    from aat_deploy.eval.stats import paired_ratio
+
+    rows = [r for r in curve["rows"] if r["step"] == step]
+    if not rows:
+        raise SystemExit(f"step {step}: not scored on the judging stacks")
+    row, cl = rows[0], curve["classical_lens_map"]
+    per = lambda v: [{"mae": float(x)} for x in v]  # noqa: E731
+    out = {"step": step, "n": len(row["mae_m"]), "mae_m": float(np.mean(row["mae_m"])),
+           "mae_d": float(np.mean(row["mae_d"])), "classical_mae_m": float(np.mean(cl["mae_m"])),
+           "classical_mae_d": float(np.mean(cl["mae_d"])),
+           "vs_classical_m": [float(v) for v in paired_ratio(per(row["mae_m"]), per(cl["mae_m"]))],
+           "vs_classical_d": [float(v) for v in paired_ratio(per(row["mae_d"]), per(cl["mae_d"]))]}
+    if first_run_mae_m is not None:
+        first = first_run_mae_m[:len(row["mae_m"])]
+        out["first_run_tiles_mae_m"] = float(np.mean(first))
+        out["vs_first_run_tiles_m"] = [float(v) for v in paired_ratio(per(row["mae_m"]), per(first))]
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("select", type=Path, help="anycam_stack_curve result on the choosing stacks")
+    ap.add_argument("judge", type=Path, help="anycam_stack_curve result on the judging stacks")
+    ap.add_argument("--first-run", type=Path, default=ROOT / "results" / "anycam_tiles_overlap_rf50_val.json",
+                    help="anycam_tiles result of the first run (column 0: 128 px tiles) on the judging stacks")
+    ap.add_argument("--out", type=Path, help="JSON of the choice and the judgement")
+    a = ap.parse_args(argv)
+    for p in (a.select, a.judge, a.first_run):
+        if not p.is_file():
+            ap.error(f"{p}: no such file")
+    if a.out and a.out.exists():
+        ap.error(f"{a.out}: exists (choose another --out)")
+    sel, cur = json.loads(a.select.read_text()), json.loads(a.judge.read_text())
+    if sel.get("first", 0) == cur.get("first", 0):
+        ap.error(f"{a.select} and {a.judge} score the same stacks: choose on one dozen, judge on another")
+    chosen = choose(sel)
+    first = [r[0] for r in json.loads(a.first_run.read_text())["mae_m"]]
+    res = {"chosen_on": str(a.select), "chosen_mae_m": float(np.mean(chosen["mae_m"])),
+           "chosen_classical_mae_m": float(np.mean(sel["classical_lens_map"]["mae_m"])),
+           "judged_on": str(a.judge), **judge(chosen["step"], cur, first)}
+    f = lambda v: f"{v[0]:.2f} [{v[1]:.2f}, {v[2]:.2f}]"  # noqa: E731
+    print(f"chosen: step {res['step']} ({res['chosen_mae_m']:.3f} m on the choosing stacks, classical "
+          f"{res['chosen_classical_mae_m']:.3f})")
+    print(f"judged on {res['n']} other stacks: {res['mae_m']:.3f} m, {res['mae_d']:.3f} D; classical "
+          f"{res['classical_mae_m']:.3f} m, {res['classical_mae_d']:.3f} D; the first run in tiles "
+          f"{res['first_run_tiles_mae_m']:.3f} m")
+    print(f"/ classical: {f(res['vs_classical_m'])} (m), {f(res['vs_classical_d'])} (D); / the first run in tiles: "
+          f"{f(res['vs_first_run_tiles_m'])} (m)")
+    if a.out:
+        from aat_deploy.io.atomic import write_text_atomic
+
+        write_text_atomic(a.out, json.dumps(res, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
