@@ -38,7 +38,11 @@ def export_checkpoint(checkpoint, out, *, force: bool = False, extra: dict | Non
     """checkpoint: a run's model.pt (or last.pt). Writes `out` (atomic, no overwrite unless force) and returns
     (metadata, the relative ORT-vs-torch difference over three shapes, `training.nets.export.parity`).
     extra: more aat.* metadata keys."""
+    from training.train.checkpoint import load
+
     model, cfg = load_trained(Path(checkpoint))
+    # the step the weights are from: a checkpoint chosen before the end (an early stop) is not cfg.steps
+    extra = {"checkpoint_step": str(int(load(Path(checkpoint)).get("step", cfg.steps))), **(extra or {})}
     if registry.get(cfg.net).focus_maps:  # the any-camera model: no lens of its own (nets.export.focus_map_metadata)
         from training.data.cameras import K_MAX_PX_PER_D
         from training.nets.export import export_focus_map_onnx, focus_map_metadata
@@ -46,11 +50,11 @@ def export_checkpoint(checkpoint, out, *, force: bool = False, extra: dict | Non
         md = focus_map_metadata(model, effects=["camera_processing"], stack_range=cfg.stack_range,
                                 config_hash=cfg.hash(), k_range=(0.3, K_MAX_PX_PER_D),
                                 extra={"train_steps": cfg.steps, "config_name": cfg.name,
-                                       "tile_px": str(tile_px_for(model, cfg.data)), **(extra or {})})
+                                       "tile_px": str(tile_px_for(model, cfg.data)), **extra})
         return md, export_focus_map_onnx(model, out, md, force=force)
     lens = load_lens(resolve_lens_path(cfg.lens))
     md = dff_metadata(model, lens, simulator=cfg.simulator, effects=list(cfg.effects),
                       focus_range_m=cfg.focus_range_m, stack_range=cfg.stack_range, config_hash=cfg.hash(),
-                      extra={"train_steps": cfg.steps, "config_name": cfg.name, **(extra or {})})
+                      extra={"train_steps": cfg.steps, "config_name": cfg.name, **extra})
     err = export_dff_onnx(model, out, md, force=force)
     return md, err

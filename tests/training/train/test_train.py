@@ -307,6 +307,7 @@ def test_any_camera_net_trains_resumes_exactly_validates_and_exports(tmp_path):
     assert len(log) == 6 and all(math.isfinite(r["frames_l1"]) for r in log)
     md, err = export_checkpoint(tmp_path / "a" / "model.pt", tmp_path / "m.onnx")
     assert md["aat.inputs"] == "focus_map" and md["aat.net"] == "dfvaat" and err < 1e-3
+    assert md["aat.checkpoint_step"] == "6" and md["aat.train_steps"] == "6"
 
 
 @pytest.mark.numerics
@@ -420,6 +421,7 @@ def test_the_best_validation_weights_are_kept(tmp_path):
 
     md, err = export_checkpoint(tmp_path / "r" / "best.pt", tmp_path / "best.onnx")  # exported as model.pt is
     assert md["aat.net"] == "dfvaat" and err < 1e-3
+    assert md["aat.checkpoint_step"] == str(best["step"])  # the weights' own step, not the schedule's 6
 
 
 def test_focus_map_loss_weighs_pixels_beyond_their_frames_by_out_of_range_weight():
