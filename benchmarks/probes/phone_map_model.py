@@ -69,6 +69,29 @@ def dump(variant: str, log) -> Path:
     for pre, o in (("meas_", obs), ("ideal_", ideal)):
         for k in OBS_KEYS:
             out[pre + k] = getattr(o, k)
+    # per measured tile (benchmarks/probes/within_tiles.py): where the truth has its object in focus (reported D),
+    # the truth's in-focus object for the frame of its measured peak, its grid row and column; per sweep the tiles'
+    # focus curves and the frames' reported diopters (to try other peak estimators on the same curves)
+    at = {key(tiles["sweep"][j], tiles["x"][j], tiles["y"][j]): j for j in np.flatnonzero(tiles["counted"])}
+    j = np.array([at[key(*t)] for t in zip(obs.sweep, obs.x, obs.y)])
+    out["meas_ideal_reported_d"] = tiles["ideal_d"][j]
+    out["meas_truth_at_peak_d"] = P.truth_at_reported(tiles["truth_f"][:, j], obs.reported_d, scale)
+    rows, cols = np.zeros(len(obs), np.int64), np.zeros(len(obs), np.int64)
+    for i, m in enumerate(res.measures):
+        gx_t, gy_t = m.peaks.grid.field()
+        sel = np.flatnonzero(obs.sweep == i)
+        for n in sel:
+            r, c = np.unravel_index(np.argmin((gx_t - obs.x[n]) ** 2 + (gy_t - obs.y[n]) ** 2), gx_t.shape)
+            rows[n], cols[n] = r, c
+        out[f"curves_{i}"] = m.peaks.curves
+        out[f"frames_d_{i}"] = m.peaks.reported_d
+    out["meas_row"], out["meas_col"] = rows, cols
+    out["tiles_radius_max"] = float(res.calibration.best_focus.radius_max)
+    # each chart's distance as fitted (the tape's, or the fit's where it was an unknown) and as rendered, and the
+    # entrance pupil assumed: what moving a chart to its true distance does to its tiles' objects (within_tiles)
+    out["chart_m"] = np.array([m.chart_distance_m for m in res.measures])
+    out["true_chart_m"] = np.array(s.distances_m, np.float64)
+    out["pupil_mm"] = float(res.measures[0].geometry.pupil_to_sensor_mm)
     # a dense truth for the diagnosis: true focus 3-19.8 D (the focus table stops at 5 cm) on the diagonal and the horizontal axis
     fd = np.linspace(3.0, 19.8, 43)
     rr = np.linspace(0, 1, 41)
