@@ -14,7 +14,7 @@ import numpy as np
 
 from .. import __version__
 from .format import CameraCalibration, CameraIdentity, FieldPoly, field_radius_of, poly_terms
-from .model import Observations, bootstrap, fit_model, refit_edge, with_intervals
+from .model import Observations, bootstrap, fit_model, refit, refit_edge, with_intervals
 from .peaks import blur_slope, relative_blur_px
 from .sweep import SweepError, SweepMeasurement, identity_differences
 
@@ -160,8 +160,7 @@ def robust_fit(obs: Observations, degree: int | None = None, focus_degree: int |
     if degree is None or radial is None or focus_degree is None:
         fit = fit_model(obs, degree, focus_degree, radial)
     else:
-        fit = replace(fit_model(obs, fit.degree, fit.focus_degree, fit.radial, fit.low_focus_degree),
-                      cv=fit.cv, edge_cv=fit.edge_cv)
+        fit = refit(obs, fit)
     return fit, obs, (f"{int(bad.sum())} of {len(bad)} tiles left out as outliers (peak more than {limit:.3f} D off "
                       "the first fit)")
 
@@ -195,8 +194,7 @@ def fit_calibration(measures: list[SweepMeasurement], n_boot: int = 100, degree:
                 measures = [m.at_distance(m.chart_distance_m + fit.shifts_mm.get(i, 0.0) / 1000.0, FITTED)
                             if i in start else m for i, m in enumerate(measures)]
                 obs = _same_tiles(observations(measures), obs)
-                fit = replace(fit_model(obs, fit.degree, fit.focus_degree, fit.radial, fit.low_focus_degree),
-                              cv=fit.cv, edge_cv=fit.edge_cv)
+                fit = refit(obs, fit)
             return measures, obs, fit
 
         measures, obs, fit = fit_distances(measures, obs, fit)
@@ -204,7 +202,8 @@ def fit_calibration(measures: list[SweepMeasurement], n_boot: int = 100, degree:
             # the edge powers' degree chosen again with the charts at their fitted distances (the choice above saw
             # the tiles of a chart to be fitted at its starting distance); a changed choice refits the distances
             again = refit_edge(obs, fit)
-            if (again.focus_degree, again.low_focus_degree) != (fit.focus_degree, fit.low_focus_degree):
+            if (again.focus_degree, again.low_focus_degree, again.blend) != \
+                    (fit.focus_degree, fit.low_focus_degree, fit.blend):
                 measures, obs, fit = fit_distances(measures, obs, again)
             else:
                 fit = replace(fit, edge_cv=again.edge_cv)
@@ -258,6 +257,9 @@ def fit_calibration(measures: list[SweepMeasurement], n_boot: int = 100, degree:
                "version": __version__, "degree": fit.degree, "radial_degree": fit.radial,
                "field_radius_max": fit.field.radius_max,
                "focus_degree": fit.focus_degree, "low_focus_degree": fit.low_focus_degree, "edge_focus_cv": fit.edge_cv,
+               "order_blend": [{"degree": c.degree, "radial_degree": c.radial, "focus_degree": c.focus_degree,
+                                "low_focus_degree": c.low_focus_degree, "weight": round(c.weight, 6)}
+                               for c in fit.blend],
                "order_cv": fit.cv, "working_scale": first.scale, **(settings or {})}
     cal = CameraCalibration(identity, first.size_px, fe, fit.field, blur, sensor_mm, residuals, uncertainty, fitinfo)
     return FitResult(cal, obs, fit, blur_obs, per_sweep, warnings, measures)

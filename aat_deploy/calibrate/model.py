@@ -40,6 +40,11 @@ MAX_FOCUS_DEGREE = 2  # the field term's highest Legendre degree in focus (as th
 LOW_FOCUS_DEGREES: tuple = (None,)  # the non-edge functions' degrees in focus the CV tries (None: focus_degree's)
 EDGE_POWER = 8  # radial powers from rho^8 on are the edge's (`FieldBasis.edge_powers`)
 EDGE_FOCUS_DEGREE = 3  # the edge powers' degree in focus where cross-validation over frames wants it (`choose_edge_focus`)
+# The chosen orders are blended, not picked (`order_weights`, `edge_weight`, `fit_blend`): a hard choice at a CV
+# margin flipped with small changes of the tiles (the benchmark's phone copies rendered on another machine: their
+# maps moved by 0.01-0.03 D), and where two orders are about as good the blend is no worse than either.
+ORDER_BAND = 0.02  # an order's weight falls linearly from 1 at the best spatial CV RMS to 0 at ORDER_BAND worse
+EDGE_BAND = 0.02  # the edge cubic's weight rises linearly from 0 (cell CV no better) to 1 (2 x EDGE_BAND better)
 
 
 @dataclass(frozen=True)
@@ -156,6 +161,18 @@ def distance_columns(obs: Observations) -> np.ndarray:
     return np.stack([-np.where(obs.sweep == s, obs.dz, 0.0) for s in free], 1)
 
 
+@dataclass(frozen=True)
+class Component:
+    """One order of a blended model (`fit_blend`): the field basis's degree and radial powers, the degree in focus
+    (and the non-edge functions', `FieldBasis.focus_mask`), and its weight."""
+
+    degree: int
+    radial: int
+    focus_degree: int
+    low_focus_degree: int | None
+    weight: float
+
+
 @dataclass
 class ModelFit:
     """focus: the chosen family's error; field: the field term; residual_d (N,) object minus model; fits: every
@@ -173,6 +190,8 @@ class ModelFit:
     shifts_mm: dict = field(default_factory=dict)  # {sweep: its chart distance's fitted shift (mm)}
     low_focus_degree: int | None = None  # the non-edge functions' degree in focus (`FieldBasis.focus_mask`)
     edge_cv: dict | None = None  # `choose_edge_focus`'s table, where it was asked
+    # the orders blended (`fit_blend`; the order fields above are the heaviest's), () where the order was given
+    blend: tuple = ()
 
     def predict(self, x, y, reported_d) -> np.ndarray:
         """In-focus object diopters at field (x, y) for reported focus diopters (all broadcast together)."""
@@ -347,6 +366,25 @@ def table_pick(table: list) -> dict:
     return min(ok, key=lambda t: (t["params"], t["degree"], t["radial"]))
 
 
+def order_weights(table: list) -> list[tuple[dict, float]]:
+    """The spatial-block CV table's rows with a weight in the blend: 1 at the best CV RMS, falling linearly to 0 at
+    ORDER_BAND worse (rows at 0 left out). Continuous in the CVs: where the rule before (the smallest model within
+    2 % of the best) flipped between two orders, the blend moves a little."""
+    best = min(t["cv_rms_d"] for t in table)
+    rows = [(t, 1.0 - (t["cv_rms_d"] / best - 1.0) / ORDER_BAND) for t in table if math.isfinite(t["cv_rms_d"])]
+    return [(t, float(w)) for t, w in rows if w > 0]
+
+
+def edge_weight(table: dict) -> float:
+    """The edge cubic's weight from `choose_edge_focus`'s table: 0 where it predicts held-out cells no better than
+    the quadratic, 1 where 2 x EDGE_BAND better, linear between (0.5 at EDGE_BAND better: the rule before took the
+    cubic from there on)."""
+    cv = table["cv_rms_d"]
+    base, edge = cv[next(k for k in cv if not k.startswith("edge"))], cv[f"edge {EDGE_FOCUS_DEGREE}"]
+    gain = base / edge - 1.0 if edge > 0 else 0.0
+    return float(np.clip(gain / (2 * EDGE_BAND), 0.0, 1.0))
+
+
 def cell_folds(obs: Observations, k: int = 5) -> np.ndarray:
     """(N,) fold index: the cells (one sweep's tiles peaking between the same two frames) assigned to folds at
     random (seeded): a held-out fold is a set of focus intervals, which tests how the model follows focus."""
@@ -430,6 +468,98 @@ def select(fits: dict) -> str:
     return min(fits, key=lambda n: (round(fits[n][3], 9), FAMILY_PARAMS[n]))
 
 
+def edge_split(obs: Observations, family: str, row: dict, weight: float) -> tuple[list[Component], dict | None]:
+    """A spatial order (a CV table row) with its weight, split between the edge powers quadratic and cubic in focus
+    by `edge_weight` where `choose_edge_focus` asks (else the order as it is); and that table."""
+    low = row.get("low_focus_degree")
+    if low is not None:
+        return [Component(row["degree"], row["radial"], row["focus_degree"], low, weight)], None
+    _, _, table = choose_edge_focus(obs, family, row["degree"], row["radial"], row["focus_degree"])
+    if table is None:
+        return [Component(row["degree"], row["radial"], row["focus_degree"], None, weight)], None
+    w = edge_weight(table)
+    comps = [Component(row["degree"], row["radial"], row["focus_degree"], None, weight * (1 - w)),
+             Component(row["degree"], row["radial"], EDGE_FOCUS_DEGREE, row["focus_degree"], weight * w)]
+    return [c for c in comps if c.weight > 0], table
+
+
+def _blend_focus(errors: list[FocusError], w: np.ndarray) -> FocusError:
+    """The weighted mean of one family's FocusErrors (their parameters; a monotone curve's knots lie at the same
+    reported diopters, the observations' range, so its true diopters are averaged)."""
+    fam = errors[0].family
+    if fam == "offset":
+        return FocusError("offset", bias_d=float(sum(wi * e.bias_d for wi, e in zip(w, errors))))
+    if fam == "scale":
+        return FocusError("scale", scale=float(sum(wi * e.scale for wi, e in zip(w, errors))))
+    if fam == "monotone":
+        k = sum(wi * np.asarray(e.map_d) for wi, e in zip(w, errors))
+        return FocusError("monotone", map_d=tuple(float(v) for v in k))
+    return FocusError("none")
+
+
+def _blend_fields(fields: list[FieldPoly], w: np.ndarray) -> FieldPoly:
+    """The weighted sum of field terms over one focus range: on the union of their monomials."""
+    terms = list(dict.fromkeys(tuple(t) for f in fields for t in f.terms.tolist()))
+    j = max(f.coefficients.shape[1] for f in fields)
+    c = np.zeros((len(terms), j))
+    for wi, f in zip(w, fields):
+        for t, row in zip(f.terms.tolist(), f.coefficients):
+            c[terms.index(tuple(t)), :len(row)] += wi * row
+    return FieldPoly(np.array(terms, np.int64), c, fields[0].focus_range_d)
+
+
+@one_blas_thread()
+def fit_blend(obs: Observations, components, rule: Component | None = None) -> ModelFit:
+    """The model as the weighted mean of its components' fits (`Component`). The family is chosen by BIC at the
+    order `rule` (default the heaviest component's; `fit_model` gives the one its rule picks, whose order the fit
+    reports); each component is fitted with it, the focus error is the weighted mean of theirs, and, with that
+    focus error fixed, each component's field term is fitted again (so that they share one on-axis focus and one
+    focus range) and summed with the weights, as are fitted chart distances. One component at the rule's order:
+    the fit at that order, as `fit_model` with the order given. The residuals are against the blend."""
+    comps = sorted((c for c in components if c.weight > 0), key=lambda c: -c.weight)
+    if not comps:
+        raise ValueError("no order with a weight to fit")
+    head = rule or comps[0]
+    order = lambda c: dict(radial=c.radial, low_focus_degree=c.low_focus_degree)
+    fits = fit_all(obs, head.degree, head.focus_degree, **order(head))
+    if not fits:
+        raise ValueError("no focus-error family could be fitted to the tiles")
+    best = select(fits)
+    total = sum(c.weight for c in comps)
+    blend = tuple(replace(c, weight=c.weight / total) for c in comps)
+    base = dict(degree=head.degree, focus_degree=head.focus_degree, radial=head.radial,
+                low_focus_degree=head.low_focus_degree, blend=blend)
+    same = lambda a, b: (a.degree, a.radial, a.focus_degree, a.low_focus_degree) == \
+        (b.degree, b.radial, b.focus_degree, b.low_focus_degree)
+    if len(comps) == 1 and same(comps[0], head):
+        fe, fp, res, _ = fits[best]
+        shifts: dict = {}
+        if len(obs.free_sweeps()):
+            fit_family(obs, best, head.degree, head.focus_degree, shifts=shifts, **order(head))
+        return ModelFit(fe, fp, res, fits, shifts_mm=shifts, **base)
+    parts = [(c, r[0]) for c in comps if (r := fit_family(obs, best, c.degree, c.focus_degree, **order(c)))]
+    w = np.array([c.weight for c, _ in parts])
+    w = w / w.sum()
+    fe = _blend_focus([e for _, e in parts], w)
+    on_axis = replace(obs, reported_d=fe.true_diopters(obs.reported_d))  # the focus error fixed: family "none"
+    fields, shifts_k = [], []
+    for c, _ in parts:
+        sh: dict = {}
+        fields.append(fit_family(on_axis, "none", c.degree, c.focus_degree, shifts=sh, **order(c))[1])
+        shifts_k.append(sh)
+    fp = _blend_fields(fields, w)
+    shifts = {k: float(sum(wi * sh[k] for wi, sh in zip(w, shifts_k))) for k in shifts_k[0]}
+    fit = ModelFit(fe, fp, np.zeros(len(obs)), fits, shifts_mm=shifts, **base)
+    delta = np.array([shifts[int(k)] for k in obs.free_sweeps()])
+    fit.residual_d = obs.object_d - distance_columns(obs) @ delta - fit.predict(obs.x, obs.y, obs.reported_d)
+    return fit
+
+
+def _family_for_order(obs: Observations) -> str:
+    """The family the orders' cross-validations fit with: the most general the sweeps allow."""
+    return "monotone" if "monotone" in families_for(obs) else "scale"
+
+
 @one_blas_thread()
 def fit_model(obs: Observations, degree: int | None = None, focus_degree: int | None = None,
               radial: int | None = None, low_focus_degree: int | None = None,
@@ -438,41 +568,79 @@ def fit_model(obs: Observations, degree: int | None = None, focus_degree: int | 
     """The model on all observations: order by CV (what is not given), family by BIC. With one sweep the field
     term cannot depend on focus (focus_degree 0); with two at most linearly; never beyond max_focus_degree.
     low_focus_degree: the non-edge functions' degree in focus when the order is given (`FieldBasis.focus_mask`);
-    when it is chosen, the CV tries low_focus_degrees (None: focus_degree for every function), and then, with
-    edge_focus, whether the edge powers follow focus one degree further (`choose_edge_focus`)."""
+    when it is chosen, the CV tries low_focus_degrees (None: focus_degree for every function), and the orders
+    within ORDER_BAND of the best are blended (`order_weights`), each with, where edge_focus, its edge powers
+    quadratic or cubic in focus blended by the frame cells' CV (`edge_split`; `fit_blend`)."""
     n_sweeps = len(np.unique(obs.sweep))
     max_fd = min(max_focus_degree, n_sweeps - 1)
-    table = []
-    edge_cv = None
-    if degree is None or focus_degree is None or radial is None:
-        fds = (focus_degree,) if focus_degree is not None else tuple(range(max_fd + 1))
-        degs = (degree,) if degree is not None else DEGREES
-        rads = (radial,) if radial is not None else RADIAL
-        fam = "monotone" if "monotone" in families_for(obs) else "scale"
-        degree, radial, focus_degree, table = choose_order(obs, fam, fds, degs, rads, low_focus_degrees)
-        low_focus_degree = table_pick(table).get("low_focus_degree")
-        if edge_focus and low_focus_degree is None:
-            focus_degree, low_focus_degree, edge_cv = choose_edge_focus(obs, fam, degree, radial, focus_degree)
-    fits = fit_all(obs, degree, focus_degree, radial=radial, low_focus_degree=low_focus_degree)
-    if not fits:
-        raise ValueError("no focus-error family could be fitted to the tiles")
-    best = select(fits)
-    fe, fp, res, _ = fits[best]
-    shifts: dict = {}
-    if len(obs.free_sweeps()):
-        fit_family(obs, best, degree, focus_degree, radial=radial, shifts=shifts, low_focus_degree=low_focus_degree)
-    return ModelFit(fe, fp, res, fits, degree, focus_degree, table, radial, shifts, low_focus_degree, edge_cv)
+    if degree is not None and focus_degree is not None and radial is not None:
+        fit = fit_blend(obs, [Component(degree, radial, focus_degree, low_focus_degree, 1.0)])
+        return replace(fit, blend=())
+    fds = (focus_degree,) if focus_degree is not None else tuple(range(max_fd + 1))
+    degs = (degree,) if degree is not None else DEGREES
+    rads = (radial,) if radial is not None else RADIAL
+    fam = _family_for_order(obs)
+    _, _, _, table = choose_order(obs, fam, fds, degs, rads, low_focus_degrees)
+    comps, rule, edge_cv = _split_edges(obs, fam, order_weights(table), table_pick(table), edge_focus)
+    return replace(fit_blend(obs, comps, rule), cv=table, edge_cv=edge_cv)
+
+
+def _split_edges(obs: Observations, family: str, rows: list, pick: dict, edge_focus: bool = True
+                 ) -> tuple[list[Component], Component, dict | None]:
+    """`edge_split` over weighted spatial orders (rows: (CV table row, weight)); the order the rule picks (pick:
+    the spatial CV's smallest within 2 % of the best, `table_pick`; its edge powers cubic where the frame cells'
+    CV is more than EDGE_BAND better, `choose_edge_focus`), where the family is chosen and which the fit reports;
+    and pick's edge table."""
+    key = lambda r: (r["degree"], r["radial"], r["focus_degree"], r.get("low_focus_degree"))
+    if key(pick) not in {key(r) for r, _ in rows}:
+        rows = [*rows, (pick, 0.0)]  # (its edge table is asked; it adds no component)
+    comps, rule, edge_cv = [], None, None
+    for row, w in rows:
+        if edge_focus:
+            cs, table = edge_split(obs, family, row, w)
+        else:
+            cs, table = [Component(*key(row), w)], None
+        comps += [c for c in cs if c.weight > 0]
+        if key(row) == key(pick):
+            edge_cv = table
+            cubic = table is not None and edge_weight(table) >= 0.5
+            rule = Component(row["degree"], row["radial"], EDGE_FOCUS_DEGREE, row["focus_degree"], 1.0) if cubic \
+                else Component(*key(row), 1.0)
+    return comps, rule, edge_cv
+
+
+def _rule_of(fit: ModelFit) -> Component:
+    return Component(fit.degree, fit.radial, fit.focus_degree, fit.low_focus_degree, 1.0)
+
+
+def refit(obs: Observations, fit: ModelFit) -> ModelFit:
+    """`fit`'s order (or blend of orders, with their weights) on obs, its CV tables kept."""
+    if fit.blend:
+        new = fit_blend(obs, fit.blend, _rule_of(fit))
+    else:
+        new = fit_model(obs, fit.degree, fit.focus_degree, fit.radial, fit.low_focus_degree)
+    return replace(new, cv=fit.cv, edge_cv=fit.edge_cv)
 
 
 def refit_edge(obs: Observations, fit: ModelFit) -> ModelFit:
-    """`fit`'s order on obs with the edge powers' degree in focus chosen again (`choose_edge_focus`): after the
-    fit's outlier pass, whose tiles (a few, 5 robust SDs off) otherwise weigh most in the squared errors the
-    cross-validation compares (on the benchmark's nominal phone: 0.2185 against 0.2191 D with them, 0.2196
-    against 0.1845 D without)."""
-    fd = fit.low_focus_degree if fit.low_focus_degree is not None else fit.focus_degree
-    fam = "monotone" if "monotone" in families_for(obs) else "scale"
-    fd, low, table = choose_edge_focus(obs, fam, fit.degree, fit.radial, fd)
-    return replace(fit_model(obs, fit.degree, fd, fit.radial, low), cv=fit.cv, edge_cv=table)
+    """`fit`'s spatial order(s) on obs with the edge powers' degree in focus chosen (blended) again
+    (`choose_edge_focus`, `edge_split`): after the fit's outlier pass, whose tiles (a few, 5 robust SDs off)
+    otherwise weigh most in the squared errors the cross-validation compares (on the benchmark's nominal phone:
+    0.2185 against 0.2191 D with them, 0.2196 against 0.1845 D without), and after chart distances are fitted."""
+    fam = _family_for_order(obs)
+    if not fit.blend:
+        fd = fit.low_focus_degree if fit.low_focus_degree is not None else fit.focus_degree
+        fd, low, table = choose_edge_focus(obs, fam, fit.degree, fit.radial, fd)
+        return replace(fit_model(obs, fit.degree, fd, fit.radial, low), cv=fit.cv, edge_cv=table)
+    base = lambda c: c.low_focus_degree if c.focus_degree == EDGE_FOCUS_DEGREE and c.low_focus_degree is not None \
+        else c.focus_degree
+    spatial: dict = {}  # the spatial orders and their weights, the edge split undone
+    for c in fit.blend:
+        spatial[(c.degree, c.radial, base(c))] = spatial.get((c.degree, c.radial, base(c)), 0.0) + c.weight
+    row = lambda d, r, f: {"degree": d, "radial": r, "focus_degree": f}
+    rows = [(row(*k), w) for k, w in spatial.items()]
+    comps, rule, table = _split_edges(obs, fam, rows, row(fit.degree, fit.radial, base(fit)))
+    return replace(fit_blend(obs, comps, rule), cv=fit.cv, edge_cv=table)
 
 
 @dataclass
