@@ -370,8 +370,11 @@ def order_weights(table: list) -> list[tuple[dict, float]]:
     """The spatial-block CV table's rows with a weight in the blend: 1 at the best CV RMS, falling linearly to 0 at
     ORDER_BAND worse (rows at 0 left out). Continuous in the CVs: where the rule before (the smallest model within
     2 % of the best) flipped between two orders, the blend moves a little."""
-    best = min(t["cv_rms_d"] for t in table)
-    rows = [(t, 1.0 - (t["cv_rms_d"] / best - 1.0) / ORDER_BAND) for t in table if math.isfinite(t["cv_rms_d"])]
+    finite = [t for t in table if math.isfinite(t["cv_rms_d"])]
+    if not finite:
+        raise ValueError("no field order could be fitted in every cross-validation fold")
+    best = min(t["cv_rms_d"] for t in finite)
+    rows = [(t, 1.0 - (t["cv_rms_d"] / best - 1.0) / ORDER_BAND) for t in finite]
     return [(t, float(w)) for t, w in rows if w > 0]
 
 
@@ -381,8 +384,11 @@ def edge_weight(table: dict) -> float:
     cubic from there on)."""
     cv = table["cv_rms_d"]
     base, edge = cv[next(k for k in cv if not k.startswith("edge"))], cv[f"edge {EDGE_FOCUS_DEGREE}"]
-    gain = base / edge - 1.0 if edge > 0 else 0.0
-    return float(np.clip(gain / (2 * EDGE_BAND), 0.0, 1.0))
+    if not math.isfinite(edge) or edge <= 0:  # the cubic failed in a fold (as the rule before: not taken)
+        return 0.0
+    if not math.isfinite(base):  # only the quadratic failed
+        return 1.0
+    return float(np.clip((base / edge - 1.0) / (2 * EDGE_BAND), 0.0, 1.0))
 
 
 def cell_folds(obs: Observations, k: int = 5) -> np.ndarray:

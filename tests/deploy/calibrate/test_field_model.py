@@ -367,6 +367,11 @@ def test_orders_near_the_best_are_blended_with_weights_continuous_in_their_cv():
     cv = lambda gain: {"cv_rms_d": {"2": 0.2 * (1 + gain), "edge 3": 0.2}}
     assert edge_weight(cv(0.0)) == 0.0 and edge_weight(cv(-0.1)) == 0.0 and edge_weight(cv(0.05)) == 1.0
     assert abs(edge_weight(cv(0.0199)) - 0.4975) < 1e-9 and abs(edge_weight(cv(0.0201)) - 0.5025) < 1e-9
+    # a CV that failed in a fold (inf): the cubic is not taken where it failed, taken where only the quadratic did
+    inf = float("inf")
+    assert edge_weight({"cv_rms_d": {"2": inf, "edge 3": inf}}) == 0.0  # (inf / inf: was NaN, no order left)
+    assert edge_weight({"cv_rms_d": {"2": 0.2, "edge 3": inf}}) == 0.0
+    assert edge_weight({"cv_rms_d": {"2": inf, "edge 3": 0.2}}) == 1.0
 
 
 def test_a_near_tie_at_the_edge_choice_moves_the_map_a_little(monkeypatch):
