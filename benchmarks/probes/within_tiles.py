@@ -14,16 +14,18 @@ hand-chosen copy and the three declared random copies of seed 2026; no held-out 
 - **model error**: the model fitted to the same tiles made exact (each peaking where the truth has its object in
   focus), scored against the truth over part a's 10 "inside" settings within the farthest tile's radius; at the fit's
   own order and family (what the measured fit's form can do with perfect tiles) and with the order chosen on them;
-- **propagated measurement error**: the measured fit minus the exact tiles' fit at the same order and family (the
-  part of the map's error the tiles' errors make);
+- **propagated measurement error**: the measured tiles' fit minus the exact tiles' fit at the same order and
+  family (the part of the map's error the tiles' errors make);
 - the tiles' errors split into their systematic part (the mean per chart and field-radius bin) and the scatter
   about it, each added alone to the exact tiles; and the measured tiles with every chart moved to its true distance
   (the tape's 2 mm and the near chart's fitted distance taken out);
-- each by field radius and by focus setting, and the share of the measured map's squared error within the tiles'
-  radius that model and propagated measurement explain (they add up to it but for their cross term, given).
+- each by field radius and by focus setting, and the share of the squared error within the tiles' radius of the
+  measured tiles' map at the rule's order (`model.fit_model`'s reported order, without the blend of orders) that
+  model and propagated measurement explain (they add up to it but for their cross term, given).
 
-Peak estimators: besides the fit's `gauss` (a Gaussian through the three frames around the peak), the same curves'
-peaks with other estimators (`ESTIMATORS`), scored as measurement error, and as the map they give.
+Tried at the rule's order: other peak estimators on the same curves (`ESTIMATORS`; the fit's is `gauss`, a Gaussian
+through the three frames around the peak, which is also how the truth map's points were found), and the fit's
+weighting (tiles weighted by 1 / their residuals' robust variance per field-radius bin; Tukey's biweight).
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -137,6 +140,7 @@ def run(variant: str, estimators: tuple, log) -> dict:
         return t[:, None, None] + fp(d["gx"], d["gy"], t)
 
     def at_order(obs):
+        """The fit's order (the rule's, not a blend) and family on other tiles or weights: (map, residuals)."""
         res = fit_family(obs, fit.focus.family, order[0], order[1], radial=order[2], low_focus_degree=order[3])
         return map_of(res[0], res[1], obs), res[2]
 
@@ -172,9 +176,30 @@ def run(variant: str, estimators: tuple, log) -> dict:
         true_m.object_d[m] = 1000.0 / ((1000.0 * float(d["true_chart_m"][s]) - p) * ratio + p)
     ft = fit_model(true_m)
     out["charts_m"] = {"as fitted": d["chart_m"].tolist(), "true": d["true_chart_m"].tolist()}
+    # the fit's weighting, tried: tiles weighted by their residuals' robust spread per field-radius bin (the outer
+    # tiles scatter twice as much), and Tukey's biweight (iterated); at the fit's order
+    res0 = fit.residual_d
+    edges = np.array(RADIUS_EDGES)
+    b = np.clip(np.searchsorted(edges, rad, side="right") - 1, 0, len(edges) - 2)
+    sd_bin = np.array([1.4826 * np.median(np.abs(res0[b == i] - np.median(res0[b == i]))) if (b == i).sum() > 5
+                       else np.nan for i in range(len(edges) - 1)])
+    sd = np.where(np.isfinite(sd_bin[b]), sd_bin[b], np.nanmax(sd_bin))
+    w_tukey = np.ones(len(meas))
+    for _ in range(5):
+        r = fit_family(replace(meas, weight=w_tukey), fit.focus.family, order[0], order[1], radial=order[2],
+                       low_focus_degree=order[3])[2]
+        u = r / (4.685 * 1.4826 * float(np.median(np.abs(r))))
+        w_tukey = np.where(np.abs(u) < 1, (1 - u ** 2) ** 2, 0.0)
+    for name, w in (("weighted 1 / SD^2 by radius", 1 / sd ** 2), ("Tukey biweight", w_tukey)):
+        maps[f"measured tiles, {name}"] = at_order(replace(meas, weight=w / np.mean(w)))[0] - truth
+    # the rule's order alone (the fit before the blend of orders): the decomposition's measured map
+    m_rule = at_order(meas)[0]
+    maps["measured tiles, the rule's order alone"] = m_rule - truth
+    out["order"]["blend"] = [[c.degree, c.radial, c.focus_degree, c.low_focus_degree, round(c.weight, 4)]
+                             for c in fit.blend]
     maps.update({"measured tiles, every chart at its true distance": map_of(ft.focus, ft.field, true_m) - truth,
                  "exact tiles, the measured fit's order": m_ideal - truth,
-                 "exact tiles, their own order": m_ideal_own - truth, "propagated measurement": m_meas - m_ideal})
+                 "exact tiles, their own order": m_ideal_own - truth, "propagated measurement": m_rule - m_ideal})
     # the estimators on the same curves: their tiles' errors and their maps (the fit's order and family)
     est = {}
     for e in estimators:
@@ -190,22 +215,24 @@ def run(variant: str, estimators: tuple, log) -> dict:
                   "peak_error_by_phase": _stats(err, _bins(phase(d, pk), PHASE_EDGES))}
     out["estimators"] = est
     out["maps"] = map_parts(maps, truth, d, r_max)
-    tot = out["maps"]["measured tiles"]["within_tiles_rms_d"] ** 2
+    tot = out["maps"]["measured tiles, the rule's order alone"]["within_tiles_rms_d"] ** 2
     mod = out["maps"]["exact tiles, the measured fit's order"]["within_tiles_rms_d"] ** 2
     prop = out["maps"]["propagated measurement"]["within_tiles_rms_d"] ** 2
     out["within_tiles_share"] = {"model": mod / tot, "propagated measurement": prop / tot,
                                  "cross term": (tot - mod - prop) / tot}
     out["tiles_radius_max"] = r_max
-    log(f"{variant}: within {out['maps']['measured tiles']['within_tiles_rms_d']:.4f} D; model (exact tiles, its "
+    log(f"{variant}: within {out['maps']['measured tiles']['within_tiles_rms_d']:.4f} D (the rule's order alone "
+        f"{np.sqrt(tot):.4f}); model (exact tiles, its "
         f"order) {np.sqrt(mod):.4f}, own order {out['maps']['exact tiles, their own order']['within_tiles_rms_d']:.4f}; "
         f"propagated measurement {np.sqrt(prop):.4f}; tile bias RMS {out['measurement']['bias_rms_d']:.4f}")
     return out
 
 
 def table(res: dict) -> str:
-    cols = ("measured tiles", "exact tiles, the measured fit's order", "exact tiles, their own order",
+    cols = ("measured tiles", "measured tiles, the rule's order alone", "exact tiles, the measured fit's order", "exact tiles, their own order",
             "propagated measurement", "exact tiles + systematic (chart x radius means)",
-            "exact tiles + scatter about them", "measured tiles, every chart at its true distance")
+            "exact tiles + scatter about them", "measured tiles, every chart at its true distance",
+            "measured tiles, weighted 1 / SD^2 by radius", "measured tiles, Tukey biweight")
     lines = ["RMS within the farthest tile's radius (D, part a's 10 inside settings):", "",
              "| variant | " + " | ".join(cols) + " | shares model / measurement / cross | tile bias RMS (mean) |",
              "|---|" + "---|" * (len(cols) + 2)]
