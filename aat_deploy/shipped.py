@@ -81,6 +81,19 @@ def resolve(arg: str | Path, kind: str) -> Path:
     return p
 
 
+# models users ask for by name that are not shipped yet, and what to run instead (said in the missing-file error)
+NOT_YET_SHIPPED = {
+    "dfv_aat": "the any-camera model dfv_aat is not shipped yet, as no net meets its targets (BENCHMARKS.md, \"The "
+               "any-camera model\"); the best so far runs by path: models/reproduce/dfv_aat_v9_s13800.onnx",
+}
+
+
+def not_shipped_note(name: str | Path) -> str:
+    """'; <what to run instead>' when `name` is a model users ask for that is not shipped yet, else ''."""
+    note = NOT_YET_SHIPPED.get(Path(str(name)).name.removesuffix(KINDS["models"]))
+    return f"; {note}" if note and not resolve(name, "models").is_file() else ""
+
+
 def shipped_hint(kind: str) -> str:
     """' (shipped: a, b, ...)' listing what resolve() accepts by name, or ''; models: the depth models, then
     the PSF surrogates apart."""

@@ -201,3 +201,27 @@ def test_choose_takes_the_lowest_on_one_dozen_and_judges_on_another(tmp_path, ca
     with pytest.raises(SystemExit):
         anycam_choose.main([str(a), str(b), "--first-run", str(first)])
     assert "score the same stacks" in capsys.readouterr().err
+
+
+def test_compare_pairs_two_models_scene_by_scene(tmp_path, capsys):
+    import json
+
+    from benchmarks.probes import anycam_compare
+
+    def res(maes, real):
+        per = {"dfv_aat, lens map": {"procedural": [{"mae": m, "mae_outer": 2 * m} for m in maes],
+                                     "middlebury": [{"mae": real}]}}
+        return {"model": "m", "lenses": {"paper50": {"fixed": {"per_image": per}}}}
+
+    rows = anycam_compare.compare(res([1.0, 2.0, 3.0], 0.5), res([2.0, 4.0, 6.0], 1.0), "dfv_aat, lens map")
+    (e,) = rows
+    assert e["a_mae"] == 2.0 and e["b_mae"] == 4.0 and e["n"] == 3
+    assert e["a_over_b"][0] == 0.5 and e["a_over_b_outer"][0] == 0.5 and e["middlebury_a_over_b"] == 0.5
+    a, b = tmp_path / "a.json", tmp_path / "b.json"
+    a.write_text(json.dumps(res([1.0, 2.0], 0.5)))
+    b.write_text(json.dumps(res([1.0, 2.0, 3.0], 0.5)))
+    with pytest.raises(SystemExit, match="not the same test set"):
+        anycam_compare.main([str(a), str(b)])
+    with pytest.raises(SystemExit):
+        anycam_compare.main([str(a), str(b), "--row", "none"])
+    assert "no lens and protocol with the row 'none'" in capsys.readouterr().err

@@ -23,7 +23,7 @@ from ..io.files import file_kind
 from ..machine import bound_threads
 from ..optics.camera import Intrinsics, model_intrinsics
 from ..optics.field import pixel_fields
-from ..shipped import shipped_hint
+from ..shipped import not_shipped_note, shipped_hint
 from .method import DepthMethod, DepthOutput
 
 REQUIRED_META = ("aat.kind", "aat.lens_name", "aat.focal_length_mm", "aat.f_number", "aat.sensor_px",
@@ -109,7 +109,7 @@ class DfFModel(DepthMethod):
         path = Path(path)
         kind = file_kind(path)
         if kind == "missing":
-            raise ModelError(f"{path}: no such model file{shipped_hint('models')}")
+            raise ModelError(f"{path}: no such model file{shipped_hint('models')}{not_shipped_note(path)}")
         if kind is not None:
             raise ModelError(f"{path}: is {kind}, expected an ONNX model file (.onnx)")
         opts = ort.SessionOptions()

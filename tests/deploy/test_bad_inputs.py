@@ -1412,3 +1412,24 @@ def test_diagnose_obeys_the_reader_flags(model_path, good, tmp_path, capsys):
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
     assert rc == 1 and len(err) == 1 and "megapixels" in err[0] and str(root / "a") in err[0], err
     assert not (tmp_path / "d").exists() and tree_hash(root, outside) == before
+
+
+def test_asking_for_the_any_camera_model_by_name_says_it_is_not_shipped_and_what_to_run(tmp_path):
+    """`--model dfv_aat` (the issue's usage line) while models/dfv_aat.onnx is not shipped: the one-line error says
+    so and names the candidate that runs by path (which exists)."""
+    from aat_deploy.errors import ModelError
+    from aat_deploy.infer.model import DfFModel
+    from aat_deploy.shipped import NOT_YET_SHIPPED, shipped_dir
+
+    models = shipped_dir("models")
+    if (models / "dfv_aat.onnx").is_file():
+        pytest.fail("models/dfv_aat.onnx is shipped now: drop it from shipped.NOT_YET_SHIPPED")
+    with pytest.raises(ModelError) as e:
+        DfFModel("dfv_aat")
+    msg = str(e.value)
+    assert "\n" not in msg and "not shipped yet" in msg and "models/reproduce/dfv_aat_v9_s13800.onnx" in msg
+    cand = NOT_YET_SHIPPED["dfv_aat"].rsplit(": ", 1)[1]
+    assert (models.parent / cand).is_file()  # the candidate it names exists
+    with pytest.raises(ModelError) as e:
+        DfFModel(tmp_path / "other.onnx")
+    assert "not shipped yet" not in str(e.value)
