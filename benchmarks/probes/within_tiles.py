@@ -228,6 +228,51 @@ def run(variant: str, estimators: tuple, log) -> dict:
     return out
 
 
+def jitter(variant: str, n: int, sd_d: float, log) -> dict:
+    """How much the map moves when the tiles move a little (as sweeps rendered again on another machine did): n
+    replicates with every measured tile's peak moved by N(0, sd_d) D, each fitted as the calibration fits (the orders
+    chosen by the CVs and blended, `model.fit_model`) and at the order the rule picks alone (the fit before the
+    blend); the spread of the map's RMS within the tiles' radius over the replicates, and each replicate map's RMS
+    difference from the unmoved tiles' (D)."""
+    from aat_deploy.calibrate.fit import held_beyond_tiles
+    from aat_deploy.calibrate.format import field_radius_of
+    from aat_deploy.calibrate.model import fit_model
+    from benchmarks.probes import phone_map_model as M
+
+    d = M.load(variant)
+    meas = M.obs_of(d, "meas_")
+    rad = field_radius_of(d["gx"], d["gy"], float(d["aspect"]))
+    within = rad <= float(np.max(field_radius_of(meas.x, meas.y, float(d["aspect"]))))
+    truth = d["truth"].astype(np.float64)
+
+    def maps(o):
+        f = fit_model(o)
+        r = fit_model(o, f.degree, f.focus_degree, f.radial, f.low_focus_degree)
+        out = []
+        for g in (f, r):
+            t = g.focus.true_diopters(d["reported_d"])
+            out.append(t[:, None, None] + held_beyond_tiles(g.field, o)(d["gx"], d["gy"], t))
+        return out
+
+    base = maps(meas)
+    rng = np.random.default_rng(0)
+    rows = {"blended (the fit now)": [], "the rule's order alone (before)": []}
+    for _ in range(n):
+        o = replace(meas, reported_d=meas.reported_d + rng.normal(0, sd_d, len(meas)))
+        for (name, acc), m, m0 in zip(rows.items(), maps(o), base):
+            acc.append((float(np.sqrt(np.mean((m - truth)[:, within] ** 2))),
+                        float(np.sqrt(np.mean((m - m0)[:, within] ** 2)))))
+    out = {}
+    for name, acc in rows.items():
+        a = np.array(acc)
+        out[name] = {"within_rms_d": a[:, 0].tolist(), "sd_d": float(np.std(a[:, 0])),
+                     "range_d": [float(a[:, 0].min()), float(a[:, 0].max())],
+                     "moved_rms_d": float(np.sqrt(np.mean(a[:, 1] ** 2)))}
+        log(f"{variant} {name}: within {np.mean(a[:, 0]):.4f} D, SD {np.std(a[:, 0]):.4f}, range "
+            f"{a[:, 0].min():.4f}-{a[:, 0].max():.4f}; the map moved {out[name]['moved_rms_d']:.4f} D RMS")
+    return out
+
+
 def table(res: dict) -> str:
     cols = ("measured tiles", "measured tiles, the rule's order alone", "exact tiles, the measured fit's order", "exact tiles, their own order",
             "propagated measurement", "exact tiles + systematic (chart x radius means)",
@@ -258,8 +303,18 @@ def main(argv=None) -> int:
     ap.add_argument("--variants", default=",".join(VARIANTS))
     ap.add_argument("--estimators", default="parabola,ratio,argmax")
     ap.add_argument("--out", default=str(RESULTS / "within_tiles.json"))
+    ap.add_argument("--jitter", type=int, default=0, metavar="N",
+                    help="instead: N replicates of the tiles moved by --jitter-sd (`jitter`)")
+    ap.add_argument("--jitter-sd", type=float, default=0.02, help="D of reported focus")
     a = ap.parse_args(argv)
     log = lambda m: print(m, file=sys.stderr, flush=True)
+    if a.jitter:
+        from aat_deploy.io.atomic import write_text_atomic
+
+        res = {"setup": "cellphone_near (development sweeps; no held-out scene)", "replicates": a.jitter,
+               "sd_d": a.jitter_sd, "variants": {v: jitter(v, a.jitter, a.jitter_sd, log) for v in a.variants.split(",")}}
+        write_text_atomic(Path(a.out), json.dumps(res, indent=1) + "\n")
+        return 0
     ests = tuple(e for e in a.estimators.split(",") if e)
     res = {"setup": "cellphone_near (development sweeps; no held-out scene)",
            "variants": [run(v, ests, log) for v in a.variants.split(",")]}
