@@ -182,7 +182,7 @@ def test_choose_takes_the_lowest_on_one_dozen_and_judges_on_another(tmp_path, ca
 
     from benchmarks.probes import anycam_choose
 
-    sel = {"first": 12, "classical_lens_map": {"mae_m": [1.0, 1.0]},
+    sel = {"first": 12, "n": 2, "classical_lens_map": {"mae_m": [1.0, 1.0]},
            "rows": [{"step": 400, "mae_m": [0.5, 0.7]}, {"step": 200, "mae_m": [0.6, 0.6]},
                     {"step": 600, "mae_m": [0.9, 0.5]}]}
     assert anycam_choose.choose(sel)["step"] == 200  # 0.6, tied with 400: the earlier step
@@ -199,8 +199,16 @@ def test_choose_takes_the_lowest_on_one_dozen_and_judges_on_another(tmp_path, ca
     b.write_text(json.dumps({**cur, "first": 12}))
     first.write_text(json.dumps({"mae_m": [[2.0], [2.0]]}))
     with pytest.raises(SystemExit):
-        anycam_choose.main([str(a), str(b), "--first-run", str(first)])
+        anycam_choose.main(["--select", str(a), "--judge", str(b), "--first-run", str(first)])
     assert "score the same stacks" in capsys.readouterr().err
+    # a run scored in parts: rows pooled, each step once; parts of other stacks refused
+    late = {**sel, "rows": [{"step": 800, "mae_m": [0.0, 0.2]}, sel["rows"][0]]}
+    pooled = anycam_choose.pool([sel, late], "--select")
+    assert [r["step"] for r in pooled["rows"]] == [200, 400, 600, 800] and anycam_choose.choose(pooled)["step"] == 800
+    with pytest.raises(SystemExit, match="different stacks"):
+        anycam_choose.pool([sel, {**late, "first": 0}], "--select")
+    with pytest.raises(SystemExit, match="step 400 scored twice"):
+        anycam_choose.pool([sel, {**sel, "rows": [{"step": 400, "mae_m": [0.1, 0.1]}]}], "--select")
 
 
 def test_compare_pairs_two_models_scene_by_scene(tmp_path, capsys):

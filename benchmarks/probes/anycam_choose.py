@@ -1,14 +1,16 @@
 """Choose an any-camera run's checkpoint on one dozen RF50 validation stacks and judge it on another (exploratory).
 
-    python -m benchmarks.probes.anycam_choose results/anycam_stack_curve_v9_select.json
-        results/anycam_stack_curve_v9.json [--first-run results/anycam_tiles_overlap_rf50_val.json] [--out OUT.json]
+    python -m benchmarks.probes.anycam_choose --select results/anycam_stack_curve_v9_select.json
+        --judge results/anycam_stack_curve_v9.json [--first-run results/anycam_tiles_overlap_rf50_val.json]
+        [--out OUT.json]
 
 The rule declared in docs/training.md ("The ninth run along its steps"): among the checkpoints `anycam_stack_curve`
 scored on the choosing stacks (`--first 12`), the one with the lowest mean whole-frame MAE (m); it is then judged on
 the judging stacks (the first 12, scored by the same probe), paired over those stacks with 95 % bootstrap intervals
 (`aat_deploy.eval.stats.paired_ratio`) against the classical method with the lens map, in metres and in diopters,
 and against the first run in 128 px tiles (`anycam_tiles` on the same stacks: its first rows, column 0). Validation
-stacks only (training photographs): no held-out lens or test scene.
+stacks only (training photographs): no held-out lens or test scene. A run scored in parts (a session's kept
+checkpoints at a time) gives several files per role: their rows are pooled (`pool`).
 """
 
 from __future__ import annotations
@@ -21,6 +23,23 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
+
+
+def pool(parts: list[dict], what: str) -> dict:
+    """One anycam_stack_curve result from several of the same stacks (a run scored in parts): their rows pooled,
+    each step once; the parts must agree on the stacks (first, n) and on the classical method's scores."""
+    first = parts[0]
+    for p in parts[1:]:
+        if (p.get("first", 0), p["n"], p["classical_lens_map"]) != (first.get("first", 0), first["n"],
+                                                                     first["classical_lens_map"]):
+            raise SystemExit(f"{what}: the parts score different stacks")
+    rows = {}
+    for p in parts:
+        for r in p["rows"]:
+            if r["step"] in rows and rows[r["step"]]["mae_m"] != r["mae_m"]:
+                raise SystemExit(f"{what}: step {r['step']} scored twice, differently")
+            rows[r["step"]] = r
+    return {**first, "rows": [rows[k] for k in sorted(rows)]}
 
 
 def choose(select: dict) -> dict:
@@ -52,25 +71,28 @@ def judge(step: int, curve: dict, first_run_mae_m: list[float] | None) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("select", type=Path, help="anycam_stack_curve result on the choosing stacks")
-    ap.add_argument("judge", type=Path, help="anycam_stack_curve result on the judging stacks")
+    ap.add_argument("--select", type=Path, nargs="+", required=True,
+                    help="anycam_stack_curve results on the choosing stacks (one per part of the run)")
+    ap.add_argument("--judge", type=Path, nargs="+", required=True,
+                    help="anycam_stack_curve results on the judging stacks (one per part of the run)")
     ap.add_argument("--first-run", type=Path, default=ROOT / "results" / "anycam_tiles_overlap_rf50_val.json",
                     help="anycam_tiles result of the first run (column 0: 128 px tiles) on the judging stacks")
     ap.add_argument("--out", type=Path, help="JSON of the choice and the judgement")
     a = ap.parse_args(argv)
-    for p in (a.select, a.judge, a.first_run):
+    for p in (*a.select, *a.judge, a.first_run):
         if not p.is_file():
             ap.error(f"{p}: no such file")
     if a.out and a.out.exists():
         ap.error(f"{a.out}: exists (choose another --out)")
-    sel, cur = json.loads(a.select.read_text()), json.loads(a.judge.read_text())
+    sel = pool([json.loads(p.read_text()) for p in a.select], "--select")
+    cur = pool([json.loads(p.read_text()) for p in a.judge], "--judge")
     if sel.get("first", 0) == cur.get("first", 0):
-        ap.error(f"{a.select} and {a.judge} score the same stacks: choose on one dozen, judge on another")
+        ap.error("--select and --judge score the same stacks: choose on one dozen, judge on another")
     chosen = choose(sel)
     first = [r[0] for r in json.loads(a.first_run.read_text())["mae_m"]]
-    res = {"chosen_on": str(a.select), "chosen_mae_m": float(np.mean(chosen["mae_m"])),
+    res = {"chosen_on": [str(p) for p in a.select], "chosen_mae_m": float(np.mean(chosen["mae_m"])),
            "chosen_classical_mae_m": float(np.mean(sel["classical_lens_map"]["mae_m"])),
-           "judged_on": str(a.judge), **judge(chosen["step"], cur, first)}
+           "judged_on": [str(p) for p in a.judge], **judge(chosen["step"], cur, first)}
     f = lambda v: f"{v[0]:.2f} [{v[1]:.2f}, {v[2]:.2f}]"  # noqa: E731
     print(f"chosen: step {res['step']} ({res['chosen_mae_m']:.3f} m on the choosing stacks, classical "
           f"{res['chosen_classical_mae_m']:.3f})")
