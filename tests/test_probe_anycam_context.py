@@ -201,6 +201,21 @@ def test_choose_takes_the_lowest_on_one_dozen_and_judges_on_another(tmp_path, ca
     with pytest.raises(SystemExit):
         anycam_choose.main(["--select", str(a), "--judge", str(b), "--first-run", str(first)])
     assert "score the same stacks" in capsys.readouterr().err
+    b.write_text(json.dumps({**cur, "first": 13, "n": 2}))  # stacks 13-14 against 12-13: one stack in both
+    with pytest.raises(SystemExit):
+        anycam_choose.main(["--select", str(a), "--judge", str(b), "--first-run", str(first)])
+    assert "(13-14) score the same stacks" in capsys.readouterr().err
+    # the first run's rows are those of the judging stacks (anycam_tiles scores stacks 0, 1, ...), or refused
+    cur = {**cur, "first": 2, "n": 2, "rows": [{"step": 600, "mae_m": [1.0, 2.0], "mae_d": [0.1, 0.1]}]}
+    b.write_text(json.dumps(cur))
+    with pytest.raises(SystemExit):
+        anycam_choose.main(["--select", str(a), "--judge", str(b), "--first-run", str(first)])
+    assert "scores 0 of the judging stacks 2-3" in capsys.readouterr().err
+    first.write_text(json.dumps({"mae_m": [[9.0], [9.0], [2.0], [2.0]]}))
+    assert anycam_choose.main(["--select", str(a), "--judge", str(b), "--first-run", str(first),
+                               "--out", str(tmp_path / "o.json")]) == 0
+    got = json.loads((tmp_path / "o.json").read_text())
+    assert got["step"] == 600 and got["first_run_tiles_mae_m"] == 2.0 and got["vs_first_run_tiles_m"][0] == 0.75
     # a run scored in parts: rows pooled, each step once; parts of other stacks refused
     late = {**sel, "rows": [{"step": 800, "mae_m": [0.0, 0.2]}, sel["rows"][0]]}
     pooled = anycam_choose.pool([sel, late], "--select")

@@ -8,8 +8,8 @@ The rule declared in docs/training.md ("The ninth run along its steps"): among t
 scored on the choosing stacks (`--first 12`), the one with the lowest mean whole-frame MAE (m); it is then judged on
 the judging stacks (the first 12, scored by the same probe), paired over those stacks with 95 % bootstrap intervals
 (`aat_deploy.eval.stats.paired_ratio`) against the classical method with the lens map, in metres and in diopters,
-and against the first run in 128 px tiles (`anycam_tiles` on the same stacks: its first rows, column 0). Validation
-stacks only (training photographs): no held-out lens or test scene. A run scored in parts (a session's kept
+and against the first run in 128 px tiles (`anycam_tiles` on the same stacks: its rows of those stacks, column 0).
+Validation stacks only (training photographs): no held-out lens or test scene. A run scored in parts (a session's kept
 checkpoints at a time) gives several files per role: their rows are pooled (`pool`).
 """
 
@@ -86,10 +86,17 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"{a.out}: exists (choose another --out)")
     sel = pool([json.loads(p.read_text()) for p in a.select], "--select")
     cur = pool([json.loads(p.read_text()) for p in a.judge], "--judge")
-    if sel.get("first", 0) == cur.get("first", 0):
-        ap.error("--select and --judge score the same stacks: choose on one dozen, judge on another")
+    (fs, ns), (fj, nj) = ((c.get("first", 0), len(c["classical_lens_map"]["mae_m"])) for c in (sel, cur))
+    if fs < fj + nj and fj < fs + ns:  # overlapping ranges, not only equal starts: a stack in both would choose
+        ap.error(f"--select (stacks {fs}-{fs + ns - 1}) and --judge ({fj}-{fj + nj - 1}) score the same stacks: "
+                 "choose on one dozen, judge on another")
+    if (sel.get("lens"), sel.get("split")) != (cur.get("lens"), cur.get("split")):
+        ap.error(f"--select scores {sel.get('lens')} {sel.get('split')}, --judge {cur.get('lens')} {cur.get('split')}")
+    # anycam_tiles scores stacks 0, 1, ...: its rows for the judging stacks start at the judge's first
+    first = [r[0] for r in json.loads(a.first_run.read_text())["mae_m"]][fj:fj + nj]
+    if len(first) < nj:
+        ap.error(f"{a.first_run}: scores {len(first)} of the judging stacks {fj}-{fj + nj - 1}")
     chosen = choose(sel)
-    first = [r[0] for r in json.loads(a.first_run.read_text())["mae_m"]]
     res = {"chosen_on": [str(p) for p in a.select], "chosen_mae_m": float(np.mean(chosen["mae_m"])),
            "chosen_classical_mae_m": float(np.mean(sel["classical_lens_map"]["mae_m"])),
            "judged_on": [str(p) for p in a.judge], **judge(chosen["step"], cur, first)}
