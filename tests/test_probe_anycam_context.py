@@ -222,6 +222,10 @@ def test_choose_takes_the_lowest_on_one_dozen_and_judges_on_another(tmp_path, ca
     assert [r["step"] for r in pooled["rows"]] == [200, 400, 600, 800] and anycam_choose.choose(pooled)["step"] == 800
     with pytest.raises(SystemExit, match="different stacks"):
         anycam_choose.pool([sel, {**late, "first": 0}], "--select")
+    assert anycam_choose.choose_window(pooled, 2) == (600, 800, pytest.approx(0.3))  # means 0.6, 0.6, 0.5, 0.1 m
+    assert anycam_choose.choose_window(pooled, 4)[:2] == (200, 800)
+    with pytest.raises(SystemExit, match="--window 5"):
+        anycam_choose.choose_window(pooled, 5)
     with pytest.raises(SystemExit, match="step 400 scored twice"):
         anycam_choose.pool([sel, {**sel, "rows": [{"step": 400, "mae_m": [0.1, 0.1]}]}], "--select")
 

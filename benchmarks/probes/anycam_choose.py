@@ -42,6 +42,17 @@ def pool(parts: list[dict], what: str) -> dict:
     return {**first, "rows": [rows[k] for k in sorted(rows)]}
 
 
+def choose_window(select: dict, k: int) -> tuple[int, int, float]:
+    """(first step, last step, score) of the k consecutive scored checkpoints whose mean of mean MAEs (m) is lowest
+    (ties: the earlier window): the weights to average instead of one checkpoint (benchmarks.probes.anycam_swa)."""
+    rows = sorted(select["rows"], key=lambda r: r["step"])
+    if not 1 <= k <= len(rows):
+        raise SystemExit(f"--window {k}: between 1 and the {len(rows)} checkpoints scored")
+    means = [float(np.mean(r["mae_m"])) for r in rows]
+    i = min(range(len(rows) - k + 1), key=lambda j: float(np.mean(means[j:j + k])))
+    return rows[i]["step"], rows[i + k - 1]["step"], float(np.mean(means[i:i + k]))
+
+
 def choose(select: dict) -> dict:
     """The row of `select` (an anycam_stack_curve result) with the lowest mean MAE (m); ties: the earlier step."""
     return min(sorted(select["rows"], key=lambda r: r["step"]), key=lambda r: float(np.mean(r["mae_m"])))
@@ -78,6 +89,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--first-run", type=Path, default=ROOT / "results" / "anycam_tiles_overlap_rf50_val.json",
                     help="anycam_tiles result of the first run (column 0: 128 px tiles) on the judging stacks")
     ap.add_argument("--out", type=Path, help="JSON of the choice and the judgement")
+    ap.add_argument("--window", type=int, help="instead: only say which K consecutive checkpoints to average")
     a = ap.parse_args(argv)
     for p in (*a.select, *a.judge, a.first_run):
         if not p.is_file():
@@ -96,6 +108,11 @@ def main(argv: list[str] | None = None) -> int:
     first = [r[0] for r in json.loads(a.first_run.read_text())["mae_m"]][fj:fj + nj]
     if len(first) < nj:
         ap.error(f"{a.first_run}: scores {len(first)} of the judging stacks {fj}-{fj + nj - 1}")
+    if a.window is not None:
+        lo, hi, score = choose_window(sel, a.window)
+        print(f"window of {a.window}: steps {lo}-{hi} ({score:.3f} m on the choosing stacks, their mean; classical "
+              f"{float(np.mean(sel['classical_lens_map']['mae_m'])):.3f})")
+        return 0
     chosen = choose(sel)
     res = {"chosen_on": [str(p) for p in a.select], "chosen_mae_m": float(np.mean(chosen["mae_m"])),
            "chosen_classical_mae_m": float(np.mean(sel["classical_lens_map"]["mae_m"])),
