@@ -378,7 +378,7 @@ def test_a_near_tie_at_the_edge_choice_moves_the_map_a_little(monkeypatch):
     """Where the frame cells' CV puts the edge cubic at the 2 % threshold, a change of the tiles that moves the
     margin from 1.99 to 2.01 % moved the map by the whole difference between the quadratic and the cubic (the rule
     before: a hard choice; the benchmark's phone copies moved by 0.01-0.03 D between machines). The blend moves it
-    by a hundredth of that. The CV values are set (monkeypatched `model.cv_rms`) on the phone's four charts' tiles."""
+    by under 2 % of that. The CV values are set (monkeypatched `model.cv_rms`) on the phone's four charts' tiles."""
     import aat_deploy.calibrate.model as model
 
     obs = _tiles_of(_measure_map, seed=0)
