@@ -298,6 +298,28 @@ def table(res: dict) -> str:
 RADIUS_EDGES_LABELS = [f"{lo:g}-{hi:g}" for lo, hi in zip(RADIUS_EDGES[:-1], RADIUS_EDGES[1:])]
 
 
+def refuse(ap: argparse.ArgumentParser, a: argparse.Namespace) -> None:
+    """One line and exit before any work: an existing --out (results are committed; a rerun must not replace them),
+    unknown variants or estimators, no replicates or spread, and variants phone_map_model has not dumped."""
+    from aat_deploy.focus.estimate import ESTIMATORS
+    from benchmarks.probes.phone_map_model import CACHE
+
+    if Path(a.out).exists():
+        ap.error(f"{a.out}: exists (choose another --out)")
+    bad = [v for v in a.variants.split(",") if v not in VARIANTS]
+    if bad:
+        ap.error(f"--variants {','.join(bad)}: not among {', '.join(VARIANTS)}")
+    bad = [e for e in a.estimators.split(",") if e and e not in ESTIMATORS]
+    if bad:
+        ap.error(f"--estimators {','.join(bad)}: not among {', '.join(ESTIMATORS)}")
+    if a.jitter < 0 or not a.jitter_sd > 0:
+        ap.error(f"--jitter: 0 or more replicates, --jitter-sd: above 0 D, got {a.jitter}, {a.jitter_sd}")
+    missing = [v for v in a.variants.split(",") if not (CACHE / f"cellphone_near_{v}.npz").is_file()]
+    if missing:
+        ap.error(f"{CACHE}: no dump of {','.join(missing)} (run phone_map_model --dump --variants "
+                 f"{','.join(missing)} first)")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--variants", default=",".join(VARIANTS))
@@ -307,6 +329,7 @@ def main(argv=None) -> int:
                     help="instead: N replicates of the tiles moved by --jitter-sd (`jitter`)")
     ap.add_argument("--jitter-sd", type=float, default=0.02, help="D of reported focus")
     a = ap.parse_args(argv)
+    refuse(ap, a)
     log = lambda m: print(m, file=sys.stderr, flush=True)
     if a.jitter:
         from aat_deploy.io.atomic import write_text_atomic
