@@ -249,6 +249,14 @@ def test_compare_pairs_two_models_scene_by_scene(tmp_path, capsys):
     b.write_text(json.dumps(res([1.0, 2.0, 3.0], 0.5)))
     with pytest.raises(SystemExit, match="not the same test set"):
         anycam_compare.main([str(a), str(b)])
+    # as many scenes, but others: the classical method's per-scene MAE (the same for any model) tells
+    ra, rb = res([1.0, 2.0, 3.0], 0.5), res([1.0, 2.0, 3.0], 0.5)
+    for r, cl in ((ra, [0.4, 0.5, 0.6]), (rb, [0.4, 0.5, 0.6])):
+        r["lenses"]["paper50"]["fixed"]["per_image"]["Classical, lens map"] = {"procedural": [{"mae": m} for m in cl]}
+    assert len(anycam_compare.compare(ra, rb, "dfv_aat, lens map")) == 1
+    rb["lenses"]["paper50"]["fixed"]["per_image"]["Classical, lens map"]["procedural"][2]["mae"] = 0.7
+    with pytest.raises(SystemExit, match="classical method's per-scene MAE differs"):
+        anycam_compare.compare(ra, rb, "dfv_aat, lens map")
     with pytest.raises(SystemExit):
         anycam_compare.main([str(a), str(b), "--row", "none"])
     assert "no lens and protocol with the row 'none'" in capsys.readouterr().err

@@ -23,6 +23,7 @@ import numpy as np
 def compare(a: dict, b: dict, row: str) -> list[dict]:
     """One entry per lens and protocol in both bench_anycam results (their "lenses" keys)."""
     from aat_deploy.eval.stats import paired_ratio
+    from benchmarks.bench_anycam import CL_MAP
 
     out = []
     for lens in sorted(set(a["lenses"]) & set(b["lenses"])):
@@ -33,6 +34,13 @@ def compare(a: dict, b: dict, row: str) -> list[dict]:
             if len(pa["procedural"]) != len(pb["procedural"]):
                 raise SystemExit(f"{lens} {protocol}: {len(pa['procedural'])} scenes against "
                                  f"{len(pb['procedural'])}: not the same test set")
+            # the same count can still be other scenes (another --n, cache or seed): the classical method does not
+            # depend on the model, so its per-scene MAE must agree wherever both files hold it
+            ca, cb = (x["lenses"][lens][protocol]["per_image"].get(CL_MAP) for x in (a, b))
+            if ca and cb and not np.allclose([s["mae"] for s in ca["procedural"]],
+                                             [s["mae"] for s in cb["procedural"]], rtol=1e-3, atol=1e-4):
+                raise SystemExit(f"{lens} {protocol}: the classical method's per-scene MAE differs between the "
+                                 "files: not the same test set")
             e = {"lens": lens, "protocol": protocol, "n": len(pa["procedural"]),
                  "a_mae": float(np.mean([s["mae"] for s in pa["procedural"]])),
                  "b_mae": float(np.mean([s["mae"] for s in pb["procedural"]])),
