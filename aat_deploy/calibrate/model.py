@@ -190,7 +190,8 @@ class ModelFit:
     shifts_mm: dict = field(default_factory=dict)  # {sweep: its chart distance's fitted shift (mm)}
     low_focus_degree: int | None = None  # the non-edge functions' degree in focus (`FieldBasis.focus_mask`)
     edge_cv: dict | None = None  # `choose_edge_focus`'s table, where it was asked
-    # the orders blended (`fit_blend`; the order fields above are the heaviest's), () where the order was given
+    # the orders blended (`fit_blend`; the order fields above are the rule's order, where the family is chosen, not
+    # necessarily the heaviest component's), () where the order was given
     blend: tuple = ()
 
     def predict(self, x, y, reported_d) -> np.ndarray:
