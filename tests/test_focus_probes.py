@@ -5,9 +5,11 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from benchmarks.probes import focus_family_on_estimates as fe
 from benchmarks.probes import focus_frame_regions as fr
@@ -165,3 +167,28 @@ def ff_misfit(data, true) -> float:
     from aat_deploy.diagnose import focusfit as ff
 
     return float(ff.level_misfit(data, true)[0])
+
+
+def test_focus_family_on_estimates_refuses_in_one_line_and_never_replaces_its_out(tmp_path, capsys, monkeypatch):
+    """Its defaults are committed results files: an existing --out (or, with --choice, the .json beside it) and a
+    missing input are refused before any row is read; a good run writes both files."""
+    rows = tmp_path / "r.jsonl"
+    rows.write_text("")
+    out = tmp_path / "c.md"
+    cases = [([str(tmp_path / "none.jsonl"), "--out", str(out)], "none.jsonl: no such results file"),
+             ([str(rows), "--choice", "--out", str(tmp_path / "c.json")], "not .json")]
+    (tmp_path / "k.json").write_text("mine")
+    cases.append(([str(rows), "--choice", "--out", str(tmp_path / "k.md")], "k.json: exists"))
+    (tmp_path / "m.md").write_text("mine")
+    cases.append(([str(rows), "--out", str(tmp_path / "m.md")], "m.md: exists"))
+    called = []
+    monkeypatch.setattr(fe, "choice", lambda rows: called.append(rows) or {"sets": 0})
+    for args, says in cases:
+        with pytest.raises(SystemExit):
+            fe.main(args)
+        assert says in capsys.readouterr().err.strip().splitlines()[-1]
+    assert called == [] and (tmp_path / "k.json").read_text() == "mine" and (tmp_path / "m.md").read_text() == "mine"
+    assert not out.exists()
+    assert fe.main([str(rows), "--choice", "--out", str(out)]) == 0
+    assert called == [[]] and json.loads(out.with_suffix(".json").read_text()) == {"files": [str(rows)], "sets": 0}
+    assert out.read_text().startswith("# `python -m benchmarks.probes.focus_family_on_estimates --choice ")

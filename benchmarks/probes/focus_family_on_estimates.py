@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import io
 import json
+import sys
 from contextlib import redirect_stdout
 from pathlib import Path
 
@@ -169,28 +170,41 @@ def sd_variants(rows: list[dict]) -> dict:
     return out
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("results", nargs="+", help="bench_diagnose_focus results files; each gets its own table")
+    ap.add_argument("results", nargs="+", type=Path, help="bench_diagnose_focus results files; each gets its own table")
     ap.add_argument("--choice", action="store_true", help="the whole choice redone with the families refitted to the "
                     "estimates, all files together")
-    ap.add_argument("--out", default=None)
-    a = ap.parse_args()
-    out = a.out or str(RESULTS / ("focus_families_on_estimates_choice.md" if a.choice else
-                                  "focus_family_on_estimates.md"))
+    ap.add_argument("--out", type=Path, default=None,
+                    help="the tables (.md; with --choice also its .json beside it); never an existing file")
+    a = ap.parse_args(argv)
+    out = a.out or RESULTS / ("focus_families_on_estimates_choice.md" if a.choice else "focus_family_on_estimates.md")
+    # one line before any work: the defaults are committed results, which a rerun must not replace
+    for f in a.results:
+        if not f.is_file():
+            ap.error(f"{f}: no such results file")
+    if out.suffix == ".json" and a.choice:
+        ap.error(f"--out {out}: the tables' file, not .json (the summary goes beside it as .json)")
+    for f in (out, out.with_suffix(".json")) if a.choice else (out,):
+        if f.exists():
+            ap.error(f"{f}: exists (choose another --out)")
+    from aat_deploy.io.atomic import write_text_atomic
+
     buf = io.StringIO()
     with redirect_stdout(buf):
         if a.choice:
-            summary = choice([json.loads(x) for f in a.results for x in Path(f).read_text().splitlines() if x.strip()])
-            Path(out).with_suffix(".json").write_text(json.dumps({"files": a.results, **summary}, indent=1) + "\n")
+            summary = choice([json.loads(x) for f in a.results for x in f.read_text().splitlines() if x.strip()])
+            write_text_atomic(out.with_suffix(".json"),
+                              json.dumps({"files": [str(f) for f in a.results], **summary}, indent=1) + "\n")
         for f in [] if a.choice else a.results:
             print(f"\n### {f}\n")
-            table([json.loads(x) for x in Path(f).read_text().splitlines() if x.strip()])
+            table([json.loads(x) for x in f.read_text().splitlines() if x.strip()])
     print(buf.getvalue())
     flag = "--choice " if a.choice else ""
-    Path(out).write_text(f"# `python -m benchmarks.probes.focus_family_on_estimates {flag}{' '.join(a.results)}`\n"
-                         + buf.getvalue())
+    write_text_atomic(out, f"# `python -m benchmarks.probes.focus_family_on_estimates {flag}"
+                           f"{' '.join(str(f) for f in a.results)}`\n" + buf.getvalue())
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())
