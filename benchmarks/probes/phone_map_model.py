@@ -100,7 +100,13 @@ def dump(variant: str, log) -> Path:
     out["dense_fd"], out["dense_r"] = fd, rr
     CACHE.mkdir(parents=True, exist_ok=True)
     path = CACHE / f"cellphone_near_{variant}.npz"
-    np.savez_compressed(path, **out)
+    import io
+
+    from aat_deploy.io.atomic import write_bytes_atomic
+
+    buf = io.BytesIO()  # atomically: within_tiles reads these dumps, and a half-written one is not a dump
+    np.savez_compressed(buf, **out)
+    write_bytes_atomic(path, buf.getvalue())
     log(f"{variant}: {len(obs)} tiles, ideal {len(ideal)}, order {out['fit_order']}, {out['fit_family']} -> {path}")
     return path
 
