@@ -11,7 +11,8 @@ This probe exports each checkpoint (model.pt, last.pt, or a kept step_NNNNN.pt) 
 the first N of those stacks, given the RF50's best-focus map, beside the classical method with the same map. Per
 stack: MAE in metres (the judgement's unit), MAE of inverse depth in diopters (the unit the loss and the optics
 work in) and the median absolute error (m). Whether the curve drifts with the learning rate or swings from one
-checkpoint to the next is what tells a domain gap from an unstable run. --png draws the means over the steps.
+checkpoint to the next is what tells a domain gap from an unstable run. --png draws the means over the steps;
+--paired compares each checkpoint with the first one given (e.g. an average of weights with a single checkpoint).
 --processed also scores each stack given the training's camera processing (`training.data.anycam.camera_processing`,
 seeded per stack: exposure, misalignment, noise, RAW development...), keys `processed_*`: whether a net does worse on
 the clean renders the test sets are than on what it was trained on.
@@ -60,6 +61,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--threads", type=int, default=1, help="onnxruntime threads (1 in a heavy-job lane)")
     ap.add_argument("--out", type=Path, required=True, help="JSON of every stack's errors per checkpoint")
     ap.add_argument("--png", type=Path, help="also draw the means over the steps")
+    ap.add_argument("--paired", action="store_true",
+                    help="also each checkpoint's MAE over the first one's, paired over the stacks (95 %% bootstrap)")
     ap.add_argument("--processed", action="store_true", help="also score the stacks given a camera's processing")
     a = ap.parse_args(argv)
     if a.n < 1 or a.first < 0:
@@ -109,6 +112,14 @@ def main(argv: list[str] | None = None) -> int:
     print("| step | MAE (m) | MAE (D) | median stack MAE (m) |\n|---|---|---|---|")
     for r in sorted(rows, key=lambda r: r["step"]):
         print(f"| {r['step']} | {np.mean(r['mae_m']):.3f} | {np.mean(r['mae_d']):.3f} | {np.median(r['mae_m']):.3f} |")
+    if a.paired and len(rows) > 1:
+        from aat_deploy.eval.stats import fmt_interval, paired_ratio
+
+        per = lambda v: [{"mae": x} for x in v]  # noqa: E731
+        for r in rows[1:]:
+            print(f"{r['checkpoint']} / {rows[0]['checkpoint']}, paired over the stacks: "
+                  f"{fmt_interval(paired_ratio(per(r['mae_m']), per(rows[0]['mae_m'])))} (m), "
+                  f"{fmt_interval(paired_ratio(per(r['mae_d']), per(rows[0]['mae_d'])))} (D)")
     if a.png:
         draw(rows, cl, a.png)
     return 0
