@@ -63,3 +63,6 @@ def test_main_writes_its_out_and_refuses_an_existing_one(tmp_path, capsys):
     assert json.loads(out.read_text())["pooled"]["a/b mae"][0] == pytest.approx(0.95)
     assert C.main([str(a), str(b), "--lens", "phone", "--out", str(out)]) == 2
     assert "exists" in capsys.readouterr().err
+    assert C.main([str(a), str(tmp_path / "none.json"), "--lens", "phone", "--out", str(tmp_path / "o2.json")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "none.json: no such results file" in err[0] and not (tmp_path / "o2.json").exists()

@@ -83,14 +83,18 @@ def main(argv=None) -> int:
     if args.out and Path(args.out).exists():
         print(f"copies_compare: {args.out} exists: give another --out", file=sys.stderr)
         return 2
+    for f in (args.a, args.b):
+        if not Path(f).is_file():
+            print(f"copies_compare: {f}: no such results file", file=sys.stderr)
+            return 2
     res = compare(json.loads(Path(args.a).read_text()), json.loads(Path(args.b).read_text()), args.lens,
                   args.mapping)
     res["a"], res["b"] = args.a, args.b
     print(f"{args.mapping}: A = {args.a}, B = {args.b}\n\n{table(res)}")
     if args.out:
-        tmp = Path(args.out).with_suffix(".tmp")
-        tmp.write_text(json.dumps(res, indent=1) + "\n")
-        tmp.replace(args.out)
+        from aat_deploy.io.atomic import write_text_atomic
+
+        write_text_atomic(Path(args.out), json.dumps(res, indent=1) + "\n")
     return 0
 
 
