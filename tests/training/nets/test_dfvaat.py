@@ -110,7 +110,7 @@ def test_the_export_of_the_first_runs_checkpoint_matches_its_first_export_and_ha
     """The current export of checkpoints/dfv_aat_v1 (cheaper conditioning, the head's softmax written as exp / sum:
     onnxruntime's Softmax on the frame axis is 7x slower) against the file the first export wrote from the same
     weights, models/reproduce/dfv_aat_v1.onnx, on random inputs at S, H, W the export never saw: within 1e-5 of
-    the outputs' scale (measured <= 4e-7); same inputs, outputs, dynamic axes and metadata."""
+    the outputs' scale (measured <= 4e-7); same inputs, outputs, dynamic axes and metadata (plus the step now recorded)."""
     import numpy as np
     import onnx
     import onnxruntime as ort
@@ -130,7 +130,10 @@ def test_the_export_of_the_first_runs_checkpoint_matches_its_first_export_and_ha
     sessions = [ort.InferenceSession(str(p), providers=["CPUExecutionProvider"]) for p in (first, new)]
     io = [[(a.name, a.shape) for a in (*s.get_inputs(), *s.get_outputs())] for s in sessions]
     assert io[0] == io[1] and ("focus_diopters", ["B", "S", "H", "W"]) in io[1]
-    assert read_metadata(new) == read_metadata(first)
+    md_new = read_metadata(new)
+    # exports since 2026-11-27 also record the weights' own step (an early stop is not the schedule's end)
+    assert md_new.pop("aat.checkpoint_step") == md_new["aat.train_steps"]  # the first run's last.pt: its last step
+    assert md_new == read_metadata(first)
     for i, shp in enumerate([(1, 3, 32, 96), (2, 9, 96, 64), (1, 16, 64, 160), (1, 6, 128, 128)]):
         stack, fd, k = _focus_map_example(*shp, seed=10 + i)
         feeds = {"stack": stack.numpy(), "focus_diopters": fd.numpy(), "defocus_px_per_d": k.numpy()}
