@@ -323,7 +323,7 @@ def reported_outside(row: dict, z: float = 1.959964) -> bool | None:
 
 
 def rescored(row: dict, commit: str, consistency: bool | None = None, residual_scale: bool | None = None,
-             on_estimates: bool = False) -> dict | None:
+             on_estimates: bool = False, noise_weight: bool | None = None) -> dict | None:
     """The row as the current code's `focusfit.fit_metadata` would end it, from the row's stored fits (every
     family's corrected focus, the per-frame estimates' bootstrap spread and systematic errors): the capture's error
     scale (`error_scale`, with the residual scale), the family chosen with it (`score_families`, `select`; its
@@ -335,7 +335,9 @@ def rescored(row: dict, commit: str, consistency: bool | None = None, residual_s
     32, off) and the residual scale (`focusfit.SCALE_BY_RESIDUALS`); None: as the code. on_estimates: the families
     refitted to the row's per-frame estimates first (`focusfit.fit_on_estimates`, as `fit_metadata` does with
     `FAMILIES_ON_ESTIMATES`); False: the row's own fits. Frames the row left out (`frames_noise_dominated`) count
-    nothing, and get `focusfit.left_out_sd`. None for rows without the stored fits."""
+    nothing, and get `focusfit.left_out_sd`. noise_weight: with on_estimates, the frames' working weights from the
+    row's noise shares (`focusfit.signal_weight`, `WEIGHT_BY_NOISE_SHARE`; None: as the code; rows without noise
+    shares weigh every frame alike). None for rows without the stored fits."""
     from aat_deploy.diagnose import focusfit as ff
 
     fams = {x["family"]: x for x in row.get("families") or []}
@@ -352,16 +354,19 @@ def rescored(row: dict, commit: str, consistency: bool | None = None, residual_s
     quant = ff.quantiser(np.unique(np.round(rep[np.isfinite(rep)], 9)))  # every reported value's grid, as the fit's
     if "quantisation" in fits and quant is not None:
         fits["quantisation"].detail = {"quantiser": quant[0], "step_d": quant[1]}
+    share = np.asarray(row["frame_noise_share"], np.float64).reshape(rep.shape) if row.get("frame_noise_share") else None
+    use_w = ff.WEIGHT_BY_NOISE_SHARE if noise_weight is None else noise_weight
+    aw = ff.signal_weight(share if on_estimates and use_w else None, frames)
     if on_estimates:
-        fits = ff.fit_on_estimates(fits, rep, sd, frames, sys_d, quant)
+        fits = ff.fit_on_estimates(fits, rep, sd, frames, sys_d, quant, weight=aw)
     use_scale = ff.SCALE_BY_RESIDUALS if residual_scale is None else residual_scale
     scale = ff.error_scale(fits, sd, frames, sys_d) if use_scale else 1.0
     sys_s = ff.scaled_systematic(sd, sys_d, scale)
     ff.score_families(fits, sd, frames, sys_s)
     fit = ff.select(fits)
-    cons = ff.frame_consistency(fit, rep, fits["per_frame"].true_d, sd, frames, sys_d)
+    cons = ff.frame_consistency(fit, rep, fits["per_frame"].true_d, sd, frames, sys_d, weight=aw)
     on = ff.SCALE_BY_CONSISTENCY if consistency is None else consistency
-    tsd = ff.corrected_sd(fit, rep, sd, frames, sys_d, at=(frames > 0) | exc) * (np.maximum(1.0, cons) if on else 1.0)
+    tsd = ff.corrected_sd(fit, rep, sd, frames, sys_d, at=(frames > 0) | exc, weight=aw) * (np.maximum(1.0, cons) if on else 1.0)
     tsd = ff.left_out_sd(fit, rep, frames, exc, tsd)
     und = (tsd >= ff.UNDETERMINED_SD_D) & ((frames > 0) | exc)
     true_d = old - np.asarray(row["corrected_err_d"], np.float64)  # the row's truth (to 1e-4 D)

@@ -207,6 +207,31 @@ def test_rescored_refits_the_families_to_the_estimates_without_the_left_out_fram
     assert np.isfinite(sd).all() and sd[0] == pytest.approx(sd[1], rel=0.3) and sd[0] < 0.02
 
 
+def test_rescored_weighs_the_frames_by_the_rows_noise_shares():
+    """`rescored(on_estimates=True)` with the row's noise shares (`focusfit.signal_weight`, as `fit_metadata` weighs
+    them): frame 1, at a share of 0.4, its estimate 0.04 D under the others' offset, weighs 0.2 of them, so the offset
+    moves 0.004 D towards it instead of 0.013; without the shares (noise_weight False, or a row without them) as
+    before."""
+    rep = np.array([[1.63, 1.31, 0.97, 0.72]])  # on no quantisation grid
+    est = rep - np.array([[0.2, 0.09, 0.05, 0.05]])
+    fams = [{"family": "none", "k": 0, "true_d": rep.tolist()}, {"family": "offset", "k": 1, "true_d": (rep - 0.05).tolist()},
+            {"family": "per_frame", "k": 4, "true_d": est.tolist()}]
+    row = {"family": "offset", "family_true": "offset", "families": fams, "frame_focus_sd_d": [[None, 0.004, 0.004, 0.004]],
+           "frame_systematic_d": [[0.03, 0.01, 0.01, 0.01]], "corrected_err_d": [0.0] * 4,
+           "frames_noise_dominated": [True, False, False, False], "frame_noise_share": [0.7, 0.4, 0.1, 0.0], "commit": "old"}
+
+    def bias(r):
+        return float(np.mean(rep - np.array([x for x in r["families"] if x["family"] == "offset"][0]["true_d"])))
+
+    weighed = bench.rescored(row, "new", on_estimates=True, noise_weight=True)
+    plain = bench.rescored(row, "new", on_estimates=True, noise_weight=False)
+    w = np.array([0.2, 0.8, 1.0])  # 1 - share / 0.5 at frames 1-3
+    assert bias(weighed) == pytest.approx(float(np.sum(w * [0.09, 0.05, 0.05]) / w.sum()), abs=1e-9)
+    assert bias(plain) == pytest.approx(0.0633333, abs=1e-6)
+    without = {k: v for k, v in row.items() if k != "frame_noise_share"}
+    assert bias(bench.rescored(without, "new", on_estimates=True, noise_weight=True)) == pytest.approx(bias(plain))
+
+
 def test_rescore_writes_a_new_file_and_never_overwrites_one(tmp_path, monkeypatch):
     """`--rescore OLD NEW` writes NEW (rows without stored fits are left out) and refuses a NEW that exists, the
     input itself included, leaving it as it was."""

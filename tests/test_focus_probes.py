@@ -192,3 +192,38 @@ def test_focus_family_on_estimates_refuses_in_one_line_and_never_replaces_its_ou
     assert fe.main([str(rows), "--choice", "--out", str(out)]) == 0
     assert called == [[]] and json.loads(out.with_suffix(".json").read_text()) == {"files": [str(rows)], "sets": 0}
     assert out.read_text().startswith("# `python -m benchmarks.probes.focus_family_on_estimates --choice ")
+
+
+def test_focus_noise_weight_refuses_in_one_line_and_pairs_the_sets(tmp_path, capsys):
+    """`focus_noise_weight`: a missing input, a non-.md --out and an existing --out or .json beside it are refused in
+    one line before any row is read; a run pairs each row with and without the noise-share weights, and its sign test
+    is the binomial one (9 of 10 scenes: p = 22 / 1024)."""
+    from benchmarks.probes import focus_noise_weight as nw
+
+    assert nw.sign_test(9, 10) == pytest.approx(22 / 1024) and nw.sign_test(5, 10) == 1.0
+    rows = tmp_path / "r.jsonl"
+    rep = np.array([[1.63, 1.31, 0.97, 0.72, 0.51, 0.33]])  # an offset of 0.05 D; frame 0 left out
+    est = rep - 0.05 - np.array([[0.15, 0.04, 0, 0, 0, 0]])  # frame 1 (share 0.4) 0.04 D under the truth
+    fams = [{"family": "none", "k": 0, "true_d": rep.tolist()}, {"family": "offset", "k": 1, "true_d": (rep - 0.05).tolist()},
+            {"family": "per_frame", "k": 6, "true_d": est.tolist()}]
+    row = {"capture": "scene1", "kind": "offset_+0.05", "family": "offset", "family_true": "offset", "families": fams,
+           "frame_focus_sd_d": [[None] + [0.004] * 5], "frame_systematic_d": [[0.03, 0.025] + [0.01] * 4],
+           "corrected_err_d": [0.0] * 6, "frames_noise_dominated": [True] + [False] * 5,
+           "frame_noise_share": [0.7, 0.4, 0.1, 0.0, 0.0, 0.0], "commit": "old"}
+    rows.write_text(json.dumps(row) + "\n")
+    (tmp_path / "k.json").write_text("mine")
+    (tmp_path / "m.md").write_text("mine")
+    for args, says in [([str(tmp_path / "none.jsonl"), "--out", str(tmp_path / "a.md")], "none.jsonl: no such results file"),
+                       ([str(rows), "--out", str(tmp_path / "a.json")], "a .md file"),
+                       ([str(rows), "--out", str(tmp_path / "k.md")], "k.json: exists"),
+                       ([str(rows), "--out", str(tmp_path / "m.md")], "m.md: exists")]:
+        with pytest.raises(SystemExit):
+            nw.main(args)
+        assert says in capsys.readouterr().err.strip().splitlines()[-1]
+    assert (tmp_path / "k.json").read_text() == "mine" and (tmp_path / "m.md").read_text() == "mine"
+    out = tmp_path / "c.md"
+    assert nw.main([str(rows), "--out", str(out)]) == 0
+    got = json.loads(out.with_suffix(".json").read_text())
+    assert got["plain"]["sets"] == got["weighed"]["sets"] == 1
+    # the offset moves towards frame 1 by 0.0017 D plain, 0.0004 D weighed: the set's largest error falls
+    assert got["paired"]["sets_better"] == 1 and got["paired"]["scene_mean_change_d"]["scene1"] < -0.001

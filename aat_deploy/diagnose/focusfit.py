@@ -102,6 +102,12 @@ SYSTEMATIC_FROM_LEVEL = True
 # floor's, so a misfit of the noise level reads as focus (issue 32, scene 2038's frames 0-2, 95-110 % noise, whose
 # estimates ran to their bounds). 0.5: the noise's expected energy at least the signal's; not tuned
 NOISE_DOMINATED_SHARE = 0.5
+# weigh each fitted frame's estimate in the families' parameter fits (`fit_on_estimates`) by its signal's margin over
+# that rule, 1 - share / NOISE_DOMINATED_SHARE (`signal_weight`): a frame left out at the rule's line carries nothing,
+# one just under it carried full weight (issue 32, the eighth held-out round: the nearest fitted frame, noise share
+# 0.30-0.42, 0.03-0.14 D off, and a scale carried that to the left-out frames). The standard errors stay the error
+# model's, through the sandwich of these working weights (`corrected_sd`); the choice's chi2 keeps the model's weights
+WEIGHT_BY_NOISE_SHARE = True
 
 
 @dataclass
@@ -245,6 +251,19 @@ def noise_share(data: SweepData, d: np.ndarray) -> np.ndarray:
     tot = np.sum(w * (sig + flo), axis=(1, 3))
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(tot > 0, np.sum(w * flo, axis=(1, 3)) / tot, 0.0)
+
+
+def signal_weight(share: np.ndarray | None, frames: np.ndarray) -> np.ndarray:
+    """(n, S) every fitted frame's working weight in the families' parameter fits: its expected measure's margin over
+    the noise rule, 1 - share / NOISE_DOMINATED_SHARE, in 0..1 (share (n, S), `noise_share`; 1 everywhere when None:
+    no expected floor). A frame at the rule's line, left out there, weighs nothing; the weight falls continuously
+    towards it, so a frame just under the line (whose estimate reads a misfit of the noise level as focus almost as much)
+    does not steer a scale with full weight. 0 on frames with frames == 0."""
+    real = np.asarray(frames) > 0
+    if share is None:
+        return real.astype(np.float64)
+    a = 1.0 - np.asarray(share, np.float64) / NOISE_DOMINATED_SHARE
+    return np.where(real, np.clip(np.nan_to_num(a, nan=1.0), 0.0, 1.0), 0.0)
 
 
 def without_frames(data: SweepData, mask: np.ndarray) -> SweepData:
@@ -553,7 +572,7 @@ def error_correlation(focus_d: np.ndarray, frames: np.ndarray, length_d: float =
 
 def corrected_sd(fit: FamilyFit, reported_d: np.ndarray, frame_sd: np.ndarray, frames: np.ndarray,
                  systematic_d: float | np.ndarray = SYSTEMATIC_D, length_d: float = ERROR_CORRELATION_D,
-                 at: np.ndarray | None = None) -> np.ndarray:
+                 at: np.ndarray | None = None, weight: np.ndarray | None = None) -> np.ndarray:
     """(n, S) the standard error (diopters) of a family's corrected focus, the per-frame estimates' systematic
     error included: the family's least-squares parameters, weighted W = 1 / (frame_sd^2 + systematic_d^2) as if
     the frames' errors were independent, carried to every frame through J (`family_design`), with the covariance
@@ -570,7 +589,9 @@ def corrected_sd(fit: FamilyFit, reported_d: np.ndarray, frame_sd: np.ndarray, f
     which is its corrected focus, was known to 0.028 D (scene 2027's nearest frame, issue 32). A bin does bound a
     frame's true focus, but a frame known no better than its bin is not determined to 0.02 D either way (a 0.1 D
     bin's standard deviation is 0.029 D). at (n, S): the frames to give it for (default: frames); a frame left out of the
-    fit (`fit_metadata`'s excluded) gets the family's value's error there, from the others."""
+    fit (`fit_metadata`'s excluded) gets the family's value's error there, from the others. weight (n, S): the working
+    weights the parameters were fitted with (`fit_on_estimates`, `signal_weight`), W a W: the sandwich then gives that
+    estimator's error under the same error model (None: 1)."""
     rep = np.asarray(reported_d, np.float64)
     design, widths = family_design(fit.name, rep, fit.true_d, frames, fit_quantiser(fit))
     if not widths:
@@ -578,9 +599,10 @@ def corrected_sd(fit: FamilyFit, reported_d: np.ndarray, frame_sd: np.ndarray, f
     real = frames > 0
     jac = np.where(real[..., None], design, 0.0)  # padding frames (NaN) count nothing
     sigma = np.sqrt(np.asarray(frame_sd, np.float64) ** 2 + np.asarray(systematic_d) ** 2)
-    inv = np.where(real, 1.0 / sigma ** 2, 0.0)
+    a = np.ones(rep.shape) if weight is None else np.asarray(weight, np.float64)
+    inv = np.where(real, a / sigma ** 2, 0.0)
     bread = np.linalg.pinv(np.einsum("nsi,ns,nsj->ij", jac, inv, jac))
-    scaled = jac * np.where(real, 1.0 / sigma, 0.0)[..., None]  # W J sigma: the errors in units of their sigma
+    scaled = jac * np.where(real, a / sigma, 0.0)[..., None]  # W J sigma: the errors in units of their sigma
     meat = np.einsum("nsi,nst,ntj->ij", scaled, error_correlation(fit.true_d, frames, length_d), scaled)
     cov = bread @ meat @ bread
     if at is not None:
@@ -590,7 +612,7 @@ def corrected_sd(fit: FamilyFit, reported_d: np.ndarray, frame_sd: np.ndarray, f
 
 def frame_consistency(fit: FamilyFit, reported_d: np.ndarray, frame_d: np.ndarray, frame_sd: np.ndarray,
                       frames: np.ndarray, systematic_d: float | np.ndarray = SYSTEMATIC_D,
-                      length_d: float = ERROR_CORRELATION_D) -> np.ndarray:
+                      length_d: float = ERROR_CORRELATION_D, weight: np.ndarray | None = None) -> np.ndarray:
     """(n, S) every frame's standardised residual: how far its own estimate frame_d (the `per_frame` family's focus)
     lies from the chosen family's corrected focus, in units of the standard deviation the error model of
     `corrected_sd` gives that difference. Under that model the family's focus is the least-squares fit of the
@@ -601,7 +623,7 @@ def frame_consistency(fit: FamilyFit, reported_d: np.ndarray, frame_d: np.ndarra
     scene 2030's monotone curve 0.027 D off at its nearest frame, 1.7 of its standard errors, its own estimate 0.005
     D off, residual 2.2 standard deviations). 0 where the family leaves a frame to its own estimate (the residual's
     variance vanishes: a quantisation bin, `per_frame`; a difference there is the bin's bound, not a misfit) and for
-    `none` (no error model)."""
+    `none` (no error model). weight (n, S): the fit's working weights (`corrected_sd`; None: 1)."""
     rep = np.asarray(reported_d, np.float64)
     jac, widths = family_design(fit.name, rep, fit.true_d, frames, fit_quantiser(fit))
     out = np.zeros(rep.shape)
@@ -611,7 +633,7 @@ def frame_consistency(fit: FamilyFit, reported_d: np.ndarray, frame_d: np.ndarra
     sigma = np.sqrt(np.asarray(frame_sd, np.float64) ** 2 + np.asarray(systematic_d) ** 2) * np.ones(rep.shape)
     j = jac[real]  # (N, k) the real frames of every capture
     sig = sigma[real]
-    w = 1.0 / sig ** 2
+    w = (np.ones(rep.shape) if weight is None else np.asarray(weight, np.float64) * np.ones(rep.shape))[real] / sig ** 2
     proj = j @ np.linalg.pinv(j.T @ (j * w[:, None])) @ (j * w[:, None]).T  # (N, N) f = P e
     corr = error_correlation(fit.true_d, frames, length_d)  # (n, S, S), each capture its own block
     idx = np.argwhere(real)
@@ -626,7 +648,8 @@ def frame_consistency(fit: FamilyFit, reported_d: np.ndarray, frame_d: np.ndarra
 
 def fit_on_estimates(fits: dict[str, FamilyFit], reported_d: np.ndarray, frame_sd: np.ndarray, frames: np.ndarray,
                      systematic_d: float | np.ndarray = SYSTEMATIC_D, quant: tuple[str, float] | None = None,
-                     ss: Callable[[np.ndarray], float] | None = None) -> dict[str, FamilyFit]:
+                     ss: Callable[[np.ndarray], float] | None = None, weight: np.ndarray | None = None
+                     ) -> dict[str, FamilyFit]:
     """The families refitted to the `per_frame` estimates e of fits (n, S) by weighted least squares, W = 1 /
     (frame_sd^2 + systematic_d^2) on the frames with frames > 0: the chi2 `score_families` prices, so the evidence's
     Laplace approximation sits at its own optimum, and the fit `corrected_sd` and `frame_consistency` assume (f = P e).
@@ -635,11 +658,13 @@ def fit_on_estimates(fits: dict[str, FamilyFit], reported_d: np.ndarray, frame_s
     weighted mean of its frames' estimates clipped to its bin (quant: the grid, from every reported value; None: no
     `quantisation`), made non-decreasing. `none` and `per_frame` are kept; a frame with frames == 0 (left out of the
     fit, padding) gets the family's value at its reported focus. ss(d): the curves' sum of squares to report (NaN
-    without)."""
+    without). weight (n, S): working weights multiplying W (`signal_weight`; None: 1)."""
     rep = np.asarray(reported_d, np.float64)
     e = fits["per_frame"].true_d
     use = (np.asarray(frames) > 0) & np.isfinite(rep)
     w = np.where(use, 1.0 / (np.asarray(frame_sd, np.float64) ** 2 + np.asarray(systematic_d) ** 2), 0.0)
+    if weight is not None:
+        w = w * np.asarray(weight, np.float64)
     rep0, e0 = np.where(use, rep, 0.0), np.where(use, e, 0.0)
 
     def fam(name, k, params, d, detail=None):
@@ -655,7 +680,8 @@ def fit_on_estimates(fits: dict[str, FamilyFit], reported_d: np.ndarray, frame_s
     if len(values) >= 3:
         kx = np.array([values[0], values[len(values) // 2], values[-1]])
         basis = np.nan_to_num(np.stack([parabola(rep, kx, np.eye(3)[j]) for j in range(3)], -1))  # (n, S, 3)
-        ky = np.linalg.solve(np.einsum("nsi,ns,nsj->ij", basis, w, basis), np.einsum("nsi,ns,ns->i", basis, w, e0))
+        # pinv: a frame weighted near 0 (`signal_weight`) must not make the normal equations fail
+        ky = np.linalg.pinv(np.einsum("nsi,ns,nsj->ij", basis, w, basis)) @ np.einsum("nsi,ns,ns->i", basis, w, e0)
         ky = np.clip(ky, kx - MAX_ERROR_D, kx + MAX_ERROR_D)
         xs = np.linspace(values[0], values[-1], 9)
         ys = parabola(xs, kx, ky)
@@ -853,11 +879,13 @@ def fit_metadata(data: SweepData, n_boot: int = 50, seed: int = 0, level: float 
     sd = np.std([rf["per_frame"].true_d for rf, _ in reps], 0) if len(reps) > 1 else np.zeros(data.reported_d.shape)
     # each frame's systematic error at the fit's own per-frame estimates, held for every replicate
     sys_d = frame_systematic(data, fits["per_frame"].true_d)
+    # each fitted frame's working weight in the parameter fits: its margin over the noise rule (`signal_weight`)
+    aw = signal_weight(share if WEIGHT_BY_NOISE_SHARE and FAMILIES_ON_ESTIMATES else None, data.frames)
     if FAMILIES_ON_ESTIMATES:  # every family where its evidence is scored: on the estimates, each replicate's on its own
         quant = quantiser(reported_values(data))
         fits = fit_on_estimates(fits, data.reported_d, sd, data.frames, sys_d, quant,
-                                lambda d: float(profiled_ss(data, d)))
-        reps = [(fit_on_estimates(rf, data.reported_d, sd, fr, sys_d, quant), fr) for rf, fr in reps]
+                                lambda d: float(profiled_ss(data, d)), aw)
+        reps = [(fit_on_estimates(rf, data.reported_d, sd, fr, sys_d, quant, weight=aw), fr) for rf, fr in reps]
     # ... times the capture's own error scale (`error_scale`: the curve's residuals), for the choice
     scale = error_scale(fits, sd, data.frames, sys_d) if SCALE_BY_RESIDUALS else 1.0
     sys_s = scaled_systematic(sd, sys_d, scale)
@@ -884,8 +912,8 @@ def fit_metadata(data: SweepData, n_boot: int = 50, seed: int = 0, level: float 
     # the standard errors keep the model's errors: the family was fitted on the curves, which pin it better than a
     # least-squares fit of the estimates would (docs/diagnosis.md); scaling them too gave up 3 development sets whose
     # every frame was within 0.02 D and caught no wrong one
-    cons = frame_consistency(best, data.reported_d, fits["per_frame"].true_d, sd, data.frames, sys_d)
-    tsd = corrected_sd(best, data.reported_d, sd, data.frames, sys_d, at=(data.frames > 0) | exc)
+    cons = frame_consistency(best, data.reported_d, fits["per_frame"].true_d, sd, data.frames, sys_d, weight=aw)
+    tsd = corrected_sd(best, data.reported_d, sd, data.frames, sys_d, at=(data.frames > 0) | exc, weight=aw)
     if SCALE_BY_CONSISTENCY:
         tsd = tsd * np.maximum(1.0, cons)
     tsd = left_out_sd(best, data.reported_d, data.frames, exc, tsd)

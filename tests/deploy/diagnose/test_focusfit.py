@@ -344,6 +344,22 @@ def test_a_twin_misfit_in_two_frames_does_not_bend_the_scale():
     assert chi2[1] <= min(chi2[0], chi2[2])
 
 
+def test_fit_metadata_weighs_the_frames_by_their_noise_shares():
+    """`fit_metadata` with the frames' noise shares (share, as `focusrobust.fit_robust` passes them): the far scene's
+    nearest frame, its level 0.15 log low (a noise floor the twin gets wrong), reads 0.067 D off; at a noise share of
+    0.45 it weighs 0.1 of the others (`signal_weight`), and a 1.15 scale is found to 0.002, not 1.155."""
+    data, true = far_scene_sweep(level_d=-0.15, frame=0, seed=1)
+    data = dataclasses.replace(data, reported_d=true / 1.15, base_d=true / 1.15)
+    share = np.array([[0.45, 0.3, 0.2, 0.1, 0.05, 0.05, 0.02, 0.02]])
+    plain = ff.fit_metadata(data, n_boot=10)
+    fit = ff.fit_metadata(data, n_boot=10, share=share)
+    assert fit.fits["per_frame"].true_d[0, 0] - true[0, 0] > 0.05  # the frame is off, as the case needs
+    assert plain.best.name == fit.best.name == "scale"
+    assert abs(plain.best.params["scale"] - 1.15) > 0.004  # the case discriminates
+    assert fit.best.params["scale"] == pytest.approx(1.15, abs=0.002)
+    assert np.abs(fit.best.true_d - true).max() < 0.003
+
+
 def test_an_offset_is_not_read_as_a_curve_bent_by_an_unsure_frame():
     """Scene 2027's offset +0.05 D (the whole diagnosis, results/diagnose_focus_all36.jsonl): its nearest frame's
     estimate 0.044 D off, the others within 0.015 D. With one systematic error for every frame the 3-knot curve
@@ -412,6 +428,61 @@ def test_an_offset_over_unequal_frames_takes_the_correlated_variance_of_its_weig
     got = ff.corrected_sd(ff.FamilyFit("offset", 1, {}, rep.copy(), 0.0), rep, sd, np.ones((1, 3)), sys_d, 0.25)
     assert np.allclose(got, by_hand, rtol=1e-12)
     assert by_hand > 1 / math.sqrt(w.sum())  # the case discriminates: more than the independent errors give
+
+
+def test_signal_weight_falls_to_nothing_at_the_noise_rule():
+    """`signal_weight`: 1 - share / NOISE_DOMINATED_SHARE on fitted frames, 0 at the rule's line (where the frame is left
+    out) and on padding or left-out frames, 1 everywhere without noise shares."""
+    share = np.array([[0.0, 0.1, 0.25, 0.4, ff.NOISE_DOMINATED_SHARE, 0.9]])
+    frames = np.array([[1.0, 1, 1, 1, 1, 0]])
+    got = ff.signal_weight(share, frames)
+    assert np.allclose(got, [[1.0, 0.8, 0.5, 0.2, 0.0, 0.0]])
+    assert np.allclose(ff.signal_weight(None, frames), frames)
+
+
+def test_a_noisy_nearest_fitted_frame_does_not_carry_its_error_to_the_left_out_frames():
+    """Issue 32, the eighth held-out round's misses (their mechanism, not their data): frames 0-2 left out as
+    noise-dominated, the nearest fitted frame (3) at a noise share of 0.4, its estimate 0.05 D off, the others within
+    0.005 D; a 1.1 distance scale. Weighed like the others, that frame has the most leverage on the scale, which
+    carries its error to frame 0: over 0.02 D off. Weighed by its margin over the noise rule (`signal_weight`, 0.2)
+    the scale follows the other frames: frame 0 within 0.02 D."""
+    true = TRUE_D[None]
+    rep = true / 1.1
+    est = true + np.array([[0.0, 0.0, 0.0, 0.05, 0.004, -0.003, 0.002, -0.001]])
+    sd = np.full((1, 8), 0.002)
+    frames = np.array([[0.0, 0, 0, 1, 1, 1, 1, 1]])
+    share = np.array([[0.9, 0.8, 0.6, 0.4, 0.2, 0.1, 0.05, 0.05]])
+    fits = {"none": ff.FamilyFit("none", 0, {}, rep.copy(), 0.0), "per_frame": ff.FamilyFit("per_frame", 8, {}, est, 0.0)}
+    old = ff.fit_on_estimates(fits, rep, sd, frames)["scale"].true_d
+    new = ff.fit_on_estimates(fits, rep, sd, frames, weight=ff.signal_weight(share, frames))["scale"].true_d
+    assert abs(old[0, 0] - true[0, 0]) > 0.02  # the case discriminates
+    assert abs(new[0, 0] - true[0, 0]) < 0.02
+
+
+def test_working_weights_give_the_sandwich_variance_of_the_weighted_mean():
+    """An offset fitted with working weights a (`fit_on_estimates`' weight) is sum a_i w_i (r_i - e_i) / sum a_i w_i,
+    w = 1 / sigma^2; with independent errors its variance is sum (a_i w_i)^2 sigma_i^2 / (sum a_i w_i)^2 by hand, more
+    than 1 / sum w (the efficient weights'), and `corrected_sd` and `frame_consistency` use it (a = 1: as before)."""
+    rep = np.array([[1.6, 1.3, 0.7, 0.4]])
+    sd, sys_d = np.full((1, 4), 0.002), np.array([[0.02, 0.01, 0.012, 0.01]])
+    a = np.array([[0.2, 1.0, 0.6, 1.0]])
+    s2 = (sd ** 2 + sys_d ** 2)[0]
+    aw = a[0] / s2
+    by_hand = math.sqrt(float(np.sum(aw ** 2 * s2)) / aw.sum() ** 2)
+    off = ff.FamilyFit("offset", 1, {}, rep - 0.01, 0.0)
+    got = ff.corrected_sd(off, rep, sd, np.ones((1, 4)), sys_d, length_d=0.0, weight=a)
+    assert np.allclose(got, by_hand, rtol=1e-12)
+    assert by_hand > 1 / math.sqrt(float(np.sum(1 / s2)))
+    assert np.allclose(ff.corrected_sd(off, rep, sd, np.ones((1, 4)), sys_d, length_d=0.0, weight=np.ones((1, 4))),
+                       ff.corrected_sd(off, rep, sd, np.ones((1, 4)), sys_d, length_d=0.0))
+    # the residual e - f of the weighted offset: its variance (I - P) C (I - P)^T with P from the working weights
+    e = rep[0] - 0.01 + np.array([0.02, 0.0, -0.005, 0.001])
+    f = rep[0] - np.sum(aw * (rep[0] - e)) / aw.sum()
+    p = np.tile(aw / aw.sum(), (4, 1))
+    var = np.diag((np.eye(4) - p) @ np.diag(s2) @ (np.eye(4) - p).T)
+    got = ff.frame_consistency(ff.FamilyFit("offset", 1, {}, f[None], 0.0), rep, e[None], sd, np.ones((1, 4)), sys_d,
+                               length_d=0.0, weight=a)
+    assert np.allclose(got[0], np.abs(e - f) / np.sqrt(var), rtol=1e-9)
 
 
 @pytest.mark.parametrize("name", ["offset", "scale", "monotone", "quantisation", "per_frame"])
