@@ -310,3 +310,18 @@ def test_eighth_fresh_test_captures_follow_the_sixth_rounds_rule_on_unused_candi
     with pytest.raises(SystemExit, match="--fresh8"):
         bench.fresh6_scenes(bench.FRESH8_K + 1, tmp_path, bench.FRESH8_CANDIDATES, bench.FRESH8_NOISE_SEEDS, "fresh8")
     assert not (tmp_path / "fresh8_stats.json").exists()
+
+
+def test_ninth_fresh_test_captures_follow_the_sixth_rounds_rule_on_unused_candidates(tmp_path):
+    """The ninth fresh test captures (issue 32, each frame weighed by its margin over the noise rule): candidates start
+    after the last scene the eighth round screened (its fourth kept, 2472: candidates 2370-2472 were screened, 2383,
+    2431, 2467 and 2472 kept), the noise seeds share nothing with 1-36; the rule is the sixth round's; --fresh9 refuses
+    a count it does not have and keeps its screening statistics apart."""
+    assert min(bench.FRESH9_CANDIDATES) == 2473 > 2472 == max(s for s in (2383, 2431, 2467, 2472))
+    used = (set(range(1, 25)) | set(bench.FRESH6_NOISE_SEEDS) | set(bench.FRESH7_NOISE_SEEDS)
+            | set(bench.FRESH8_NOISE_SEEDS))
+    assert used == set(range(1, 37)) and not set(bench.FRESH9_NOISE_SEEDS) & used
+    assert set(bench.FRESH9_NOISE_SEEDS) == set(range(37, 41)) and bench.FRESH9_K == 4
+    with pytest.raises(SystemExit, match="--fresh9"):
+        bench.fresh6_scenes(bench.FRESH9_K + 1, tmp_path, bench.FRESH9_CANDIDATES, bench.FRESH9_NOISE_SEEDS, "fresh9")
+    assert not (tmp_path / "fresh9_stats.json").exists()
