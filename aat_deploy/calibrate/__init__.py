@@ -9,6 +9,7 @@ What consumers call (`format.py`):
     cal = load_calibration("mycam.json")
     d = in_focus_diopters(cal, reported_focus_m, height, width)   # (S, H, W) float32 diopters from the sensor plane
     k = defocus_scale_px_per_d(cal, height, width)               # (H, W) float32 blur diameter px per diopter
+    m = measured_mask(cal, reported_focus_m, height, width)       # (S, H, W) bool: False where d is extrapolated
 """
 
 from .format import (
@@ -21,11 +22,13 @@ from .format import (
     defocus_scale_px_per_d,
     in_focus_diopters,
     load_calibration,
+    measured_mask,
     on_axis_diopters,
     save_calibration,
     thin_lens_defocus_scale_px_per_d,
 )
 
 __all__ = ["FORMAT", "CalibrationError", "CameraCalibration", "CameraIdentity", "FieldPoly", "FocusError",
-           "defocus_scale_px_per_d", "in_focus_diopters", "load_calibration", "on_axis_diopters", "save_calibration",
+           "defocus_scale_px_per_d", "in_focus_diopters", "load_calibration", "measured_mask",
+           "on_axis_diopters", "save_calibration",
            "thin_lens_defocus_scale_px_per_d"]

@@ -256,6 +256,7 @@ def fit_calibration(measures: list[SweepMeasurement], n_boot: int = 100, degree:
     fitinfo = {"method": "chart", "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
                "version": __version__, "degree": fit.degree, "radial_degree": fit.radial,
                "field_radius_max": fit.field.radius_max,
+               "object_range_d": [round(float(np.min(obs.object_d)), 6), round(float(np.max(obs.object_d)), 6)],
                "focus_degree": fit.focus_degree, "low_focus_degree": fit.low_focus_degree, "edge_focus_cv": fit.edge_cv,
                "order_blend": [{"degree": c.degree, "radial_degree": c.radial, "focus_degree": c.focus_degree,
                                 "low_focus_degree": c.low_focus_degree, "weight": round(c.weight, 6)}

@@ -425,6 +425,29 @@ def in_focus_diopters(cal: CameraCalibration, reported_focus_m, height: int, wid
     return (t[:, None, None] + cal.best_focus(x, y, t)).astype(np.float32)
 
 
+def measured_mask(cal: CameraCalibration, reported_focus_m, height: int, width: int,
+                  in_focus: np.ndarray | None = None) -> np.ndarray:
+    """(S, H, W) bool: where the calibration measured what is in focus, for frames reporting reported_focus_m (S,)
+    metres: within the farthest counted tile's field radius (`best_focus.radius_max`; beyond it the field term is
+    held), the on-axis focus inside the calibrated range (beyond it the field term is held and the focus error
+    extrapolated), and the in-focus object inside the range of objects the charts' tiles showed (`fit`'s
+    `object_range_d`, chart calibrations since 2026-11-27). False: the map there is extrapolated, not measured (on
+    the benchmark's phone 0.47-0.49 D off beyond the farthest tile, against 0.08 D within). in_focus: the
+    (S, H, W) `in_focus_diopters` when already made."""
+    h, w = int(height), int(width)
+    d = in_focus_diopters(cal, reported_focus_m, h, w) if in_focus is None else np.asarray(in_focus)
+    lo, hi = cal.best_focus.focus_range_d
+    t = on_axis_diopters(cal, reported_focus_m)
+    ok = np.broadcast_to(((t >= lo - 1e-9) & (t <= hi + 1e-9))[:, None, None], d.shape).copy()
+    if cal.best_focus.radius_max is not None:
+        x, y = field_grid(h, w)
+        ok &= (field_radius_of(x, y, cal.best_focus.aspect) <= cal.best_focus.radius_max + 1e-9)[None]
+    rng = cal.fit.get("object_range_d")
+    if rng is not None:
+        ok &= (d >= float(rng[0]) - 1e-9) & (d <= float(rng[1]) + 1e-9)
+    return ok
+
+
 def defocus_scale_px_per_d(cal: CameraCalibration, height: int, width: int, focus_m: float | None = None
                            ) -> np.ndarray:
     """(H, W) float32: blur-disk diameter in pixels of a height x width frame per diopter of defocus at each pixel,

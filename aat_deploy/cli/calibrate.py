@@ -250,7 +250,10 @@ def summary(cal, out: Path | None = None, png: Path | None = None) -> dict:
                                                             "support": fe.support},
          "focus_range_m": [round(near, 4), round(far, 4)],
          "residual_rms_d": cal.residuals.get("rms_d"), "residual_p95_d": cal.residuals.get("p95_d"),
-         "tiles": cal.residuals.get("tiles")}
+         "tiles": cal.residuals.get("tiles"), "field_radius_max": cal.best_focus.radius_max}
+    rng = cal.fit.get("object_range_d")
+    if rng:  # beyond these objects (or radius, or focus range) the map is extrapolated (calibrate.measured_mask)
+        d["object_range_m"] = [round(1.0 / max(float(v), 1e-9), 4) for v in rng[::-1]]
     fitted = [{"sweep": p["sweep"], "chart_distance_m": p["chart_distance_m"], "given_m": p["distance_given_m"],
                "start_from": p.get("distance_start_from", "--distance-m"), "interval_m": p.get("distance_ci_m")}
               for p in cal.residuals.get("per_sweep", []) if "distance_given_m" in p]

@@ -200,7 +200,7 @@ def classical_depth(stack: np.ndarray, focus_m, best_focus: BestFocusMap | None 
         # per frame and pixel: the flat take of `estimate.positions_at` with one "radius bin" per pixel
         x, rbin, mapping = fd.reshape(s, h * w), np.arange(h * w, dtype=np.int64).reshape(h, w), "per_pixel"
     elif calibration is not None:
-        from ..calibrate.format import in_focus_diopters, on_axis_diopters
+        from ..calibrate.format import in_focus_diopters, measured_mask, on_axis_diopters
 
         x = in_focus_diopters(calibration, f, h, w).reshape(s, h * w)  # per pixel, as frame_diopters
         rbin = np.arange(h * w, dtype=np.int64).reshape(h, w)
@@ -220,6 +220,11 @@ def classical_depth(stack: np.ndarray, focus_m, best_focus: BestFocusMap | None 
             near, far = calibration.focus_range_m
             warnings.append(f"focus distances {', '.join(f'{v:g}' for v in out)} m lie outside the calibrated "
                             f"{near:.3g}..{far:.3g} m: its field term is held, the focus error extrapolated")
+        unmeasured = 1.0 - float(measured_mask(calibration, f, h, w, x.reshape(s, h, w)).mean())
+        if unmeasured > 0.01:  # beyond the farthest tile, the focus range or the charts' objects: extrapolated
+            warnings.append(f"{100 * unmeasured:.0f} % of the pixel-frames lie where the calibration measured "
+                            "nothing (beyond its farthest chart tile's field radius, its focus range or the objects "
+                            "its charts showed): its map is extrapolated there (aat_deploy.calibrate.measured_mask)")
     elif best_focus is None:
         x, rbin, mapping = (1.0 / f).astype(np.float32), None, "thin_lens"
     else:

@@ -277,6 +277,12 @@ def test_recovers_sensor_tilt_and_focus_scale():
     o = res.observations
     assert cal.best_focus.radius_max == pytest.approx(float(np.max(field_radius_of(o.x, o.y, o.aspect))))
     assert cal.best_focus.aspect == pytest.approx(W / H) and cal.fit["field_radius_max"] == cal.best_focus.radius_max
+    # and the objects its tiles showed: beyond them (or that radius) `measured_mask` says the map is extrapolated
+    assert cal.fit["object_range_d"] == pytest.approx([float(o.object_d.min()), float(o.object_d.max())], abs=1e-6)
+    from aat_deploy.calibrate import measured_mask
+
+    m = measured_mask(cal, [1.1], H, W)[0]
+    assert m[H // 2, W // 2] and not m[0, 0]  # the corner lies beyond the farthest tile's radius
     # and a calibration that knows nothing of the copy (the thin lens's own focus) is far off
     assert float(np.sqrt(np.mean(map_error(cal.__class__(cal.camera, cal.size_px, type(cal.focus_error)(),
                                                          dataclasses.replace(cal.best_focus, coefficients=0 *
