@@ -126,6 +126,27 @@ def peak(lens, fmap, r: float, focus_m: float, cfg, sim, name: str, n_tex: int) 
             "two_peaks": bool(second)}
 
 
+def own_points(fmap) -> dict:
+    """The truth map at its own calibration points, no rendering: its in-focus object for the frame where the
+    photographs' measure peaked (`measure_peak_focus_diopters`) against the plane's D* (what it was calibrated to
+    give there); the miss is the offsets' placement at the peak's frame and their interpolation onto the map's
+    (radius, focus) grid and back (D of object)."""
+    rows = []
+    for q in fmap.notes["calibration_points"]:
+        if "measure_peak_focus_diopters" not in q or not np.isfinite(q.get("offset_diopters", np.nan)):
+            continue
+        t = float(fmap.frame_diopters([1.0 / q["measure_peak_focus_diopters"]], [q["r"]], calibrated=True)[0, 0])
+        rows.append({"r": q["r"], "focus_m": q["focus_m"], "miss_d": q["traced_object_diopters"] - t})
+    miss = np.array([q["miss_d"] for q in rows])
+    by_r = {}
+    for r in sorted({q["r"] for q in rows}):
+        m = np.array([q["miss_d"] for q in rows if q["r"] == r])
+        by_r[f"{r:g}"] = {"n": int(m.size), "rms_d": float(np.sqrt(np.mean(m ** 2))),
+                          "max_abs_d": float(np.max(np.abs(m)))}
+    return {"points": len(rows), "rms_d": float(np.sqrt(np.mean(miss ** 2))), "max_abs_d": float(np.abs(miss).max()),
+            "by_radius": by_r, "grid_radius": fmap.radius.tolist(), "rows": rows}
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--textures", default="photos,photos_grey,photos_turned,soft_leaves,square_leaves")
@@ -133,6 +154,8 @@ def main(argv=None) -> int:
     ap.add_argument("--focus-m", default="0.07,0.1,0.15")
     ap.add_argument("--n", type=int, default=48, help="textures per point (the truth's 48)")
     ap.add_argument("--out", default=str(RESULTS / "truth_texture.json"))
+    ap.add_argument("--own-points", action="store_true", help="no rendering: the truth map at its own calibration "
+                    "points (into --out)")
     a = ap.parse_args(argv)
     from aat_deploy.focus.bestfocus import load_json
     from aat_deploy.lens.io import load_lens
@@ -141,6 +164,13 @@ def main(argv=None) -> int:
     root = Path(__file__).resolve().parents[2]
     lens = load_lens(root / "lenses" / "cellphone_asphere.json")
     fmap = load_json(root / "lenses" / "best_focus" / "cellphone_asphere.json")
+    if a.own_points:
+        out = own_points(fmap)
+        tmp = Path(a.out).with_suffix(".tmp")
+        tmp.write_text(json.dumps(out, indent=1))
+        tmp.replace(a.out)
+        print(json.dumps({k: v for k, v in out.items() if k not in ("rows", "grid_radius")}, indent=1))
+        return 0
     c = fmap.notes["calibration"]
     cfg = FC.CalibrationConfig(sweep_d=c["sweep_d"], n_sweep=c["n_sweep"], crop_px=c["crop_px"],
                                margin_px=c["margin_px"], psf=str(root / c["psf"]), seed=c["seed"])
