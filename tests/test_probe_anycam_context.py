@@ -216,6 +216,15 @@ def test_choose_takes_the_lowest_on_one_dozen_and_judges_on_another(tmp_path, ca
                                "--out", str(tmp_path / "o.json")]) == 0
     got = json.loads((tmp_path / "o.json").read_text())
     assert got["step"] == 600 and got["first_run_tiles_mae_m"] == 2.0 and got["vs_first_run_tiles_m"][0] == 0.75
+    sel["rows"][0]["mae_d"] = sel["rows"][1]["mae_d"] = sel["rows"][2]["mae_d"] = [0.1, 0.1]
+    a.write_text(json.dumps({**sel, "classical_lens_map": {"mae_m": [1.0, 1.0], "mae_d": [0.2, 0.2]}}))
+    png = tmp_path / "c.png"
+    assert anycam_choose.main(["--select", str(a), "--judge", str(b), "--first-run", str(first),
+                               "--png", str(png)]) == 0
+    assert png.read_bytes()[:4] == b"\x89PNG"
+    with pytest.raises(SystemExit):  # an existing figure is never overwritten
+        anycam_choose.main(["--select", str(a), "--judge", str(b), "--first-run", str(first), "--png", str(png)])
+    assert "c.png: exists" in capsys.readouterr().err
     # a run scored in parts: rows pooled, each step once; parts of other stacks refused
     late = {**sel, "rows": [{"step": 800, "mae_m": [0.0, 0.2]}, sel["rows"][0]]}
     pooled = anycam_choose.pool([sel, late], "--select")

@@ -2,7 +2,7 @@
 
     python -m benchmarks.probes.anycam_choose --select results/anycam_stack_curve_v9_select.json
         --judge results/anycam_stack_curve_v9.json [--first-run results/anycam_tiles_overlap_rf50_val.json]
-        [--out OUT.json]
+        [--out OUT.json] [--png FIG.png]
 
 The rule declared in docs/training.md ("The ninth run along its steps"): among the checkpoints `anycam_stack_curve`
 scored on the choosing stacks (`--first 12`), the one with the lowest mean whole-frame MAE (m); it is then judged on
@@ -89,13 +89,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--first-run", type=Path, default=ROOT / "results" / "anycam_tiles_overlap_rf50_val.json",
                     help="anycam_tiles result of the first run (column 0: 128 px tiles) on the judging stacks")
     ap.add_argument("--out", type=Path, help="JSON of the choice and the judgement")
+    ap.add_argument("--png", type=Path, help="also draw the pooled choosing curve, the chosen step marked")
     ap.add_argument("--window", type=int, help="instead: only say which K consecutive checkpoints to average")
     a = ap.parse_args(argv)
     for p in (*a.select, *a.judge, a.first_run):
         if not p.is_file():
             ap.error(f"{p}: no such file")
-    if a.out and a.out.exists():
-        ap.error(f"{a.out}: exists (choose another --out)")
+    for out in (a.out, a.png):
+        if out and out.exists():
+            ap.error(f"{out}: exists (choose another)")
     sel = pool([json.loads(p.read_text()) for p in a.select], "--select")
     cur = pool([json.loads(p.read_text()) for p in a.judge], "--judge")
     (fs, ns), (fj, nj) = ((c.get("first", 0), len(c["classical_lens_map"]["mae_m"])) for c in (sel, cur))
@@ -129,6 +131,10 @@ def main(argv: list[str] | None = None) -> int:
         from aat_deploy.io.atomic import write_text_atomic
 
         write_text_atomic(a.out, json.dumps(res, indent=1))
+    if a.png:
+        from benchmarks.probes.anycam_stack_curve import draw
+
+        draw(sel["rows"], sel["classical_lens_map"], a.png, mark=res["step"])
     return 0
 
 

@@ -125,8 +125,9 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def draw(rows: list[dict], classical: dict, png: Path) -> None:
-    """Mean MAE in m and in D over the steps, the classical method's as a line."""
+def draw(rows: list[dict], classical: dict, png: Path, mark: int | None = None) -> None:
+    """Mean MAE in m and in D over the steps, the classical method's as a line; `mark`: a step drawn as a vertical
+    line (the chosen checkpoint)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -140,6 +141,8 @@ def draw(rows: list[dict], classical: dict, png: Path) -> None:
     for ax, key, unit in zip(axes, ("mae_m", "mae_d"), ("m", "D")):
         ax.plot(steps, [np.mean(r[key]) for r in rows], "o-", ms=3, label="net, whole frames")
         ax.axhline(np.mean(classical[key]), color="k", ls="--", lw=1, label="classical, lens map")
+        if mark is not None:
+            ax.axvline(mark, color="tab:red", lw=1, label=f"chosen: step {mark}")
         ax.set_xlabel("training step")
         ax.set_ylabel(f"MAE ({unit}), {len(rows[0][key])} RF50 validation stacks")
         ax.grid(alpha=0.3)
