@@ -29,14 +29,15 @@ from benchmarks import RESULTS
 EDGES = (0.0, 0.33, 0.5, 0.66, 0.75, 0.84, 0.93)
 
 
-def render(name: str, lens, rgb: np.ndarray, z: float, focus_m: np.ndarray, psf: Path) -> np.ndarray:
-    """(S, 3, H, W) float32 linear frames of the plane at z (m) by renderer `name`."""
+def render(name: str, lens, rgb: np.ndarray, z: float, focus_m: np.ndarray, psf: Path | None) -> np.ndarray:
+    """(S, 3, H, W) float32 linear frames of the plane at z (m) by renderer `name`; psf None (`shoot` only): the
+    thin-lens Gaussian, focusing paraxially (an ideal lens, for tests)."""
     h, w = rgb.shape[1:]
     if name.startswith("shoot"):
         from aat_deploy.capture.virtual import shoot
         from aat_deploy.render.sources import OnnxSource
 
-        src = OnnxSource(psf, lens, threads=1)
+        src = OnnxSource(psf, lens, threads=1) if psf is not None else None
         fr, _ = shoot(lens, rgb, np.full((h, w), z, np.float32), focus_m, [], src, seed=0, workers=1,
                       cell_px=int(name[5:]))
         return fr
