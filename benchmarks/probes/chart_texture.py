@@ -64,19 +64,19 @@ def _to_u8(lin: np.ndarray) -> np.ndarray:
     return np.clip(np.round(s * 255), 0, 255).astype(np.uint8)
 
 
-def photo_mosaic(hs: int, ws: int, rng: np.random.Generator) -> np.ndarray:
+def photo_mosaic(hs: int, ws: int, rng: np.random.Generator, block_px: int = BLOCK_PX) -> np.ndarray:
     """(hs, ws) float32 linear grey at sensor scale: photo_texture crops (the truth calibration's draw) one per
-    BLOCK_PX block, each FADE_PX larger on every side and cross-faded with its neighbours (raised cosine)."""
+    block_px block, each FADE_PX larger on every side and cross-faded with its neighbours (raised cosine)."""
     from training.data.textures import photo_texture
 
     acc = np.zeros((hs, ws), np.float64)
     wsum = np.zeros((hs, ws), np.float64)
-    n = BLOCK_PX + 2 * FADE_PX
+    n = block_px + 2 * FADE_PX
     ramp = 0.5 - 0.5 * np.cos(np.pi * (np.arange(2 * FADE_PX) + 0.5) / (2 * FADE_PX))
     win1 = np.concatenate([ramp, np.ones(n - 4 * FADE_PX), ramp[::-1]])
     win = np.outer(win1, win1)
-    for r0 in range(-FADE_PX, hs, BLOCK_PX):
-        for c0 in range(-FADE_PX, ws, BLOCK_PX):
+    for r0 in range(-FADE_PX, hs, block_px):
+        for c0 in range(-FADE_PX, ws, block_px):
             tex = photo_texture(rng, n, n, "train")
             lum = tex[..., 0] * 0.2126 + tex[..., 1] * 0.7152 + tex[..., 2] * 0.0722
             ra, ca = max(r0, 0), max(c0, 0)
