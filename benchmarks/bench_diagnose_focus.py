@@ -302,6 +302,7 @@ def score(kind: str, family: str, true_d: np.ndarray, rep_d: np.ndarray, res: di
             "undetermined_covers": undetermined_covers(f, true_d),
             "frames_undetermined": int(np.sum(f.get("frames_undetermined") or [])),
             "frames_noise_dominated": (f.get("frames_noise_dominated") or [[]])[0],
+            "frames_left_out_on_bound": (f.get("frames_left_out_on_bound") or [[]])[0],
             "frame_noise_share": (f.get("frame_noise_share") or [[]])[0], "focus_twin": f.get("focus_twin"),
             "families": [{k: x.get(k) for k in ("family", "k", "score", "true_d")} for x in f.get("families", [])]}
 
@@ -350,10 +351,10 @@ def rescored(row: dict, commit: str, consistency: bool | None = None, residual_s
     (`family_rescored` says it changed). consistency, residual_scale: with or without the consistency scale (issue
     32, off) and the residual scale (`focusfit.SCALE_BY_RESIDUALS`); None: as the code. on_estimates: the families
     refitted to the row's per-frame estimates first (`focusfit.fit_on_estimates`, as `fit_metadata` does with
-    `FAMILIES_ON_ESTIMATES`); False: the row's own fits. Frames the row left out (`frames_noise_dominated`) count
-    nothing, and get `focusfit.left_out_sd`. noise_weight: with on_estimates, the frames' working weights from the
-    row's noise shares (`focusfit.signal_weight`, `WEIGHT_BY_NOISE_SHARE`; None: as the code; rows without noise
-    shares weigh every frame alike). None for rows without the stored fits."""
+    `FAMILIES_ON_ESTIMATES`); False: the row's own fits. Frames the row left out (`frames_noise_dominated`,
+    `frames_left_out_on_bound`) count nothing, and get `focusfit.left_out_sd`. noise_weight: with on_estimates, the
+    frames' working weights from the row's noise shares (`focusfit.signal_weight`, `WEIGHT_BY_NOISE_SHARE`; None: as
+    the code; rows without noise shares weigh every frame alike). None for rows without the stored fits."""
     from aat_deploy.diagnose import focusfit as ff
 
     fams = {x["family"]: x for x in row.get("families") or []}
@@ -362,6 +363,8 @@ def rescored(row: dict, commit: str, consistency: bool | None = None, residual_s
     rep = np.asarray(fams["none"]["true_d"], np.float64)
     fits = {k: ff.FamilyFit(k, int(x["k"]), {}, np.asarray(x["true_d"], np.float64), 0.0) for k, x in fams.items()}
     exc = np.asarray(row.get("frames_noise_dominated") or np.zeros(rep.shape[-1], bool), bool)[None]
+    if row.get("frames_left_out_on_bound"):  # left out because its estimate sat on its bound: as a noise-dominated one
+        exc = exc | np.asarray(row["frames_left_out_on_bound"], bool)[None]
     sd = np.asarray(row["frame_focus_sd_d"], np.float64)
     sd = np.where(np.isfinite(sd), sd, 0.0)  # a left-out frame's is null
     sys_d = np.asarray(row["frame_systematic_d"], np.float64)
@@ -577,6 +580,10 @@ def table(rows: list[dict]) -> None:
               + ", ".join(f"{k} {v}" for k, v in sorted(verdicts.items(), key=lambda x: str(x[0]))))
     bound = sum(r["frames_on_bound"] > 0 for r in rows)
     print(f"sets with a per-frame estimate on its search bound while the truth is not there: {bound}/{n}")
+    if any("frames_left_out_on_bound" in r for r in rows):  # rows from the code that leaves such frames out
+        out = sum(any(r.get("frames_left_out_on_bound") or []) for r in rows)
+        print(f"sets with a frame left out because its estimate sat on its search bound (no estimate, undetermined "
+              f"unless its family reaches it; `focusfit.LEAVE_OUT_ON_BOUND`): {out}/{n}")
     for label, key in (("wall clock", "seconds"), ("CPU time, all threads", "cpu_seconds")):
         t = [r[key] for r in rows if r.get(key)]
         if t:

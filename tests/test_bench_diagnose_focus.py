@@ -37,6 +37,12 @@ def test_table_counts_an_undetermined_set_as_not_within_and_the_last_row_of_a_se
     assert "reported undetermined (not counted as within 0.02 D): 1/2" in out
     assert "containing the truth in 1/1" in out
     assert "sets over 0.02 D with every frame reported determined: none" in out
+    assert "left out because its estimate sat on its search bound" not in out  # rows from before the rule
+    rows[1]["frames_left_out_on_bound"] = [True, False]
+    bench.table(rows)
+    out = capsys.readouterr().out
+    assert "a frame left out because its estimate sat on its search bound" in out
+    assert "`focusfit.LEAVE_OUT_ON_BOUND`): 1/2" in out
 
 
 def test_compare_says_what_moved_between_two_runs(capsys):
@@ -205,6 +211,26 @@ def test_rescored_refits_the_families_to_the_estimates_without_the_left_out_fram
                        truth)
     sd = np.array(on["corrected_sd_d"][0])
     assert np.isfinite(sd).all() and sd[0] == pytest.approx(sd[1], rel=0.3) and sd[0] < 0.02
+
+
+def test_rescored_leaves_out_the_frames_the_row_left_out_on_their_bound():
+    """A frame the row left out because its estimate sat on its search bound (`frames_left_out_on_bound`,
+    `focusfit.LEAVE_OUT_ON_BOUND`) counts nothing in `rescored`, as a noise-dominated one: the same answer as the row
+    with that frame marked noise-dominated."""
+    rep = np.array([[1.63, 1.31, 0.97, 0.72]])
+    est = rep - np.array([[0.4, 0.05, 0.05, 0.05]])
+    fams = [{"family": "none", "k": 0, "true_d": rep.tolist()}, {"family": "offset", "k": 1, "true_d": (rep - 0.05).tolist()},
+            {"family": "per_frame", "k": 4, "true_d": est.tolist()}]
+    row = {"family": "offset", "family_true": "offset", "families": fams, "frame_focus_sd_d": [[None, 0.004, 0.004, 0.004]],
+           "frame_systematic_d": [[0.01] * 4], "corrected_err_d": [0.0] * 4, "frames_noise_dominated": [False] * 4,
+           "frames_left_out_on_bound": [True, False, False, False], "commit": "old"}
+    on = bench.rescored(row, "new", on_estimates=True)
+    as_dom = bench.rescored({**row, "frames_noise_dominated": [True, False, False, False],
+                             "frames_left_out_on_bound": [False] * 4}, "new", on_estimates=True)
+    kept = bench.rescored({**row, "frames_left_out_on_bound": [False] * 4}, "new", on_estimates=True)
+    assert on["corrected_err_d"] == as_dom["corrected_err_d"] and np.allclose(on["corrected_err_d"], 0.0, atol=1e-4)
+    assert on["corrected_sd_d"] == as_dom["corrected_sd_d"]
+    assert np.abs(kept["corrected_err_d"]).max() > 0.01  # the frame on its bound, counted, pulls the offset
 
 
 def test_rescored_weighs_the_frames_by_the_rows_noise_shares():

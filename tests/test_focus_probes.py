@@ -227,3 +227,22 @@ def test_focus_noise_weight_refuses_in_one_line_and_pairs_the_sets(tmp_path, cap
     assert got["plain"]["sets"] == got["weighed"]["sets"] == 1
     # the offset moves towards frame 1 by 0.0017 D plain, 0.0004 D weighed: the set's largest error falls
     assert got["paired"]["sets_better"] == 1 and got["paired"]["scene_mean_change_d"]["scene1"] < -0.001
+
+
+def test_focus_choice_nearest_ranks_fitted_frames_nearest_first_and_restores_the_code():
+    """`focus_choice_nearest.by_rank`: a left-out frame is not ranked, the nearest fitted frame (largest reported
+    diopters) is rank 0, its standardised error its error over the spread and systematic error in quadrature;
+    `variants` leaves `focusfit`'s functions as they were."""
+    from aat_deploy.diagnose import focusfit as ff
+    from benchmarks.probes import focus_choice_nearest as fcn
+
+    row = {"frame_err_d": [0.5, 0.03, 0.004], "frame_focus_sd_d": [[None, 0.0, 0.003]],
+           "frame_systematic_d": [[0.01, 0.01, 0.004]], "frames_noise_dominated": [True, False, False],
+           "frame_noise_share": [0.7, 0.3, 0.1], "families": [{"family": "none", "true_d": [[1.6, 1.2, 0.4]]}]}
+    b = fcn.by_rank([row])
+    assert [x["frames"] for x in b] == [1, 1]
+    assert b[0]["rms_err_d"] == 0.03 and b[0]["rms_z"] == 3.0 and b[0]["median_share"] == 0.3
+    assert b[1]["rms_z"] == 0.8
+    before = ff.error_scale, ff.score_families, ff.signal_weight
+    fcn.variants([], [2.0])
+    assert (ff.error_scale, ff.score_families, ff.signal_weight) == before

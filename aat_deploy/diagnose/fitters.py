@@ -330,7 +330,9 @@ def fit_focus_metadata(state: FitState) -> Fitted:
             "total_ci_m": [[1.0 / (d + z * e), 1.0 / max(d - z * e, 1e-6)]
                            for d, e in zip(fit.best.true_d[i, :s], fit.true_d_sd[i, :s])],
             "undetermined": fit.undetermined[i, :s].tolist(),
-            "noise_dominated": fit.noise_dominated[i, :s].tolist()})
+            "noise_dominated": fit.noise_dominated[i, :s].tolist(),
+            "left_out_on_bound": (fit.bound_left_out[i, :s] if fit.bound_left_out is not None
+                                  else np.zeros(s, bool)).tolist()})
     return Fitted(None if fit.best.name == "none" else _rounded(fit.best.params), rep)
 
 

@@ -52,6 +52,8 @@ def refit(row: dict) -> np.ndarray | None:
             for k in ("none", "per_frame")}
     sd = np.asarray(row["frame_focus_sd_d"], np.float64)
     exc = np.asarray(row.get("frames_noise_dominated") or np.zeros(sd.shape[-1], bool), bool)[None]
+    if row.get("frames_left_out_on_bound"):  # left out because its estimate sat on its search bound
+        exc = exc | np.asarray(row["frames_left_out_on_bound"], bool)[None]
     out = ff.fit_on_estimates(fits, fits["none"].true_d, np.where(np.isfinite(sd), sd, 0.0), (~exc).astype(float),
                               np.asarray(row["frame_systematic_d"], np.float64))
     return out[row["family"]].true_d[0] if row["family"] in out else None

@@ -528,6 +528,33 @@ def test_a_frame_alone_in_its_bin_is_known_no_better_than_its_estimate():
     assert 1.96 * got[0] > 0.042 > 1.96 * old
 
 
+def test_an_estimate_on_its_search_bound_is_left_out_and_the_fit_redone():
+    """The far scene reported at 1/1.1 of its distance, its nearest frame's level 1 log unit low (a noise floor the twin
+    gets badly wrong): that frame's estimate runs to its +0.4 D search bound, which says its curve has no peak inside
+    the range, not where its focus is (issue 32). `fit_metadata` leaves it out and fits again: no fitted frame's
+    estimate on its bound, that frame reported left out with its reason and no estimate of its own (null), its
+    corrected focus the scale's value; the scale found to 0.005 (with the frame in: 1.072)."""
+    data, true = far_scene_sweep(level_d=-1.0, frame=0, seed=1)
+    data = dataclasses.replace(data, reported_d=true / 1.1, base_d=true / 1.1)
+    plain = ff.fit_families(data)["per_frame"].true_d
+    assert ff.on_search_bound(plain, data.reported_d, data.frames)[0, 0]  # the case needs the frame on its bound
+    fit = ff.fit_metadata(data, n_boot=10)
+    assert not fit.on_bound.any()
+    assert fit.bound_left_out[0].tolist() == [True] + [False] * 7 and not fit.noise_dominated.any()
+    s = fit.summary()
+    assert s["frames_left_out_on_bound"][0][0] and s["frame_focus_d"][0][0] is None
+    assert s["frame_focus_d"][0][1] is not None and not any(s["frames_noise_dominated"][0])
+    assert fit.best.name == "scale" and fit.best.params["scale"] == pytest.approx(1.1, abs=0.005)
+    assert abs(fit.best.true_d[0, 0] - true[0, 0]) < 0.02
+    assert np.isfinite(fit.true_d_sd[0, 0])
+
+
+def test_on_search_bound_needs_a_fitted_frame_within_its_tolerance():
+    rep = np.array([[1.0, 1.0, 1.0, 1.0]])
+    est = rep + np.array([[ff.MAX_ERROR_D, -ff.MAX_ERROR_D + 0.001, ff.MAX_ERROR_D - 0.01, ff.MAX_ERROR_D]])
+    assert ff.on_search_bound(est, rep, np.array([[1, 1, 1, 0]])).tolist() == [[True, True, False, False]]
+
+
 def test_fit_metadata_reports_each_frames_systematic_error_and_flags():
     """The fit on the far scene reported 0.05 D too near: the offset found; every frame's systematic error, the
     corrected focus's standard error and the undetermined flags in its summary, shaped as the frames."""

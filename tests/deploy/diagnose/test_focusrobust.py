@@ -109,15 +109,19 @@ def test_fit_floors_finds_the_floor_and_none_where_there_is_none():
 
 
 def test_truth_beyond_the_search_bound_is_flagged():
-    """A frame truly 0.5 D nearer than reported cannot be found inside +-0.4 D: its estimate sits on the bound
-    and `frames_on_bound` says so (the estimate is a bound, not a measurement); the others do not."""
+    """A frame truly 0.5 D nearer than reported cannot be found inside +-0.4 D: its estimate sits on the bound (a
+    bound, not a measurement), so the fit leaves it out and is redone (`focusfit.LEAVE_OUT_ON_BOUND`, issue 32):
+    `frames_left_out_on_bound` says so, it has no estimate of its own and is reported undetermined; no fitted frame's
+    estimate is left on its bound, and no other frame is left out."""
     true = bracket(1)
     rep = true.copy()
     rep[0, 0] += 0.5
     data = sweep(true, rep, noise=0.02)
     fit = ff.fit_metadata(fr.prepare(data)[0], n_boot=0)
-    flagged = np.asarray(fit.summary()["frames_on_bound"])
-    assert flagged[0, 0] and flagged.sum() == 1
+    s = fit.summary()
+    out = np.asarray(s["frames_left_out_on_bound"])
+    assert out[0, 0] and out.sum() == 1 and not np.any(s["frames_on_bound"])
+    assert s["frame_focus_d"][0][0] is None and fit.undetermined[0, 0]
 
 
 # --- frames whose expected focus measure is mostly noise (issue 32, scene 2038) ---------------------------------
