@@ -351,3 +351,19 @@ def test_ninth_fresh_test_captures_follow_the_sixth_rounds_rule_on_unused_candid
     with pytest.raises(SystemExit, match="--fresh9"):
         bench.fresh6_scenes(bench.FRESH9_K + 1, tmp_path, bench.FRESH9_CANDIDATES, bench.FRESH9_NOISE_SEEDS, "fresh9")
     assert not (tmp_path / "fresh9_stats.json").exists()
+
+
+def test_tenth_fresh_test_captures_follow_the_sixth_rounds_rule_on_unused_candidates(tmp_path):
+    """The tenth fresh test captures (issue 32, an estimate on its search bound left out): candidates start after the
+    last scene the ninth round screened (its fourth kept, 2722: candidates 2473-2722 were screened, 2620, 2628, 2655
+    and 2722 kept), the noise seeds share nothing with 1-40; the rule is the sixth round's; --fresh10 refuses a count it
+    does not have and keeps its screening statistics apart."""
+    assert min(bench.FRESH10_CANDIDATES) == 2723 > 2722 == max((2620, 2628, 2655, 2722))
+    used = (set(range(1, 25)) | set(bench.FRESH6_NOISE_SEEDS) | set(bench.FRESH7_NOISE_SEEDS)
+            | set(bench.FRESH8_NOISE_SEEDS) | set(bench.FRESH9_NOISE_SEEDS))
+    assert used == set(range(1, 41)) and not set(bench.FRESH10_NOISE_SEEDS) & used
+    assert set(bench.FRESH10_NOISE_SEEDS) == set(range(41, 45)) and bench.FRESH10_K == 4
+    with pytest.raises(SystemExit, match="--fresh10"):
+        bench.fresh6_scenes(bench.FRESH10_K + 1, tmp_path, bench.FRESH10_CANDIDATES, bench.FRESH10_NOISE_SEEDS,
+                            "fresh10")
+    assert not (tmp_path / "fresh10_stats.json").exists()
