@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from aat_deploy.io.atomic import write_text_atomic
 from benchmarks import RESULTS
 
 VARIANTS = ("nominal", "copy", "copy_s2026_0", "copy_s2026_1", "copy_s2026_2")
@@ -53,10 +54,10 @@ def main(argv=None) -> int:
     ap.add_argument("--variants", default=",".join(VARIANTS))
     ap.add_argument("--out", default=str(RESULTS / "measured_share.json"))
     a = ap.parse_args(argv)
+    if Path(a.out).exists():  # a committed result is never overwritten
+        ap.error(f"{a.out}: exists (choose another --out)")
     rows = [run(v) for v in a.variants.split(",")]
-    tmp = Path(a.out).with_suffix(".tmp")
-    tmp.write_text(json.dumps({"what": __doc__.split("\n")[0], "rows": rows}, indent=1))
-    tmp.replace(a.out)
+    write_text_atomic(a.out, json.dumps({"what": __doc__.split("\n")[0], "rows": rows}, indent=1))
     return 0
 
 

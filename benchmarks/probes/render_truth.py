@@ -38,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
+from aat_deploy.io.atomic import write_text_atomic
 from benchmarks import RESULTS, ROOT
 
 CACHE = ROOT / "cache" / "render_truth"
@@ -255,6 +256,8 @@ def main(argv=None) -> int:
     ap.add_argument("--planes-full", type=int, default=17, help="planes a full truth renders (for the estimate)")
     ap.add_argument("--out", default=str(RESULTS / "render_truth.json"))
     a = ap.parse_args(argv)
+    if Path(a.out).exists():  # a committed result is never overwritten
+        ap.error(f"{a.out}: exists (choose another --out)")
     try:
         objects = [float(v) for v in a.objects_d.split(",")]
     except ValueError:
@@ -295,9 +298,7 @@ def main(argv=None) -> int:
     out = {"what": __doc__.split("\n")[0], "setup": dataclasses.asdict(setup), "setup_key": setup.key(),
            "objects_d": objects, "target_d": TARGET_D, "boot": a.boot,
            "summary": summary(rows, float(np.median(cpu)) if cpu else float("nan"), a.planes_full), "rows": rows}
-    tmp = Path(a.out).with_suffix(".tmp")
-    tmp.write_text(json.dumps(out, indent=1))
-    tmp.replace(a.out)
+    write_text_atomic(a.out, json.dumps(out, indent=1))
     print(json.dumps(out["summary"], indent=1))
     return 0
 

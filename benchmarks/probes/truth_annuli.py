@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from aat_deploy.io.atomic import write_text_atomic
 from benchmarks import RESULTS
 
 R_EDGES = np.round(np.arange(0.0, 0.951, 0.05), 3)
@@ -42,8 +43,16 @@ def main(argv=None) -> int:
     ap.add_argument("--score", default=None, help="two runs' json (disjoint seeds), comma-separated: score the "
                     "nominal chart calibration at their points into --out")
     a = ap.parse_args(argv)
+    if Path(a.out).exists():  # a committed result is never overwritten
+        ap.error(f"{a.out}: exists (choose another --out)")
     if a.score:
-        print(json.dumps(score(a.score.split(","), a.out), indent=1))
+        files = a.score.split(",")
+        if len(files) != 2 or not all(Path(f).is_file() for f in files):
+            ap.error(f"--score {a.score}: two existing runs' json, comma-separated")
+        seeds = [set(json.loads(Path(f).read_text())["seeds"].split(",")) for f in files]
+        if seeds[0] & seeds[1]:  # the same draws twice would record a renders' noise of 0
+            ap.error(f"--score {a.score}: the runs share seeds {','.join(sorted(seeds[0] & seeds[1]))}")
+        print(json.dumps(score(files, a.out), indent=1))
         return 0
     from aat_deploy.calibrate.format import field_grid, field_radius_of
     from aat_deploy.focus import FocusConfig
@@ -92,9 +101,7 @@ def main(argv=None) -> int:
             b = [q["bias_d"] for q in out["rows"][-len(rings):]]
             print(f"{tname} 1/Z {od:g} D ({time.time() - t0:.0f} s): " +
                   " ".join("  -  " if v is None else f"{v:+.2f}" for v in b), flush=True)
-    tmp = Path(a.out).with_suffix(".tmp")
-    tmp.write_text(json.dumps(out, indent=1))
-    tmp.replace(a.out)
+    write_text_atomic(a.out, json.dumps(out, indent=1))
     return 0
 
 
@@ -146,9 +153,7 @@ def score(files: list[str], out_path: str) -> dict:
                                                     ("calibration - renders", mp - obj))}
                                   for a, b in ((0, 0.33), (0.33, 0.66), (0.66, 0.84), (0.84, 0.95))
                                   if np.any(sel & (r >= a) & (r < b))}
-    tmp = Path(out_path).with_suffix(".tmp")
-    tmp.write_text(json.dumps(out, indent=1))
-    tmp.replace(out_path)
+    write_text_atomic(out_path, json.dumps(out, indent=1))
     return out
 
 

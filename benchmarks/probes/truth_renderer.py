@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from aat_deploy.io.atomic import write_text_atomic
 from benchmarks import RESULTS
 
 EDGES = (0.0, 0.33, 0.5, 0.66, 0.75, 0.84, 0.93)
@@ -64,6 +65,8 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", default="7,8", help="texture draws")
     ap.add_argument("--out", default=str(RESULTS / "truth_renderer.json"))
     a = ap.parse_args(argv)
+    if Path(a.out).exists():  # a committed result is never overwritten
+        ap.error(f"{a.out}: exists (choose another --out)")
     from aat_deploy.calibrate.format import field_radius_of
     from aat_deploy.calibrate.peaks import TileGrid, tile_peaks
     from aat_deploy.focus.bestfocus import load_json
@@ -107,9 +110,7 @@ def main(argv=None) -> int:
         out["rows"][f"{name} {tname} z={z:g}"] = row
         print(f"{name:8s} {tname:6s} z {z:g} m: " + " ".join(f"{k} {v['mean_d']:+.3f}" for k, v in row.items()),
               flush=True)
-    tmp = Path(a.out).with_suffix(".tmp")
-    tmp.write_text(json.dumps(out, indent=1))
-    tmp.replace(a.out)
+    write_text_atomic(a.out, json.dumps(out, indent=1))
     return 0
 
 

@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from aat_deploy.io.atomic import write_text_atomic
 from benchmarks import RESULTS
 
 K = 3  # chart image px per sensor px (bench_calibrate.CHART_PX_PER_PX)
@@ -157,6 +158,8 @@ def main(argv=None) -> int:
     ap.add_argument("--own-points", action="store_true", help="no rendering: the truth map at its own calibration "
                     "points (into --out)")
     a = ap.parse_args(argv)
+    if Path(a.out).exists():  # a committed result is never overwritten
+        ap.error(f"{a.out}: exists (choose another --out)")
     from aat_deploy.focus.bestfocus import load_json
     from aat_deploy.lens.io import load_lens
     from training.render import focus_calibration as FC
@@ -166,9 +169,7 @@ def main(argv=None) -> int:
     fmap = load_json(root / "lenses" / "best_focus" / "cellphone_asphere.json")
     if a.own_points:
         out = own_points(fmap)
-        tmp = Path(a.out).with_suffix(".tmp")
-        tmp.write_text(json.dumps(out, indent=1))
-        tmp.replace(a.out)
+        write_text_atomic(a.out, json.dumps(out, indent=1))
         print(json.dumps({k: v for k, v in out.items() if k not in ("rows", "grid_radius")}, indent=1))
         return 0
     c = fmap.notes["calibration"]
@@ -190,9 +191,7 @@ def main(argv=None) -> int:
             b = [q["bias_d"] for q in rows if q["texture"] == name and q["r"] == r and "bias_d" in q]
             summary[f"{name} r={r:g}"] = float(np.mean(b)) if b else None
     out = {"what": __doc__.split("\n")[0], "n_textures": a.n, "rows": rows, "mean_bias_by_texture_radius_d": summary}
-    tmp = Path(a.out).with_suffix(".tmp")
-    tmp.write_text(json.dumps(out, indent=1))
-    tmp.replace(a.out)
+    write_text_atomic(a.out, json.dumps(out, indent=1))
     print(json.dumps(summary, indent=1))
     return 0
 
