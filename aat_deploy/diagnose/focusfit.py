@@ -674,8 +674,10 @@ def fit_on_estimates(fits: dict[str, FamilyFit], reported_d: np.ndarray, frame_s
                      ss: Callable[[np.ndarray], float] | None = None, weight: np.ndarray | None = None
                      ) -> dict[str, FamilyFit]:
     """The families refitted to the `per_frame` estimates e of fits (n, S) by weighted least squares, W = 1 /
-    (frame_sd^2 + systematic_d^2) on the frames with frames > 0: the chi2 `score_families` prices, so the evidence's
-    Laplace approximation sits at its own optimum, and the fit `corrected_sd` and `frame_consistency` assume (f = P e).
+    (frame_sd^2 + systematic_d^2) on the frames with frames > 0: the chi2 `score_families` prices. Without `weight` the
+    evidence's Laplace approximation sits at its own optimum; with working weights (`signal_weight`) the parameters
+    are fitted off that optimum, which the evidence then prices slightly against every family but `none`. The fit
+    is what `corrected_sd` and `frame_consistency` assume (f = P e).
     offset b and scale s in closed form (clipped to their search ranges), the monotone parabola's 3 knots by linear
     least squares (dropped if the curve turns back, as `fit_families` does), each quantisation bin's value the
     weighted mean of its frames' estimates clipped to its bin (quant: the grid, from every reported value; None: no
@@ -849,7 +851,7 @@ class MetadataFit:
         return {"family": b.name, "params": b.params, "params_ci": self.params_ci, "support": self.support,
                 "frame_focus_d": est(self.fits["per_frame"].true_d),
                 "frames_noise_dominated": dom.tolist(),
-                # left out because the estimate sat on its search bound (`LEAVE_OUT_ON_BOUND`), with the bound's side
+                # per frame, True: left out because its estimate sat on its search bound (`LEAVE_OUT_ON_BOUND`)
                 "frames_left_out_on_bound": onb.tolist(),
                 "frame_noise_share": [] if self.noise_share is None else np.round(self.noise_share, 4).tolist(),
                 "frames_on_bound": [] if self.on_bound is None else self.on_bound.tolist(),
