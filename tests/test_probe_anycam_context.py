@@ -162,6 +162,27 @@ def test_stack_curve_probe_refuses_before_any_work(tmp_path, capsys):
         anycam_stack_curve.main([str(ck), "--out", str(out)])
     assert "curve.json: exists" in capsys.readouterr().err
     assert out.read_text() == "mine"
+    out.unlink()
+    with pytest.raises(SystemExit):
+        anycam_stack_curve.main([str(ck), "--stack-size", "1", "--out", str(out)])
+    assert "--stack-size: 2 to 32 frames, got 1" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_fixed_stacks_sweeps_the_same_scenes_with_the_frames_asked_for(monkeypatch):
+    """--stack-size: the validation spec (its own seed, training photographs) with only the frame count changed."""
+    import training.train.testsets as ts
+    from benchmarks.probes.anycam_tiles import fixed_stacks
+
+    seen = []
+    monkeypatch.setattr(ts, "load_test_set", lambda spec, cache, progress: seen.append(spec) or {"procedural": []})
+    fixed_stacks("rf50", "validation", 4, "unused")
+    fixed_stacks("rf50", "validation", 4, "unused", stack_size=3)
+    a, b = seen
+    assert (a.stack_size, b.stack_size) == (8, 3)
+    assert a.seed == b.seed and a.photo_split == b.photo_split == "train"
+    assert {k: v for k, v in vars(a).items() if k != "stack_size"} == {k: v for k, v in vars(b).items()
+                                                                       if k != "stack_size"}
 
 
 def test_stack_curve_errors_by_hand():

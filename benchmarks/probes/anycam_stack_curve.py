@@ -64,9 +64,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--paired", action="store_true",
                     help="also each checkpoint's MAE over the first one's, paired over the stacks (95 %% bootstrap)")
     ap.add_argument("--processed", action="store_true", help="also score the stacks given a camera's processing")
+    ap.add_argument("--stack-size", type=int, help="frames per stack, even in diopters over the fixed protocol's "
+                    "range (default the RF50's 8): the same scenes swept with fewer or more frames")
     a = ap.parse_args(argv)
     if a.n < 1 or a.first < 0:
         ap.error(f"--n: at least 1 stack, --first: 0 or more, got {a.n}, {a.first}")
+    if a.stack_size is not None and not 2 <= a.stack_size <= 32:
+        ap.error(f"--stack-size: 2 to 32 frames, got {a.stack_size}")
     refuse_missing_or_existing(ap, a.checkpoints, a.out)
     if a.png and a.png.exists():
         ap.error(f"{a.png}: exists (choose another --png)")
@@ -82,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
     from training.train.export import export_checkpoint
 
     lens = ROOT / LENSES["rf50"]["lens"]
-    items = fixed_stacks("rf50", "validation", a.first + a.n, a.cache)[a.first:]
+    items = fixed_stacks("rf50", "validation", a.first + a.n, a.cache, a.stack_size)[a.first:]
     fmap, _ = for_lens(lens, compute=False)
     processed = [processed_stack(it.stack, a.first + k) for k, it in enumerate(items)] if a.processed else []
     classical = [stack_errors(classical_depth(it.stack, it.focus_m, fmap).depth_m, it.depth_m) for it in items]
@@ -107,6 +111,7 @@ def main(argv: list[str] | None = None) -> int:
                        + (f"; processed {np.mean(r['processed_mae_m']):.3f} m" if perr else ""), file=sys.stderr)
     cl = {k: [e[k] for e in classical] for k in classical[0]}
     write_text_atomic(a.out, json.dumps({"lens": "rf50", "split": "validation", "first": a.first, "n": len(items),
+                                         "stack_size": len(items[0].focus_m),
                                          "classical_lens_map": cl, "rows": rows}, indent=1))
     print(f"classical, lens map: MAE {np.mean(cl['mae_m']):.3f} m, {np.mean(cl['mae_d']):.3f} D")
     print("| step | MAE (m) | MAE (D) | median stack MAE (m) |\n|---|---|---|---|")

@@ -87,12 +87,13 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def fixed_stacks(lens_key: str, split: str, n: int, cache) -> list:
+def fixed_stacks(lens_key: str, split: str, n: int, cache, stack_size: int | None = None) -> list:
     """The first n procedural stacks of a lens's fixed protocol: its held-out test scenes ("test"), or validation
-    scenes of training photographs with their own seed ("validation", the RF50 only: what may choose a setting)."""
+    scenes of training photographs with their own seed ("validation", the RF50 only: what may choose a setting).
+    stack_size: frames per stack over the protocol's range (default the lens's own, 8 for the RF50)."""
     from training.train.testsets import load_test_set
 
-    spec = test_spec(lens_key, "fixed", n, real=False)
+    spec = test_spec(lens_key, "fixed", n, stack_size=stack_size, real=False)
     if split == "validation":
         from dataclasses import replace
 

@@ -55,6 +55,8 @@ HELD_OUT_LENSES = ("paper_50mm_f2.8", "canon_ef50mm_f1.8", "nikon_z35")  # never
 # 2: parametric PSFs blur about a best focus beyond infinity as the map says (training.render.parametric.FAR_D);
 # renders without this number whose map passes FAR_D somewhere (about one in ten) are rendered again
 RENDER_VERSION = 2
+# the largest S of a small-stack batch (`AnyCamConfig.small_stack_fraction`)
+SMALL_STACK_MAX = 5
 
 
 @dataclass(frozen=True)
@@ -101,6 +103,10 @@ class AnyCamConfig:
     # and the ninth run's late checkpoints, trained on 85 % noisy items, scored worse on clean stacks than on the same
     # stacks processed (docs/training.md, "The ninth run along its steps"); 1 draws nothing (earlier runs' draws)
     processed_fraction: float = 1.0
+    # chance that a training batch's S is drawn from 3-5 frames (capped as usual) instead of 3 to the sweep's cap:
+    # with S uniform over 3-16 a 3-frame batch is 1 in 14, and the tenth run's nets were worse than the classical
+    # method on 3-frame RF50 validation stacks while good on 8-frame ones (docs/training.md); 0 draws nothing
+    small_stack_fraction: float = 0.0
 
     def processes(self, rng: np.random.Generator) -> bool:
         """Whether the item whose draws `rng` makes gets a camera's processing."""
@@ -114,12 +120,14 @@ class AnyCamConfig:
             raise ValueError(f"crop_sizes {list(self.crop_sizes)}: sides of at least 16 px")
         if not 0.0 <= self.processed_fraction <= 1.0:
             raise ValueError(f"processed_fraction {self.processed_fraction}: a chance in [0, 1]")
+        if not 0.0 <= self.small_stack_fraction <= 1.0:
+            raise ValueError(f"small_stack_fraction {self.small_stack_fraction}: a chance in [0, 1]")
 
     def key(self) -> str:
         """Hash of what defines the renders (not how they are read)."""
         d = asdict(self)
         for k in ("n_items", "crop", "flips", "camera_effects", "fixed_subsets", "cache_dir", "only_cached", "mosaic",
-                  "crop_sizes", "processed_fraction"):
+                  "crop_sizes", "processed_fraction", "small_stack_fraction"):
             d.pop(k)
         if d["max_layers"] == 128:
             d.pop("max_layers")  # the layered renderer's default (renders made before the field hash as before)
@@ -503,6 +511,8 @@ class AnyCamDataset(Dataset):
         (`batch_crop`)."""
         rng = np.random.default_rng(items[0]["seed"])
         cap = cams.max_frames(float(np.median([_span_px(it) for it in items])))  # sweeps of little blur: few frames
+        if self.cfg.small_stack_fraction and rng.random() < self.cfg.small_stack_fraction:
+            cap = min(cap, SMALL_STACK_MAX)
         s = int(rng.integers(cams.S_RANGE[0], cap + 1))
         if self.cfg.crop_sizes:
             items = batch_crop(items, self.cfg.crop_sizes, np.random.default_rng([items[0]["seed"], 1]))

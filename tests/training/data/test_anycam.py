@@ -459,3 +459,28 @@ def test_processed_fraction_leaves_items_clean_and_keeps_the_earlier_draws(ds):
     assert not replace(cfg, camera_effects=False).processes(np.random.default_rng(0))
     with pytest.raises(ValueError, match="processed_fraction 1.5"):
         replace(ds.cfg, processed_fraction=1.5)
+
+
+def test_small_stack_fraction_draws_small_batches_and_nothing_at_zero(ds):
+    """small_stack_fraction 1: every training batch has 3-5 frames; 0 (the default) draws nothing, so a batch is the
+    earlier runs' batch; the renders' key does not change (how items are read, not what they are)."""
+    from dataclasses import replace
+
+    from training.data.anycam import SMALL_STACK_MAX
+
+    torch.manual_seed(0)
+    items = [ds[i] for i in range(4)]
+    small = AnyCamDataset(replace(ds.cfg, small_stack_fraction=1.0))
+    zero = AnyCamDataset(replace(ds.cfg, small_stack_fraction=0.0))
+    assert small.cfg.key() == ds.cfg.key()
+    sizes, small_sizes = [], []
+    for seed in range(12):
+        its = [{**it, "seed": seed * 10 + k} for k, it in enumerate(items)]
+        a, b = ds.collate(its), zero.collate(its)
+        assert torch.equal(a["stack"], b["stack"])
+        sizes.append(a["stack"].shape[1])
+        small_sizes.append(small.collate(its)["stack"].shape[1])
+    assert max(small_sizes) <= SMALL_STACK_MAX and min(small_sizes) >= 3
+    assert max(sizes) > SMALL_STACK_MAX  # the test's items allow larger stacks: the bound above means something
+    with pytest.raises(ValueError, match="small_stack_fraction -0.1"):
+        replace(ds.cfg, small_stack_fraction=-0.1)
