@@ -569,14 +569,19 @@ def table(rows: list[dict]) -> None:
             zs = {}
             for r in err:
                 if r.get("corrected_sd_d") and np.any(r["corrected_sd_d"]):
-                    zs.setdefault(r["capture"], []).append(
-                        np.abs(r["corrected_err_d"]) / np.asarray(r["corrected_sd_d"], np.float64)[0])
+                    with np.errstate(divide="ignore", invalid="ignore"):
+                        zs.setdefault(r["capture"], []).append(
+                            np.abs(r["corrected_err_d"]) / np.asarray(r["corrected_sd_d"], np.float64)[0])
             if zs:
                 z = {c: np.concatenate(v) for c, v in zs.items()}
                 every = np.concatenate(list(z.values()))
+                # a frame with a standard error of 0 (a fitted frame under `none`) has no ratio: not printed as inf
+                has = every[np.isfinite(every)]
                 print(f"frames whose 95 % interval holds the truth: {int(np.sum(every <= 1.959964))}/{len(every)} ("
                       + ", ".join(f"{c} {int(np.sum(v <= 1.959964))}/{len(v)}" for c, v in sorted(z.items()))
-                      + f"); largest |error| / standard error {every.max():.2f}")
+                      + f"); largest |error| / standard error {f'{has.max():.2f}' if len(has) else 'none'}"
+                      + (f" (frames with a standard error of 0, no ratio: {len(every) - len(has)})"
+                         if len(has) < len(every) else ""))
     un = [r for r in rows if r["kind"] == "none"]
     if un:
         bad = sum(r["focus_named"] or r["family"] != "none" for r in un)

@@ -2,7 +2,9 @@
 frame's interval holds the truth, the table's count of sets within 0.02 D, and the set-by-set comparison of two
 runs."""
 
+import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -79,6 +81,24 @@ def test_frames_are_counted_one_by_one_determined_within_and_undetermined_holdin
     bench.compare([a, b, c], [a, b, c2])
     assert "frames undetermined: 1 before, 2 after; newly undetermined in the 1 sets with an error that were " \
            "within 0.02 D before: 1" in capsys.readouterr().out
+
+
+def test_table_prints_no_ratio_for_a_frame_whose_standard_error_is_0(capsys):
+    """A fitted frame under `none` has a standard error of 0: its |error| / standard error has no value, so the
+    table prints the largest ratio over the other frames and counts those frames, never "inf"."""
+    a = _row("a", "monotone", 0.03, und=1, family="none")
+    a["corrected_sd_d"] = [[0.23, 0.0]]
+    a["corrected_err_d"] = [0.01, 0.03]
+    b = _row("b", "offset_+0.05", 0.004, sd=0.004)
+    bench.table([a, b])
+    out = capsys.readouterr().out
+    assert "inf" not in out and "nan" not in out
+    assert "largest |error| / standard error 1.00 (frames with a standard error of 0, no ratio: 1)" in out
+    b["corrected_sd_d"], b["corrected_err_d"] = [[0.0, 0.01]], [0.004, 0.0]  # 0.004 D at a standard error of 0
+    bench.table([b])
+    out = capsys.readouterr().out
+    assert "inf" not in out and "largest |error| / standard error 0.00 (frames with a standard error of 0, no " \
+        "ratio: 1)" in out
 
 
 def test_compare_counts_sets_whose_reported_focus_leaves_the_widened_interval(capsys):
@@ -308,62 +328,50 @@ def test_sixth_fresh_test_captures_are_new_scenes_chosen_by_the_declared_rule(tm
         bench.fresh6_scenes(bench.FRESH6_K + 1, tmp_path)
 
 
-def test_seventh_fresh_test_captures_follow_the_sixth_rounds_rule_on_unused_candidates(tmp_path):
-    """The seventh fresh test captures (issue 32, the grid from every reported value): candidates start after the last
-    scene the sixth round screened (its fourth kept, 2182: candidates 2050-2182 were screened, 2065, 2073, 2141 and 2182
-    kept and looked at since), share nothing with the earlier sets (scenes 2026-2049), the noise seeds nothing with
-    1-28; the rule is the sixth round's (`fresh6_keeps`); --fresh7 refuses a count it does not have and keeps its
-    screening statistics apart from the sixth round's."""
-    earlier = (*bench.SCENES, (2029, 4), *bench.FRESH_SCENES, *bench.FRESH_SCENES_2, *bench.FRESH_SCENES_3,
-               *bench.FRESH_SCENES_4, *bench.FRESH_SCENES_5, (2065, 25), (2073, 26), (2141, 27), (2182, 28))
-    assert min(bench.FRESH7_CANDIDATES) == 2183 > max(s for s, _ in earlier)
-    assert not set(bench.FRESH7_NOISE_SEEDS) & ({n for _, n in earlier} | set(bench.FRESH6_NOISE_SEEDS))
-    assert set(bench.FRESH7_NOISE_SEEDS) == set(range(29, 33)) and bench.FRESH7_K == 4
-    with pytest.raises(SystemExit, match="--fresh7"):
-        bench.fresh6_scenes(bench.FRESH7_K + 1, tmp_path, bench.FRESH7_CANDIDATES, bench.FRESH7_NOISE_SEEDS, "fresh7")
-    assert not (tmp_path / "fresh7_stats.json").exists()
+def declared_rounds() -> list[int]:
+    """The rounds declared in code after the sixth (`FRESH<k>_CANDIDATES`, `FRESH<k>_NOISE_SEEDS`, `FRESH<k>_K`), in
+    order: a round declared later is tested here without editing this file."""
+    return [k for k in range(7, 100) if hasattr(bench, f"FRESH{k}_CANDIDATES")]
 
 
-def test_eighth_fresh_test_captures_follow_the_sixth_rounds_rule_on_unused_candidates(tmp_path):
-    """The eighth fresh test captures (issue 32, the families fitted to the estimates): candidates start after the last
-    scene the seventh round screened (its fourth kept, 2369: candidates 2183-2369 were screened, 2222, 2304, 2359 and
-    2369 kept and looked at since), the noise seeds share nothing with 1-32; the rule is the sixth round's; --fresh8
-    refuses a count it does not have and keeps its screening statistics apart."""
-    assert min(bench.FRESH8_CANDIDATES) == 2370 > 2369 == max(s for s in (2222, 2304, 2359, 2369))
-    used = set(range(1, 25)) | set(bench.FRESH6_NOISE_SEEDS) | set(bench.FRESH7_NOISE_SEEDS)
-    assert used == set(range(1, 33)) and not set(bench.FRESH8_NOISE_SEEDS) & used
-    assert set(bench.FRESH8_NOISE_SEEDS) == set(range(33, 37)) and bench.FRESH8_K == 4
-    with pytest.raises(SystemExit, match="--fresh8"):
-        bench.fresh6_scenes(bench.FRESH8_K + 1, tmp_path, bench.FRESH8_CANDIDATES, bench.FRESH8_NOISE_SEEDS, "fresh8")
-    assert not (tmp_path / "fresh8_stats.json").exists()
+def screened(k: int) -> dict | None:
+    """Round k's committed screening statistics ({scene: stats}; None if the round has not run)."""
+    path = bench.ROOT / "results" / f"diagnose_focus_fresh{k}_screening.json"
+    return {int(s): v for s, v in json.loads(path.read_text()).items()} if path.exists() else None
 
 
-def test_ninth_fresh_test_captures_follow_the_sixth_rounds_rule_on_unused_candidates(tmp_path):
-    """The ninth fresh test captures (issue 32, each frame weighed by its margin over the noise rule): candidates start
-    after the last scene the eighth round screened (its fourth kept, 2472: candidates 2370-2472 were screened, 2383,
-    2431, 2467 and 2472 kept), the noise seeds share nothing with 1-36; the rule is the sixth round's; --fresh9 refuses
-    a count it does not have and keeps its screening statistics apart."""
-    assert min(bench.FRESH9_CANDIDATES) == 2473 > 2472 == max(s for s in (2383, 2431, 2467, 2472))
-    used = (set(range(1, 25)) | set(bench.FRESH6_NOISE_SEEDS) | set(bench.FRESH7_NOISE_SEEDS)
-            | set(bench.FRESH8_NOISE_SEEDS))
-    assert used == set(range(1, 37)) and not set(bench.FRESH9_NOISE_SEEDS) & used
-    assert set(bench.FRESH9_NOISE_SEEDS) == set(range(37, 41)) and bench.FRESH9_K == 4
-    with pytest.raises(SystemExit, match="--fresh9"):
-        bench.fresh6_scenes(bench.FRESH9_K + 1, tmp_path, bench.FRESH9_CANDIDATES, bench.FRESH9_NOISE_SEEDS, "fresh9")
-    assert not (tmp_path / "fresh9_stats.json").exists()
+def test_the_rounds_are_declared_consecutively():
+    """Rounds 7 on are declared with no gap (k is FRESH<k>) and each has its option in the benchmark's command line."""
+    ks = declared_rounds()
+    assert ks[:4] == [7, 8, 9, 10] and ks == list(range(7, 7 + len(ks)))
+    src = Path(bench.__file__).read_text()
+    for k in [6, *ks]:
+        assert f'"--fresh{k}"' in src and f"FRESH{k}_CANDIDATES" in src
 
 
-def test_tenth_fresh_test_captures_follow_the_sixth_rounds_rule_on_unused_candidates(tmp_path):
-    """The tenth fresh test captures (issue 32, an estimate on its search bound left out): candidates start after the
-    last scene the ninth round screened (its fourth kept, 2722: candidates 2473-2722 were screened, 2620, 2628, 2655
-    and 2722 kept), the noise seeds share nothing with 1-40; the rule is the sixth round's; --fresh10 refuses a count it
-    does not have and keeps its screening statistics apart."""
-    assert min(bench.FRESH10_CANDIDATES) == 2723 > 2722 == max((2620, 2628, 2655, 2722))
-    used = (set(range(1, 25)) | set(bench.FRESH6_NOISE_SEEDS) | set(bench.FRESH7_NOISE_SEEDS)
-            | set(bench.FRESH8_NOISE_SEEDS) | set(bench.FRESH9_NOISE_SEEDS))
-    assert used == set(range(1, 41)) and not set(bench.FRESH10_NOISE_SEEDS) & used
-    assert set(bench.FRESH10_NOISE_SEEDS) == set(range(41, 45)) and bench.FRESH10_K == 4
-    with pytest.raises(SystemExit, match="--fresh10"):
-        bench.fresh6_scenes(bench.FRESH10_K + 1, tmp_path, bench.FRESH10_CANDIDATES, bench.FRESH10_NOISE_SEEDS,
-                            "fresh10")
-    assert not (tmp_path / "fresh10_stats.json").exists()
+@pytest.mark.parametrize("k", declared_rounds())
+def test_a_fresh_round_follows_the_sixth_rounds_rule_on_unused_candidates_and_seeds(k, tmp_path):
+    """Round k (issue 32, the seventh on) as declared: its candidates start right after the last scene the round
+    before screened (its committed screening statistics, `results/diagnose_focus_fresh<k-1>_screening.json`: every
+    candidate from its start, in order, up to its FRESH<k-1>_K-th kept by the sixth round's rule, and the scenes its
+    rows ran being exactly those kept); its noise seeds are the next FRESH<k>_K after every earlier round's (1-24 the
+    benchmark's and the first five rounds'), none reused; --fresh<k> refuses a count it does not have and keeps its
+    screening statistics apart."""
+    cand, seeds, kk = (getattr(bench, f"FRESH{k}_{x}") for x in ("CANDIDATES", "NOISE_SEEDS", "K"))
+    prev = screened(k - 1)
+    assert prev is not None, f"round {k - 1} has no committed screening: round {k}'s candidates cannot follow it"
+    prev_cand = getattr(bench, f"FRESH{k - 1}_CANDIDATES")
+    assert sorted(prev) == list(range(prev_cand.start, max(prev) + 1))
+    kept = [s for s in sorted(prev) if bench.fresh6_keeps(prev[s])]
+    assert len(kept) == getattr(bench, f"FRESH{k - 1}_K") and kept[-1] == max(prev)
+    rows = bench.ROOT / "results" / f"diagnose_focus_fresh{k - 1}_fitonly.jsonl"
+    if rows.exists():
+        assert {json.loads(x)["capture"] for x in rows.read_text().splitlines() if x.strip()} == \
+            {f"scene{s}" for s in kept}
+    assert cand.start == max(prev) + 1 and cand.step == 1
+    earlier = set(range(1, 25)) | {n for j in range(6, k) for n in getattr(bench, f"FRESH{j}_NOISE_SEEDS")}
+    assert earlier == set(range(1, max(earlier) + 1))
+    assert tuple(seeds) == tuple(range(max(earlier) + 1, max(earlier) + 1 + kk)) and kk == len(seeds) == 4
+    with pytest.raises(SystemExit, match=f"--fresh{k}"):
+        bench.fresh6_scenes(kk + 1, tmp_path, cand, seeds, f"fresh{k}")
+    assert not (tmp_path / f"fresh{k}_stats.json").exists()

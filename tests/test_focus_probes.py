@@ -227,6 +227,17 @@ def test_focus_noise_weight_refuses_in_one_line_and_pairs_the_sets(tmp_path, cap
     assert got["plain"]["sets"] == got["weighed"]["sets"] == 1
     # the offset moves towards frame 1 by 0.0017 D plain, 0.0004 D weighed: the set's largest error falls
     assert got["paired"]["sets_better"] == 1 and got["paired"]["scene_mean_change_d"]["scene1"] < -0.001
+    assert got["rows_repeating_a_set"] == 0 and "repeat a set" not in capsys.readouterr().out
+    # the same set given twice (a rerun in a later file): counted once, its last row, and said in one line
+    twice = tmp_path / "r2.jsonl"
+    twice.write_text(json.dumps(dict(row, commit="rerun")) + "\n")
+    out2 = tmp_path / "d.md"
+    assert nw.main([str(rows), str(twice), "--out", str(out2)]) == 0
+    said = [x for x in capsys.readouterr().out.splitlines() if "repeat a set" in x]
+    assert said == ["1 of 2 rows repeat a set (capture, kind) given earlier: each set's last row is used"]
+    got = json.loads(out2.with_suffix(".json").read_text())
+    assert got["rows_repeating_a_set"] == 1 and got["plain"]["sets"] == 1
+    assert said[0] in out2.read_text()
 
 
 def test_focus_choice_nearest_ranks_fitted_frames_nearest_first_and_restores_the_code():

@@ -3,8 +3,9 @@
 both ways from the rows' stored fits (`bench_diagnose_focus.rescored`, families on the estimates), the benchmark's
 counts for both, and the largest error per set paired: sets better / worse by more than 0.0005 D, the mean change per
 scene and a sign test over the scenes that changed (the sets of a scene are copies of the same images, so the scene is the unit).
-Rows without noise shares (older runs) are the same both ways and counted in the totals only. Development rows only:
-nothing held out enters it.
+Rows without noise shares (older runs) are the same both ways and counted in the totals only. A set given in several
+rows (capture, kind) counts once, its last row, and the output says how many rows that dropped. Development rows
+only: nothing held out enters it.
 
     python -m benchmarks.probes.focus_noise_weight RESULTS.jsonl ... --out results/focus_noise_weight.md   # and .json
 """
@@ -49,11 +50,16 @@ def sign_test(k: int, n: int) -> float:
 def compare(rows: list[dict]) -> dict:
     from benchmarks import bench_diagnose_focus as bench
 
+    given = len(rows)
     rows = list({(r["capture"], r["kind"]): r for r in rows}.values())
+    if given > len(rows):  # a set in several rows (e.g. rerun in a later file): said, not silent
+        print(f"{given - len(rows)} of {given} rows repeat a set (capture, kind) given earlier: each set's last row "
+              "is used\n")
     pairs = [(bench.rescored(r, "plain", on_estimates=True, noise_weight=False),
               bench.rescored(r, "weighed", on_estimates=True, noise_weight=True)) for r in rows]
     pairs = [(a, b) for a, b in pairs if a is not None]
-    out = {"plain": counts([a for a, _ in pairs]), "weighed": counts([b for _, b in pairs])}
+    out = {"rows_repeating_a_set": given - len(rows), "plain": counts([a for a, _ in pairs]),
+           "weighed": counts([b for _, b in pairs])}
     per_scene, better, worse = {}, 0, 0
     print("| set | plain: family, largest error (D), frames undetermined | weighed |\n|---|---|---|")
     for a, b in sorted(pairs, key=lambda x: (x[0]["capture"], x[0]["kind"])):
