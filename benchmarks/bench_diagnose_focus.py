@@ -359,7 +359,8 @@ def rescored(row: dict, commit: str, consistency: bool | None = None, residual_s
              on_estimates: bool = False, noise_weight: bool | None = None) -> dict | None:
     """The row as the current code's `focusfit.fit_metadata` would end it, from the row's stored fits (every
     family's corrected focus, the per-frame estimates' bootstrap spread and systematic errors): the capture's error
-    scale (`error_scale`, with the residual scale), the family chosen with it (`score_families`, `select`; its
+    scale (`error_scale`, with the residual scale), the family chosen with it and with the nearest fitted frame's
+    error taken larger (`choice_systematic`; `score_families`, `select`; its
     corrected focus the row's fit of that family), the corrected focus's standard error (`corrected_sd`, times
     max(1, `frame_consistency`) with the consistency scale), the frames reported undetermined and whether their 95 %
     intervals hold the truth. Everything before the choice is the row's; the bootstrap's support and the settings'
@@ -395,8 +396,9 @@ def rescored(row: dict, commit: str, consistency: bool | None = None, residual_s
     if on_estimates:
         fits = ff.fit_on_estimates(fits, rep, sd, frames, sys_d, quant, weight=aw)
     use_scale = ff.SCALE_BY_RESIDUALS if residual_scale is None else residual_scale
-    scale = ff.error_scale(fits, sd, frames, sys_d) if use_scale else 1.0
-    sys_s = ff.scaled_systematic(sd, sys_d, scale)
+    sys_c = ff.choice_systematic(sd, sys_d, frames, rep)  # the nearest fitted frame's, for the choice
+    scale = ff.error_scale(fits, sd, frames, sys_c) if use_scale else 1.0
+    sys_s = ff.scaled_systematic(sd, sys_c, scale)
     ff.score_families(fits, sd, frames, sys_s)
     fit = ff.select(fits)
     cons = ff.frame_consistency(fit, rep, fits["per_frame"].true_d, sd, frames, sys_d, weight=aw)

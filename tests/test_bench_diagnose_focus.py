@@ -101,6 +101,28 @@ def test_table_prints_no_ratio_for_a_frame_whose_standard_error_is_0(capsys):
         "ratio: 1)" in out
 
 
+def test_rescored_prices_the_nearest_fitted_frame_as_the_fit_does(monkeypatch):
+    """`rescored` redoes the choice as `fit_metadata` makes it, the nearest fitted frame's error taken
+    `focusfit.CHOICE_NEAREST_FACTOR` times the model's: an offset of +0.1 D, frames 0-1 left out, the nearest fitted
+    frame 0.06 D off reads `monotone` at a factor of 1 and `offset` (every frame within 0.005 D) at the code's."""
+    from aat_deploy.diagnose import focusfit as ff
+
+    true = np.linspace(1 / 0.6, 1 / 6.0, 8)
+    rep = true + 0.1
+    est = true + np.array([0.0, 0, 0.06, 0.004, -0.003, 0.002, -0.004, 0.001])
+    fams = [{"family": "none", "k": 0, "true_d": [rep.tolist()]}, {"family": "offset", "k": 1, "true_d": [(rep - 0.1).tolist()]},
+            {"family": "per_frame", "k": 8, "true_d": [est.tolist()]}]
+    row = {"capture": "s", "kind": "offset_+0.10", "family": "offset", "family_true": "offset", "families": fams,
+           "frame_focus_sd_d": [[None, None] + [0.003] * 6], "frame_systematic_d": [[ff.SYSTEMATIC_D] * 8],
+           "corrected_err_d": [0.0] * 8, "frames_noise_dominated": [True, True] + [False] * 6,
+           "frame_noise_share": [0.9, 0.7, 0.35, 0.15, 0.1, 0.05, 0.05, 0.05], "commit": "old"}
+    got = bench.rescored(row, "new", on_estimates=True)
+    assert got["family"] == "offset" and got["corrected_max_err_d"] < 0.005
+    monkeypatch.setattr(ff, "CHOICE_NEAREST_FACTOR", 1.0)
+    old = bench.rescored(row, "new", on_estimates=True)
+    assert old["family"] == "monotone" and old["corrected_max_err_d"] > 0.1
+
+
 def test_compare_counts_sets_whose_reported_focus_leaves_the_widened_interval(capsys):
     """The verdict's test of a measured error, by hand: reported 0.05 D from the corrected focus is outside
     +-1.96 x 0.02 D (0.039) but inside +-1.96 x 0.03 D (0.059)."""

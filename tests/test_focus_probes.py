@@ -254,6 +254,32 @@ def test_focus_choice_nearest_ranks_fitted_frames_nearest_first_and_restores_the
     assert [x["frames"] for x in b] == [1, 1]
     assert b[0]["rms_err_d"] == 0.03 and b[0]["rms_z"] == 3.0 and b[0]["median_share"] == 0.3
     assert b[1]["rms_z"] == 0.8
-    before = ff.error_scale, ff.score_families, ff.signal_weight
-    fcn.variants([], [2.0])
-    assert (ff.error_scale, ff.score_families, ff.signal_weight) == before
+    before = ff.error_scale, ff.score_families, ff.signal_weight, ff.CHOICE_NEAREST_FACTOR
+    fcn.variants([], [1.0, 3.0])
+    assert (ff.error_scale, ff.score_families, ff.signal_weight, ff.CHOICE_NEAREST_FACTOR) == before
+
+
+def test_focus_choice_nearest_pairs_scenes_and_refuses_an_existing_out(tmp_path, capsys):
+    """`scenes_moved`: a scene whose set gains its family (or stops being claimed wrong) with nothing lost is better, the
+    reverse worse, and the sign test runs over such scenes; `main` refuses an existing or non-.md --out in one line
+    before reading any row."""
+    from benchmarks.probes import focus_choice_nearest as fcn
+
+    def r(cap, kind, ok, err, und=0):
+        return {"capture": cap, "kind": kind, "family_ok": ok, "corrected_max_err_d": err, "frames_undetermined": und}
+
+    base = [r("a", "scale_0.9", False, 0.06), r("b", "monotone", True, 0.01, 2), r("c", "none", True, 0.0)]
+    var = [r("a", "scale_0.9", True, 0.004), r("b", "monotone", False, 0.04, 2), r("c", "none", True, 0.0)]
+    m = fcn.scenes_moved(base, var)
+    assert m["scenes"] == {"a": ["scale_0.9 better"], "b": ["monotone worse"]}
+    assert (m["scenes_better"], m["scenes_worse"], m["sign_test_p"]) == (1, 1, 1.0)
+    rows = tmp_path / "r.jsonl"
+    rows.write_text("")
+    (tmp_path / "x.md").write_text("mine")
+    for args, says in [([str(rows), "--out", str(tmp_path / "x.md")], "exists"),
+                       ([str(rows), "--out", str(tmp_path / "x.json")], "a .md file"),
+                       ([str(tmp_path / "no.jsonl")], "no such results file")]:
+        with pytest.raises(SystemExit):
+            fcn.main(args)
+        assert says in capsys.readouterr().err.strip().splitlines()[-1]
+    assert (tmp_path / "x.md").read_text() == "mine"

@@ -459,6 +459,70 @@ def test_a_noisy_nearest_fitted_frame_does_not_carry_its_error_to_the_left_out_f
     assert abs(new[0, 0] - true[0, 0]) < 0.02
 
 
+def test_choice_systematic_takes_the_nearest_fitted_frames_error_larger():
+    """`nearest_fitted`: per capture the fitted frame with the largest reported diopters (frames left out, padding and
+    other captures' frames not); `choice_systematic`: there the total variance (spread^2 + systematic^2) is factor^2
+    times the model's, elsewhere the systematic error is the model's; factor 1 changes nothing."""
+    rep = np.array([[1.6, 1.2, 0.8, 0.4], [0.3, 0.9, np.nan, 0.5]])
+    frames = np.array([[0.0, 1, 1, 1], [1, 1, 0, 1]])
+    assert ff.nearest_fitted(rep, frames).tolist() == [[False, True, False, False], [False, True, False, False]]
+    sd = np.full((2, 4), 0.003)
+    sys_d = np.full((2, 4), 0.01)
+    got = ff.choice_systematic(sd, sys_d, frames, rep, 2.0)
+    tot = sd ** 2 + got ** 2
+    assert tot[0, 1] == pytest.approx(4 * (0.003 ** 2 + 0.01 ** 2)) and tot[1, 1] == pytest.approx(tot[0, 1])
+    assert np.allclose(np.delete(got.ravel(), [1, 5]), 0.01)
+    assert np.allclose(ff.choice_systematic(sd, sys_d, frames, rep, 1.0), sys_d)
+    assert np.allclose(ff.choice_systematic(sd, 0.01, frames, rep), got) and ff.CHOICE_NEAREST_FACTOR == 2.0
+
+
+def test_an_offset_is_not_read_as_a_curve_bought_by_the_nearest_fitted_frame():
+    """Issue 32, the ninth and tenth rounds' pattern (scenes 2431, 2722: their mechanism, not their data): an offset of
+    +0.1 D, frames 0-1 left out for noise, the nearest fitted frame (2, noise share 0.35) 0.06 D off, the others within
+    0.005 D. Priced at the model's error, that frame makes the 3-knot curve win (0.118 D off at the left-out frames);
+    priced at twice it (`CHOICE_NEAREST_FACTOR`, in the choice only) the offset wins, every frame within 0.005 D."""
+    true = TRUE_D[None]
+    rep = true + 0.1
+    est = true + np.array([[0.0, 0, 0.06, 0.004, -0.003, 0.002, -0.004, 0.001]])
+    sd = np.full((1, 8), 0.003)
+    frames = np.array([[0.0, 0, 1, 1, 1, 1, 1, 1]])
+    aw = ff.signal_weight(np.array([[0.9, 0.7, 0.35, 0.15, 0.1, 0.05, 0.05, 0.05]]), frames)
+    sys_d = np.full((1, 8), ff.SYSTEMATIC_D)
+    fits = {"none": ff.FamilyFit("none", 0, {}, rep.copy(), 0.0), "per_frame": ff.FamilyFit("per_frame", 8, {}, est, 0.0)}
+    fits = ff.fit_on_estimates(fits, rep, sd, frames, sys_d, weight=aw)
+
+    def choose(factor):
+        sc = ff.choice_systematic(sd, sys_d, frames, rep, factor)
+        ff.score_families(fits, sd, frames, ff.scaled_systematic(sd, sc, ff.error_scale(fits, sd, frames, sc)))
+        return ff.select(fits)
+
+    assert choose(1.0).name == "monotone"  # the case discriminates
+    best = choose(None)
+    assert best.name == "offset" and np.abs(best.true_d - true).max() < 0.005
+
+
+def test_fit_metadata_prices_the_nearest_fitted_frame_larger_in_the_choice_only(monkeypatch):
+    """`fit_metadata` scores the families (the fit's and every replicate's) with the nearest fitted frame's total
+    variance CHOICE_NEAREST_FACTOR^2 times the others' relative to the model (times the error scale alike); the
+    standard errors keep the model's (`frame_sys`)."""
+    data, true = far_scene_sweep(seed=1)
+    data = dataclasses.replace(data, reported_d=true / 1.1, base_d=true / 1.1)
+    seen = []
+    orig = ff.score_families
+    monkeypatch.setattr(ff, "score_families", lambda fits, sd, frames, sys_d=ff.SYSTEMATIC_D: (
+        seen.append((np.asarray(sd), np.asarray(sys_d))), orig(fits, sd, frames, sys_d))[1])
+    fit = ff.fit_metadata(data, n_boot=4)
+    # the choice's calls: with the estimates' spread (fit_families scores its own fits with a spread of 0 first)
+    choice = [x for x in seen if np.array_equal(x[0], fit.frame_sd)]
+    assert len(choice) == 5 and fit.frame_sd.any()  # the fit's, then its 4 replicates'
+    sd, sys_s = choice[0]
+    ratio = (sd ** 2 + sys_s ** 2) / (fit.frame_sd ** 2 + fit.frame_sys ** 2)
+    assert ratio[0, 0] == pytest.approx(4 * ratio[0, 1], rel=1e-6)  # frame 0: the nearest fitted frame
+    assert np.allclose(ratio[0, 1:], ratio[0, 1]) and ratio[0, 1] >= 1 - 1e-9  # the error scale, never below 1
+    assert all(np.allclose(x[1], sys_s) for x in choice[1:])  # the replicates alike
+    assert fit.best.name == "scale"
+
+
 def test_working_weights_give_the_sandwich_variance_of_the_weighted_mean():
     """An offset fitted with working weights a (`fit_on_estimates`' weight) is sum a_i w_i (r_i - e_i) / sum a_i w_i,
     w = 1 / sigma^2; with independent errors its variance is sum (a_i w_i)^2 sigma_i^2 / (sum a_i w_i)^2 by hand, more
