@@ -225,7 +225,7 @@ class Rig:
     measure the chart fit uses (default the runtime's), which must be the one truth_map was calibrated with."""
 
     def __init__(self, setup: LensSetup, truth_map: str | None = None, measure: str | None = None,
-                 prefilter_px: float | None = None):
+                 prefilter_px: float | None = None, truth: str | None = None):
         from aat_deploy.focus.bestfocus import load_json
         from aat_deploy.lens.io import load_lens
         from aat_deploy.optics.paraxial import paraxial_data
@@ -238,6 +238,16 @@ class Rig:
 
         self.fmap = load_json(ROOT / truth_map if truth_map else
                               ROOT / "lenses" / "best_focus" / f"{Path(setup.lens).stem}.json")
+        # truth: a render-consistent truth map (benchmarks/render_truth_map.py) that replaces fmap as the truth only
+        # (parts a and c); fmap stays the prescription's map. None: fmap is both (the benchmark's default)
+        self.truth_map = None
+        if truth is not None:
+            from benchmarks.render_truth_map import TruthMapError, load
+
+            try:
+                self.truth_map = load(truth)
+            except TruthMapError as e:
+                raise SystemExit(f"bench_calibrate: --truth {e}") from None
         base = FocusConfig()
         self.measure = measure or base.measure
         self.prefilter_px = base.prefilter_px if prefilter_px is None else float(prefilter_px)
@@ -279,6 +289,13 @@ class Rig:
         h, w = h or self.h, w or self.w
         fn = fx.focus_at(fx.parse(effects), self.ctx())
         x, y = field_grid(h, w)
+        if self.truth_map is not None:  # the render-consistent truth, per pixel at its own focus
+            r = self.fmap.radius_px(h, w).astype(np.float64).ravel()
+            out = []
+            for f in np.ravel(true_focus_m):
+                fd = 1.0 / (fn(x, y, float(f)) if fn is not None else np.full((h, w), float(f)))
+                out.append(self.truth_map.object_d(r, np.asarray(fd, np.float64).ravel()).reshape(h, w))
+            return np.stack(out).astype(np.float32)
         r2 = (self.fmap.radius_px(h, w).astype(np.float64)) ** 2
         shift = self.fmap.shift_diopters(calibrated=True)  # (R, F)
         out = []
@@ -292,6 +309,23 @@ class Rig:
             sh = per_r[i, n] * (1 - t) + per_r[i + 1, n] * t
             out.append((sh.reshape(h, w) + fd))
         return np.stack(out).astype(np.float32)
+
+    def truth_measured(self, effects: list[str], true_focus_m) -> np.ndarray | None:
+        """(S, H, W) bool: where the render-consistent truth (--truth) is between its points, not extrapolated
+        (None without one)."""
+        if self.truth_map is None:
+            return None
+        from aat_deploy.calibrate.format import field_grid
+        from aat_deploy.render import effects as fx
+
+        fn = fx.focus_at(fx.parse(effects), self.ctx())
+        x, y = field_grid(self.h, self.w)
+        r = self.fmap.radius_px(self.h, self.w).astype(np.float64).ravel()
+        out = []
+        for f in np.ravel(true_focus_m):
+            fd = 1.0 / (fn(x, y, float(f)) if fn is not None else np.full((self.h, self.w), float(f)))
+            out.append(self.truth_map.evaluate(r, np.asarray(fd, np.float64).ravel())[1].reshape(self.h, self.w))
+        return np.stack(out)
 
     def truth_at(self, effects: list[str], x, y, true_focus_m) -> np.ndarray:
         """(S, N) float64: `truth` at normalised field points x, y (N,) (x right, y up, -1..1 from edge to edge)
@@ -311,6 +345,9 @@ class Rig:
         for f in np.ravel(true_focus_m):
             fd = 1.0 / (np.asarray(fn(x, y, float(f)), np.float64) * np.ones_like(x) if fn is not None
                         else np.full(x.shape, float(f)))
+            if self.truth_map is not None:
+                out.append(self.truth_map.object_d(np.sqrt(r2), fd))
+                continue
             per_r = np.stack([np.interp(fd, self.fmap.focus_diopters, row) for row in shift])  # (R, N)
             out.append(per_r[i, n] * (1 - t) + per_r[i + 1, n] * t + fd)
         return np.stack(out)
@@ -487,6 +524,39 @@ def map_errors(rig: Rig, cal, effects: list[str], true_m: np.ndarray) -> dict:
                   "radius_mean_d": {b: float(np.mean(d[:, m])) for b, m in bins.items()}}
         if k == "calibration" and cal.best_focus.radius_max is not None:
             out[k].update(tile_coverage(d, cal.best_focus.radius_max, cal.best_focus.aspect))
+        if k == "calibration":
+            out[k].update(mask_scores(d, cal, rep, rig.truth_measured(effects, true_m), p))
+    return out
+
+
+def mask_scores(d: np.ndarray, cal, rep: np.ndarray, truth_ok: np.ndarray | None, pred: np.ndarray) -> dict:
+    """The calibration's error d (S, H, W) by mask, RMS and p95 of |d| (D): within the farthest tile's radius,
+    where the calibration measured (`measured_mask`) and where it flags extrapolation, and, with a render-consistent
+    truth, where that truth is between its points (truth_ok) and where both hold."""
+    from aat_deploy.calibrate import measured_mask
+    from aat_deploy.calibrate.format import field_grid, field_radius_of
+
+    def st(m):
+        e = np.abs(d[m]) if m is not None else np.abs(d).ravel()
+        return (None, None) if e.size == 0 else (float(np.sqrt(np.mean(e ** 2))), float(np.quantile(e, 0.95)))
+
+    out = {}
+    cal_ok = measured_mask(cal, rep, d.shape[1], d.shape[2], pred)
+    masks = {"cal_measured": cal_ok, "cal_flagged": ~cal_ok}
+    if cal.best_focus.radius_max is not None:
+        x, y = field_grid(*d.shape[1:])
+        within = np.broadcast_to(field_radius_of(x, y, cal.best_focus.aspect) <= cal.best_focus.radius_max,
+                                 d.shape)
+        masks["within_tiles"] = within
+    if truth_ok is not None:
+        masks["truth_measured"] = truth_ok
+        masks["truth_and_cal_measured"] = truth_ok & cal_ok
+        if "within_tiles" in masks:
+            masks["within_tiles_truth_measured"] = masks["within_tiles"] & truth_ok
+    for name, m in masks.items():
+        rms, p95 = st(m)
+        out[f"{name}_share"] = float(m.mean())
+        out[f"{name}_rms_d"], out[f"{name}_p95_d"] = rms, p95
     return out
 
 
@@ -575,6 +645,7 @@ def part_map(rig: Rig, n_boot: int, log, variants: tuple = ("nominal", "copy")) 
                      "edge_focus_cv": res.model.edge_cv, "warnings": res.warnings,
                      "truth_family": truth_family(rig, eff, inside), "measure": rig.measure,
                      "prefilter_px": rig.prefilter_px, "cell_px": s.cell_px,
+                     "truth": "best-focus map" if rig.truth_map is None else rig.truth_map.source,
                      "fitted_distances": [{k: p.get(k) for k in ("chart_distance_m", "distance_given_m",
                                                                   "distance_ci_m")} | {"true_m": s.distances_m[i]}
                                           for i, p in enumerate(cal.residuals["per_sweep"])
@@ -903,6 +974,10 @@ def main(argv=None) -> int:
     ap.add_argument("--prefilter-px", type=float, default=None, help="that measure's pre-filter (px)")
     ap.add_argument("--truth-map", default=None, help="the truth and prescription best-focus map (a path in the "
                     "repo; default lenses/best_focus/<lens>.json), calibrated for --measure")
+    ap.add_argument("--truth", default=None, metavar="RENDER_TRUTH.json",
+                    help="a render-consistent truth map (aat-render-truth-map-v1, benchmarks/render_truth_map.py; a "
+                         "path in the repo) as part a's (and c's) truth instead of the best-focus map, which stays the "
+                         "prescription's map; only with --parts map and/or needs")
     ap.add_argument("--cell-px", type=int, default=None,
                     help="the renderer's PSF anchor spacing (px) for the sweeps and held-out stacks (default 64; a "
                          "phone's best focus moves by diopters over 64 px: benchmarks/probes/phone_outer_field.py); "
@@ -936,6 +1011,16 @@ def main(argv=None) -> int:
         return 0
     parts = set(a.parts.split(","))
     log = lambda m: print(m, file=sys.stderr, flush=True)
+    if a.truth is not None:
+        if not parts <= {"map", "needs"} or a.copies:
+            ap.error("--truth: only with --parts map and/or needs, without --copies (part b's oracle and depth keep "
+                     "the best-focus map)")
+        from benchmarks.render_truth_map import TruthMapError, load
+
+        try:  # refused before any render
+            load(a.truth)
+        except TruthMapError as e:
+            raise SystemExit(f"bench_calibrate: --truth {e}") from None
     if a.copies:
         from benchmarks import calibrate_copies
 
@@ -962,7 +1047,7 @@ def main(argv=None) -> int:
     for key in a.lenses.split(","):
         setup = LENSES[key] if a.cell_px is None else dataclasses.replace(LENSES[key], cell_px=a.cell_px)
         check_tolerance_table(setup)
-        rig = Rig(setup, a.truth_map, a.measure, a.prefilter_px)
+        rig = Rig(setup, a.truth_map, a.measure, a.prefilter_px, a.truth)
         log(f"{key}: {rig.lens.name}")
         rows, fits = part_map(rig, a.boot, log)
         if "map" in parts:
