@@ -77,6 +77,15 @@ def build(probe: dict, probe_path: str, base_map: str, command: str) -> dict:
            "source": {"probe": "benchmarks.probes.render_truth", "result": probe_path, "setup": probe["setup"],
                       "setup_key": probe.get("setup_key"), "objects_d": probe.get("objects_d"),
                       "boot": probe.get("boot"), "command": command}}
+    # the points' bootstrap SE (object D) by field radius, every point of the map (the probe's summary counts only
+    # those in part a's range)
+    bins = ((0.0, 0.33), (0.33, 0.66), (0.66, 0.84), (0.84, 0.95))
+    se = {}
+    for lo, hi in (*bins, (0.0, 0.95)):
+        v = np.array([x for a in annuli if lo <= a["r"] < hi for x in a["se_object_d"] if x is not None], float)
+        se[f"{lo:g}-{hi:g}"] = None if not v.size else {"points": int(v.size), "se_rms_d": float(np.sqrt(np.mean(
+            v ** 2))), "se_max_d": float(v.max())}
+    out["se_by_radius"] = se
     validate(out, "built map")
     return out
 
@@ -228,7 +237,9 @@ def main(argv=None) -> int:
         raise SystemExit(str(e)) from None
     write_text_atomic(a.out, json.dumps(out, indent=1))
     n = [len(x["frame_d"]) for x in out["annuli"]]
-    print(f"{a.out}: {len(n)} annuli, {sum(n)} points ({min(n)}-{max(n)} per annulus)")
+    print(f"{a.out}: {len(n)} annuli, {sum(n)} points ({min(n)}-{max(n)} per annulus); SE (object D) by radius: "
+          + "; ".join(f"{k} {v['se_rms_d']:.4f} RMS, {v['se_max_d']:.4f} max ({v['points']})"
+                      for k, v in out["se_by_radius"].items() if v))
     return 0
 
 
