@@ -1018,9 +1018,14 @@ def main(argv=None) -> int:
         from benchmarks.render_truth_map import TruthMapError, load
 
         try:  # refused before any render
-            load(a.truth)
+            tm = load(a.truth)
         except TruthMapError as e:
             raise SystemExit(f"bench_calibrate: --truth {e}") from None
+        # a render truth is one lens's: scoring another lens against it would be silently wrong
+        other = [k for k in a.lenses.split(",") if k in LENSES and LENSES[k].lens != tm.meta.get("lens")]
+        if other:
+            raise SystemExit(f"bench_calibrate: --truth {a.truth}: the render truth of {tm.meta.get('lens')}, not of "
+                             f"{', '.join(f'{k} ({LENSES[k].lens})' for k in other)}")
     if a.copies:
         from benchmarks import calibrate_copies
 

@@ -96,6 +96,22 @@ def test_the_benchmark_refuses_a_malformed_truth_map_in_one_line_before_any_rend
     assert not out.exists()
 
 
+def test_the_benchmark_refuses_another_lenss_truth_in_one_line_before_any_render(tmp_path):
+    """A render truth is one lens's (its "lens"): --lenses naming another lens is refused in one line, nothing
+    written."""
+    from benchmarks import bench_calibrate as B
+
+    path = tmp_path / "truth.json"
+    path.write_text(json.dumps(_good_map(tmp_path)))  # the phone lens's (render_truth's default setup)
+    out = tmp_path / "res.json"
+    with pytest.raises(SystemExit) as e:
+        B.main(["--lenses", "cellphone_near,rf50", "--parts", "map", "--truth", str(path), "--out", str(out)])
+    msg = str(e.value.code)
+    assert msg.startswith("bench_calibrate: --truth ") and "\n" not in msg, msg
+    assert "lenses/cellphone_asphere.json" in msg and "rf50 (lenses/canon_rf50mm_f1.8.json)" in msg
+    assert "cellphone_near" not in msg and not out.exists()
+
+
 def test_truth_goes_with_the_map_parts_only(tmp_path):
     from benchmarks import bench_calibrate as B
 
