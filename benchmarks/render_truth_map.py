@@ -263,13 +263,25 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     if Path(a.out).exists() and not a.force:
         ap.error(f"{a.out}: exists (give --force to overwrite)")
-    probe = json.loads(Path(a.probe).read_text())
-    base = a.base_map or probe["setup"]["fmap"]
+    try:
+        probe = json.loads(Path(a.probe).read_text())
+    except OSError as e:
+        ap.error(f"{a.probe}: cannot read ({e.strerror or e})")
+    except ValueError as e:
+        ap.error(f"{a.probe}: not JSON ({str(e).splitlines()[0]})")
+    if not (isinstance(probe, dict) and isinstance(probe.get("rows"), list) and isinstance(probe.get("setup"), dict)
+            and "r_edges" in probe["setup"] and "lens" in probe["setup"]):
+        ap.error(f"{a.probe}: not a benchmarks.probes.render_truth result (no rows, or no setup with r_edges and lens)")
+    base = a.base_map or probe["setup"].get("fmap")
+    if not base or not (ROOT / base).is_file():
+        ap.error(f"{a.probe}: no base map {base!r} in the repository (give --base-map)")
     cmd = "python -m benchmarks.render_truth_map " + " ".join(argv if argv is not None else sys.argv[1:])
     try:
         out = build(probe, a.probe, base, cmd)
     except TruthMapError as e:
         raise SystemExit(str(e)) from None
+    except (KeyError, TypeError, ValueError) as e:
+        raise SystemExit(f"{a.probe}: a row is not a render_truth point ({type(e).__name__}: {e})") from None
     write_text_atomic(a.out, json.dumps(out, indent=1))
     n = [len(x["frame_d"]) for x in out["annuli"]]
     print(f"{a.out}: {len(n)} annuli, {sum(n)} points ({min(n)}-{max(n)} per annulus); SE (object D) by radius: "

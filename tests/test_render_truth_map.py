@@ -148,3 +148,28 @@ def test_a_truth_made_of_the_base_maps_own_values_leaves_the_truth_and_the_presc
     assert np.sqrt(np.mean(d ** 2)) < 0.03 and np.abs(d).max() < 0.15
     ok = mine.truth_measured(eff, f)
     assert ok[:, within].mean() > 0.95 and not ok[:, ~(plain.fmap.radius_px(plain.h, plain.w) <= 0.925)].any()
+
+
+def test_the_builder_refuses_a_bad_probe_file_in_one_line_with_nothing_written(tmp_path, capsys):
+    """render_truth_map's own input (a render_truth result): missing, not JSON, not that probe's, or naming no base
+    map in the repository is one error line; an existing --out is kept without --force."""
+    good = _probe(rt.Setup(r_edges=(0.0, 0.5, 0.9)), [])
+    cases = {"missing": None, "not json": "{", "not the probe's": json.dumps({"rows": []}),
+             "no base": json.dumps(dict(good, setup=dict(good["setup"], fmap="lenses/best_focus/nope.json")))}
+    says = {"missing": "cannot read", "not json": "not JSON", "not the probe's": "not a benchmarks.probes.render_truth",
+            "no base": "no base map 'lenses/best_focus/nope.json'"}
+    out = tmp_path / "map.json"
+    for name, text in cases.items():
+        probe = tmp_path / f"{name.replace(' ', '_')}.json"
+        if text is not None:
+            probe.write_text(text)
+        with pytest.raises(SystemExit):
+            rtm.main([str(probe), "--out", str(out)])
+        err = capsys.readouterr().err.strip().splitlines()[-1]
+        assert says[name] in err and str(probe) in err, (name, err)
+        assert not out.exists()
+    out.write_text("mine")
+    probe.write_text(json.dumps(good))
+    with pytest.raises(SystemExit):
+        rtm.main([str(probe), "--out", str(out)])
+    assert "give --force" in capsys.readouterr().err and out.read_text() == "mine"
