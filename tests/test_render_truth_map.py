@@ -173,3 +173,28 @@ def test_the_builder_refuses_a_bad_probe_file_in_one_line_with_nothing_written(t
     with pytest.raises(SystemExit):
         rtm.main([str(probe), "--out", str(out)])
     assert "give --force" in capsys.readouterr().err and out.read_text() == "mine"
+
+
+def test_render_truth_score_refuses_before_any_sweep(tmp_path, capsys, monkeypatch):
+    """probes/render_truth_score: an existing --out, a variant not declared, or a malformed --truth is one error line
+    before any sweep is rendered (`run` is never called), nothing written."""
+    from benchmarks.probes import render_truth_score as rts
+
+    monkeypatch.setattr(rts, "run", lambda *a, **k: pytest.fail("a sweep was started"))
+    good = tmp_path / "truth.json"
+    good.write_text(json.dumps(_good_map(tmp_path)))
+    bad = tmp_path / "bad.json"
+    bad.write_text("{")
+    out = tmp_path / "score.json"
+    taken = tmp_path / "taken.json"
+    taken.write_text("mine")
+    for args, says in [(["--truth", str(good), "--out", str(taken)], "taken.json: exists"),
+                       (["--truth", str(good), "--variants", "nominal,copy_s2026_7", "--out", str(out)],
+                        "--variants: copy_s2026_7 not of nominal, copy,"),
+                       (["--truth", str(bad), "--out", str(out)], "render_truth_score: --truth ")]:
+        with pytest.raises(SystemExit) as e:
+            rts.main(args)
+        err = capsys.readouterr().err.strip().splitlines()
+        msg = err[-1] if err else str(e.value.code)
+        assert says in msg and "\n" not in msg, (args, msg)
+        assert not out.exists() and taken.read_text() == "mine"

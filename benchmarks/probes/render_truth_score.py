@@ -95,6 +95,9 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     if Path(a.out).exists():  # a committed result is never overwritten
         ap.error(f"{a.out}: exists (choose another --out)")
+    bad = [v for v in a.variants.split(",") if v not in VARIANTS]
+    if bad:  # before any variant's sweeps: a typo late in the list would lose the earlier ones' minutes
+        ap.error(f"--variants: {', '.join(bad)} not of {', '.join(VARIANTS)}")
     from benchmarks.render_truth_map import TruthMapError, load
 
     try:
