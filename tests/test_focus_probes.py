@@ -283,3 +283,43 @@ def test_focus_choice_nearest_pairs_scenes_and_refuses_an_existing_out(tmp_path,
             fcn.main(args)
         assert says in capsys.readouterr().err.strip().splitlines()[-1]
     assert (tmp_path / "x.md").read_text() == "mine"
+
+
+def test_focus_family_mixture_widens_where_tied_families_part_and_refuses_in_one_line(tmp_path, capsys):
+    """`focus_family_mixture`: a scale set whose left-out frames the offset extrapolates differently, the two tied on
+    the fitted frames: `mix:offset,scale` keeps the corrected focus and widens the left-out frames' standard error by
+    the families' spread there (undetermined), the fitted frames' hardly; `bma` moves the corrected focus towards the
+    posterior mean; an existing or non-.md --out is refused in one line before any row is read."""
+    from benchmarks import bench_diagnose_focus as bench
+    from benchmarks.probes import focus_family_mixture as fm
+
+    true = np.linspace(1 / 0.6, 1 / 6.0, 8)
+    rep = true / 1.05
+    est = true + np.array([0.0, 0, 0, 0, 0.002, -0.002, 0.001, -0.001])
+    fams = [{"family": "none", "k": 0, "true_d": [rep.tolist()]}, {"family": "scale", "k": 1, "true_d": [true.tolist()]},
+            {"family": "per_frame", "k": 8, "true_d": [est.tolist()]}]
+    row = {"capture": "s", "kind": "scale_1.05", "family": "scale", "family_true": "scale", "families": fams,
+           "frame_focus_sd_d": [[None] * 4 + [0.003] * 4], "frame_systematic_d": [[0.01] * 8],
+           "corrected_err_d": [0.0] * 8, "frames_noise_dominated": [True] * 4 + [False] * 4, "commit": "old"}
+    r = bench.rescored(row, "code", on_estimates=True)
+    f = {x["family"]: x for x in r["families"]}
+    part = np.abs(np.asarray(f["offset"]["true_d"][0]) - np.asarray(f["scale"]["true_d"][0]))
+    assert part[0] > 0.03 and part[:4].min() > part[4:].max()  # they part most at the left-out frames
+    p = fm.posterior(f, ["offset", "scale"])
+    assert abs(sum(p.values()) - 1) < 1e-12 and min(p.values()) > 0.05  # tied enough to matter
+    m = fm.variant(row, r, "mix:offset,scale")
+    sd0, sd1 = np.asarray(r["corrected_sd_d"])[0], np.asarray(m["corrected_sd_d"])[0]
+    assert np.all(sd1 >= sd0 - 1e-12) and sd1[0] >= 0.02 > sd0[0] and m["frames_undetermined"] >= 1
+    assert m["corrected_err_d"] == r["corrected_err_d"]
+    b = fm.variant(row, r, "bma:offset,scale")
+    assert b["corrected_sd_d"] == r["corrected_sd_d"] and abs(b["corrected_err_d"][0]) > 0.002
+    rows = tmp_path / "r.jsonl"
+    rows.write_text(json.dumps(row) + "\n")
+    (tmp_path / "x.md").write_text("mine")
+    for args, says in [([str(rows), "--out", str(tmp_path / "x.md")], "exists"),
+                       ([str(rows), "--out", str(tmp_path / "y.json")], "a .md file")]:
+        with pytest.raises(SystemExit):
+            fm.main(args)
+        assert says in capsys.readouterr().err.strip().splitlines()[-1]
+    assert fm.main([str(rows), "--out", str(tmp_path / "z.md")]) == 0
+    assert "| mix:offset,scale | s scale_1.05 |" in (tmp_path / "z.md").read_text()
