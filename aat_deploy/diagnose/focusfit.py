@@ -127,10 +127,11 @@ ON_BOUND_TOL_D = 2e-3  # an estimate this near its bound sits on it (the search'
 # fitted frame's error (the fitted frame with the largest reported diopters: next to the frames that show nothing in
 # focus, or the stack's near end) is taken as this many times the error model's (`choice_systematic`). On the
 # development rows (rounds 1-10 and the development scenes, 432 sets: `benchmarks/probes/focus_choice_nearest.py`) its
-# rms standardised error is 1.42 against 0.57-1.19 for the other fitted frames (1.77 against 0.60-0.76 where frames
+# rms standardised error is 1.42 against 0.57-1.19 for the other fitted frames (1.77 against 0.60-1.10 where frames
 # were left out): the model gives it half the error it has, and a curve or the wrong one of scale and offset bought
 # it (issue 32, the eighth to tenth rounds' misses). 2: that ratio; 1.5 and 3 choose alike on those rows
-# (docs/diagnosis.md, "The nearest fitted frame in the family choice"). 1: as before
+# (docs/diagnosis.md, "The nearest fitted frame priced at twice its modelled error in the family choice"). 1: as
+# before
 CHOICE_NEAREST_FACTOR = 2.0
 
 
