@@ -290,3 +290,24 @@ def test_compare_pairs_two_models_scene_by_scene(tmp_path, capsys):
     with pytest.raises(SystemExit):
         anycam_compare.main([str(a), str(b), "--row", "none"])
     assert "no lens and protocol with the row 'none'" in capsys.readouterr().err
+
+
+def test_error_by_interval_by_hand():
+    """Frames at 0.5, 1 and 4 m (2, 1, 0.25 D): truths at 0.4 (nearer than all), 0.8 (between frames 1 and 2), 2 and
+    8 m (between 2 and 3, farther than all); errors by hand."""
+    import numpy as np
+
+    from benchmarks.probes.anycam_error_by_interval import by_interval, summarise
+
+    truth = np.array([[0.4, 0.8], [2.0, 8.0]])
+    depth = np.array([[0.5, 0.8], [2.5, 4.0]])
+    got = by_interval(depth, truth, np.array([4.0, 0.5, 1.0]))  # any order: sorted by the function
+    assert [g["pixels"] for g in got] == [1, 1, 1, 1]
+    assert [g["abs_m"] for g in got] == pytest.approx([0.1, 0.0, 0.5, 4.0])
+    assert [g["abs_d"] for g in got] == pytest.approx([0.5, 0.0, 0.1, 0.125])
+    s = summarise([got, got])
+    assert [v["error_share_m"] for v in s] == pytest.approx([0.1 / 4.6, 0, 0.5 / 4.6, 4.0 / 4.6])
+    assert [v["pixel_share"] for v in s] == pytest.approx([0.25] * 4)
+    assert s[3]["mae_m"] == pytest.approx(4.0) and s[2]["mae_d"] == pytest.approx(0.1)
+    holes = by_interval(depth, np.where(truth > 1, truth, 0.0), np.array([4.0, 0.5, 1.0]))
+    assert [g["pixels"] for g in holes] == [0, 0, 1, 1]
