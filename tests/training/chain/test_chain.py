@@ -157,7 +157,10 @@ def test_changed_input_reruns_downstream_under_torchrun(chain, tmp_path):
     cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node=2", f"--master_port={_free_port()}",
            "-m", "training.cli.train", *_args(out, "--steps", "3", "--force")]
     res = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=600, check=False)
-    assert res.returncode == 0, res.stderr[-2000:]
+    # the launcher's own report ends stderr; the failing rank's cause (a C++ abort's "what()", a Python traceback) is
+    # earlier, so both are shown (a rank once died of SIGABRT under a fully loaded machine, its cause cut off)
+    cause = [ln for ln in res.stderr.splitlines() if any(k in ln for k in ("terminate", "what()", "Error", "error:"))]
+    assert res.returncode == 0, "\n".join(cause[:20]) + "\n...\n" + res.stderr[-2000:]
     rec = _records(out)
     for s in ("lens", "psf", "psf_colour"):
         assert rec[s]["finished"] == chain["second"][s]["finished"]
