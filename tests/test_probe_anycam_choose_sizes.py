@@ -57,6 +57,9 @@ def test_refusals_name_the_problem(tmp_path, capsys):
     del old["stack_size"]
     with pytest.raises(SystemExit, match="no stack_size"):
         cs.main(["--select", str(s3), str(write(tmp_path, "old.json", old))])
+    twice = write(tmp_path, "twice.json", result(3, [4.0], {"A": [3.0]}))
+    with pytest.raises(SystemExit, match="A: scored twice with 3 frames, differently"):
+        cs.main(["--select", str(s3), str(twice), str(write(tmp_path, "s8b.json", result(8, [1.0], {"A": [0.5]})))])
     out = tmp_path / "taken.json"
     out.write_text("mine")
     with pytest.raises(SystemExit):

@@ -36,7 +36,10 @@ def by_size(results: list[dict]) -> dict[int, dict]:
         if (got["stacks"], got["classical"]) != (key, cl):
             raise SystemExit(f"the {s}-frame results score different stacks")
         for row in r["rows"]:
-            got["rows"][row["checkpoint"]] = float(np.mean(row["mae_m"]))
+            v = float(np.mean(row["mae_m"]))
+            if got["rows"].get(row["checkpoint"], v) != v:
+                raise SystemExit(f"{row['checkpoint']}: scored twice with {s} frames, differently")
+            got["rows"][row["checkpoint"]] = v
     if len({v["stacks"] for v in out.values()}) > 1:
         raise SystemExit("the frame counts score different stacks: " + ", ".join(
             f"{s} frames {v['stacks']}" for s, v in sorted(out.items())))
