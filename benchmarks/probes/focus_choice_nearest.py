@@ -135,15 +135,12 @@ def main(argv: list[str] | None = None) -> int:
             ap.error(f"{f}: no such results file")
     if a.out is not None and (a.out.suffix != ".md" or a.out.exists()):
         ap.error(f"--out {a.out}: " + ("exists (choose another --out)" if a.out.exists() else "a .md file"))
-    from benchmarks.probes.focus_noise_weight import counts
+    from benchmarks.probes.focus_noise_weight import counts, last_row_per_set
 
     buf = io.StringIO()
     with redirect_stdout(buf):
         given = [json.loads(x) for f in a.results for x in f.read_text().splitlines() if x.strip()]
-        rows = list({(r["capture"], r["kind"]): r for r in given}.values())
-        if len(given) > len(rows):  # a set in several rows: its last row, said
-            print(f"{len(given) - len(rows)} of {len(given)} rows repeat a set (capture, kind) given earlier: each "
-                  "set's last row is used\n")
+        rows = last_row_per_set(given)
         print("| rank (0 nearest fitted) | frames | rms error (D) | median modelled error (D) | median noise share | rms z |")
         print("|---|---|---|---|---|---|")
         for b in by_rank(rows):

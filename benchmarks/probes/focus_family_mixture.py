@@ -111,15 +111,12 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--out {a.out}: " + ("exists (choose another --out)" if a.out.exists() else "a .md file"))
     from aat_deploy.io.atomic import write_text_atomic
     from benchmarks import bench_diagnose_focus as bench
-    from benchmarks.probes.focus_noise_weight import counts
+    from benchmarks.probes.focus_noise_weight import counts, last_row_per_set
 
     buf = io.StringIO()
     with redirect_stdout(buf):
         given = [json.loads(x) for f in a.results for x in f.read_text().splitlines() if x.strip()]
-        rows = list({(r["capture"], r["kind"]): r for r in given}.values())
-        if len(given) > len(rows):  # a set in several rows: its last row, said
-            print(f"{len(given) - len(rows)} of {len(given)} rows repeat a set (capture, kind) given earlier: each "
-                  "set's last row is used\n")
+        rows = last_row_per_set(given)
         pairs = [(row, bench.rescored(row, "code", on_estimates=True)) for row in rows]
         pairs = [(row, r) for row, r in pairs if r is not None]
         base = [r for _, r in pairs]

@@ -47,14 +47,21 @@ def sign_test(k: int, n: int) -> float:
     return min(1.0, sum(math.comb(n, i) for i in range(n + 1) if abs(i - n / 2) >= far - 1e-9) / 2 ** n)
 
 
+def last_row_per_set(rows: list[dict]) -> list[dict]:
+    """Each (capture, kind) set's last row, in first-seen order; a set in several rows (e.g. rerun in a later file)
+    is said in one line on stdout, not silently dropped."""
+    uniq = list({(r["capture"], r["kind"]): r for r in rows}.values())
+    if len(rows) > len(uniq):
+        print(f"{len(rows) - len(uniq)} of {len(rows)} rows repeat a set (capture, kind) given earlier: each set's "
+              "last row is used\n")
+    return uniq
+
+
 def compare(rows: list[dict]) -> dict:
     from benchmarks import bench_diagnose_focus as bench
 
     given = len(rows)
-    rows = list({(r["capture"], r["kind"]): r for r in rows}.values())
-    if given > len(rows):  # a set in several rows (e.g. rerun in a later file): said, not silent
-        print(f"{given - len(rows)} of {given} rows repeat a set (capture, kind) given earlier: each set's last row "
-              "is used\n")
+    rows = last_row_per_set(rows)
     pairs = [(bench.rescored(r, "plain", on_estimates=True, noise_weight=False),
               bench.rescored(r, "weighed", on_estimates=True, noise_weight=True)) for r in rows]
     pairs = [(a, b) for a, b in pairs if a is not None]
