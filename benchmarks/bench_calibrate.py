@@ -464,12 +464,12 @@ def measures(rig: Rig, sweeps: list[dict], variant: str, keep_every: int = 1, ti
     return out
 
 
-def as_sweep(rig: Rig, sw: dict, variant: str, keep_every: int = 1):
+def as_sweep(rig: Rig, sw: dict, variant: str, keep_every: int = 1, first: int = 0):
     """One of `sweep`'s chart sweeps as `aat-calibrate fit` reads it from a folder (its EXIF: the virtual camera's
-    make, model, lens, focal length and f-number)."""
+    make, model, lens, focal length and f-number); every keep_every-th frame from frame `first`."""
     from aat_deploy.calibrate.sweep import Sweep
 
-    idx = np.arange(0, len(sw["reported_m"]), keep_every)
+    idx = np.arange(first, len(sw["reported_m"]), keep_every)
     ident = {"make": "aat", "model": "virtual camera", "lens": rig.lens.name,
              "focal_length_mm": round(rig.efl, 2), "f_number": round(rig.fno, 2)}
     return Sweep(Path(sweep_name(rig.setup, variant, sw["distance_m"])), sw["frames"][idx], sw["reported_m"][idx],

@@ -445,6 +445,9 @@ def test_a_random_copys_sweeps_are_named_after_the_copy():
     assert bc.as_sweep(R(), sw, "nominal").path.name == "cellphone_near_nominal_0.055m"
     R.setup = base
     assert bc.as_sweep(R(), sw, "copy").path.name == "cellphone_near_copy_0.055m"
+    # every other frame from the second (benchmarks/probes/tile_bias.py: the sweep at twice the step, both phases)
+    np.testing.assert_array_equal(bc.as_sweep(R(), sw, "nominal", 2, 1).reported_m, [2.0])
+    np.testing.assert_array_equal(bc.as_sweep(R(), sw, "nominal", 2).reported_m, [3.0, 1.0])
 
 
 def test_the_maps_error_is_split_where_tiles_measured_the_field():

@@ -93,13 +93,14 @@ def write_capture(out_dir, frames: np.ndarray, focus_reported_m, lens: Lens, gt_
 
 
 def shoot(lens: Lens, rgb: np.ndarray, depth_m: np.ndarray, focus_true_m, effects=(), psf=None, seed: int = 0,
-          cell_px: int = 64, workers: int = 1) -> tuple[np.ndarray, np.ndarray]:
+          cell_px: int = 64, workers: int = 1, layer_blur_px: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """A focal stack of a scene through the lens, torch-free: rgb (3, H, W) linear and depth_m (H, W) metres
     from the sensor (> 0) at the lens's full sensor; focus_true_m (S,) where the camera really focused. effects:
     registered effect names/specs (`aat_deploy.render.effects.parse`), rendered with the lens's PSFs from psf
     (its surrogate .onnx, or an `OnnxSource`; None = the thin-lens Gaussian, focusing paraxially). Returns frames (S, 3, H, W) float32
     linear as the sensor records them and the focus distances (S,) the metadata reports (the effects'
-    `report_focus`). Effects that need torch raise `NeedsTorch` (`aat-render` renders those)."""
+    `report_focus`). layer_blur_px: the depth layers' spacing in px of thin-lens blur (`LayeredConfig`). Effects
+    that need torch raise `NeedsTorch` (`aat-render` renders those)."""
     from aat_deploy.render import effects as fx
     from aat_deploy.render.layered import LayeredConfig
     from aat_deploy.render.optical import optical_stack
@@ -127,7 +128,7 @@ def shoot(lens: Lens, rgb: np.ndarray, depth_m: np.ndarray, focus_true_m, effect
     focus = np.asarray(focus_true_m, np.float64).ravel()
     rng = np.random.default_rng(seed)
     frames = optical_stack(chosen, GaussianSource(lens), np.ascontiguousarray(rgb, np.float32),
-                           np.ascontiguousarray(depth_m, np.float32), focus, ctx, LayeredConfig(cell_px=cell_px),
+                           np.ascontiguousarray(depth_m, np.float32), focus, ctx, LayeredConfig(cell_px=cell_px, layer_blur_px=layer_blur_px),
                            workers)
     frames = fx.post_stack(chosen, frames, focus, ctx, rng)
     reported = focus.copy()
