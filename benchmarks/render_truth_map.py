@@ -251,6 +251,14 @@ def load(path: str | Path) -> RenderTruthMap:
     return RenderTruthMap(d, name)
 
 
+def load_or_exit(path: str | Path, prog: str) -> RenderTruthMap:
+    """`load`, or SystemExit with one line naming the program and its --truth (the probes' check before any render)."""
+    try:
+        return load(path)
+    except TruthMapError as e:
+        raise SystemExit(f"{prog}: --truth {e}") from None
+
+
 def main(argv=None) -> int:
     from aat_deploy.io.atomic import write_text_atomic
 

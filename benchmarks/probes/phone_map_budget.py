@@ -90,6 +90,19 @@ def observations_of(tiles: dict, keep: np.ndarray, reported: np.ndarray, aspect:
                         tiles["sweep"][idx].astype(np.int64), cell, aspect=aspect)
 
 
+def tile_key(sweep, x, y) -> tuple:
+    """A tile's identity across `tile_table` and the fit's observations: its sweep and field position."""
+    return int(sweep), round(float(x), 6), round(float(y), 6)
+
+
+def kept_tiles(tiles: dict, obs) -> np.ndarray:
+    """(N,) bool over `tile_table`'s tiles: counted and kept by the fit (its outlier pass dropped some; `obs`, the
+    fit's observations, matched by sweep and position)."""
+    kept = {tile_key(*v) for v in zip(obs.sweep, obs.x, obs.y)}
+    return np.array([bool(tiles["counted"][j]) and tile_key(tiles["sweep"][j], tiles["x"][j], tiles["y"][j]) in kept
+                     for j in range(len(tiles["x"]))], dtype=bool)
+
+
 def covered_mask(x, y, h: int, w: int) -> np.ndarray:
     """(H, W) pixels inside the convex hull of tile centres x, y (normalised field)."""
     from scipy.spatial import Delaunay
@@ -154,31 +167,36 @@ def extrapolated(cal):
     return dataclasses.replace(cal, best_focus=dataclasses.replace(cal.best_focus, radius_max=None))
 
 
+def development_fit(rig, variant: str, log) -> tuple:
+    """(effects, the reported focus's scale, sweeps, measured sweeps, fit) of `variant` (bench_calibrate's names:
+    nominal or copy) on `rig`'s setup: its cached sweeps measured with the tapes and fitted as part a fits them,
+    without the bootstrap."""
+    from aat_deploy.calibrate.fit import fit_calibration
+    from benchmarks import bench_calibrate as B
+
+    eff = B.effects_for(rig.setup, variant)
+    scale = B.SCALE if any(e.startswith("focus_metadata") for e in eff) else 1.0
+    sweeps = [B.sweep(rig, variant, i, log) for i in range(len(rig.setup.distances_m))]
+    ms = B.measures(rig, sweeps, variant)
+    return eff, scale, sweeps, ms, fit_calibration(ms, n_boot=0)
+
+
 def run_variant(rig, variant: str, truths: dict, log, keep: dict | None = None) -> dict:
     """keep: a dict that receives the measured fit (`fit_calibration`'s result) under "fit" (probes/chart_texture)."""
     from aat_deploy.calibrate import in_focus_diopters
-    from aat_deploy.calibrate.fit import fit_calibration
     from aat_deploy.calibrate.format import field_radius_of
     from aat_deploy.calibrate.model import fit_model
     from benchmarks import bench_calibrate as B
 
     s = rig.setup
-    eff = B.effects_for(s, variant)
-    scale = B.SCALE if any(e.startswith("focus_metadata") for e in eff) else 1.0
-    sweeps = [B.sweep(rig, variant, i, log) for i in range(len(s.distances_m))]
-    ms = B.measures(rig, sweeps, variant)
-    res = fit_calibration(ms, n_boot=0)
+    eff, scale, sweeps, ms, res = development_fit(rig, variant, log)
     if keep is not None:
         keep["fit"] = res
     res.sweeps_measured = res.measures  # as fitted: a chart whose distance the fit found has its tiles' objects there
     obs = res.observations  # after the fit's outlier pass
     tiles = tile_table(res, rig, eff, scale)
     aspect = rig.w / rig.h
-    # the counted tiles the fit kept (its outlier pass dropped some): matched by position, sweep and peak
-    key = lambda sw, x, y: (int(sw), round(float(x), 6), round(float(y), 6))
-    kept = {key(*v) for v in zip(obs.sweep, obs.x, obs.y)}
-    fit_kept = np.array([tiles["counted"][j] and key(tiles["sweep"][j], tiles["x"][j], tiles["y"][j]) in kept
-                         for j in range(len(tiles["x"]))])
+    fit_kept = kept_tiles(tiles, obs)
     ok_ideal = np.isfinite(tiles["ideal_d"])
     inside = s.inside()
     rep_m = inside * scale

@@ -51,10 +51,8 @@ def dump(variant: str, log) -> Path:
     res.sweeps_measured = res.measures
     obs = res.observations
     tiles = P.tile_table(res, rig, eff, scale)
-    key = lambda sw, x, y: (int(sw), round(float(x), 6), round(float(y), 6))
-    kept = {key(*t) for t in zip(obs.sweep, obs.x, obs.y)}
-    fit_kept = np.array([tiles["counted"][j] and key(tiles["sweep"][j], tiles["x"][j], tiles["y"][j]) in kept
-                         for j in range(len(tiles["x"]))])
+    key = P.tile_key
+    fit_kept = P.kept_tiles(tiles, obs)
     ideal = P.observations_of(tiles, fit_kept & np.isfinite(tiles["ideal_d"]), tiles["ideal_d"], rig.w / rig.h)
     inside = s.inside()
     truth = rig.truth(eff, inside)[:, ::STRIDE, ::STRIDE]

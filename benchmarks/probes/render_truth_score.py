@@ -98,12 +98,9 @@ def main(argv=None) -> int:
     bad = [v for v in a.variants.split(",") if v not in VARIANTS]
     if bad:  # before any variant's sweeps: a typo late in the list would lose the earlier ones' minutes
         ap.error(f"--variants: {', '.join(bad)} not of {', '.join(VARIANTS)}")
-    from benchmarks.render_truth_map import TruthMapError, load
+    from benchmarks.render_truth_map import load_or_exit
 
-    try:
-        load(a.truth)
-    except TruthMapError as e:
-        raise SystemExit(f"render_truth_score: --truth {e}") from None
+    load_or_exit(a.truth, "render_truth_score")
     log = lambda m: print(m, file=sys.stderr, flush=True)
     rows = [run(v, a.truth, not a.no_ideal, log) for v in a.variants.split(",")]
     write_text_atomic(a.out, json.dumps({"what": __doc__.split("\n")[0], "truth": a.truth, "rows": rows}, indent=1,

@@ -197,20 +197,16 @@ def _paired(a: dict, b: dict, va: np.ndarray, vb: np.ndarray) -> dict:
 
 
 def run_variant(variant: str, truth_path: str, log) -> dict:
-    from aat_deploy.calibrate.fit import fit_calibration
     from aat_deploy.calibrate.sweep import measure_sweep
     from benchmarks import bench_calibrate as B
     from benchmarks.probes import chart_texture as CT
+    from benchmarks.probes import phone_map_budget as P
 
     rig, v = CT.rig_for(B.Rig(B.LENSES["cellphone_near"], truth=truth_path), "soft leaves", variant)
     s = rig.setup
-    eff = B.effects_for(s, v)
-    scale = B.SCALE if any(e.startswith("focus_metadata") for e in eff) else 1.0
+    eff, scale, sweeps, ms, res = P.development_fit(rig, v, log)
     truth = Truth(rig, eff, scale)
     aspect = rig.w / rig.h
-    sweeps = [B.sweep(rig, v, i, log) for i in range(len(s.distances_m))]
-    ms = B.measures(rig, sweeps, v)
-    res = fit_calibration(ms, n_boot=0)
     fitted = {i: m for i, m in enumerate(res.measures)}
     rng = np.random.default_rng(7)  # bench_calibrate.measures' tape draws, again
     tapes = [sw["distance_m"] + rng.normal(0, B.TAPE_SD_MM / 1000) for sw in sweeps]
@@ -337,12 +333,9 @@ def main(argv=None) -> int:
         charts = [float(v) for v in a.renders.split(",") if v]
     except ValueError:
         ap.error(f"--renders {a.renders!r}: chart distances in m, comma-separated")
-    from benchmarks.render_truth_map import TruthMapError, load
+    from benchmarks.render_truth_map import load_or_exit
 
-    try:
-        load(a.truth)
-    except TruthMapError as e:
-        raise SystemExit(f"tile_bias: --truth {e}") from None
+    load_or_exit(a.truth, "tile_bias")
     log = lambda m: print(m, file=sys.stderr, flush=True)
     res = {"what": __doc__.split("\n")[0], "truth": a.truth, "command": "python -m benchmarks.probes.tile_bias "
            + " ".join(argv if argv is not None else sys.argv[1:]),
