@@ -323,3 +323,65 @@ def test_focus_family_mixture_widens_where_tied_families_part_and_refuses_in_one
         assert says in capsys.readouterr().err.strip().splitlines()[-1]
     assert fm.main([str(rows), "--out", str(tmp_path / "z.md")]) == 0
     assert "| mix:offset,scale | s scale_1.05 |" in (tmp_path / "z.md").read_text()
+
+
+def test_focus_shared_misfit_splits_a_scenes_common_pattern_and_its_variants_restore_the_code(tmp_path, capsys):
+    """`focus_shared_misfit`: a scene whose sets carry one error pattern has it all common, one whose sets' errors
+    differ has none common; the untouched copy's slope against the true focus is its fitted b; the correlated choice
+    with L = 0 scores every family as the code does (and `variants` leaves `focusfit` as it was); a family within the
+    gap that puts a frame over 0.02 D away makes it undetermined, one outside the gap does not; an existing --out is
+    refused in one line before any row is read."""
+    from aat_deploy.diagnose import focusfit as ff
+    from benchmarks import bench_diagnose_focus as bench
+    from benchmarks.probes import focus_shared_misfit as sm
+
+    true = np.linspace(1 / 0.6, 1 / 6.0, 8)
+    pattern = 0.01 - 0.02 * true  # slope -0.02 against the true focus
+
+    def row(cap, kind, err, rep=None, fam="none"):
+        rep = true if rep is None else rep
+        est = true + err
+        fams = [{"family": "none", "k": 0, "score": 0.0, "true_d": [rep.tolist()]},
+                {"family": "scale", "k": 1, "score": 0.0, "true_d": [true.tolist()]},
+                {"family": "offset", "k": 1, "score": 0.0, "true_d": [(rep + np.mean(est - rep)).tolist()]},
+                {"family": "per_frame", "k": 8, "score": 0.0, "true_d": [est.tolist()]}]
+        return {"capture": cap, "kind": kind, "family": fam, "family_true": fam, "family_ok": True, "families": fams,
+                "frame_err_d": err.tolist(), "frame_focus_sd_d": [[0.001] * 8], "frame_systematic_d": [[0.01] * 8],
+                "corrected_err_d": (np.asarray(fams[[f["family"] for f in fams].index(fam)]["true_d"][0]) - true).tolist(),
+                "commit": "old"}
+
+    rng = np.random.default_rng(0)
+    rows = [row("a", "none", pattern), row("a", "scale_1.1", pattern, true / 1.1, "scale"),
+            row("b", "none", rng.normal(0, 0.01, 8)), row("b", "scale_1.1", rng.normal(0, 0.01, 8), true / 1.1, "scale")]
+    sh, share = sm.shared(rows)
+    got = {x["scene"]: x for x in sh}
+    assert got["a"]["common_share"] == 1.0 and got["a"]["untouched_corr"] is None  # two sets: no others' mean to take
+    assert got["b"]["common_share"] < 0.8 and 0 < share < 1
+    slope = {x["scene"]: x for x in sm.apparent_slope(rows, [bench.rescored(r, "c", on_estimates=True) for r in rows])}
+    assert slope["a"]["slope"] == pytest.approx(-0.02, abs=1e-4) and slope["a"]["offset_d"] == pytest.approx(0.01, abs=1e-4)
+    assert set(slope["a"]["scales_read"]) == {"1.1"}
+    # L = 0: the correlated choice is the code's
+    code = bench.rescored(rows[1], "c", on_estimates=True)
+    before = ff.score_families, ff.error_scale
+    try:
+        ff.score_families, ff.error_scale = sm.gls(0.0)
+        zero = bench.rescored(rows[1], "c", on_estimates=True)
+    finally:
+        ff.score_families, ff.error_scale = before
+    assert [f["score"] for f in zero["families"]] == pytest.approx([f["score"] for f in code["families"]])
+    sm.variants(rows[:2])
+    assert (ff.score_families, ff.error_scale) == before
+    # the runner-up rule
+    r = {"family": "scale", "corrected_sd_d": [[0.005] * 8], "frames_undetermined": 0,
+         "families": [{"family": "scale", "score": 1.0, "true_d": [true.tolist()]},
+                      {"family": "offset", "score": 2.5, "true_d": [(true + np.r_[0.05, np.zeros(7)]).tolist()]},
+                      {"family": "per_frame", "score": -5.0, "true_d": [(true + 0.1).tolist()]}]}
+    assert sm.runner_up(r, 2.0)["frames_undetermined"] == 1 and sm.runner_up(r, 1.0)["frames_undetermined"] == 0
+    p = tmp_path / "r.jsonl"
+    p.write_text("".join(json.dumps(x) + "\n" for x in rows))
+    (tmp_path / "x.md").write_text("mine")
+    with pytest.raises(SystemExit):
+        sm.main([str(p), "--out", str(tmp_path / "x.md")])
+    assert "does not exist yet" in capsys.readouterr().err.strip().splitlines()[-1]
+    assert sm.main([str(p), "--out", str(tmp_path / "y.md")]) == 0
+    assert json.loads((tmp_path / "y.json").read_text())["counts"]["code"]["sets"] == 4
