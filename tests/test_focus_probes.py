@@ -385,3 +385,24 @@ def test_focus_shared_misfit_splits_a_scenes_common_pattern_and_its_variants_res
     assert "does not exist yet" in capsys.readouterr().err.strip().splitlines()[-1]
     assert sm.main([str(p), "--out", str(tmp_path / "y.md")]) == 0
     assert json.loads((tmp_path / "y.json").read_text())["counts"]["code"]["sets"] == 4
+
+
+def test_focus_shared_misfit_invariant_gives_every_set_its_untouched_copys_errors():
+    """`invariant`: each set's estimates become the truth plus the untouched copy's errors where that copy fitted the
+    frame, the set's own estimate where it did not; a scene without an untouched copy is left out."""
+    from benchmarks.probes import focus_shared_misfit as sm
+
+    true = np.array([1.5, 1.0, 0.5])
+
+    def row(cap, kind, err, est):
+        return {"capture": cap, "kind": kind, "family": "none", "frame_err_d": err, "corrected_err_d": [0.0] * 3,
+                "families": [{"family": "none", "true_d": [true.tolist()]},
+                             {"family": "per_frame", "true_d": [est]}]}
+
+    rows = [row("a", "none", [float("nan"), 0.01, -0.02], [9.0, 1.01, 0.48]),
+            row("a", "offset_+0.05", [0.3, 0.03, 0.0], [1.8, 1.03, 0.5]), row("b", "offset_+0.05", [0, 0, 0], [0, 0, 0])]
+    out = sm.invariant(rows)
+    assert [(r["capture"], r["kind"]) for r in out] == [("a", "none"), ("a", "offset_+0.05")]
+    per = next(f for f in out[1]["families"] if f["family"] == "per_frame")["true_d"][0]
+    assert per == pytest.approx([1.8, 1.01, 0.48])
+    assert next(f for f in rows[1]["families"] if f["family"] == "per_frame")["true_d"][0] == [1.8, 1.03, 0.5]  # input kept

@@ -22,6 +22,10 @@ since it was reported); nothing is fitted again and nothing held out enters it.
    score (-2 log evidence: D = 2 is Kass and Raftery's "not worth more than a bare mention") puts it more than 0.02 D
    away (`focusfit.UNDETERMINED_SD_D`). The benchmark's counts for each, every set that moved, and the per-scene sign
    test against the code (`focus_choice_nearest.scenes_moved`).
+6. The bound on making the estimates independent of the metadata (`invariant`): every set's per-frame estimates
+   replaced by the truth plus its scene's untouched copy's errors (what the images alone give when the metadata is
+   right; the set's own spreads, systematic errors and noise shares kept), rescored: what the part of the misfit that
+   depends on the metadata costs, the shared part left as it is.
 
     python -m benchmarks.probes.focus_shared_misfit RESULTS.jsonl ... --out results/focus_shared_misfit.md
 """
@@ -215,7 +219,40 @@ def variants(rows: list[dict]) -> dict[str, list[dict]]:
         ff.score_families, ff.error_scale = orig
     for g in RUNNER_UP_GAPS:
         out[f"runner{g:g}"] = [runner_up(r, g) for r in out[""]]
+    # the sets of scenes without an untouched copy are left out of it (its count of sets says how many remain)
+    out["invariant"] = [x for x in (bench.rescored(r, "probe", on_estimates=True) for r in invariant(rows)) if x is not None]
     return out
+
+
+def invariant(rows: list[dict]) -> list[dict]:
+    """Part 6: the rows of scenes with an untouched copy, each set's `per_frame` estimates replaced by the truth plus
+    the untouched copy's errors at the frames it fitted (the others keep the set's), ready for `rescored`."""
+    un = {r["capture"]: r for r in rows if r["kind"] == "none"}
+    out = []
+    for r in rows:
+        if r["capture"] not in un:
+            continue
+        u = np.asarray(un[r["capture"]]["frame_err_d"], np.float64)
+        fams = [dict(f) for f in r["families"]]
+        per = next(f for f in fams if f["family"] == "per_frame")
+        est = np.asarray(per["true_d"], np.float64)[0]
+        per["true_d"] = [np.where(np.isfinite(u), truth(r) + u, est).tolist()]
+        out.append({**r, "families": fams})
+    return out
+
+
+def precision(base: dict, var: list[dict]) -> dict:
+    """Paired over the sets with an error: how many sets' largest error is smaller / larger in var than in base (by
+    more than `focus_noise_weight.CHANGED_D`), and the medians."""
+    from benchmarks.probes.focus_noise_weight import CHANGED_D
+
+    pairs = [(base[(r["capture"], r["kind"])]["corrected_max_err_d"], r["corrected_max_err_d"]) for r in var
+             if r["kind"] != "none"]
+    a = np.asarray(pairs, np.float64).reshape(-1, 2)
+    return {"sets": len(a), "smaller": int(np.sum(a[:, 1] < a[:, 0] - CHANGED_D)),
+            "larger": int(np.sum(a[:, 1] > a[:, 0] + CHANGED_D)),
+            "median_code_d": round(float(np.median(a[:, 0])), 4) if len(a) else None,
+            "median_invariant_d": round(float(np.median(a[:, 1])), 4) if len(a) else None}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -230,7 +267,7 @@ def main(argv: list[str] | None = None) -> int:
     if a.out is not None and (a.out.suffix != ".md" or a.out.exists() or a.out.with_suffix(".json").exists()):
         ap.error(f"--out {a.out}: a .md file that does not exist yet (nor its .json)")
     from benchmarks.probes.focus_choice_nearest import scenes_moved
-    from benchmarks.probes.focus_noise_weight import counts, last_row_per_set
+    from benchmarks.probes.focus_noise_weight import CHANGED_D, counts, last_row_per_set
 
     buf = io.StringIO()
     with redirect_stdout(buf):
@@ -272,6 +309,10 @@ def main(argv: list[str] | None = None) -> int:
             print(f"| {v or 'code'} | " + " | ".join(str(x) for x in counts(rs).values()) +
                   f" | {m['scenes_better']} | {m['scenes_worse']} | {m['sign_test_p']} |")
         base = {(r["capture"], r["kind"]): r for r in res[""]}
+        prec = precision(base, res["invariant"])
+        print(f"\ninvariant against the code, the largest error per set with an error: smaller in {prec['smaller']}, "
+              f"larger in {prec['larger']} (by more than {CHANGED_D} D); its median {prec['median_code_d']} D -> "
+              f"{prec['median_invariant_d']} D")
         print("\n| variant | set | true family | code: family, largest error (D), undetermined | variant |\n"
               "|---|---|---|---|---|")
         for v, rs in res.items():
@@ -289,7 +330,7 @@ def main(argv: list[str] | None = None) -> int:
         cmd = f"python -m benchmarks.probes.focus_shared_misfit {' '.join(str(f) for f in a.results)} --out {a.out}"
         write_text_atomic(a.out, f"# `{cmd}`\n\n" + buf.getvalue())
         write_text_atomic(a.out.with_suffix(".json"), json.dumps(
-            {"command": cmd, "common_share": share, "scenes": sh, "kinds": kinds, "slopes": slopes, "left_out": lo,
+            {"command": cmd, "common_share": share, "scenes": sh, "kinds": kinds, "slopes": slopes, "left_out": lo, "invariant_precision": prec,
              "counts": {v or "code": counts(rs) for v, rs in res.items()},
              "sign_tests": {v: {k: m[k] for k in ("scenes_better", "scenes_worse", "sign_test_p")}
                             for v, m in moved.items() if v}}, indent=1) + "\n")
