@@ -406,3 +406,21 @@ def test_focus_shared_misfit_invariant_gives_every_set_its_untouched_copys_error
     per = next(f for f in out[1]["families"] if f["family"] == "per_frame")["true_d"][0]
     assert per == pytest.approx([1.8, 1.01, 0.48])
     assert next(f for f in rows[1]["families"] if f["family"] == "per_frame")["true_d"][0] == [1.8, 1.03, 0.5]  # input kept
+
+
+def test_focus_shared_misfit_runner_gap_counts_only_families_that_move_a_frame_over_0_02_d():
+    """`runner_gap`: the nearest score among the families that put some frame more than 0.02 D from the chosen one's
+    focus (`per_frame` and families within 0.02 D everywhere not counted); None without one; `gap_by_outcome` files
+    the set by its outcome."""
+    from benchmarks.probes import focus_shared_misfit as sm
+
+    t = np.array([1.5, 1.0, 0.5])
+    r = {"kind": "scale_1.1", "family": "scale", "frames_undetermined": 0, "corrected_max_err_d": 0.05,
+         "families": [{"family": "scale", "score": 1.0, "true_d": [t.tolist()]},
+                      {"family": "offset", "score": 1.5, "true_d": [(t + 0.01).tolist()]},
+                      {"family": "monotone", "score": 4.0, "true_d": [(t + np.r_[0.03, 0, 0]).tolist()]},
+                      {"family": "per_frame", "score": -9.0, "true_d": [(t + 0.3).tolist()]}]}
+    assert sm.runner_gap(r) == pytest.approx(3.0)
+    assert sm.gap_by_outcome([r])["claimed_over"]["median"] == 3.0
+    r["families"] = r["families"][:2]
+    assert sm.runner_gap(r) is None

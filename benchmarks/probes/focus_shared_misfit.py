@@ -201,6 +201,31 @@ def runner_up(r: dict, gap: float) -> dict:
     return {**r, "frames_undetermined": int(und.sum())}
 
 
+def runner_gap(r: dict) -> float | None:
+    """How far (-2 log evidence) the best family that puts some frame more than UNDETERMINED_SD_D from the chosen
+    family's focus scores above it (None: no such family); `per_frame` is not counted."""
+    from aat_deploy.diagnose import focusfit as ff
+
+    fams = {x["family"]: x for x in r["families"]}
+    best = np.asarray(fams[r["family"]]["true_d"], np.float64)[0]
+    gaps = [f["score"] - fams[r["family"]]["score"] for k, f in fams.items() if k not in (r["family"], "per_frame")
+            and np.nanmax(np.abs(np.asarray(f["true_d"], np.float64)[0] - best)) > ff.UNDETERMINED_SD_D]
+    return min(gaps) if gaps else None
+
+
+def gap_by_outcome(code: list[dict]) -> dict:
+    """`runner_gap` over the code's sets with an error, by outcome: claimed determined but over 0.02 D, within 0.02 D
+    with every frame determined, with a frame undetermined: sets, min, 5th percentile, median."""
+    out: dict = defaultdict(list)
+    for r in code:
+        if r["kind"] == "none" or (g := runner_gap(r)) is None:
+            continue
+        det = not r["frames_undetermined"]
+        out["claimed_over" if det and r["corrected_max_err_d"] > 0.02 else "within" if det else "undetermined"].append(g)
+    return {k: {"sets": len(v), "min": round(min(v), 2), "p5": round(float(np.quantile(v, 0.05)), 2),
+                "median": round(float(np.median(v)), 2), "max": round(max(v), 2)} for k, v in out.items()}
+
+
 def variants(rows: list[dict]) -> dict[str, list[dict]]:
     """{variant: rescored rows}; '' is the code as it is."""
     from aat_deploy.diagnose import focusfit as ff
@@ -308,6 +333,9 @@ def main(argv: list[str] | None = None) -> int:
             moved[v] = m
             print(f"| {v or 'code'} | " + " | ".join(str(x) for x in counts(rs).values()) +
                   f" | {m['scenes_better']} | {m['scenes_worse']} | {m['sign_test_p']} |")
+        gaps = gap_by_outcome(res[""])
+        print("\nThe code's sets with an error, the gap (-2 log evidence) to the best family that puts a frame over "
+              "0.02 D away, by outcome: " + "; ".join(f"{k}: {v}" for k, v in gaps.items()))
         base = {(r["capture"], r["kind"]): r for r in res[""]}
         prec = precision(base, res["invariant"])
         print(f"\ninvariant against the code, the largest error per set with an error: smaller in {prec['smaller']}, "
@@ -330,7 +358,7 @@ def main(argv: list[str] | None = None) -> int:
         cmd = f"python -m benchmarks.probes.focus_shared_misfit {' '.join(str(f) for f in a.results)} --out {a.out}"
         write_text_atomic(a.out, f"# `{cmd}`\n\n" + buf.getvalue())
         write_text_atomic(a.out.with_suffix(".json"), json.dumps(
-            {"command": cmd, "common_share": share, "scenes": sh, "kinds": kinds, "slopes": slopes, "left_out": lo, "invariant_precision": prec,
+            {"command": cmd, "common_share": share, "scenes": sh, "kinds": kinds, "slopes": slopes, "left_out": lo, "invariant_precision": prec, "runner_gap": gaps,
              "counts": {v or "code": counts(rs) for v, rs in res.items()},
              "sign_tests": {v: {k: m[k] for k in ("scenes_better", "scenes_worse", "sign_test_p")}
                             for v, m in moved.items() if v}}, indent=1) + "\n")
