@@ -424,3 +424,40 @@ def test_focus_shared_misfit_runner_gap_counts_only_families_that_move_a_frame_o
     assert sm.gap_by_outcome([r])["claimed_over"]["median"] == 3.0
     r["families"] = r["families"][:2]
     assert sm.runner_gap(r) is None
+
+
+def test_focus_start_invariance_starts_from_the_first_pass_and_summarises_against_the_untouched_copy(tmp_path, capsys):
+    """`focus_start_invariance`: the first pass is the stored `per_frame` estimates, the chosen family's value at the
+    frames left out; the summary's coefficient on the untouched errors is 1 for the untouched pattern and the stored
+    row's beside it; --mode start refuses two captures of one kind in one line."""
+    from benchmarks.probes import focus_start_invariance as si
+
+    true = np.array([1.6, 1.2, 0.8, 0.4])
+    pattern = np.array([np.nan, -0.01, 0.02, -0.01])
+
+    def row(kind, rep, err):
+        fams = [{"family": "none", "k": 0, "true_d": [rep.tolist()]}, {"family": "scale", "k": 1, "true_d": [true.tolist()]},
+                {"family": "offset", "k": 1, "true_d": [(rep - 0.01).tolist()]},
+                {"family": "per_frame", "k": 4, "true_d": [(true + np.nan_to_num(err, nan=0.3)).tolist()]}]
+        return {"capture": "s", "kind": kind, "family": "scale", "family_true": "scale", "families": fams,
+                "frame_err_d": err.tolist(), "frame_focus_sd_d": [[None, 0.001, 0.001, 0.001]],
+                "frame_systematic_d": [[0.01] * 4], "corrected_err_d": [0.0] * 4,
+                "frames_noise_dominated": [True, False, False, False], "commit": "old"}
+
+    stored = [row("none", true, pattern), row("scale_1.1", true / 1.1, 2 * pattern)]
+    stored[0]["family"] = "none"
+    stored[0]["corrected_err_d"] = [0.0] * 4
+    assert si.first_pass(stored[1]) == pytest.approx([1.6, 1.18, 0.84, 0.38])  # frame 0 left out: the scale's value
+    rerun = [dict(stored[1], frame_err_d=pattern.tolist())]
+    s = si.summary(rerun, stored)[0]
+    assert (s["coef"], s["stored_coef"]) == (1.0, 2.0)
+    with pytest.raises(SystemExit):
+        si.main(["--mode", "start", "--rows", str(tmp_path / "none.jsonl"), "--out", "x.jsonl"])
+    assert "no such results file" in capsys.readouterr().err.strip().splitlines()[-1]
+    rows = tmp_path / "r.jsonl"
+    rows.write_text("".join(json.dumps(r) + "\n" for r in stored))
+    with pytest.raises(SystemExit):
+        si.main(["--mode", "start", "--rows", str(rows), "--out", str(tmp_path / "o.jsonl"), "--",
+                 "--sets", "a:scale_1.1,b:scale_1.1"])
+    assert "one capture per kind" in capsys.readouterr().err.strip().splitlines()[-1]
+    assert not (tmp_path / "o.jsonl").exists()
