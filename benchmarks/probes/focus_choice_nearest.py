@@ -123,6 +123,21 @@ def scenes_moved(base: list[dict], var: list[dict]) -> dict:
             "sign_test_p": round(sign_test(better, better + worse), 4) if better + worse else None}
 
 
+def moved_table(res: dict[str, list[dict]]) -> None:
+    """Print every set whose family, largest error (by more than 0.0005 D) or undetermined count moved in a variant
+    against the code (res[""])."""
+    base = {(r["capture"], r["kind"]): r for r in res[""]}
+    print("\n| variant | set | true family | code: family, largest error, undetermined | variant |\n|---|---|---|---|---|")
+    for v, rs in res.items():
+        for x in rs if v else []:
+            b = base[(x["capture"], x["kind"])]
+            if (b["family"], b["frames_undetermined"]) != (x["family"], x["frames_undetermined"]) or \
+                    abs(b["corrected_max_err_d"] - x["corrected_max_err_d"]) > 5e-4:
+                print(f"| {v} | {x['capture']} {x['kind']} | {x['family_true']} | {b['family']}, "
+                      f"{b['corrected_max_err_d']:.4f}, {b['frames_undetermined']} | {x['family']}, "
+                      f"{x['corrected_max_err_d']:.4f}, {x['frames_undetermined']} |")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("results", nargs="+", type=Path, help="bench_diagnose_focus results files (development rows)")
@@ -150,16 +165,7 @@ def main(argv: list[str] | None = None) -> int:
         print("\n| variant | " + " | ".join(counts(res[""]).keys()) + " |\n|---|" + "---|" * len(counts(res[""])))
         for v, rs in res.items():
             print(f"| {v or 'code'} | " + " | ".join(str(x) for x in counts(rs).values()) + " |")
-        base = {(r["capture"], r["kind"]): r for r in res[""]}
-        print("\n| variant | set | true family | code: family, largest error, undetermined | variant |\n|---|---|---|---|---|")
-        for v, rs in res.items():
-            for x in rs if v else []:
-                b = base[(x["capture"], x["kind"])]
-                if (b["family"], b["frames_undetermined"]) != (x["family"], x["frames_undetermined"]) or \
-                        abs(b["corrected_max_err_d"] - x["corrected_max_err_d"]) > 5e-4:
-                    print(f"| {v} | {x['capture']} {x['kind']} | {x['family_true']} | {b['family']}, "
-                          f"{b['corrected_max_err_d']:.4f}, {b['frames_undetermined']} | {x['family']}, "
-                          f"{x['corrected_max_err_d']:.4f}, {x['frames_undetermined']} |")
+        moved_table(res)
         if "near1" in res:  # the code against the choice before the factor, scene by scene
             m = scenes_moved(res["near1"], res[""])
             print(f"\ncode against near1, by scene: {m['scenes_better']} scenes better, {m['scenes_worse']} worse "

@@ -291,7 +291,7 @@ def main(argv: list[str] | None = None) -> int:
             ap.error(f"{f}: no such results file")
     if a.out is not None and (a.out.suffix != ".md" or a.out.exists() or a.out.with_suffix(".json").exists()):
         ap.error(f"--out {a.out}: a .md file that does not exist yet (nor its .json)")
-    from benchmarks.probes.focus_choice_nearest import scenes_moved
+    from benchmarks.probes.focus_choice_nearest import moved_table, scenes_moved
     from benchmarks.probes.focus_noise_weight import CHANGED_D, counts, last_row_per_set
 
     buf = io.StringIO()
@@ -341,16 +341,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"\ninvariant against the code, the largest error per set with an error: smaller in {prec['smaller']}, "
               f"larger in {prec['larger']} (by more than {CHANGED_D} D); its median {prec['median_code_d']} D -> "
               f"{prec['median_invariant_d']} D")
-        print("\n| variant | set | true family | code: family, largest error (D), undetermined | variant |\n"
-              "|---|---|---|---|---|")
-        for v, rs in res.items():
-            for x in rs if v else []:
-                b = base[(x["capture"], x["kind"])]
-                if (b["family"], b["frames_undetermined"]) != (x["family"], x["frames_undetermined"]) or \
-                        abs(b["corrected_max_err_d"] - x["corrected_max_err_d"]) > 5e-4:
-                    print(f"| {v} | {x['capture']} {x['kind']} | {x['family_true']} | {b['family']}, "
-                          f"{b['corrected_max_err_d']:.4f}, {b['frames_undetermined']} | {x['family']}, "
-                          f"{x['corrected_max_err_d']:.4f}, {x['frames_undetermined']} |")
+        moved_table(res)
     print(buf.getvalue())
     if a.out is not None:
         from aat_deploy.io.atomic import write_text_atomic
