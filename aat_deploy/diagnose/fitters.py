@@ -44,6 +44,10 @@ NOISE_FLOOR = False
 # vignetting and noise by its expectation, the full well fitted against it (`focus_twin`; issue 32)
 FOCUS_TWIN = True
 FULL_WELL_RANGE_E = (300.0, 1e6)  # the full wells `full_well_on_floor` searches (electrons)
+# whether the full well is fitted again on the sweep whose binning correction is anchored at the estimates too
+# (`anchors.reanchored_sweep`), not only on the first sweep (anchored at the reported focus). Off: a probe of issue
+# 32 after the eleventh round (docs/diagnosis.md, Limits; `benchmarks/probes/focus_start_invariance.py --mode refit`)
+FULL_WELL_ON_FINAL_SWEEP = False
 MIN_TEXTURE_LOG = 0.5  # a region whose twin focus measure varies less than this over the sweep says nothing
 
 
@@ -313,6 +317,8 @@ def fit_focus_metadata(state: FitState) -> Fitted:
             lambda d: np.asarray(focusrobust.prepare(with_noise(d))[1]["frame_focus_d"][-1]))
     else:
         sweep, anchored = focus_sweep(st, noise_floor=floor_on), {}
+    if FULL_WELL_ON_FINAL_SWEEP and anchored.get("reanchored_d"):
+        fitted.clear()  # the full well fitted again where the correction is anchored at the estimates too
     sweep = with_noise(sweep)
     fit, robust = focusrobust.fit_robust(sweep, n_boot=state.n_boot, seed=state.seed)
     if made is not None:
