@@ -14,7 +14,8 @@ eleventh round's scene 3303 and its like), rerun through the first-round focus f
 - `refit`: the full well fitted again on the sweep whose binning correction is anchored at the estimates too
   (`fitters.FULL_WELL_ON_FINAL_SWEEP`; the code fits it once, on the first sweep, anchored at the reported focus):
   is it the full well, fitted where the correction is exact only at the reported focus?
-- `dense`: as `reanchor`, with anchor sets at the code's estimates +- 1 and 2 steps of `--dense-d` (0.01 D) first:
+- `dense`: as `reanchor`, with anchor sets at the code's estimates +- 1 to `--dense-steps` (2) steps of `--dense-d`
+  (0.01 D) first:
   is the correction, which changes fastest near focus, sampled too coarsely around the truth?
 - `near`: the set's copy reports the true focus plus NEAR_D diopters (`--near-d`, e.g. 0.002 D): is the untouched
   copy's pattern the fit's error at any reported focus near the truth, or only where the reported focus is the truth
@@ -43,7 +44,6 @@ import numpy as np
 
 REANCHOR_ROUNDS = 3
 REANCHOR_AGAIN_D = 0.003
-DENSE_STEPS = 2  # `dense`: anchor sets at the estimates +- 1, 2 steps
 
 
 def first_pass(row: dict) -> np.ndarray:
@@ -56,7 +56,7 @@ def first_pass(row: dict) -> np.ndarray:
     return np.where(gone, np.asarray(fams[row["family"]]["true_d"], np.float64)[0], est)
 
 
-def iterated(original, dense_d: float = 0.0):
+def iterated(original, dense_d: float = 0.0, dense_steps: int = 2):
     """`anchors.reanchored_sweep` (original), then anchored again at the new estimates while some estimate lies
     REANCHOR_AGAIN_D or more from every focus the correction is anchored at (the correction is a function of focus:
     all anchors pooled), at most REANCHOR_ROUNDS more times. The code's own anchors are taken from its own calls of
@@ -81,9 +81,9 @@ def iterated(original, dense_d: float = 0.0):
             chain = anchors.noisefloor.quiet(chain)
         s_n = [len(c.focus_m) for c in state.caps]
         sets = [[call[i] for call in seen] for i in range(len(s_n))]
-        if dense_d:  # anchor sets around the code's estimates, DENSE_STEPS steps of dense_d either side
+        if dense_d:  # anchor sets around the code's estimates, dense_steps steps of dense_d either side
             est = np.asarray(estimate(data), np.float64)
-            for j in [x for k in range(1, DENSE_STEPS + 1) for x in (-k, k)]:
+            for j in [x for k in range(1, dense_steps + 1) for x in (-k, k)]:
                 extra = deltas(state, chain, [1.0 / np.clip(est[i, :s] + j * dense_d, raw.grid_d[0], raw.grid_d[-1])
                                               for i, s in enumerate(s_n)])
                 sets = [a + [x] for a, x in zip(sets, extra)]
@@ -142,6 +142,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--mode", choices=("start", "reanchor", "near", "refit", "dense"))
     ap.add_argument("--dense-d", type=float, default=0.01, help="with --mode dense: the anchors' step (D)")
+    ap.add_argument("--dense-steps", type=int, default=2, help="with --mode dense: steps either side")
     ap.add_argument("--near-d", type=float, default=0.002, help="with --mode near: the reported focus's offset (D)")
     ap.add_argument("--rows", type=Path, required=True, help="the stored rows of the sets (and their untouched copy)")
     ap.add_argument("--out", type=Path, help="with --mode: the rerun's rows (bench_diagnose_focus --out)")
@@ -179,7 +180,8 @@ def main(argv: list[str] | None = None) -> int:
     else:
         from aat_deploy.diagnose import anchors
 
-        anchors.reanchored_sweep = iterated(anchors.reanchored_sweep, a.dense_d if a.mode == "dense" else 0.0)
+        anchors.reanchored_sweep = iterated(anchors.reanchored_sweep, a.dense_d if a.mode == "dense" else 0.0,
+                                             a.dense_steps)
     sys.argv = ["bench_diagnose_focus", *rest, "--out", str(a.out)]
     bench.main()
     return 0
