@@ -442,7 +442,8 @@ def test_focus_start_invariance_starts_from_the_first_pass_and_summarises_agains
         return {"capture": "s", "kind": kind, "family": "scale", "family_true": "scale", "families": fams,
                 "frame_err_d": err.tolist(), "frame_focus_sd_d": [[None, 0.001, 0.001, 0.001]],
                 "frame_systematic_d": [[0.01] * 4], "corrected_err_d": [0.0] * 4,
-                "frames_noise_dominated": [True, False, False, False], "commit": "old"}
+                "frames_noise_dominated": [True, False, False, False], "corrected_max_err_d": 0.0,
+                "frames_undetermined": 0, "commit": "old"}
 
     stored = [row("none", true, pattern), row("scale_1.1", true / 1.1, 2 * pattern)]
     stored[0]["family"] = "none"

@@ -134,6 +134,9 @@ def summary(rerun: list[dict], stored: list[dict]) -> list[dict]:
                     "untouched_err_d": np.round(u, 3).tolist(), "coef": coef(new_e), "stored_coef": coef(old["frame_err_d"]),
                     "choice_stored": f"{base['family']} {base['corrected_max_err_d']:.4f}",
                     "choice_with_rerun_estimates": f"{re['family']} {re['corrected_max_err_d']:.4f}",
+                    # the rerun's own fit (its reported focus the set's: not for `start` or `near`)
+                    "rerun_fit": f"{r['family']} {r['corrected_max_err_d']:.4f} undetermined {r.get('frames_undetermined')}",
+                    "seconds": r.get("seconds"),
                     "robust_anchors": sorted(k for k in r.get("robust", {}) if "anchor" in k)})
     return out
 
