@@ -462,3 +462,22 @@ def test_focus_start_invariance_starts_from_the_first_pass_and_summarises_agains
                  "--sets", "a:scale_1.1,b:scale_1.1"])
     assert "one capture per kind" in capsys.readouterr().err.strip().splitlines()[-1]
     assert not (tmp_path / "o.jsonl").exists()
+
+
+def test_focus_start_invariance_refuses_start_without_sets_and_a_summary_of_sets_not_in_rows(tmp_path, capsys):
+    """`focus_start_invariance`: --mode start with no --sets after -- and --summary of a rerun set (or its untouched
+    copy) that --rows lacks each end in one line naming what is missing, nothing run or printed."""
+    from benchmarks.probes import focus_start_invariance as si
+
+    rows = tmp_path / "r.jsonl"
+    rows.write_text(json.dumps({"capture": "s", "kind": "none"}) + "\n")
+    with pytest.raises(SystemExit):
+        si.main(["--mode", "start", "--rows", str(rows), "--out", str(tmp_path / "o.jsonl"), "--", "--fit-only"])
+    assert "--sets CAPTURE:KIND" in capsys.readouterr().err.strip().splitlines()[-1]
+    assert not (tmp_path / "o.jsonl").exists()
+    rerun = tmp_path / "rerun.jsonl"
+    rerun.write_text(json.dumps({"capture": "t", "kind": "scale_1.1"}) + "\n")
+    with pytest.raises(SystemExit):
+        si.main(["--summary", str(rerun), "--rows", str(rows)])
+    out = capsys.readouterr()
+    assert "has no row of t none, t scale_1.1" in out.err.strip().splitlines()[-1] and out.out == ""

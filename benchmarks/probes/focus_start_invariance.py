@@ -156,7 +156,13 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--rows {a.rows}: no such results file")
     stored = [json.loads(x) for x in a.rows.read_text().splitlines() if x.strip()]
     if a.summary:
-        for x in summary([json.loads(y) for f in a.summary for y in f.read_text().splitlines() if y.strip()], stored):
+        rerun = [json.loads(y) for f in a.summary for y in f.read_text().splitlines() if y.strip()]
+        have = {(r["capture"], r["kind"]) for r in stored}
+        gone = sorted({f"{c} {k}" for r in rerun for c, k in ((r["capture"], r["kind"]), (r["capture"], "none"))
+                       if (c, k) not in have})
+        if gone:
+            ap.error(f"--rows {a.rows} has no row of {', '.join(gone)} (give the rerun sets' own round)")
+        for x in summary(rerun, stored):
             print(json.dumps(x))
         return 0
     if a.mode is None or a.out is None:
@@ -165,6 +171,8 @@ def main(argv: list[str] | None = None) -> int:
 
     if a.mode == "start":
         rows = {(r["capture"], r["kind"]): r for r in stored}
+        if "--sets" not in rest[:-1]:
+            ap.error("--mode start: name the sets after --, as --sets CAPTURE:KIND,... (their first pass is the focus)")
         pairs = [x.split(":") for x in rest[rest.index("--sets") + 1].split(",")]
         cap_of = {kd: c for c, kd in pairs}
         if len(cap_of) < len(pairs):
