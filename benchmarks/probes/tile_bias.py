@@ -333,6 +333,13 @@ def main(argv=None) -> int:
         charts = [float(v) for v in a.renders.split(",") if v]
     except ValueError:
         ap.error(f"--renders {a.renders!r}: chart distances in m, comma-separated")
+    if not variants and not charts:
+        ap.error("nothing to run: --variants and --renders are both empty")
+    if a.until is not None:
+        try:
+            a.until = datetime.strptime(a.until, "%H:%M").strftime("%H:%M")  # compared as text: zero-padded
+        except ValueError:
+            ap.error(f"--until {a.until!r}: a UTC time as HH:MM")
     from benchmarks.render_truth_map import load_or_exit
 
     load_or_exit(a.truth, "tile_bias")
