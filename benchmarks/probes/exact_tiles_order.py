@@ -1,5 +1,5 @@
 """Does the field model's basis or order limit the phone's map where the tiles are exact? (issue 33; docs/calibration.md,
-"The fit's own error against the render truth").
+"The tiles' bias against the render truth, and the fit's own error").
 
     OMP_NUM_THREADS=1 python -m benchmarks.probes.exact_tiles_order --truth results/render_truth_map_cellphone.json \
         [--variants nominal,copy,copy_s2026_0,copy_s2026_1,copy_s2026_2] [--options ...] \

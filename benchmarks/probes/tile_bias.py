@@ -1,5 +1,6 @@
 """Where the phone's tile bias against the render-consistent truth comes from (issue 33; docs/calibration.md,
-"The tiles' bias against the render truth").
+"The tiles' bias against the render truth, and the fit's own
+error").
 
     OMP_NUM_THREADS=1 python -m benchmarks.probes.tile_bias --truth results/render_truth_map_cellphone.json \
         [--variants nominal,copy] [--renders 0.1,0.07] [--until 22:40] --out results/tile_bias.json
