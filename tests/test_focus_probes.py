@@ -452,6 +452,10 @@ def test_focus_start_invariance_starts_from_the_first_pass_and_summarises_agains
     rerun = [dict(stored[1], frame_err_d=pattern.tolist())]
     s = si.summary(rerun, stored)[0]
     assert (s["coef"], s["stored_coef"]) == (1.0, 2.0)
+    # a rerun whose own fit chose a wrong family, claimed 0.05 D off, against a stored set the code reads right
+    t = si.tally([dict(rerun[0], family="offset", family_ok=False, corrected_max_err_d=0.05, frames_undetermined=0)],
+                 stored)
+    assert (t["sets_better"], t["sets_worse"], t["scenes_worse"]) == (0, 1, 1)
     with pytest.raises(SystemExit):
         si.main(["--mode", "start", "--rows", str(tmp_path / "none.jsonl"), "--out", "x.jsonl"])
     assert "no such results file" in capsys.readouterr().err.strip().splitlines()[-1]

@@ -141,29 +141,50 @@ def summary(rerun: list[dict], stored: list[dict]) -> list[dict]:
     return out
 
 
+def tally(rerun: list[dict], stored: list[dict]) -> dict:
+    """The reruns' own fits against their stored rows rescored by the code (`bench_diagnose_focus.rescored`), set by
+    set and scene by scene (`focus_choice_nearest.scenes_moved`); only meaningful for modes that keep the set's
+    reported focus (`reanchor`, `refit`, `dense`)."""
+    from benchmarks import bench_diagnose_focus as bench
+    from benchmarks.probes.focus_choice_nearest import scenes_moved
+
+    rows = {(r["capture"], r["kind"]): r for r in stored}
+    base = [bench.rescored(rows[(r["capture"], r["kind"])], "code", on_estimates=True) for r in rerun]
+    m = scenes_moved(base, rerun)
+    sets = [s for v in m["scenes"].values() for s in v]
+    return {**m, "sets_better": sum(s.endswith("better") for s in sets), "sets_worse": sum(s.endswith("worse") for s in sets)}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--mode", choices=("start", "reanchor", "near", "refit", "dense"))
     ap.add_argument("--dense-d", type=float, default=0.01, help="with --mode dense: the anchors' step (D)")
     ap.add_argument("--dense-steps", type=int, default=2, help="with --mode dense: steps either side")
     ap.add_argument("--near-d", type=float, default=0.002, help="with --mode near: the reported focus's offset (D)")
-    ap.add_argument("--rows", type=Path, required=True, help="the stored rows of the sets (and their untouched copy)")
+    ap.add_argument("--rows", type=Path, nargs="+", required=True, help="the stored rows of the sets (and their "
+                    "untouched copies; several files: a set's last row)")
     ap.add_argument("--out", type=Path, help="with --mode: the rerun's rows (bench_diagnose_focus --out)")
     ap.add_argument("--summary", type=Path, nargs="+", help="only summarise these rerun rows against --rows")
     a, rest = ap.parse_known_args(argv)
     rest = [x for x in rest if x != "--"]
-    if not a.rows.is_file():
-        ap.error(f"--rows {a.rows}: no such results file")
-    stored = [json.loads(x) for x in a.rows.read_text().splitlines() if x.strip()]
+    for f in a.rows:
+        if not f.is_file():
+            ap.error(f"--rows {f}: no such results file")
+    stored = [json.loads(x) for f in a.rows for x in f.read_text().splitlines() if x.strip()]
     if a.summary:
         rerun = [json.loads(y) for f in a.summary for y in f.read_text().splitlines() if y.strip()]
         have = {(r["capture"], r["kind"]) for r in stored}
         gone = sorted({f"{c} {k}" for r in rerun for c, k in ((r["capture"], r["kind"]), (r["capture"], "none"))
                        if (c, k) not in have})
         if gone:
-            ap.error(f"--rows {a.rows} has no row of {', '.join(gone)} (give the rerun sets' own round)")
+            ap.error(f"--rows {' '.join(str(f) for f in a.rows)} has no row of {', '.join(gone)} (give the rerun "
+                     "sets' own round)")
         for x in summary(rerun, stored):
             print(json.dumps(x))
+        m = tally(rerun, stored)
+        print(f"{len(rerun)} sets: {m['sets_better']} better, {m['sets_worse']} worse (family right, within 0.02 D with "
+              f"every frame determined, or not claimed over 0.02 D); by scene {m['scenes_better']} better, "
+              f"{m['scenes_worse']} worse (sign test p = {m['sign_test_p']})")
         return 0
     if a.mode is None or a.out is None:
         ap.error("--mode and --out (or --summary)")
