@@ -2,7 +2,7 @@
 the eleventh round; `focus_shared_misfit` part 2: every set carries its untouched copy's error pattern, amplified
 where the metadata is further off, e.g. scene 3303's scale 1.1 set 1.9 times.) Development sets only (the spent
 eleventh round's scene 3303 and its like), rerun through the first-round focus fit (`bench_diagnose_focus
---fit-only`) in one of two ways, nothing else changed:
+--fit-only`) in one of five ways, nothing else changed:
 
 - `reanchor`: the binning correction anchored again at the new estimates until every estimate lies within
   REANCHOR_AGAIN_D of a focus it is anchored at (at most REANCHOR_ROUNDS anchor sets after the first; the code anchors
