@@ -109,6 +109,7 @@ def summary(rerun: list[dict], stored: list[dict]) -> list[dict]:
     """Per rerun set: its errors, the stored row's, the untouched copy's, each set's coefficient on the untouched
     errors, and the stored row's choice with the rerun's estimates (rescored)."""
     from benchmarks import bench_diagnose_focus as bench
+    from benchmarks.probes.focus_shared_misfit import truth as true_focus_d
 
     rows = {(r["capture"], r["kind"]): r for r in stored}
     out = []
@@ -123,8 +124,7 @@ def summary(rerun: list[dict], stored: list[dict]) -> list[dict]:
 
         fams = [dict(f) for f in old["families"]]
         per = next(f for f in fams if f["family"] == "per_frame")
-        truth = np.asarray(next(f for f in fams if f["family"] == old["family"])["true_d"], np.float64)[0] - \
-            np.asarray(old["corrected_err_d"], np.float64)
+        truth = true_focus_d(old)
         new_e = np.asarray(r["frame_err_d"], np.float64)
         per["true_d"] = [np.where(np.isfinite(new_e), truth + new_e, np.asarray(per["true_d"][0], np.float64)).tolist()]
         re = bench.rescored({**old, "families": fams}, "probe", on_estimates=True)
