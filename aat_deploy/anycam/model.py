@@ -184,9 +184,12 @@ class FocusMapModel(DfFModel):
         return self.intrinsics(size_wh).fx
 
     def summary(self) -> dict:
-        return {"path": str(self.path), "kind": "any_camera", "net": self.meta.get("aat.net"),
-                "config_hash": self.meta.get("aat.config_hash"), "version": self.meta.get("aat.version"),
-                "focus_mapping": self.mapping.summary()}
+        s = {"path": str(self.path), "kind": "any_camera", "net": self.meta.get("aat.net"),
+             "config_hash": self.meta.get("aat.config_hash"), "version": self.meta.get("aat.version"),
+             "focus_mapping": self.mapping.summary()}
+        if "aat.route" in self.meta:  # two nets in one file, chosen by the frame count (training.train.route)
+            s["route"] = self.meta["aat.route"]  # metadata values are read as JSON (infer.model)
+        return s
 
     # -- inference --------------------------------------------------------------------------------------------
     def maps(self, focus_m, height: int, width: int) -> np.ndarray:
