@@ -22,11 +22,11 @@ from pathlib import Path
 
 # metadata that must agree: what the runtime feeds the net and how it reads its outputs
 SHARED_KEYS = ("aat.kind", "aat.net", "aat.inputs", "aat.focus_map_inputs", "aat.simulator", "aat.effects",
-               "aat.stack_min", "aat.stack_max", "aat.defocus_px_per_d_range", "aat.size_multiple",
+               "aat.stack_min", "aat.stack_max", "aat.defocus_px_per_d_range", "aat.size_multiple", "aat.size",
                "aat.input_normalisation", "aat.distances", "aat.tile_px")
 # metadata of one trained net, kept per branch in aat.route
 PER_NET_KEYS = ("aat.config_name", "aat.config_hash", "aat.checkpoint_step", "aat.train_steps", "aat.n_params",
-                "aat.size", "aat.version")
+                "aat.version")
 
 
 def _sha256(path: Path) -> str:

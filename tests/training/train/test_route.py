@@ -59,6 +59,7 @@ def test_metadata_keeps_the_contract_and_says_what_it_routes(routed):
 
     m = FocusMapModel(out, threads=1)
     assert m.stack_range == (3, 16) and m.size_multiple == 32 and m.tile_px == 0
+    assert m.meta["aat.size"] == "small_replicate"  # the speed row times a net of this size
     route = m.meta["aat.route"]  # read as JSON by the runtime
     assert route == json.loads(meta["aat.route"])
     assert route["max_small_frames"] == 5
