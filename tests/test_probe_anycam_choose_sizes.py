@@ -65,3 +65,21 @@ def test_refusals_name_the_problem(tmp_path, capsys):
     with pytest.raises(SystemExit):
         cs.main(["--select", str(s3), str(s3), "--out", str(out)])
     assert "exists" in capsys.readouterr().err and out.read_text() == "mine"
+
+
+def test_route_threshold_is_the_last_count_of_an_unbroken_run_of_small_wins(tmp_path, capsys):
+    # classical 1 m everywhere; S wins at 3 and 5, loses at 8, would win again at 12: T = 5, not 12
+    files = [write(tmp_path, f"s{n}.json", result(n, [1.0], {"S": [s], "L": [ll]}))
+             for n, s, ll in ((3, 0.4, 2.0), (5, 0.6, 0.9), (8, 0.75, 0.70), (12, 0.5, 0.6))]
+    out = tmp_path / "route.json"
+    assert cs.main(["--select", *map(str, files), "--route", "S", "L", "--out", str(out)]) == 0
+    got = json.loads(out.read_text())
+    assert got["max_small_frames"] == 5
+    assert got["ratios"]["8"] == {"S": pytest.approx(0.75), "L": pytest.approx(0.70)}
+    assert "threshold T = 5" in capsys.readouterr().out
+    # a tie goes to LARGE; LARGE better at the fewest frames: nothing to route
+    tie = [write(tmp_path, f"t{n}.json", result(n, [1.0], {"S": [v], "L": [v]})) for n, v in ((3, 1.0), (5, 0.5))]
+    sizes = cs.by_size([json.loads(p.read_text()) for p in tie])
+    assert cs.route_threshold(sizes, "S", "L") is None
+    with pytest.raises(SystemExit, match="X: not scored with 3 frames"):
+        cs.route_threshold(sizes, "X", "L")
