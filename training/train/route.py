@@ -43,16 +43,15 @@ def _io(graph) -> tuple[list, list]:
 
 def _branch(model, prefix: str):
     """model's graph as an If branch: every internal name and output prefixed, no inputs of its own (it reads the
-    outer graph's inputs, which keep their names), initializers moved out (returned) so the outer graph holds them."""
+    outer graph's inputs, which keep their names). The weights stay the branch's own initializers: as outer-scope
+    values onnxruntime cannot fold them into the convolutions, and the routed file ran 1.3x slower."""
     import onnx.compose
 
     g = onnx.compose.add_prefix_graph(model.graph, prefix, rename_inputs=False, rename_outputs=True,
                                       rename_initializers=True)
-    inits = list(g.initializer)
-    del g.initializer[:]
     del g.input[:]
     g.name = prefix.rstrip("_")
-    return g, inits
+    return g
 
 
 def route_by_stack_size(small: Path, large: Path, max_small_frames: int, out: Path, *, force: bool = False
@@ -91,8 +90,7 @@ def route_by_stack_size(small: Path, large: Path, max_small_frames: int, out: Pa
     if len({d for d, _ in opsets}) != len(opsets):
         raise ValueError(f"{small}: opset {sorted(opsets)} differs from {large}'s; export both with the same torch")
 
-    then_g, then_init = _branch(ms, "small_")
-    else_g, else_init = _branch(ml, "large_")
+    then_g, else_g = _branch(ms, "small_"), _branch(ml, "large_")
     inputs, outputs = list(ml.graph.input), list(ml.graph.output)
     nodes = [
         # S, the stack's frame count: dim 1 of stack (B, S, 3, H, W)
@@ -104,7 +102,7 @@ def route_by_stack_size(small: Path, large: Path, max_small_frames: int, out: Pa
         helper.make_node("If", ["route_cond"], [o.name for o in outputs], name="route_if",
                          then_branch=then_g, else_branch=else_g),
     ]
-    graph = helper.make_graph(nodes, "dfv_aat_routed", inputs, outputs, initializer=then_init + else_init)
+    graph = helper.make_graph(nodes, "dfv_aat_routed", inputs, outputs)
     model = helper.make_model(graph, opset_imports=list(ml.opset_import), producer_name="aat training.train.route")
     model.ir_version = max(ms.ir_version, ml.ir_version)
 

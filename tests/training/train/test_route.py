@@ -48,7 +48,7 @@ def test_each_stack_size_runs_the_net_it_is_routed_to(routed):
         exp, oth = want.run(None, f), other.run(None, f)
         for g, e, o in zip(got, exp, oth):
             scale = float(np.abs(e).max()) + 1e-6
-            assert float(np.abs(g - e).max()) <= 1e-4 * scale, s
+            assert float(np.abs(g - e).max()) <= 1e-6 * scale, s  # the same graph, its weights folded alike
         # the two nets differ on this input, so matching one is not matching both
         assert float(np.abs(got[0] - oth[0]).max()) > 1e-2, s
 
