@@ -84,7 +84,8 @@ def resolve(arg: str | Path, kind: str) -> Path:
 # models users ask for by name that are not shipped yet, and what to run instead (said in the missing-file error)
 NOT_YET_SHIPPED = {
     "dfv_aat": "the any-camera model dfv_aat is not shipped yet, as no net meets its targets (BENCHMARKS.md, \"The "
-               "any-camera model\"); the best so far runs by path: models/reproduce/dfv_aat_v10_s23200.onnx",
+               "any-camera model\"); the best so far, for any stack size, runs by path: "
+               "models/reproduce/dfv_aat_route_v12_v10.onnx",
 }
 
 

@@ -1427,7 +1427,7 @@ def test_asking_for_the_any_camera_model_by_name_says_it_is_not_shipped_and_what
     with pytest.raises(ModelError) as e:
         DfFModel("dfv_aat")
     msg = str(e.value)
-    assert "\n" not in msg and "not shipped yet" in msg and "models/reproduce/dfv_aat_v10_s23200.onnx" in msg
+    assert "\n" not in msg and "not shipped yet" in msg and "models/reproduce/dfv_aat_route_v12_v10.onnx" in msg
     cand = NOT_YET_SHIPPED["dfv_aat"].rsplit(": ", 1)[1]
     assert (models.parent / cand).is_file()  # the candidate it names exists
     with pytest.raises(ModelError) as e:
