@@ -10,6 +10,14 @@ was pulled back towards it by up to 0.05 D (capture 2029 of `benchmarks/bench_di
 frames' focus is estimated, the full-resolution twin is rendered there too and the correction interpolated over
 both anchor sets (`reanchored_sweep`).
 
+**Dense anchoring** (`DENSE_ANCHORS`, off; issue 32, after the eleventh round): the correction changes fastest near
+focus, so interpolated between anchors 0.01 D or more apart it is still off around the truth, and the error grows with
+how far the reported focus is from it (a part of the twin misfit that depends on the metadata). On, anchor sets are
+added at the estimates +- 1 to DENSE_STEPS steps of DENSE_STEP_D, then at the new estimates while some estimate lies
+REANCHOR_AGAIN_D or more from every anchor (at most REANCHOR_ROUNDS more sets), when some frame's first estimate lies
+DENSE_MOVED_D or more from its reported focus (0: always). Each anchor set is one full-resolution optical render per
+capture. Measured in docs/diagnosis.md (Limits, "After the eleventh round").
+
 The full-resolution curves are the twin's without the effects that act frame by frame (exposure, misalignment),
 as the sweep is: a fitted exposure in the chain would otherwise enter the correction as focus. When the sweep
 carries the noise by its expectation (`noisefloor`), both renders leave the noise out: the correction is the
@@ -27,6 +35,12 @@ from aat_deploy.diagnose.compare import focus_curves
 from aat_deploy.infer.normalise import normalise_stack
 
 REANCHOR_D = 0.01  # re-anchor when some frame's estimate is this far (diopters) from the twin's focus
+DENSE_ANCHORS = False  # anchor sets around the estimates too (module docstring; off: docs/diagnosis.md, Limits)
+DENSE_STEP_D = 0.01  # their spacing (diopters) ...
+DENSE_STEPS = 2  # ... and how many either side of the estimates (0: only re-anchored until settled)
+DENSE_MOVED_D = 0.0  # only when some frame's first estimate lies this far (diopters) from its reported focus
+REANCHOR_AGAIN_D = 0.003  # then anchored at the estimates again while one lies this far from every anchor ...
+REANCHOR_ROUNDS = 3  # ... at most this many more times
 
 
 def _curves(stack: np.ndarray, factor: int = 1) -> np.ndarray:
@@ -61,11 +75,47 @@ def correction(grid: np.ndarray, anchors: list[list[tuple[np.ndarray, np.ndarray
     return np.stack(out)
 
 
+def _at(est: np.ndarray, s_n: list[int], grid_d: np.ndarray) -> list[np.ndarray]:
+    """(S,) metres per capture: the estimates (n, S) diopters, clipped to the sweep's grid."""
+    return [1.0 / np.clip(est[i, :s], grid_d[0], grid_d[-1]) for i, s in enumerate(s_n)]
+
+
+def densely_anchored(state, raw: ff.SweepData, chain: list, anchors: list, data: ff.SweepData, estimate,
+                     rep: dict) -> ff.SweepData:
+    """`data` (the sweep corrected over `anchors`, every capture's anchor sets, extended in place) with anchor sets
+    at the estimates +- 1 to DENSE_STEPS steps of DENSE_STEP_D, then at the new estimates while some estimate lies
+    REANCHOR_AGAIN_D or more from every anchor of its capture, at most REANCHOR_ROUNDS more times. rep gets where."""
+    s_n = [len(c.focus_m) for c in state.caps]
+
+    def add(*ests):
+        extra = [anchor_deltas(state, chain, _at(e, s_n, raw.grid_d)) for e in ests]
+        for x in extra:
+            for a, y in zip(anchors, x):
+                a.append(y)
+        return raw.with_correction(correction(raw.grid_d, anchors)), extra[-1]
+
+    if DENSE_STEPS > 0:
+        est = np.asarray(estimate(data), np.float64)
+        data, _ = add(*[est + j * DENSE_STEP_D for k in range(1, DENSE_STEPS + 1) for j in (-k, k)])
+        rep["dense_anchors_d"] = DENSE_STEP_D
+    for k in range(REANCHOR_ROUNDS):
+        est = np.asarray(estimate(data), np.float64)
+        far = max(float(np.max(np.min(np.abs(est[i, :s][:, None] - np.concatenate([x[0] for x in anchors[i]])),
+                                      axis=1))) for i, s in enumerate(s_n))
+        if far < REANCHOR_AGAIN_D:
+            break
+        data, extra = add(est)
+        rep[f"reanchored_{k + 2}_d"] = [x[0].round(4).tolist() for x in extra]
+    return data
+
+
 def reanchored_sweep(state, raw: ff.SweepData, estimate) -> tuple[ff.SweepData, dict]:
     """`raw`, the focus sweep without its binning correction (`fitters.focus_sweep(state, correct=False)`), with the
     correction anchored at the twin's own focus and, when some frame's estimate
     lies REANCHOR_D or more from it, at the estimates too (`estimate(sweep) -> (n, S)` diopters: the per-frame
-    focus). Returns the sweep and a report (where it was anchored)."""
+    focus); with DENSE_ANCHORS, around them too (`densely_anchored`) when some estimate lies DENSE_MOVED_D or more
+    from it. Returns the sweep and a report (where it was anchored; `moved_d`: per capture, the first estimates'
+    largest distance from the twin's focus)."""
     chain = [e for e in state.chain if not state.tb.has_stack_hook(e)]
     if raw.floor_c is not None:  # the sweep carries the noise by its expectation: correct the noiseless measure
         chain = noisefloor.quiet(chain)
@@ -76,12 +126,13 @@ def reanchored_sweep(state, raw: ff.SweepData, estimate) -> tuple[ff.SweepData, 
     anchors = [[a] for a in anchor_deltas(state, chain, own)]
     data = raw.with_correction(correction(raw.grid_d, anchors))
     est = np.asarray(estimate(data), np.float64)
-    rep = {"anchors_d": [b.round(4).tolist() for b in base]}
-    moved = [np.max(np.abs(est[i, :s] - base[i])) for i, s in enumerate(s_n)]
+    moved = [float(np.max(np.abs(est[i, :s] - base[i]))) for i, s in enumerate(s_n)]
+    rep = {"anchors_d": [b.round(4).tolist() for b in base], "moved_d": [round(m, 4) for m in moved]}
     if max(moved) >= REANCHOR_D:
-        extra = anchor_deltas(state, chain, [1.0 / np.clip(est[i, :s], raw.grid_d[0], raw.grid_d[-1])
-                                             for i, s in enumerate(s_n)])
+        extra = anchor_deltas(state, chain, _at(est, s_n, raw.grid_d))
         anchors = [a + [x] for a, x in zip(anchors, extra)]
         data = raw.with_correction(correction(raw.grid_d, anchors))
         rep["reanchored_d"] = [x[0].round(4).tolist() for x in extra]
+    if DENSE_ANCHORS and max(moved) >= DENSE_MOVED_D:
+        data = densely_anchored(state, raw, chain, anchors, data, estimate, rep)
     return data, rep

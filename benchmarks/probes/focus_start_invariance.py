@@ -5,8 +5,9 @@ eleventh round's scene 3303 and its like), rerun through the first-round focus f
 --fit-only`) in one of five ways, nothing else changed:
 
 - `reanchor`: the binning correction anchored again at the new estimates until every estimate lies within
-  REANCHOR_AGAIN_D of a focus it is anchored at (at most REANCHOR_ROUNDS anchor sets after the first; the code anchors
-  once, `anchors.reanchored_sweep`): is it the correction interpolated between anchors off the truth?
+  `anchors.REANCHOR_AGAIN_D` of a focus it is anchored at (at most `anchors.REANCHOR_ROUNDS` anchor sets after the
+  first; the code anchors once unless `anchors.DENSE_ANCHORS`): the runtime's `anchors.densely_anchored` with
+  `DENSE_STEPS` 0. Is it the correction interpolated between anchors off the truth?
 - `start`: the set's copy reports its own stored first-pass estimates as its focus (`per_frame`; the frames it left
   out: its chosen family's value), so every step that starts from the reported focus (the sweep's range, the anchors,
   the robust preparation's floors, the full well) starts near the truth, as the untouched copy's do: are its errors
@@ -15,7 +16,7 @@ eleventh round's scene 3303 and its like), rerun through the first-round focus f
   (`fitters.FULL_WELL_ON_FINAL_SWEEP`; the code fits it once, on the first sweep, anchored at the reported focus):
   is it the full well, fitted where the correction is exact only at the reported focus?
 - `dense`: as `reanchor`, with anchor sets at the code's estimates +- 1 to `--dense-steps` (2) steps of `--dense-d`
-  (0.01 D) first:
+  (0.01 D) first (the runtime's `anchors.DENSE_ANCHORS`, with `--dense-moved-d` its `DENSE_MOVED_D`, 0: always):
   is the correction, which changes fastest near focus, sampled too coarsely around the truth?
 - `near`: the set's copy reports the true focus plus NEAR_D diopters (`--near-d`, e.g. 0.002 D): is the untouched
   copy's pattern the fit's error at any reported focus near the truth, or only where the reported focus is the truth
@@ -42,9 +43,6 @@ from pathlib import Path
 
 import numpy as np
 
-REANCHOR_ROUNDS = 3
-REANCHOR_AGAIN_D = 0.003
-
 
 def first_pass(row: dict) -> np.ndarray:
     """(S,) a stored row's per-frame estimates, its chosen family's value at the frames it left out (diopters)."""
@@ -56,53 +54,14 @@ def first_pass(row: dict) -> np.ndarray:
     return np.where(gone, np.asarray(fams[row["family"]]["true_d"], np.float64)[0], est)
 
 
-def iterated(original, dense_d: float = 0.0, dense_steps: int = 2):
-    """`anchors.reanchored_sweep` (original), then anchored again at the new estimates while some estimate lies
-    REANCHOR_AGAIN_D or more from every focus the correction is anchored at (the correction is a function of focus:
-    all anchors pooled), at most REANCHOR_ROUNDS more times. The code's own anchors are taken from its own calls of
-    `anchors.anchor_deltas` (recorded), so nothing it rendered is rendered again."""
+def use_runtime(dense_d: float = 0.0, dense_steps: int = 2, moved_d: float = 0.0) -> None:
+    """Modes `reanchor` (dense_d 0) and `dense`: the runtime's `anchors.DENSE_ANCHORS` on, with these settings (this
+    probe kept its own copy of that logic until it moved into the runtime)."""
     from aat_deploy.diagnose import anchors
 
-    def sweep(state, raw, estimate):
-        seen, deltas = [], anchors.anchor_deltas
-
-        def record(*args, **kw):
-            out = deltas(*args, **kw)
-            seen.append(out)
-            return out
-
-        anchors.anchor_deltas = record
-        try:
-            data, rep = original(state, raw, estimate)
-        finally:
-            anchors.anchor_deltas = deltas
-        chain = [e for e in state.chain if not state.tb.has_stack_hook(e)]
-        if raw.floor_c is not None:
-            chain = anchors.noisefloor.quiet(chain)
-        s_n = [len(c.focus_m) for c in state.caps]
-        sets = [[call[i] for call in seen] for i in range(len(s_n))]
-        if dense_d:  # anchor sets around the code's estimates, dense_steps steps of dense_d either side
-            est = np.asarray(estimate(data), np.float64)
-            for j in [x for k in range(1, dense_steps + 1) for x in (-k, k)]:
-                extra = deltas(state, chain, [1.0 / np.clip(est[i, :s] + j * dense_d, raw.grid_d[0], raw.grid_d[-1])
-                                              for i, s in enumerate(s_n)])
-                sets = [a + [x] for a, x in zip(sets, extra)]
-            data = raw.with_correction(anchors.correction(raw.grid_d, sets))
-            rep["dense_anchors_d"] = dense_d
-        for k in range(REANCHOR_ROUNDS):
-            est = np.asarray(estimate(data), np.float64)
-            far = max(float(np.max(np.min(np.abs(est[i, :s][:, None] - np.concatenate([x[0] for x in sets[i]])),
-                                          axis=1))) for i, s in enumerate(s_n))
-            if far < REANCHOR_AGAIN_D:
-                break
-            extra = deltas(state, chain, [1.0 / np.clip(est[i, :s], raw.grid_d[0], raw.grid_d[-1])
-                                          for i, s in enumerate(s_n)])
-            sets = [a + [x] for a, x in zip(sets, extra)]
-            data = raw.with_correction(anchors.correction(raw.grid_d, sets))
-            rep[f"reanchored_{k + 2}_d"] = [x[0].round(4).tolist() for x in extra]
-        return data, rep
-
-    return sweep
+    anchors.DENSE_ANCHORS = True
+    anchors.DENSE_STEP_D, anchors.DENSE_STEPS = (dense_d, dense_steps) if dense_d else (0.0, 0)
+    anchors.DENSE_MOVED_D = moved_d
 
 
 def summary(rerun: list[dict], stored: list[dict]) -> list[dict]:
@@ -160,6 +119,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--mode", choices=("start", "reanchor", "near", "refit", "dense"))
     ap.add_argument("--dense-d", type=float, default=0.01, help="with --mode dense: the anchors' step (D)")
     ap.add_argument("--dense-steps", type=int, default=2, help="with --mode dense: steps either side")
+    ap.add_argument("--dense-moved-d", type=float, default=0.0, help="with --mode dense: only where some frame's "
+                    "first estimate lies this far (D) from its reported focus (anchors.DENSE_MOVED_D)")
     ap.add_argument("--near-d", type=float, default=0.002, help="with --mode near: the reported focus's offset (D)")
     ap.add_argument("--rows", type=Path, nargs="+", required=True, help="the stored rows of the sets (and their "
                     "untouched copies; several files: a set's last row)")
@@ -210,10 +171,7 @@ def main(argv: list[str] | None = None) -> int:
     elif a.mode == "near":
         bench.reported_d = lambda kind, true_d, k: np.asarray(true_d, np.float64) + a.near_d
     else:
-        from aat_deploy.diagnose import anchors
-
-        anchors.reanchored_sweep = iterated(anchors.reanchored_sweep, a.dense_d if a.mode == "dense" else 0.0,
-                                             a.dense_steps)
+        use_runtime(a.dense_d if a.mode == "dense" else 0.0, a.dense_steps, a.dense_moved_d)
     sys.argv = ["bench_diagnose_focus", *rest, "--out", str(a.out)]
     bench.main()
     return 0
