@@ -485,3 +485,28 @@ def test_focus_start_invariance_refuses_start_without_sets_and_a_summary_of_sets
         si.main(["--summary", str(rerun), "--rows", str(rows)])
     out = capsys.readouterr()
     assert "has no row of t none, t scale_1.1" in out.err.strip().splitlines()[-1] and out.out == ""
+
+
+def test_focus_dense_subset_plan_is_the_declared_rule():
+    """`focus_dense_subset --plan`: the declared strata (every problem set of the universe, seeded samples of right
+    ones), never a set the earlier probe ran, never a scene of the next held-out round (3304 on), and the same order
+    every time; `moved_d` reads a row's first estimates' distance from its reported focus."""
+    from benchmarks import bench_diagnose_focus as bench
+    from benchmarks.probes import focus_dense_subset as ds
+
+    order = ds.plan()
+    assert order == ds.plan() and len(set(order)) == len(order)
+    assert {s: sum(x[0] == s for x in order) for s in ("H0", "A1", "A2", "H1")} == {"H0": 8, "A1": 9, "A2": 20, "H1": 16}
+    assert [x[0] for x in order[:17]] == ["H0"] * 8 + ["A1"] * 9
+    assert all(int(c[5:]) < 3304 and c in ds.CACHED_SCENES for _, c, _ in order)
+    done = {(r["capture"], r["kind"]) for r in ds.read(ds.ROOT / "results" / f for f in ds.DONE_FILES)}
+    assert not done & {(c, k) for _, c, k in order}
+    rows = ds.stored()
+    for s, c, k in order:
+        fam, within, claimed = ds.marks(bench.rescored(rows[(c, k)], "code", on_estimates=True))
+        assert (s == "A1") == (not fam or claimed)
+        assert s != "H1" or (fam and within and k != "none")
+        assert s != "H0" or (fam and k == "none")
+    assert ds.moved_d({"robust": {"moved_d": [0.004, 0.03]}}) == 0.03
+    assert ds.moved_d({"robust": {"anchors_d": [[1.0, 2.0]], "reanchored_d": [[1.02, 1.95]]}}) == pytest.approx(0.05)
+    assert ds.moved_d({"robust": {"anchors_d": [[1.0, 2.0]]}}) == 0.0
