@@ -507,6 +507,10 @@ def test_focus_dense_subset_plan_is_the_declared_rule():
         assert (s == "A1") == (not fam or claimed)
         assert s != "H1" or (fam and within and k != "none")
         assert s != "H0" or (fam and k == "none")
+    cmds = ds.commands(order)  # every set once, in order, with its round's flag and rows
+    sets = [x for c in cmds for x in c.split("--sets ")[1].split(",")]
+    assert sets == [f"{c}:{k}" for _, c, k in order]
+    assert all(("--fresh3 1" in c) == ("scene2038" in c) and ("--fresh11 4" in c) == ("fresh11_fitonly" in c) for c in cmds)
     assert ds.moved_d({"robust": {"moved_d": [0.004, 0.03]}}) == 0.03
     assert ds.moved_d({"robust": {"anchors_d": [[1.0, 2.0]], "reanchored_d": [[1.02, 1.95]]}}) == pytest.approx(0.05)
     assert ds.moved_d({"robust": {"anchors_d": [[1.0, 2.0]]}}) == 0.0

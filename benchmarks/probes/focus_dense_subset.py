@@ -22,6 +22,9 @@ The rule, fixed before any of its sets was rerun:
   its reported focus; for T in TRIGGERS_D a set below T keeps its stored outcome (its first estimates are the code's).
 
     python -m benchmarks.probes.focus_dense_subset --plan            # the subset, its order and the lane-B commands
+    OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 python -m benchmarks.probes.focus_dense_subset --run --until 01:14
+        # the same commands in one process (the model, lens and PSF surrogate loaded once: about 100 s a command
+        # otherwise), each holding /work/heavy2.lock for its sets only, niced; no command started after --until UTC
     python -m benchmarks.probes.focus_dense_subset --tally RERUN.jsonl ... [--out results/focus_dense_subset.md]
 """
 
@@ -131,6 +134,46 @@ def commands(order: list[tuple[str, str, str]], chunk: int = 5) -> list[str]:
     return out
 
 
+def run(cmds: list[str], until: str, lock: Path) -> None:
+    """`commands` in this process, each under an exclusive lock on `lock` (released in between), from the first not
+    yet done (the benchmark skips sets in its --out); none started at or after `until` (HH:MM UTC, before noon)."""
+    import fcntl
+    import os
+    import shlex
+    import time
+
+    from aat_deploy.diagnose import lookup
+    from aat_deploy.infer import model as model_mod
+    from benchmarks.probes import focus_start_invariance as si
+
+    def memo(f):
+        seen = {}
+
+        def g(*args, **kw):
+            key = repr((args, sorted(kw.items())))
+            if key not in seen:
+                seen[key] = f(*args, **kw)
+            return seen[key]
+        return g
+
+    model_mod.DfFModel = memo(model_mod.DfFModel)
+    lookup.find_lens, lookup.find_surrogate = memo(lookup.find_lens), memo(lookup.find_surrogate)
+    os.nice(10)
+    for i, cmd in enumerate(cmds, 1):
+        if until <= time.strftime("%H:%M", time.gmtime()) < "12:00":
+            print(f"=== stopped before command {i} of {len(cmds)} at {time.strftime('%H:%M:%S', time.gmtime())} UTC",
+                  flush=True)
+            return
+        argv = shlex.split(cmd)
+        argv = argv[argv.index("benchmarks.probes.focus_start_invariance") + 1:]
+        with lock.open("a") as fh:
+            fcntl.flock(fh, fcntl.LOCK_EX)
+            print(f"=== {i}/{len(cmds)} {time.strftime('%H:%M:%S', time.gmtime())} {argv[-1]}", flush=True)
+            si.main(argv)
+            fcntl.flock(fh, fcntl.LOCK_UN)
+    print(f"=== all {len(cmds)} commands done {time.strftime('%H:%M:%S', time.gmtime())} UTC", flush=True)
+
+
 def moved_d(row: dict) -> float:
     """The largest distance of a row's first per-frame estimates from its reported focus (diopters): `robust.moved_d`
     where recorded, else from where it was re-anchored (below REANCHOR_D when it was not: 0)."""
@@ -191,8 +234,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--plan", action="store_true", help="print the subset in its order and the lane-B commands")
     ap.add_argument("--tally", nargs="+", type=Path, help="the reruns' rows (with the earlier probe's: DONE_FILES)")
     ap.add_argument("--out", type=Path, help="with --tally: also write the table here")
+    ap.add_argument("--run", action="store_true", help="run the --plan commands in this process (lane B's lock each)")
+    ap.add_argument("--until", default="01:14", help="with --run: start no command at or after this time (HH:MM UTC)")
+    ap.add_argument("--lock", type=Path, default=Path("/work/heavy2.lock"), help="with --run: the lane's lock file")
     a = ap.parse_args(argv)
     order = plan()
+    if a.run:
+        run(commands(order), a.until, a.lock)
+        return 0
     if a.plan:
         for s, c, k in order:
             print(s, c, k)
