@@ -158,5 +158,7 @@ def fit_robust(sweep: ff.SweepData, n_boot: int = 50, seed: int = 0, cfg: Robust
     dom = (share >= ff.NOISE_DOMINATED_SHARE) & (sweep.frames > 0)
     if dom.any():  # their curves are the floor's: they would drive the family too
         data, robust = prepare(ff.without_frames(sweep, dom), cfg)
-        robust["noise_dominated_at_d"] = np.round(np.where(dom, est, np.nan), 4).tolist()
+        # null where a frame was kept (not NaN: diagnosis.json is strict JSON)
+        robust["noise_dominated_at_d"] = [[round(float(x), 4) if d else None for x, d in zip(e, m)]
+                                          for e, m in zip(np.asarray(est, np.float64), dom)]
     return ff.fit_metadata(data, n_boot=n_boot, seed=seed, excluded=dom, share=share), robust

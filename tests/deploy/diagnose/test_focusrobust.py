@@ -3,6 +3,7 @@ whose focus measure sits on a noise floor the twin lacks, whose frames differ in
 renders wrongly (issue 32: on the shipped sample the per-frame estimates ran to their +-0.4 D bounds)."""
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
@@ -186,7 +187,9 @@ def test_noise_dominated_frames_are_undetermined_not_estimates(name, report):
     assert fit.best.name == name
     assert np.abs(fit.best.true_d - true).max() < 0.02
     assert not fit.on_bound.any()
-    assert "noise_dominated_at_d" in robust
+    at = robust["noise_dominated_at_d"]  # the left-out frames' estimates, null elsewhere: strict JSON (diagnosis.json)
+    assert [x is not None for x in at[0]] == fit.noise_dominated[0].tolist()
+    json.dumps(robust, allow_nan=False, default=lambda v: v.tolist())
 
 
 def test_without_an_expected_floor_no_frame_is_left_out():
