@@ -197,7 +197,8 @@ def tally(rerun: list[dict], strata: dict) -> str:
         for r in rerun:
             if abs(r["reported_max_err_d"] - rows[(r["capture"], r["kind"])]["reported_max_err_d"]) > 1e-6:
                 raise SystemExit(f"{r['capture']} {r['kind']}: its reported focus is not the stored row's")
-        print("| stratum | set | moved (D) | the code (stored, rescored) | dense | s a fit | outcome |\n|---|---|---|---|---|---|---|")
+        print("| stratum | set | moved (D) | the code (stored, rescored) | dense | per-frame max error (D), stored -> dense "
+              "| s a fit | outcome |\n|---|---|---|---|---|---|---|---|")
         for r in sorted(rerun, key=lambda x: (strata.get((x["capture"], x["kind"]), "?"), x["capture"], x["kind"])):
             b = base[(r["capture"], r["kind"])]
             x, y = marks(b), marks(r)
@@ -207,8 +208,9 @@ def tally(rerun: list[dict], strata: dict) -> str:
             desc = (lambda z: f"`{z['family']}` {z['corrected_max_err_d']:.4f} D"
                     f"{', ' + str(sum(np.asarray(z['frames_undetermined']).ravel())) + ' undetermined' if z['frames_undetermined'] else ''}"
                     f"{', claimed' if marks(z)[2] else ''}")
+            pf = [np.nanmax(np.abs(np.asarray(z["frame_err_d"], np.float64))) for z in (rows[(r["capture"], r["kind"])], r)]
             print(f"| {strata.get((r['capture'], r['kind']), '?')} | {r['capture']} {r['kind']} | {moved_d(b):.3f} | "
-                  f"{desc(b)} | {desc(r)} | {r.get('seconds')} | {how} |")
+                  f"{desc(b)} | {desc(r)} | {pf[0]:.4f} -> {pf[1]:.4f} | {r.get('seconds')} | {how} |")
         print()
         for t in TRIGGERS_D:
             var = [r if moved_d(base[(r["capture"], r["kind"])]) >= t else base[(r["capture"], r["kind"])] for r in rerun]
@@ -224,6 +226,9 @@ def tally(rerun: list[dict], strata: dict) -> str:
                   f"worse {sum(s.endswith('worse') for s in sets)}, mixed {sum(s.endswith('mixed') for s in sets)}; "
                   f"scenes better {m['scenes_better']}, worse {m['scenes_worse']} (sign test p = {m['sign_test_p']}): "
                   f"{json.dumps(m['scenes'])}")
+        d = np.array([r["corrected_max_err_d"] - base[(r["capture"], r["kind"])]["corrected_max_err_d"] for r in rerun])
+        print(f"\nthe corrected focus's largest error per set: smaller in {int((d < -5e-4).sum())}, larger in "
+              f"{int((d > 5e-4).sum())} (by more than 0.0005 D) of {len(d)}; median change {np.median(d):+.4f} D")
         secs = [r["seconds"] for r in rerun if r.get("seconds")]
         print(f"\nthe dense fit, wall clock: mean {np.mean(secs):.0f} s ({min(secs):.0f}-{max(secs):.0f} s, {len(secs)} sets)")
     return out.getvalue()
