@@ -41,6 +41,18 @@ def _io(graph) -> tuple[list, list]:
     return [sig(v) for v in graph.input], [sig(v) for v in graph.output]
 
 
+def _load(path: Path):
+    """The ONNX model at path; ValueError (one line, naming the file) when it is not one."""
+    import onnx
+    from google.protobuf.message import DecodeError
+
+    try:
+        return onnx.load(str(path))
+    except (DecodeError, ValueError, OSError) as e:
+        why = str(e).splitlines()[0] if str(e) else type(e).__name__
+        raise ValueError(f"{path}: not an ONNX model ({why})") from None
+
+
 def _branch(model, prefix: str):
     """model's graph as an If branch: every internal name and output prefixed, no inputs of its own (it reads the
     outer graph's inputs, which keep their names). The weights stay the branch's own initializers: as outer-scope
@@ -57,8 +69,9 @@ def _branch(model, prefix: str):
 def route_by_stack_size(small: Path, large: Path, max_small_frames: int, out: Path, *, force: bool = False
                         ) -> dict[str, str]:
     """Write `out`: stacks of S <= max_small_frames frames run `small`, the others `large`. Returns the metadata.
-    Raises ValueError (one line, naming the file) when the two models do not share their inputs, outputs and input
-    contract, or T is outside the models' stack range; FileExistsError when `out` exists and not force."""
+    Raises ValueError (one line, naming the file) when a file is not ONNX, the two models do not share their inputs,
+    outputs and input contract, or T is outside the models' stack range; FileExistsError when `out` exists and not
+    force."""
     import onnx
     from onnx import TensorProto, helper
 
@@ -67,7 +80,7 @@ def route_by_stack_size(small: Path, large: Path, max_small_frames: int, out: Pa
     small, large, out = Path(small), Path(large), Path(out)
     if out.exists() and not force:
         raise FileExistsError(f"{out}: exists (use --force to overwrite)")
-    ms, ml = onnx.load(str(small)), onnx.load(str(large))
+    ms, ml = _load(small), _load(large)
     meta_s = {p.key: p.value for p in ms.metadata_props}
     meta_l = {p.key: p.value for p in ml.metadata_props}
     for path, meta in ((small, meta_s), (large, meta_l)):
@@ -103,7 +116,10 @@ def route_by_stack_size(small: Path, large: Path, max_small_frames: int, out: Pa
                          then_branch=then_g, else_branch=else_g),
     ]
     graph = helper.make_graph(nodes, "dfv_aat_routed", inputs, outputs)
-    model = helper.make_model(graph, opset_imports=list(ml.opset_import), producer_name="aat training.train.route")
+    # every domain either net uses (the check above: one version each), LARGE's first
+    opset_imports = list(ml.opset_import) + [o for o in ms.opset_import
+                                             if o.domain not in {x.domain for x in ml.opset_import}]
+    model = helper.make_model(graph, opset_imports=opset_imports, producer_name="aat training.train.route")
     model.ir_version = max(ms.ir_version, ml.ir_version)
 
     def net(path: Path, meta: dict) -> dict:

@@ -94,3 +94,25 @@ def test_cli_one_line_errors(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "missing.onnx: no such model file" in err
     assert not (tmp_path / "o.onnx").exists()
+
+
+def test_a_file_that_is_not_onnx_is_refused_in_one_line(tmp_path, capsys):
+    bad = tmp_path / "notes.onnx"
+    bad.write_text("not a model\n")
+    assert main([str(bad), str(LARGE), "--max-small-frames", "5", "--out", str(tmp_path / "o.onnx")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "notes.onnx: not an ONNX model" in err
+    assert not (tmp_path / "o.onnx").exists()
+
+
+def test_the_routed_file_imports_every_opset_domain_either_net_uses(tmp_path):
+    import onnx
+    from onnx import helper
+
+    small = onnx.load(str(SMALL))
+    small.opset_import.append(helper.make_opsetid("ai.onnx.ml", 3))  # a domain only the small net declares
+    path = tmp_path / "small_ml.onnx"
+    onnx.save(small, str(path))
+    route_by_stack_size(path, LARGE, 5, tmp_path / "r.onnx")
+    got = {(o.domain, o.version) for o in onnx.load(str(tmp_path / "r.onnx")).opset_import}
+    assert got == {("", 17), ("ai.onnx.ml", 3)}
