@@ -14,7 +14,16 @@ import numpy as np
 
 from .. import __version__
 from .format import CameraCalibration, CameraIdentity, FieldPoly, field_radius_of, poly_terms
-from .model import Observations, bootstrap, fit_model, refit, refit_edge, with_intervals
+from .model import (
+    PROFILE_MAX_SHIFT,
+    Observations,
+    bootstrap,
+    fit_model,
+    profile_shifts,
+    refit,
+    refit_edge,
+    with_intervals,
+)
 from .peaks import blur_slope, relative_blur_px
 from .sweep import SweepError, SweepMeasurement, identity_differences
 
@@ -122,8 +131,8 @@ def fit_blur(measures: list[SweepMeasurement], model) -> tuple[FieldPoly | None,
     return FieldPoly(terms, sol.reshape(len(terms), fd + 1), (lo, hi)), obs
 
 
-FIT_DISTANCE_ITERATIONS = 4
-FITTED = "fitted (an unknown of the model: the sweeps' consistency)"
+FIT_DISTANCE_ITERATIONS = 6
+FITTED = "fitted (where the measured charts' tiles fit best)"
 
 
 def _same_tiles(new: Observations, old: Observations) -> Observations:
@@ -185,28 +194,40 @@ def fit_calibration(measures: list[SweepMeasurement], n_boot: int = 100, degree:
     fit, obs, outliers = robust_fit(obs, degree, focus_degree, radial)
     warnings: list[str] = [outliers] if outliers else []
     if start:
-        # fitted chart distances: the model's linearised shift, the tiles' objects recomputed at the new distance,
-        # refitted (Gauss-Newton) until the shift is below a micrometre
+        # fitted chart distances: where the measured charts' tiles fit best (`model.profile_shifts`; the joint
+        # least squares' shift where that profile has no minimum), the tiles' objects recomputed at the new
+        # distance, until the shift is below a micrometre; the model then refitted with the distances fixed
         def fit_distances(measures, obs, fit):
             for _ in range(FIT_DISTANCE_ITERATIONS):
-                if max(abs(v) for v in fit.shifts_mm.values()) < 1e-3:
+                prof = profile_shifts(obs, fit)
+                far = {i for i, v in prof.items() if abs(v) > PROFILE_MAX_SHIFT * 1000.0 * measures[i].chart_distance_m}
+                no_minimum.clear()
+                no_minimum.update(i for i in start if i not in prof or i in far)
+                joint = refit(obs, fit).shifts_mm if no_minimum else {}  # (obs has the fitted distances free)
+                shifts = {i: joint.get(i, 0.0) if i in no_minimum else prof[i] for i in start}
+                if max(abs(v) for v in shifts.values()) < 1e-3:
                     break
-                measures = [m.at_distance(m.chart_distance_m + fit.shifts_mm.get(i, 0.0) / 1000.0, FITTED)
+                measures = [m.at_distance(m.chart_distance_m + shifts[i] / 1000.0, FITTED)
                             if i in start else m for i, m in enumerate(measures)]
                 obs = _same_tiles(observations(measures), obs)
-                fit = refit(obs, fit)
-            return measures, obs, fit
+                fit = refit(replace(obs, dz=None), fit)
+            return measures, obs, refit(replace(obs, dz=None), fit)
 
+        no_minimum: set = set()
         measures, obs, fit = fit_distances(measures, obs, fit)
         if focus_degree is None and fit.edge_cv:
             # the edge powers' degree chosen again with the charts at their fitted distances (the choice above saw
             # the tiles of a chart to be fitted at its starting distance); a changed choice refits the distances
-            again = refit_edge(obs, fit)
+            again = refit_edge(replace(obs, dz=None), fit)
             if (again.focus_degree, again.low_focus_degree, again.blend) != \
                     (fit.focus_degree, fit.low_focus_degree, fit.blend):
                 measures, obs, fit = fit_distances(measures, obs, again)
             else:
                 fit = replace(fit, edge_cv=again.edge_cv)
+        for i in sorted(no_minimum):
+            warnings.append(f"{measures[i].sweep.path}: the measured charts' tiles do not fix this chart's distance "
+                            "(their residuals have no minimum within "
+                            f"{100 * PROFILE_MAX_SHIFT:g} % of it): fitted from all tiles together instead")
     if progress:
         progress("bootstrap")
     boot = bootstrap(obs, fit, n_boot=n_boot)

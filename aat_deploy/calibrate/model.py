@@ -153,8 +153,9 @@ class Observations:
 
 def distance_columns(obs: Observations) -> np.ndarray:
     """(N, F) one column per sweep whose chart distance is fitted (`Observations.dz`): a shift of that chart's
-    distance by delta mm moves its tiles' objects by dz * delta diopters (linearised; `fit.fit_calibration`
-    iterates with the objects recomputed). Model: object_d + dz delta = g(r) + field."""
+    distance by delta mm moves its tiles' objects by dz * delta diopters (linearised). Model: object_d + dz delta =
+    g(r) + field: the joint least squares' shift, which `fit.fit_calibration` uses only where the measured charts'
+    residuals have no minimum (`profile_shifts`, its criterion since 2026-11-28)."""
     free = obs.free_sweeps()
     if not len(free):
         return np.zeros((len(obs), 0))
@@ -516,19 +517,20 @@ def _blend_fields(fields: list[FieldPoly], w: np.ndarray) -> FieldPoly:
 
 
 @one_blas_thread()
-def fit_blend(obs: Observations, components, rule: Component | None = None) -> ModelFit:
+def fit_blend(obs: Observations, components, rule: Component | None = None, family: str | None = None) -> ModelFit:
     """The model as the weighted mean of its components' fits (`Component`). The family is chosen by BIC at the
     order `rule` (default the heaviest component's; `fit_model` gives the one its rule picks, whose order the fit
     reports); each component is fitted with it, the focus error is the weighted mean of theirs, and, with that
     focus error fixed, each component's field term is fitted again (so that they share one on-axis focus and one
     focus range) and summed with the weights, as are fitted chart distances. One component at the rule's order:
-    the fit at that order, as `fit_model` with the order given. The residuals are against the blend."""
+    the fit at that order, as `fit_model` with the order given. The residuals are against the blend. family: that
+    family instead of the one BIC chooses (`profile_shifts`)."""
     comps = sorted((c for c in components if c.weight > 0), key=lambda c: -c.weight)
     if not comps:
         raise ValueError("no order with a weight to fit")
     head = rule or comps[0]
     order = lambda c: dict(radial=c.radial, low_focus_degree=c.low_focus_degree)
-    fits = fit_all(obs, head.degree, head.focus_degree, **order(head))
+    fits = fit_all(obs, head.degree, head.focus_degree, families=(family,) if family else None, **order(head))
     if not fits:
         raise ValueError("no focus-error family could be fitted to the tiles")
     best = select(fits)
@@ -620,13 +622,88 @@ def _rule_of(fit: ModelFit) -> Component:
     return Component(fit.degree, fit.radial, fit.focus_degree, fit.low_focus_degree, 1.0)
 
 
-def refit(obs: Observations, fit: ModelFit) -> ModelFit:
-    """`fit`'s order (or blend of orders, with their weights) on obs, its CV tables kept."""
+def refit(obs: Observations, fit: ModelFit, family: str | None = None) -> ModelFit:
+    """`fit`'s order (or blend of orders, with their weights) on obs, its CV tables kept; family: that family
+    instead of BIC's choice."""
     if fit.blend:
-        new = fit_blend(obs, fit.blend, _rule_of(fit))
+        new = fit_blend(obs, fit.blend, _rule_of(fit), family=family)
     else:
-        new = fit_model(obs, fit.degree, fit.focus_degree, fit.radial, fit.low_focus_degree)
+        new = replace(fit_blend(obs, [replace(_rule_of(fit), weight=1.0)], family=family), blend=())
     return replace(new, cv=fit.cv, edge_cv=fit.edge_cv)
+
+
+PROFILE_STEP_D = 0.1  # `profile_shifts`' step: the chart's tiles moved by about this many diopters of object
+PROFILE_MAX_SHIFT = 0.05  # a profile minimum farther than this share of the chart's distance is not taken
+
+
+def _vertex(rss: tuple[float, float, float], h: float) -> float | None:
+    """The minimum of the parabola through (-h, rss[0]), (0, rss[1]), (h, rss[2]); None when it has none."""
+    a = (rss[0] + rss[2] - 2.0 * rss[1]) / (2.0 * h * h)
+    if not (np.isfinite(a) and a > 0):
+        return None
+    return float(-(rss[2] - rss[0]) / (2.0 * h) / (2.0 * a))
+
+
+def measured_rss(obs: Observations, residual: np.ndarray, weight: np.ndarray | None = None) -> float:
+    """The weighted squared residuals of the tiles of sweeps whose chart distance is measured (not fitted)."""
+    w = obs.weight if weight is None else weight
+    m = ~np.isin(obs.sweep, obs.free_sweeps())
+    return float(np.sum(w[m] * residual[m] ** 2))
+
+
+def profile_step_mm(obs: Observations, sweep: int) -> float:
+    """The profile's step for `sweep`'s chart distance (mm): its tiles' objects move by about PROFILE_STEP_D."""
+    dz = np.abs(obs.dz[obs.sweep == sweep])
+    return PROFILE_STEP_D / max(float(np.mean(dz)), 1e-12)
+
+
+def profile_shifts(obs: Observations, fit: ModelFit, family: str | None = None) -> dict:
+    """{sweep: shift (mm)} of each fitted chart distance (`Observations.dz`) where the tiles of the charts whose
+    distance is measured fit best: the model refitted at `fit`'s order (or blend) and family (default fit's) with the
+    chart's tiles moved by dz * s, the measured charts' weighted squared residuals (`measured_rss`) at s = -h, 0, h,
+    and the parabola's minimum (linearised: `fit.fit_calibration` moves the chart and asks again). Each fitted
+    chart in turn, the others where obs has them; a chart whose profile has no minimum, or one farther than
+    PROFILE_MAX_SHIFT of its distance, is left out (the caller keeps the joint fit's shift).
+
+    Why not the joint least squares (`distance_columns`): a shift of the near chart moves all its tiles alike, and
+    the field term, zero only at the frame centre and free in focus where only that chart's tiles are, takes most of
+    such a shift; the shift is then the intercept of a high-order polynomial through that chart's tiles, and a few
+    hundredths of a diopter of ring-shaped error in them move it by most of a millimetre (on the benchmark's phone:
+    55.75-55.91 mm for a chart at 55.0, its own tiles at radius 0.5-0.75 pulling +0.6 mm;
+    benchmarks/probes/near_distance.py). The measured charts' tiles see the shift only through the smooth surface
+    they share with the near chart, and their residuals are least at the true distance (54.97-55.13 mm there)."""
+    fam = family or fit.focus.family
+    fixed = replace(obs, dz=None)
+    out: dict = {}
+    for k in obs.free_sweeps():
+        k = int(k)
+        h = profile_step_mm(obs, k)
+        move = np.where(obs.sweep == k, obs.dz, 0.0)
+        rss = []
+        for s in (-h, 0.0, h):
+            f = refit(replace(fixed, object_d=obs.object_d + move * s), fit, family=fam)
+            rss.append(measured_rss(obs, f.residual_d))
+        v = _vertex(tuple(rss), h)
+        if v is not None:
+            out[k] = v
+    return out
+
+
+def profile_shift_at_order(obs: Observations, sweep: int, family: str, degree: int, focus_degree: int,
+                           radial: int, low_focus_degree: int | None, weight: np.ndarray, columns: np.ndarray
+                           ) -> float | None:
+    """`profile_shifts` for one chart at one order (no blend) under bootstrap weights (`bootstrap`)."""
+    h = profile_step_mm(obs, sweep)
+    move = np.where(obs.sweep == sweep, obs.dz, 0.0)
+    fixed = replace(obs, dz=None)
+    rss = []
+    for s in (-h, 0.0, h):
+        res = fit_family(replace(fixed, object_d=obs.object_d + move * s), family, degree, focus_degree,
+                         weight=weight, radial=radial, columns=columns, low_focus_degree=low_focus_degree)
+        if res is None:
+            return None
+        rss.append(measured_rss(obs, res[2], weight))
+    return _vertex(tuple(rss), h)
 
 
 def refit_edge(obs: Observations, fit: ModelFit) -> ModelFit:
@@ -668,7 +745,8 @@ class Bootstrap:
 def bootstrap(obs: Observations, fit: ModelFit, n_boot: int = 100, seed: int = 0, level: float = 0.95,
               grid: tuple[int, int] = (9, 13)) -> Bootstrap:
     """Poisson weights per tile, times per sweep when there are >= 3 sweeps; each replicate refits every family at
-    the chosen order and reselects."""
+    the chosen order and reselects, with the charts at their fitted distances; a fitted distance's spread is each
+    replicate's own `profile_shifts` minimum (at the order, linearised: `profile_shift_at_order`)."""
     rng = np.random.default_rng(seed)
     sweeps = np.unique(obs.sweep)
     wins = {k: 0 for k in FAMILY_PARAMS}
@@ -681,6 +759,7 @@ def bootstrap(obs: Observations, fit: ModelFit, n_boot: int = 100, seed: int = 0
     maps = []
     shift_draws: dict[int, list] = {}
     cols = FieldBasis(fit.degree, fit.radial, obs.aspect).columns(obs.x, obs.y)
+    fixed = replace(obs, dz=None)  # the charts at their fitted distances; each replicate's own by `profile_shifts`
     for _ in range(n_boot):
         w = obs.weight * rng.poisson(1.0, len(obs))
         if len(sweeps) >= 3:
@@ -688,7 +767,7 @@ def bootstrap(obs: Observations, fit: ModelFit, n_boot: int = 100, seed: int = 0
             w = w * ws[np.searchsorted(sweeps, obs.sweep)]
         if w.sum() <= 0 or (len(obs.free_sweeps()) and w[~np.isin(obs.sweep, obs.free_sweeps())].sum() <= 0):
             continue  # (a replicate without any sweep of a measured distance cannot measure the focus error)
-        fits = fit_all(obs, fit.degree, fit.focus_degree, weight=w, radial=fit.radial, columns=cols,
+        fits = fit_all(fixed, fit.degree, fit.focus_degree, weight=w, radial=fit.radial, columns=cols,
                        low_focus_degree=fit.low_focus_degree)
         if not fits:
             continue
@@ -698,13 +777,12 @@ def bootstrap(obs: Observations, fit: ModelFit, n_boot: int = 100, seed: int = 0
             params["bias_d"].append(fe.bias_d)
             params["scale"].append(fe.scale)
             maps.append(fp(xx, yy, [mid_t])[0])
-            if len(obs.free_sweeps()) and w[np.isin(obs.sweep, obs.free_sweeps())].sum() > 0:
-                sh: dict = {}
-                fit_family(obs, fit.focus.family, fit.degree, fit.focus_degree, weight=w, radial=fit.radial,
-                           columns=cols, shifts=sh, low_focus_degree=fit.low_focus_degree)
-                for k, v in sh.items():
-                    if w[obs.sweep == k].sum() > 0:
-                        shift_draws.setdefault(k, []).append(v)
+            for k in obs.free_sweeps():
+                if w[obs.sweep == k].sum() > 0:
+                    v = profile_shift_at_order(obs, int(k), fit.focus.family, fit.degree, fit.focus_degree,
+                                               fit.radial, fit.low_focus_degree, w, cols)
+                    if v is not None:
+                        shift_draws.setdefault(int(k), []).append(v)
     a = (1 - level) / 2
     total = max(sum(wins.values()), 1)
     keys = {"offset": ["bias_d"], "scale": ["scale"]}.get(fit.focus.family, [])

@@ -181,7 +181,7 @@ def measure_sweep(sweep: Sweep, layout: ChartLayout, distance_m: float | None = 
     to the chart point at the frame centre (recommended); without it the distance comes from the pose, with the
     focal length in pixels from the EXIF focal length and sensor_mm, else fitted from the chart's perspective.
     fit_distance: the distance (measured, or without distance_m from the pose: `--distance-m ...,~`) is only a
-    start, fitted with the model from the sweeps' consistency (`fit.fit_calibration`; a chart too near for a tape's
+    start, fitted where the measured charts' tiles fit best (`fit.fit_calibration`; a chart too near for a tape's
     millimetre). tiles_to_edges: tiles spread from edge to edge instead of centred (`peaks.TileGrid`; a probe's,
     not the fit's default). SweepError (one line naming the folder) when a distance is needed from markers that give
     no pose."""

@@ -242,6 +242,40 @@ def test_a_near_charts_distance_is_fitted_from_the_sweeps_consistency():
         assert e["fitted"] < e["true"] + 0.005 and e["fitted"] < e["three"] + 0.005, (seed, e)
 
 
+
+def test_a_near_charts_distance_is_where_the_measured_charts_fit_best():
+    """`profile_shifts` (the fit's criterion for a fitted distance since 2026-11-28): the near chart given 1.8 mm
+    short is moved to where the three measured charts' tiles fit best, its objects recomputed there and asked again,
+    within 0.1 mm of its true distance; the measured charts' squared residuals are least there (0.3 mm either side
+    is worse), and the near chart's own tiles do not enter that criterion (moving only them does not move it)."""
+    from dataclasses import replace
+
+    from aat_deploy.calibrate.model import measured_rss, profile_shifts, refit
+
+    for seed in (0, 1):
+        given = 0.055 - 0.0018
+        fit = fit_model(_near_chart_observations(given, True, seed=seed))
+        for _ in range(3):
+            obs = _near_chart_observations(given, True, seed=seed)
+            shift = profile_shifts(obs, fit)[3]
+            given += shift / 1000.0
+        assert abs(shift) < 0.01 and abs(given - 0.055) < 0.0001, (seed, given)
+        obs = _near_chart_observations(given, True, seed=seed)
+        rss = {}
+        for s in (-0.3, 0.0, 0.3):
+            o = replace(obs, object_d=obs.object_d + np.where(obs.sweep == 3, obs.dz, 0.0) * s, dz=None)
+            rss[s] = measured_rss(obs, refit(o, fit, family=fit.focus.family).residual_d)
+        assert rss[0.0] < rss[-0.3] and rss[0.0] < rss[0.3], (seed, rss)
+        assert measured_rss(obs, np.where(obs.sweep == 3, 1.0, 0.0)) == 0.0  # the near chart's tiles: not counted
+
+
+def test_a_profile_has_a_minimum_or_none():
+    from aat_deploy.calibrate.model import _vertex
+
+    f = lambda s: 3.0 * (s - 0.7) ** 2 + 1.0
+    assert _vertex((f(-0.5), f(0.0), f(0.5)), 0.5) == pytest.approx(0.7)
+    assert _vertex((1.0, 2.0, 1.0), 0.5) is None and _vertex((1.0, 1.0, 1.0), 0.5) is None
+
 FOUR_CHARTS = ((0.07, 0.4), (0.1, -0.3), (0.18, 0.2), (0.055, 0.3))  # (distance m, tilt): the phone's and a near one
 
 
