@@ -230,7 +230,8 @@ def fit_calibration(measures: list[SweepMeasurement], n_boot: int = 100, degree:
                             f"{100 * PROFILE_MAX_SHIFT:g} % of it): fitted from all tiles together instead")
     if progress:
         progress("bootstrap")
-    boot = bootstrap(obs, fit, n_boot=n_boot)
+    boot = bootstrap(obs, fit, n_boot=n_boot,
+                     max_shift_mm={i: PROFILE_MAX_SHIFT * 1000.0 * measures[i].chart_distance_m for i in start})
     fe = with_intervals(fit.focus, boot)
     if boot.support.get(fe.family, 0) < 0.5:
         warnings.append(f"the focus-error family {fe.family!r} is chosen by only {100 * boot.support.get(fe.family, 0):.0f}"

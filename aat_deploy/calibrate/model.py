@@ -743,10 +743,11 @@ class Bootstrap:
 
 @one_blas_thread()
 def bootstrap(obs: Observations, fit: ModelFit, n_boot: int = 100, seed: int = 0, level: float = 0.95,
-              grid: tuple[int, int] = (9, 13)) -> Bootstrap:
+              grid: tuple[int, int] = (9, 13), max_shift_mm: dict | None = None) -> Bootstrap:
     """Poisson weights per tile, times per sweep when there are >= 3 sweeps; each replicate refits every family at
     the chosen order and reselects, with the charts at their fitted distances; a fitted distance's spread is each
-    replicate's own `profile_shifts` minimum (at the order, linearised: `profile_shift_at_order`)."""
+    replicate's own `profile_shifts` minimum (at the order, linearised: `profile_shift_at_order`), or, as the fit
+    does, the joint least squares' shift where it has none or one beyond max_shift_mm {sweep: mm}."""
     rng = np.random.default_rng(seed)
     sweeps = np.unique(obs.sweep)
     wins = {k: 0 for k in FAMILY_PARAMS}
@@ -781,6 +782,11 @@ def bootstrap(obs: Observations, fit: ModelFit, n_boot: int = 100, seed: int = 0
                 if w[obs.sweep == k].sum() > 0:
                     v = profile_shift_at_order(obs, int(k), fit.focus.family, fit.degree, fit.focus_degree,
                                                fit.radial, fit.low_focus_degree, w, cols)
+                    if v is None or abs(v) > (max_shift_mm or {}).get(int(k), math.inf):
+                        sh: dict = {}
+                        fit_family(obs, fit.focus.family, fit.degree, fit.focus_degree, weight=w, radial=fit.radial,
+                                   columns=cols, shifts=sh, low_focus_degree=fit.low_focus_degree)
+                        v = sh.get(int(k))
                     if v is not None:
                         shift_draws.setdefault(int(k), []).append(v)
     a = (1 - level) / 2
