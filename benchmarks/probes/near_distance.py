@@ -14,7 +14,8 @@ copies of seed 2026; no held-out scene), measured with the tapes as part a measu
 - **parts**: the joint shift (linearised from the rendered 55.0 mm, the fit's order and family) split exactly into
   what each chart's tape error and each chart's tiles' measurement error (by field radius) contribute, from the
   tiles made exact (each tile's object the truth's in-focus object for its measured peak); the least squares is
-  linear in the objects, so the parts add up to the whole;
+  linear in the objects, so the parts add up to the whole; the same for the fit's criterion now
+  (`model.profile_shifts`: the parabola's minimum is linear in the objects too);
 - **profile**: the near chart fixed at distances 54.4-56.4 mm, the model refitted at the fit's order and family:
   the weighted squared residuals of the measured charts' tiles and of the near chart's own, and part a;
 - **fit**: `fit_calibration` as it now is (the distance where the measured charts' tiles fit best,
@@ -110,7 +111,7 @@ def truth_curve(rig, eff, scale: float):
 def run(variant: str, truth_path: str, log) -> dict:
     from aat_deploy.calibrate.fit import FITTED, _same_tiles, held_beyond_tiles, observations
     from aat_deploy.calibrate.format import field_radius_of
-    from aat_deploy.calibrate.model import refit
+    from aat_deploy.calibrate.model import profile_shifts, refit
     from benchmarks import bench_calibrate as B
     from benchmarks.probes import chart_texture as CT
     from benchmarks.probes import phone_map_budget as P
@@ -158,9 +159,12 @@ def run(variant: str, truth_path: str, log) -> dict:
     exact = P.truth_at_reported(rig.truth_at(eff, o_true.x, o_true.y, 1.0 / P.F_GRID_D), o_true.reported_d, scale)
     radius = field_radius_of(o_true.x, o_true.y, o_true.aspect)
     out["parts"] = {}
-    for name, gg, fams in (("the joint fit's family", None, [fam]), ("the truth's on-axis curve", g, ["none"])):
-        def shift_of(obj, gg=gg, fams=fams):
+    for name, gg, fams in (("the joint fit's family", None, [fam]), ("the truth's on-axis curve", g, ["none"]),
+                           ("the profile (the fit now)", None, None)):
+        def shift_of(obj, gg=gg, fams=fams, profile=fams is None):
             o = dataclasses.replace(o_true, object_d=obj)
+            if profile:  # `profile_shifts` at the fit's order and family: linear in the objects too
+                return profile_shifts(o, res.model)[near]
             if gg is not None:
                 o = dataclasses.replace(o, reported_d=gg.true_diopters(o.reported_d))
             with families(fams):
