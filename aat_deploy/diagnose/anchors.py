@@ -16,7 +16,8 @@ how far the reported focus is from it (a part of the twin misfit that depends on
 added at the estimates +- 1 to DENSE_STEPS steps of DENSE_STEP_D, then at the new estimates while some estimate lies
 REANCHOR_AGAIN_D or more from every anchor (at most REANCHOR_ROUNDS more sets), when some frame's first estimate lies
 DENSE_MOVED_D or more from its reported focus (0: always). Each anchor set is one full-resolution optical render per
-capture. Measured in docs/diagnosis.md (Limits, "After the eleventh round").
+capture. Off: on a declared subset of the development sets it was not better (3 sets better, 1 worse in family;
+docs/diagnosis.md, Limits, "Dense anchoring measured").
 
 The full-resolution curves are the twin's without the effects that act frame by frame (exposure, misalignment),
 as the sweep is: a fitted exposure in the chain would otherwise enter the correction as focus. When the sweep
@@ -35,7 +36,7 @@ from aat_deploy.diagnose.compare import focus_curves
 from aat_deploy.infer.normalise import normalise_stack
 
 REANCHOR_D = 0.01  # re-anchor when some frame's estimate is this far (diopters) from the twin's focus
-DENSE_ANCHORS = False  # anchor sets around the estimates too (module docstring; off: docs/diagnosis.md, Limits)
+DENSE_ANCHORS = False  # anchor sets around the estimates too (module docstring; off: not measured better)
 DENSE_STEP_D = 0.01  # their spacing (diopters) ...
 DENSE_STEPS = 2  # ... and how many either side of the estimates (0: only re-anchored until settled)
 DENSE_MOVED_D = 0.0  # only when some frame's first estimate lies this far (diopters) from its reported focus
