@@ -34,8 +34,8 @@ from pathlib import Path
 import numpy as np
 
 from aat_deploy.io.atomic import write_text_atomic
+from benchmarks.probes.tile_bias import VARIANTS
 
-VARIANTS = ("nominal", "copy", "copy_s2026_0", "copy_s2026_1", "copy_s2026_2")
 OPTIONS = {
     "as is": {},
     "degree to 8": {"DEGREES": (2, 3, 4, 5, 6, 7, 8)},  # the monomials' degree chosen up to 8 (as is: 6)

@@ -34,8 +34,8 @@ from pathlib import Path
 import numpy as np
 
 from aat_deploy.io.atomic import write_text_atomic
+from benchmarks.probes.tile_bias import VARIANTS, chosen_variants
 
-VARIANTS = ("nominal", "copy", "copy_s2026_0", "copy_s2026_1", "copy_s2026_2")
 EDGES = (0.0, 0.33, 0.5, 0.66, 0.75, 0.84, 0.93)
 PROFILE_MM = tuple(np.round(np.arange(54.4, 56.41, 0.2), 1))
 
@@ -225,10 +225,7 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     if Path(a.out).exists():
         ap.error(f"{a.out}: exists (choose another --out)")
-    variants = [v for v in a.variants.split(",") if v]
-    bad = [v for v in variants if v not in VARIANTS]
-    if bad:
-        ap.error(f"--variants: {', '.join(bad)} not of {', '.join(VARIANTS)}")
+    variants = chosen_variants(ap, a.variants)
     from benchmarks.render_truth_map import load_or_exit
 
     load_or_exit(a.truth, "near_distance")

@@ -316,6 +316,15 @@ def table(res: dict) -> str:
     return "\n".join(out)
 
 
+def chosen_variants(ap, text: str) -> list[str]:
+    """--variants (comma-separated; '' for none) checked against VARIANTS: ap.error names any unknown one."""
+    variants = [v for v in text.split(",") if v]
+    bad = [v for v in variants if v not in VARIANTS]
+    if bad:
+        ap.error(f"--variants: {', '.join(bad)} not of {', '.join(VARIANTS)}")
+    return variants
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--truth", required=True, help="a render-truth map (aat-render-truth-map-v1; a repo path)")
@@ -326,10 +335,7 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     if Path(a.out).exists():
         ap.error(f"{a.out}: exists (choose another --out)")
-    variants = [v for v in a.variants.split(",") if v]
-    bad = [v for v in variants if v not in VARIANTS]
-    if bad:
-        ap.error(f"--variants: {', '.join(bad)} not of {', '.join(VARIANTS)}")
+    variants = chosen_variants(ap, a.variants)
     try:
         charts = [float(v) for v in a.renders.split(",") if v]
     except ValueError:
