@@ -289,7 +289,7 @@ def test_compare_pairs_two_models_scene_by_scene(tmp_path, capsys):
         anycam_compare.compare(ra, rb, "dfv_aat, lens map")
     with pytest.raises(SystemExit):
         anycam_compare.main([str(a), str(b), "--row", "none"])
-    assert "no lens and protocol with the row 'none'" in capsys.readouterr().err
+    assert "no lens and protocol or table row with the row 'none'" in capsys.readouterr().err
 
 
 def test_error_by_interval_by_hand():
