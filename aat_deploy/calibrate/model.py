@@ -673,37 +673,34 @@ def profile_shifts(obs: Observations, fit: ModelFit, family: str | None = None) 
     benchmarks/probes/near_distance.py). The measured charts' tiles see the shift only through the smooth surface
     they share with the near chart, and their residuals are least at the true distance (54.97-55.13 mm there)."""
     fam = family or fit.focus.family
-    fixed = replace(obs, dz=None)
     out: dict = {}
     for k in obs.free_sweeps():
-        k = int(k)
-        h = profile_step_mm(obs, k)
-        move = np.where(obs.sweep == k, obs.dz, 0.0)
-        rss = []
-        for s in (-h, 0.0, h):
-            f = refit(replace(fixed, object_d=obs.object_d + move * s), fit, family=fam)
-            rss.append(measured_rss(obs, f.residual_d))
-        v = _vertex(tuple(rss), h)
+        v = _profile_vertex(obs, int(k), lambda moved: measured_rss(obs, refit(moved, fit, family=fam).residual_d))
         if v is not None:
-            out[k] = v
+            out[int(k)] = v
     return out
+
+
+def _profile_vertex(obs: Observations, sweep: int, rss_of) -> float | None:
+    """The parabola's minimum (mm) of rss_of(obs with `sweep`'s tiles moved by dz * s, distances fixed) at s = -h, 0,
+    h (h: `profile_step_mm`); None when rss_of gives None or the parabola has no minimum."""
+    h = profile_step_mm(obs, sweep)
+    move = np.where(obs.sweep == sweep, obs.dz, 0.0)
+    fixed = replace(obs, dz=None)
+    rss = [rss_of(replace(fixed, object_d=obs.object_d + move * s)) for s in (-h, 0.0, h)]
+    return None if any(r is None for r in rss) else _vertex(tuple(rss), h)
 
 
 def profile_shift_at_order(obs: Observations, sweep: int, family: str, degree: int, focus_degree: int,
                            radial: int, low_focus_degree: int | None, weight: np.ndarray, columns: np.ndarray
                            ) -> float | None:
     """`profile_shifts` for one chart at one order (no blend) under bootstrap weights (`bootstrap`)."""
-    h = profile_step_mm(obs, sweep)
-    move = np.where(obs.sweep == sweep, obs.dz, 0.0)
-    fixed = replace(obs, dz=None)
-    rss = []
-    for s in (-h, 0.0, h):
-        res = fit_family(replace(fixed, object_d=obs.object_d + move * s), family, degree, focus_degree,
-                         weight=weight, radial=radial, columns=columns, low_focus_degree=low_focus_degree)
-        if res is None:
-            return None
-        rss.append(measured_rss(obs, res[2], weight))
-    return _vertex(tuple(rss), h)
+    def rss_of(moved):
+        res = fit_family(moved, family, degree, focus_degree, weight=weight, radial=radial, columns=columns,
+                         low_focus_degree=low_focus_degree)
+        return None if res is None else measured_rss(obs, res[2], weight)
+
+    return _profile_vertex(obs, sweep, rss_of)
 
 
 def refit_edge(obs: Observations, fit: ModelFit) -> ModelFit:
