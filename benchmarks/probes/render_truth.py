@@ -2,7 +2,7 @@
 bootstrap standard error per point (issue 33; docs/calibration.md, "A render-consistent truth: what it costs").
 
     OMP_NUM_THREADS=1 python -m benchmarks.probes.render_truth [--objects-d 5,8,11,14] [--draws 12] \
-        [--cell-px 64] [--texture photos] [--until 17:15] [--boot 400] [--out results/render_truth.json]
+        [--cell-px 64] [--texture photos] [--phase-d 0.275] [--until 17:15] [--boot 400] [--out results/render_truth.json]
 
 Part a's truth (lenses/best_focus/cellphone_asphere.json) is the traced smallest-spot focus plus offsets measured
 on 64 px crops on the sensor diagonal, rendered by the training `Simulator` at 32 px PSF cells; it is 0.06 D RMS
@@ -250,6 +250,8 @@ def main(argv=None) -> int:
     ap.add_argument("--texture", default="photos", help="photos (the truth's) or leaves (the chart's)")
     ap.add_argument("--block-px", type=int, default=128, help="photos: the mosaic's blocks, one photograph each "
                     "(smaller: more photographs per annulus and render)")
+    ap.add_argument("--phase-d", type=float, default=0.0, help="the frames shifted nearer by this many D (the sweep "
+                    "starts at 1/Z - 3.3 + phase): the estimator's bias with the peak's phase between frames")
     ap.add_argument("--until", default=None, help="UTC HH:MM: render nothing new after it (report what is cached)")
     ap.add_argument("--no-render", action="store_true", help="report the cached draws only")
     ap.add_argument("--boot", type=int, default=400)
@@ -268,7 +270,10 @@ def main(argv=None) -> int:
         ap.error(f"--texture {a.texture}: photos or leaves")
     if a.block_px < 2 * 16 + 1:
         ap.error(f"--block-px {a.block_px}: above twice the mosaic's 16 px cross-fade")
-    setup = Setup(cell_px=a.cell_px, texture=a.texture, block_px=a.block_px)
+    if not 0.0 <= a.phase_d < Setup.step_d:
+        ap.error(f"--phase-d {a.phase_d}: in [0, {Setup.step_d}) D")
+    setup = Setup(cell_px=a.cell_px, texture=a.texture, block_px=a.block_px,
+                  before_d=round(Setup.before_d - a.phase_d, 6))
     stop = None
     if a.until:
         hh, mm = (int(v) for v in a.until.split(":"))
