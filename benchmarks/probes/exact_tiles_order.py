@@ -43,6 +43,8 @@ OPTIONS = {
     "edge from rho^6": {"EDGE_POWER": 6},  # rho^6 follows focus as the edge powers do (as is: from rho^8)
     "no blend": {"ORDER_BAND": 1e-9, "EDGE_BAND": 1e-9},  # the rule's order alone (the fit before the blend)
     "edge cubic if better": {"EDGE_BAND": 1e6},  # the edge cubic wherever its frame-cell CV is better at all
+    # radial powers beyond the format's ceiling (total degree 12): the file's limits raised with them (format.*)
+    "radial to 20": {"RADIAL": (0, 8, 12, 16, 20), "format.MAX_DEGREE": 20, "format.MAX_TERMS": 128},
 }
 
 
@@ -51,16 +53,19 @@ MEASURED_ONLY = ("true distances", "true distances, near fitted")  # --measured:
 
 @contextlib.contextmanager
 def patched(changes: dict):
+    """Module constants of aat_deploy.calibrate.model (NAME) or .format (format.NAME) changed inside the block."""
+    from aat_deploy.calibrate import format as F
     from aat_deploy.calibrate import model as M
 
-    old = {k: getattr(M, k) for k in changes}
+    where = lambda k: (F, k.split(".", 1)[1]) if k.startswith("format.") else (M, k)
+    old = {k: getattr(*where(k)) for k in changes}
     try:
         for k, v in changes.items():
-            setattr(M, k, v)
+            setattr(*where(k), v)
         yield
     finally:
         for k, v in old.items():
-            setattr(M, k, v)
+            setattr(*where(k), v)
 
 
 def edge_weight_patched(changes: dict):

@@ -66,11 +66,14 @@ class Setup:
     r_edges: tuple = R_EDGES
     sensor_px: tuple | None = None
     block_px: int = 128  # photos: the mosaic's blocks (chart_texture.photo_mosaic), one photograph each
+    leaves_soft_px: float = 0.7  # leaves: their softening, sensor px (the chart's, truth_texture.SOFT)
 
     def key(self) -> str:
         d = {k: v for k, v in dataclasses.asdict(self).items() if k != "fmap"}  # the map only reads the peaks
         if d["block_px"] == 128:  # keys made before the field existed
             del d["block_px"]
+        if d["leaves_soft_px"] == 0.7:
+            del d["leaves_soft_px"]
         return hashlib.sha1(json.dumps(d, sort_keys=True).encode()).hexdigest()[:12]
 
 
@@ -103,7 +106,7 @@ def texture(setup: Setup, h: int, w: int, od: float, seed: int) -> np.ndarray:
     if setup.texture == "photos":
         return photo_mosaic(h, w, rng, setup.block_px)
     if setup.texture == "leaves":
-        return _leaves(max(h, w), rng, False)[:h, :w]
+        return _leaves(max(h, w), rng, False, setup.leaves_soft_px)[:h, :w]
     raise SystemExit(f"--texture {setup.texture}: photos or leaves")
 
 
@@ -250,6 +253,8 @@ def main(argv=None) -> int:
     ap.add_argument("--texture", default="photos", help="photos (the truth's) or leaves (the chart's)")
     ap.add_argument("--block-px", type=int, default=128, help="photos: the mosaic's blocks, one photograph each "
                     "(smaller: more photographs per annulus and render)")
+    ap.add_argument("--leaves-soft-px", type=float, default=0.7, help="leaves: their softening (sensor px; the "
+                    "chart's 0.7)")
     ap.add_argument("--phase-d", type=float, default=0.0, help="the frames shifted nearer by this many D (the sweep "
                     "starts at 1/Z - 3.3 + phase): the estimator's bias with the peak's phase between frames")
     ap.add_argument("--until", default=None, help="UTC HH:MM: render nothing new after it (report what is cached)")
@@ -273,7 +278,7 @@ def main(argv=None) -> int:
     if not 0.0 <= a.phase_d < Setup.step_d:
         ap.error(f"--phase-d {a.phase_d}: in [0, {Setup.step_d}) D")
     setup = Setup(cell_px=a.cell_px, texture=a.texture, block_px=a.block_px,
-                  before_d=round(Setup.before_d - a.phase_d, 6))
+                  before_d=round(Setup.before_d - a.phase_d, 6), leaves_soft_px=a.leaves_soft_px)
     stop = None
     if a.until:
         hh, mm = (int(v) for v in a.until.split(":"))

@@ -38,9 +38,10 @@ SOFT = 0.7  # the chart's softening, sensor px (aat_deploy.calibrate.chart.SOFT_
 LEAF_MAX = 62.0  # the largest leaf radius, sensor px (0.1 x the 1.3-frame chart's height on a 480 px frame)
 
 
-def _leaves(n: int, rng, square: bool) -> np.ndarray:
+def _leaves(n: int, rng, square: bool, soft: float = SOFT) -> np.ndarray:
     """(n, n) linear grey: dead leaves (discs or axis-aligned squares, radii ~ r^-3 over 0.5..LEAF_MAX sensor px)
-    drawn at K x, softened by SOFT sensor px and area-sampled, as the benchmark's chart is seen in focus."""
+    drawn at K x, softened by `soft` sensor px (default SOFT) and area-sampled, as the benchmark's chart is seen in
+    focus."""
     import cv2
 
     from aat_deploy.calibrate.chart import dead_leaves
@@ -61,7 +62,7 @@ def _leaves(n: int, rng, square: bool) -> np.ndarray:
             img[max(y0, 0):max(y1, 0), max(x0, 0):max(x1, 0)] = g[i]
     else:
         img = dead_leaves(m, m, 0.5 * K, LEAF_MAX * K, rng)
-    img = cv2.GaussianBlur(img.astype(np.float32), (0, 0), SOFT * K)
+    img = cv2.GaussianBlur(img.astype(np.float32), (0, 0), soft * K) if soft > 0 else img.astype(np.float32)
     lin = srgb_to_linear(np.clip(img, 0, 255) / 255.0)
     return cv2.resize(lin, (n, n), interpolation=cv2.INTER_AREA).astype(np.float32)
 
