@@ -127,6 +127,20 @@ def radial_check(m) -> dict:
     return {"linear from the two neighbours": _bins(rr, lin), "cubic from the four nearest others": _bins(rr, cub)}
 
 
+def annuli_against(m, truth, frame_range=(1 / 0.18, 1 / 0.07)) -> dict:
+    """Per annulus of map m (another render truth): its points (frame, plane) against `truth` read at the same
+    annulus's mid radius for the same frame: plane minus truth (object D: what a tile peaking where m's texture or
+    frames peak reads against `truth`), mean over the points whose frame lies in part a's inside range (7-18 cm)."""
+    out = {}
+    for k, r in enumerate(m.radius):
+        f, o = m.frame[k], m.object[k]
+        sel = (f >= frame_range[0]) & (f <= frame_range[1])
+        if sel.any():
+            d = o[sel] - truth.object_d(np.full(int(sel.sum()), r), f[sel])
+            out[f"{r:.3f}"] = {"n": int(sel.sum()), "mean_d": float(d.mean()), "sd_d": float(d.std())}
+    return out
+
+
 def _truth(rig, eff, scale, tmap):
     from benchmarks.probes.tile_bias import Truth
 
@@ -357,6 +371,13 @@ def table(res: dict) -> str:
                 "|---|" + "---|" * (len(bins) + 1)]
         for kk, b in c.items():
             out.append(f"| {kk} | " + " | ".join(f(b[x]) for x in bins) + f" | {f(b['all'])} (RMS {b['all']['rms_d']:.3f}) |")
+    ann = res.get("annuli_against_truth", {})
+    if ann:
+        radii = list(next(iter(ann.values())))
+        out += ["", "| each annulus's points against --truth at the same frame (mean, D) | " + " | ".join(radii) + " |",
+                "|---|" + "---|" * len(radii)]
+        for k, a in ann.items():
+            out.append(f"| {k} | " + " | ".join(f"{a[x]['mean_d']:+.3f}" if x in a else "-" for x in radii) + " |")
     if "square" in res:
         sq = res["square"]
         out += ["", "| square leaves planes (nominal, noise-free) | " + " | ".join(bins) + " | all |",
@@ -394,14 +415,15 @@ def main(argv=None) -> int:
         planes = [float(v) for v in a.square_planes.split(",") if v]
     except ValueError:
         ap.error(f"--square-planes {a.square_planes!r}: object diopters, comma-separated")
-    if not variants and not planes:
-        ap.error("nothing to run: --variants and --square-planes are both empty")
+    if not variants and not planes and not alts:
+        ap.error("nothing to run: --variants, --square-planes and --alt are all empty")
     load_or_exit(a.truth, "middle_field")
     log = lambda m: print(m, file=sys.stderr, flush=True)
     res = {"what": __doc__.split("\n")[0], "truth": a.truth, "alts": alts,
            "command": "python -m benchmarks.probes.middle_field " + " ".join(argv if argv is not None else sys.argv[1:]),
            "variants": [run_variant(v, a.truth, alts, log) for v in variants]}
     res["radial_check"] = {k: radial_check(load(p)) for k, p in {"--truth": a.truth, **alts}.items()}
+    res["annuli_against_truth"] = {k: annuli_against(load(p), load(a.truth)) for k, p in alts.items()}
     if planes:
         res["square"] = square_planes(planes, a.square_draws, a.truth, log)
     write_text_atomic(a.out, json.dumps(res, indent=1, default=float))
