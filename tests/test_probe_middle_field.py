@@ -59,3 +59,11 @@ def test_lagrange4_is_exact_for_cubics_and_linear_with_fewer_points():
     x = np.linspace(0.0, 0.6, 25)
     assert mf._lagrange4(xs, xs ** 3 - xs, x) == pytest.approx(x ** 3 - x, abs=1e-12)
     assert mf._lagrange4(xs[:3], xs[:3] ** 2, x[:5]) == pytest.approx(np.interp(x[:5], xs[:3], xs[:3] ** 2))
+
+
+def test_annuli_against_reads_another_truths_points_at_the_same_annulus():
+    m = _map()
+    got = mf.annuli_against(_map(lambda x: _field(x) + 0.1), m)  # in focus 0.1 D farther at every frame
+    inner = {r: v for r, v in got.items() if float(r) < 0.8}  # beyond, m's points end first: its base map reads
+    assert len(inner) == 16 and all(v["mean_d"] == pytest.approx(0.1, abs=1e-5) for v in inner.values())
+    assert all(abs(v["mean_d"]) < 1e-5 for v in mf.annuli_against(m, m).values())
