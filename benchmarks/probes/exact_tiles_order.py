@@ -168,10 +168,10 @@ def run(variant: str, truth_path: str, options: list[str], measured: list[str], 
     r_max = float(np.max(field_radius_of(obs.x, obs.y, obs.aspect)))
     out = {"variant": variant, "exact": {}, "measured": {}}
     for name in options:
-        with patched(OPTIONS[name]), edge_weight_patched(OPTIONS[name]):
+        with patched(OPTIONS[name]), edge_weight_patched(OPTIONS[name]):  # the format's limits too, while scored
             m = fit_model(ideal)
-        cal = P.held(dataclasses.replace(res.calibration, focus_error=m.focus, best_focus=m.field), r_max)
-        e = P.errors(in_focus_diopters(cal, rep_m, rig.h, rig.w), truth, covered)
+            cal = P.held(dataclasses.replace(res.calibration, focus_error=m.focus, best_focus=m.field), r_max)
+            e = P.errors(in_focus_diopters(cal, rep_m, rig.h, rig.w), truth, covered)
         rt = field_radius_of(ideal.x, ideal.y, ideal.aspect)
         resid = {f"{lo:g}-{hi:g}": float(np.sqrt(np.mean(m.residual_d[(rt >= lo) & (rt < hi)] ** 2)))
                  for lo, hi in zip(P_EDGES[:-1], P_EDGES[1:]) if np.any((rt >= lo) & (rt < hi))}
@@ -243,10 +243,11 @@ def run(variant: str, truth_path: str, options: list[str], measured: list[str], 
                                 measure=rig.measure, prefilter_px=rig.prefilter_px,
                                 fit_distance=near and i in s.fit_distance) for i, sw in enumerate(sweeps)]
             r = fit_calibration(mt, n_boot=0)
+            e = B.map_errors(rig, r.calibration, eff, inside)["calibration"]
         else:
-            with patched(OPTIONS[name]), edge_weight_patched(OPTIONS[name]):
+            with patched(OPTIONS[name]), edge_weight_patched(OPTIONS[name]):  # the format's limits too, while scored
                 r = fit_calibration(ms, n_boot=0)
-        e = B.map_errors(rig, r.calibration, eff, inside)["calibration"]
+                e = B.map_errors(rig, r.calibration, eff, inside)["calibration"]
         out["measured"][name] = {k: e[k] for k in ("rms_d", "p95_d", "within_tiles_rms_d", "radius_rms_d")
                                  if k in e}
         out["measured"][name]["near_chart_fitted_m"] = float(r.measures[s.fit_distance[0]].chart_distance_m)
