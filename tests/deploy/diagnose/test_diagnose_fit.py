@@ -285,6 +285,50 @@ def test_noisy_raw_captures_keep_per_frame_focus_off_its_bounds(world):
 
 
 @pytest.mark.filterwarnings("ignore:.*real-ray focus table")
+@pytest.mark.parametrize("again", [False, True])
+def test_full_well_is_fitted_again_on_the_reanchored_sweep_only_when_asked(world, monkeypatch, again):
+    """`fitters.FULL_WELL_ON_FINAL_SWEEP` (a probe's setting, off; `focus_start_invariance --mode refit`), on the noisy
+    RAW set above, whose first estimates move far enough to be re-anchored: off, the full well is fitted once, on the
+    first sweep, and that fit's ratio is applied to the re-anchored sweep; on, it is fitted again on the re-anchored
+    sweep, and the focus fit and the report's `noise` use that second fit."""
+    from aat_deploy.diagnose import fitters as F
+    from aat_deploy.diagnose import focusrobust
+    from aat_deploy.render import effects as fx
+
+    caps, twins = render_set(world, "noisy_raw", [fx.make("noise", full_well_e=1000.0), fx.make("vignetting"),
+                                                  fx.make("focus_metadata", bias_d=0.0, scale=1.15)],
+                             frame_format="dng")
+    calls, fits = [], []
+    real_fw, real_fit = F.full_well_on_floor, focusrobust.fit_robust
+
+    def spy_fw(d, fw0):
+        out = real_fw(d, fw0)
+        calls.append((d, fw0, out[0]))
+        return out
+
+    def spy_fit(d, **kw):
+        fits.append(d)
+        return real_fit(d, **kw)
+
+    monkeypatch.setattr(F, "full_well_on_floor", spy_fw)
+    monkeypatch.setattr(focusrobust, "fit_robust", spy_fit)
+    monkeypatch.setattr(F, "FULL_WELL_ON_FINAL_SWEEP", again)
+    f = F.fit_focus_metadata(state_for(caps, twins)).report["focus_fit"]
+    assert f["robust"].get("reanchored_d")  # the estimates moved: the correction was anchored at them too
+    assert len(fits) == 1 and fits[0].floor_c is not None
+    assert len(calls) == (2 if again else 1)
+    first, last = calls[0][0], calls[-1][0]
+    # the first sweep (anchored at the reported focus only) differs from the one fitted (re-anchored)
+    assert np.abs(first.signal_c - fits[0].signal_c).max() > 0
+    if again:  # the second fit is on the very sweep the focus fit uses
+        assert np.array_equal(last.signal_c, fits[0].signal_c)
+    fw0, fw = calls[-1][1], calls[-1][2]
+    ratio = 0.0 if fw is None else fw0 / fw
+    assert np.allclose(fits[0].floor_c, last.with_full_well(ratio).floor_c)
+    assert f["focus_twin"]["noise"]["fitted_full_well_e"] == fw
+
+
+@pytest.mark.filterwarnings("ignore:.*real-ray focus table")
 def test_binning_correction_at_the_twins_own_focus_renders_no_new_optics(world):
     """The binning correction's anchors at the twin's own focus (`anchors.anchor_deltas`) reuse the twin's cached
     optics: given as the twin has it, not as the inverse of its diopters (which differs in the last bit and cost
