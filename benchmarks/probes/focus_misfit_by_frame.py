@@ -11,7 +11,11 @@ the same, only the metadata differs), over the frames fitted in both (`frame_err
 - the frame's rank among the fitted frames from the nearest (0: the nearest fitted, next to the frames left out);
 and, per set kind, the share of the own part's sum of squares on the nearest fitted frame.
 
-Then, with `--leave-out-share T ...`, a variant of the choice rescored from the same rows (`bench_diagnose_focus.rescored`,
+Then (bounds, not methods, as `focus_shared_misfit` part 6, `invariant`): every set's per-frame estimates replaced by
+the truth plus its untouched copy's errors at the nearest fitted frame only (`nearest`), or at every fitted frame but
+the nearest (`rest`), rescored against the code: how much of what the metadata's part costs sits on that frame.
+
+With `--leave-out-share T ...`, a variant of the choice rescored from the same rows (`bench_diagnose_focus.rescored`,
 on the estimates, as the code): every frame whose noise share at its estimate is T or more counts as left out (as
 the noise rule's frames at `focusfit.NOISE_DOMINATED_SHARE`, 0.5, do: no estimate of its own, its family's value),
 against the code rescored, per set and per scene (`focus_choice_nearest.scenes_moved`, sign test). **Declared before
@@ -130,6 +134,57 @@ def report(rows: list[dict]) -> str:
     return buf.getvalue()
 
 
+def replaced(rows: list[dict], which: str) -> list[dict]:
+    """The rows of scenes with an untouched copy, each set's `per_frame` estimates replaced by the truth plus the
+    untouched copy's errors at its nearest fitted frame (`which` "nearest") or at its other fitted frames ("rest")."""
+    from benchmarks.probes.focus_shared_misfit import truth
+
+    un = {r["capture"]: r for r in rows if r["kind"] == "none"}
+    out = []
+    for r in rows:
+        if r["capture"] not in un:
+            continue
+        u = np.asarray(un[r["capture"]]["frame_err_d"], np.float64)
+        e = np.asarray(r["frame_err_d"], np.float64)
+        t = truth(r)
+        both = np.flatnonzero(np.isfinite(u) & np.isfinite(e))
+        sel = np.zeros(len(u), bool)
+        if len(both):
+            near = both[np.argmax(t[both])]
+            sel[both] = True
+            sel = np.eye(len(u), dtype=bool)[near] if which == "nearest" else sel & ~np.eye(len(u), dtype=bool)[near]
+        fams = [dict(f) for f in r["families"]]
+        per = next(f for f in fams if f["family"] == "per_frame")
+        est = np.asarray(per["true_d"], np.float64)[0]
+        per["true_d"] = [np.where(sel, t + u, est).tolist()]
+        out.append({**r, "families": fams})
+    return out
+
+
+def bounds(rows: list[dict]) -> str:
+    from benchmarks import bench_diagnose_focus as bench
+    from benchmarks.probes.focus_choice_nearest import scenes_moved
+
+    last = list({(r["capture"], r["kind"]): r for r in rows}.values())
+    buf = io.StringIO()
+    with redirect_stdout(buf):
+        base = {(r["capture"], r["kind"]): x for r in last if (x := bench.rescored(r, "code", on_estimates=True))}
+        for which in ("nearest", "rest"):
+            var = [x for r in replaced(last, which) if (x := bench.rescored(r, "code", on_estimates=True))]
+            b = [base[(r["capture"], r["kind"])] for r in var]
+            m = scenes_moved(b, var)
+            n = lambda rs, f: sum(f(r) for r in rs)  # noqa: E731
+            det = lambda r: not r["frames_undetermined"]  # noqa: E731
+            print(f"\nthe untouched copy's errors at {'the nearest fitted frame only' if which == 'nearest' else 'every fitted frame but the nearest'} "
+                  f"({len(var)} sets): family right {n(b, lambda r: r['family_ok'])} -> {n(var, lambda r: r['family_ok'])}, "
+                  f"within 0.02 D {n(b, lambda r: r['kind'] != 'none' and det(r) and r['corrected_max_err_d'] <= 0.02)} -> "
+                  f"{n(var, lambda r: r['kind'] != 'none' and det(r) and r['corrected_max_err_d'] <= 0.02)}, claimed-wrong "
+                  f"{n(b, lambda r: r['kind'] != 'none' and det(r) and r['corrected_max_err_d'] > 0.02)} -> "
+                  f"{n(var, lambda r: r['kind'] != 'none' and det(r) and r['corrected_max_err_d'] > 0.02)}; scenes better "
+                  f"{m['scenes_better']}, worse {m['scenes_worse']} (sign test p = {m['sign_test_p']}): {json.dumps(m['scenes'])}")
+    return buf.getvalue()
+
+
 def left_out_at(row: dict, t: float) -> dict:
     """The row with every frame whose noise share is t or more counted as left out (`frames_noise_dominated`)."""
     share = row.get("frame_noise_share")
@@ -183,7 +238,7 @@ def main(argv: list[str] | None = None) -> int:
         if not f.is_file():
             ap.error(f"{f}: no such results file")
     rows = [json.loads(x) for f in a.results for x in f.read_text().splitlines() if x.strip()]
-    text = report(rows) + (variant(rows, a.leave_out_share) if a.leave_out_share else "")
+    text = report(rows) + bounds(rows) + (variant(rows, a.leave_out_share) if a.leave_out_share else "")
     print(text)
     if a.out:
         lo = f" --leave-out-share {' '.join(map(str, a.leave_out_share))}" if a.leave_out_share else ""
