@@ -6,6 +6,7 @@
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -514,3 +515,74 @@ def test_focus_dense_subset_plan_is_the_declared_rule():
     assert ds.moved_d({"robust": {"moved_d": [0.004, 0.03]}}) == 0.03
     assert ds.moved_d({"robust": {"anchors_d": [[1.0, 2.0]], "reanchored_d": [[1.02, 1.95]]}}) == pytest.approx(0.05)
     assert ds.moved_d({"robust": {"anchors_d": [[1.0, 2.0]]}}) == 0.0
+
+
+def test_focus_dense_subset_run_skips_only_commands_whose_sets_are_all_in_their_out(tmp_path):
+    """`focus_dense_subset.remaining`: a command's --sets not yet in its --out (all of them without an --out file), so
+    `--run` waits for the lane's lock only for commands with something left to run."""
+    from benchmarks.probes import focus_dense_subset as ds
+
+    out = tmp_path / "o.jsonl"
+    argv = ["--mode", "dense", "--out", str(out), "--", "--sets", "s1:none,s1:scale_1.1,s2:quantised"]
+    assert ds.remaining(argv) == ["s1:none", "s1:scale_1.1", "s2:quantised"]
+    out.write_text(json.dumps({"capture": "s1", "kind": "scale_1.1"}) + "\n" + json.dumps({"capture": "s2", "kind": "none"})
+                   + "\n")
+    assert ds.remaining(argv) == ["s1:none", "s2:quantised"]
+    out.write_text("".join(json.dumps({"capture": c, "kind": k}) + "\n"
+                           for c, k in (("s1", "none"), ("s1", "scale_1.1"), ("s2", "quantised"))))
+    assert ds.remaining(argv) == []
+
+
+def test_focus_start_invariance_step_mode_sets_the_sweeps_spacing(tmp_path, monkeypatch):
+    """`focus_start_invariance --mode step --step-d 0.03`: the benchmark runs with `fitters.focus_sweep`'s spacing
+    0.03 D (its other defaults kept), its own arguments and --out passed through."""
+    from aat_deploy.diagnose import fitters
+    from benchmarks import bench_diagnose_focus as bench
+    from benchmarks.probes import focus_start_invariance as si
+
+    monkeypatch.setattr(fitters.focus_sweep, "__defaults__", fitters.focus_sweep.__defaults__)  # restored after
+    seen = {}
+    monkeypatch.setattr(bench, "main", lambda: seen.update(defaults=fitters.focus_sweep.__defaults__, argv=list(sys.argv)))
+    rows = tmp_path / "r.jsonl"
+    rows.write_text(json.dumps({"capture": "s", "kind": "none"}) + "\n")
+    assert fitters.focus_sweep.__defaults__[0] == fitters.SWEEP_STEP_D == 0.06
+    si.main(["--mode", "step", "--step-d", "0.03", "--rows", str(rows), "--out", str(tmp_path / "o.jsonl"), "--",
+             "--fit-only", "--sets", "s:none"])
+    assert seen["defaults"] == (0.03, True, False)
+    assert seen["argv"][1:] == ["--fit-only", "--sets", "s:none", "--out", str(tmp_path / "o.jsonl")]
+
+
+def test_focus_misfit_by_frame_splits_each_sets_own_part_by_frame():
+    """`focus_misfit_by_frame`: a set's own part is its error less its untouched copy's at the frames both fitted,
+    ranked from the nearest fitted frame, with |reported - true| from its kind and its sign towards the reported focus;
+    `left_out_at` leaves out the frames at or over a noise share (rows without shares unchanged); `replaced` puts the
+    untouched copy's errors on the nearest fitted frame only, or on every other one."""
+    from benchmarks.probes import focus_misfit_by_frame as mf
+
+    true = np.array([1.6, 1.2, 0.8, 0.4])
+
+    def row(kind, err, share=None, dom=None):
+        est = true + np.nan_to_num(np.asarray(err, np.float64), nan=0.5)
+        fams = [{"family": "none", "k": 0, "true_d": [true.tolist()]}, {"family": "per_frame", "k": 4, "true_d": [est.tolist()]}]
+        return {"capture": "s", "kind": kind, "family": "none", "families": fams, "frame_err_d": list(err),
+                "corrected_err_d": [0.0] * 4, **({"frame_noise_share": share} if share else {}),
+                "frames_noise_dominated": dom or [False] * 4}
+
+    nan = float("nan")
+    un = row("none", [nan, 0.01, -0.01, 0.0])
+    off = row("offset_+0.10", [nan, 0.05, -0.02, 0.01], share=[0.6, 0.35, 0.1, 0.02], dom=[True, False, False, False])
+    parts = mf.own_parts([un, off])
+    assert [p["rank"] for p in parts] == [0, 1, 2]  # frame 0 fitted in neither: frame 1 is the nearest fitted
+    assert [p["own_d"] for p in parts] == pytest.approx([0.04, -0.01, 0.01])
+    assert [p["off_d"] for p in parts] == pytest.approx([0.1] * 3)
+    assert [p["toward_d"] for p in parts] == pytest.approx([0.04, -0.01, 0.01])  # reported nearer: + is towards it
+    assert [p["share"] for p in parts] == [0.35, 0.1, 0.02]
+    scale = row("scale_1.1", [nan, -0.03, 0.0, 0.0])  # reported further (fewer diopters): -0.04 D is towards it
+    p = mf.own_parts([un, scale])[0]
+    assert p["off_d"] == pytest.approx(1.2 - 1.2 / 1.1) and p["toward_d"] == pytest.approx(0.04)
+    assert mf.left_out_at(off, 0.3)["frames_noise_dominated"] == [True, True, False, False]
+    assert mf.left_out_at(un, 0.3) is un
+    near = next(f for f in mf.replaced([un, off], "nearest")[1]["families"] if f["family"] == "per_frame")["true_d"][0]
+    rest = next(f for f in mf.replaced([un, off], "rest")[1]["families"] if f["family"] == "per_frame")["true_d"][0]
+    assert near == pytest.approx([2.1, 1.21, 0.78, 0.41])
+    assert rest == pytest.approx([2.1, 1.25, 0.79, 0.4])
