@@ -74,6 +74,32 @@ def test_patched_changes_the_model_constants_for_the_block_alone():
     assert M.EDGE_POWER == before[1]
 
 
+
+def test_patched_changes_the_formats_limits_too_for_the_block_alone():
+    """The declared option "radial to 20" (docs/calibration.md): `format.NAME` keys patch aat_deploy.calibrate.format,
+    the others the model, and both are restored after the block, also when it raises."""
+    from aat_deploy.calibrate import format as F
+    from aat_deploy.calibrate import model as M
+
+    before = (M.RADIAL, F.MAX_DEGREE, F.MAX_TERMS)
+    with E.patched(E.OPTIONS["radial to 20"]):
+        assert (M.RADIAL, F.MAX_DEGREE, F.MAX_TERMS) == ((0, 8, 12, 16, 20), 20, 128)
+        assert not hasattr(M, "format.MAX_DEGREE")
+    assert (M.RADIAL, F.MAX_DEGREE, F.MAX_TERMS) == before
+    with pytest.raises(RuntimeError), E.patched(E.OPTIONS["radial to 20"]):
+        raise RuntimeError
+    assert (M.RADIAL, F.MAX_DEGREE, F.MAX_TERMS) == before
+
+
+def test_patched_bench_refuses_an_unknown_option_or_no_bench_arguments(capsys):
+    from benchmarks.probes import patched_bench as PB
+
+    for argv, says in ((["--option", "nope", "--", "--parts", "map"], "not of"), (["--option", "radial to 20"],
+                                                                                   "after --")):
+        with pytest.raises(SystemExit):
+            PB.main(argv)
+        assert says in capsys.readouterr().err.strip().splitlines()[-1]
+
 def test_design_counts_its_columns_and_reaches_a_radial_power_only_when_it_holds_it():
     """`_design`: degree 6's 27 monomials (no constant) x 3 Legendre terms, rho^8..12 x 4 (the edge powers' cubic),
     3 on-axis terms = 96 (the fit's largest); a field rho^16 t is fitted exactly by the basis to rho^16 and not by
