@@ -1,9 +1,9 @@
 """The phone's middle field (field radius 0.33-0.5): model misfit or tile measurement, and what the measurement's
--0.025 D is (issue 33; docs/calibration.md, "The middle field's bias").
+-0.025 D is (issue 33; docs/calibration.md, "The middle field's bias, and radial powers beyond rho^12").
 
     OMP_NUM_THREADS=1 python -m benchmarks.probes.middle_field --truth results/render_truth_map_cellphone_19p.json \
         [--variants nominal,copy,copy_s2026_0,copy_s2026_1,copy_s2026_2] \
-        [--alt "name=results/map.json;..."] [--square-planes 5,6,...,18 --square-draws 6] \
+        [--alt "name=results/map.json;..."] [--square-planes 5,6,...,18 --square-draws 6] [--renders 0.07,0.1] \
         --out results/middle_field.json
 
 bench_calibrate's `cellphone_near` development sweeps only (the nominal lens, the hand-chosen copy and the declared
@@ -34,6 +34,13 @@ plane) unless it says frame.
    tiles against annuli, the same texture, frames and render), and the plane minus the `--truth` map at the tile
    for its peak (object D: the tile measurement of part 2 without the chart's tilt, noise and marker layout).
    Cached under cache/middle_field/.
+4. **The chart's renders** (`--renders`, the nominal lens's charts, m): each chart as swept (noisy, bench_calibrate's
+   cache) and as `tile_bias --renders` rendered it again (noise-free; depth layers 4 x finer; frames twice as dense;
+   the chart square to the camera; its cache, rendered when missing), the counted tiles' measurement against
+   `--truth` and each `--alt`, read linearly and by the cubic: which of the chart sweeps' differences from the
+   square noise-free planes carries what is left once the texture and the ruler's reading are taken out.
+5. With `--alt`: each alt map's annuli against `--truth` at the same frames (`annuli_against`), and every map's
+   radial reading checked on its own points (`radial_check`).
 """
 
 from __future__ import annotations
@@ -352,6 +359,57 @@ def square_planes(planes: list[float], draws: int, truth_path: str, log) -> dict
                 for od in planes}}
 
 
+def renders(charts: list[float], truth_path: str, alts: dict, log) -> dict:
+    """The nominal lens's charts as swept (noisy, the cache of bench_calibrate) and as `tile_bias` rendered them again
+    (its RENDERS: noise-free; finer depth layers; frames twice as dense; the chart square), their counted tiles'
+    measurement (rendered object minus a ruler at the tile for its peak) against --truth and the --alt maps, each
+    read linearly and by the cubic in radius."""
+    from aat_deploy.calibrate.sweep import measure_sweep
+    from benchmarks import bench_calibrate as B
+    from benchmarks.probes import chart_texture as CT
+    from benchmarks.probes import tile_bias as TB
+    from benchmarks.render_truth_map import load
+
+    rig, v = CT.rig_for(B.Rig(B.LENSES["cellphone_near"], truth=truth_path), "soft leaves", "nominal")
+    s = rig.setup
+    eff = B.effects_for(s, v)
+    aspect = rig.w / rig.h
+    maps = {"--truth": rig.truth_map, **{k: load(p) for k, p in alts.items()}}
+    rulers = {}
+    for k, m in maps.items():
+        rulers[k] = TB.Truth(_with(rig, m), eff, 1.0)
+        rulers[f"{k}, read cubic in radius"] = TB.Truth(_with(rig, CubicRadial(m)), eff, 1.0)
+    rows = {}
+    for d in charts:
+        if d not in s.distances_m:
+            raise SystemExit(f"middle_field: --renders {d:g}: not a chart of cellphone_near ({s.distances_m})")
+        i = s.distances_m.index(d)
+        sw = B.sweep(rig, v, i, log)
+        _, depth, _ = TB.rendered_scene(rig, i)
+        hows = {"noisy (as swept)": (sw, 1.0 / depth.astype(np.float64))}
+        for name, how in TB.RENDERS.items():
+            rs = TB.render_sweep(rig, i, how, log)
+            hows[name] = (rs, rs["inv_depth"])
+        for name, (sweep, inv) in hows.items():
+            m = measure_sweep(B.as_sweep(rig, sweep, v), sweep["layout"], distance_m=d, measure=rig.measure,
+                              prefilter_px=rig.prefilter_px)
+            t = TB.tiles(m, inv, rulers["--truth"], aspect)
+            for rk, ru in rulers.items():
+                meas = t["object_true_d"] - ru.at(t["x"], t["y"], t["reported_d"])
+                rows.setdefault(name, {}).setdefault(rk, []).append(np.column_stack([t["r"], meas]))
+        log(f"  {d:g} m: {len(hows)} renders measured")
+    out = {}
+    for name, per in rows.items():
+        out[name] = {rk: _bins(np.concatenate(v)[:, 0], np.concatenate(v)[:, 1]) for rk, v in per.items()}
+    return {"charts_m": charts, "lens": "nominal", "measurement": out}
+
+
+def _with(rig, tmap):
+    r = copy.copy(rig)
+    r.truth_map = tmap
+    return r
+
+
 def table(res: dict) -> str:
     bins = [f"{lo:g}-{hi:g}" for lo, hi in zip(EDGES[:-1], EDGES[1:])]
     out = ["| variant | map (mean / RMS of map minus truth, D) | within | " + " | ".join(bins) + " |",
@@ -378,6 +436,12 @@ def table(res: dict) -> str:
                 "|---|" + "---|" * len(radii)]
         for k, a in ann.items():
             out.append(f"| {k} | " + " | ".join(f"{a[x]['mean_d']:+.3f}" if x in a else "-" for x in radii) + " |")
+    if "renders" in res:
+        out += ["", "| nominal chart renders: tile measurement against (mean, D) | " + " | ".join(bins) + " | all |",
+                "|---|" + "---|" * (len(bins) + 1)]
+        for name, per in res["renders"]["measurement"].items():
+            for rk, b in per.items():
+                out.append(f"| {name}; {rk} | " + " | ".join(f(b[x]) for x in bins) + f" | {f(b['all'])} |")
     if "square" in res:
         sq = res["square"]
         out += ["", "| square leaves planes (nominal, noise-free) | " + " | ".join(bins) + " | all |",
@@ -399,6 +463,8 @@ def main(argv=None) -> int:
     ap.add_argument("--alt", default="", help="other rulers for the measurement: name=map;name=map")
     ap.add_argument("--square-planes", default="", help="square leaves planes (object D) to render, the nominal lens")
     ap.add_argument("--square-draws", type=int, default=6)
+    ap.add_argument("--renders", default="", help="the nominal lens's charts (m) measured as swept and as tile_bias "
+                    "rendered them again (its cache; rendered when missing)")
     ap.add_argument("--out", required=True)
     a = ap.parse_args(argv)
     if Path(a.out).exists():
@@ -415,8 +481,12 @@ def main(argv=None) -> int:
         planes = [float(v) for v in a.square_planes.split(",") if v]
     except ValueError:
         ap.error(f"--square-planes {a.square_planes!r}: object diopters, comma-separated")
-    if not variants and not planes and not alts:
-        ap.error("nothing to run: --variants, --square-planes and --alt are all empty")
+    try:
+        charts = [float(v) for v in a.renders.split(",") if v]
+    except ValueError:
+        ap.error(f"--renders {a.renders!r}: chart distances in m, comma-separated")
+    if not variants and not planes and not alts and not charts:
+        ap.error("nothing to run: --variants, --square-planes, --alt and --renders are all empty")
     load_or_exit(a.truth, "middle_field")
     log = lambda m: print(m, file=sys.stderr, flush=True)
     res = {"what": __doc__.split("\n")[0], "truth": a.truth, "alts": alts,
@@ -426,6 +496,8 @@ def main(argv=None) -> int:
     res["annuli_against_truth"] = {k: annuli_against(load(p), load(a.truth)) for k, p in alts.items()}
     if planes:
         res["square"] = square_planes(planes, a.square_draws, a.truth, log)
+    if charts:
+        res["renders"] = renders(charts, a.truth, alts, log)
     write_text_atomic(a.out, json.dumps(res, indent=1, default=float))
     print(table(res))
     return 0
