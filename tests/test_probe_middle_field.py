@@ -39,6 +39,8 @@ def test_the_cubic_reading_reproduces_a_field_cubic_in_radius_and_the_linear_doe
     lin = m.object_d(r, f)
     cub = mf.CubicRadial(m).object_d(r, f)
     assert np.abs(cub - want).max() < 1e-6  # the map stores its points to 1e-6 D
+    val, measured = mf.CubicRadial(m).evaluate(r, f)  # what bench_calibrate's part a reads (Rig.truth_measured)
+    assert np.array_equal(val, cub) and np.array_equal(measured, m.evaluate(r, f)[1])
     between = np.abs(((r - 0.025) / 0.05) % 1 - 0.5) < 0.4  # away from the annuli's mids
     assert np.abs(lin - want)[between].max() > 1e-3  # the linear reading misses a curved field between mids
     # the mean of two maps

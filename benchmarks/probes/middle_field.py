@@ -84,6 +84,10 @@ class CubicRadial:
     def __init__(self, m):
         self.m = m
 
+    def evaluate(self, radius, frame_d) -> tuple[np.ndarray, np.ndarray]:
+        """(object_d, measured): the cubic reading, and where the map says its points bracket the point."""
+        return self.object_d(radius, frame_d), self.m.evaluate(radius, frame_d)[1]
+
     def object_d(self, radius, frame_d) -> np.ndarray:
         radius = np.asarray(radius, np.float64).ravel()
         frame_d = np.asarray(frame_d, np.float64).ravel()
@@ -404,6 +408,28 @@ def renders(charts: list[float], truth_path: str, alts: dict, log) -> dict:
     return {"charts_m": charts, "lens": "nominal", "measurement": out}
 
 
+def part_a_rulers(variant: str, truth_path: str, log) -> dict:
+    """Part a of the fit as part a makes it (`bench_calibrate.map_errors`, inside) against --truth read as the
+    benchmark reads it (linearly between annuli) and read by the cubic through four annuli (`CubicRadial`): how much
+    of part a is the ruler's radial reading. Not a change of the benchmark's truth."""
+    from benchmarks import bench_calibrate as B
+    from benchmarks.probes import chart_texture as CT
+    from benchmarks.probes import phone_map_budget as P
+
+    rig, v = CT.rig_for(B.Rig(B.LENSES["cellphone_near"], truth=truth_path), "soft leaves", variant)
+    eff, _, _, _, res = P.development_fit(rig, v, log)
+    inside = rig.setup.inside()
+    keys = ("rms_d", "p95_d", "within_tiles_rms_d", "radius_rms_d")
+    out = {}
+    for name, r in (("linear, the benchmark's", rig), ("cubic in radius", _with(rig, CubicRadial(rig.truth_map)))):
+        e = B.map_errors(r, res.calibration, eff, inside)["calibration"]
+        out[name] = {k: e[k] for k in keys if k in e}
+    lin = out["linear, the benchmark's"]
+    log(f"{variant}: part a {lin['rms_d']:.4f} D read linearly, "
+        f"{out['cubic in radius']['rms_d']:.4f} D read by the cubic")
+    return out
+
+
 def _with(rig, tmap):
     r = copy.copy(rig)
     r.truth_map = tmap
@@ -463,6 +489,8 @@ def main(argv=None) -> int:
     ap.add_argument("--alt", default="", help="other rulers for the measurement: name=map;name=map")
     ap.add_argument("--square-planes", default="", help="square leaves planes (object D) to render, the nominal lens")
     ap.add_argument("--square-draws", type=int, default=6)
+    ap.add_argument("--part-a", action="store_true", help="with --variants: part a against --truth read linearly "
+                    "and by the cubic in radius (instead of the split)")
     ap.add_argument("--renders", default="", help="the nominal lens's charts (m) measured as swept and as tile_bias "
                     "rendered them again (its cache; rendered when missing)")
     ap.add_argument("--out", required=True)
@@ -491,7 +519,9 @@ def main(argv=None) -> int:
     log = lambda m: print(m, file=sys.stderr, flush=True)
     res = {"what": __doc__.split("\n")[0], "truth": a.truth, "alts": alts,
            "command": "python -m benchmarks.probes.middle_field " + " ".join(argv if argv is not None else sys.argv[1:]),
-           "variants": [run_variant(v, a.truth, alts, log) for v in variants]}
+           "variants": [] if a.part_a else [run_variant(v, a.truth, alts, log) for v in variants]}
+    if a.part_a:
+        res["part_a"] = {v: part_a_rulers(v, a.truth, log) for v in variants}
     res["radial_check"] = {k: radial_check(load(p)) for k, p in {"--truth": a.truth, **alts}.items()}
     res["annuli_against_truth"] = {k: annuli_against(load(p), load(a.truth)) for k, p in alts.items()}
     if planes:
