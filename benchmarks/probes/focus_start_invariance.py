@@ -26,6 +26,9 @@ eleventh round's scene 3303 and its like), rerun through the first-round focus f
   included, the interpolation between the sweep's focus distances? (The sweep's range, hence its grid, is the same
   for every set of a scene whose nearest and furthest reported focus lie within `SWEEP_MARGIN_D` of the model's focus
   range: so an interpolation error is shared, not a part that depends on the metadata.)
+- `fullwell`: the focus twin's full well fixed at `--full-well-e` electrons (an oracle: the noise the captures were
+  rendered with, 8000 e- by `aat-render`'s default) instead of fitted against the expected floor
+  (`fitters.full_well_on_floor`): is the shared pattern the noise floor at a misfitted full well?
 
 Then `--summary` prints, per rerun set, its errors against the stored row's and the untouched copy's (the
 coefficient on the untouched errors: 1 is the untouched pattern, the stored rows' coefficient beside it), and what
@@ -121,12 +124,13 @@ def tally(rerun: list[dict], stored: list[dict]) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--mode", choices=("start", "reanchor", "near", "refit", "dense", "step"))
+    ap.add_argument("--mode", choices=("start", "reanchor", "near", "refit", "dense", "step", "fullwell"))
     ap.add_argument("--dense-d", type=float, default=0.01, help="with --mode dense: the anchors' step (D)")
     ap.add_argument("--dense-steps", type=int, default=2, help="with --mode dense: steps either side")
     ap.add_argument("--dense-moved-d", type=float, default=0.0, help="with --mode dense: only where some frame's "
                     "first estimate lies this far (D) from its reported focus (anchors.DENSE_MOVED_D)")
     ap.add_argument("--step-d", type=float, default=0.03, help="with --mode step: the sweep's spacing (D)")
+    ap.add_argument("--full-well-e", type=float, default=8000.0, help="with --mode fullwell: the full well (e-)")
     ap.add_argument("--near-d", type=float, default=0.002, help="with --mode near: the reported focus's offset (D)")
     ap.add_argument("--rows", type=Path, nargs="+", required=True, help="the stored rows of the sets (and their "
                     "untouched copies; several files: a set's last row)")
@@ -179,6 +183,10 @@ def main(argv: list[str] | None = None) -> int:
 
         d = fitters.focus_sweep.__defaults__
         fitters.focus_sweep.__defaults__ = (a.step_d, *d[1:])  # its step is a default argument, bound at import
+    elif a.mode == "fullwell":
+        from aat_deploy.diagnose import fitters
+
+        fitters.full_well_on_floor = lambda d, fw0: (a.full_well_e, {"oracle_full_well_e": a.full_well_e})
     elif a.mode == "near":
         bench.reported_d = lambda kind, true_d, k: np.asarray(true_d, np.float64) + a.near_d
     else:
