@@ -586,3 +586,20 @@ def test_focus_misfit_by_frame_splits_each_sets_own_part_by_frame():
     rest = next(f for f in mf.replaced([un, off], "rest")[1]["families"] if f["family"] == "per_frame")["true_d"][0]
     assert near == pytest.approx([2.1, 1.21, 0.78, 0.41])
     assert rest == pytest.approx([2.1, 1.25, 0.79, 0.4])
+
+
+def test_focus_start_invariance_fullwell_mode_fixes_the_focus_twins_full_well(tmp_path, monkeypatch):
+    """`focus_start_invariance --mode fullwell --full-well-e 8000`: the benchmark runs with `fitters.full_well_on_floor`
+    answering 8000 e- whatever the sweep (the focus twin's ratio then makes its floor 8000 e-'s)."""
+    from aat_deploy.diagnose import fitters
+    from benchmarks import bench_diagnose_focus as bench
+    from benchmarks.probes import focus_start_invariance as si
+
+    monkeypatch.setattr(fitters, "full_well_on_floor", fitters.full_well_on_floor)  # restored after
+    seen = {}
+    monkeypatch.setattr(bench, "main", lambda: seen.update(fw=fitters.full_well_on_floor(None, 5000.0)))
+    rows = tmp_path / "r.jsonl"
+    rows.write_text(json.dumps({"capture": "s", "kind": "none"}) + "\n")
+    si.main(["--mode", "fullwell", "--full-well-e", "8000", "--rows", str(rows), "--out", str(tmp_path / "o.jsonl"),
+             "--", "--fit-only", "--sets", "s:none"])
+    assert seen["fw"][0] == 8000.0 and seen["fw"][1] == {"oracle_full_well_e": 8000.0}
