@@ -57,23 +57,11 @@ import numpy as np
 
 from aat_deploy.io.atomic import write_text_atomic
 from benchmarks import ROOT
+from benchmarks.probes.tile_bias import EDGES, _bins  # tile_bias's radius bins, to the farthest tile (0.92)
 
 CACHE = ROOT / "cache" / "middle_field"
-EDGES = (0.0, 0.33, 0.5, 0.66, 0.75, 0.84, 0.92)  # tile_bias's bins, to the farthest tile (0.92)
 MIDDLE = (0.33, 0.5)
 TILE_PX = 27  # the fit's tiles on the phone's 640 x 480 (bench_calibrate)
-
-
-def _bins(r: np.ndarray, v: np.ndarray) -> dict:
-    out = {}
-    for lo, hi in zip(EDGES[:-1], EDGES[1:]):
-        m = (r >= lo) & (r < hi if hi < EDGES[-1] else r <= hi) & np.isfinite(v)
-        out[f"{lo:g}-{hi:g}"] = {"n": int(m.sum()), "mean_d": float(v[m].mean()) if m.any() else None,
-                                 "sd_d": float(v[m].std()) if m.any() else None}
-    ok = np.isfinite(v)
-    out["all"] = {"n": int(ok.sum()), "mean_d": float(v[ok].mean()) if ok.any() else None,
-                  "rms_d": float(np.sqrt(np.mean(v[ok] ** 2))) if ok.any() else None}
-    return out
 
 
 class CubicRadial:
