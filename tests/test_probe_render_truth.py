@@ -53,3 +53,22 @@ def test_the_bootstrap_se_falls_as_one_over_root_n():
         se[n] = q["se_object_d"]
         assert 0.5 < se[n] / (sd / np.sqrt(n)) < 1.6, (n, se[n])
     assert se[64] < se[4] / 2.5
+
+
+def test_ring_means_averages_each_annulus_and_leaves_empty_ones_nan():
+    import numpy as np
+
+    from aat_deploy.calibrate.format import field_grid, field_radius_of
+    from benchmarks.probes.render_truth import ring_means
+
+    h, w = 24, 32
+    gx, gy = field_grid(h, w)
+    rad = field_radius_of(gx, gy, w / h)
+    vol = np.stack([rad, 2.0 * rad + 1.0])  # two frames whose value is known at every pixel
+    edges = (0.0, 0.5, 1.01, 2.0)  # the last annulus lies beyond the frame's corner (radius 1)
+    got = ring_means(vol, edges)
+    assert got.shape == (3, 2)
+    inner = rad < 0.5
+    assert np.allclose(got[0], [rad[inner].mean(), (2.0 * rad[inner] + 1.0).mean()])
+    assert np.allclose(got[1], [rad[~inner].mean(), (2.0 * rad[~inner] + 1.0).mean()])
+    assert np.isnan(got[2]).all()

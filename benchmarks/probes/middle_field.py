@@ -266,7 +266,6 @@ def square_draw(od: float, seed: int, log) -> dict:
     if path.exists():
         with np.load(path) as z:
             return {k: z[k] for k in z.files}
-    from aat_deploy.calibrate.format import field_grid, field_radius_of
     from aat_deploy.calibrate.peaks import TileGrid
     from aat_deploy.focus import FocusConfig
     from aat_deploy.focus.measures import focus_volume
@@ -280,14 +279,7 @@ def square_draw(od: float, seed: int, log) -> dict:
     fr = render(f"shoot{setup.cell_px}", lens, rgb, 1.0 / od, 1.0 / fd, ROOT / setup.psf)
     cfg = FocusConfig()
     vol = focus_volume(fr / max(float(fr.max()), 1e-12), cfg.measure, cfg.window_px, prefilter_px=cfg.prefilter_px)
-    gx, gy = field_grid(h, w)
-    rad = field_radius_of(gx, gy, w / h)
-    edges = np.asarray(setup.r_edges)
-    rings = np.full((edges.size - 1, fd.size), np.nan)
-    for k, (lo, hi) in enumerate(zip(edges[:-1], edges[1:])):
-        m = (rad >= lo) & (rad < hi)
-        if m.any():
-            rings[k] = vol[:, m].mean(1)
+    rings = RT.ring_means(vol, setup.r_edges)
     tiles = TileGrid(h, w, TILE_PX).mean(vol)
     d = {"frames_d": fd, "rings": rings, "tiles": tiles}
     CACHE.mkdir(parents=True, exist_ok=True)

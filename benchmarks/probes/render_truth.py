@@ -110,9 +110,25 @@ def texture(setup: Setup, h: int, w: int, od: float, seed: int) -> np.ndarray:
     raise SystemExit(f"--texture {setup.texture}: photos or leaves")
 
 
+def ring_means(vol: np.ndarray, r_edges) -> np.ndarray:
+    """(S, H, W) focus volume -> (len(r_edges) - 1, S): its mean over each field-radius annulus [lo, hi) (NaN where an
+    annulus holds no pixel); radius as `field_radius_of` (1 at the frame's corner)."""
+    from aat_deploy.calibrate.format import field_grid, field_radius_of
+
+    s, h, w = vol.shape
+    gx, gy = field_grid(h, w)
+    rad = field_radius_of(gx, gy, w / h)
+    edges = np.asarray(r_edges)
+    out = np.full((edges.size - 1, s), np.nan)
+    for k, (lo, hi) in enumerate(zip(edges[:-1], edges[1:])):
+        m = (rad >= lo) & (rad < hi)
+        if m.any():
+            out[k] = vol[:, m].mean(1)
+    return out
+
+
 def ring_curves(setup: Setup, od: float, seed: int) -> dict:
     """One draw of the plane at od: the measure's mean per annulus and frame, (R, S), and the frames' focus."""
-    from aat_deploy.calibrate.format import field_grid, field_radius_of
     from aat_deploy.focus import FocusConfig
     from aat_deploy.focus.measures import focus_volume
     from benchmarks.probes.truth_renderer import render
@@ -126,14 +142,7 @@ def ring_curves(setup: Setup, od: float, seed: int) -> dict:
                 None if setup.psf is None else ROOT / setup.psf)
     cfg = FocusConfig()
     vol = focus_volume(fr / max(float(fr.max()), 1e-12), cfg.measure, cfg.window_px, prefilter_px=cfg.prefilter_px)
-    gx, gy = field_grid(h, w)
-    rad = field_radius_of(gx, gy, w / h)
-    edges = np.asarray(setup.r_edges)
-    curves = np.full((edges.size - 1, fd.size), np.nan)
-    for k, (lo, hi) in enumerate(zip(edges[:-1], edges[1:])):
-        m = (rad >= lo) & (rad < hi)
-        if m.any():
-            curves[k] = vol[:, m].mean(1)
+    curves = ring_means(vol, setup.r_edges)
     return {"frames_d": fd, "curves": curves, "cpu_s": time.process_time() - t0, "wall_s": time.time() - w0}
 
 
