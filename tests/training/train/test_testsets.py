@@ -128,3 +128,10 @@ def test_a_lens_file_corrected_in_place_is_refused_for_the_middlebury_item(small
     lens.write_text(lens.read_text() + " ")
     with pytest.raises(ValueError, match=r"rendered from lens .*lens.json.*fresh --cache"):
         load_test_set(spec, str(tmp_path / "c"), progress=False)
+
+
+def test_registry_scenes_change_the_key_only_when_asked_for():
+    base = TestSetSpec("lenses/canon_rf50mm_f1.8.json", "models/psf_rf50.onnx", 8)
+    assert TestSetSpec("lenses/canon_rf50mm_f1.8.json", "models/psf_rf50.onnx", 8, registry_real=()).key() == base.key()
+    assert TestSetSpec("lenses/canon_rf50mm_f1.8.json", "models/psf_rf50.onnx", 8,
+                       registry_real=("aloe",)).key() != base.key()
