@@ -41,6 +41,14 @@ EXTRA_CHANNELS = 2
 # border: do the nets fail on whole frames because zero padding does? (docs/training.md)
 CONFIGS = {"small": replace(DFVNET_CONFIGS["small"], context_fuse=62)}
 CONFIGS["small_replicate"] = replace(CONFIGS["small"], pad_mode="replicate")
+# "<size>_x": the same net with `EndExtrapolation` after its head, so a pixel can be placed beyond its own frames
+EXTRAPOLATING = "_x"
+SIZES = (*CONFIGS, *(k + EXTRAPOLATING for k in CONFIGS))
+
+
+def base_size(size: str) -> str:
+    """The DFVNet configuration a size names ("small_replicate_x" -> "small_replicate")."""
+    return size.removesuffix(EXTRAPOLATING)
 
 
 def focus_channels(focus_diopters: Tensor, defocus_px_per_d: Tensor) -> Tensor:
@@ -69,12 +77,47 @@ def softmax_frames(logits: Tensor) -> Tensor:
     return e / e.sum(1, keepdim=True)
 
 
-def focus_map_head(logits: Tensor, stack: Tensor | None, focus_diopters: Tensor
-                   ) -> tuple[Tensor, Tensor | None, Tensor, Tensor]:
-    """logits (B, S, H, W), stack (B, S, 3, H, W) or None, focus_diopters (B, S, H, W) ->
-    depth_m (B, H, W), aif (B, 3, H, W) or None, std_m (B, H, W), diopters (B, H, W)."""
+class EndExtrapolation(nn.Module):
+    """How far beyond its end frames a pixel lies, in units of the end frames' spacing, from the shape of its focus
+    curve there: logits (B, S, H, W) sorted near -> far -> (e_near, e_far), each (B, H, W) >= 0.
+
+    A convex combination of the frames' diopters cannot leave [D_far, D_near] at a pixel, yet 19-26 % of the training
+    pixels lie beyond their own frames (few frames at one end of a sweep, field curvature), with an error floor of
+    3.8 frame spacings (docs/training.md, "Out-of-range pixels"). If the focus curve still rises at an end frame,
+    the peak lies beyond it, farther the steeper the rise (a Gaussian-like curve in log: the slope between the last
+    two frames grows linearly with the peak's distance). Inputs per end: the two last logit steps and the end
+    logit's margin over the log-sum-exp (how much of the weight the end frame holds); a 1x1 MLP, softplus. Its
+    last bias starts at -6 (e ~ 0.0025): the head starts as the interpolating one."""
+
+    def __init__(self, hidden: int = 8):
+        super().__init__()
+        self.mlp = nn.ModuleList(nn.Sequential(nn.Conv2d(3, hidden, 1), nn.ReLU(), nn.Conv2d(hidden, 1, 1))
+                                 for _ in range(2))
+        for m in self.mlp:
+            nn.init.zeros_(m[2].weight)
+            nn.init.constant_(m[2].bias, -6.0)
+
+    def forward(self, logits: Tensor) -> tuple[Tensor, Tensor]:
+        lse = torch.logsumexp(logits, 1)
+        out = []
+        for mlp, (a, b, c) in zip(self.mlp, ((0, 1, 2), (-1, -2, -3))):
+            x = torch.stack([logits[:, a] - logits[:, b], logits[:, b] - logits[:, c], logits[:, a] - lse], 1)
+            out.append(F.softplus(mlp(x))[:, 0])
+        return out[0], out[1]
+
+
+def focus_map_head(logits: Tensor, stack: Tensor | None, focus_diopters: Tensor,
+                   extrapolation: EndExtrapolation | None = None) -> tuple[Tensor, Tensor | None, Tensor, Tensor]:
+    """logits (B, S, H, W), stack (B, S, 3, H, W) or None, focus_diopters (B, S, H, W) sorted near -> far ->
+    depth_m (B, H, W), aif (B, 3, H, W) or None, std_m (B, H, W), diopters (B, H, W). With `extrapolation`, the
+    weight p_0 of the nearest frame is moved e_near end spacings nearer and p_S-1 e_far spacings farther."""
     p = softmax_frames(logits)
     d = (p * focus_diopters).sum(1)
+    if extrapolation is not None:
+        e_near, e_far = extrapolation(logits)
+        gap_near = (focus_diopters[:, 0] - focus_diopters[:, 1]).abs()
+        gap_far = (focus_diopters[:, -2] - focus_diopters[:, -1]).abs()
+        d = d + p[:, 0] * e_near * gap_near - p[:, -1] * e_far * gap_far
     depth = 1.0 / d.clamp_min(MIN_DIOPTERS)
     frame_m = 1.0 / focus_diopters.clamp_min(MIN_DIOPTERS)
     var = (p * (frame_m - depth[:, None]) ** 2).sum(1)
@@ -131,12 +174,14 @@ class FocusMapDfF(nn.Module):
 
     name = NET_NAME
     field_channels = 0
+    HEAD_PREFIX = "extrap."  # the "_x" sizes' tensors beyond the base size's (training.nets.warm_start)
 
     def __init__(self, size: str = "small"):
         super().__init__()
         self.size = size
-        self.net = ConditionedDFVNet(CONFIGS[size], EXTRA_CHANNELS)
+        self.net = ConditionedDFVNet(CONFIGS[base_size(size)], EXTRA_CHANNELS)
         self.size_multiple = int(self.net.size_multiple)
+        self.extrap = EndExtrapolation() if size.endswith(EXTRAPOLATING) else None
 
     @property
     def n_params(self) -> int:
@@ -144,7 +189,7 @@ class FocusMapDfF(nn.Module):
 
     def levels(self, stack: Tensor, focus_diopters: Tensor, defocus_px_per_d: Tensor) -> list[tuple]:
         dk, lk = (t.to(stack.dtype) for t in cond_inputs(focus_diopters, defocus_px_per_d))
-        return [focus_map_head(lg, stack if i == 0 else None, focus_diopters)
+        return [focus_map_head(lg, stack if i == 0 else None, focus_diopters, self.extrap)
                 for i, lg in enumerate(self.net(stack, dk, lk))]
 
     def forward(self, stack: Tensor, focus_diopters: Tensor, defocus_px_per_d: Tensor, all_levels: bool = False):

@@ -233,6 +233,25 @@ def same_tensors(model: nn.Module, net: str, size: str) -> bool:
     return other.keys() == mine.keys() and all(other[k].shape == mine[k].shape for k in mine)
 
 
+def adds_only_a_head(model: nn.Module, net: str, size: str) -> bool:
+    """Whether `model` is a `net` of `size` plus tensors of a new head only: every tensor of the other is the
+    model's, same shape, and every extra one is under `model.HEAD_PREFIX` (training.nets.dfvaat's "_x" sizes)."""
+    prefix = getattr(model, "HEAD_PREFIX", None)
+    if prefix is None:
+        return False
+    from training.nets.model import build_model
+    from training.nets.registry import UnknownNet
+
+    try:
+        other = build_model(net, size, getattr(model, "field_channels", 0)).state_dict()
+    except (UnknownNet, KeyError, ValueError):
+        return False
+    mine = model.state_dict()
+    extra = mine.keys() - other.keys()
+    return (other.keys() <= mine.keys() and all(other[k].shape == mine[k].shape for k in other)
+            and bool(extra) and all(k.startswith(prefix) for k in extra))
+
+
 def init_model(model: DfFNet, path, dataset=None, n_items: int = 8) -> dict:
     """Load `path` (.onnx from training.nets.export, or a model.pt / last.pt checkpoint) into `model`, which must
     be the same net and size, or a size with the same tensors (`same_tensors`). ONNX: folded BatchNorms are recalibrated on the first `n_items` of `dataset`
@@ -241,7 +260,8 @@ def init_model(model: DfFNet, path, dataset=None, n_items: int = 8) -> dict:
     if not path.is_file():
         raise InitError(f"{path}: no such --init file")
     net, size = init_kind(path)
-    if net != model.name or (size != model.size and not same_tensors(model, net, size)):
+    grows = net == model.name and path.suffix.lower() != ".onnx" and adds_only_a_head(model, net, size)
+    if net != model.name or (size != model.size and not same_tensors(model, net, size) and not grows):
         raise InitError(f"{path}: is a {net or '?'} {size or '?'} model; the run trains a {model.name} {model.size}")
     if size != model.size and path.suffix.lower() == ".onnx":  # its padding is in the graph, not in the weights
         raise InitError(f"{path}: an ONNX file starts only a {size} net (its padding is part of the graph); start the "
@@ -254,6 +274,9 @@ def init_model(model: DfFNet, path, dataset=None, n_items: int = 8) -> dict:
     if path.suffix.lower() != ".onnx":
         from training.train.checkpoint import load
 
+        if grows:  # the new head keeps its own initialisation (which starts it as the old head)
+            missing = model.load_state_dict(load(path)["model"], strict=False).missing_keys
+            return {"init": str(path), "kind": "checkpoint", "new_tensors": len(missing)}
         model.load_state_dict(load(path)["model"])
         return {"init": str(path), "kind": "checkpoint"}
     from training.nets.export import parity

@@ -157,3 +157,83 @@ def test_tile_px_follows_the_padding():
     untested = build("small")
     untested.net.cfg = replace(untested.net.cfg, pad_mode="reflect")
     assert tile_px_for(untested, data) == 256
+
+
+# the extrapolating head ("_x" sizes): a pixel may be placed beyond its own frames
+
+
+def _end_weights(m, a_near: float, a_far: float):
+    """EndExtrapolation whose outputs are softplus(a * (l_end - l_next)): hand-checkable."""
+    for mlp, a in zip(m.mlp, (a_near, a_far)):
+        with torch.no_grad():
+            mlp[0].weight.zero_(), mlp[0].bias.zero_()
+            mlp[0].weight[0, 0, 0, 0] = 1.0  # hidden 0 = relu(l_end - l_next)
+            mlp[2].weight.zero_(), mlp[2].bias.zero_()
+            mlp[2].weight[0, 0, 0, 0] = a
+
+
+def test_extrapolation_moves_an_end_frames_weight_beyond_it_by_hand():
+    from training.nets.dfvaat import EndExtrapolation
+
+    ex = EndExtrapolation()
+    _end_weights(ex, 1.0, 2.0)
+    fd = torch.tensor([3.0, 2.0, 1.5, 1.0])[None, :, None, None]  # near -> far; end gaps 1.0 and 0.5 D
+    # all weight on the nearest frame, its logit 10 over the next: e_near = softplus(10)
+    near = torch.tensor([10.0, 0.0, -5.0, -5.0])[None, :, None, None]
+    _, _, _, d = focus_map_head(near, None, fd, ex)
+    p0 = torch.softmax(near, 1)[0, 0, 0, 0]
+    e = torch.nn.functional.softplus(torch.tensor(10.0))
+    assert float(d) == pytest.approx(float((torch.softmax(near, 1) * fd).sum() + p0 * e * 1.0), rel=1e-5)
+    assert float(d) > 3.0  # nearer than the nearest frame
+    far = torch.tensor([-5.0, -5.0, 0.0, 10.0])[None, :, None, None]
+    _, _, _, d = focus_map_head(far, None, fd, ex)
+    pl = torch.softmax(far, 1)[0, -1, 0, 0]
+    e = torch.nn.functional.softplus(torch.tensor(20.0))
+    assert float(d) == pytest.approx(float((torch.softmax(far, 1) * fd).sum() - pl * e * 0.5), rel=1e-5)
+    assert float(d) < 1.0
+
+
+def test_a_peak_inside_the_sweep_is_hardly_moved_by_the_untrained_extrapolation():
+    from training.nets.dfvaat import EndExtrapolation
+
+    fd = torch.tensor([3.0, 2.0, 1.0])[None, :, None, None]
+    logits = torch.tensor([-3.0, 5.0, -3.0])[None, :, None, None]
+    _, _, _, plain = focus_map_head(logits, None, fd)
+    _, _, _, moved = focus_map_head(logits, None, fd, EndExtrapolation())
+    assert abs(float(moved - plain)) < 1e-3
+
+
+def test_an_extrapolating_net_starts_from_a_base_checkpoint_and_matches_it(tmp_path):
+    from training.nets.warm_start import InitError, init_model
+
+    torch.manual_seed(2)
+    base = build("small_replicate")
+    ck = tmp_path / "base.pt"
+    torch.save({"model": base.state_dict(), "config": {"net": "dfvaat", "size": "small_replicate"}, "step": 5}, ck)
+    m = build("small_replicate_x")
+    info = init_model(m, ck)
+    assert info["new_tensors"] == len([k for k in m.state_dict() if k.startswith("extrap.")]) > 0
+    stack = torch.rand(1, 4, 3, 32, 64)
+    fd = torch.linspace(2, 0.5, 4)[None, :, None, None].expand(1, 4, 32, 64).contiguous()
+    k = torch.full((1, 1, 32, 64), 8.0)
+    a, b = predict(base.eval(), stack, fd, k), predict(m.eval(), stack, fd, k)
+    assert torch.allclose(a["diopters"], b["diopters"], atol=0.01)  # the head starts as the interpolating one
+    # the other way round is refused: a base net cannot take an extrapolating checkpoint
+    torch.save({"model": m.state_dict(), "config": {"net": "dfvaat", "size": "small_replicate_x"}, "step": 5}, ck)
+    with pytest.raises(InitError, match="small_replicate_x model; the run trains a dfvaat small_replicate"):
+        init_model(build("small_replicate"), ck)
+
+
+def test_the_extrapolating_net_exports_with_dynamic_shapes_and_stays_small(tmp_path):
+    from training.nets.export import export_focus_map_onnx, focus_map_metadata, parity_focus_map
+
+    torch.manual_seed(3)
+    m = build("small_replicate_x")
+    assert m.n_params <= build_model("dfvnet", "small").n_params
+    for mlp in m.extrap.mlp:  # trained-like: the extrapolation is active
+        torch.nn.init.normal_(mlp[2].weight, 0, 0.5)
+        torch.nn.init.constant_(mlp[2].bias, 0.5)
+    md = focus_map_metadata(m, effects=[], stack_range=(3, 16), config_hash="test", k_range=(0.3, 64))
+    path = tmp_path / "x.onnx"
+    assert export_focus_map_onnx(m, path, md) < 1e-3
+    assert parity_focus_map(m, path, [(1, 3, 32, 96), (1, 16, 96, 64)]) < 1e-3
