@@ -14,7 +14,7 @@ from training.chain.config import NET_ALIASES
 from training.nets import registry
 from training.nets.aifnet import AIFNET_CONFIGS
 from training.nets.blocks import count_params
-from training.nets.dfvaat import CONFIGS as DFVAAT_CONFIGS
+from training.nets.dfvaat import SIZES as DFVAAT_SIZES
 from training.nets.dfvaat import FocusMapDfF, build
 from training.nets.dfvnet import DFVNET_CONFIGS, DFVNet
 from training.nets.model import DfFNet, build_model
@@ -23,7 +23,7 @@ from training.train.heldout import model_label
 
 
 def test_entries_build_in_their_sizes():
-    configs = {"aifnet": AIFNET_CONFIGS, "dfvnet": DFVNET_CONFIGS, "dfvaat": DFVAAT_CONFIGS}
+    configs = {"aifnet": AIFNET_CONFIGS, "dfvnet": DFVNET_CONFIGS, "dfvaat": DFVAAT_SIZES}
     for name, spec in registry.NETS.items():
         assert set(spec.sizes) == set(configs[name]), name  # the sizes its module configures
         m = build_model(name, "small")
