@@ -1,7 +1,8 @@
 """How much of each held-out test set lies beyond its focus sweep at its own pixel (exploratory; chooses nothing).
 
     python -m benchmarks.probes.sweep_reach [--lenses paper50 ef50 z35 rf50] [--protocol fixed paper]
-        [--cache cache/heldout] [--out results/sweep_reach.json] [--score MODEL.onnx] [--split test|validation]
+        [--cache cache/heldout] [--out results/sweep_reach.json] [--score MODEL.onnx [OTHER.onnx]]
+    [--split test|validation]
 
 A depth-from-focus method can place a pixel only between the nearest and the farthest object distance some frame
 has in focus there. With a lens's map those limits are per pixel (`FocusMapping.frame_diopters`): field curvature
@@ -11,6 +12,7 @@ within half a spacing of focus, and prints the mean over stacks (procedural and 
 With --score, `dfv_aat` (MODEL, given the lens map) and the classical method given the same map are also scored on
 the procedural stacks' pixels within reach and beyond it separately: MAE over the classical method's, paired
 bootstrap over scenes (bench_table2's). Analysis of where the stacks hold the answer, not a replacement target.
+With a second model, MODEL's MAE over OTHER's within reach and beyond, paired over the same stacks.
 `--split validation` uses validation stacks instead (RF50 only, training photographs, their own seed, no real
 scene): what may give a reason to change a model.
 """
@@ -59,18 +61,21 @@ def split_mae(pred_m: np.ndarray, depth_m: np.ndarray, beyond: np.ndarray) -> di
             "beyond": float(err[beyond].mean()) if beyond.any() else float("nan")}
 
 
-def score_split(model_path: Path, lens_key: str, mapping, items) -> list[dict]:
-    """Per procedural stack: each method's MAE within reach and beyond: dfv_aat and the classical method (lens map
-    both) and the lens-specific net where one exists ("specific")."""
+def score_split(model_paths: list[Path], lens_key: str, mapping, items) -> list[dict]:
+    """Per procedural stack: each method's MAE within reach and beyond: dfv_aat ("dfv"; a second model "other") and
+    the classical method (lens map all) and the lens-specific net where one exists ("specific")."""
     from benchmarks.bench_anycam import CL_MAP, DFV_MAP, methods
 
-    fns = methods(model_path, lens_key, threads=1)
-    labels = {"dfv": DFV_MAP, "classical": CL_MAP, **{"specific": lab for lab in LENSES[lens_key]["specific"]}}
+    fns = methods(model_paths[0], lens_key, threads=1)
+    fns = {"dfv": fns[DFV_MAP], "classical": fns[CL_MAP],
+           **{"specific": fns[lab] for lab in LENSES[lens_key]["specific"] if lab in fns}}
+    if len(model_paths) > 1:
+        fns["other"] = methods(model_paths[1], lens_key, threads=1)[DFV_MAP]
     rows = []
     for it in items:
         h, w = it.depth_m.shape
         beyond = beyond_mask(it.depth_m, mapping.frame_diopters(it.focus_m, h, w))
-        rows.append({k: split_mae(fns[lab](it)[0], it.depth_m, beyond) for k, lab in labels.items() if lab in fns})
+        rows.append({k: split_mae(fn(it)[0], it.depth_m, beyond) for k, fn in fns.items()})
     return rows
 
 
@@ -85,7 +90,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cache", default=str(ROOT / "cache" / "heldout"))
     ap.add_argument("--out", type=Path, default=RESULTS / "sweep_reach.json")
     ap.add_argument("--split", choices=("test", "validation"), default="test")
-    ap.add_argument("--score", type=Path, default=None, help="a dfv_aat ONNX file to score within and beyond reach")
+    ap.add_argument("--score", type=Path, nargs="+", default=None, metavar="MODEL",
+                    help="a dfv_aat ONNX file to score within and beyond reach (a second: paired against it)")
     a = ap.parse_args(argv)
     if a.split == "validation" and a.lenses != ["rf50"]:
         ap.error("--split validation: the RF50 only (the held-out lenses choose nothing)")
@@ -123,7 +129,8 @@ def main(argv: list[str] | None = None) -> int:
         from aat_deploy.eval.stats import fmt_interval, paired_ratio
 
         print("\n| lens | protocol | part | dfv_aat MAE (m) | classical MAE (m) | dfv / classical [95 %] | lens-specific "
-              "net MAE (m) | dfv / lens-specific [95 %] |\n|---|---|---|---|---|---|---|---|")
+              "net MAE (m) | dfv / lens-specific [95 %] | second model MAE (m) | dfv / second [95 %] |\n"
+              + "|---" * 10 + "|")
         for lens_key, by in scored.items():
             for protocol, per in by.items():
                 for part in ("within", "beyond"):
@@ -132,7 +139,7 @@ def main(argv: list[str] | None = None) -> int:
                         continue
                     got = {"n": len(use)}
                     cells = []
-                    for ref in ("classical", "specific"):
+                    for ref in ("classical", "specific", "other"):
                         if ref not in use[0]:
                             cells += ["–", "–"]
                             continue
@@ -143,7 +150,7 @@ def main(argv: list[str] | None = None) -> int:
                     out[lens_key][protocol + "_" + part] = got
                     print(f"| {lens_key} | {protocol} | {part} ({len(use)} stacks) | "
                           f"{np.mean([r['dfv'][part] for r in use]):.3f} | " + " | ".join(cells) + " |")
-        out["scored_model"] = str(a.score)
+        out["scored_models"] = [str(p) for p in a.score]
     a.out.parent.mkdir(parents=True, exist_ok=True)
     write_text_atomic(a.out, json.dumps(out, indent=1))
     print(f"wrote {a.out}")
