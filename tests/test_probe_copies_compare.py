@@ -66,3 +66,23 @@ def test_main_writes_its_out_and_refuses_an_existing_one(tmp_path, capsys):
     assert C.main([str(a), str(tmp_path / "none.json"), "--lens", "phone", "--out", str(tmp_path / "o2.json")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "none.json: no such results file" in err[0] and not (tmp_path / "o2.json").exists()
+
+
+def test_the_hand_chosen_copys_runs_are_paired_scene_by_scene(tmp_path, capsys):
+    def single(scale, shift=0.0):
+        per = _run({0: scale}, fixed_shift=shift)["copies"]["phone"]["copies"][0]["depth"]["per_scene"]
+        return {"map": [], "depth": {"phone": {"per_scene": per}}}
+
+    r = C.compare_copy(single(0.9), single(1.0), "phone")
+    assert [c["copy"] for c in r["copies"]] == ["hand-chosen"] and "pooled" not in r
+    assert all(r["copies"][0][f"a/b {z}"][0] == pytest.approx(0.9) for z in C.ZONES)
+    with pytest.raises(SystemExit, match="not the same held-out stacks"):
+        C.compare_copy(single(1.0), single(1.0, shift=1e-6), "phone")
+    with pytest.raises(SystemExit, match="not in both"):
+        C.compare_copy(single(1.0), single(1.0), "rf50")
+    a, b, out = tmp_path / "a.json", tmp_path / "b.json", tmp_path / "out.json"
+    a.write_text(json.dumps(single(0.95)))
+    b.write_text(json.dumps(single(1.0)))
+    assert C.main([str(a), str(b), "--lens", "phone", "--out", str(out)]) == 0
+    assert "| hand-chosen | nan / nan | 0.950" in capsys.readouterr().out
+    assert json.loads(out.read_text())["copies"][0]["a/b mae"][0] == pytest.approx(0.95)

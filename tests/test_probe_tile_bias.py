@@ -116,3 +116,17 @@ def test_design_counts_its_columns_and_reaches_a_radial_power_only_when_it_holds
         sol, *_ = np.linalg.lstsq(a, target, rcond=None)
         resid[b[1]] = float(np.sqrt(np.mean((a @ sol - target) ** 2)))
     assert resid[16] < 1e-8 < 1e-4 < resid[12]
+
+
+def test_patched_changes_the_fits_beyond_mode_for_the_block_alone():
+    """The declared option "beyond linear" (docs/calibration.md, "The corners beyond the farthest tile"): a `fit.NAME`
+    key patches aat_deploy.calibrate.fit, restored after the block, also when it raises."""
+    from aat_deploy.calibrate import fit as FIT
+
+    before = FIT.BEYOND_TILES
+    with E.patched(E.OPTIONS["beyond linear"]):
+        assert FIT.BEYOND_TILES == "linear"
+    assert FIT.BEYOND_TILES == before == "held"
+    with pytest.raises(RuntimeError), E.patched(E.OPTIONS["beyond linear"]):
+        raise RuntimeError
+    assert FIT.BEYOND_TILES == before

@@ -29,6 +29,9 @@ from .sweep import SweepError, SweepMeasurement, identity_differences
 
 BLUR_DEGREE = 2
 MIN_TILES = 30
+# the field term beyond the farthest tile's radius (`FieldPoly.beyond`): "held" along the radius, or "linear"
+# (continued to first order along the radius; docs/calibration.md, "The corners beyond the farthest tile")
+BEYOND_TILES = "held"
 
 
 @dataclass
@@ -143,11 +146,12 @@ def _same_tiles(new: Observations, old: Observations) -> Observations:
 
 
 def held_beyond_tiles(field_poly: FieldPoly, obs: Observations) -> FieldPoly:
-    """The field term held along the radius beyond the farthest tile (`FieldPoly.radius_max`): there no tile
-    measured it, and its radial powers (to rho^12) extrapolated into the corners went 0.9 D wrong on the benchmark's
-    phone lens (0.6 D held; BENCHMARKS.md, "What the phone's error is made of")."""
+    """The field term not extrapolated as a polynomial beyond the farthest tile (`FieldPoly.radius_max`, held or
+    continued to first order along the radius as BEYOND_TILES says): there no tile measured it, and its radial
+    powers (to rho^12) extrapolated into the corners went 0.9 D wrong on the benchmark's phone lens (0.6 D held;
+    BENCHMARKS.md, "What the phone's error is made of")."""
     r = float(np.max(field_radius_of(obs.x, obs.y, obs.aspect)))
-    return replace(field_poly, radius_max=r, aspect=obs.aspect)
+    return replace(field_poly, radius_max=r, aspect=obs.aspect, beyond=BEYOND_TILES)
 
 
 def robust_fit(obs: Observations, degree: int | None = None, focus_degree: int | None = None,

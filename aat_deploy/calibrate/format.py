@@ -49,6 +49,7 @@ FAMILIES = ("none", "offset", "scale", "monotone")  # the diagnosis's vocabulary
 MAX_TERMS = 64
 MAX_DEGREE = 12
 MAX_VALUE = 1e4  # no diopter, px/D or coefficient of a camera is this large: a bound keeps every map finite
+BEYOND = ("held", "linear")  # FieldPoly beyond radius_max: held along the radius, or continued to first order
 MIN_DIOPTERS = 1e-3  # reported focus beyond 1 km is treated as 1 km (the focus method's clamp)
 UNITS = ("diopters: 1/m of distances from the sensor plane along the optical axis; field: x right, y up, -1..1 "
          "from edge to edge of the calibrated frames; blur: diameter in px of the calibrated frames per diopter")
@@ -128,15 +129,18 @@ class FieldPoly:
     coefficients (K, J) with J - 1 the degree in the on-axis focus (Legendre P_j), focus_range_d [lo, hi] the
     calibrated on-axis focus (tau = -1..1 over it, held beyond). radius_max: None, or the field radius
     (`field_radius_of` with `aspect`, the frames' width / height: 1 at the corners) beyond which the terms are
-    held along the radius: a point farther out is evaluated at the point of radius_max in its direction (the
-    farthest the calibration measured; a high-order polynomial extrapolated into corners no tile saw is not a
-    measurement)."""
+    not extrapolated as polynomials (the farthest the calibration measured; a high-order polynomial extrapolated
+    into corners no tile saw is not a measurement). beyond: how a point p farther out is evaluated, from q, the
+    point of radius_max on p's ray from the centre: "held" at q; "linear" continued from q along the ray to first
+    order, F(q) + (|p| / |q| - 1) (q . grad F(q)), which for a monomial of total degree n is its value at q times
+    1 + n (|p| / |q| - 1) (between the hold, 1, and the polynomial itself, (|p| / |q|)^n)."""
 
     terms: np.ndarray
     coefficients: np.ndarray
     focus_range_d: tuple[float, float]
     radius_max: float | None = None
     aspect: float = 1.0
+    beyond: str = "held"
 
     def __post_init__(self):
         t = np.asarray(self.terms)
@@ -166,6 +170,8 @@ class FieldPoly:
             if not (math.isfinite(r) and 0 < r <= 2):
                 raise ValueError(f"radius_max {self.radius_max!r} must be a field radius in (0, 2]")
             object.__setattr__(self, "radius_max", r)
+        if self.beyond not in BEYOND:
+            raise ValueError(f"beyond {self.beyond!r} must be one of {', '.join(BEYOND)}")
 
     def tau(self, t_d) -> np.ndarray:
         lo, hi = self.focus_range_d
@@ -180,13 +186,17 @@ class FieldPoly:
         return leg @ self.coefficients.T
 
     def basis(self, x, y) -> np.ndarray:
-        """(K, ...) the terms at field points x, y (broadcast), held beyond radius_max."""
+        """(K, ...) the terms at field points x, y (broadcast), held or continued beyond radius_max (`beyond`)."""
         x, y = np.broadcast_arrays(np.asarray(x, np.float64), np.asarray(y, np.float64))
-        if self.radius_max is not None:
-            r = field_radius_of(x, y, self.aspect)
-            s = np.where(r > self.radius_max, self.radius_max / np.maximum(r, 1e-300), 1.0)
-            x, y = x * s, y * s
-        return np.stack([x ** a * y ** b for a, b in self.terms])
+        if self.radius_max is None:
+            return np.stack([x ** a * y ** b for a, b in self.terms])
+        r = field_radius_of(x, y, self.aspect)
+        s = np.where(r > self.radius_max, self.radius_max / np.maximum(r, 1e-300), 1.0)
+        b = np.stack([(x * s) ** a * (y * s) ** c for a, c in self.terms])
+        if self.beyond == "linear":  # x d/dx + y d/dy of a monomial is its degree times itself (Euler)
+            n = self.terms.sum(1).astype(np.float64).reshape((-1,) + (1,) * x.ndim)
+            b = b * (1.0 + n * (1.0 / s - 1.0))
+        return b
 
     def __call__(self, x, y, t_d) -> np.ndarray:
         """(S, *x.shape) float64 at field (x, y) for on-axis focus t_d (S,)."""
@@ -200,6 +210,8 @@ class FieldPoly:
         if self.radius_max is not None:  # absent: never held (files made before 2026-11-26, evening)
             d["radius_max"] = round(self.radius_max, 6)
             d["aspect"] = round(self.aspect, 9)
+            if self.beyond != "held":  # absent: held
+                d["beyond"] = self.beyond
         return d
 
     @classmethod
@@ -210,8 +222,11 @@ class FieldPoly:
         a = d.get("aspect", 1.0)
         if isinstance(a, bool) or not isinstance(a, (int, float)):
             raise ValueError(f"aspect must be a number, got {a!r}"[:200])
+        beyond = d.get("beyond", "held")
+        if not isinstance(beyond, str):
+            raise ValueError(f"beyond must be one of {', '.join(BEYOND)}, got {beyond!r}"[:200])
         return cls(np.array(d["terms"]), np.array(d["coefficients"], np.float64),
-                   tuple(float(v) for v in d["focus_range_d"]), None if r is None else float(r), float(a))
+                   tuple(float(v) for v in d["focus_range_d"]), None if r is None else float(r), float(a), beyond)
 
 
 def field_grid(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:

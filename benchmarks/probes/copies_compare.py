@@ -11,6 +11,8 @@ diopters, with a paired 95 % bootstrap interval (`aat_deploy.eval.stats.paired_r
 with bench_calibrate's crossed two-level bootstrap (`nested_paired_ratio(crossed=True)`, as
 `benchmarks.calibrate_copies.pooled`). The two runs' stacks are checked to be the same: the prescription map's and
 the thin lens's per-scene MAEs, which no calibration enters, must agree (to 1e-9 m). --out is refused if it exists.
+Two runs of the hand-chosen copy (`--parts ...,depth` without `--copies`: the files' `depth`, no `copies`) are paired
+the same way, its scenes alone (`compare_copy`).
 """
 
 from __future__ import annotations
@@ -22,6 +24,31 @@ from pathlib import Path
 
 ZONES = ("mae", "mae_outer", "mae_d")
 FIXED = ("prescription map", "thin lens")  # mappings no calibration enters: the same in both runs if the stacks are
+
+
+def _same_stacks(sx: dict, sy: dict, what: str) -> None:
+    for m in FIXED:
+        same = len(sx[m]) == len(sy[m]) and all(
+            p["scene"] == q["scene"] and all(abs(p[z] - q[z]) <= 1e-9 for z in ZONES) for p, q in zip(sx[m], sy[m]))
+        if not same:
+            raise SystemExit(f"copies_compare: {what}: the {m}'s per-scene MAEs differ: not the same held-out stacks")
+
+
+def compare_copy(a: dict, b: dict, lens: str, mapping: str = "calibration") -> dict:
+    """The hand-chosen copy's depth (bench_calibrate's `depth`) in A over B's, paired scene by scene."""
+    from aat_deploy.eval.stats import paired_ratio
+
+    da, db = (x.get("depth", {}).get(lens) for x in (a, b))
+    if da is None or db is None:
+        raise SystemExit(f"copies_compare: {lens}'s hand-chosen copy's depth is not in both files")
+    sx, sy = da["per_scene"], db["per_scene"]
+    if mapping not in sx or mapping not in sy:
+        raise SystemExit(f"copies_compare: the copy: no mapping {mapping!r}")
+    _same_stacks(sx, sy, "the copy")
+    row = {"copy": "hand-chosen", "scenes": len(sx[mapping])}
+    for z in ZONES:
+        row[f"a/b {z}"] = [float(v) for v in paired_ratio(sx[mapping], sy[mapping], z)]
+    return {"lens": lens, "mapping": mapping, "copies": [row]}
 
 
 def compare(a: dict, b: dict, lens: str, mapping: str = "calibration") -> dict:
@@ -43,12 +70,7 @@ def compare(a: dict, b: dict, lens: str, mapping: str = "calibration") -> dict:
         sx, sy = x["depth"]["per_scene"], y["depth"]["per_scene"]
         if mapping not in sx or mapping not in sy:
             raise SystemExit(f"copies_compare: copy {x['index']}: no mapping {mapping!r}")
-        for m in FIXED:
-            same = len(sx[m]) == len(sy[m]) and all(
-                p["scene"] == q["scene"] and all(abs(p[z] - q[z]) <= 1e-9 for z in ZONES) for p, q in zip(sx[m], sy[m]))
-            if not same:
-                raise SystemExit(f"copies_compare: copy {x['index']}: the {m}'s per-scene MAEs differ: "
-                                 "not the same held-out stacks")
+        _same_stacks(sx, sy, f"copy {x['index']}")
         row = {"copy": x["index"], "scenes": len(sx[mapping]),
                "map_rms_inside_d": [c["map"]["inside"]["calibration"]["rms_d"] for c in (x, y)]}
         for z in ZONES:
@@ -65,10 +87,11 @@ def table(res: dict) -> str:
 
     lines = ["| copy | map RMS inside, A / B (D) | A / B, MAE | outer | MAE in D |", "|---|---|---|---|---|"]
     for r in res["copies"]:
-        ma, mb = r["map_rms_inside_d"]
+        ma, mb = r.get("map_rms_inside_d", (float("nan"),) * 2)
         lines.append(f"| {r['copy']} | {ma:.4f} / {mb:.4f} | " + " | ".join(fmt(r[f"a/b {z}"]) for z in ZONES) + " |")
-    lines.append(f"| pooled, {len(res['copies'])} copies | | " + " | ".join(fmt(res["pooled"][f"a/b {z}"]) for z in ZONES)
-                 + " |")
+    if "pooled" in res:
+        lines.append(f"| pooled, {len(res['copies'])} copies | | "
+                     + " | ".join(fmt(res["pooled"][f"a/b {z}"]) for z in ZONES) + " |")
     return "\n".join(lines)
 
 
@@ -87,8 +110,8 @@ def main(argv=None) -> int:
         if not Path(f).is_file():
             print(f"copies_compare: {f}: no such results file", file=sys.stderr)
             return 2
-    res = compare(json.loads(Path(args.a).read_text()), json.loads(Path(args.b).read_text()), args.lens,
-                  args.mapping)
+    a, b = (json.loads(Path(f).read_text()) for f in (args.a, args.b))
+    res = (compare if "copies" in a or "copies" in b else compare_copy)(a, b, args.lens, args.mapping)
     res["a"], res["b"] = args.a, args.b
     print(f"{args.mapping}: A = {args.a}, B = {args.b}\n\n{table(res)}")
     if args.out:

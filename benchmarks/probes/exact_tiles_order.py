@@ -45,6 +45,8 @@ OPTIONS = {
     "edge cubic if better": {"EDGE_BAND": 1e6},  # the edge cubic wherever its frame-cell CV is better at all
     # radial powers beyond the format's ceiling (total degree 12): the file's limits raised with them (format.*)
     "radial to 20": {"RADIAL": (0, 8, 12, 16, 20), "format.MAX_DEGREE": 20, "format.MAX_TERMS": 128},
+    # the field term beyond the farthest tile continued to first order along the radius (as is: held)
+    "beyond linear": {"fit.BEYOND_TILES": "linear"},
 }
 
 
@@ -53,11 +55,14 @@ MEASURED_ONLY = ("true distances", "true distances, near fitted")  # --measured:
 
 @contextlib.contextmanager
 def patched(changes: dict):
-    """Module constants of aat_deploy.calibrate.model (NAME) or .format (format.NAME) changed inside the block."""
+    """Module constants of aat_deploy.calibrate.model (NAME), .format (format.NAME) or .fit (fit.NAME) changed inside
+    the block."""
+    from aat_deploy.calibrate import fit as FIT
     from aat_deploy.calibrate import format as F
     from aat_deploy.calibrate import model as M
 
-    where = lambda k: (F, k.split(".", 1)[1]) if k.startswith("format.") else (M, k)
+    mods = {"format": F, "fit": FIT}
+    where = lambda k: (mods[k.split(".", 1)[0]], k.split(".", 1)[1]) if k.split(".", 1)[0] in mods else (M, k)
     old = {k: getattr(*where(k)) for k in changes}
     try:
         for k, v in changes.items():

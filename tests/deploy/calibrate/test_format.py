@@ -314,3 +314,52 @@ def test_field_term_held_beyond_radius_max(tmp_path):
         (tmp_path / "bad.json").write_text(json.dumps(d))
         with pytest.raises(CalibrationError, match="radius_max"):
             load_calibration(tmp_path / "bad.json")
+
+
+def test_field_term_continued_to_first_order_beyond_radius_max(tmp_path):
+    """beyond="linear": unchanged inside radius_max; beyond it the value at radius_max on the ray plus the radial
+    slope there times the extra radius (a radial rho^4 by hand: c r_max^4 (1 + 4 (r / r_max - 1))), so between the
+    hold and the polynomial; a tilt (degree 1) continues exactly; stored as "beyond" (absent when held), read back,
+    and anything else refused in one line."""
+    from aat_deploy.calibrate import fit as FIT
+    from aat_deploy.calibrate.format import field_radius_of
+
+    a = 4 / 3
+    k = a ** 2 + 1.0  # rho^2 = (a^2 x^2 + y^2) / k: rho^4 as monomials x^4, x^2 y^2, y^4, and a tilt x
+    terms = np.array([[4, 0], [2, 2], [0, 4], [1, 0]])
+    coef = np.array([[3.0 * a ** 4 / k ** 2], [3.0 * 2 * a ** 2 / k ** 2], [3.0 / k ** 2], [0.25]])
+    poly = FieldPoly(terms, coef, (1.0, 2.0))
+    held = FieldPoly(terms, coef, (1.0, 2.0), radius_max=0.8, aspect=a)
+    lin = FieldPoly(terms, coef, (1.0, 2.0), radius_max=0.8, aspect=a, beyond="linear")
+    x, y = np.meshgrid(np.linspace(-1, 1, 41), np.linspace(-1, 1, 31))
+    r = field_radius_of(x, y, a)
+    out = r > 0.8
+    p, h, li = poly(x, y, [1.5])[0], held(x, y, [1.5])[0], lin(x, y, [1.5])[0]
+    np.testing.assert_allclose(p[~out], li[~out], atol=1e-12)
+    np.testing.assert_allclose(p[:, :], 3.0 * r ** 4 + 0.25 * x, atol=1e-12)  # the monomials are rho^4 and a tilt
+    want = 3.0 * 0.8 ** 4 * (1 + 4 * (r[out] / 0.8 - 1)) + 0.25 * x[out]  # rho^4 to first order, the tilt exactly
+    np.testing.assert_allclose(li[out], want, atol=1e-12)
+    assert np.all(h[out] - 0.25 * (x[out] * 0.8 / r[out]) < li[out] - 0.25 * x[out])  # above the hold ...
+    assert np.all(li[out] < p[out])  # ... below the polynomial (rho^4 is convex)
+    # stored and read back; a held field term writes no "beyond"
+    cal = make_cal()
+    cal = CameraCalibration(cal.camera, cal.size_px, cal.focus_error, lin, cal.blur, cal.sensor_mm)
+    back = load_calibration(save_calibration(cal, tmp_path / "lin.json"))
+    assert back.best_focus.beyond == "linear"
+    np.testing.assert_allclose(back.best_focus(x, y, [1.5]), lin(x, y, [1.5]), atol=1e-6)
+    assert "beyond" not in held.to_dict() and FieldPoly.from_dict(held.to_dict()).beyond == "held"
+    d = json.loads((tmp_path / "lin.json").read_text())
+    for bad in ("cubic", 1, None):
+        d["best_focus"]["beyond"] = bad
+        (tmp_path / "bad.json").write_text(json.dumps(d))
+        with pytest.raises(CalibrationError, match="beyond") as e:
+            load_calibration(tmp_path / "bad.json")
+        assert "\n" not in str(e.value)
+    with pytest.raises(ValueError, match="beyond"):
+        FieldPoly(terms, coef, (1.0, 2.0), radius_max=0.8, aspect=a, beyond="quadratic")
+    # the fit marks its field term as fit.BEYOND_TILES says
+    from aat_deploy.calibrate.model import Observations
+
+    obs = Observations(np.array([0.5, -0.7]), np.array([0.2, 0.6]), np.ones(2), np.ones(2), np.zeros(2, int),
+                       np.zeros(2, int), np.ones(2), aspect=a)
+    assert FIT.held_beyond_tiles(poly, obs).beyond == FIT.BEYOND_TILES
