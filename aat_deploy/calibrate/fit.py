@@ -29,8 +29,9 @@ from .sweep import SweepError, SweepMeasurement, identity_differences
 
 BLUR_DEGREE = 2
 MIN_TILES = 30
-# the field term beyond the farthest tile's radius (`FieldPoly.beyond`): "held" along the radius, or "linear"
-# (continued to first order along the radius; docs/calibration.md, "The corners beyond the farthest tile")
+# the field term beyond the farthest tile's radius (`FieldPoly.beyond`): "held" along the radius; "linear"
+# (continued to first order along the radius) was declared, scored on the benchmark's phone and not adopted: it
+# carries the held edge's own error outward (docs/calibration.md, "The corners beyond the farthest tile")
 BEYOND_TILES = "held"
 
 
