@@ -48,3 +48,9 @@ def test_corners_refuses_bad_arguments_in_one_line_before_reading_the_truth(tmp_
         C.main(["--truth", str(tmp_path / "no_truth.json"), *args, "--out", str(tmp_path / "o.json")])
     assert says in capsys.readouterr().err.strip().splitlines()[-1]
     assert not (tmp_path / "o.json").exists()
+
+
+def test_outside_rectangle_by_hand():
+    x = np.array([0.0, 0.9, 0.91, -0.8, -0.81, 0.5])
+    y = np.array([0.0, 0.6, 0.0, -0.7, 0.0, 0.61])
+    assert C.outside_rectangle(x, y, (-0.8, 0.9, -0.7, 0.6)).tolist() == [False, False, True, False, True, True]

@@ -130,3 +130,6 @@ def test_patched_changes_the_fits_beyond_mode_for_the_block_alone():
     with pytest.raises(RuntimeError), E.patched(E.OPTIONS["beyond linear"]):
         raise RuntimeError
     assert FIT.BEYOND_TILES == before
+    with E.patched(E.OPTIONS["beyond rectangle"]):  # declared 2026-11-28, "The corners held at ... rectangle"
+        assert FIT.BEYOND_TILES == "rectangle"
+    assert FIT.BEYOND_TILES == before

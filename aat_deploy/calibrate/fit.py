@@ -31,7 +31,9 @@ BLUR_DEGREE = 2
 MIN_TILES = 30
 # the field term beyond the farthest tile's radius (`FieldPoly.beyond`): "held" along the radius; "linear"
 # (continued to first order along the radius) was declared, scored on the benchmark's phone and not adopted: it
-# carries the held edge's own error outward (docs/calibration.md, "The corners beyond the farthest tile")
+# carries the held edge's own error outward (docs/calibration.md, "The corners beyond the farthest tile");
+# "rectangle" (held at the nearest point of the tile centres' rectangle, inside which the fit has data) declared
+# 2026-11-28 ("The corners held at the tile centres' rectangle")
 BEYOND_TILES = "held"
 
 
@@ -152,7 +154,14 @@ def held_beyond_tiles(field_poly: FieldPoly, obs: Observations) -> FieldPoly:
     powers (to rho^12) extrapolated into the corners went 0.9 D wrong on the benchmark's phone lens (0.6 D held;
     BENCHMARKS.md, "What the phone's error is made of")."""
     r = float(np.max(field_radius_of(obs.x, obs.y, obs.aspect)))
-    return replace(field_poly, radius_max=r, aspect=obs.aspect, beyond=BEYOND_TILES)
+    rect = tile_rectangle(obs) if BEYOND_TILES == "rectangle" else None
+    return replace(field_poly, radius_max=r, aspect=obs.aspect, beyond=BEYOND_TILES, rectangle=rect)
+
+
+def tile_rectangle(obs: Observations) -> tuple[float, float, float, float]:
+    """(x_lo, x_hi, y_lo, y_hi): the bounding box of the kept tiles' centres (normalised field), the rectangle
+    inside which the field term has data on both sides (`FieldPoly.rectangle`)."""
+    return float(np.min(obs.x)), float(np.max(obs.x)), float(np.min(obs.y)), float(np.max(obs.y))
 
 
 def robust_fit(obs: Observations, degree: int | None = None, focus_degree: int | None = None,

@@ -49,7 +49,9 @@ FAMILIES = ("none", "offset", "scale", "monotone")  # the diagnosis's vocabulary
 MAX_TERMS = 64
 MAX_DEGREE = 12
 MAX_VALUE = 1e4  # no diopter, px/D or coefficient of a camera is this large: a bound keeps every map finite
-BEYOND = ("held", "linear")  # FieldPoly beyond radius_max: held along the radius, or continued to first order
+# FieldPoly beyond the tiles: held along the radius beyond radius_max, continued from there to first order, or held
+# at the nearest point of the rectangle of the tile centres (`FieldPoly.rectangle`)
+BEYOND = ("held", "linear", "rectangle")
 MIN_DIOPTERS = 1e-3  # reported focus beyond 1 km is treated as 1 km (the focus method's clamp)
 UNITS = ("diopters: 1/m of distances from the sensor plane along the optical axis; field: x right, y up, -1..1 "
          "from edge to edge of the calibrated frames; blur: diameter in px of the calibrated frames per diopter")
@@ -133,7 +135,9 @@ class FieldPoly:
     into corners no tile saw is not a measurement). beyond: how a point p farther out is evaluated, from q, the
     point of radius_max on p's ray from the centre: "held" at q; "linear" continued from q along the ray to first
     order, F(q) + (|p| / |q| - 1) (q . grad F(q)), which for a monomial of total degree n is its value at q times
-    1 + n (|p| / |q| - 1) (between the hold, 1, and the polynomial itself, (|p| / |q|)^n)."""
+    1 + n (|p| / |q| - 1) (between the hold, 1, and the polynomial itself, (|p| / |q|)^n); "rectangle": the terms
+    are evaluated inside `rectangle` (x_lo, x_hi, y_lo, y_hi, normalised field: the tile centres' bounding box) and,
+    outside it, at its nearest point (x and y clipped to it; the nearest in pixels too), whatever radius_max says."""
 
     terms: np.ndarray
     coefficients: np.ndarray
@@ -141,6 +145,7 @@ class FieldPoly:
     radius_max: float | None = None
     aspect: float = 1.0
     beyond: str = "held"
+    rectangle: tuple[float, float, float, float] | None = None
 
     def __post_init__(self):
         t = np.asarray(self.terms)
@@ -172,6 +177,15 @@ class FieldPoly:
             object.__setattr__(self, "radius_max", r)
         if self.beyond not in BEYOND:
             raise ValueError(f"beyond {self.beyond!r} must be one of {', '.join(BEYOND)}")
+        if (self.rectangle is not None) != (self.beyond == "rectangle"):
+            raise ValueError(f"rectangle [x_lo, x_hi, y_lo, y_hi] goes with beyond 'rectangle' (and only with it), "
+                             f"got beyond {self.beyond!r}, rectangle {self.rectangle!r}"[:200])
+        if self.rectangle is not None:
+            v = np.asarray(self.rectangle, np.float64).ravel()
+            if v.shape != (4,) or not np.all(np.abs(v) <= 1) or v[0] > v[1] or v[2] > v[3]:
+                raise ValueError(f"rectangle {self.rectangle!r} must be [x_lo, x_hi, y_lo, y_hi] within -1..1, "
+                                 f"lo <= hi"[:200])
+            object.__setattr__(self, "rectangle", tuple(float(c) for c in v))
 
     def tau(self, t_d) -> np.ndarray:
         lo, hi = self.focus_range_d
@@ -188,6 +202,10 @@ class FieldPoly:
     def basis(self, x, y) -> np.ndarray:
         """(K, ...) the terms at field points x, y (broadcast), held or continued beyond radius_max (`beyond`)."""
         x, y = np.broadcast_arrays(np.asarray(x, np.float64), np.asarray(y, np.float64))
+        if self.rectangle is not None:  # the nearest point of the tile centres' rectangle, where the fit has data
+            x0, x1, y0, y1 = self.rectangle
+            x, y = np.clip(x, x0, x1), np.clip(y, y0, y1)
+            return np.stack([x ** a * y ** b for a, b in self.terms])
         if self.radius_max is None:
             return np.stack([x ** a * y ** b for a, b in self.terms])
         r = field_radius_of(x, y, self.aspect)
@@ -210,8 +228,10 @@ class FieldPoly:
         if self.radius_max is not None:  # absent: never held (files made before 2026-11-26, evening)
             d["radius_max"] = round(self.radius_max, 6)
             d["aspect"] = round(self.aspect, 9)
-            if self.beyond != "held":  # absent: held
-                d["beyond"] = self.beyond
+        if self.beyond != "held":  # absent: held
+            d["beyond"] = self.beyond
+        if self.rectangle is not None:
+            d["rectangle"] = [round(v, 9) for v in self.rectangle]
         return d
 
     @classmethod
@@ -225,8 +245,13 @@ class FieldPoly:
         beyond = d.get("beyond", "held")
         if not isinstance(beyond, str):
             raise ValueError(f"beyond must be one of {', '.join(BEYOND)}, got {beyond!r}"[:200])
+        rect = d.get("rectangle")
+        if rect is not None and (not isinstance(rect, list) or len(rect) != 4 or
+                                 any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in rect)):
+            raise ValueError(f"rectangle must be 4 numbers [x_lo, x_hi, y_lo, y_hi], got {rect!r}"[:200])
         return cls(np.array(d["terms"]), np.array(d["coefficients"], np.float64),
-                   tuple(float(v) for v in d["focus_range_d"]), None if r is None else float(r), float(a), beyond)
+                   tuple(float(v) for v in d["focus_range_d"]), None if r is None else float(r), float(a), beyond,
+                   None if rect is None else tuple(float(v) for v in rect))
 
 
 def field_grid(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:

@@ -26,7 +26,9 @@ Per variant:
 4. With `--beyond MODE` (`FieldPoly.beyond`, e.g. linear: continued to first order along the radius): the same fit
    scored both ways, paired (the fit is the same; only the field term beyond r_max differs): part a as part a
    scores it (`bench_calibrate.map_errors`, inside and on the depth schedule) and section 2's split, with the
-   continuation (the map at p minus the map at q) beside it.
+   continuation (the map at p minus the map at q) beside it. `--beyond rectangle` (held at the nearest point of the
+   kept tile centres' rectangle, `fit.tile_rectangle`) also changes pixels within r_max but outside that rectangle
+   (the *band*): both ways, its share of the pixels and its error are in `band` (held: the polynomial there).
 """
 
 from __future__ import annotations
@@ -53,6 +55,12 @@ def ray_points(x: np.ndarray, y: np.ndarray, aspect: float, r_max: float) -> tup
     r = field_radius_of(x, y, aspect)
     s = np.where(r > r_max, r_max / np.maximum(r, 1e-300), 1.0)
     return x * s, y * s
+
+
+def outside_rectangle(x: np.ndarray, y: np.ndarray, rect) -> np.ndarray:
+    """bool: normalised field points outside the rectangle (x_lo, x_hi, y_lo, y_hi), its edges inside."""
+    x0, x1, y0, y1 = rect
+    return (x < x0) | (x > x1) | (y < y0) | (y > y1)
 
 
 def split_along_rays(pred_p: np.ndarray, pred_q: np.ndarray, truth_p: np.ndarray, truth_q: np.ndarray) -> dict:
@@ -99,8 +107,9 @@ def tile_reach(ms: list, obs, distances_m, aspect: float) -> dict:
     return {"sweeps": out}
 
 
-def beyond_split(rig, cal, eff: list[str], true_m: np.ndarray, scale: float) -> dict:
-    """Section 2 for frames truly focused at true_m (reported scale x): part a's error beyond r_max and its split."""
+def beyond_split(rig, cal, eff: list[str], true_m: np.ndarray, scale: float, rect=None) -> dict:
+    """Section 2 for frames truly focused at true_m (reported scale x): part a's error beyond r_max and its split;
+    with rect (the tile centres' rectangle), the error in the band within r_max but outside it."""
     from aat_deploy.calibrate import in_focus_diopters
     from aat_deploy.calibrate.format import field_grid, field_radius_of
     from benchmarks.bench_calibrate import map_errors
@@ -119,7 +128,7 @@ def beyond_split(rig, cal, eff: list[str], true_m: np.ndarray, scale: float) -> 
     tp = rig.truth_at(eff, xp, yp, true_m)  # (S, N)
     tq = rig.truth_at(eff, xq, yq, true_m)
     on_axis = cal.focus_error.true_diopters(1.0 / rep)
-    pq = on_axis[:, None] + dataclasses.replace(fp, beyond="held")(xq, yq, on_axis)  # the map at q (S, N)
+    pq = on_axis[:, None] + dataclasses.replace(fp, beyond="held", rectangle=None)(xq, yq, on_axis)  # the map at q
     e = pred - truth
     out = {"frames_true_m": [float(v) for v in true_m], "r_max": float(r_max),
            "beyond_share": float(beyond.mean()), "rms_d": float(np.sqrt(np.mean(e ** 2))),
@@ -130,6 +139,12 @@ def beyond_split(rig, cal, eff: list[str], true_m: np.ndarray, scale: float) -> 
     keys = ("rms_d", "p95_d", "within_tiles_rms_d", "beyond_tiles_rms_d", "radius_rms_d")
     out["part_a"] = {k: v for k, v in map_errors(rig, cal, eff, true_m)["calibration"].items() if k in keys}
     out.update(split_along_rays(pred[:, beyond], pq, tp, tq))
+    if rect is not None:
+        band = outside_rectangle(x, y, rect) & ~beyond
+        eb = e[:, band]
+        out["band"] = {"rectangle": [float(v) for v in rect], "share": float(band.mean()),
+                       "sq_share": float(np.sum(eb ** 2) / np.sum(e ** 2)),
+                       "rms_d": float(np.sqrt(np.mean(eb ** 2))), "mean_d": float(np.mean(eb))}
     ok = rig.truth_measured(eff, true_m)
     if ok is not None:
         out["truth_extrapolated_share_beyond"] = float(1.0 - ok[:, beyond].mean())
@@ -137,6 +152,7 @@ def beyond_split(rig, cal, eff: list[str], true_m: np.ndarray, scale: float) -> 
 
 
 def run_variant(variant: str, truth_path: str, beyond: str | None, log) -> dict:
+    from aat_deploy.calibrate.fit import tile_rectangle
     from aat_deploy.eval.stats import field_radius, zone_masks
     from benchmarks import bench_calibrate as B
     from benchmarks.probes import chart_texture as CT
@@ -150,21 +166,22 @@ def run_variant(variant: str, truth_path: str, beyond: str | None, log) -> dict:
     fp = cal.best_focus
     outer = zone_masks(rig.h, rig.w)["outer"]
     beyond_px = field_radius(rig.h, rig.w) > fp.radius_max  # square pixels: the same radius as the fit's
+    rect = tile_rectangle(res.observations) if beyond == "rectangle" else None
     out = {"variant": variant,
            "order": {"degree": res.model.degree, "radial": res.model.radial, "focus_degree": res.model.focus_degree,
                      "family": cal.focus_error.family},
            "reach": tile_reach(res.measures, res.observations, s.distances_m, fp.aspect),
-           "part_a_inside": beyond_split(rig, cal, eff, s.inside(), scale),
-           "schedule": beyond_split(rig, cal, eff, s.schedule(), scale),
+           "part_a_inside": beyond_split(rig, cal, eff, s.inside(), scale, rect),
+           "schedule": beyond_split(rig, cal, eff, s.schedule(), scale, rect),
            "part_b_outer_beyond_share": float(beyond_px[outer].mean())}
     a = out["part_a_inside"]
     log(f"{variant}: r_max {a['r_max']:.3f}; beyond {100 * a['beyond_share']:.1f} % of pixels, "
         f"{100 * a['beyond_sq_share']:.0f} % of the squared error; error {a['error']['rms_d']:.3f} "
         f"(mean {a['error']['mean_d']:+.3f}) = edge {a['edge']['mean_d']:+.3f} - rise {a['rise']['mean_d']:+.3f} D")
     if beyond is not None:
-        c = dataclasses.replace(cal, best_focus=dataclasses.replace(fp, beyond=beyond))
-        out["beyond"] = {"mode": beyond, "part_a_inside": beyond_split(rig, c, eff, s.inside(), scale),
-                         "schedule": beyond_split(rig, c, eff, s.schedule(), scale)}
+        c = dataclasses.replace(cal, best_focus=dataclasses.replace(fp, beyond=beyond, rectangle=rect))
+        out["beyond"] = {"mode": beyond, "part_a_inside": beyond_split(rig, c, eff, s.inside(), scale, rect),
+                         "schedule": beyond_split(rig, c, eff, s.schedule(), scale, rect)}
         b = out["beyond"]
         log(f"{variant}: part a inside {a['part_a']['rms_d']:.4f} held -> {b['part_a_inside']['part_a']['rms_d']:.4f} "
             f"{beyond}; schedule {out['schedule']['part_a']['rms_d']:.4f} -> {b['schedule']['part_a']['rms_d']:.4f} D")
@@ -194,6 +211,15 @@ def table(res: dict) -> str:
                        f"{h['part_a']['within_tiles_rms_d']:.4f} -> {b['part_a']['within_tiles_rms_d']:.4f} | "
                        f"{hs['part_a']['rms_d']:.4f} -> {bs['part_a']['rms_d']:.4f} | "
                        f"{h['error']['mean_d']:+.3f} -> {b['error']['mean_d']:+.3f} |")
+    band = [v for v in rows if "band" in v["part_a_inside"]]
+    if band:
+        out += ["", f"| variant | band within r_max outside the tile centres' rectangle: pixels | part a there: held -> "
+                f"{band[0]['beyond']['mode']} (RMS, mean, D) | schedule there |", "|---|---|---|---|"]
+        for v in band:
+            h, b = v["part_a_inside"]["band"], v["beyond"]["part_a_inside"]["band"]
+            hs, bs = v["schedule"]["band"], v["beyond"]["schedule"]["band"]
+            out.append(f"| {v['variant']} | {100 * h['share']:.1f} % | {h['rms_d']:.3f} ({h['mean_d']:+.3f}) -> "
+                       f"{b['rms_d']:.3f} ({b['mean_d']:+.3f}) | {hs['rms_d']:.3f} -> {bs['rms_d']:.3f} |")
     return "\n".join(out)
 
 

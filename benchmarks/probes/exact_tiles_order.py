@@ -47,6 +47,8 @@ OPTIONS = {
     "radial to 20": {"RADIAL": (0, 8, 12, 16, 20), "format.MAX_DEGREE": 20, "format.MAX_TERMS": 128},
     # the field term beyond the farthest tile continued to first order along the radius (as is: held)
     "beyond linear": {"fit.BEYOND_TILES": "linear"},
+    # the field term held at the nearest point of the tile centres' rectangle outside it (as is: held on the radius)
+    "beyond rectangle": {"fit.BEYOND_TILES": "rectangle"},
 }
 
 

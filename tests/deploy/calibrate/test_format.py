@@ -363,3 +363,66 @@ def test_field_term_continued_to_first_order_beyond_radius_max(tmp_path):
     obs = Observations(np.array([0.5, -0.7]), np.array([0.2, 0.6]), np.ones(2), np.ones(2), np.zeros(2, int),
                        np.zeros(2, int), np.ones(2), aspect=a)
     assert FIT.held_beyond_tiles(poly, obs).beyond == FIT.BEYOND_TILES
+
+
+def test_field_term_held_at_the_nearest_point_of_the_tile_centres_rectangle(tmp_path):
+    """beyond="rectangle": inside the rectangle (x_lo, x_hi, y_lo, y_hi) the polynomial unchanged; outside it the
+    value at the rectangle's nearest point (x and y clipped), by hand for F = 2 x^2 + 3 x y - y^3 on
+    (-0.8, 0.9, -0.7, 0.6), whatever radius_max says; stored as "rectangle", read back, refused in one line when
+    malformed or without beyond "rectangle"."""
+    from aat_deploy.calibrate import fit as FIT
+
+    terms = np.array([[2, 0], [1, 1], [0, 3]])
+    coef = np.array([[2.0], [3.0], [-1.0]])
+    rect = (-0.8, 0.9, -0.7, 0.6)
+    poly = FieldPoly(terms, coef, (1.0, 2.0))
+    box = FieldPoly(terms, coef, (1.0, 2.0), radius_max=0.5, aspect=4 / 3, beyond="rectangle", rectangle=rect)
+    x = np.array([0.3, -0.79, 1.0, 1.0, -1.0, 0.5, 0.95])
+    y = np.array([-0.2, 0.59, 0.0, 1.0, -1.0, 0.95, -0.3])
+    want = [2 * 0.09 - 3 * 0.06 + 0.008,  # inside (beyond radius_max 0.5: not held there)
+            2 * 0.79 ** 2 - 3 * 0.79 * 0.59 - 0.59 ** 3,  # inside, near the corner
+            2 * 0.81,  # (0.9, 0): beyond x_hi only
+            2 * 0.81 + 3 * 0.54 - 0.216,  # (0.9, 0.6): the corner
+            2 * 0.64 + 3 * 0.56 + 0.343,  # (-0.8, -0.7): the opposite corner
+            0.5 + 0.9 - 0.216,  # (0.5, 0.6): beyond y_hi only
+            2 * 0.81 - 3 * 0.27 + 0.027]  # (0.9, -0.3)
+    np.testing.assert_allclose(box(x, y, [1.5])[0], want, atol=1e-12)
+    np.testing.assert_allclose(box(x[:2], y[:2], [1.5])[0], poly(x[:2], y[:2], [1.5])[0], atol=1e-15)
+    # the focus dependence is untouched: a term linear in focus scales the clipped basis alike
+    two = FieldPoly(terms, np.hstack([coef, coef]), (1.0, 2.0), 0.5, 4 / 3, "rectangle", rect)
+    np.testing.assert_allclose(two(x, y, [2.0])[0], 2 * np.array(want), atol=1e-12)
+    # stored and read back
+    cal = make_cal()
+    cal = CameraCalibration(cal.camera, cal.size_px, cal.focus_error, box, cal.blur, cal.sensor_mm)
+    back = load_calibration(save_calibration(cal, tmp_path / "box.json"))
+    assert back.best_focus.beyond == "rectangle" and back.best_focus.rectangle == rect
+    gx, gy = np.meshgrid(np.linspace(-1, 1, 41), np.linspace(-1, 1, 31))
+    np.testing.assert_allclose(back.best_focus(gx, gy, [1.5]), box(gx, gy, [1.5]), atol=1e-6)
+    d = json.loads((tmp_path / "box.json").read_text())
+    assert d["best_focus"]["rectangle"] == list(rect)
+    for bad in ("x", [0.1, 0.2, 0.3], [0.5, 0.1, -0.5, 0.5], [0.1, 0.2, -0.5, 1.5], [True, 0.2, -0.5, 0.5], None):
+        e = json.loads(json.dumps(d))
+        e["best_focus"]["rectangle"] = bad
+        (tmp_path / "bad.json").write_text(json.dumps(e))
+        with pytest.raises(CalibrationError, match="rectangle") as err:
+            load_calibration(tmp_path / "bad.json")
+        assert "\n" not in str(err.value)
+    e = json.loads(json.dumps(d))
+    del e["best_focus"]["beyond"]  # a rectangle without its mode
+    (tmp_path / "bad.json").write_text(json.dumps(e))
+    with pytest.raises(CalibrationError, match="rectangle"):
+        load_calibration(tmp_path / "bad.json")
+    # the fit holds at its kept tiles' bounding box when fit.BEYOND_TILES says "rectangle"
+    from aat_deploy.calibrate.model import Observations
+
+    obs = Observations(np.array([0.5, -0.7, 0.1]), np.array([0.2, 0.6, -0.4]), np.ones(3), np.ones(3),
+                       np.zeros(3, int), np.zeros(3, int), np.ones(3), aspect=4 / 3)
+    assert FIT.tile_rectangle(obs) == (-0.7, 0.5, -0.4, 0.6)
+    before = FIT.BEYOND_TILES
+    try:
+        FIT.BEYOND_TILES = "rectangle"
+        held = FIT.held_beyond_tiles(poly, obs)
+    finally:
+        FIT.BEYOND_TILES = before
+    assert held.beyond == "rectangle" and held.rectangle == (-0.7, 0.5, -0.4, 0.6)
+    assert FIT.held_beyond_tiles(held, obs).rectangle is None  # as is: held, no rectangle
