@@ -254,7 +254,8 @@ def adds_only_a_head(model: nn.Module, net: str, size: str) -> bool:
 
 def init_model(model: DfFNet, path, dataset=None, n_items: int = 8) -> dict:
     """Load `path` (.onnx from training.nets.export, or a model.pt / last.pt checkpoint) into `model`, which must
-    be the same net and size, or a size with the same tensors (`same_tensors`). ONNX: folded BatchNorms are recalibrated on the first `n_items` of `dataset`
+    be the same net and size, or a size with the same tensors (`same_tensors`), or a checkpoint of a size it only adds a
+    head to (`adds_only_a_head`: the new tensors keep their initialisation). ONNX: folded BatchNorms are recalibrated on the first `n_items` of `dataset`
     (if given) and the result is checked against onnxruntime. Returns a short description (for logs)."""
     path = Path(path)
     if not path.is_file():
