@@ -32,8 +32,9 @@ MIN_TILES = 30
 # the field term beyond the farthest tile's radius (`FieldPoly.beyond`): "held" along the radius; "linear"
 # (continued to first order along the radius) was declared, scored on the benchmark's phone and not adopted: it
 # carries the held edge's own error outward (docs/calibration.md, "The corners beyond the farthest tile");
-# "rectangle" (held at the nearest point of the tile centres' rectangle, inside which the fit has data) declared
-# 2026-11-28 ("The corners held at the tile centres' rectangle")
+# "rectangle" (held at the nearest point of the tile centres' rectangle, inside which the fit has data) was declared
+# and scored the same way and not adopted: it also holds the band within the radius where the polynomial's short
+# extrapolation follows the lens's rise (docs/calibration.md, "The corners held at the tile centres' rectangle")
 BEYOND_TILES = "held"
 
 
