@@ -150,10 +150,10 @@ def _same_tiles(new: Observations, old: Observations) -> Observations:
 
 
 def held_beyond_tiles(field_poly: FieldPoly, obs: Observations) -> FieldPoly:
-    """The field term not extrapolated as a polynomial beyond the farthest tile (`FieldPoly.radius_max`, held or
-    continued to first order along the radius as BEYOND_TILES says): there no tile measured it, and its radial
-    powers (to rho^12) extrapolated into the corners went 0.9 D wrong on the benchmark's phone lens (0.6 D held;
-    BENCHMARKS.md, "What the phone's error is made of")."""
+    """The field term not extrapolated as a polynomial beyond the farthest tile (`FieldPoly.radius_max`: held,
+    continued to first order along the radius, or held at the tile centres' rectangle, as BEYOND_TILES says): there
+    no tile measured it, and its radial powers (to rho^12) extrapolated into the corners went 0.9 D wrong on the
+    benchmark's phone lens (0.6 D held; BENCHMARKS.md, "What the phone's error is made of")."""
     r = float(np.max(field_radius_of(obs.x, obs.y, obs.aspect)))
     rect = tile_rectangle(obs) if BEYOND_TILES == "rectangle" else None
     return replace(field_poly, radius_max=r, aspect=obs.aspect, beyond=BEYOND_TILES, rectangle=rect)

@@ -177,6 +177,8 @@ class FieldPoly:
             object.__setattr__(self, "radius_max", r)
         if self.beyond not in BEYOND:
             raise ValueError(f"beyond {self.beyond!r} must be one of {', '.join(BEYOND)}")
+        if self.beyond == "linear" and self.radius_max is None:  # else it would be the polynomial, silently
+            raise ValueError("beyond 'linear' continues from radius_max, which is missing")
         if (self.rectangle is not None) != (self.beyond == "rectangle"):
             raise ValueError(f"rectangle [x_lo, x_hi, y_lo, y_hi] goes with beyond 'rectangle' (and only with it), "
                              f"got beyond {self.beyond!r}, rectangle {self.rectangle!r}"[:200])

@@ -357,6 +357,11 @@ def test_field_term_continued_to_first_order_beyond_radius_max(tmp_path):
         assert "\n" not in str(e.value)
     with pytest.raises(ValueError, match="beyond"):
         FieldPoly(terms, coef, (1.0, 2.0), radius_max=0.8, aspect=a, beyond="quadratic")
+    del d["best_focus"]["radius_max"]  # a continuation with no radius to continue from
+    d["best_focus"]["beyond"] = "linear"
+    (tmp_path / "bad.json").write_text(json.dumps(d))
+    with pytest.raises(CalibrationError, match="beyond 'linear' continues from radius_max, which is missing"):
+        load_calibration(tmp_path / "bad.json")
     # the fit marks its field term as fit.BEYOND_TILES says
     from aat_deploy.calibrate.model import Observations
 
