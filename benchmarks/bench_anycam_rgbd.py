@@ -29,8 +29,8 @@ import numpy as np
 from aat_deploy.io.atomic import write_text_atomic
 from benchmarks import RESULTS
 from benchmarks.bench_anycam import CL_MAP, DFV_MAP, LENSES, ROOT, methods, model_id, run_set, test_spec
+from training.data.registry_rgbd import SCENES as REGISTRY
 
-REGISTRY = ("aloe", "arc2017")
 SCENES = ("middlebury", "nyu", *REGISTRY)
 
 

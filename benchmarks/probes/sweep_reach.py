@@ -1,4 +1,5 @@
-"""How much of each held-out test set lies beyond its focus sweep at its own pixel (exploratory; chooses nothing).
+"""How much of each held-out test set lies beyond its focus sweep at its own pixel (exploratory on test stacks;
+on validation stacks, step 2 of the fourteenth run's declared rule, docs/training.md).
 
     python -m benchmarks.probes.sweep_reach [--lenses paper50 ef50 z35 rf50] [--protocol fixed paper]
         [--cache cache/heldout] [--out results/sweep_reach.json] [--score MODEL.onnx [OTHER.onnx]]
@@ -81,6 +82,7 @@ def score_split(model_paths: list[Path], lens_key: str, mapping, items) -> list[
 
 def main(argv: list[str] | None = None) -> int:
     from aat_deploy.anycam.model import mapping_from_args
+    from training.data.registry_rgbd import SCENES as REGISTRY
     from training.train.testsets import load_test_set
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -102,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
     for lens_key in a.lenses:
         mapping = mapping_from_args(lens=ROOT / LENSES[lens_key]["lens"])
         for protocol in a.protocol:
-            spec = dataclasses.replace(test_spec(lens_key, protocol, a.n), registry_real=("aloe", "arc2017"))
+            spec = dataclasses.replace(test_spec(lens_key, protocol, a.n), registry_real=REGISTRY)
             if a.split == "validation":
                 from benchmarks.select_focus_noise import VAL_SEED
 
@@ -137,7 +139,7 @@ def main(argv: list[str] | None = None) -> int:
                     use = [r for r in per if np.isfinite(r["dfv"][part])]
                     if len(use) < 2:
                         continue
-                    got = {"n": len(use)}
+                    got = {"n": len(use), "mae_m": {k: float(np.mean([r[k][part] for r in use])) for k in use[0]}}
                     cells = []
                     for ref in ("classical", "specific", "other"):
                         if ref not in use[0]:

@@ -65,6 +65,12 @@ class TestSetSpec:
 
         if self.photo_split not in SPLITS:
             raise ValueError(f"photo_split must be one of {SPLITS}, got {self.photo_split!r}")
+        if self.registry_real:
+            from training.data.registry_rgbd import SCENES
+
+            unknown = [n for n in self.registry_real if n not in SCENES]
+            if unknown:
+                raise ValueError(f"registry_real must name scenes of {SCENES}, got {unknown[0]!r}"[:200])
 
     def key(self) -> str:
         """Hash of what defines the Middlebury item (the procedural items are cached by their dataset's key)."""

@@ -69,3 +69,25 @@ def test_arc2017_keeps_only_plausible_depths():
     z = rr.arc2017_depth_m(np.array([np.nan, -1.0, 0.0, 0.5, 2.0, 2.5, 79.0, np.inf], np.float32))
     assert z.tolist() == [0, 0, 0, 0.5, 2.0, 0, 0, 0]
 
+
+
+def test_a_pinned_sdist_writes_its_members_under_their_scene_names(tmp_path, monkeypatch):
+    import hashlib
+    import tarfile
+
+    members = {"opencv_python-5.0.0.93/opencv/samples/data/aloeL.jpg": b"left",
+               "opencv_python-5.0.0.93/opencv/samples/data/aloeGT.png": b"disparity",
+               "opencv_python-5.0.0.93/setup.py": b"x"}
+    buf = io.BytesIO()
+    with tarfile.open(fileobj=buf, mode="w:gz") as t:
+        for name, data in members.items():
+            info = tarfile.TarInfo(name)
+            info.size = len(data)
+            t.addfile(info, io.BytesIO(data))
+    blob = buf.getvalue()
+    src = rr.SOURCES["aloe"]
+    monkeypatch.setitem(rr.SOURCES, "aloe", rr.Source(src.project, src.filename, hashlib.sha256(blob).hexdigest(),
+                                                       src.members))
+    out = rr.extract("aloe", blob, tmp_path)
+    assert sorted(p.name for p in out.iterdir()) == ["disparity_px.png", "left.jpg"]
+    assert (out / "left.jpg").read_bytes() == b"left" and (out / "disparity_px.png").read_bytes() == b"disparity"

@@ -135,3 +135,5 @@ def test_registry_scenes_change_the_key_only_when_asked_for():
     assert TestSetSpec("lenses/canon_rf50mm_f1.8.json", "models/psf_rf50.onnx", 8, registry_real=()).key() == base.key()
     assert TestSetSpec("lenses/canon_rf50mm_f1.8.json", "models/psf_rf50.onnx", 8,
                        registry_real=("aloe",)).key() != base.key()
+    with pytest.raises(ValueError, match=r"registry_real must name scenes of \('aloe', 'arc2017'\), got 'alo'"):
+        TestSetSpec("lenses/canon_rf50mm_f1.8.json", "models/psf_rf50.onnx", 8, registry_real=("aloe", "alo"))
