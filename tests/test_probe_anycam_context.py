@@ -311,3 +311,33 @@ def test_error_by_interval_by_hand():
     assert s[3]["mae_m"] == pytest.approx(4.0) and s[2]["mae_d"] == pytest.approx(0.1)
     holes = by_interval(depth, np.where(truth > 1, truth, 0.0), np.array([4.0, 0.5, 1.0]))
     assert [g["pixels"] for g in holes] == [0, 0, 1, 1]
+
+
+def test_stack_curve_leaves_out_a_checkpoint_onnxruntime_disagrees_with(tmp_path, monkeypatch):
+    """A checkpoint whose export fails the parity check is recorded as unexportable, not scored, and the rest go on."""
+    import json
+
+    import numpy as np
+
+    import training.train.export as tx
+    from benchmarks.probes import anycam_stack_curve
+    from training.train.testsets import TestItem
+
+    rng = np.random.default_rng(0)
+    item = TestItem("procedural_000", rng.random((3, 3, 32, 32)).astype(np.float32), np.array([0.5, 1.0, 2.0]),
+                    np.full((32, 32), 1.0, np.float32), rng.random((3, 32, 32)).astype(np.float32))
+    monkeypatch.setattr(anycam_stack_curve, "fixed_stacks", lambda *a, **k: [item])
+
+    def refuse(ck, out, force=False):
+        raise RuntimeError(f"{out}: onnxruntime differs from torch by 1.10e-03 of the inputs' magnitude (> 0.001)")
+
+    monkeypatch.setattr(tx, "export_checkpoint", refuse)
+    cks = [tmp_path / "step_00200.pt", tmp_path / "step_00400.pt"]
+    for ck in cks:
+        ck.write_bytes(b"")
+    out = tmp_path / "curve.json"
+    assert anycam_stack_curve.main([*map(str, cks), "--n", "1", "--out", str(out)]) == 0
+    got = json.loads(out.read_text())
+    assert got["rows"] == []
+    assert [u["checkpoint"] for u in got["unexportable"]] == [str(c) for c in cks]
+    assert got["unexportable"][0]["reason"].startswith("onnxruntime differs from torch by 1.10e-03")

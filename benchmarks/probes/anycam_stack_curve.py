@@ -10,7 +10,8 @@ scene). --first K scores stacks K to K+N-1 instead: a second dozen to choose wit
 This probe exports each checkpoint (model.pt, last.pt, or a kept step_NNNNN.pt) as it is and scores it on
 the first N of those stacks, given the RF50's best-focus map, beside the classical method with the same map. Per
 stack: MAE in metres (the judgement's unit), MAE of inverse depth in diopters (the unit the loss and the optics
-work in) and the median absolute error (m). Whether the curve drifts with the learning rate or swings from one
+work in) and the median absolute error (m). A checkpoint whose export onnxruntime disagrees with (the export's
+parity check) is no file the runtime could run: it is listed as "unexportable" and not scored. Whether the curve drifts with the learning rate or swings from one
 checkpoint to the next is what tells a domain gap from an unstable run. --png draws the means over the steps;
 --paired compares each checkpoint with the first one given (e.g. an average of weights with a single checkpoint).
 --processed also scores each stack given the training's camera processing (`training.data.anycam.camera_processing`,
@@ -90,11 +91,16 @@ def main(argv: list[str] | None = None) -> int:
     fmap, _ = for_lens(lens, compute=False)
     processed = [processed_stack(it.stack, a.first + k) for k, it in enumerate(items)] if a.processed else []
     classical = [stack_errors(classical_depth(it.stack, it.focus_m, fmap).depth_m, it.depth_m) for it in items]
-    rows = []
+    rows, unexportable = [], []
     with tempfile.TemporaryDirectory() as tmp:
         for ck in tqdm(a.checkpoints, desc="checkpoints", file=sys.stderr):
             onnx = Path(tmp) / "net.onnx"
-            export_checkpoint(ck, onnx, force=True)  # a scratch file of our own, replaced per checkpoint
+            try:
+                export_checkpoint(ck, onnx, force=True)  # a scratch file of our own, replaced per checkpoint
+            except RuntimeError as e:  # onnxruntime disagrees with torch: no file the runtime could ship
+                unexportable.append({"checkpoint": str(ck), "reason": str(e).split(": ", 1)[-1]})
+                tqdm.write(f"{ck}: left out, not exportable ({unexportable[-1]['reason']})", file=sys.stderr)
+                continue
             model = FocusMapModel(onnx, threads=a.threads, mapping=mapping_from_args(lens=lens))
             errs = []
             for it in items:
@@ -112,7 +118,8 @@ def main(argv: list[str] | None = None) -> int:
     cl = {k: [e[k] for e in classical] for k in classical[0]}
     write_text_atomic(a.out, json.dumps({"lens": "rf50", "split": "validation", "first": a.first, "n": len(items),
                                          "stack_size": len(items[0].focus_m),
-                                         "classical_lens_map": cl, "rows": rows}, indent=1))
+                                         "classical_lens_map": cl, "rows": rows,
+                                         **({"unexportable": unexportable} if unexportable else {})}, indent=1))
     print(f"classical, lens map: MAE {np.mean(cl['mae_m']):.3f} m, {np.mean(cl['mae_d']):.3f} D")
     print("| step | MAE (m) | MAE (D) | median stack MAE (m) |\n|---|---|---|---|")
     for r in sorted(rows, key=lambda r: r["step"]):
