@@ -30,7 +30,7 @@ from ..io.files import read_input_bytes
 from .containers import container_of, find_blocks
 from .imagefile import FRAME_EXTENSIONS, IMAGE_EXTENSIONS, RAW_EXTENSIONS, check_pixels, claimed_size, frame_header
 
-__all__ = ["FRAME_EXTENSIONS", "IMAGE_EXTENSIONS", "RAW_EXTENSIONS", "load_frame", "load_raw"]
+__all__ = ["FRAME_EXTENSIONS", "IMAGE_EXTENSIONS", "RAW_EXTENSIONS", "load_frame", "load_mosaic", "load_raw"]
 
 
 _BENIGN_JPEG = re.compile(r"extraneous bytes before marker")  # libjpeg warnings that lose no image data
@@ -69,6 +69,32 @@ def load_raw(path: str | Path, max_megapixels: float | None = None) -> tuple[np.
         return _load_raw(path, read_input_bytes(path), max_megapixels)
     except _Unsupported:
         raise CaptureError(f"{path}: not a RAW format LibRaw can decode (unsupported or not an image)") from None
+
+
+def load_mosaic(path: str | Path, max_megapixels: float | None = None) -> tuple[np.ndarray, dict]:
+    """A RAW file's undeveloped sensor data: (H, W) float32, each photosite less its colour's black level over the
+    white level less it (black = 0, white = 1; negatives kept), the visible area only; info has the levels and
+    the 2 x 2 pattern (`raw_pattern`). For measuring the sensor itself (`diagnose.photon`), not for viewing."""
+    path = Path(path)
+    buf = read_input_bytes(path)
+    try:
+        with rawpy.imread(io.BytesIO(buf)) as r:
+            s = r.sizes
+            check_pixels(path, (max(s.width, s.raw_width), max(s.height, s.raw_height)), max_megapixels)
+            raw = r.raw_image_visible.astype(np.float32)
+            black = np.asarray(r.black_level_per_channel, np.float32)[r.raw_colors_visible]
+            white = float(r.white_level)
+            info = {"black_level": [int(v) for v in r.black_level_per_channel], "white_level": int(white),
+                    "raw_pattern": np.asarray(r.raw_pattern).tolist()}
+    except rawpy.LibRawFileUnsupportedError:
+        raise CaptureError(f"{path}: not a RAW format LibRaw can decode (unsupported or not an image)") from None
+    except rawpy.LibRawError as e:
+        raise CaptureError(f"{path}: unreadable RAW sensor data ({type(e).__name__})") from None
+    except OSError as e:
+        raise CaptureError(f"{path}: cannot read ({e})") from None
+    if raw.ndim != 2 or not np.all(white > black):
+        raise CaptureError(f"{path}: no single-plane mosaic with a white level above its black level")
+    return (raw - black) / (white - black), info
 
 
 _ORIENT = {  # EXIF Orientation 2..8 → the upright image, as OpenCV applies it (tests compare every value)

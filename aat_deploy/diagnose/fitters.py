@@ -26,7 +26,8 @@ from statistics import NormalDist
 
 import numpy as np
 
-from aat_deploy.diagnose import anchors, focusrobust, noisefloor
+from aat_deploy.capture.raw import load_mosaic
+from aat_deploy.diagnose import anchors, focusrobust, noisefloor, photon
 from aat_deploy.diagnose import focusfit as ff
 from aat_deploy.diagnose.binned import bin_frames, binned_capture
 from aat_deploy.diagnose.compare import focus_curves, image_distances, region_brightness, region_index, region_shifts
@@ -48,6 +49,11 @@ FULL_WELL_RANGE_E = (300.0, 1e6)  # the full wells `full_well_on_floor` searches
 # (`anchors.reanchored_sweep`), not only on the first sweep (anchored at the reported focus). Off: a probe of issue
 # 32 after the eleventh round (docs/diagnosis.md, Limits; `benchmarks/probes/focus_start_invariance.py --mode refit`)
 FULL_WELL_ON_FINAL_SWEEP = False
+# whether the focus twin's full well is measured on the captures' RAW mosaics by photon transfer (`photon`, fixed
+# before the focus fit) instead of fitted with the focus against the expected floor (`full_well_on_floor`, which
+# absorbs the twin's curve misfit and moves with the metadata's error). Declared and scored on development sets
+# (issue 32; docs/diagnosis.md, "The full well by photon transfer")
+FULL_WELL_BY_PHOTON_TRANSFER = False
 MIN_TEXTURE_LOG = 0.5  # a region whose twin focus measure varies less than this over the sweep says nothing
 
 
@@ -289,6 +295,41 @@ def full_well_on_floor(data: ff.SweepData, full_well_e: float) -> tuple[float | 
     return _sig(math.exp(u), 2), rep
 
 
+def full_well_by_photon_transfer(caps: list) -> tuple[float | None, dict]:
+    """The sensor's full well (electrons, in the developed frames' units) measured on the captures' own RAW mosaics
+    (`photon.photon_transfer`, every frame of every capture pooled: one sensor), divided by the development's gain
+    (the frames' channel means summed over the mosaics' colour means summed). None, with the reason, when a frame is
+    not a RAW file with a 2 x 2 mosaic, when the frames were resampled to the model's sensor (that changes the noise
+    per pixel), or when too few flat patches were found."""
+    planes, dev, raw = [], 0.0, 0.0
+    for c in caps:
+        for name, frame in zip(getattr(c, "files", None) or [], c.frames):
+            try:
+                m, info = load_mosaic(Path(c.path) / name)
+            except CaptureError as e:
+                return None, {"skipped": str(e)}
+            if np.shape(info["raw_pattern"]) != (2, 2):
+                return None, {"skipped": f"{name}: not a 2 x 2 colour mosaic"}
+            if m.shape != frame.shape[1:]:
+                return None, {"skipped": f"{name}: frames resampled to the model's sensor ({m.shape} -> "
+                                         f"{frame.shape[1:]}): their noise per pixel is not the mosaic's"}
+            pl = photon.cfa_planes(m)
+            planes += pl
+            # the gain colour by colour: the mosaic holds twice as many greens as the developed frame weighs
+            colour = [{0: 0, 1: 1, 2: 2, 3: 1}.get(int(k), -1) for k in np.ravel(info["raw_pattern"])]  # LibRaw: RGBG
+            for ch in range(3):
+                mine = [float(np.mean(q, dtype=np.float64)) for q, k in zip(pl, colour) if k == ch]
+                if mine:
+                    dev, raw = dev + float(np.mean(frame[ch], dtype=np.float64)), raw + float(np.mean(mine))
+    if not planes or not raw > 0:
+        return None, {"skipped": "no RAW frames"}
+    got = photon.photon_transfer(planes)
+    if got is None:
+        return None, {"skipped": "too few flat patches for a photon-transfer curve"}
+    gain = dev / raw
+    return _sig(got["full_well_e"] / gain, 2), {**got, "mosaic_full_well_e": got["full_well_e"], "gain": gain}
+
+
 def fit_focus_metadata(state: FitState) -> Fitted:
     """The focus-metadata error family the images support (`focusfit.fit_metadata`, on the sweep made robust to
     the frames' exposure, the capture's noise floor and poorly matched regions: `focusrobust.prepare`) and the
@@ -307,8 +348,13 @@ def fit_focus_metadata(state: FitState) -> Fitted:
             return d
         if "ratio" not in fitted:
             fw0 = float(noisefloor.noise_of(st.chain).params["full_well_e"])
-            fw, rep = full_well_on_floor(d, fw0)
-            fitted.update(ratio=0.0 if fw is None else fw0 / fw, report={**rep, "fitted_full_well_e": fw})
+            fw, rep = full_well_by_photon_transfer(st.caps) if FULL_WELL_BY_PHOTON_TRANSFER else (None, {})
+            if fw is not None:  # measured before the focus fit: the metadata's error cannot move it
+                rep = {"photon_transfer": rep, "fitted_full_well_e": fw}
+            else:
+                fw, fit_rep = full_well_on_floor(d, fw0)
+                rep = {**fit_rep, **({"photon_transfer": rep} if rep else {}), "fitted_full_well_e": fw}
+            fitted.update(ratio=0.0 if fw is None else fw0 / fw, report=rep)
         return d.with_full_well(fitted["ratio"])
 
     if st.full_curves is not None:  # the binning correction anchored at the frames' estimated focus too

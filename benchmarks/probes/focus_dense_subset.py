@@ -112,8 +112,10 @@ def plan() -> list[tuple[str, str, str]]:
     return [("H0", *k) for k in h0] + [("A1", *k) for k in a1] + rest
 
 
-def commands(order: list[tuple[str, str, str]], chunk: int = 5) -> list[str]:
-    """The lane-B commands: consecutive sets of one round's flag, at most `chunk` to a command."""
+def commands(order: list[tuple[str, str, str]], chunk: int = 5, mode: str = "dense",
+             out_file: str = "results/focus_dense_subset.jsonl") -> list[str]:
+    """The lane-B commands: consecutive sets of one round's flag, at most `chunk` to a command, each rerun with
+    `focus_start_invariance --mode` `mode` into `out_file`."""
     rows = {}
     for name in ROUNDS:
         for r in read([ROOT / "results" / f"diagnose_focus_{name}.jsonl"]):
@@ -129,8 +131,8 @@ def commands(order: list[tuple[str, str, str]], chunk: int = 5) -> list[str]:
     out = []
     for f, s in groups:
         fl, name = f.split(" --rows-file ")
-        out.append(f"{lane} python -m benchmarks.probes.focus_start_invariance --mode dense --rows results/diagnose_focus_"
-                   f"{name}.jsonl --out results/focus_dense_subset.jsonl -- --fit-only --threads 1 {fl} --sets {','.join(s)}")
+        out.append(f"{lane} python -m benchmarks.probes.focus_start_invariance --mode {mode} --rows results/diagnose_focus_"
+                   f"{name}.jsonl --out {out_file} -- --fit-only --threads 1 {fl} --sets {','.join(s)}")
     return out
 
 
