@@ -10,9 +10,10 @@ al. 2008, "Practical Poissonian-Gaussian noise modeling and fitting for single-i
 - Cells are grouped into blocks of BLOCK_CELLS x BLOCK_CELLS; a block's noise variance is the mean of its d^2, its
   level the mean of its photosites. A block with a photosite at or over CLIP_LEVEL is left out (clipped noise has
   less variance).
-- Blocks are pooled into N_LEVEL_BINS bins of equal count by level; each bin's variance is the median of its
-  blocks' (what texture is left only adds variance, and the median ignores a minority of it), corrected for the
-  median of a chi-square's downward bias; var = a * level + b by least squares over the bins, weighted by each bin's
+- Blocks are pooled into N_LEVEL_BINS bins of equal count by level; each bin's point is its median level and its
+  median variance (what texture is left only adds variance, and the median ignores a minority of it), corrected for
+  the median of a chi-square's downward bias (a bin's mean level with its median variance read a dark scene, whose
+  levels are skewed, 50 % high); var = a * level + b by least squares over the bins, weighted by each bin's
   block count over its variance squared. full well = 1 / a, read noise = sqrt(max(b, 0)) / a.
 - Texture raises h^2 and v^2 (first differences) far more than d^2: a block whose mean h^2 or v^2 exceeds the
   curve's variance at its level by MAX_HV_RATIO is rejected as textured, and the curve fitted again (REFITS times).
@@ -67,10 +68,10 @@ def block_stats(plane: np.ndarray, block_cells: int = BLOCK_CELLS) -> tuple[np.n
 
 def transfer_curve(level: np.ndarray, var: np.ndarray, m: int, n_bins: int = N_LEVEL_BINS) -> tuple[float, float, list]:
     """Blocks' (level, variance of m squared details) -> (slope, intercept, [[level, variance, blocks], ...]) of
-    var = slope * level + intercept over bins of equal count (each bin's median, corrected to a mean)."""
+    var = slope * level + intercept over bins of equal count (each bin's median level and median variance, the latter corrected to a mean)."""
     order = np.argsort(level)
     bias = (1.0 - 2.0 / (9.0 * m)) ** 3  # a chi-square's median over its mean (Wilson-Hilferty), 0.99 at m = 64
-    rows = [[float(np.mean(level[i])), float(np.median(var[i])) / bias, int(i.size)] for i in np.array_split(order, n_bins)]
+    rows = [[float(np.median(level[i])), float(np.median(var[i])) / bias, int(i.size)] for i in np.array_split(order, n_bins)]
     x, y, k = (np.array(c, np.float64) for c in zip(*rows))
     sw = np.sqrt(k) / np.maximum(y, 1e-30)  # each bin's weight: its count over its variance squared
     slope, icpt = np.linalg.lstsq(np.stack([x, np.ones_like(x)], 1) * sw[:, None], y * sw, rcond=None)[0]
