@@ -603,3 +603,57 @@ def test_focus_start_invariance_fullwell_mode_fixes_the_focus_twins_full_well(tm
     si.main(["--mode", "fullwell", "--full-well-e", "8000", "--rows", str(rows), "--out", str(tmp_path / "o.jsonl"),
              "--", "--fit-only", "--sets", "s:none"])
     assert seen["fw"][0] == 8000.0 and seen["fw"][1] == {"oracle_full_well_e": 8000.0}
+
+
+def test_focus_ptc_subset_plan_is_the_declared_rule():
+    """`focus_ptc_subset --plan`: dense anchoring's declared 53 (H0, A1 first), the 28 its probe ran (P) after A1,
+    then A2 and H1 in dense anchoring's order, then U, every other untouched copy of the 25 scenes: 98 sets, none twice,
+    none of a scene of 3304 on; every command reruns with `--mode ptc` into results/focus_ptc_subset.jsonl."""
+    from benchmarks.probes import focus_dense_subset as ds
+    from benchmarks.probes import focus_ptc_subset as ps
+
+    order = ps.plan()
+    assert order == ps.plan() and len({(c, k) for _, c, k in order}) == len(order) == 98
+    assert {s: sum(x[0] == s for x in order) for s in ("H0", "A1", "P", "A2", "H1", "U")} == \
+        {"H0": 8, "A1": 9, "P": 28, "A2": 20, "H1": 16, "U": 17}
+    assert [x[0] for x in order[:45]] == ["H0"] * 8 + ["A1"] * 9 + ["P"] * 28
+    assert [x for x in order if x[0] in ("A2", "H1")] == [x for x in ds.plan() if x[0] in ("A2", "H1")]
+    assert all(k == "none" for s, _, k in order if s == "U")
+    assert {c for s, c, k in order if k == "none"} == set(ds.CACHED_SCENES)  # every untouched copy of the universe
+    assert all(int(c[5:]) < 3304 for _, c, _ in order)
+    cmds = ds.commands(order, mode="ptc", out_file=ps.OUT)
+    assert [x for c in cmds for x in c.split("--sets ")[1].split(",")] == [f"{c}:{k}" for _, c, k in order]
+    assert all("--mode ptc " in c and "--out results/focus_ptc_subset.jsonl " in c for c in cmds)
+
+
+def test_focus_start_invariance_ptc_mode_measures_the_full_well(tmp_path, monkeypatch):
+    """`focus_start_invariance --mode ptc`: the benchmark runs with `fitters.FULL_WELL_BY_PHOTON_TRANSFER` on."""
+    from aat_deploy.diagnose import fitters
+    from benchmarks import bench_diagnose_focus as bench
+    from benchmarks.probes import focus_start_invariance as si
+
+    monkeypatch.setattr(fitters, "FULL_WELL_BY_PHOTON_TRANSFER", False)  # restored after
+    seen = {}
+    monkeypatch.setattr(bench, "main", lambda: seen.update(on=fitters.FULL_WELL_BY_PHOTON_TRANSFER))
+    rows = tmp_path / "r.jsonl"
+    rows.write_text(json.dumps({"capture": "s", "kind": "none"}) + "\n")
+    si.main(["--mode", "ptc", "--rows", str(rows), "--out", str(tmp_path / "o.jsonl"), "--", "--fit-only", "--sets",
+             "s:none"])
+    assert seen == {"on": True}
+
+
+def test_photon_transfer_check_reads_a_folders_full_well(tmp_path):
+    """`photon_transfer_check --captures`: a folder of two DNG frames of flat patches rendered at 5000 e- reads within
+    5 % of it, pooled and frame by frame; a folder without frames is refused."""
+    from aat_deploy.render.effects.noise import poisson_gaussian
+    from benchmarks.probes import photon_transfer_check as pc
+    from tests.deploy.diagnose.test_photon import patches, write_frames
+
+    rng = np.random.default_rng(11)
+    lin = np.stack([np.stack([patches(rng.uniform(0.1, 0.8, (10, 15)))] * 3) for _ in range(2)])
+    write_frames(tmp_path / "cap", np.stack([poisson_gaussian(f, 5000.0, 3.0, rng) for f in lin]))
+    row = pc.capture_rows(tmp_path / "cap")[0].split("|")
+    assert float(row[2]) == pytest.approx(5000.0, rel=0.05)
+    assert all(float(x) == pytest.approx(5000.0, rel=0.08) for x in row[5].split(","))
+    with pytest.raises(SystemExit):
+        pc.main(["--captures", str(tmp_path)])
