@@ -329,6 +329,38 @@ def test_full_well_is_fitted_again_on_the_reanchored_sweep_only_when_asked(world
 
 
 @pytest.mark.filterwarnings("ignore:.*real-ray focus table")
+def test_full_well_by_photon_transfer_replaces_the_fit_against_the_floor(world, monkeypatch):
+    """`fitters.FULL_WELL_BY_PHOTON_TRANSFER` on the noisy RAW set above (rendered at 1000 e-): the focus twin's full
+    well is the one measured on the captures' mosaics (within 10 % of 1000 e-), `full_well_on_floor` is never
+    called, and the focus fit's floor is that full well's; off, the fit against the floor decides as before."""
+    from aat_deploy.diagnose import fitters as F
+    from aat_deploy.diagnose import focusfit as ff
+    from aat_deploy.render import effects as fx
+
+    caps, twins = render_set(world, "noisy_raw", [fx.make("noise", full_well_e=1000.0), fx.make("vignetting"),
+                                                  fx.make("focus_metadata", bias_d=0.0, scale=1.15)],
+                             frame_format="dng")
+
+    calls, ratios = [], []
+    real_ratio = ff.SweepData.with_full_well
+    monkeypatch.setattr(F, "full_well_on_floor", lambda d, fw0: calls.append(fw0) or (None, {}))
+    monkeypatch.setattr(ff.SweepData, "with_full_well", lambda d, r: ratios.append(r) or real_ratio(d, r))
+    monkeypatch.setattr(F, "FULL_WELL_BY_PHOTON_TRANSFER", True)
+    measured, _ = F.full_well_by_photon_transfer(caps)
+    assert measured == pytest.approx(1000.0, rel=0.1)
+    fw0 = float(fx.make("noise").params["full_well_e"])
+    noise = F.fit_focus_metadata(state_for(caps, twins)).report["focus_fit"]["focus_twin"]["noise"]
+    assert calls == [] and noise["fitted_full_well_e"] == measured
+    assert noise["photon_transfer"]["full_well_e"] == pytest.approx(measured, rel=0.01)
+    assert ratios and set(ratios) == {fw0 / measured}  # every sweep the fit saw carries the measured floor
+    monkeypatch.setattr(F, "FULL_WELL_BY_PHOTON_TRANSFER", False)
+    ratios.clear()
+    noise = F.fit_focus_metadata(state_for(caps, twins)).report["focus_fit"]["focus_twin"]["noise"]
+    assert calls == [fw0] and noise["fitted_full_well_e"] is None and "photon_transfer" not in noise
+    assert set(ratios) == {0.0}  # the (stubbed) fit against the floor found none: no noise
+
+
+@pytest.mark.filterwarnings("ignore:.*real-ray focus table")
 def test_binning_correction_at_the_twins_own_focus_renders_no_new_optics(world):
     """The binning correction's anchors at the twin's own focus (`anchors.anchor_deltas`) reuse the twin's cached
     optics: given as the twin has it, not as the inverse of its diopters (which differs in the last bit and cost
