@@ -39,3 +39,13 @@ def test_split_mae_by_hand():
     beyond = np.array([[False, False, False, True]])
     assert split_mae(pred, depth, beyond) == pytest.approx({"within": 0.25, "beyond": 3.0})
     assert np.isnan(split_mae(pred, depth, np.zeros_like(beyond))["beyond"])
+
+
+def test_past_infinity_counts_by_hand():
+    import torch
+
+    from benchmarks.probes.anycam_past_infinity import counts
+
+    fd = torch.tensor([2.0, 1.0, 0.5])[:, None, None].expand(3, 1, 3)  # farthest frame at 2 m
+    d = torch.tensor([[0.001, 0.2, 1.0]])  # the clamp, 5 m (beyond 1.5 x 2 m), 1 m
+    assert counts(d, 1.0 / d, fd, 0.001) == (1, 2, 3)
