@@ -5,6 +5,8 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from aat_deploy.diagnose import photon
 from aat_deploy.render.effects.noise import poisson_gaussian
@@ -113,3 +115,50 @@ def test_full_well_by_photon_transfer_on_a_capture_and_where_it_does_not_apply(t
     (tmp_path / "f.png").write_bytes(b"\x89PNG\r\n\x1a\n" + b"0" * 64)
     fw, rep = fitters.full_well_by_photon_transfer([SimpleNamespace(path=tmp_path, files=["f.png"], frames=frames[:1])])
     assert fw is None and "f.png" in rep["skipped"]
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.binary(min_size=0, max_size=4096),
+       suffix=st.sampled_from([".dng", ".cr2", ".nef", ".arw", ".raw", ".png"]))
+def test_load_mosaic_on_any_bytes_returns_a_mosaic_or_one_line_naming_the_file(tmp_path, data, suffix):
+    """Whatever a user's file holds, the RAW mosaic reader gives a finite mosaic or a CaptureError whose one line
+    names the file; it never raises anything else and never changes the file."""
+    from aat_deploy.capture.raw import load_mosaic
+    from aat_deploy.errors import CaptureError
+
+    f = tmp_path / f"frame{suffix}"
+    f.write_bytes(data)
+    try:
+        m, _ = load_mosaic(f)
+    except CaptureError as e:
+        msg = str(e)
+        assert "\n" not in msg and str(f) in msg
+    else:
+        assert m.ndim == 2 and np.isfinite(m).all()
+    assert f.read_bytes() == data
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(cut=st.floats(0.0, 1.0), flips=st.lists(st.tuples(st.floats(0.0, 1.0), st.integers(0, 255)), max_size=8))
+def test_load_mosaic_on_a_damaged_dng_returns_a_mosaic_or_one_line_naming_the_file(tmp_path, cut, flips):
+    """The virtual camera's DNG cut short and with bytes overwritten: a finite mosaic or a one-line CaptureError."""
+    from aat_deploy.capture.raw import load_mosaic
+    from aat_deploy.errors import CaptureError
+
+    src = tmp_path / "src"
+    if not src.is_dir():  # one DNG for every example (tmp_path is shared by them)
+        src.mkdir()
+        write_frames(src, np.full((1, 3, 32, 48), 0.5))
+    data = bytearray(next(src.glob("*.dng")).read_bytes())
+    for where, value in flips:
+        data[int(where * (len(data) - 1))] = value
+    data = bytes(data[: max(1, int(cut * len(data)))])
+    f = tmp_path / "frame.dng"
+    f.write_bytes(data)
+    try:
+        m, _ = load_mosaic(f)
+    except CaptureError as e:
+        assert "\n" not in str(e) and str(f) in str(e)
+    else:
+        assert m.ndim == 2 and np.isfinite(m).all()
+    assert f.read_bytes() == data
