@@ -341,3 +341,25 @@ def test_stack_curve_leaves_out_a_checkpoint_onnxruntime_disagrees_with(tmp_path
     assert got["rows"] == []
     assert [u["checkpoint"] for u in got["unexportable"]] == [str(c) for c in cks]
     assert got["unexportable"][0]["reason"].startswith("onnxruntime differs from torch by 1.10e-03")
+
+
+def test_stack_curve_stops_on_any_other_export_failure(tmp_path, monkeypatch):
+    import numpy as np
+
+    import training.train.export as tx
+    from benchmarks.probes import anycam_stack_curve
+    from training.train.testsets import TestItem
+
+    item = TestItem("procedural_000", np.zeros((3, 3, 32, 32), np.float32), np.array([0.5, 1.0, 2.0]),
+                    np.ones((32, 32), np.float32), np.zeros((3, 32, 32), np.float32))
+    monkeypatch.setattr(anycam_stack_curve, "fixed_stacks", lambda *a, **k: [item])
+
+    def broken(ck, out, force=False):
+        raise RuntimeError("something else")
+
+    monkeypatch.setattr(tx, "export_checkpoint", broken)
+    ck = tmp_path / "step_00200.pt"
+    ck.write_bytes(b"")
+    with pytest.raises(RuntimeError, match="something else"):
+        anycam_stack_curve.main([str(ck), "--n", "1", "--out", str(tmp_path / "curve.json")])
+    assert not (tmp_path / "curve.json").exists()
