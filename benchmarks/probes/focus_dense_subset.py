@@ -39,6 +39,8 @@ from pathlib import Path
 
 import numpy as np
 
+from aat_deploy.io.atomic import write_text_atomic
+
 ROOT = Path(__file__).resolve().parents[2]
 SEED = 32
 N_UNTOUCHED, N_RIGHT = 8, 16
@@ -274,7 +276,7 @@ def main(argv: list[str] | None = None) -> int:
     text = tally(read(a.tally), strata)
     print(text)
     if a.out:
-        a.out.write_text(text)
+        write_text_atomic(a.out, text)
     return 0
 
 

@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from aat_deploy.io.atomic import write_text_atomic
 from benchmarks.probes import focus_dense_subset as ds
 
 OUT = "results/focus_ptc_subset.jsonl"
@@ -138,7 +139,7 @@ def main(argv: list[str] | None = None) -> int:
     text = tally(ds.read(a.tally), {(c, k): s for s, c, k in order})
     print(text)
     if a.out:
-        a.out.write_text(text)
+        write_text_atomic(a.out, text)
     return 0
 
 

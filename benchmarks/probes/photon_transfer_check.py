@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from aat_deploy.io.atomic import write_text_atomic
+
 
 def frames_of(folder: Path) -> list[Path]:
     return sorted(folder.glob("frame_*.dng"))
@@ -99,7 +101,7 @@ def main(argv: list[str] | None = None) -> int:
     text = "\n".join(lines) + "\n"
     print(text)
     if a.out:
-        a.out.write_text(text)
+        write_text_atomic(a.out, text)
     return 0
 
 
