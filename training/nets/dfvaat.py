@@ -41,14 +41,16 @@ EXTRA_CHANNELS = 2
 # border: do the nets fail on whole frames because zero padding does? (docs/training.md)
 CONFIGS = {"small": replace(DFVNET_CONFIGS["small"], context_fuse=62)}
 CONFIGS["small_replicate"] = replace(CONFIGS["small"], pad_mode="replicate")
-# "<size>_x": the same net with `EndExtrapolation` after its head, so a pixel can be placed beyond its own frames
+# "<size>_x": the same net with `EndExtrapolation` after its head, so a pixel can be placed beyond its own frames;
+# "<size>_xb": the same, bounded (`EndExtrapolation(bounded=True)`: no pixel past twice its far frame's distance)
 EXTRAPOLATING = "_x"
-SIZES = (*CONFIGS, *(k + EXTRAPOLATING for k in CONFIGS))
+BOUNDED = "_xb"
+SIZES = (*CONFIGS, *(k + EXTRAPOLATING for k in CONFIGS), *(k + BOUNDED for k in CONFIGS))
 
 
 def base_size(size: str) -> str:
-    """The DFVNet configuration a size names ("small_replicate_x" -> "small_replicate")."""
-    return size.removesuffix(EXTRAPOLATING)
+    """The DFVNet configuration a size names ("small_replicate_x", "small_replicate_xb" -> "small_replicate")."""
+    return size.removesuffix(BOUNDED).removesuffix(EXTRAPOLATING)
 
 
 def focus_channels(focus_diopters: Tensor, defocus_px_per_d: Tensor) -> Tensor:
@@ -87,10 +89,18 @@ class EndExtrapolation(nn.Module):
     the peak lies beyond it, farther the steeper the rise (a Gaussian-like curve in log: the slope between the last
     two frames grows linearly with the peak's distance). Inputs per end: the two last logit steps and the end
     logit's margin over the log-sum-exp (how much of the weight the end frame holds); a 1x1 MLP, softplus. Its
-    last bias starts at -6 (e ~ 0.0025): the head starts as the interpolating one."""
+    last bias starts at -6 (e ~ 0.0025): the head starts as the interpolating one.
 
-    def __init__(self, hidden: int = 8):
+    bounded: e <= E_MAX spacings at either end (a smooth cap, e_max tanh(e / e_max)), and `focus_map_head` holds the far
+    end's move to FAR_FRACTION of the far frame's diopters, so no pixel lands past twice its far frame's distance
+    (the unbounded head carried 1.2-2.2 % of validation pixels to the 1 km clamp, docs/training.md)."""
+
+    E_MAX = 4.0  # end spacings; the out-of-range error floor measured 3.8 (docs/training.md)
+    FAR_FRACTION = 0.5  # of the far frame's diopters: depth at most 2x the far frame's distance
+
+    def __init__(self, hidden: int = 8, bounded: bool = False):
         super().__init__()
+        self.bounded = bounded
         self.mlp = nn.ModuleList(nn.Sequential(nn.Conv2d(3, hidden, 1), nn.ReLU(), nn.Conv2d(hidden, 1, 1))
                                  for _ in range(2))
         for m in self.mlp:
@@ -102,7 +112,8 @@ class EndExtrapolation(nn.Module):
         out = []
         for mlp, (a, b, c) in zip(self.mlp, ((0, 1, 2), (-1, -2, -3))):
             x = torch.stack([logits[:, a] - logits[:, b], logits[:, b] - logits[:, c], logits[:, a] - lse], 1)
-            out.append(F.softplus(mlp(x))[:, 0])
+            e = F.softplus(mlp(x))[:, 0]
+            out.append(self.E_MAX * torch.tanh(e / self.E_MAX) if self.bounded else e)
         return out[0], out[1]
 
 
@@ -110,14 +121,18 @@ def focus_map_head(logits: Tensor, stack: Tensor | None, focus_diopters: Tensor,
                    extrapolation: EndExtrapolation | None = None) -> tuple[Tensor, Tensor | None, Tensor, Tensor]:
     """logits (B, S, H, W), stack (B, S, 3, H, W) or None, focus_diopters (B, S, H, W) sorted near -> far ->
     depth_m (B, H, W), aif (B, 3, H, W) or None, std_m (B, H, W), diopters (B, H, W). With `extrapolation`, the
-    weight p_0 of the nearest frame is moved e_near end spacings nearer and p_S-1 e_far spacings farther."""
+    weight p_0 of the nearest frame is moved e_near end spacings nearer and p_S-1 e_far spacings farther (a bounded
+    `extrapolation`: at most EndExtrapolation.FAR_FRACTION of the far frame's diopters farther)."""
     p = softmax_frames(logits)
     d = (p * focus_diopters).sum(1)
     if extrapolation is not None:
         e_near, e_far = extrapolation(logits)
         gap_near = (focus_diopters[:, 0] - focus_diopters[:, 1]).abs()
         gap_far = (focus_diopters[:, -2] - focus_diopters[:, -1]).abs()
-        d = d + p[:, 0] * e_near * gap_near - p[:, -1] * e_far * gap_far
+        far_move = e_far * gap_far
+        if extrapolation.bounded:
+            far_move = torch.minimum(far_move, extrapolation.FAR_FRACTION * focus_diopters[:, -1].clamp_min(0.0))
+        d = d + p[:, 0] * e_near * gap_near - p[:, -1] * far_move
     depth = 1.0 / d.clamp_min(MIN_DIOPTERS)
     frame_m = 1.0 / focus_diopters.clamp_min(MIN_DIOPTERS)
     var = (p * (frame_m - depth[:, None]) ** 2).sum(1)
@@ -174,14 +189,15 @@ class FocusMapDfF(nn.Module):
 
     name = NET_NAME
     field_channels = 0
-    HEAD_PREFIX = "extrap."  # the "_x" sizes' tensors beyond the base size's (training.nets.warm_start)
+    HEAD_PREFIX = "extrap."  # the "_x" and "_xb" sizes' tensors beyond the base size's (training.nets.warm_start)
 
     def __init__(self, size: str = "small"):
         super().__init__()
         self.size = size
         self.net = ConditionedDFVNet(CONFIGS[base_size(size)], EXTRA_CHANNELS)
         self.size_multiple = int(self.net.size_multiple)
-        self.extrap = EndExtrapolation() if size.endswith(EXTRAPOLATING) else None
+        bounded = size.endswith(BOUNDED)
+        self.extrap = EndExtrapolation(bounded=bounded) if bounded or size.endswith(EXTRAPOLATING) else None
 
     @property
     def n_params(self) -> int:

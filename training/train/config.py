@@ -70,6 +70,7 @@ class TrainConfig:
     val_items: int = 16
     field_channels: int = 0  # 2: the nets also see each pixel's normalised sensor position (training.nets.model)
     init: str | None = None  # weights to start from: an exported DfF .onnx or a model.pt/last.pt (training.nets.warm_start)
+    train_only: str = ""  # a parameter-name prefix: only those train, the rest is frozen (training.train.loop.freeze_all_but)
 
     def validate(self) -> TrainConfig:
         net = registry.NETS.get(self.net)
@@ -111,6 +112,8 @@ class TrainConfig:
             d.pop(k)
         if d.get("init") is None:
             d.pop("init")  # configs without an init hash as they did before the field existed
+        if not d.get("train_only"):
+            d.pop("train_only")  # configs without it hash as they did before the field existed
         if not d.get("field_channels"):
             d.pop("field_channels")  # likewise
         if d["loss"].get("depth_space") == "m":

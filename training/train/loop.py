@@ -85,6 +85,30 @@ def _data_sources(train_set, val_set) -> dict:
     return out
 
 
+def freeze_all_but(model: torch.nn.Module, prefix: str) -> int:
+    """Only the parameters whose names start with `prefix` train (e.g. "extrap.": a new head on a trained body);
+    returns how many tensors train. The frozen part is held in eval mode by `train_mode`."""
+    n = 0
+    for name, p in model.named_parameters():
+        p.requires_grad_(name.startswith(prefix))
+        n += int(p.requires_grad)
+    if n == 0:
+        raise ValueError(f"train_only {prefix!r}: no parameter of the {type(model).__name__} starts with it")
+    return n
+
+
+def train_mode(model: torch.nn.Module, train_only: str = "") -> None:
+    """model.train(), except that with `train_only` every module none of whose parameters trains stays in eval
+    mode: a frozen body's batch norms keep their running statistics and use them, so the body computes exactly what
+    it did before the run."""
+    model.train()
+    if train_only:
+        for m in model.modules():
+            ps = list(m.parameters())
+            if ps and not any(p.requires_grad for p in ps):
+                m.eval()
+
+
 def _validate_and_log(model, val_set, cfg: TrainConfig, out_dir: Path, step: int, final: bool) -> dict:
     metrics, err_map = evaluate(model, val_set, cfg.val_items, cfg.loss.mask_focus_range)
     _log(out_dir, {"step": step, "val": metrics})
@@ -161,7 +185,10 @@ def _train(cfg, out_dir: Path, train_set, val_set, resume, stop_at_step, progres
     if sync_bn and world > 1:
         model = torch.nn.SyncBatchNorm.convert_sync_batchnorm(model)  # same parameter and buffer names
     model.to(device)
-    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    if cfg.train_only:
+        freeze_all_but(model, cfg.train_only)
+    opt = torch.optim.Adam([p for p in model.parameters() if p.requires_grad], lr=cfg.lr,
+                           weight_decay=cfg.weight_decay)
     scaler = grad_scaler(device, amp)
     if state is not None:
         opt.load_state_dict(state["optimizer"])  # moves the moments to the parameters' device
@@ -178,7 +205,7 @@ def _train(cfg, out_dir: Path, train_set, val_set, resume, stop_at_step, progres
         ddp = DistributedDataParallel(model, device_ids=[device.index] if device.type == "cuda" else None)
     else:
         ddp = model
-    model.train()
+    train_mode(model, cfg.train_only)
 
     def seen() -> int:
         return seen_before + (step - step0) * cfg.batch_size * world
@@ -243,6 +270,7 @@ def _train(cfg, out_dir: Path, train_set, val_set, resume, stop_at_step, progres
             if val_set is not None and cfg.val_every and step % cfg.val_every == 0 and step < cfg.steps:
                 if rank == 0:
                     _validate_and_log(model, val_set, cfg, out_dir, step, final=False)
+                    train_mode(model, cfg.train_only)  # evaluate restores plain train mode
                 barrier(world)
             if step >= end:
                 break

@@ -237,3 +237,54 @@ def test_the_extrapolating_net_exports_with_dynamic_shapes_and_stays_small(tmp_p
     path = tmp_path / "x.onnx"
     assert export_focus_map_onnx(m, path, md) < 1e-3
     assert parity_focus_map(m, path, [(1, 3, 32, 96), (1, 16, 96, 64)]) < 1e-3
+
+
+def test_the_bounded_extrapolation_caps_both_ends_and_never_passes_twice_the_far_frame():
+    from training.nets.dfvaat import EndExtrapolation
+
+    ex = EndExtrapolation(bounded=True)
+    for mlp in ex.mlp:  # a trained-like head that wants to move a pixel ~20 spacings
+        torch.nn.init.constant_(mlp[2].weight, 1.0)
+        torch.nn.init.constant_(mlp[2].bias, 0.0)
+    fd = torch.tensor([3.0, 2.0, 1.5, 1.0])[None, :, None, None]  # near -> far; end gaps 1.0 and 0.5 D
+    near = torch.tensor([10.0, 0.0, -5.0, -5.0])[None, :, None, None]
+    e_near, _ = ex(near)
+    assert 3.5 < float(e_near) <= ex.E_MAX  # softplus ~ 20 spacings, capped smoothly under 4
+    _, _, _, d = focus_map_head(near, None, fd, ex)
+    assert 3.0 < float(d) <= 3.0 + ex.E_MAX * 1.0 + 1e-5
+    far = torch.tensor([-5.0, -5.0, 0.0, 10.0])[None, :, None, None]
+    _, _, _, d = focus_map_head(far, None, fd, ex)
+    # 4 spacings of 0.5 D would reach -1 D (past infinity); the cap holds the move to half the far frame's 1 D
+    assert float(d) == pytest.approx(float((torch.softmax(far, 1) * fd).sum()
+                                           - torch.softmax(far, 1)[0, -1] * 0.5), rel=1e-5)
+    assert float(d) >= 0.5 - 1e-6  # depth at most 2 m, twice the far frame's 1 m
+    unbounded = EndExtrapolation()
+    unbounded.load_state_dict(ex.state_dict())
+    _, _, _, d_free = focus_map_head(far, None, fd, unbounded)
+    assert float(d_free) < 0.5  # the same weights without the bound go past it
+    # a far frame at infinity: no move beyond it at all
+    fd_inf = torch.tensor([2.0, 1.0, 0.5, 0.0])[None, :, None, None]
+    _, _, _, d = focus_map_head(far, None, fd_inf, ex)
+    # (what moves it at all is the near end's share, p_0 ~ 1e-7)
+    assert float(d) == pytest.approx(float((torch.softmax(far, 1) * fd_inf).sum()), abs=1e-5)
+    assert float(d) >= 0.0
+
+
+def test_a_bounded_net_starts_from_a_base_checkpoint_and_exports(tmp_path):
+    from training.nets.export import export_focus_map_onnx, focus_map_metadata, parity_focus_map
+    from training.nets.warm_start import init_model
+
+    torch.manual_seed(4)
+    base = build("small_replicate")
+    ck = tmp_path / "base.pt"
+    torch.save({"model": base.state_dict(), "config": {"net": "dfvaat", "size": "small_replicate"}, "step": 5}, ck)
+    m = build("small_replicate_xb")
+    assert m.extrap is not None and m.extrap.bounded
+    assert init_model(m, ck)["new_tensors"] > 0
+    for mlp in m.extrap.mlp:
+        torch.nn.init.normal_(mlp[2].weight, 0, 0.5)
+        torch.nn.init.constant_(mlp[2].bias, 0.5)
+    md = focus_map_metadata(m, effects=[], stack_range=(3, 16), config_hash="test", k_range=(0.3, 64))
+    path = tmp_path / "xb.onnx"
+    assert export_focus_map_onnx(m, path, md) < 1e-3
+    assert parity_focus_map(m, path, [(1, 3, 32, 96), (1, 16, 96, 64)]) < 1e-3

@@ -446,3 +446,45 @@ def test_focus_map_loss_weighs_pixels_beyond_their_frames_by_out_of_range_weight
     assert config_from_dict(d).hash() == config_from_dict({**d, "loss": {**d["loss"], "out_of_range_weight": 1.0}}).hash()
     with pytest.raises(ConfigError, match="out_of_range_weight"):
         config_from_dict({**d, "loss": {**d["loss"], "out_of_range_weight": 2.0}})
+
+
+def test_a_head_only_run_leaves_the_body_exactly_as_it_started_and_trains_the_head(tmp_path):
+    """train_only "extrap.": a bounded extrapolating head on a trained body. The body's weights and its batch
+    norms' running statistics stay bit-identical through training and validation (its batch norms run in eval
+    mode); the head moves; a resume ends where the uninterrupted run does; a prefix nothing has is refused."""
+    from training.data.anycam import AnyCamConfig, AnyCamDataset
+    from training.nets.dfvaat import build
+    from training.train.loop import load_trained, train
+
+    common = dict(seed=4, height=32, width=32, margin_px=8, max_layers=16, cache_dir=str(tmp_path / "cache"))
+    data = AnyCamDataset(AnyCamConfig(n_items=6, crop=0, **common))
+    val = AnyCamDataset(AnyCamConfig(n_items=2, crop=0, fixed_subsets=True, **common))
+    torch.manual_seed(5)
+    base = build("small_replicate")
+    for m in base.modules():  # running statistics a training would have left (not the defaults)
+        if isinstance(m, torch.nn.BatchNorm2d | torch.nn.BatchNorm3d):
+            m.running_mean.uniform_(-0.1, 0.1)
+            m.running_var.uniform_(0.5, 1.5)
+    ck = tmp_path / "base.pt"
+    torch.save({"model": base.state_dict(), "config": {"net": "dfvaat", "size": "small_replicate"}, "step": 5}, ck)
+    cfg = train_config(net="dfvaat", simulator="any_camera", lens="", size="small_replicate_xb", init=str(ck),
+                       train_only="extrap.", val_every=2, val_items=2, lr=3e-2,
+                       loss=LossConfig(level_weights=(2.0, 1.0), mask_focus_range=True))
+    assert cfg.hash() != train_config(net="dfvaat", simulator="any_camera", lens="", size="small_replicate_xb",
+                                      init=str(ck), val_every=2, val_items=2, lr=3e-2,
+                                      loss=LossConfig(level_weights=(2.0, 1.0), mask_focus_range=True)).hash()
+    full = train(cfg, tmp_path / "a", train_set=data, val_set=val, progress=False)
+    assert full.finished
+    trained, _ = load_trained(tmp_path / "a" / "model.pt")
+    after, before = trained.state_dict(), base.state_dict()
+    assert all(torch.equal(after[k], before[k]) for k in before)  # weights and buffers of the body
+    fresh = build("small_replicate_xb").state_dict()
+    assert any(not torch.equal(after[k], fresh[k]) for k in after if k.startswith("extrap."))
+    train(cfg, tmp_path / "b", train_set=data, val_set=val, stop_at_step=3, progress=False)
+    train(cfg, tmp_path / "b", train_set=data, val_set=val, resume=True, progress=False)
+    resumed, _ = load_trained(tmp_path / "b" / "model.pt")
+    assert torch.equal(_params(trained), _params(resumed))
+    bad = train_config(net="dfvaat", simulator="any_camera", lens="", size="small_replicate_xb", init=str(ck),
+                       train_only="nothing.", loss=LossConfig(level_weights=(2.0, 1.0)))
+    with pytest.raises(ValueError, match="train_only 'nothing.': no parameter"):
+        train(bad, tmp_path / "c", train_set=data, val_set=val, progress=False)
