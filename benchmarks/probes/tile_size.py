@@ -1,0 +1,129 @@
+"""Part a on the phone against the fit's tile size: can smaller tiles reach the corners (issue 33; docs/calibration.md,
+"The tile size and the corners").
+
+    OMP_NUM_THREADS=1 python -m benchmarks.probes.tile_size --truth results/render_truth_map_cellphone_19p.json \
+        [--variants nominal,copy] [--tiles-px 16,20,24,27,32] --out results/tile_size.json
+
+bench_calibrate's `cellphone_near` development sweeps only (the nominal lens, the hand-chosen copy and the declared
+random copies of seed 2026; no scene, held-out or not), measured as `bench_calibrate.measures` measures them (the
+same tapes) but with tiles of each --tiles-px (`measure_sweep(tile_px=...)`; the fit's own is 27 px on the 640 px
+frame: `sweep.tile_px_for`), the fit's centred grid, and fitted as part a fits them (`fit_calibration`, no
+bootstrap). Per tile size: the grid, the farthest kept tile's field radius (where the field term starts to be held)
+and the share of the pixels beyond it, the tiles counted and kept, and part a (inside, 7-18 cm, against --truth:
+`bench_calibrate.map_errors`) overall, within and beyond the farthest tile's radius and by field radius.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from aat_deploy.io.atomic import write_text_atomic
+
+
+def tile_grid(h: int, w: int, tile_px: int, aspect: float) -> dict:
+    """The fit's centred grid of tile_px tiles on an h x w frame: its shape, border and farthest centre's radius."""
+    from aat_deploy.calibrate.format import field_radius_of
+    from aat_deploy.calibrate.peaks import TileGrid
+
+    g = TileGrid(h, w, tile_px)
+    x, y = g.field()
+    rows, cols = g.starts
+    return {"grid": list(g.shape), "border_px": [int(cols[0]), int(rows[0])],
+            "farthest_centre_r": float(field_radius_of(x, y, aspect).max())}
+
+
+def run(variant: str, truth_path: str, tile_px: int, log) -> dict:
+    from aat_deploy.calibrate.fit import fit_calibration
+    from aat_deploy.calibrate.format import field_radius_of
+    from aat_deploy.calibrate.sweep import measure_sweep
+    from aat_deploy.eval.stats import field_radius
+    from benchmarks import bench_calibrate as B
+    from benchmarks.probes import chart_texture as CT
+
+    t0 = time.time()
+    rig, v = CT.rig_for(B.Rig(B.LENSES["cellphone_near"], truth=truth_path), "soft leaves", variant)
+    s = rig.setup
+    eff = B.effects_for(s, v)
+    sweeps = [B.sweep(rig, v, i, log) for i in range(len(s.distances_m))]
+    rng = np.random.default_rng(7)  # bench_calibrate.measures's tapes, drawn in the same order
+    ms = []
+    for sw in sweeps:
+        tape = sw["distance_m"] + rng.normal(0, B.TAPE_SD_MM / 1000)
+        free = s.distances_m.index(sw["distance_m"]) in s.fit_distance
+        ms.append(measure_sweep(B.as_sweep(rig, sw, v), sw["layout"], distance_m=tape, measure=rig.measure,
+                                prefilter_px=rig.prefilter_px, fit_distance=free, tile_px=tile_px))
+    res = fit_calibration(ms, n_boot=0)
+    cal = res.calibration
+    e = B.map_errors(rig, cal, eff, s.inside())["calibration"]
+    obs = res.observations
+    r_max = float(field_radius_of(obs.x, obs.y, obs.aspect).max())
+    out = {"variant": variant, "tile_px": tile_px, **tile_grid(rig.h, rig.w, tile_px, rig.w / rig.h),
+           "counted": int(sum(int((m.peaks.why == "").sum()) for m in ms)), "kept": int(len(obs)),
+           "kept_r_max": r_max, "beyond_share": float((field_radius(rig.h, rig.w) > r_max).mean()),
+           "order": [res.model.degree, res.model.radial, res.model.focus_degree, res.model.low_focus_degree],
+           "family": cal.focus_error.family,
+           "near_chart_mm": float(1000 * ms[s.fit_distance[0]].chart_distance_m) if s.fit_distance else None,
+           "near_chart_fitted_mm": float(1000 * res.measures[s.fit_distance[0]].chart_distance_m)
+           if s.fit_distance else None,
+           "part_a": {k: e[k] for k in ("rms_d", "p95_d", "within_tiles_rms_d", "beyond_tiles_rms_d",
+                                         "radius_rms_d") if k in e},
+           "seconds": time.time() - t0}
+    log(f"{variant} {tile_px} px: grid {out['grid']}, farthest kept tile r {r_max:.3f} ({100 * out['beyond_share']:.2f} "
+        f"% beyond), kept {len(obs)}; part a {e['rms_d']:.4f} D (within {e.get('within_tiles_rms_d', float('nan')):.4f}, "
+        f"beyond {e.get('beyond_tiles_rms_d', float('nan')):.3f}) ({out['seconds']:.0f} s)")
+    return out
+
+
+def table(rows: list[dict]) -> str:
+    out = ["| variant | tile (px) | grid (rows x cols) | farthest kept tile's radius | pixels beyond | tiles kept | "
+           "part a inside RMS (D) | within the tiles' radius | beyond it | near chart (mm) | order |",
+           "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        a = r["part_a"]
+        out.append(f"| {r['variant']} | {r['tile_px']} | {r['grid'][0]} x {r['grid'][1]} | {r['kept_r_max']:.3f} | "
+                   f"{100 * r['beyond_share']:.2f} % | {r['kept']} | {a['rms_d']:.4f} | "
+                   f"{a.get('within_tiles_rms_d', float('nan')):.4f} | {a.get('beyond_tiles_rms_d', float('nan')):.3f} | "
+                   f"{r['near_chart_fitted_mm']:.2f} | {'/'.join(str(v) for v in r['order'])} |")
+    return "\n".join(out)
+
+
+def main(argv=None) -> int:
+    from benchmarks.probes.tile_bias import chosen_variants
+    from benchmarks.render_truth_map import load_or_exit
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--truth", required=True, help="a render-truth map (aat-render-truth-map-v1; a repo path)")
+    ap.add_argument("--variants", default="nominal,copy")
+    ap.add_argument("--tiles-px", default="16,20,24,27,32", help="tile sizes (px, comma-separated)")
+    ap.add_argument("--out", required=True)
+    a = ap.parse_args(argv)
+    try:
+        sizes = [int(t) for t in a.tiles_px.split(",") if t]
+    except ValueError:
+        ap.error(f"--tiles-px {a.tiles_px!r}: whole numbers of pixels, comma-separated")
+    if not sizes or any(not 8 <= t <= 96 for t in sizes):
+        ap.error(f"--tiles-px {a.tiles_px!r}: sizes of 8 to 96 px")
+    if Path(a.out).exists():
+        ap.error(f"{a.out}: exists (choose another --out)")
+    variants = chosen_variants(ap, a.variants)
+    if not variants:
+        ap.error("nothing to run: --variants is empty")
+    load_or_exit(a.truth, "tile_size")
+    log = lambda m: print(m, file=sys.stderr, flush=True)
+    rows = [run(v, a.truth, t, log) for v in variants for t in sizes]
+    write_text_atomic(a.out, json.dumps({"what": __doc__.split("\n")[0], "truth": a.truth,
+                                         "command": "python -m benchmarks.probes.tile_size " + " ".join(
+                                             argv if argv is not None else sys.argv[1:]), "rows": rows},
+                                        indent=1, default=float))
+    print(table(rows))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,70 @@
+"""benchmarks/probes/outer_fit.py and tile_size.py (issue 33): the split of a map's error into parts that add up to
+it, by hand; the radius bins; the fit's tile grids by hand; their one-line refusals (the renders and fits are the
+probes' own minutes, not tested here)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from benchmarks.probes import outer_fit as O
+from benchmarks.probes import tile_size as T
+
+
+def test_split_shares_add_to_one_and_are_each_parts_projection_by_hand():
+    rng = np.random.default_rng(0)
+    a, b = rng.normal(size=(2, 3, 4)), rng.normal(size=(2, 3, 4))
+    m = np.ones((3, 4), bool)
+    out = O.split(a + b, {"a": a, "b": b}, {"all": m, "none": np.zeros((3, 4), bool)})
+    assert "none" not in out  # an empty mask is left out
+    row = out["all"]
+    assert row["a"]["share"] + row["b"]["share"] == pytest.approx(1.0)
+    assert row["a"]["share"] == pytest.approx(np.sum(a * (a + b)) / np.sum((a + b) ** 2))
+    assert row["total"]["rms_d"] == pytest.approx(np.sqrt(np.mean((a + b) ** 2)))
+    assert row["b"]["mean_d"] == pytest.approx(b.mean()) and row["pixel_share"] == 1.0
+    # pixel-frame masks (S, H, W) pick per frame
+    pf = np.zeros((2, 3, 4), bool)
+    pf[1, 0, 0] = True
+    one = O.split(a + b, {"a": a, "b": b}, {"one": pf})["one"]
+    assert one["a"]["share"] == pytest.approx(a[1, 0, 0] / (a + b)[1, 0, 0])
+    assert one["pixel_share"] == pytest.approx(1 / 24)
+
+
+def test_split_refuses_parts_that_do_not_add_up():
+    a = np.ones((1, 2, 2))
+    with pytest.raises(ValueError, match="do not add up"):
+        O.split(a, {"a": a, "b": 0.1 * a}, {"all": np.ones((2, 2), bool)})
+
+
+def test_bin_masks_end_at_the_farthest_tile_and_do_not_overlap():
+    r = np.linspace(0, 1, 101)[None, :]
+    m = O.bin_masks(r, 0.92)
+    rings = [k for k in m if k != "within"]
+    assert rings == ["0-0.66", "0.66-0.75", "0.75-0.84", "0.84-0.92"]
+    assert np.array_equal(sum(m[k].astype(int) for k in rings), m["within"].astype(int))
+    assert m["within"].sum() == 93 and not m["0.84-0.92"][0, 93]  # 0..0.92 inclusive
+
+
+@pytest.mark.parametrize("tile, grid, border, r", [
+    (27, [17, 23], [9, 10], 0.920),  # the fit's: docs/calibration.md, "The tiles and the frame's corners"
+    (20, [24, 32], [0, 0], 0.965),   # 20 px divides both sides: centres 10 px from each edge, hypot(310, 230) / 400
+    (32, [15, 20], [0, 0], 0.944),   # centres 16 px from each edge: hypot(304, 224) / 400
+])
+def test_tile_grid_by_hand(tile, grid, border, r):
+    g = T.tile_grid(480, 640, tile, 4 / 3)
+    assert g["grid"] == grid and g["border_px"] == border
+    assert g["farthest_centre_r"] == pytest.approx(r, abs=5e-4)
+
+
+@pytest.mark.parametrize("mod, args, says", [
+    (O, ["--noise-draws", "-1"], "--noise-draws -1: 0 or more"),
+    (O, ["--variants", "nominl"], "--variants: nominl not of"),
+    (T, ["--tiles-px", "27,x"], "whole numbers of pixels"),
+    (T, ["--tiles-px", "4"], "sizes of 8 to 96 px"),
+    (T, ["--variants", ""], "nothing to run"),
+])
+def test_probes_refuse_bad_arguments_in_one_line_before_reading_the_truth(tmp_path, capsys, mod, args, says):
+    with pytest.raises(SystemExit):
+        mod.main(["--truth", str(tmp_path / "no_truth.json"), *args, "--out", str(tmp_path / "o.json")])
+    assert says in capsys.readouterr().err.strip().splitlines()[-1]
+    assert not (tmp_path / "o.json").exists()
