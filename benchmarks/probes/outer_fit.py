@@ -156,7 +156,7 @@ def noisy(frames: np.ndarray, params: dict, seed: int) -> np.ndarray:
     return out.astype(np.float16).astype(np.float32)
 
 
-def run_variant(variant: str, truth_path: str, draws: int, log) -> dict:
+def run_variant(variant: str, truth_path: str, draws: int, log, sampling: bool = False) -> dict:
     from aat_deploy.calibrate import in_focus_diopters
     from aat_deploy.calibrate.fit import tile_rectangle
     from aat_deploy.calibrate.format import field_grid, field_radius_of, measured_mask
@@ -264,6 +264,10 @@ def run_variant(variant: str, truth_path: str, draws: int, log) -> dict:
     kept_fit: list = []
     m_dense = fit_map(o_dense.reported_d, o_dense.object_d, o_dense, kept_fit)
     dense_fe, dense_fp = kept_fit
+    if sampling:
+        return {"variant": variant, "tile_radius_max": r_max, "order": {"degree": order[0], "radial": order[2]},
+                "sampling": sampling_runs(rig, eff, scale, res, sub, p_clean[ok], tr_clean, fit_map, m_dense, masks),
+                "seconds": time.time() - t0}
     parts = {"noise": m_meas - m_clean, "distance": m_clean - m_clean_true,
              "measurement (clean)": m_clean_true - m_exact, "where the tiles lie": m_exact - m_dense,
              "basis": m_dense - dense}
@@ -350,7 +354,80 @@ def run_variant(variant: str, truth_path: str, draws: int, log) -> dict:
     return out
 
 
+def plane_objects(x: np.ndarray, y: np.ndarray, obj: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+    """A chart's objects (D) at field points xs, ys from its tiles' (x, y, obj): a plane's inverse depth is affine in
+    the image coordinates (`pose`), so an affine least-squares fit through the tiles."""
+    a = np.column_stack([np.ones_like(x), x, y])
+    c, *_ = np.linalg.lstsq(a, obj, rcond=None)
+    return c[0] + c[1] * xs + c[2] * ys
+
+
+def sampling_runs(rig, eff, scale, res, sub, peak, exact, fit_map, m_dense, masks) -> dict:
+    """Where the tiles lie, with exact tiles only (no render): the same model (the rule's order and family) fitted to
+    exact tiles sampled otherwise, each map minus the dense fit by bin (RMS, mean): as fitted (the kept tiles);
+    with virtual charts between the real ones in object diopters (the tiles' positions of the 10 cm chart, objects
+    of the same plane moved to the new distance, the peak where the truth has that object in focus: more bands of
+    focus at every field point); and on a finer grid (the four charts' planes sampled at 20 and 13.5 px tile
+    centres, the peaks from the truth: more field points, reaching farther)."""
+    from aat_deploy.calibrate.model import Observations
+    from benchmarks.probes import phone_map_budget as P
+
+    aspect = sub.aspect
+    rows = {"as fitted (the kept tiles, 27 px)": (sub, peak, exact)}
+    s = rig.setup
+    ref = s.distances_m.index(0.1)
+    sel = sub.sweep == ref
+
+    def exact_tiles(xs, ys, objs, sweeps):
+        t = rig.truth_at(eff, xs, ys, 1.0 / P.F_GRID_D)
+        pk = P.ideal_reported_d(t, objs, scale)
+        ok = np.isfinite(pk)
+        o = Observations(xs[ok], ys[ok], pk[ok], objs[ok], sweeps[ok], sweeps[ok] * 10_000, aspect=aspect)
+        return o, pk[ok], objs[ok]
+
+    for name, extra_m in (("plus virtual charts at 12.8, 8.3 and 6.2 cm (between the four)", (0.128, 0.083, 0.062)),
+                          ("plus virtual charts at 12.8 and 8.3 cm", (0.128, 0.083))):
+        xs, ys, objs, sws = [sub.x], [sub.y], [exact], [sub.sweep]
+        for k, d in enumerate(extra_m):
+            xs.append(sub.x[sel])
+            ys.append(sub.y[sel])
+            objs.append(sub.object_d[sel] * 0.1 / d)  # the 10 cm chart's plane (tilt) moved to d
+            sws.append(np.full(int(sel.sum()), 100 + k))
+        xv, yv, ov, sv = (np.concatenate(v) for v in (xs, ys, objs, sws))
+        o, pk, ob = exact_tiles(xv[len(sub.x):], yv[len(sub.x):], ov[len(sub.x):], sv[len(sub.x):])
+        allo = Observations(np.concatenate([sub.x, o.x]), np.concatenate([sub.y, o.y]),
+                            np.concatenate([peak, pk]), np.concatenate([exact, ob]),
+                            np.concatenate([sub.sweep, o.sweep]), np.concatenate([sub.cell, o.cell]), aspect=aspect)
+        rows[name] = (allo, allo.reported_d, allo.object_d)
+    for tile in (20, 13.5):
+        gx, gy = np.meshgrid(np.arange(tile / 2, rig.w - tile / 2 + 1e-9, tile),
+                             np.arange(tile / 2, rig.h - tile / 2 + 1e-9, tile))
+        fx_, fy_ = 2 * (gx.ravel() + 0.5) / rig.w - 1, 1 - 2 * (gy.ravel() + 0.5) / rig.h
+        xs, ys, objs, sws = [], [], [], []
+        for sw in np.unique(sub.sweep):
+            m = sub.sweep == sw
+            xs.append(fx_)
+            ys.append(fy_)
+            objs.append(plane_objects(sub.x[m], sub.y[m], sub.object_d[m], fx_, fy_))
+            sws.append(np.full(fx_.size, int(sw)))
+        o, pk, ob = exact_tiles(*(np.concatenate(v) for v in (xs, ys, objs, sws)))
+        rows[f"the four charts on a {tile:g} px grid (centres {tile / 2:g} px from the edges)"] = (o, pk, ob)
+    out = {}
+    for name, (o, pk, ob) in rows.items():
+        e = fit_map(pk, ob, o) - m_dense
+        out[name] = {"tiles": int(len(o)),
+                     **{k: {"rms_d": float(np.sqrt(np.mean(e[..., mk] ** 2))), "mean_d": float(np.mean(e[..., mk]))}
+                        for k, mk in masks.items() if mk.any()}}
+    return out
+
+
 def table(res: dict) -> str:
+    if res["variants"] and "sampling" in res["variants"][0]:
+        keys = [k for k in res["variants"][0]["sampling"]["as fitted (the kept tiles, 27 px)"] if k != "tiles"]
+        return "\n".join(["| variant | exact tiles sampled | tiles | " + " | ".join(keys) + " |",
+                          "|---|---|---|" + "---|" * len(keys)] + [
+            f"| {v['variant']} | {n} | {r['tiles']} | " + " | ".join(f"{r[k]['rms_d']:.3f}" for k in keys) + " |"
+            for v in res["variants"] for n, r in v["sampling"].items()])
     out = ["| variant | radius | map error RMS (mean), rule's order | " + " | ".join(
         f"{p}: RMS, share" for p in PARTS) + " | part a's fit RMS |", "|---|---|---|" + "---|" * (len(PARTS) + 1)]
     for v in res["variants"]:
@@ -386,6 +463,8 @@ def main(argv=None) -> int:
     ap.add_argument("--truth", required=True, help="a render-truth map (aat-render-truth-map-v1; a repo path)")
     ap.add_argument("--variants", default="nominal,copy,copy_s2026_0,copy_s2026_1,copy_s2026_2")
     ap.add_argument("--noise-draws", type=int, default=6, help="new draws of the sensor noise per chart")
+    ap.add_argument("--sampling", action="store_true", help="only where the tiles lie, with exact tiles sampled "
+                    "otherwise (virtual charts between the real ones; finer grids): `sampling_runs`")
     ap.add_argument("--out", required=True)
     a = ap.parse_args(argv)
     if a.noise_draws < 0:
@@ -399,7 +478,7 @@ def main(argv=None) -> int:
     log = lambda m: print(m, file=sys.stderr, flush=True)
     res = {"what": __doc__.split("\n")[0], "truth": a.truth,
            "command": "python -m benchmarks.probes.outer_fit " + " ".join(argv if argv is not None else sys.argv[1:]),
-           "variants": [run_variant(v, a.truth, a.noise_draws, log) for v in variants]}
+           "variants": [run_variant(v, a.truth, a.noise_draws, log, a.sampling) for v in variants]}
     write_text_atomic(a.out, json.dumps(res, indent=1, default=float))
     print(table(res))
     return 0
