@@ -42,15 +42,23 @@ EXTRA_CHANNELS = 2
 CONFIGS = {"small": replace(DFVNET_CONFIGS["small"], context_fuse=62)}
 CONFIGS["small_replicate"] = replace(CONFIGS["small"], pad_mode="replicate")
 # "<size>_x": the same net with `EndExtrapolation` after its head, so a pixel can be placed beyond its own frames;
-# "<size>_xb": the same, bounded (`EndExtrapolation(bounded=True)`: no pixel past twice its far frame's distance)
+# "<size>_xb": the same, bounded (`EndExtrapolation(bounded=True)`: no pixel past twice its far frame's distance);
+# "<size>_xbk": bounded, and also told each end spacing in blur pixels (`EndExtrapolation(blur_spacing=True)`)
 EXTRAPOLATING = "_x"
 BOUNDED = "_xb"
-SIZES = (*CONFIGS, *(k + EXTRAPOLATING for k in CONFIGS), *(k + BOUNDED for k in CONFIGS))
+BOUNDED_BLUR = "_xbk"
+HEADS = (BOUNDED_BLUR, BOUNDED, EXTRAPOLATING)  # longest first: a size ends with at most one
+SIZES = (*CONFIGS, *(k + h for h in reversed(HEADS) for k in CONFIGS))
+
+
+def head_of(size: str) -> str:
+    """The extrapolating head a size names ("small_replicate_xb" -> "_xb"), "" for none."""
+    return next((h for h in HEADS if size.endswith(h)), "")
 
 
 def base_size(size: str) -> str:
-    """The DFVNet configuration a size names ("small_replicate_x", "small_replicate_xb" -> "small_replicate")."""
-    return size.removesuffix(BOUNDED).removesuffix(EXTRAPOLATING)
+    """The DFVNet configuration a size names ("small_replicate_x", "small_replicate_xbk" -> "small_replicate")."""
+    return size.removesuffix(head_of(size))
 
 
 def focus_channels(focus_diopters: Tensor, defocus_px_per_d: Tensor) -> Tensor:
@@ -93,42 +101,62 @@ class EndExtrapolation(nn.Module):
 
     bounded: e <= E_MAX spacings at either end (a smooth cap, e_max tanh(e / e_max)), and `focus_map_head` holds the far
     end's move to FAR_FRACTION of the far frame's diopters, so no pixel lands past twice its far frame's distance
-    (the unbounded head carried 1.2-2.2 % of validation pixels to the 1 km clamp, docs/training.md)."""
+    (the unbounded head carried 1.2-2.2 % of validation pixels to the 1 km clamp, docs/training.md).
+
+    blur_spacing: a fourth input per end, log2 of the end spacing in blur pixels (defocus px/D times the end gap in
+    D) / 4. The curve's shape over one spacing says how far its peak lies only once the spacing's width in blur is
+    known: a peak *at* the end frame and one *beyond* it look alike otherwise (docs/training.md, the fifteenth run).
+    forward then takes `gaps_px` = (near, far), each (B, H, W)."""
 
     E_MAX = 4.0  # end spacings; the out-of-range error floor measured 3.8 (docs/training.md)
     FAR_FRACTION = 0.5  # of the far frame's diopters: depth at most 2x the far frame's distance
 
-    def __init__(self, hidden: int = 8, bounded: bool = False):
+    def __init__(self, hidden: int = 8, bounded: bool = False, blur_spacing: bool = False):
         super().__init__()
         self.bounded = bounded
-        self.mlp = nn.ModuleList(nn.Sequential(nn.Conv2d(3, hidden, 1), nn.ReLU(), nn.Conv2d(hidden, 1, 1))
+        self.blur_spacing = blur_spacing
+        n_in = 4 if blur_spacing else 3
+        self.mlp = nn.ModuleList(nn.Sequential(nn.Conv2d(n_in, hidden, 1), nn.ReLU(), nn.Conv2d(hidden, 1, 1))
                                  for _ in range(2))
         for m in self.mlp:
             nn.init.zeros_(m[2].weight)
             nn.init.constant_(m[2].bias, -6.0)
 
-    def forward(self, logits: Tensor) -> tuple[Tensor, Tensor]:
+    def forward(self, logits: Tensor, gaps_px: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, Tensor]:
+        if self.blur_spacing and gaps_px is None:
+            raise ValueError("EndExtrapolation(blur_spacing=True): needs gaps_px, the end spacings in blur pixels")
         lse = torch.logsumexp(logits, 1)
         out = []
-        for mlp, (a, b, c) in zip(self.mlp, ((0, 1, 2), (-1, -2, -3))):
-            x = torch.stack([logits[:, a] - logits[:, b], logits[:, b] - logits[:, c], logits[:, a] - lse], 1)
+        for end, (mlp, (a, b, c)) in enumerate(zip(self.mlp, ((0, 1, 2), (-1, -2, -3)))):
+            feats = [logits[:, a] - logits[:, b], logits[:, b] - logits[:, c], logits[:, a] - lse]
+            if self.blur_spacing:
+                feats.append(torch.log2(gaps_px[end].clamp_min(1e-3)) / 4.0)
+            x = torch.stack(feats, 1)
             e = F.softplus(mlp(x))[:, 0]
             out.append(self.E_MAX * torch.tanh(e / self.E_MAX) if self.bounded else e)
         return out[0], out[1]
 
 
 def focus_map_head(logits: Tensor, stack: Tensor | None, focus_diopters: Tensor,
-                   extrapolation: EndExtrapolation | None = None) -> tuple[Tensor, Tensor | None, Tensor, Tensor]:
-    """logits (B, S, H, W), stack (B, S, 3, H, W) or None, focus_diopters (B, S, H, W) sorted near -> far ->
+                   extrapolation: EndExtrapolation | None = None, defocus_px_per_d: Tensor | None = None,
+                   ) -> tuple[Tensor, Tensor | None, Tensor, Tensor]:
+    """logits (B, S, H, W), stack (B, S, 3, H, W) or None, focus_diopters (B, S, H, W) sorted near -> far,
+    defocus_px_per_d (B, 1, H, W) (what an `extrapolation` with blur_spacing needs) ->
     depth_m (B, H, W), aif (B, 3, H, W) or None, std_m (B, H, W), diopters (B, H, W). With `extrapolation`, the
     weight p_0 of the nearest frame is moved e_near end spacings nearer and p_S-1 e_far spacings farther (a bounded
     `extrapolation`: at most EndExtrapolation.FAR_FRACTION of the far frame's diopters farther)."""
     p = softmax_frames(logits)
     d = (p * focus_diopters).sum(1)
     if extrapolation is not None:
-        e_near, e_far = extrapolation(logits)
         gap_near = (focus_diopters[:, 0] - focus_diopters[:, 1]).abs()
         gap_far = (focus_diopters[:, -2] - focus_diopters[:, -1]).abs()
+        gaps_px = None
+        if extrapolation.blur_spacing:
+            if defocus_px_per_d is None:
+                raise ValueError("focus_map_head: this extrapolation needs defocus_px_per_d")
+            k = defocus_px_per_d[:, 0]
+            gaps_px = (gap_near * k, gap_far * k)
+        e_near, e_far = extrapolation(logits, gaps_px)
         far_move = e_far * gap_far
         if extrapolation.bounded:
             far_move = torch.minimum(far_move, extrapolation.FAR_FRACTION * focus_diopters[:, -1].clamp_min(0.0))
@@ -189,15 +217,16 @@ class FocusMapDfF(nn.Module):
 
     name = NET_NAME
     field_channels = 0
-    HEAD_PREFIX = "extrap."  # the "_x" and "_xb" sizes' tensors beyond the base size's (training.nets.warm_start)
+    HEAD_PREFIX = "extrap."  # the "_x", "_xb" and "_xbk" sizes' tensors beyond the base size's (training.nets.warm_start)
 
     def __init__(self, size: str = "small"):
         super().__init__()
         self.size = size
         self.net = ConditionedDFVNet(CONFIGS[base_size(size)], EXTRA_CHANNELS)
         self.size_multiple = int(self.net.size_multiple)
-        bounded = size.endswith(BOUNDED)
-        self.extrap = EndExtrapolation(bounded=bounded) if bounded or size.endswith(EXTRAPOLATING) else None
+        head = head_of(size)
+        self.extrap = (EndExtrapolation(bounded=head != EXTRAPOLATING, blur_spacing=head == BOUNDED_BLUR) if head
+                       else None)
 
     @property
     def n_params(self) -> int:
@@ -205,7 +234,7 @@ class FocusMapDfF(nn.Module):
 
     def levels(self, stack: Tensor, focus_diopters: Tensor, defocus_px_per_d: Tensor) -> list[tuple]:
         dk, lk = (t.to(stack.dtype) for t in cond_inputs(focus_diopters, defocus_px_per_d))
-        return [focus_map_head(lg, stack if i == 0 else None, focus_diopters, self.extrap)
+        return [focus_map_head(lg, stack if i == 0 else None, focus_diopters, self.extrap, defocus_px_per_d)
                 for i, lg in enumerate(self.net(stack, dk, lk))]
 
     def forward(self, stack: Tensor, focus_diopters: Tensor, defocus_px_per_d: Tensor, all_levels: bool = False):

@@ -68,7 +68,8 @@ NETS: dict[str, NetSpec] = {s.name: s for s in (
     NetSpec("aifnet", "AiFNet", _aifnet, level_weights=(1.0,), aliases=("aif",)),
     NetSpec("dfvnet", "DFVNet", _dfvnet, level_weights=(8.0, 4.0), aliases=("dfv",)),
     NetSpec("dfvaat", "DFVNet with focus maps", _dfvaat, sizes=("small", "small_replicate", "small_x", "small_replicate_x",
-                                                                    "small_xb", "small_replicate_xb"),
+                                                                    "small_xb", "small_replicate_xb",
+                                                                    "small_xbk", "small_replicate_xbk"),
             field_channels=(0,),
             level_weights=(8.0, 4.0), focus_maps=True, chain=False),
 )}

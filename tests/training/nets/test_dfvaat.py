@@ -2,6 +2,7 @@
 than the small DFVNet, and one ONNX export (dynamic S, H, W) matches torch at shapes other than the export's
 (the DFVNet pitfall of shape-derived pooling kernels, reference-facts 7)."""
 
+import math
 from pathlib import Path
 
 import pytest
@@ -286,5 +287,60 @@ def test_a_bounded_net_starts_from_a_base_checkpoint_and_exports(tmp_path):
         torch.nn.init.constant_(mlp[2].bias, 0.5)
     md = focus_map_metadata(m, effects=[], stack_range=(3, 16), config_hash="test", k_range=(0.3, 64))
     path = tmp_path / "xb.onnx"
+    assert export_focus_map_onnx(m, path, md) < 1e-3
+    assert parity_focus_map(m, path, [(1, 3, 32, 96), (1, 16, 96, 64)]) < 1e-3
+
+
+def test_the_blur_spacing_head_reads_each_end_spacing_in_blur_pixels():
+    from training.nets.dfvaat import EndExtrapolation
+
+    ex = EndExtrapolation(bounded=True, blur_spacing=True)
+    for mlp in ex.mlp:  # only the fourth input (log2 of the spacing in blur px / 4) drives e
+        torch.nn.init.zeros_(mlp[0].weight)
+        with torch.no_grad():
+            mlp[0].weight[:, 3] = 1.0
+        torch.nn.init.zeros_(mlp[0].bias)
+        torch.nn.init.constant_(mlp[2].weight, 1.0)
+        torch.nn.init.constant_(mlp[2].bias, -3.0)
+    fd = torch.tensor([3.0, 2.0, 1.5, 1.0])[None, :, None, None]  # end gaps 1.0 and 0.5 D
+    logits = torch.tensor([10.0, 0.0, -5.0, -5.0])[None, :, None, None]
+    e_small, _ = ex(logits, (torch.full((1, 1, 1), 2.0), torch.full((1, 1, 1), 1.0)))
+    e_wide, _ = ex(logits, (torch.full((1, 1, 1), 64.0), torch.full((1, 1, 1), 32.0)))
+    # hand-computed: hidden units = log2(g)/4, 8 of them summed, minus 3, softplus, 4 tanh(. / 4)
+    for e, g in ((e_small, 2.0), (e_wide, 64.0)):
+        z = torch.nn.functional.softplus(torch.tensor(8 * math.log2(g) / 4 - 3.0))
+        assert float(e) == pytest.approx(float(4 * torch.tanh(z / 4)), rel=1e-5)
+    k = torch.full((1, 1, 1, 1), 2.0)  # px per D: the near gap of 1 D is 2 px
+    _, _, _, d = focus_map_head(logits, None, fd, ex, k)
+    p0 = torch.softmax(logits, 1)[0, 0]
+    assert float(d) == pytest.approx(float((torch.softmax(logits, 1) * fd).sum() + p0 * e_small * 1.0
+                                           - torch.softmax(logits, 1)[0, -1] * 0.0), rel=1e-4, abs=1e-6)
+    with pytest.raises(ValueError, match="needs defocus_px_per_d"):
+        focus_map_head(logits, None, fd, ex)
+    with pytest.raises(ValueError, match="needs gaps_px"):
+        ex(logits)
+
+
+def test_a_blur_spacing_net_starts_from_a_base_checkpoint_matches_it_and_exports(tmp_path):
+    from training.nets.export import export_focus_map_onnx, focus_map_metadata, parity_focus_map
+    from training.nets.warm_start import init_model
+
+    torch.manual_seed(6)
+    base = build("small_replicate")
+    ck = tmp_path / "base.pt"
+    torch.save({"model": base.state_dict(), "config": {"net": "dfvaat", "size": "small_replicate"}, "step": 5}, ck)
+    m = build("small_replicate_xbk")
+    assert m.extrap.bounded and m.extrap.blur_spacing and m.n_params <= build_model("dfvnet", "small").n_params
+    assert init_model(m, ck)["new_tensors"] > 0
+    stack = torch.rand(1, 4, 3, 32, 64)
+    fd = torch.linspace(2, 0.5, 4)[None, :, None, None].expand(1, 4, 32, 64).contiguous()
+    k = torch.full((1, 1, 32, 64), 8.0)
+    a, b = predict(base.eval(), stack, fd, k), predict(m.eval(), stack, fd, k)
+    assert torch.allclose(a["diopters"], b["diopters"], atol=0.01)  # the head starts as the interpolating one
+    for mlp in m.extrap.mlp:
+        torch.nn.init.normal_(mlp[2].weight, 0, 0.5)
+        torch.nn.init.constant_(mlp[2].bias, 0.5)
+    md = focus_map_metadata(m, effects=[], stack_range=(3, 16), config_hash="test", k_range=(0.3, 64))
+    path = tmp_path / "xbk.onnx"
     assert export_focus_map_onnx(m, path, md) < 1e-3
     assert parity_focus_map(m, path, [(1, 3, 32, 96), (1, 16, 96, 64)]) < 1e-3
