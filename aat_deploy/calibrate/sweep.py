@@ -167,9 +167,12 @@ class SweepMeasurement:
                        geometry=geo)
 
 
+TILES_PER_WIDTH = 24  # the fit's tiles: 1/24 of the frame's width (27 px on 640); 32 a candidate (docs/calibration.md)
+
+
 def tile_px_for(width: int) -> int:
-    """Tiles of about 1/24 of the frame width, at least 16 px."""
-    return max(16, int(round(width / 24)))
+    """Tiles of about 1/TILES_PER_WIDTH of the frame width (1/24), at least 16 px."""
+    return max(16, int(round(width / TILES_PER_WIDTH)))
 
 
 def measure_sweep(sweep: Sweep, layout: ChartLayout, distance_m: float | None = None,

@@ -49,6 +49,9 @@ OPTIONS = {
     "beyond linear": {"fit.BEYOND_TILES": "linear"},
     # the field term held at the nearest point of the tile centres' rectangle outside it (as is: held on the radius)
     "beyond rectangle": {"fit.BEYOND_TILES": "rectangle"},
+    # tiles of 1/32 of the frame's width (as is: 1/24; 20 px instead of 27 on the phone's 640): the sweeps' measuring
+    # (`measure_sweep` through `tile_px_for`), so only runs that measure the sweeps see it (patched_bench, --measured)
+    "tiles 1/32": {"sweep.TILES_PER_WIDTH": 32},
 }
 
 
@@ -57,13 +60,14 @@ MEASURED_ONLY = ("true distances", "true distances, near fitted")  # --measured:
 
 @contextlib.contextmanager
 def patched(changes: dict):
-    """Module constants of aat_deploy.calibrate.model (NAME), .format (format.NAME) or .fit (fit.NAME) changed inside
-    the block."""
+    """Module constants of aat_deploy.calibrate.model (NAME), .format (format.NAME), .fit (fit.NAME) or .sweep
+    (sweep.NAME) changed inside the block."""
     from aat_deploy.calibrate import fit as FIT
     from aat_deploy.calibrate import format as F
     from aat_deploy.calibrate import model as M
+    from aat_deploy.calibrate import sweep as SW
 
-    mods = {"format": F, "fit": FIT}
+    mods = {"format": F, "fit": FIT, "sweep": SW}
     where = lambda k: (mods[k.split(".", 1)[0]], k.split(".", 1)[1]) if k.split(".", 1)[0] in mods else (M, k)
     old = {k: getattr(*where(k)) for k in changes}
     try:

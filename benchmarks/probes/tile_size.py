@@ -10,7 +10,8 @@ same tapes) but with tiles of each --tiles-px (`measure_sweep(tile_px=...)`; the
 frame: `sweep.tile_px_for`), the fit's centred grid, and fitted as part a fits them (`fit_calibration`, no
 bootstrap). Per tile size: the grid, the farthest kept tile's field radius (where the field term starts to be held)
 and the share of the pixels beyond it, the tiles counted and kept, and part a (inside, 7-18 cm, against --truth:
-`bench_calibrate.map_errors`) overall, within and beyond the farthest tile's radius and by field radius.
+`bench_calibrate.map_errors`) overall, within and beyond the farthest tile's radius and by field radius, and on the
+depth schedule (0.07-0.5 m).
 """
 
 from __future__ import annotations
@@ -61,6 +62,7 @@ def run(variant: str, truth_path: str, tile_px: int, log) -> dict:
     res = fit_calibration(ms, n_boot=0)
     cal = res.calibration
     e = B.map_errors(rig, cal, eff, s.inside())["calibration"]
+    sched = B.map_errors(rig, cal, eff, s.schedule())["calibration"]
     obs = res.observations
     r_max = float(field_radius_of(obs.x, obs.y, obs.aspect).max())
     out = {"variant": variant, "tile_px": tile_px, **tile_grid(rig.h, rig.w, tile_px, rig.w / rig.h),
@@ -73,6 +75,8 @@ def run(variant: str, truth_path: str, tile_px: int, log) -> dict:
            if s.fit_distance else None,
            "part_a": {k: e[k] for k in ("rms_d", "p95_d", "within_tiles_rms_d", "beyond_tiles_rms_d",
                                          "radius_rms_d") if k in e},
+           "schedule": {k: sched[k] for k in ("rms_d", "p95_d", "within_tiles_rms_d", "beyond_tiles_rms_d")
+                        if k in sched},
            "seconds": time.time() - t0}
     log(f"{variant} {tile_px} px: grid {out['grid']}, farthest kept tile r {r_max:.3f} ({100 * out['beyond_share']:.2f} "
         f"% beyond), kept {len(obs)}; part a {e['rms_d']:.4f} D (within {e.get('within_tiles_rms_d', float('nan')):.4f}, "
@@ -82,14 +86,14 @@ def run(variant: str, truth_path: str, tile_px: int, log) -> dict:
 
 def table(rows: list[dict]) -> str:
     out = ["| variant | tile (px) | grid (rows x cols) | farthest kept tile's radius | pixels beyond | tiles kept | "
-           "part a inside RMS (D) | within the tiles' radius | beyond it | near chart (mm) | order |",
-           "|---|---|---|---|---|---|---|---|---|---|---|"]
+           "part a inside RMS (D) | within the tiles' radius | beyond it | the depth schedule (D) | near chart (mm) | "
+           "order |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         a = r["part_a"]
         out.append(f"| {r['variant']} | {r['tile_px']} | {r['grid'][0]} x {r['grid'][1]} | {r['kept_r_max']:.3f} | "
                    f"{100 * r['beyond_share']:.2f} % | {r['kept']} | {a['rms_d']:.4f} | "
                    f"{a.get('within_tiles_rms_d', float('nan')):.4f} | {a.get('beyond_tiles_rms_d', float('nan')):.3f} | "
-                   f"{r['near_chart_fitted_mm']:.2f} | {'/'.join(str(v) for v in r['order'])} |")
+                   f"{r['schedule']['rms_d']:.4f} | {r['near_chart_fitted_mm']:.2f} | {'/'.join(str(v) for v in r['order'])} |")
     return "\n".join(out)
 
 
