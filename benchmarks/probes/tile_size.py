@@ -10,8 +10,9 @@ same tapes) but with tiles of each --tiles-px (`measure_sweep(tile_px=...)`; the
 frame: `sweep.tile_px_for`), the fit's centred grid, and fitted as part a fits them (`fit_calibration`, no
 bootstrap). Per tile size: the grid, the farthest kept tile's field radius (where the field term starts to be held)
 and the share of the pixels beyond it, the tiles counted and kept, and part a (inside, 7-18 cm, against --truth:
-`bench_calibrate.map_errors`) overall, within and beyond the farthest tile's radius and by field radius, and on the
-depth schedule (0.07-0.5 m).
+`bench_calibrate.map_errors`) overall, within and beyond the farthest tile's radius and by field radius, in fixed
+regions (within and beyond radius 0.920, the 27 px grid's farthest tile centre, and 0.66-0.920), and on the depth
+schedule (0.07-0.5 m).
 """
 
 from __future__ import annotations
@@ -25,6 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from aat_deploy.io.atomic import write_text_atomic
+
+FIXED_R = 0.920  # the fit's 27 px grid's farthest tile centre on the phone's 640 x 480
 
 
 def tile_grid(h: int, w: int, tile_px: int, aspect: float) -> dict:
@@ -63,6 +66,16 @@ def run(variant: str, truth_path: str, tile_px: int, log) -> dict:
     cal = res.calibration
     e = B.map_errors(rig, cal, eff, s.inside())["calibration"]
     sched = B.map_errors(rig, cal, eff, s.schedule())["calibration"]
+    # fixed regions, the same for every tile size: within and beyond the 27 px grid's farthest centre (0.920)
+    from aat_deploy.calibrate import in_focus_diopters
+
+    inside = s.inside()
+    d = in_focus_diopters(cal, inside * B.SCALE if any(x.startswith("focus_metadata") for x in eff) else inside,
+                          rig.h, rig.w).astype(np.float64) - rig.truth(eff, inside).astype(np.float64)
+    prad = field_radius(rig.h, rig.w)
+    fixed = {f"r <= {FIXED_R:g}": prad <= FIXED_R, f"r > {FIXED_R:g}": prad > FIXED_R,
+             f"0.66 < r <= {FIXED_R:g}": (prad > 0.66) & (prad <= FIXED_R)}
+    fixed_rms = {k: float(np.sqrt(np.mean(d[:, m] ** 2))) for k, m in fixed.items()}
     obs = res.observations
     r_max = float(field_radius_of(obs.x, obs.y, obs.aspect).max())
     out = {"variant": variant, "tile_px": tile_px, **tile_grid(rig.h, rig.w, tile_px, rig.w / rig.h),
@@ -75,6 +88,7 @@ def run(variant: str, truth_path: str, tile_px: int, log) -> dict:
            if s.fit_distance else None,
            "part_a": {k: e[k] for k in ("rms_d", "p95_d", "within_tiles_rms_d", "beyond_tiles_rms_d",
                                          "radius_rms_d") if k in e},
+           "part_a_fixed_regions_rms_d": fixed_rms,
            "schedule": {k: sched[k] for k in ("rms_d", "p95_d", "within_tiles_rms_d", "beyond_tiles_rms_d")
                         if k in sched},
            "seconds": time.time() - t0}
@@ -86,13 +100,14 @@ def run(variant: str, truth_path: str, tile_px: int, log) -> dict:
 
 def table(rows: list[dict]) -> str:
     out = ["| variant | tile (px) | grid (rows x cols) | farthest kept tile's radius | pixels beyond | tiles kept | "
-           "part a inside RMS (D) | within the tiles' radius | beyond it | the depth schedule (D) | near chart (mm) | "
-           "order |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+           "part a inside RMS (D) | within the tiles' radius | beyond it | r <= 0.92 / 0.66-0.92 / r > 0.92 (fixed) | "
+           "the depth schedule (D) | near chart (mm) | order |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         a = r["part_a"]
         out.append(f"| {r['variant']} | {r['tile_px']} | {r['grid'][0]} x {r['grid'][1]} | {r['kept_r_max']:.3f} | "
                    f"{100 * r['beyond_share']:.2f} % | {r['kept']} | {a['rms_d']:.4f} | "
                    f"{a.get('within_tiles_rms_d', float('nan')):.4f} | {a.get('beyond_tiles_rms_d', float('nan')):.3f} | "
+                   f"{' / '.join(format(v, '.4f') for v in r['part_a_fixed_regions_rms_d'].values())} | "
                    f"{r['schedule']['rms_d']:.4f} | {r['near_chart_fitted_mm']:.2f} | {'/'.join(str(v) for v in r['order'])} |")
     return "\n".join(out)
 
