@@ -68,3 +68,23 @@ def test_probes_refuse_bad_arguments_in_one_line_before_reading_the_truth(tmp_pa
         mod.main(["--truth", str(tmp_path / "no_truth.json"), *args, "--out", str(tmp_path / "o.json")])
     assert says in capsys.readouterr().err.strip().splitlines()[-1]
     assert not (tmp_path / "o.json").exists()
+
+
+def test_more_charts_parses_extra_charts_and_refuses_bad_ones_by_name():
+    from benchmarks.probes import more_charts as M
+
+    assert M.parse_extra("0.128:-6:5,0.083:10:-4") == [(0.128, (-6.0, 5.0)), (0.083, (10.0, -4.0))]
+    assert M.parse_extra("") == []
+    with pytest.raises(ValueError, match="'0.1:3': distance_m:tilt_x_deg:tilt_y_deg"):
+        M.parse_extra("0.128:-6:5,0.1:3")
+    with pytest.raises(ValueError, match="'2:0:0': a distance of 0.055-0.5 m"):
+        M.parse_extra("2:0:0")
+
+
+def test_more_charts_refuses_no_extra_chart_in_one_line(tmp_path, capsys):
+    from benchmarks.probes import more_charts as M
+
+    with pytest.raises(SystemExit):
+        M.main(["--truth", str(tmp_path / "t.json"), "--extra", "", "--out", str(tmp_path / "o.json")])
+    assert "--extra: no chart given" in capsys.readouterr().err.strip().splitlines()[-1]
+    assert not (tmp_path / "o.json").exists()

@@ -100,7 +100,7 @@ def run(variant: str, truth_path: str, tile_px: int, log) -> dict:
 
 def table(rows: list[dict]) -> str:
     out = ["| variant | tile (px) | grid (rows x cols) | farthest kept tile's radius | pixels beyond | tiles kept | "
-           "part a inside RMS (D) | within the tiles' radius | beyond it | r <= 0.92 / 0.66-0.92 / r > 0.92 (fixed) | "
+           "part a inside RMS (D) | within the tiles' radius | beyond it | r <= 0.92 / r > 0.92 / 0.66-0.92 (fixed) | "
            "the depth schedule (D) | near chart (mm) | order |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         a = r["part_a"]
