@@ -12,7 +12,8 @@ bootstrap). Per tile size: the grid, the farthest kept tile's field radius (wher
 and the share of the pixels beyond it, the tiles counted and kept, and part a (inside, 7-18 cm, against --truth:
 `bench_calibrate.map_errors`) overall, within and beyond the farthest tile's radius and by field radius, in fixed
 regions (within and beyond radius 0.920, the 27 px grid's farthest tile centre, and 0.66-0.920), and on the depth
-schedule (0.07-0.5 m).
+schedule (0.07-0.5 m). With --exact, also the same kept tiles made exact (`exact_fit`): what the model alone does
+with tiles that reach that far.
 """
 
 from __future__ import annotations
@@ -42,7 +43,41 @@ def tile_grid(h: int, w: int, tile_px: int, aspect: float) -> dict:
             "farthest_centre_r": float(field_radius_of(x, y, aspect).max())}
 
 
-def run(variant: str, truth_path: str, tile_px: int, log) -> dict:
+def r_max_of(res) -> float:
+    from aat_deploy.calibrate.format import field_radius_of
+
+    o = res.observations
+    return float(field_radius_of(o.x, o.y, o.aspect).max())
+
+
+def exact_fit(rig, eff: list[str], res, r_max: float, fixed: dict) -> dict:
+    """The fit's kept tiles made exact (`phone_map_budget`'s ideal tiles: each tile's object, at the chart distance as
+    fitted, with the peak where the truth has it in focus), fitted by `model.fit_model` (order chosen on them), the
+    field term held beyond r_max: part a in the fixed regions (RMS, D). What the tiles' measurement costs there: with
+    exact tiles the rest is the model's."""
+    import dataclasses
+
+    from aat_deploy.calibrate import in_focus_diopters
+    from aat_deploy.calibrate.model import fit_model
+    from benchmarks import bench_calibrate as B
+    from benchmarks.probes import phone_map_budget as P
+
+    scale = B.SCALE if any(x.startswith("focus_metadata") for x in eff) else 1.0
+    res.sweeps_measured = res.measures
+    tiles = P.tile_table(res, rig, eff, scale)
+    keep = P.kept_tiles(tiles, res.observations) & np.isfinite(tiles["ideal_d"])
+    ideal = P.observations_of(tiles, keep, tiles["ideal_d"], rig.w / rig.h)
+    m = fit_model(ideal)
+    cal = P.held(dataclasses.replace(res.calibration, focus_error=m.focus, best_focus=m.field), r_max)
+    inside = rig.setup.inside()
+    d = in_focus_diopters(cal, inside * scale, rig.h, rig.w).astype(np.float64) - rig.truth(eff, inside).astype(
+        np.float64)
+    return {"tiles": int(keep.sum()), "order": [m.degree, m.radial, m.focus_degree, m.low_focus_degree],
+            "rms_d": float(np.sqrt(np.mean(d ** 2))),
+            "fixed_regions_rms_d": {k: float(np.sqrt(np.mean(d[:, msk] ** 2))) for k, msk in fixed.items()}}
+
+
+def run(variant: str, truth_path: str, tile_px: int, log, exact: bool = False) -> dict:
     from aat_deploy.calibrate.fit import fit_calibration
     from aat_deploy.calibrate.format import field_radius_of
     from aat_deploy.calibrate.sweep import measure_sweep
@@ -78,6 +113,8 @@ def run(variant: str, truth_path: str, tile_px: int, log) -> dict:
     fixed_rms = {k: float(np.sqrt(np.mean(d[:, m] ** 2))) for k, m in fixed.items()}
     obs = res.observations
     r_max = float(field_radius_of(obs.x, obs.y, obs.aspect).max())
+    if exact:  # the same kept tiles made exact (each peaking where the truth has its object in focus), fitted
+        out_exact = exact_fit(rig, eff, res, r_max_of(res), fixed)
     out = {"variant": variant, "tile_px": tile_px, **tile_grid(rig.h, rig.w, tile_px, rig.w / rig.h),
            "counted": int(sum(int((m.peaks.why == "").sum()) for m in ms)), "kept": int(len(obs)),
            "kept_r_max": r_max, "beyond_share": float((field_radius(rig.h, rig.w) > r_max).mean()),
@@ -92,9 +129,13 @@ def run(variant: str, truth_path: str, tile_px: int, log) -> dict:
            "schedule": {k: sched[k] for k in ("rms_d", "p95_d", "within_tiles_rms_d", "beyond_tiles_rms_d")
                         if k in sched},
            "seconds": time.time() - t0}
+    if exact:
+        out["exact"] = out_exact
     log(f"{variant} {tile_px} px: grid {out['grid']}, farthest kept tile r {r_max:.3f} ({100 * out['beyond_share']:.2f} "
         f"% beyond), kept {len(obs)}; part a {e['rms_d']:.4f} D (within {e.get('within_tiles_rms_d', float('nan')):.4f}, "
-        f"beyond {e.get('beyond_tiles_rms_d', float('nan')):.3f}) ({out['seconds']:.0f} s)")
+        f"beyond {e.get('beyond_tiles_rms_d', float('nan')):.3f}) ({out['seconds']:.0f} s)"
+        + (f"; exact tiles {out['exact']['rms_d']:.4f} D, fixed regions " + " / ".join(
+            f"{v:.3f}" for v in out['exact']['fixed_regions_rms_d'].values()) if exact else ""))
     return out
 
 
@@ -120,6 +161,8 @@ def main(argv=None) -> int:
     ap.add_argument("--truth", required=True, help="a render-truth map (aat-render-truth-map-v1; a repo path)")
     ap.add_argument("--variants", default="nominal,copy")
     ap.add_argument("--tiles-px", default="16,20,24,27,32", help="tile sizes (px, comma-separated)")
+    ap.add_argument("--exact", action="store_true", help="also the kept tiles made exact (peaking where the truth has "
+                    "their object in focus) and fitted: what the model alone does at each tile size")
     ap.add_argument("--out", required=True)
     a = ap.parse_args(argv)
     try:
@@ -135,7 +178,7 @@ def main(argv=None) -> int:
         ap.error("nothing to run: --variants is empty")
     load_or_exit(a.truth, "tile_size")
     log = lambda m: print(m, file=sys.stderr, flush=True)
-    rows = [run(v, a.truth, t, log) for v in variants for t in sizes]
+    rows = [run(v, a.truth, t, log, a.exact) for v in variants for t in sizes]
     write_text_atomic(a.out, json.dumps({"what": __doc__.split("\n")[0], "truth": a.truth,
                                          "command": "python -m benchmarks.probes.tile_size " + " ".join(
                                              argv if argv is not None else sys.argv[1:]), "rows": rows},
