@@ -488,3 +488,19 @@ def test_a_head_only_run_leaves_the_body_exactly_as_it_started_and_trains_the_he
                        train_only="nothing.", loss=LossConfig(level_weights=(2.0, 1.0)))
     with pytest.raises(ValueError, match="train_only 'nothing.': no parameter"):
         train(bad, tmp_path / "c", train_set=data, val_set=val, progress=False)
+
+
+def test_configs_made_before_train_only_hash_as_their_shipped_models_record():
+    """The hash names a trained model (its ONNX metadata's aat.config_hash): adding `train_only` must not change it
+    for a config without it, or every shipped model's provenance check would fail."""
+    import dataclasses
+
+    import onnxruntime as ort
+
+    for cfg_name, model_name in (("dfv_aat_v10", "dfv_aat_v10_s23200"), ("dfv_aat_v13", "dfv_aat_v13_s22600")):
+        cfg = config_from_dict(json.loads((ROOT / "configs" / "anycam" / f"{cfg_name}.json").read_text()))
+        sess = ort.InferenceSession(str(ROOT / "models" / "reproduce" / f"{model_name}.onnx"),
+                                    providers=["CPUExecutionProvider"])
+        assert cfg.hash() == sess.get_modelmeta().custom_metadata_map["aat.config_hash"], cfg_name
+        assert dataclasses.replace(cfg, train_only="").hash() == cfg.hash()
+        assert dataclasses.replace(cfg, train_only="extrap.").hash() != cfg.hash()
