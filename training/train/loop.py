@@ -33,7 +33,7 @@ from torch.nn.parallel import DistributedDataParallel
 from torch.utils.data import DataLoader, Dataset
 from tqdm import tqdm
 
-from aat_deploy.io.atomic import write_text_atomic
+from aat_deploy.io.atomic import atomic_file, write_text_atomic
 from training.devices.distributed import barrier, broadcast_buffers, init_distributed
 from training.devices.precision import amp_dtype, amp_name, autocast, grad_scaler
 from training.devices.select import pin_memory, resolve_device, to_device
@@ -114,9 +114,10 @@ def _validate_and_log(model, val_set, cfg: TrainConfig, out_dir: Path, step: int
     _log(out_dir, {"step": step, "val": metrics})
     _keep_best(model, cfg, out_dir, step, metrics)
     if final:
-        (out_dir / "val_metrics.json").write_text(json.dumps(metrics, indent=1))
+        write_text_atomic(out_dir / "val_metrics.json", json.dumps(metrics, indent=1))
         if err_map is not None:  # None: validation items of several sizes
-            np.save(out_dir / "val_error_map_m.npy", err_map.astype(np.float32))
+            with atomic_file(out_dir / "val_error_map_m.npy") as tmp:
+                np.save(tmp, err_map.astype(np.float32))
     return metrics
 
 
@@ -196,7 +197,7 @@ def _train(cfg, out_dir: Path, train_set, val_set, resume, stop_at_step, progres
             scaler.load_state_dict(state["grad_scaler"])
     if rank == 0:
         out_dir.mkdir(parents=True, exist_ok=True)
-        (out_dir / "config.json").write_text(json.dumps(cfg.to_dict(), indent=1))
+        write_text_atomic(out_dir / "config.json", json.dumps(cfg.to_dict(), indent=1))
     barrier(world)
     step0 = step
     sessions.append({"from_step": step, "device": str(device), "amp": amp_name(amp), "processes": world,
@@ -290,7 +291,7 @@ def _train(cfg, out_dir: Path, train_set, val_set, resume, stop_at_step, progres
                        "dataset_cache": str(getattr(train_set, "cache", None)),
                        "wall_s": round(wall_before + time.perf_counter() - t_start, 1),
                        "s_per_step_last_session": t_steps / n_timed if n_timed else None}
-            (out_dir / "train_summary.json").write_text(json.dumps(summary, indent=1))
+            write_text_atomic(out_dir / "train_summary.json", json.dumps(summary, indent=1))
         barrier(world)
     return TrainResult(step, finished, last_loss, t_steps / n_timed if n_timed else None, val_metrics)
 

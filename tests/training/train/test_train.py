@@ -141,6 +141,7 @@ def test_training_learns_and_evaluates(tmp_path):
     emap = np.load(tmp_path / "run" / "val_error_map_m.npy")
     assert emap.shape == (32, 32) and np.isnan(emap[0, 0]) and np.nanmean(emap) == pytest.approx(
         np.nanmean(emap), rel=1e-6)
+    assert not [f.name for f in (tmp_path / "run").iterdir() if ".tmp-" in f.name]  # every output renamed into place
     model, _ = load_trained(tmp_path / "run" / "model.pt")
     again, _ = evaluate(model, val_set)
     assert again["mae"] == pytest.approx(after["mae"], rel=1e-5)
