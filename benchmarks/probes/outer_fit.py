@@ -265,9 +265,21 @@ def run_variant(variant: str, truth_path: str, draws: int, log, sampling: bool =
     m_dense = fit_map(o_dense.reported_d, o_dense.object_d, o_dense, kept_fit)
     dense_fe, dense_fp = kept_fit
     if sampling:
-        return {"variant": variant, "tile_radius_max": r_max, "order": {"degree": order[0], "radial": order[2]},
+        # the basis: the dense fit at the rule's order against the same at the format's richest order (monomials to
+        # degree 6, radial powers to rho^12, cubic in focus for the edge powers, quadratic for the rest)
+        ob = Observations(o_dense.x, o_dense.y, o_dense.reported_d, o_dense.object_d, o_dense.sweep, o_dense.cell,
+                          aspect=aspect)
+        fe6, fp6, _ = fit_family(ob, fam, 6, 3, radial=12, low_focus_degree=2)
+        m6 = in_focus_diopters(P.held(dataclasses.replace(res.calibration, focus_error=fe6, best_focus=fp6), r_max),
+                               rep_m, rig.h, rig.w).astype(np.float64)
+        basis = {name: {k: {"rms_d": float(np.sqrt(np.mean(e[..., mk] ** 2))), "mean_d": float(np.mean(e[..., mk]))}
+                        for k, mk in masks.items() if mk.any()}
+                 for name, e in (("the rule's order", m_dense - dense), ("6/12/3/2, the format's richest", m6 - dense))}
+        return {"variant": variant, "tile_radius_max": r_max, "order": {"degree": order[0], "radial": order[2],
+                                                                         "focus_degree": order[1],
+                                                                         "low_focus_degree": order[3]},
                 "sampling": sampling_runs(rig, eff, scale, res, sub, p_clean[ok], tr_clean, fit_map, m_dense, masks),
-                "seconds": time.time() - t0}
+                "basis": basis, "seconds": time.time() - t0}
     parts = {"noise": m_meas - m_clean, "distance": m_clean - m_clean_true,
              "measurement (clean)": m_clean_true - m_exact, "where the tiles lie": m_exact - m_dense,
              "basis": m_dense - dense}
@@ -427,7 +439,11 @@ def table(res: dict) -> str:
         return "\n".join(["| variant | exact tiles sampled | tiles | " + " | ".join(keys) + " |",
                           "|---|---|---|" + "---|" * len(keys)] + [
             f"| {v['variant']} | {n} | {r['tiles']} | " + " | ".join(f"{r[k]['rms_d']:.3f}" for k in keys) + " |"
-            for v in res["variants"] for n, r in v["sampling"].items()])
+            for v in res["variants"] for n, r in v["sampling"].items()] + [
+            "", "| variant | the dense fit to the truth itself, at | " + " | ".join(keys) + " |",
+            "|---|---|" + "---|" * len(keys)] + [
+            f"| {v['variant']} | {n} | " + " | ".join(f"{r[k]['rms_d']:.3f}" for k in keys) + " |"
+            for v in res["variants"] if "basis" in v for n, r in v["basis"].items()])
     out = ["| variant | radius | map error RMS (mean), rule's order | " + " | ".join(
         f"{p}: RMS, share" for p in PARTS) + " | part a's fit RMS |", "|---|---|---|" + "---|" * (len(PARTS) + 1)]
     for v in res["variants"]:
@@ -464,7 +480,8 @@ def main(argv=None) -> int:
     ap.add_argument("--variants", default="nominal,copy,copy_s2026_0,copy_s2026_1,copy_s2026_2")
     ap.add_argument("--noise-draws", type=int, default=6, help="new draws of the sensor noise per chart")
     ap.add_argument("--sampling", action="store_true", help="only where the tiles lie, with exact tiles sampled "
-                    "otherwise (virtual charts between the real ones; finer grids): `sampling_runs`")
+                    "otherwise (virtual charts between the real ones; finer grids): `sampling_runs`; and the basis "
+                    "at the rule's order against the format's richest (the dense fit to the truth itself)")
     ap.add_argument("--out", required=True)
     a = ap.parse_args(argv)
     if a.noise_draws < 0:
