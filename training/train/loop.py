@@ -166,9 +166,10 @@ def _train(cfg, out_dir: Path, train_set, val_set, resume, stop_at_step, progres
     if resume and ckpt_path.exists():
         state = load(ckpt_path)
         old = state["config"]
-        for k in ("net", "size", "simulator", "field_channels"):
-            if old.get(k, 0) != getattr(cfg, k):
-                raise ValueError(f"{ckpt_path}: checkpoint has {k}={old.get(k, 0)!r}, config has {getattr(cfg, k)!r}")
+        # train_only too: the optimizer's moments are stored per trained tensor, by position
+        for k, unset in (("net", 0), ("size", 0), ("simulator", 0), ("field_channels", 0), ("train_only", "")):
+            if old.get(k, unset) != getattr(cfg, k):
+                raise ValueError(f"{ckpt_path}: checkpoint has {k}={old.get(k, unset)!r}, config has {getattr(cfg, k)!r}")
         model.load_state_dict(state["model"])
         step = int(state["step"])
         wall_before = float(state.get("wall_s", 0.0))

@@ -452,7 +452,10 @@ def test_focus_map_loss_weighs_pixels_beyond_their_frames_by_out_of_range_weight
 def test_a_head_only_run_leaves_the_body_exactly_as_it_started_and_trains_the_head(tmp_path):
     """train_only "extrap.": a bounded extrapolating head on a trained body. The body's weights and its batch
     norms' running statistics stay bit-identical through training and validation (its batch norms run in eval
-    mode); the head moves; a resume ends where the uninterrupted run does; a prefix nothing has is refused."""
+    mode); the head moves; a resume ends where the uninterrupted run does, and one with another train_only is
+    refused; a prefix nothing has is refused."""
+    import dataclasses
+
     from training.data.anycam import AnyCamConfig, AnyCamDataset
     from training.nets.dfvaat import build
     from training.train.loop import load_trained, train
@@ -485,6 +488,9 @@ def test_a_head_only_run_leaves_the_body_exactly_as_it_started_and_trains_the_he
     train(cfg, tmp_path / "b", train_set=data, val_set=val, resume=True, progress=False)
     resumed, _ = load_trained(tmp_path / "b" / "model.pt")
     assert torch.equal(_params(trained), _params(resumed))
+    with pytest.raises(ValueError, match="checkpoint has train_only='extrap.', config has ''"):
+        train(dataclasses.replace(cfg, train_only=""), tmp_path / "b", train_set=data, val_set=val, resume=True,
+              progress=False)  # the optimizer state holds the head's tensors only
     bad = train_config(net="dfvaat", simulator="any_camera", lens="", size="small_replicate_xb", init=str(ck),
                        train_only="nothing.", loss=LossConfig(level_weights=(2.0, 1.0)))
     with pytest.raises(ValueError, match="train_only 'nothing.': no parameter"):
