@@ -54,6 +54,12 @@ FULL_WELL_ON_FINAL_SWEEP = False
 # absorbs the twin's curve misfit and moves with the metadata's error). Declared and scored on development sets
 # (issue 32; docs/diagnosis.md, "The full well by photon transfer")
 FULL_WELL_BY_PHOTON_TRANSFER = False
+# whether, with the full well measured by photon transfer, the focus twin's floor is put at the capture's exposure:
+# the twin is exposed by `TwinRenderer.linear`'s match of 99.5th percentiles (capture frames, all-in-focus image), which
+# leaves its white-level brightness 0.7-1.4 x the capture's, and the expected floor relative to the signal goes as one
+# over it (`capture_exposure`; issue 32, docs/diagnosis.md, "The focus twin's exposure"). Declared, scored on
+# development sets before it may be switched on
+FLOOR_AT_CAPTURE_EXPOSURE = False
 MIN_TEXTURE_LOG = 0.5  # a region whose twin focus measure varies less than this over the sweep says nothing
 
 
@@ -330,6 +336,23 @@ def full_well_by_photon_transfer(caps: list) -> tuple[float | None, dict]:
     return _sig(got["full_well_e"] / gain, 2), {**got, "mosaic_full_well_e": got["full_well_e"], "gain": gain}
 
 
+def capture_exposure(state: FitState) -> tuple[np.ndarray, dict]:
+    """(n,) per capture, its exposure over the twin's in white-level units: the median over its frames of the binned
+    capture frame's mean over the binned twin's (the chain without its noise and without the effects that act frame by
+    frame, at the twin's own focus; blur keeps a frame's mean light, the twin's vignetting is in its chain). The
+    expected floor relative to the signal goes as one over the exposure (shot noise's variance as the signal, its
+    Laplacian energy as the signal squared), so the floor in the capture's units is the twin's at a full well k times
+    the capture's (`SweepData.with_full_well(fw0 / (fw k))`). And a report."""
+    chain = noisefloor.quiet([e for e in state.chain if not state.tb.has_stack_hook(e)])
+    out = []
+    for i, (c, a) in enumerate(zip(state.caps_b, state.aifs_b)):
+        lin = np.clip(state.tb.linear(c, a, chain, state.seed + i), 0, None)
+        cap = np.asarray(c.frames, np.float64)
+        per = cap.reshape(len(cap), -1).mean(1) / np.maximum(lin.reshape(len(lin), -1).mean(1, dtype=np.float64), 1e-12)
+        out.append(float(np.median(per)))
+    return np.array(out), {"exposure_ratio": [round(x, 4) for x in out]}
+
+
 def fit_focus_metadata(state: FitState) -> Fitted:
     """The focus-metadata error family the images support (`focusfit.fit_metadata`, on the sweep made robust to
     the frames' exposure, the capture's noise floor and poorly matched regions: `focusrobust.prepare`) and the
@@ -349,12 +372,16 @@ def fit_focus_metadata(state: FitState) -> Fitted:
         if "ratio" not in fitted:
             fw0 = float(noisefloor.noise_of(st.chain).params["full_well_e"])
             fw, rep = full_well_by_photon_transfer(st.caps) if FULL_WELL_BY_PHOTON_TRANSFER else (None, {})
+            k = 1.0
             if fw is not None:  # measured before the focus fit: the metadata's error cannot move it
                 rep = {"photon_transfer": rep, "fitted_full_well_e": fw}
-            else:
+                if FLOOR_AT_CAPTURE_EXPOSURE:  # the floor at the capture's exposure, not the twin's
+                    k, krep = capture_exposure(st)
+                    rep["capture_exposure"] = {**krep, "effective_full_well_e": [round(fw * x) for x in k]}
+            else:  # fitted against the floor: whatever the twin's exposure misses, the fitted value takes up
                 fw, fit_rep = full_well_on_floor(d, fw0)
                 rep = {**fit_rep, **({"photon_transfer": rep} if rep else {}), "fitted_full_well_e": fw}
-            fitted.update(ratio=0.0 if fw is None else fw0 / fw, report=rep)
+            fitted.update(ratio=0.0 if fw is None else fw0 / (fw * k), report=rep)
         return d.with_full_well(fitted["ratio"])
 
     if st.full_curves is not None:  # the binning correction anchored at the frames' estimated focus too

@@ -186,14 +186,19 @@ class SweepData:
         sig = self.signal_c + delta[..., None]
         return dataclasses.replace(self, twin=compose(sig, self.floor_c), signal_c=sig)
 
-    def with_full_well(self, ratio: float) -> SweepData:
+    def with_full_well(self, ratio: float | np.ndarray) -> SweepData:
         """The sweep whose expected noise floor is that of a full well 1 / ratio times the one it was made with
         (ratio 0: no noise): the shot noise's part of the floor scales with the ratio, the read noise's with its
-        square (both variances over the full well's square, `noisefloor.floor`)."""
+        square (both variances over the full well's square, `noisefloor.floor`). ratio: one for every capture, or
+        (n,) one per capture."""
         if self.floor_c is None:
             raise ValueError("the sweep carries no expected noise floor")
         from aat_deploy.diagnose.noisefloor import compose
 
+        if np.ndim(ratio):
+            ratio = np.asarray(ratio, np.float64).reshape(-1, 1, 1, 1)
+            if ratio.shape[0] != self.floor_c.shape[0]:
+                raise ValueError(f"{ratio.shape[0]} full-well ratios for {self.floor_c.shape[0]} captures")
         read = self.floor_read_c if self.floor_read_c is not None else np.zeros_like(self.floor_c)
         fl = (self.floor_c - read) * ratio + read * ratio ** 2
         return dataclasses.replace(self, twin=compose(self.signal_c, fl), floor_c=fl, floor_read_c=read * ratio ** 2)

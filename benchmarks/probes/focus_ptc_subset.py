@@ -47,7 +47,7 @@ def plan() -> list[tuple[str, str, str]]:
     return head + [("P", c, k) for c, k in probe] + rest + untouched
 
 
-def tally(rerun: list[dict], strata: dict) -> str:
+def tally(rerun: list[dict], strata: dict, label: str = "photon transfer") -> str:
     """The table of every rerun set against its stored row rescored, and the rule's counts."""
     from benchmarks import bench_diagnose_focus as bench
     from benchmarks.probes.focus_choice_nearest import scenes_moved
@@ -60,7 +60,7 @@ def tally(rerun: list[dict], strata: dict) -> str:
         for r in rerun:
             if abs(r["reported_max_err_d"] - rows[(r["capture"], r["kind"])]["reported_max_err_d"]) > 1e-6:
                 raise SystemExit(f"{r['capture']} {r['kind']}: its reported focus is not the stored row's")
-        print("| stratum | set | the code (stored, rescored) | photon transfer | full well (e-) fitted -> measured "
+        print(f"| stratum | set | the code (stored, rescored) | {label} | full well (e-) fitted -> measured "
               "| per-frame max error (D) | s a fit | outcome |\n|---|---|---|---|---|---|---|---|")
         for r in sorted(rerun, key=lambda x: (strata.get((x["capture"], x["kind"]), "?"), x["capture"], x["kind"])):
             key = (r["capture"], r["kind"])

@@ -32,6 +32,9 @@ eleventh round's scene 3303 and its like), rerun through the first-round focus f
 - `ptc`: the focus twin's full well measured on the captures' RAW mosaics by photon transfer before the focus fit
   (`fitters.FULL_WELL_BY_PHOTON_TRANSFER`, `aat_deploy/diagnose/photon.py`), the capture alone, no truth: the
   declared change of `focus_ptc_subset`.
+- `ptc_exposure`: `ptc` with the floor put at the capture's exposure (`fitters.FLOOR_AT_CAPTURE_EXPOSURE`: the measured
+  full well times the capture's brightness over the twin's, `fitters.capture_exposure`): the declared change of
+  `focus_exposure_subset`.
 
 Then `--summary` prints, per rerun set, its errors against the stored row's and the untouched copy's (the
 coefficient on the untouched errors: 1 is the untouched pattern, the stored rows' coefficient beside it), and what
@@ -128,7 +131,7 @@ def tally(rerun: list[dict], stored: list[dict]) -> dict:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--mode", choices=("start", "reanchor", "near", "refit", "dense", "step", "fullwell",
-                                                        "ptc"))
+                                                        "ptc", "ptc_exposure"))
     ap.add_argument("--dense-d", type=float, default=0.01, help="with --mode dense: the anchors' step (D)")
     ap.add_argument("--dense-steps", type=int, default=2, help="with --mode dense: steps either side")
     ap.add_argument("--dense-moved-d", type=float, default=0.0, help="with --mode dense: only where some frame's "
@@ -195,6 +198,11 @@ def main(argv: list[str] | None = None) -> int:
         from aat_deploy.diagnose import fitters
 
         fitters.FULL_WELL_BY_PHOTON_TRANSFER = True
+    elif a.mode == "ptc_exposure":
+        from aat_deploy.diagnose import fitters
+
+        fitters.FULL_WELL_BY_PHOTON_TRANSFER = True
+        fitters.FLOOR_AT_CAPTURE_EXPOSURE = True
     elif a.mode == "near":
         bench.reported_d = lambda kind, true_d, k: np.asarray(true_d, np.float64) + a.near_d
     else:

@@ -4,6 +4,7 @@ reduced-resolution twins they search with (aat_deploy.diagnose.binned), and the 
 Captures: 2 procedural scenes through a thin-lens simulator of the RF50 on a 192 x 128 sensor, frames as float
 TIFFs (no RAW development), with one effect the twin lacks."""
 
+import copy
 import dataclasses
 import json
 
@@ -377,3 +378,51 @@ def test_binning_correction_at_the_twins_own_focus_renders_no_new_optics(world):
         assert np.array_equal(d, 1.0 / f) and delta.shape[1] == len(f) and np.isfinite(delta).all()
     A.anchor_deltas(state, [], [f * 1.01 for f in own])
     assert twins.renders == before + len(caps)
+
+
+@pytest.mark.filterwarnings("ignore:.*real-ray focus table")
+def test_floor_at_the_capture_exposure_divides_the_measured_full_well_by_the_twins_exposure(world, monkeypatch):
+    """`fitters.FLOOR_AT_CAPTURE_EXPOSURE` with the full well measured by photon transfer (issue 32, "The focus twin's
+    exposure"): `capture_exposure` reads every capture's brightness over its twin's (unchanged when the capture is
+    brighter, since the twin's percentile match follows it; 1.3 x when the twin comes out 1.3 x too dim), and the focus fit's floor is the twin's at the measured full well times that ratio, per capture;
+    off, the measured full well alone, as before."""
+    from aat_deploy.diagnose import fitters as F
+    from aat_deploy.diagnose import focusfit as ff
+    from aat_deploy.render import effects as fx
+
+    caps, twins = render_set(world, "noisy_raw", [fx.make("noise", full_well_e=1000.0), fx.make("vignetting"),
+                                                  fx.make("focus_metadata", bias_d=0.0, scale=1.15)],
+                             frame_format="dng")
+    state = state_for(caps, twins)
+    k, rep = F.capture_exposure(state)
+    assert k.shape == (len(caps),) and np.all(np.isfinite(k) & (k > 0)), k
+    assert rep["exposure_ratio"] == [round(float(x), 4) for x in k]
+    # the captures' frames 1.2 x brighter: the twin's percentile match follows them, so the ratio stays (it measures
+    # what the match gets wrong, not the exposure)
+    bright = copy.copy(state)
+    bright.caps_b = [dataclasses.replace(c, frames=c.frames * 1.2) for c in state.caps_b]
+    assert np.allclose(F.capture_exposure(bright)[0], k, rtol=1e-4)
+    # a twin whose percentile match leaves it 1.3 x too dim: scale its linear frames, not the capture's
+    real_linear = type(state.tb).linear
+    monkeypatch.setattr(type(state.tb), "linear", lambda self, *a, **kw: real_linear(self, *a, **kw) / 1.3)
+    k13, _ = F.capture_exposure(state)
+    assert np.allclose(k13, 1.3 * k, rtol=1e-3)
+    monkeypatch.setattr(type(state.tb), "linear", real_linear)
+
+    ratios = []
+    real_ratio = ff.SweepData.with_full_well
+    monkeypatch.setattr(ff.SweepData, "with_full_well", lambda d, r: ratios.append(r) or real_ratio(d, r))
+    monkeypatch.setattr(F, "FULL_WELL_BY_PHOTON_TRANSFER", True)
+    monkeypatch.setattr(F, "FLOOR_AT_CAPTURE_EXPOSURE", True)
+    exposure = np.array([1.25, 0.8])
+    monkeypatch.setattr(F, "capture_exposure", lambda st: (exposure, {"exposure_ratio": exposure.tolist()}))
+    measured, _ = F.full_well_by_photon_transfer(caps)
+    fw0 = float(fx.make("noise").params["full_well_e"])
+    noise = F.fit_focus_metadata(state_for(caps, twins)).report["focus_fit"]["focus_twin"]["noise"]
+    assert noise["fitted_full_well_e"] == measured
+    assert noise["capture_exposure"]["effective_full_well_e"] == [round(measured * x) for x in exposure]
+    assert ratios and all(np.allclose(r, fw0 / (measured * exposure)) for r in ratios)
+    monkeypatch.setattr(F, "FLOOR_AT_CAPTURE_EXPOSURE", False)
+    ratios.clear()
+    noise = F.fit_focus_metadata(state_for(caps, twins)).report["focus_fit"]["focus_twin"]["noise"]
+    assert "capture_exposure" not in noise and ratios and set(ratios) == {fw0 / measured}

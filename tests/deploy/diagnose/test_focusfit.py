@@ -739,3 +739,19 @@ def test_with_full_well_scales_shot_and_read_noise_apart():
     assert np.allclose(d2.floor_c, 0.4 * 2 + 0.1 * 4) and np.allclose(d2.floor_read_c, 0.4)
     assert np.allclose(d2.twin, np.log(1 + 1.2))
     assert np.allclose(data.with_full_well(0.0).twin, 0.0)
+
+
+def test_with_full_well_takes_one_ratio_per_capture():
+    """ratio (n,): every capture's floor scaled by its own ratio, as each would be alone; a ratio count other than the
+    captures' is an error."""
+    grid = np.array([0.0, 0.5, 1.0])
+    sig = np.zeros((2, 1, 3, 1))
+    data = ff.SweepData(grid, np.zeros((2, 1, 3)), np.zeros((2, 1, 2)), np.array([[0.2, 0.8]] * 2),
+                        np.array([[0.2, 0.8]] * 2), np.zeros((1, 2)), signal_c=sig, floor_c=np.full(sig.shape, 0.5),
+                        floor_read_c=np.full(sig.shape, 0.1))
+    both = data.with_full_well(np.array([2.0, 0.5]))
+    assert np.allclose(both.floor_c[0], data.with_full_well(2.0).floor_c[0])
+    assert np.allclose(both.floor_c[1], data.with_full_well(0.5).floor_c[1])
+    assert np.allclose(both.floor_read_c[1], 0.1 * 0.25) and not np.allclose(both.twin[0], both.twin[1])
+    with pytest.raises(ValueError):
+        data.with_full_well(np.array([1.0, 1.0, 1.0]))
