@@ -80,8 +80,9 @@ def transfer_curve(level: np.ndarray, var: np.ndarray, m: int, n_bins: int = N_L
 
 def photon_transfer(planes: list[np.ndarray], block_cells: int = BLOCK_CELLS, max_hv: float = MAX_HV_RATIO,
                     clip: float = CLIP_LEVEL, n_bins: int = N_LEVEL_BINS) -> dict | None:
-    """Planes of independent photosites (white = 1, black = 0) -> {"full_well_e", "read_noise_e", "n_blocks",
-    "curve": [[level, variance, blocks], ...]}; None when fewer than MIN_BLOCKS flat blocks or no positive slope."""
+    """Planes of independent photosites (white = 1, black = 0) -> {"full_well_e", "read_noise_e", "n_blocks" (the
+    blocks the returned curve was fitted on), "curve": [[level, variance, blocks], ...]}; None when fewer than
+    MIN_BLOCKS flat blocks or no positive slope."""
     level, var, hv, top = (np.concatenate(x) for x in zip(*(block_stats(p, block_cells) for p in planes)))
     ok = (top < clip) & (level > 0) & np.isfinite(var) & np.isfinite(hv)
     level, var, hv = level[ok], var[ok], hv[ok]
@@ -93,6 +94,7 @@ def photon_transfer(planes: list[np.ndarray], block_cells: int = BLOCK_CELLS, ma
         slope, icpt, rows = transfer_curve(level[keep], var[keep], m, n_bins)
         if not slope > 0:
             return None
+        n_fitted = int(keep.sum())  # the blocks this curve was fitted on (the next pass's rejection is not used)
         keep = hv <= max_hv * np.maximum(slope * level + icpt, 1e-30)
     return {"full_well_e": 1.0 / slope, "read_noise_e": float(np.sqrt(max(icpt, 0.0)) / slope),
-            "n_blocks": int(keep.sum()), "curve": rows}
+            "n_blocks": n_fitted, "curve": rows}

@@ -58,6 +58,32 @@ def test_texture_is_rejected_without_selecting_blocks_by_their_noise():
         assert photon.photon_transfer([noisy], max_hv=1e12)["full_well_e"] < 0.7 * 8000.0
 
 
+def test_n_blocks_counts_the_blocks_the_curve_was_fitted_on():
+    """`n_blocks` is the number of blocks the returned curve was fitted on (its bins' counts sum to it), not the count
+    the rejection after the last fit would keep: with a strict rejection (max_hv 1.2) on textured patches the last
+    pass still moves blocks in or out (seeds 4 and 5: 717 fitted against 720 kept, 739 against 729), and the count
+    must be the fitted one."""
+    moved = 0
+    for seed in (3, 4, 5):
+        rng = np.random.default_rng(seed)
+        lv = rng.uniform(0.15, 0.75, (20, 30))
+        yy, xx = np.indices((640, 960))
+        amp = patches((rng.random((20, 30)) < 0.6) * lv * 0.3)
+        x = np.clip(patches(lv) + amp * np.sin(2 * np.pi * xx / 12.0 + 2 * np.pi * yy / 23.0), 0, 1)
+        noisy = poisson_gaussian(x, 8000.0, 3.0, rng)
+        for max_hv in (photon.MAX_HV_RATIO, 1.2):
+            got = photon.photon_transfer([noisy], max_hv=max_hv)
+            assert got["n_blocks"] == sum(r[2] for r in got["curve"])
+            # what the rejection after the last fit keeps (the old count), recomputed from the returned curve's blocks
+            level, _, hv, top = photon.block_stats(noisy)
+            ok = (top < photon.CLIP_LEVEL) & (level > 0)
+            slope = 1.0 / got["full_well_e"]
+            icpt = (got["read_noise_e"] * slope) ** 2
+            kept = int(np.sum(ok & (hv <= max_hv * np.maximum(slope * level + icpt, 1e-30))))
+            moved += kept != got["n_blocks"]
+    assert moved >= 2  # the case the count was wrong in is exercised
+
+
 def test_too_few_flat_blocks_give_no_estimate():
     rng = np.random.default_rng(0)
     assert photon.photon_transfer([poisson_gaussian(patches(np.full((4, 4), 0.3)), 8000.0, 3.0, rng)]) is None
