@@ -657,3 +657,56 @@ def test_photon_transfer_check_reads_a_folders_full_well(tmp_path):
     assert all(float(x) == pytest.approx(5000.0, rel=0.08) for x in row[5].split(","))
     with pytest.raises(SystemExit):
         pc.main(["--captures", str(tmp_path)])
+
+
+def test_focus_start_invariance_ptc_exposure_mode_measures_the_full_well_and_puts_the_floor_at_the_exposure(
+        tmp_path, monkeypatch):
+    """`focus_start_invariance --mode ptc_exposure`: the benchmark runs with `fitters.FULL_WELL_BY_PHOTON_TRANSFER`
+    and `fitters.FLOOR_AT_CAPTURE_EXPOSURE` both on (the declared change of `focus_exposure_subset`)."""
+    from aat_deploy.diagnose import fitters
+    from benchmarks import bench_diagnose_focus as bench
+    from benchmarks.probes import focus_start_invariance as si
+
+    monkeypatch.setattr(fitters, "FULL_WELL_BY_PHOTON_TRANSFER", False)  # restored after
+    monkeypatch.setattr(fitters, "FLOOR_AT_CAPTURE_EXPOSURE", False)
+    seen = {}
+    monkeypatch.setattr(bench, "main", lambda: seen.update(ptc=fitters.FULL_WELL_BY_PHOTON_TRANSFER,
+                                                           exposure=fitters.FLOOR_AT_CAPTURE_EXPOSURE))
+    rows = tmp_path / "r.jsonl"
+    rows.write_text(json.dumps({"capture": "s", "kind": "none"}) + "\n")
+    si.main(["--mode", "ptc_exposure", "--rows", str(rows), "--out", str(tmp_path / "o.jsonl"), "--", "--fit-only",
+             "--sets", "s:none"])
+    assert seen == {"ptc": True, "exposure": True}
+
+
+def test_focus_exposure_subset_plan_is_the_ptc_subsets_sets_rerun_with_the_declared_change(capsys):
+    """`focus_exposure_subset --plan`: the same 98 sets in the same order as `focus_ptc_subset`, every command with
+    `--mode ptc_exposure` into results/focus_exposure_subset.jsonl; without --plan, --run or --tally it refuses."""
+    from benchmarks.probes import focus_dense_subset as ds
+    from benchmarks.probes import focus_exposure_subset as es
+    from benchmarks.probes import focus_ptc_subset as ps
+
+    es.main(["--plan"])
+    out = capsys.readouterr().out
+    cmds = [c for c in out.splitlines() if c.startswith("OMP_NUM_THREADS")]
+    order = ps.plan()
+    assert cmds == ds.commands(order, mode="ptc_exposure", out_file=es.OUT)
+    assert [x for c in cmds for x in c.split("--sets ")[1].split(",")] == [f"{c}:{k}" for _, c, k in order]
+    assert all("--mode ptc_exposure " in c and "--out results/focus_exposure_subset.jsonl " in c for c in cmds)
+    with pytest.raises(SystemExit):
+        es.main([])
+
+
+def test_focus_weak_noiseless_reads_a_residual_along_the_twins_slope():
+    """`focus_weak_noiseless`: levels profiled per region; a residual that is the slope times a shift in one frame
+    reads as that shift there and 0 elsewhere; regions not used count nothing."""
+    from benchmarks.probes import focus_weak_noiseless as fw
+
+    r = np.array([[1.0, 2.0, 3.0], [5.0, 5.0, 5.0]])
+    assert np.allclose(fw.profiled(r), [[-1.0, 0.0, 1.0], [0.0, 0.0, 0.0]])
+    slope = np.array([[2.0, -1.0, 3.0], [1.0, 4.0, -2.0], [9.0, 9.0, 9.0]])
+    res = np.zeros((3, 3))
+    res[:, 1] = slope[:, 1] * 0.02
+    res[2] = 5.0  # a region left out
+    used = np.array([True, True, False])
+    assert np.allclose(fw.focus_reading(res, slope, used), [0.0, 0.02, 0.0])
