@@ -56,9 +56,10 @@ FULL_WELL_ON_FINAL_SWEEP = False
 FULL_WELL_BY_PHOTON_TRANSFER = False
 # whether, with the full well measured by photon transfer, the focus twin's floor is put at the capture's exposure:
 # the twin is exposed by `TwinRenderer.linear`'s match of 99.5th percentiles (capture frames, all-in-focus image), which
-# leaves its white-level brightness 0.7-1.4 x the capture's, and the expected floor relative to the signal goes as one
-# over it (`capture_exposure`; issue 32, docs/diagnosis.md, "The focus twin's exposure"). Declared, scored on
-# development sets before it may be switched on
+# left the capture 1.03-1.35 x brighter than its twin in white-level units on the three development scenes measured,
+# and the expected floor relative to the signal goes as one over it (`capture_exposure`; issue 32, docs/diagnosis.md,
+# "The focus twin's misfit in the weak frames, noise off on both sides"). Declared, scored on development sets before
+# it may be switched on
 FLOOR_AT_CAPTURE_EXPOSURE = False
 MIN_TEXTURE_LOG = 0.5  # a region whose twin focus measure varies less than this over the sweep says nothing
 

@@ -382,10 +382,11 @@ def test_binning_correction_at_the_twins_own_focus_renders_no_new_optics(world):
 
 @pytest.mark.filterwarnings("ignore:.*real-ray focus table")
 def test_floor_at_the_capture_exposure_divides_the_measured_full_well_by_the_twins_exposure(world, monkeypatch):
-    """`fitters.FLOOR_AT_CAPTURE_EXPOSURE` with the full well measured by photon transfer (issue 32, "The focus twin's
-    exposure"): `capture_exposure` reads every capture's brightness over its twin's (unchanged when the capture is
-    brighter, since the twin's percentile match follows it; 1.3 x when the twin comes out 1.3 x too dim), and the focus fit's floor is the twin's at the measured full well times that ratio, per capture;
-    off, the measured full well alone, as before."""
+    """`fitters.FLOOR_AT_CAPTURE_EXPOSURE` with the full well measured by photon transfer (issue 32, docs/diagnosis.md,
+    "The focus twin's misfit in the weak frames, noise off on both sides"): `capture_exposure` reads every capture's
+    brightness over its twin's (unchanged when the capture is brighter, since the twin's percentile match follows it;
+    1.3 x when the twin comes out 1.3 x too dim), and the focus fit's floor is the twin's at the measured full well
+    times that ratio, per capture; off, the measured full well alone, as before."""
     from aat_deploy.diagnose import fitters as F
     from aat_deploy.diagnose import focusfit as ff
     from aat_deploy.render import effects as fx
