@@ -448,9 +448,11 @@ def measured_setup(rig: Rig, variant: str, progress=print) -> list:
     return measures(rig, [sweep(rig, variant, i, progress) for i in range(len(rig.setup.distances_m))], variant)
 
 
-def measures(rig: Rig, sweeps: list[dict], variant: str, keep_every: int = 1, tiles_to_edges: bool = False):
+def measures(rig: Rig, sweeps: list[dict], variant: str, keep_every: int = 1, tiles_to_edges: bool = False,
+             tile_px: int | None = None):
     """Measured sweeps as `aat-calibrate fit` measures them (tape-measured distances); tiles_to_edges: the tiles
-    spread from edge to edge (`peaks.TileGrid`, benchmarks/probes/corner_tiles.py) instead of the fit's centred grid."""
+    spread from edge to edge (`peaks.TileGrid`, benchmarks/probes/corner_tiles.py) instead of the fit's centred grid;
+    tile_px: tiles of that size instead of the fit's (`sweep.tile_px_for`; benchmarks/probes/tile_size.py)."""
     from aat_deploy.calibrate.sweep import measure_sweep
 
     rng = np.random.default_rng(7)
@@ -460,7 +462,7 @@ def measures(rig: Rig, sweeps: list[dict], variant: str, keep_every: int = 1, ti
         free = rig.setup.distances_m.index(sw["distance_m"]) in rig.setup.fit_distance
         out.append(measure_sweep(as_sweep(rig, sw, variant, keep_every), sw["layout"], distance_m=tape,
                                  measure=rig.measure, prefilter_px=rig.prefilter_px, fit_distance=free,
-                                 tiles_to_edges=tiles_to_edges))
+                                 tiles_to_edges=tiles_to_edges, tile_px=tile_px))
     return out
 
 

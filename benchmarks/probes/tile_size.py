@@ -80,7 +80,6 @@ def exact_fit(rig, eff: list[str], res, r_max: float, fixed: dict) -> dict:
 def run(variant: str, truth_path: str, tile_px: int, log, exact: bool = False) -> dict:
     from aat_deploy.calibrate.fit import fit_calibration
     from aat_deploy.calibrate.format import field_radius_of
-    from aat_deploy.calibrate.sweep import measure_sweep
     from aat_deploy.eval.stats import field_radius
     from benchmarks import bench_calibrate as B
     from benchmarks.probes import chart_texture as CT
@@ -90,13 +89,7 @@ def run(variant: str, truth_path: str, tile_px: int, log, exact: bool = False) -
     s = rig.setup
     eff = B.effects_for(s, v)
     sweeps = [B.sweep(rig, v, i, log) for i in range(len(s.distances_m))]
-    rng = np.random.default_rng(7)  # bench_calibrate.measures's tapes, drawn in the same order
-    ms = []
-    for sw in sweeps:
-        tape = sw["distance_m"] + rng.normal(0, B.TAPE_SD_MM / 1000)
-        free = s.distances_m.index(sw["distance_m"]) in s.fit_distance
-        ms.append(measure_sweep(B.as_sweep(rig, sw, v), sw["layout"], distance_m=tape, measure=rig.measure,
-                                prefilter_px=rig.prefilter_px, fit_distance=free, tile_px=tile_px))
+    ms = B.measures(rig, sweeps, v, tile_px=tile_px)  # the benchmark's tapes, at this tile size
     res = fit_calibration(ms, n_boot=0)
     cal = res.calibration
     e = B.map_errors(rig, cal, eff, s.inside())["calibration"]
