@@ -247,14 +247,21 @@ def tally(rerun: list[dict], strata: dict) -> str:
     return out.getvalue()
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--plan", action="store_true", help="print the subset in its order and the lane-B commands")
-    ap.add_argument("--tally", nargs="+", type=Path, help="the reruns' rows (with the earlier probe's: DONE_FILES)")
-    ap.add_argument("--out", type=Path, help="with --tally: also write the table here")
+def subset_parser(doc: str, until: str, tally_help: str = "the reruns' rows") -> argparse.ArgumentParser:
+    """The command line the subset probes share (this one, focus_ptc_subset, focus_exposure_subset): --plan, --run
+    --until --lock, --tally --out; `until` is the declared cut-off (HH:MM UTC) after which no command starts."""
+    ap = argparse.ArgumentParser(description=doc.split("\n\n")[0])
+    ap.add_argument("--plan", action="store_true", help="print the sets in their order and the lane-B commands")
+    ap.add_argument("--tally", nargs="+", type=Path, help=tally_help)
+    ap.add_argument("--out", type=Path, help="with --tally: also write the table here (atomically)")
     ap.add_argument("--run", action="store_true", help="run the --plan commands in this process (lane B's lock each)")
-    ap.add_argument("--until", default="01:14", help="with --run: start no command at or after this time (HH:MM UTC)")
+    ap.add_argument("--until", default=until, help="with --run: start no command at or after this time (HH:MM UTC)")
     ap.add_argument("--lock", type=Path, default=Path("/work/heavy2.lock"), help="with --run: the lane's lock file")
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = subset_parser(__doc__, "01:14", "the reruns' rows (with the earlier probe's: DONE_FILES)")
     a = ap.parse_args(argv)
     order = plan()
     if a.run:

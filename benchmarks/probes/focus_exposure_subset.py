@@ -16,9 +16,7 @@ later, no noise seed 49-52), each rerun through the first-round focus fit (`benc
 
 from __future__ import annotations
 
-import argparse
 import sys
-from pathlib import Path
 
 from aat_deploy.io.atomic import write_text_atomic
 from benchmarks.probes import focus_dense_subset as ds
@@ -29,13 +27,7 @@ LABEL = "photon transfer, floor at the capture's exposure"
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--plan", action="store_true", help="print the sets in their order and the lane-B commands")
-    ap.add_argument("--tally", nargs="+", type=Path, help="the reruns' rows")
-    ap.add_argument("--out", type=Path, help="with --tally: also write the table here (atomically)")
-    ap.add_argument("--run", action="store_true", help="run the --plan commands in this process (lane B's lock each)")
-    ap.add_argument("--until", default="10:20", help="with --run: start no command at or after this time (HH:MM UTC)")
-    ap.add_argument("--lock", type=Path, default=Path("/work/heavy2.lock"), help="with --run: the lane's lock file")
+    ap = ds.subset_parser(__doc__, "10:20")
     a = ap.parse_args(argv)
     order = ptc.plan()
     cmds = ds.commands(order, mode="ptc_exposure", out_file=OUT)

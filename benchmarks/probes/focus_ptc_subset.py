@@ -21,12 +21,10 @@ by photon transfer": the rule below was committed before any set was rerun with 
 
 from __future__ import annotations
 
-import argparse
 import io
 import json
 import sys
 from contextlib import redirect_stdout
-from pathlib import Path
 
 import numpy as np
 
@@ -111,13 +109,7 @@ def tally(rerun: list[dict], strata: dict, label: str = "photon transfer") -> st
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--plan", action="store_true", help="print the sets in their order and the lane-B commands")
-    ap.add_argument("--tally", nargs="+", type=Path, help="the reruns' rows")
-    ap.add_argument("--out", type=Path, help="with --tally: also write the table here")
-    ap.add_argument("--run", action="store_true", help="run the --plan commands in this process (lane B's lock each)")
-    ap.add_argument("--until", default="07:30", help="with --run: start no command at or after this time (HH:MM UTC)")
-    ap.add_argument("--lock", type=Path, default=Path("/work/heavy2.lock"), help="with --run: the lane's lock file")
+    ap = ds.subset_parser(__doc__, "07:30")
     a = ap.parse_args(argv)
     order = plan()
     cmds = ds.commands(order, mode="ptc", out_file=OUT)
