@@ -217,6 +217,48 @@ def test_ddp_equals_one_process_with_the_same_effective_batch_and_resumes_single
     assert steps == [1, 2, 3, 4, 5]  # rank 0 alone logged, once per step
 
 
+def _head_cfg(batch: int, init: str):
+    return train_config(net="dfvnet", steps=3, batch_size=batch, checkpoint_every=3, log_every=1, init=init,
+                        train_only="net.decoders.", loss=LossConfig(level_weights=(2.0, 1.0), aif=0.1))
+
+
+def _ddp_head_worker(rank: int, world: int, port: int, out: str, init: str) -> None:
+    os.environ.update({"MASTER_ADDR": "127.0.0.1", "MASTER_PORT": str(port), "RANK": str(rank),
+                       "WORLD_SIZE": str(world), "LOCAL_RANK": str(rank), "LOCAL_WORLD_SIZE": str(world)})
+    torch.set_num_threads(1)
+    from training.train import loop
+
+    loop.build_model = _without_batchnorm(loop.build_model)
+    loop.train(_head_cfg(1, init), Path(out), train_set=TwoPlaneStacks(n=8), progress=False, device="auto")
+
+
+def test_ddp_with_train_only_trains_the_head_alone_and_equals_one_process(tmp_path, monkeypatch):
+    """train_only under 2 gloo processes: DDP wraps a model whose body does not train (those tensors get no
+    gradient, so DDP must leave them out of its all-reduce rather than wait for them). The body ends bit-identical
+    to the checkpoint it started from, the head moves, and the result equals one process with batch 2."""
+    import torch.multiprocessing as mp
+
+    from training.nets.model import build_model
+    from training.train import loop
+    from training.train.checkpoint import load
+
+    torch.manual_seed(3)
+    base = _without_batchnorm(build_model)("dfvnet", "small").state_dict()
+    ck = tmp_path / "base.pt"
+    torch.save({"model": base, "config": {"net": "dfvnet", "size": "small"}, "step": 7}, ck)
+    mp.spawn(_ddp_head_worker, args=(2, _free_port(), str(tmp_path / "ddp"), str(ck)), nprocs=2, join=True)
+    two = load(tmp_path / "ddp" / "model.pt")["model"]
+    summary = json.loads((tmp_path / "ddp" / "train_summary.json").read_text())
+    assert [x["processes"] for x in summary["sessions"]] == [2]
+    body = [k for k in base if not k.startswith("net.decoders.")]
+    assert body and all(torch.equal(two[k], base[k]) for k in body)
+    assert any(not torch.equal(two[k], base[k]) for k in base if k.startswith("net.decoders."))
+    monkeypatch.setattr(loop, "build_model", _without_batchnorm(loop.build_model))
+    data = TwoPlaneStacks(n=8)
+    loop.train(_head_cfg(2, str(ck)), tmp_path / "one", train_set=data, progress=False, device="cpu")
+    _assert_same_model(two, load(tmp_path / "one" / "model.pt")["model"], data)
+
+
 def test_torchrun_restarts_after_a_lost_process_and_resumes(tmp_path):
     """torchrun --max-restarts=3 with 2 gloo processes: rank 1 dies before step 4 (after the step-2 checkpoint);
     torchrun restarts both, they resume from last.pt and end where an uninterrupted 2-process run ends, bit for
