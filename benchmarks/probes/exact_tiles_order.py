@@ -52,6 +52,9 @@ OPTIONS = {
     # tiles of 1/32 of the frame's width (as is: 1/24; 20 px instead of 27 on the phone's 640): the sweeps' measuring
     # (`measure_sweep` through `tile_px_for`), so only runs that measure the sweeps see it (patched_bench, --measured)
     "tiles 1/32": {"sweep.TILES_PER_WIDTH": 32},
+    # tiles of 1/27 of the frame's width (24 px on the phone's and the paper lens's 640, 36 on the RF50's and EF50's
+    # 960; as is: 27 and 40), declared 2026-11-28 (docs/calibration.md, "24 px tiles, judged on unseen copies")
+    "tiles 1/27": {"sweep.TILES_PER_WIDTH": 27},
 }
 
 

@@ -4,8 +4,9 @@
     OMP_NUM_THREADS=1 python -m benchmarks.probes.tile_size --truth results/render_truth_map_cellphone_19p.json \
         [--variants nominal,copy] [--tiles-px 16,20,24,27,32] --out results/tile_size.json
 
-bench_calibrate's `cellphone_near` development sweeps only (the nominal lens, the hand-chosen copy and the declared
-random copies of seed 2026; no scene, held-out or not), measured as `bench_calibrate.measures` measures them (the
+bench_calibrate's `cellphone_near` development sweeps (the nominal lens, the hand-chosen copy and the declared
+random copies of seed 2026) or the 24 px declaration's judging copies (JUDGING: copies 0-5 of seed 2027); no scene,
+held-out or not, measured as `bench_calibrate.measures` measures them (the
 same tapes) but with tiles of each --tiles-px (`measure_sweep(tile_px=...)`; the fit's own is 27 px on the 640 px
 frame: `sweep.tile_px_for`), the fit's centred grid, and fitted as part a fits them (`fit_calibration`, no
 bootstrap). Per tile size: the grid, the farthest kept tile's field radius (where the field term starts to be held)
@@ -29,6 +30,11 @@ import numpy as np
 from aat_deploy.io.atomic import write_text_atomic
 
 FIXED_R = 0.920  # the fit's 27 px grid's farthest tile centre on the phone's 640 x 480
+# The judging copies of the 24 px declaration (docs/calibration.md, "24 px tiles, judged on unseen copies"): random
+# copies of a seed no result had used (the development variants are the seed 2026's), drawn as bench_calibrate's
+# random copies are (benchmarks/calibrate_copies.py), fixed before any of them was rendered.
+JUDGE_SEED, JUDGE_COPIES = 2027, 6
+JUDGING = tuple(f"copy_s{JUDGE_SEED}_{k}" for k in range(JUDGE_COPIES))
 
 
 def tile_grid(h: int, w: int, tile_px: int, aspect: float) -> dict:
@@ -77,15 +83,43 @@ def exact_fit(rig, eff: list[str], res, r_max: float, fixed: dict) -> dict:
             "fixed_regions_rms_d": {k: float(np.sqrt(np.mean(d[:, msk] ** 2))) for k, msk in fixed.items()}}
 
 
+def rig_for(base_rig, variant: str):
+    """(rig, variant as bench_calibrate names it): the development variants as `chart_texture.rig_for` makes them
+    (the softened chart), a judging copy (JUDGING) drawn from JUDGE_SEED with the same chart."""
+    from aat_deploy.lens.io import load_lens
+    from aat_deploy.render.effects.lens_tolerance import elements
+    from benchmarks import bench_calibrate as B
+    from benchmarks import calibrate_copies as C
+    from benchmarks.probes import chart_texture as CT
+
+    if variant not in JUDGING:
+        return CT.rig_for(base_rig, "soft leaves", variant)
+    rig, _ = CT.rig_for(base_rig, "soft leaves", "nominal")
+    s = rig.setup
+    n_el = len(elements(load_lens(B.ROOT / s.lens)))
+    k = JUDGING.index(variant)
+    return rig.with_setup(C.copy_setup(s, JUDGE_SEED, C.draw_copy(s, n_el, JUDGE_SEED, k))), "copy"
+
+
+def chosen(ap, text: str) -> list[str]:
+    """--variants: the development variants (`tile_bias.VARIANTS`) and the judging copies (JUDGING)."""
+    from benchmarks.probes.tile_bias import VARIANTS
+
+    variants = [v for v in text.split(",") if v]
+    bad = [v for v in variants if v not in VARIANTS + JUDGING]
+    if bad:
+        ap.error(f"--variants: {', '.join(bad)} not of {', '.join(VARIANTS + JUDGING)}")
+    return variants
+
+
 def run(variant: str, truth_path: str, tile_px: int, log, exact: bool = False) -> dict:
     from aat_deploy.calibrate.fit import fit_calibration
     from aat_deploy.calibrate.format import field_radius_of
     from aat_deploy.eval.stats import field_radius
     from benchmarks import bench_calibrate as B
-    from benchmarks.probes import chart_texture as CT
 
     t0 = time.time()
-    rig, v = CT.rig_for(B.Rig(B.LENSES["cellphone_near"], truth=truth_path), "soft leaves", variant)
+    rig, v = rig_for(B.Rig(B.LENSES["cellphone_near"], truth=truth_path), variant)
     s = rig.setup
     eff = B.effects_for(s, v)
     sweeps = [B.sweep(rig, v, i, log) for i in range(len(s.distances_m))]
@@ -147,7 +181,6 @@ def table(rows: list[dict]) -> str:
 
 
 def main(argv=None) -> int:
-    from benchmarks.probes.tile_bias import chosen_variants
     from benchmarks.render_truth_map import load_or_exit
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -166,7 +199,7 @@ def main(argv=None) -> int:
         ap.error(f"--tiles-px {a.tiles_px!r}: sizes of 8 to 96 px")
     if Path(a.out).exists():
         ap.error(f"{a.out}: exists (choose another --out)")
-    variants = chosen_variants(ap, a.variants)
+    variants = chosen(ap, a.variants)
     if not variants:
         ap.error("nothing to run: --variants is empty")
     load_or_exit(a.truth, "tile_size")
