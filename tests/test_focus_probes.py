@@ -533,6 +533,46 @@ def test_focus_dense_subset_run_skips_only_commands_whose_sets_are_all_in_their_
     assert ds.remaining(argv) == []
 
 
+def test_focus_dense_subset_cutoff_takes_any_hour_and_run_starts_nothing_at_or_after_it(tmp_path, monkeypatch, capsys):
+    """`focus_dense_subset.cutoff`: --until is the clock time nearest the run's start (an afternoon cut-off is one; the
+    code before took only cut-offs before noon, so a run at 12:45 with --until 12:40 went on); `run` starts no command
+    at or after it, and skips commands whose sets are all done."""
+    import datetime as dt
+
+    from aat_deploy.diagnose import lookup
+    from aat_deploy.infer import model as model_mod
+    from benchmarks.probes import focus_dense_subset as ds
+    from benchmarks.probes import focus_start_invariance as si
+
+    utc = dt.timezone.utc
+    at = lambda d, h, m: dt.datetime(2026, 11, d, h, m, tzinfo=utc)  # noqa: E731
+    assert ds.cutoff("12:40", at(28, 11, 30)) == at(28, 12, 40)
+    assert ds.cutoff("12:40", at(28, 12, 45)) == at(28, 12, 40)
+    assert ds.cutoff("01:14", at(27, 23, 30)) == at(28, 1, 14)
+    assert ds.cutoff("10:20", at(28, 10, 25)) == at(28, 10, 20)
+    assert ds.cutoff("23:50", at(28, 0, 10)) == at(27, 23, 50)
+    with pytest.raises(ValueError, match="not HH:MM"):
+        ds.cutoff("24:10", at(28, 11, 0))
+    for name in ("DfFModel",):
+        monkeypatch.setattr(model_mod, name, getattr(model_mod, name))
+    monkeypatch.setattr(lookup, "find_lens", lookup.find_lens)
+    monkeypatch.setattr(lookup, "find_surrogate", lookup.find_surrogate)
+    monkeypatch.setattr("os.nice", lambda n: 0)
+    ran = []
+    monkeypatch.setattr(si, "main", lambda argv: ran.append(argv[-1]))
+    out = tmp_path / "o.jsonl"
+    out.write_text(json.dumps({"capture": "s1", "kind": "none"}) + "\n")
+    cmds = [f"python -m benchmarks.probes.focus_start_invariance --mode m --out {out} -- --sets {s}"
+            for s in ("s1:none", "s2:none", "s3:none")]
+    clock = iter([at(28, 12, 30), at(28, 12, 35), at(28, 12, 35), at(28, 12, 40), at(28, 12, 40)])
+    ds.run(cmds, "12:40", tmp_path / "lock", now=lambda: next(clock))
+    assert ran == ["s2:none"]
+    assert "stopped before command 3 of 3 at 12:40:00 UTC" in capsys.readouterr().out
+    ran.clear()
+    ds.run(cmds, "12:40", tmp_path / "lock", now=lambda: at(28, 12, 45))
+    assert ran == []
+
+
 def test_focus_start_invariance_step_mode_sets_the_sweeps_spacing(tmp_path, monkeypatch):
     """`focus_start_invariance --mode step --step-d 0.03`: the benchmark runs with `fitters.focus_sweep`'s spacing
     0.03 D (its other defaults kept), its own arguments and --out passed through."""
@@ -695,6 +735,36 @@ def test_focus_exposure_subset_plan_is_the_ptc_subsets_sets_rerun_with_the_decla
     assert all("--mode ptc_exposure " in c and "--out results/focus_exposure_subset.jsonl " in c for c in cmds)
     with pytest.raises(SystemExit):
         es.main([])
+
+
+def test_focus_exposure_subset_check_reruns_two_stored_sets_and_reproduces_only_within_the_tolerance(capsys):
+    """`focus_exposure_subset --check`: the reproducibility check's sets (one of each of the two rounds the untouched
+    copies still to run need, both already scored) rerun into REPRO_OUT; `compare` says a set reproduces only with the
+    same family and frames left out and every frame's estimate within TOL_D (0.002 D), and a set not rerun does not."""
+    from benchmarks.probes import focus_dense_subset as ds
+    from benchmarks.probes import focus_exposure_subset as es
+
+    es.main(["--check", "--plan"])
+    cmds = [c for c in capsys.readouterr().out.splitlines() if c.startswith("OMP_NUM_THREADS")]
+    assert sorted(x for c in cmds for x in c.split("--sets ")[1].split(",")) == sorted(f"{c}:{k}" for c, k in es.REPRO_SETS)
+    assert all("--mode ptc_exposure " in c and f"--out {es.REPRO_OUT} " in c for c in cmds)
+    stored = [r for r in ds.read([ds.ROOT / es.OUT]) if (r["capture"], r["kind"]) in es.REPRO_SETS]
+    assert len(stored) == 2 and {r["capture"] for r in stored} == {"scene3045", "scene3251"}
+    assert "reproduced: 2 of 2" in es.compare(stored, stored)
+    assert "reproduced: 1 of 2" in es.compare(stored[:1], stored)
+    moved = [json.loads(json.dumps(r)) for r in stored]
+    i = int(np.flatnonzero(np.isfinite(np.asarray(moved[0]["frame_err_d"], np.float64)))[-1])
+    moved[0]["frame_err_d"][i] += 0.0019
+    assert "reproduced: 2 of 2" in es.compare(moved, stored)
+    moved[0]["frame_err_d"][i] += 0.0002
+    assert "reproduced: 1 of 2" in es.compare(moved, stored)
+    other = [json.loads(json.dumps(r)) for r in stored]
+    other[1]["family"] = "none"
+    assert "reproduced: 1 of 2" in es.compare(other, stored)
+    left = [json.loads(json.dumps(r)) for r in stored]
+    j = int(np.flatnonzero(np.isfinite(np.asarray(left[1]["frame_err_d"], np.float64)))[0])
+    left[1]["frame_err_d"][j] = float("nan")
+    assert "reproduced: 1 of 2" in es.compare(left, stored)
 
 
 def test_focus_weak_noiseless_reads_a_residual_along_the_twins_slope():

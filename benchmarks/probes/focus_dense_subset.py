@@ -31,6 +31,7 @@ The rule, fixed before any of its sets was rerun:
 from __future__ import annotations
 
 import argparse
+import datetime
 import io
 import json
 import sys
@@ -138,13 +139,29 @@ def commands(order: list[tuple[str, str, str]], chunk: int = 5, mode: str = "den
     return out
 
 
-def run(cmds: list[str], until: str, lock: Path) -> None:
+def cutoff(until: str, start: datetime.datetime) -> datetime.datetime:
+    """The cut-off `until` (HH:MM UTC) as a moment: the one of that clock time nearest to `start` (a run started at
+    23:30 with --until 01:14 stops at 01:14 the next day; one started at 10:25 with --until 10:20 starts nothing;
+    any hour of the day, afternoon included)."""
+    h, m = (int(x) for x in until.split(":"))
+    if not (0 <= h < 24 and 0 <= m < 60):
+        raise ValueError(f"--until {until}: not HH:MM")
+    t = start.replace(hour=h, minute=m, second=0, microsecond=0)
+    day = datetime.timedelta(days=1)
+    return min((t - day, t, t + day), key=lambda x: abs(x - start))
+
+
+def utc_now() -> datetime.datetime:
+    return datetime.datetime.now(datetime.timezone.utc)
+
+
+def run(cmds: list[str], until: str, lock: Path, now=utc_now) -> None:
     """`commands` in this process, each under an exclusive lock on `lock` (released in between), from the first not
-    yet done (the benchmark skips sets in its --out); none started at or after `until` (HH:MM UTC, before noon)."""
+    yet done (the benchmark skips sets in its --out); none started at or after `until` (HH:MM UTC, `cutoff`; `now`
+    the clock)."""
     import fcntl
     import os
     import shlex
-    import time
 
     from aat_deploy.diagnose import lookup
     from aat_deploy.infer import model as model_mod
@@ -162,22 +179,22 @@ def run(cmds: list[str], until: str, lock: Path) -> None:
 
     model_mod.DfFModel = memo(model_mod.DfFModel)
     lookup.find_lens, lookup.find_surrogate = memo(lookup.find_lens), memo(lookup.find_surrogate)
+    stop = cutoff(until, now())
     os.nice(10)
     for i, cmd in enumerate(cmds, 1):
-        if until <= time.strftime("%H:%M", time.gmtime()) < "12:00":
-            print(f"=== stopped before command {i} of {len(cmds)} at {time.strftime('%H:%M:%S', time.gmtime())} UTC",
-                  flush=True)
-            return
         argv = shlex.split(cmd)
         argv = argv[argv.index("benchmarks.probes.focus_start_invariance") + 1:]
         if not remaining(argv):  # every set already in its --out: skipped without waiting for the lane's lock
             continue
         with lock.open("a") as fh:
             fcntl.flock(fh, fcntl.LOCK_EX)
-            print(f"=== {i}/{len(cmds)} {time.strftime('%H:%M:%S', time.gmtime())} {argv[-1]}", flush=True)
+            if now() >= stop:  # checked with the lock held: a wait for the lane cannot start a command late
+                print(f"=== stopped before command {i} of {len(cmds)} at {now():%H:%M:%S} UTC", flush=True)
+                return
+            print(f"=== {i}/{len(cmds)} {now():%H:%M:%S} {argv[-1]}", flush=True)
             si.main(argv)
             fcntl.flock(fh, fcntl.LOCK_UN)
-    print(f"=== all {len(cmds)} commands done {time.strftime('%H:%M:%S', time.gmtime())} UTC", flush=True)
+    print(f"=== all {len(cmds)} commands done {now():%H:%M:%S} UTC", flush=True)
 
 
 def remaining(argv: list[str]) -> list[str]:
