@@ -719,6 +719,29 @@ def test_focus_start_invariance_ptc_exposure_mode_measures_the_full_well_and_put
     assert seen == {"ptc": True, "exposure": True}
 
 
+@pytest.mark.parametrize("mode, want", [("code", (False, False, False)), ("channel", (False, False, True)),
+                                        ("ptc_exposure_channel", (True, True, True)),
+                                        ("ptc_exposure", (True, True, False))])
+def test_focus_start_invariance_code_and_channel_modes_set_only_their_switches(tmp_path, monkeypatch, mode, want):
+    """`--mode code` runs the code unchanged (the same machine's baseline), `channel` with the binning correction
+    each channel's own (`anchors.PER_CHANNEL`), `ptc_exposure_channel` with both that and `ptc_exposure`'s switches."""
+    from aat_deploy.diagnose import anchors, fitters
+    from benchmarks import bench_diagnose_focus as bench
+    from benchmarks.probes import focus_start_invariance as si
+
+    for mod, name in ((fitters, "FULL_WELL_BY_PHOTON_TRANSFER"), (fitters, "FLOOR_AT_CAPTURE_EXPOSURE"),
+                      (anchors, "PER_CHANNEL")):
+        monkeypatch.setattr(mod, name, False)  # restored after
+    seen = []
+    monkeypatch.setattr(bench, "main", lambda: seen.append((fitters.FULL_WELL_BY_PHOTON_TRANSFER,
+                                                            fitters.FLOOR_AT_CAPTURE_EXPOSURE, anchors.PER_CHANNEL)))
+    rows = tmp_path / "r.jsonl"
+    rows.write_text(json.dumps({"capture": "s", "kind": "none"}) + "\n")
+    si.main(["--mode", mode, "--rows", str(rows), "--out", str(tmp_path / "o.jsonl"), "--", "--fit-only",
+             "--sets", "s:none"])
+    assert seen == [want]
+
+
 def test_focus_exposure_subset_plan_is_the_ptc_subsets_sets_rerun_with_the_declared_change(capsys):
     """`focus_exposure_subset --plan`: the same 98 sets in the same order as `focus_ptc_subset`, every command with
     `--mode ptc_exposure` into results/focus_exposure_subset.jsonl; without --plan, --run or --tally it refuses."""
@@ -765,6 +788,32 @@ def test_focus_exposure_subset_check_reruns_two_stored_sets_and_reproduces_only_
     j = int(np.flatnonzero(np.isfinite(np.asarray(left[1]["frame_err_d"], np.float64)))[0])
     left[1]["frame_err_d"][j] = float("nan")
     assert "reproduced: 1 of 2" in es.compare(left, stored)
+
+
+def test_focus_channel_correction_pairs_the_code_and_the_change_on_the_same_sets():
+    """`focus_channel_correction`: every stored set of its three development scenes (none of 3304 on), the base's and
+    the change's command of each group one after the other, into their own files; the tally pairs the two by set and
+    counts a set better only where the change gains (family, within 0.02 D) and loses nothing."""
+    from benchmarks.probes import focus_channel_correction as cc
+
+    order = cc.plan()
+    assert len(order) == 36 and {c for _, c, _ in order} == set(cc.SCENES)
+    assert all(int(c[5:]) < 3304 for _, c, _ in order)
+    for exposure, (m0, m1) in cc.PAIRS.items():
+        cmds = cc.commands(exposure)
+        assert all(f"--mode {m0} " in c and f"--out {cc.out_file(m0)} " in c for c in cmds[::2])
+        assert all(f"--mode {m1} " in c and f"--out {cc.out_file(m1)} " in c for c in cmds[1::2])
+        assert [c.split("--sets ")[1] for c in cmds[::2]] == [c.split("--sets ")[1] for c in cmds[1::2]]
+
+    def row(kind, fam, err):
+        return {"capture": "scene3303", "kind": kind, "family": fam, "family_ok": fam == {"none": "none"}.get(kind, "scale"),
+                "frames_undetermined": 0, "corrected_max_err_d": err, "frame_err_d": [err, float("nan")], "seconds": 30}
+
+    base = [row("scale_1.1", "offset", 0.03), row("scale_0.9", "scale", 0.01), row("none", "none", 0.0)]
+    var = [row("scale_1.1", "scale", 0.01), row("scale_0.9", "scale", 0.025), row("none", "none", 0.0)]
+    text = cc.tally(base, var, ("code", "channel"))
+    assert "3 sets (2 with an error): family right 2 -> 3, within 0.02 D with every frame determined 1 -> 1 of 2" in text
+    assert "sets better 1, worse 1" in text and "not run (both): 33 of 36" in text
 
 
 def test_focus_weak_noiseless_reads_a_residual_along_the_twins_slope():

@@ -42,37 +42,50 @@ DENSE_STEPS = 2  # ... and how many either side of the estimates (0: only re-anc
 DENSE_MOVED_D = 0.0  # only when some frame's first estimate lies this far (diopters) from its reported focus
 REANCHOR_AGAIN_D = 0.003  # then anchored at the estimates again while one lies this far from every anchor ...
 REANCHOR_ROUNDS = 3  # ... at most this many more times
+# whether, when the sweep carries the noise by its expectation (`noisefloor`), the correction is each channel's own
+# (n, R, K, C), added to that channel's noiseless measure under its floor, instead of their mean added to every
+# channel: the binned sweep leaves the RAW development out, so its channels' signals are off by different amounts,
+# which the mean of logs hides without noise but not under each channel's floor (issue 32, docs/diagnosis.md, "Not the
+# whole of it on 3303"). Off: a probe of development sets, not declared
+PER_CHANNEL = False
 
 
-def _curves(stack: np.ndarray, factor: int = 1) -> np.ndarray:
-    return focus_curves(normalise_stack(bin_frames(np.clip(stack, 0, None), factor)), ff.FIT_GRID).mean(-1)
+def _curves(stack: np.ndarray, factor: int = 1, per_channel: bool = False) -> np.ndarray:
+    c = focus_curves(normalise_stack(bin_frames(np.clip(stack, 0, None), factor)), ff.FIT_GRID)
+    return c if per_channel else c.mean(-1)
 
 
-def anchor_deltas(state, chain: list, focus_m: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
+def anchor_deltas(state, chain: list, focus_m: list[np.ndarray],
+                  per_channel: bool = False) -> list[tuple[np.ndarray, np.ndarray]]:
     """Per capture, (focus (S,) diopters, delta (R, S)): the binned full-resolution twin's curves minus the binned
-    render's, both with `chain` at the focus distances focus_m (S,) metres. The optics are cached by the renderers
-    (keyed by the focus's bits): at the twin's own focus, given as the twin has it (`true_focus`, not the inverse of
-    its diopters), this costs no new optical render."""
+    render's, both with `chain` at the focus distances focus_m (S,) metres; per_channel: each channel's, (R, S, C).
+    The optics are cached by the renderers (keyed by the focus's bits): at the twin's own focus, given as the twin has
+    it (`true_focus`, not the inverse of its diopters), this costs no new optical render."""
     out = []
     for i, (c, cb, a, ab, f) in enumerate(zip(state.caps, state.caps_b, state.aifs, state.aifs_b, focus_m)):
         full = state.twins.linear(c, a, chain, state.seed + i, focus_true_m=f)
         own = state.tb.linear(cb, ab, chain, state.seed + i, focus_true_m=f)
         # the full-resolution twin is normalised as a stack, then binned, as `fitters.fit_curves` does
         full_curves = focus_curves(normalise_stack(bin_frames(normalise_stack(np.clip(full, 0, None)), state.factor)),
-                                   ff.FIT_GRID).mean(-1)
-        out.append((1.0 / np.asarray(f, np.float64), full_curves - _curves(own)))
+                                   ff.FIT_GRID)
+        full_curves = full_curves if per_channel else full_curves.mean(-1)
+        out.append((1.0 / np.asarray(f, np.float64), full_curves - _curves(own, per_channel=per_channel)))
     return out
 
 
 def correction(grid: np.ndarray, anchors: list[list[tuple[np.ndarray, np.ndarray]]]) -> np.ndarray:
     """(n, R, K) the correction over the sweep's grid, interpolated in focus over every anchor set of each capture
-    (flat beyond the outermost anchors)."""
+    (flat beyond the outermost anchors); (n, R, K, C) from per-channel deltas (R, S, C)."""
     out = []
     for sets in anchors:
         d = np.concatenate([s[0] for s in sets])
         delta = np.concatenate([s[1] for s in sets], axis=1)
         order = np.argsort(d)
-        out.append(np.stack([np.interp(grid, d[order], row[order]) for row in delta]))
+        if delta.ndim == 3:
+            out.append(np.stack([np.stack([np.interp(grid, d[order], row[order, c]) for c in range(delta.shape[2])], -1)
+                                 for row in delta]))
+        else:
+            out.append(np.stack([np.interp(grid, d[order], row[order]) for row in delta]))
     return np.stack(out)
 
 
@@ -87,9 +100,10 @@ def densely_anchored(state, raw: ff.SweepData, chain: list, anchors: list, data:
     at the estimates +- 1 to DENSE_STEPS steps of DENSE_STEP_D, then at the new estimates while some estimate lies
     REANCHOR_AGAIN_D or more from every anchor of its capture, at most REANCHOR_ROUNDS more times. rep gets where."""
     s_n = [len(c.focus_m) for c in state.caps]
+    per = PER_CHANNEL and raw.floor_c is not None
 
     def add(*ests):
-        extra = [anchor_deltas(state, chain, _at(e, s_n, raw.grid_d)) for e in ests]
+        extra = [anchor_deltas(state, chain, _at(e, s_n, raw.grid_d), per_channel=per) for e in ests]
         for x in extra:
             for a, y in zip(anchors, x):
                 a.append(y)
@@ -120,17 +134,18 @@ def reanchored_sweep(state, raw: ff.SweepData, estimate) -> tuple[ff.SweepData, 
     chain = [e for e in state.chain if not state.tb.has_stack_hook(e)]
     if raw.floor_c is not None:  # the sweep carries the noise by its expectation: correct the noiseless measure
         chain = noisefloor.quiet(chain)
+    per = PER_CHANNEL and raw.floor_c is not None  # each channel's own correction under its floor
     s_n = [len(c.focus_m) for c in state.caps]
     base = [raw.base_d[i, :s] for i, s in enumerate(s_n)]
     own = [np.asarray(state.twins.true_focus(c, state.chain, state.seed + i), np.float64).ravel()
            for i, c in enumerate(state.caps)]  # the full-resolution twin's own focus, bit for bit (its render cached)
-    anchors = [[a] for a in anchor_deltas(state, chain, own)]
+    anchors = [[a] for a in anchor_deltas(state, chain, own, per_channel=per)]
     data = raw.with_correction(correction(raw.grid_d, anchors))
     est = np.asarray(estimate(data), np.float64)
     moved = [float(np.max(np.abs(est[i, :s] - base[i]))) for i, s in enumerate(s_n)]
     rep = {"anchors_d": [b.round(4).tolist() for b in base], "moved_d": [round(m, 4) for m in moved]}
     if max(moved) >= REANCHOR_D:
-        extra = anchor_deltas(state, chain, _at(est, s_n, raw.grid_d))
+        extra = anchor_deltas(state, chain, _at(est, s_n, raw.grid_d), per_channel=per)
         anchors = [a + [x] for a, x in zip(anchors, extra)]
         data = raw.with_correction(correction(raw.grid_d, anchors))
         rep["reanchored_d"] = [x[0].round(4).tolist() for x in extra]

@@ -178,12 +178,13 @@ class SweepData:
 
     def with_correction(self, delta: np.ndarray) -> SweepData:
         """The sweep with a binning correction delta (n, R, K, log units) added to the twin: to the noiseless
-        measure under the noise floor when the noise is carried by its expectation (`noisefloor.compose`)."""
+        measure under the noise floor when the noise is carried by its expectation (`noisefloor.compose`), to every
+        channel alike; (n, R, K, C): each channel's own (without a floor, their mean)."""
         if self.floor_c is None:
-            return self.with_twin(self.twin + delta)
+            return self.with_twin(self.twin + (delta.mean(-1) if delta.ndim == 4 else delta))
         from aat_deploy.diagnose.noisefloor import compose
 
-        sig = self.signal_c + delta[..., None]
+        sig = self.signal_c + (delta if delta.ndim == 4 else delta[..., None])
         return dataclasses.replace(self, twin=compose(sig, self.floor_c), signal_c=sig)
 
     def with_full_well(self, ratio: float | np.ndarray) -> SweepData:

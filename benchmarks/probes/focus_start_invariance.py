@@ -35,6 +35,10 @@ eleventh round's scene 3303 and its like), rerun through the first-round focus f
 - `ptc_exposure`: `ptc` with the floor put at the capture's exposure (`fitters.FLOOR_AT_CAPTURE_EXPOSURE`: the measured
   full well times the capture's brightness over the twin's, `fitters.capture_exposure`): the declared change of
   `focus_exposure_subset`.
+- `code`: nothing changed (the code as it is, rerun: on another machine the captures are rendered again, so a
+  comparison needs the code's rows from the same machine).
+- `channel`: the binning correction each channel's own under its floor (`anchors.PER_CHANNEL`); `ptc_exposure_channel`:
+  that with `ptc_exposure` (`focus_channel_correction`).
 
 Then `--summary` prints, per rerun set, its errors against the stored row's and the untouched copy's (the
 coefficient on the untouched errors: 1 is the untouched pattern, the stored rows' coefficient beside it), and what
@@ -131,7 +135,8 @@ def tally(rerun: list[dict], stored: list[dict]) -> dict:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--mode", choices=("start", "reanchor", "near", "refit", "dense", "step", "fullwell",
-                                                        "ptc", "ptc_exposure"))
+                                                        "ptc", "ptc_exposure", "code", "channel",
+                                                        "ptc_exposure_channel"))
     ap.add_argument("--dense-d", type=float, default=0.01, help="with --mode dense: the anchors' step (D)")
     ap.add_argument("--dense-steps", type=int, default=2, help="with --mode dense: steps either side")
     ap.add_argument("--dense-moved-d", type=float, default=0.0, help="with --mode dense: only where some frame's "
@@ -198,11 +203,16 @@ def main(argv: list[str] | None = None) -> int:
         from aat_deploy.diagnose import fitters
 
         fitters.FULL_WELL_BY_PHOTON_TRANSFER = True
-    elif a.mode == "ptc_exposure":
-        from aat_deploy.diagnose import fitters
+    elif a.mode in ("ptc_exposure", "channel", "ptc_exposure_channel"):
+        from aat_deploy.diagnose import anchors, fitters
 
-        fitters.FULL_WELL_BY_PHOTON_TRANSFER = True
-        fitters.FLOOR_AT_CAPTURE_EXPOSURE = True
+        if a.mode != "channel":
+            fitters.FULL_WELL_BY_PHOTON_TRANSFER = True
+            fitters.FLOOR_AT_CAPTURE_EXPOSURE = True
+        if a.mode != "ptc_exposure":
+            anchors.PER_CHANNEL = True
+    elif a.mode == "code":
+        pass
     elif a.mode == "near":
         bench.reported_d = lambda kind, true_d, k: np.asarray(true_d, np.float64) + a.near_d
     else:

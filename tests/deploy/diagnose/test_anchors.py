@@ -20,13 +20,19 @@ def delta(f_d):
     return 0.8 * np.exp(-(((np.asarray(f_d)[None, :] - PEAKS[:, None]) / 0.03) ** 2))
 
 
+def per_channel_delta(f_d):
+    """(R, S, C): the channels' own corrections, the mean's bump scaled by 0.5, 1 and 1.5 (their mean: `delta`)."""
+    return delta(f_d)[..., None] * np.array([0.5, 1.0, 1.5])
+
+
 def make(monkeypatch):
     """(state, raw sweep, estimate, the anchor_deltas calls' focus in diopters) with anchor_deltas faked."""
     calls = []
 
-    def fake_deltas(state, chain, focus_m):
+    def fake_deltas(state, chain, focus_m, per_channel=False):
         calls.append([1.0 / np.asarray(f, np.float64) for f in focus_m])
-        return [(1.0 / np.asarray(f, np.float64), delta(1.0 / np.asarray(f, np.float64))) for f in focus_m]
+        return [(1.0 / np.asarray(f, np.float64), (per_channel_delta if per_channel else delta)(1.0 / np.asarray(f, np.float64)))
+                for f in focus_m]
 
     monkeypatch.setattr(A, "anchor_deltas", fake_deltas)
     cap = SimpleNamespace(focus_m=1.0 / BASE, name="c")
@@ -37,7 +43,8 @@ def make(monkeypatch):
 
     def estimate(data):
         """(1, S): the truth, moved by the correction's mean error (log units) at the truth, 0.1 D per log unit."""
-        got = np.stack([np.interp(TRUE, GRID, row) for row in data.corr[0]])
+        corr = data.corr[0] if data.corr.ndim == 3 else data.corr[0].mean(-1)  # per channel: their mean
+        got = np.stack([np.interp(TRUE, GRID, row) for row in corr])
         return (TRUE + 0.1 * (got - delta(TRUE)).mean(0))[None, :]
 
     return state, raw, estimate, calls
@@ -88,3 +95,47 @@ def test_dense_anchoring_only_past_its_trigger(setup, monkeypatch):
     calls.clear()
     _, rep = A.reanchored_sweep(state, raw, estimate)
     assert len(calls) > 6 and rep["dense_anchors_d"] == A.DENSE_STEP_D
+
+
+@pytest.mark.parametrize("floor", [False, True])
+def test_per_channel_correction_only_under_a_floor_and_only_when_asked(setup, monkeypatch, floor):
+    """`PER_CHANNEL`: each channel's own correction (n, R, K, C), interpolated per channel as the mean's is, goes to
+    `with_correction` only when the sweep carries an expected floor (without one the channel mean is all the twin has);
+    off, the channel mean (n, R, K) as before."""
+    state, raw, estimate, calls = setup
+    raw.floor_c = np.ones(1) if floor else None
+    monkeypatch.setattr(A, "PER_CHANNEL", False)
+    off, _ = A.reanchored_sweep(state, raw, estimate)
+    assert off.corr.shape == (1, len(PEAKS), len(GRID))
+    monkeypatch.setattr(A, "PER_CHANNEL", True)
+    on, _ = A.reanchored_sweep(state, raw, estimate)
+    if not floor:
+        assert np.array_equal(on.corr, off.corr)
+        return
+    assert on.corr.shape == (1, len(PEAKS), len(GRID), 3)
+    assert np.allclose(on.corr.mean(-1), off.corr)  # the channels' mean is the plain correction ...
+    assert np.allclose(on.corr[..., 0], 0.5 * off.corr) and np.allclose(on.corr[..., 2], 1.5 * off.corr)  # ... each its own
+
+
+def test_sweep_takes_a_per_channel_correction_under_each_channels_floor():
+    """`SweepData.with_correction` with (n, R, K, C): each channel's noiseless measure moves by its own delta under
+    its own floor (with equal deltas the same as the (n, R, K) one); without a floor, their mean is added."""
+    from aat_deploy.diagnose import focusfit as ff
+    from aat_deploy.diagnose.noisefloor import compose
+
+    rng = np.random.default_rng(3)
+    n, r, k, s, c = 1, 4, len(GRID), 3, 3
+    sig = rng.normal(-3, 1, (n, r, k, c))
+    floor = np.exp(rng.normal(-4, 0.5, (n, r, k, c)))
+    cap = rng.normal(-3, 1, (n, r, s))
+    rep = np.broadcast_to(BASE, (n, s)).copy()
+    xy = np.zeros((r, 2))
+    d = ff.SweepData(GRID, compose(sig, floor), cap, rep, rep.copy(), xy, signal_c=sig, floor_c=floor)
+    one = rng.normal(0, 0.3, (n, r, k))
+    assert np.allclose(d.with_correction(np.repeat(one[..., None], c, -1)).twin, d.with_correction(one).twin)
+    per = rng.normal(0, 0.3, (n, r, k, c))
+    got = d.with_correction(per)
+    assert np.allclose(got.twin, compose(sig + per, floor)) and np.allclose(got.signal_c, sig + per)
+    assert not np.allclose(got.twin, d.with_correction(per.mean(-1)).twin)  # the floor tells the channels apart
+    plain = ff.SweepData(GRID, sig.mean(-1), cap, rep, rep.copy(), xy)
+    assert np.allclose(plain.with_correction(per).twin, sig.mean(-1) + per.mean(-1))
