@@ -829,3 +829,20 @@ def test_focus_weak_noiseless_reads_a_residual_along_the_twins_slope():
     res[2] = 5.0  # a region left out
     used = np.array([True, True, False])
     assert np.allclose(fw.focus_reading(res, slope, used), [0.0, 0.02, 0.0])
+
+
+def test_focus_weak_noiseless_energy_is_the_region_mean_of_the_squared_laplacian_and_its_cross_term():
+    """`focus_weak_noiseless.lap_energy`: per region, frame and channel, the mean of lap(a)^2, and with a second stack
+    of 2 lap(a) lap(b), so that E(a + b) = E(a) + E(b) + X(a, b) (the split the probe reads the noise term by)."""
+    from benchmarks.probes import focus_weak_noiseless as fw
+
+    rng = np.random.default_rng(5)
+    a, b = rng.random((2, 3, 24, 36)), rng.normal(0, 0.2, (2, 3, 24, 36))
+    grid = (2, 3)
+    e = fw.lap_energy(a, grid)
+    assert e.shape == (6, 2, 3)
+    # OpenCV's 3 x 3 Laplacian (ksize 3: 2 (sum of the 4 corners - 4 centre)), by hand, reflected at the border
+    x = np.pad(a[1, 2], 1, mode="reflect")
+    lap = 2 * (x[:-2, :-2] + x[:-2, 2:] + x[2:, :-2] + x[2:, 2:] - 4 * x[1:-1, 1:-1])
+    assert e[5, 1, 2] == pytest.approx(np.mean(lap[12:, 24:] ** 2), rel=1e-5)
+    assert np.allclose(fw.lap_energy(a + b, grid), e + fw.lap_energy(b, grid) + fw.lap_energy(a, grid, b), rtol=1e-4)

@@ -277,6 +277,21 @@ def subset_parser(doc: str, until: str, tally_help: str = "the reruns' rows") ->
     return ap
 
 
+def tally_out(ap: argparse.ArgumentParser, a: argparse.Namespace, text_of) -> int:
+    """The subset probes' --tally: refused in one line without it or with a results file missing; the table
+    `text_of(rows)` of the files' rows printed, and written to --out atomically."""
+    if not a.tally:
+        ap.error("--plan or --tally")
+    for f in a.tally:
+        if not f.is_file():
+            ap.error(f"--tally {f}: no such results file")
+    text = text_of(read(a.tally))
+    print(text)
+    if a.out:
+        write_text_atomic(a.out, text)
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = subset_parser(__doc__, "01:14", "the reruns' rows (with the earlier probe's: DONE_FILES)")
     a = ap.parse_args(argv)
@@ -290,18 +305,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"\n{len(order)} sets: " + ", ".join(f"{s} {sum(x[0] == s for x in order)}" for s in ("H0", "A1", "A2", "H1")))
         print("\n".join(commands(order)))
         return 0
-    if not a.tally:
-        ap.error("--plan or --tally")
-    for f in a.tally:
-        if not f.is_file():
-            ap.error(f"--tally {f}: no such results file")
     strata = {(c, k): s for s, c, k in order}
     strata.update({(r["capture"], r["kind"]): "probe" for r in read(ROOT / "results" / f for f in DONE_FILES)})
-    text = tally(read(a.tally), strata)
-    print(text)
-    if a.out:
-        write_text_atomic(a.out, text)
-    return 0
+    return tally_out(ap, a, lambda rows: tally(rows, strata))
 
 
 if __name__ == "__main__":

@@ -30,7 +30,6 @@ from contextlib import redirect_stdout
 
 import numpy as np
 
-from aat_deploy.io.atomic import write_text_atomic
 from benchmarks.probes import focus_dense_subset as ds
 from benchmarks.probes import focus_ptc_subset as ptc
 
@@ -94,22 +93,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"\n{len(order)} sets")
         print("\n".join(cmds))
         return 0
-    if not a.tally:
-        ap.error("--plan or --tally")
-    for f in a.tally:
-        if not f.is_file():
-            ap.error(f"--tally {f}: no such results file")
     if a.check:
-        text = compare(ds.read(a.tally), ds.read([ds.ROOT / OUT]))
-        print(text)
-        if a.out:
-            write_text_atomic(a.out, text)
-        return 0
-    text = ptc.tally(ds.read(a.tally), {(c, k): s for s, c, k in order}, label=LABEL)
-    print(text)
-    if a.out:
-        write_text_atomic(a.out, text)
-    return 0
+        return ds.tally_out(ap, a, lambda rows: compare(rows, ds.read([ds.ROOT / OUT])))
+    return ds.tally_out(ap, a, lambda rows: ptc.tally(rows, {(c, k): s for s, c, k in order}, label=LABEL))
 
 
 if __name__ == "__main__":

@@ -28,7 +28,6 @@ from contextlib import redirect_stdout
 
 import numpy as np
 
-from aat_deploy.io.atomic import write_text_atomic
 from benchmarks.probes import focus_dense_subset as ds
 
 OUT = "results/focus_ptc_subset.jsonl"
@@ -123,16 +122,7 @@ def main(argv: list[str] | None = None) -> int:
                                                  for s in ("H0", "A1", "P", "A2", "H1", "U")))
         print("\n".join(cmds))
         return 0
-    if not a.tally:
-        ap.error("--plan or --tally")
-    for f in a.tally:
-        if not f.is_file():
-            ap.error(f"--tally {f}: no such results file")
-    text = tally(ds.read(a.tally), {(c, k): s for s, c, k in order})
-    print(text)
-    if a.out:
-        write_text_atomic(a.out, text)
-    return 0
+    return ds.tally_out(ap, a, lambda rows: tally(rows, {(c, k): s for s, c, k in order}))
 
 
 if __name__ == "__main__":

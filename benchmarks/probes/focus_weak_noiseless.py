@@ -50,9 +50,10 @@ from aat_deploy.io.atomic import write_text_atomic
 CHAIN = ("noise", "vignetting", "raw_pipeline")  # the focus twin's chain for these captures
 
 
-def lap_energy(frames: np.ndarray, grid: tuple[int, int]) -> np.ndarray:
+def lap_energy(frames: np.ndarray, grid: tuple[int, int], other: np.ndarray | None = None) -> np.ndarray:
     """(R, S, C) region mean of the squared 3 x 3 Laplacian of binned frames (S, C, H, W), in their own units (the
-    measure `compare.focus_curves` takes the log of, before any normalisation)."""
+    measure `compare.focus_curves` takes the log of, before any normalisation); with `other` (the same shape): of the
+    cross term 2 lap(frames) lap(other)."""
     import cv2
 
     from aat_deploy.diagnose.compare import region_index
@@ -62,29 +63,15 @@ def lap_energy(frames: np.ndarray, grid: tuple[int, int]) -> np.ndarray:
     n_r = grid[0] * grid[1]
     cnt = np.bincount(reg, minlength=n_r)
     out = np.empty((n_r, s, c))
+
+    def lap(x):
+        return cv2.Laplacian(np.ascontiguousarray(x, np.float32), cv2.CV_32F, ksize=3).astype(np.float64)
+
     for i in range(s):
         for j in range(c):
-            lap = cv2.Laplacian(np.ascontiguousarray(frames[i, j], np.float32), cv2.CV_32F, ksize=3).astype(np.float64)
-            out[:, i, j] = np.bincount(reg, weights=(lap ** 2).ravel(), minlength=n_r) / cnt
-    return out
-
-
-def cross_energy(a: np.ndarray, b: np.ndarray, grid: tuple[int, int]) -> np.ndarray:
-    """(R, S, C) region mean of 2 lap(a) lap(b)."""
-    import cv2
-
-    from aat_deploy.diagnose.compare import region_index
-
-    s, c, h, w = a.shape
-    reg = region_index(h, w, grid).ravel()
-    n_r = grid[0] * grid[1]
-    cnt = np.bincount(reg, minlength=n_r)
-    out = np.empty((n_r, s, c))
-    for i in range(s):
-        for j in range(c):
-            la = cv2.Laplacian(np.ascontiguousarray(a[i, j], np.float32), cv2.CV_32F, ksize=3).astype(np.float64)
-            lb = cv2.Laplacian(np.ascontiguousarray(b[i, j], np.float32), cv2.CV_32F, ksize=3).astype(np.float64)
-            out[:, i, j] = np.bincount(reg, weights=(2 * la * lb).ravel(), minlength=n_r) / cnt
+            la = lap(frames[i, j])
+            e = la ** 2 if other is None else 2 * la * lap(other[i, j])
+            out[:, i, j] = np.bincount(reg, weights=e.ravel(), minlength=n_r) / cnt
     return out
 
 
@@ -212,7 +199,7 @@ def aif_report(scene: str, quiet: Path, noisy: Path, full_well_e: float, threads
     # the noise term split in the captures' own (unnormalised, per channel) units
     s_c, m_c = lap_energy(qb, grid), lap_energy(nb_, grid)
     e_c = lap_energy(nb_ - qb, grid)
-    x_c = cross_energy(qb, nb_ - qb, grid)
+    x_c = lap_energy(qb, grid, nb_ - qb)
     fl_raw = noisefloor.floor(qb, 1.0, noise.binned(factor), fac, grid)
     t_level = profiled((np.log(s_c + fl_raw) - np.log(s_c + e_c)).mean(-1))  # the floor against the noise's own energy
     t_cross = profiled((np.log(s_c + e_c) - np.log(np.maximum(m_c, 1e-30))).mean(-1))  # the cross term
