@@ -377,19 +377,22 @@ def chart_for(rig: Rig, distance_m: float):
 CHART_PX_PER_PX = 3  # the benchmark's chart image pixels per sensor pixel at the chart's distance (centre)
 
 
-def sweep(rig: Rig, variant: str, i: int, progress=print) -> dict:
-    """One chart sweep (cached): frames (S, 3, H, W) far to near, reported_m, true_m, layout, distance."""
+def sweep(rig: Rig, variant: str, i: int, progress=print, noise: bool = True) -> dict:
+    """One chart sweep (cached): frames (S, 3, H, W) far to near, reported_m, true_m, layout, distance. noise=False:
+    the same sweep (scene, frames, seed) with the variant's effects but `noise`, cached apart (`_noise0`;
+    benchmarks/probes/outer_fit.py)."""
     from aat_deploy.calibrate.pose import ChartPose
     from aat_deploy.calibrate.scene import chart_scene
     from aat_deploy.capture.virtual import shoot
 
     s = rig.setup
     d, (tx, ty) = s.distances_m[i], s.tilts[i]
-    effects = effects_for(s, variant)
+    effects = [e for e in effects_for(s, variant) if noise or e.split(":")[0] != "noise"]
     cells = "" if s.cell_px == 64 else f"_cells{s.cell_px}"
     cells += "" if s.step_px is None else f"_step{s.step_px:g}px"
     cells += "" if s.chart_texture == "dead leaves" else f"_tex-{s.chart_texture}"
     cells += f"_soft{s.chart_soften_px:g}px" if s.chart_soften_px > 0 else ""
+    cells += "" if noise else "_noise0"
     f = CACHE / f"{s.sweep_key or s.key}_{variant if variant == 'nominal' else s.copy_name}_{d:g}m{cells}.npz"
     img, layout = chart_for(rig, d)
     sources = sweep_sources(s)

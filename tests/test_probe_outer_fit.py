@@ -88,3 +88,69 @@ def test_more_charts_refuses_no_extra_chart_in_one_line(tmp_path, capsys):
         M.main(["--truth", str(tmp_path / "t.json"), "--extra", "", "--out", str(tmp_path / "o.json")])
     assert "--extra: no chart given" in capsys.readouterr().err.strip().splitlines()[-1]
     assert not (tmp_path / "o.json").exists()
+
+
+def test_clean_sweep_is_the_benchmarks_sweep_without_noise_cached_apart_and_checked(tmp_path, monkeypatch):
+    """`clean_sweep` renders through `bench_calibrate.sweep(noise=False)`: the variant's effects but `noise`, the
+    same seed, cached under a `_noise0` name next to the noisy sweep's, and a cached one of other lens files is
+    refused as the benchmark's own sweeps are (until 2026-11-28 it was a copy of `sweep` without that check)."""
+    import json
+
+    import aat_deploy.calibrate.scene as scene
+    import aat_deploy.capture.virtual as virtual
+    from benchmarks import bench_calibrate as bc
+
+    rig = bc.Rig(bc.LENSES["z35"])
+    monkeypatch.setattr(bc, "CACHE", tmp_path)
+    monkeypatch.setattr(bc, "chart_for", lambda rig, d: (None, None))
+    monkeypatch.setattr(scene, "chart_scene", lambda *a: (np.zeros((4, 6, 3), np.float32), np.full((4, 6), 0.3)))
+    shot = []
+
+    def shoot(lens, rgb, depth, true_m, effects, src, seed, workers, cell_px):
+        shot.append((list(effects), seed))
+        return np.zeros((len(true_m), 3, 4, 6), np.float32), np.asarray(true_m)
+
+    monkeypatch.setattr(virtual, "shoot", shoot)
+    O.clean_sweep(rig, "copy", 1, lambda m: None)
+    bc.sweep(rig, "copy", 1, lambda m: None)
+    noisy = bc.effects_for(rig.setup, "copy")
+    assert "noise" in noisy and shot == [([e for e in noisy if e != "noise"], 1001), (noisy, 1001)]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["z35_copy_0.6m_soft0.7px.npz",
+                                                          "z35_copy_0.6m_soft0.7px_noise0.npz"]
+    f = tmp_path / "z35_copy_0.6m_soft0.7px_noise0.npz"
+    z = dict(np.load(f))
+    np.savez(f, **{**z, "sources": json.dumps({**bc.sweep_sources(rig.setup), "psf": "0" * 64})})
+    with pytest.raises(SystemExit) as e:
+        O.clean_sweep(rig, "copy", 1, lambda m: None)
+    assert str(f) in str(e.value) and "psf 000000000000 then" in str(e.value) and len(shot) == 2
+
+
+def test_tile_size_exact_reaches_every_run_and_its_rows_are_written(tmp_path, monkeypatch, capsys):
+    """--exact goes to every (variant, tile size) run, and the result file records the rows (with their exact
+    fits) and its own command; without it no run is asked for exact tiles. The runs are stubbed (their renders and
+    fits are the probe's minutes); the truth is a real map file (read before any run)."""
+    import json
+
+    calls = []
+
+    def fake_run(variant, truth, tile_px, log, exact=False):
+        calls.append((variant, tile_px, exact))
+        row = {"variant": variant, "tile_px": tile_px, "grid": [17, 23], "kept_r_max": 0.92, "beyond_share": 0.0145,
+               "kept": 1552, "part_a": {"rms_d": 0.0943}, "part_a_fixed_regions_rms_d": {"r <= 0.92": 0.078},
+               "schedule": {"rms_d": 0.186}, "near_chart_fitted_mm": 55.0, "order": [2, 12, 3, 2]}
+        return row | ({"exact": {"rms_d": 0.075}} if exact else {})
+
+    monkeypatch.setattr(T, "run", fake_run)
+    out = tmp_path / "o.json"
+    truth = "results/render_truth_map_cellphone_19p.json"
+    assert T.main(["--truth", truth, "--variants", "nominal,copy_s2027_0", "--tiles-px", "27,24", "--exact",
+                   "--out", str(out)]) == 0
+    assert calls == [("nominal", 27, True), ("nominal", 24, True), ("copy_s2027_0", 27, True),
+                     ("copy_s2027_0", 24, True)]
+    doc = json.loads(out.read_text())
+    assert [r["exact"]["rms_d"] for r in doc["rows"]] == [0.075] * 4 and doc["truth"] == truth
+    assert doc["command"].startswith("python -m benchmarks.probes.tile_size --truth") and "--exact" in doc["command"]
+    assert "| copy_s2027_0 | 24 | 17 x 23 |" in capsys.readouterr().out
+    calls.clear()
+    T.main(["--truth", truth, "--variants", "nominal", "--tiles-px", "27", "--out", str(tmp_path / "p.json")])
+    assert calls == [("nominal", 27, False)] and "exact" not in json.loads((tmp_path / "p.json").read_text())["rows"][0]

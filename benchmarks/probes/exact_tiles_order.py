@@ -24,16 +24,12 @@ truth itself: whether the basis or the tiles' coverage limits the map.
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import dataclasses
-import json
 import sys
-from pathlib import Path
 
 import numpy as np
 
-from aat_deploy.io.atomic import write_text_atomic
 from benchmarks.probes.tile_bias import VARIANTS
 
 OPTIONS = {
@@ -293,17 +289,15 @@ def table(rows: list[dict]) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--truth", required=True, help="a render-truth map (aat-render-truth-map-v1; a repo path)")
-    ap.add_argument("--variants", default=",".join(VARIANTS))
+    from benchmarks.probes import calibrate_probe_cli as cli
+
+    ap = cli.parser(__doc__, ",".join(VARIANTS))
     ap.add_argument("--options", default=",".join(OPTIONS), help=f"of: {'; '.join(OPTIONS)} (comma-separated)")
     ap.add_argument("--measured", default="", help="options (or MEASURED_ONLY's) also fitted on the measured tiles "
                     "(';'-separated)")
     ap.add_argument("--bases", action="store_true", help="also each of BASES fitted by least squares (the floors)")
-    ap.add_argument("--out", required=True)
     a = ap.parse_args(argv)
-    if Path(a.out).exists():
-        ap.error(f"{a.out}: exists (choose another --out)")
+    cli.refuse_existing_out(ap, a.out)
     variants = [v for v in a.variants.split(",") if v]
     options = [o for o in a.options.split(",") if o]
     measured = [o for o in a.measured.split(";") if o]
@@ -311,15 +305,9 @@ def main(argv=None) -> int:
         [o for o in measured if o not in OPTIONS and o not in MEASURED_ONLY]
     if bad:
         ap.error(f"not a variant or option: {', '.join(bad)}")
-    from benchmarks.render_truth_map import load_or_exit
-
-    load_or_exit(a.truth, "exact_tiles_order")
-    log = lambda m: print(m, file=sys.stderr, flush=True)
-    rows = [run(v, a.truth, options, measured, log, a.bases) for v in variants]
-    write_text_atomic(a.out, json.dumps({"what": __doc__.split("\n")[0], "truth": a.truth, "options": OPTIONS,
-                                         "command": "python -m benchmarks.probes.exact_tiles_order " + " ".join(
-                                             argv if argv is not None else sys.argv[1:]), "rows": rows},
-                                        indent=1, default=float))
+    cli.load_truth(a.truth, "exact_tiles_order")
+    rows = [run(v, a.truth, options, measured, cli.log, a.bases) for v in variants]
+    cli.write_result(a.out, "exact_tiles_order", __doc__, a.truth, argv, rows, options=OPTIONS)
     print(table(rows))
     return 0
 

@@ -17,14 +17,9 @@ charts (issue 33's part c), measured.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
-import json
 import sys
 import time
-from pathlib import Path
-
-from aat_deploy.io.atomic import write_text_atomic
 
 
 def parse_extra(text: str) -> list[tuple[float, tuple[float, float]]]:
@@ -95,16 +90,13 @@ def table(rows: list[dict]) -> str:
 
 
 def main(argv=None) -> int:
-    from benchmarks.probes.tile_bias import chosen_variants
-    from benchmarks.render_truth_map import load_or_exit
+    from benchmarks.probes import calibrate_probe_cli as cli
+    from benchmarks.probes.tile_bias import VARIANTS
 
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--truth", required=True, help="a render-truth map (aat-render-truth-map-v1; a repo path)")
-    ap.add_argument("--variants", default="nominal,copy")
+    ap = cli.parser(__doc__, "nominal,copy")
     ap.add_argument("--extra", default="0.128:-6:5,0.083:10:-4", help="extra charts: distance_m:tilt_x:tilt_y,...")
     ap.add_argument("--fit-extra", action="store_true", help="the extra charts' distances fitted (`~`: their tape "
                     "only a start) instead of taped")
-    ap.add_argument("--out", required=True)
     a = ap.parse_args(argv)
     try:
         extra = parse_extra(a.extra)
@@ -112,18 +104,11 @@ def main(argv=None) -> int:
         ap.error(str(e))
     if not extra:
         ap.error("--extra: no chart given")
-    if Path(a.out).exists():
-        ap.error(f"{a.out}: exists (choose another --out)")
-    variants = chosen_variants(ap, a.variants)
-    if not variants:
-        ap.error("nothing to run: --variants is empty")
-    load_or_exit(a.truth, "more_charts")
-    log = lambda m: print(m, file=sys.stderr, flush=True)
-    rows = [run(v, a.truth, extra, log, a.fit_extra) for v in variants]
-    write_text_atomic(a.out, json.dumps({"what": __doc__.split("\n")[0], "truth": a.truth, "extra": extra,
-                                         "command": "python -m benchmarks.probes.more_charts " + " ".join(
-                                             argv if argv is not None else sys.argv[1:]), "rows": rows},
-                                        indent=1, default=float))
+    cli.refuse_existing_out(ap, a.out)
+    variants = cli.variants_of(ap, a.variants, VARIANTS)
+    cli.load_truth(a.truth, "more_charts")
+    rows = [run(v, a.truth, extra, cli.log, a.fit_extra) for v in variants]
+    cli.write_result(a.out, "more_charts", __doc__, a.truth, argv, rows, extra=extra)
     print(table(rows))
     return 0
 

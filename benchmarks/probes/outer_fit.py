@@ -14,10 +14,11 @@ the field term beyond the farthest kept tile (as the fit does) and is scored aga
 "inside" settings (7-18 cm), by field radius of the pixel (0-0.66, 0.66-0.75, 0.75-0.84, 0.84 to the farthest tile).
 
 Each chart is rendered again with the variant's effects but the sensor noise (`noise`), the same frames and seeds
-(cached under cache/outer_fit/), and its tiles' peaks found on those frames (*clean*) and on the clean frames with
---noise-draws new draws of the benchmark's noise (Poisson-Gaussian, the `noise` effect's parameters). The map
-error of the measured tiles splits exactly (a telescoping sum of maps; each difference's share of the squared error
-is its inner product with the total over the total's square, so the shares add to 1):
+(`bench_calibrate.sweep(noise=False)`, cached with the benchmark's sweeps under `_noise0` names), and its tiles'
+peaks found on those frames (*clean*) and on the clean frames with --noise-draws new draws of the benchmark's noise
+(Poisson-Gaussian, the `noise` effect's parameters). The map error of the measured tiles splits exactly (a
+telescoping sum of maps; each difference's share of the squared error is its inner product with the total over the
+total's square, so the shares add to 1):
 
 - **noise**: measured tiles (the cached noisy peaks, their objects as fitted) minus the same tiles at the clean
   peaks: what the sensor noise does to the peaks, through the fit;
@@ -57,7 +58,6 @@ import numpy as np
 from aat_deploy.io.atomic import write_text_atomic
 from benchmarks import ROOT
 
-CACHE = ROOT / "cache" / "outer_fit"
 BINS = ((0.0, 0.66), (0.66, 0.75), (0.75, 0.84), (0.84, None))  # None: the farthest kept tile's radius
 PARTS = ("noise", "distance", "measurement (clean)", "where the tiles lie", "basis")
 DENSE_PX, DENSE_F = 16, 16
@@ -101,37 +101,11 @@ def split(total: np.ndarray, parts: dict, masks: dict) -> dict:
 
 
 def clean_sweep(rig, variant: str, i: int, log) -> dict:
-    """Chart i as bench_calibrate.sweep renders it (same scene, frames, seed) with the variant's effects but `noise`,
-    cached; its dict as `sweep`'s."""
-    from aat_deploy.calibrate.pose import ChartPose
-    from aat_deploy.calibrate.scene import chart_scene
-    from aat_deploy.capture.virtual import shoot
-    from aat_deploy.io.atomic import atomic_file
+    """Chart i as bench_calibrate.sweep renders it (same scene, frames, seed) with the variant's effects but `noise`:
+    `sweep(noise=False)`, cached as its sweeps are and checked against the lens and PSF files as they are."""
     from benchmarks import bench_calibrate as B
 
-    s = rig.setup
-    d, (tx, ty) = s.distances_m[i], s.tilts[i]
-    eff = [e for e in B.effects_for(s, variant) if e.split(":")[0] != "noise"]
-    name = f"{s.sweep_key or s.key}_{variant if variant == 'nominal' else s.copy_name}_{d:g}m" \
-           f"_step{s.step_px:g}px_soft{s.chart_soften_px:g}px_noise0.npz"
-    f = CACHE / name
-    img, layout = B.chart_for(rig, d)
-    if f.is_file():
-        z = np.load(f)
-        return {"frames": z["frames"].astype(np.float32), "reported_m": z["reported_m"], "true_m": z["true_m"],
-                "layout": layout, "distance_m": d}
-    rgb, depth = chart_scene(img, layout, ChartPose(d, tx, ty), rig.w, rig.h, rig.f_px, rig.pupil)
-    dd = 1.0 / depth
-    true_m = 1.0 / B.sweep_diopters(rig, float(dd.max()), float(dd.min()))
-    t0 = time.time()
-    frames, reported = shoot(rig.lens, rgb * 0.6, depth, true_m, eff, rig.src, seed=1000 + i, workers=1,
-                             cell_px=s.cell_px)
-    log(f"  rendered {name}: {len(true_m)} frames in {time.time() - t0:.0f} s")
-    CACHE.mkdir(parents=True, exist_ok=True)
-    with atomic_file(f) as tmp:
-        np.savez(tmp, frames=frames.astype(np.float16), reported_m=reported, true_m=true_m)
-    return {"frames": frames.astype(np.float16).astype(np.float32), "reported_m": reported, "true_m": true_m,
-            "layout": layout, "distance_m": d}
+    return B.sweep(rig, variant, i, log, noise=False)
 
 
 def peaks_on(rig, variant: str, sw: dict, frames: np.ndarray, grid) -> np.ndarray:

@@ -19,15 +19,10 @@ with tiles that reach that far.
 
 from __future__ import annotations
 
-import argparse
-import json
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
-
-from aat_deploy.io.atomic import write_text_atomic
 
 FIXED_R = 0.920  # the fit's 27 px grid's farthest tile centre on the phone's 640 x 480
 # The judging copies of the 24 px declaration (docs/calibration.md, "24 px tiles, judged on unseen copies"): random
@@ -101,17 +96,6 @@ def rig_for(base_rig, variant: str):
     return rig.with_setup(C.copy_setup(s, JUDGE_SEED, C.draw_copy(s, n_el, JUDGE_SEED, k))), "copy"
 
 
-def chosen(ap, text: str) -> list[str]:
-    """--variants: the development variants (`tile_bias.VARIANTS`) and the judging copies (JUDGING)."""
-    from benchmarks.probes.tile_bias import VARIANTS
-
-    variants = [v for v in text.split(",") if v]
-    bad = [v for v in variants if v not in VARIANTS + JUDGING]
-    if bad:
-        ap.error(f"--variants: {', '.join(bad)} not of {', '.join(VARIANTS + JUDGING)}")
-    return variants
-
-
 def run(variant: str, truth_path: str, tile_px: int, log, exact: bool = False) -> dict:
     from aat_deploy.calibrate.fit import fit_calibration
     from aat_deploy.calibrate.format import field_radius_of
@@ -181,15 +165,13 @@ def table(rows: list[dict]) -> str:
 
 
 def main(argv=None) -> int:
-    from benchmarks.render_truth_map import load_or_exit
+    from benchmarks.probes import calibrate_probe_cli as cli
+    from benchmarks.probes.tile_bias import VARIANTS
 
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--truth", required=True, help="a render-truth map (aat-render-truth-map-v1; a repo path)")
-    ap.add_argument("--variants", default="nominal,copy")
+    ap = cli.parser(__doc__, "nominal,copy")
     ap.add_argument("--tiles-px", default="16,20,24,27,32", help="tile sizes (px, comma-separated)")
     ap.add_argument("--exact", action="store_true", help="also the kept tiles made exact (peaking where the truth has "
                     "their object in focus) and fitted: what the model alone does at each tile size")
-    ap.add_argument("--out", required=True)
     a = ap.parse_args(argv)
     try:
         sizes = [int(t) for t in a.tiles_px.split(",") if t]
@@ -197,18 +179,11 @@ def main(argv=None) -> int:
         ap.error(f"--tiles-px {a.tiles_px!r}: whole numbers of pixels, comma-separated")
     if not sizes or any(not 8 <= t <= 96 for t in sizes):
         ap.error(f"--tiles-px {a.tiles_px!r}: sizes of 8 to 96 px")
-    if Path(a.out).exists():
-        ap.error(f"{a.out}: exists (choose another --out)")
-    variants = chosen(ap, a.variants)
-    if not variants:
-        ap.error("nothing to run: --variants is empty")
-    load_or_exit(a.truth, "tile_size")
-    log = lambda m: print(m, file=sys.stderr, flush=True)
-    rows = [run(v, a.truth, t, log, a.exact) for v in variants for t in sizes]
-    write_text_atomic(a.out, json.dumps({"what": __doc__.split("\n")[0], "truth": a.truth,
-                                         "command": "python -m benchmarks.probes.tile_size " + " ".join(
-                                             argv if argv is not None else sys.argv[1:]), "rows": rows},
-                                        indent=1, default=float))
+    cli.refuse_existing_out(ap, a.out)
+    variants = cli.variants_of(ap, a.variants, VARIANTS + JUDGING)
+    cli.load_truth(a.truth, "tile_size")
+    rows = [run(v, a.truth, t, cli.log, a.exact) for v in variants for t in sizes]
+    cli.write_result(a.out, "tile_size", __doc__, a.truth, argv, rows)
     print(table(rows))
     return 0
 
