@@ -32,7 +32,10 @@ Tables (per scene):
   (should be 0: anchored there).
 
     python -m benchmarks.probes.focus_weak_noiseless --scene 3303 cache/p32/noise/scene3303quiet \\
-        cache/bench_diagnose_focus/captures/scene3303 [--scene ...] --out results/focus_weak_noiseless.md
+        cache/bench_diagnose_focus/captures/scene3303 [--scene ...] [--per-channel] --out results/focus_weak_noiseless.md
+
+`--per-channel`: the binning correction each channel's own under its floor (`anchors.PER_CHANNEL`; docs/diagnosis.md,
+"Not the whole of it on 3303").
 """
 
 from __future__ import annotations
@@ -147,7 +150,8 @@ def aif_report(scene: str, quiet: Path, noisy: Path, full_well_e: float, threads
     fw0 = float(noisefloor.noise_of(chain).params["full_well_e"])
     qchain = noisefloor.quiet([e for e in chain if not state.tb.has_stack_hook(e)])
     own = np.asarray(twins.true_focus(dn, chain, seed), np.float64).ravel()
-    sweep = raw.with_correction(anchors.correction(raw.grid_d, [[anchors.anchor_deltas(state, qchain, [own])[0]]]))
+    sweep = raw.with_correction(anchors.correction(raw.grid_d, [[anchors.anchor_deltas(
+        state, qchain, [own], per_channel=anchors.PER_CHANNEL)[0]]]))  # --per-channel: each channel's own
     sweep = sweep.with_full_well(fw0 / full_well_e)
     truth = sweep.base_d.copy()
     used = sweep.weight[0] > 0
@@ -332,7 +336,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--work", type=Path, default=Path("cache/p32/weak"), help="the copies reporting the true focus")
     ap.add_argument("--out", type=Path, help="markdown table (written atomically); a .json beside it")
+    ap.add_argument("--per-channel", action="store_true", help="the binning correction each channel's own under its "
+                    "floor (`anchors.PER_CHANNEL`)")
     a = ap.parse_args(argv)
+    if a.per_channel:
+        from aat_deploy.diagnose import anchors
+
+        anchors.PER_CHANNEL = True
     texts, rows = [], []
     for name, q, n in a.scene:
         t, r = scene_report(name, Path(q), Path(n), a.full_well_e, a.threads, a.work)
@@ -341,7 +351,7 @@ def main(argv: list[str] | None = None) -> int:
         rows.append(r)
     if a.out:
         cmd = "python -m benchmarks.probes.focus_weak_noiseless " + " ".join(
-            f"--scene {n} {q} {m}" for n, q, m in a.scene) + f" --out {a.out}"
+            f"--scene {n} {q} {m}" for n, q, m in a.scene) + (" --per-channel" if a.per_channel else "") + f" --out {a.out}"
         write_text_atomic(a.out, "# The focus twin's misfit in the weak frames, noise off on both sides (issue 32)\n\n"
                           f"`{cmd}`\n" + "".join(texts))
         write_text_atomic(a.out.with_suffix(".json"), json.dumps(rows, indent=1) + "\n")
