@@ -737,9 +737,10 @@ def test_focus_start_invariance_code_and_channel_modes_set_only_their_switches(t
                                                             fitters.FLOOR_AT_CAPTURE_EXPOSURE, anchors.PER_CHANNEL)))
     rows = tmp_path / "r.jsonl"
     rows.write_text(json.dumps({"capture": "s", "kind": "none"}) + "\n")
-    si.main(["--mode", mode, "--rows", str(rows), "--out", str(tmp_path / "o.jsonl"), "--", "--fit-only",
-             "--sets", "s:none"])
-    assert seen == [want]
+    for m in ("ptc_exposure_channel", mode):  # one after another in one process (`focus_dense_subset.run`)
+        si.main(["--mode", m, "--rows", str(rows), "--out", str(tmp_path / "o.jsonl"), "--", "--fit-only",
+                 "--sets", "s:none"])
+    assert seen == [(True, True, True), want]  # the second mode does not inherit the first's switches
 
 
 def test_focus_exposure_subset_plan_is_the_ptc_subsets_sets_rerun_with_the_declared_change(capsys):

@@ -61,6 +61,21 @@ from pathlib import Path
 
 import numpy as np
 
+# the modes that set runtime switches: (FULL_WELL_BY_PHOTON_TRANSFER, FLOOR_AT_CAPTURE_EXPOSURE, anchors.PER_CHANNEL)
+# on, or left at the code's value (CODE_SWITCHES, read when this module is imported, before any mode set them)
+SWITCHES = {"code": (False, False, False), "ptc": (True, False, False), "ptc_exposure": (True, True, False),
+            "channel": (False, False, True), "ptc_exposure_channel": (True, True, True)}
+
+
+def _code_switches() -> dict:
+    from aat_deploy.diagnose import anchors, fitters
+
+    return {"FULL_WELL_BY_PHOTON_TRANSFER": fitters.FULL_WELL_BY_PHOTON_TRANSFER,
+            "FLOOR_AT_CAPTURE_EXPOSURE": fitters.FLOOR_AT_CAPTURE_EXPOSURE, "PER_CHANNEL": anchors.PER_CHANNEL}
+
+
+CODE_SWITCHES = _code_switches()
+
 
 def first_pass(row: dict) -> np.ndarray:
     """(S,) a stored row's per-frame estimates, its chosen family's value at the frames it left out (diopters)."""
@@ -199,20 +214,13 @@ def main(argv: list[str] | None = None) -> int:
         from aat_deploy.diagnose import fitters
 
         fitters.full_well_on_floor = lambda d, fw0: (a.full_well_e, {"oracle_full_well_e": a.full_well_e})
-    elif a.mode == "ptc":
-        from aat_deploy.diagnose import fitters
-
-        fitters.FULL_WELL_BY_PHOTON_TRANSFER = True
-    elif a.mode in ("ptc_exposure", "channel", "ptc_exposure_channel"):
+    elif a.mode in SWITCHES:  # every switch set, to the code's value where the mode leaves it: modes run one
+        # after another in one process (`focus_dense_subset.run`) must not inherit each other's
         from aat_deploy.diagnose import anchors, fitters
 
-        if a.mode != "channel":
-            fitters.FULL_WELL_BY_PHOTON_TRANSFER = True
-            fitters.FLOOR_AT_CAPTURE_EXPOSURE = True
-        if a.mode != "ptc_exposure":
-            anchors.PER_CHANNEL = True
-    elif a.mode == "code":
-        pass
+        for (mod, name), on in zip(((fitters, "FULL_WELL_BY_PHOTON_TRANSFER"), (fitters, "FLOOR_AT_CAPTURE_EXPOSURE"),
+                                    (anchors, "PER_CHANNEL")), SWITCHES[a.mode]):
+            setattr(mod, name, True if on else CODE_SWITCHES[name])
     elif a.mode == "near":
         bench.reported_d = lambda kind, true_d, k: np.asarray(true_d, np.float64) + a.near_d
     else:
