@@ -101,3 +101,28 @@ def test_the_measured_bases_keep_the_formats_focus_degrees_but_one():
     quintic = [n for n, k, p in O.MEASURED_BASES if p[2] > 3]
     assert quintic == ["spline 3 + 5 knots, focus 2/5"]
     assert all(p[1] == 2 for n, k, p in O.MEASURED_BASES if k == "spline")
+
+
+def test_extra_charts_are_appended_fitted_and_leave_part_as_frames_alone(tmp_path, capsys):
+    """--extra: the four charts keep their places (sweeps, seeds, tapes), the extra ones come after with their
+    distances fitted, part a's 7-18 cm unchanged; --extra without --measured, or a bad chart, is one line."""
+    from benchmarks import bench_calibrate as B
+
+    class Base:
+        def __init__(self, setup):
+            self.setup = setup
+
+        def with_setup(self, setup):
+            return Base(setup)
+
+    s = B.LENSES["cellphone_near"]
+    r = O.with_charts(Base(s), [(0.128, (-6.0, 5.0)), (0.083, (10.0, -4.0))])
+    assert r.setup.distances_m == (*s.distances_m, 0.128, 0.083) and r.setup.tilts[-1] == (10.0, -4.0)
+    assert r.setup.fit_distance == (*s.fit_distance, 4, 5) and r.setup.inside_m == s.inside_m
+    assert list(r.setup.inside()) == list(s.inside())
+    assert O.EXTRA_BASES[:len(O.MEASURED_BASES)] == O.MEASURED_BASES
+    for args, says in ((["--extra", "0.128:-6:5"], "--extra goes with --measured"),
+                       (["--measured", "27", "--extra", "0.128:-6"], "distance_m:tilt_x_deg:tilt_y_deg")):
+        with pytest.raises(SystemExit):
+            O.main(["--truth", str(tmp_path / "none.json"), *args, "--out", str(tmp_path / "o.json")])
+        assert says in capsys.readouterr().err.strip().splitlines()[-1]

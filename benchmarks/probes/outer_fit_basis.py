@@ -7,6 +7,9 @@ docs/calibration.md, "24 px tiles, judged on unseen copies", what follows it): i
     OMP_NUM_THREADS=1 python -m benchmarks.probes.outer_fit_basis --truth results/render_truth_map_cellphone_19p.json \
         --variants nominal,copy,copy_s2026_0,copy_s2026_1,copy_s2026_2 --measured 27,16 \
         --out results/outer_fit_basis_measured.json
+    OMP_NUM_THREADS=1 python -m benchmarks.probes.outer_fit_basis --truth results/render_truth_map_cellphone_19p.json \
+        --variants nominal,copy,copy_s2026_0,copy_s2026_1,copy_s2026_2 --measured 27 \
+        --extra 0.128:-6:5,0.083:10:-4 --out results/outer_fit_basis_6charts.json
 
 No render, no tile, no scene: per variant (bench_calibrate's `cellphone_near` development variants) the truth
 (`Rig.truth_at`, against --truth) on a dense grid (every DENSE_PX px of the 640 x 480 frame) at part a's 10 inside
@@ -20,7 +23,9 @@ degree: `exact_tiles_order._design`'s form), on two regions:
 - **the whole frame** (corners included): whether the basis can represent the phone's rise at all.
 
 The error is RMS (and mean) by field radius bin (BINS), and over every point (the part-a-like total on this grid).
-With --measured, the same bases (but the finest) fitted to part a's measured tiles instead (`measured_maps`).
+With --measured, the same bases (but the finest) fitted to part a's measured tiles instead (`measured_maps`); with
+--extra, to the tiles of the four charts and extra ones (their distances fitted), with the edge quartic and quintic
+in focus too (EXTRA_BASES).
 
 The truth fits are a floor, not a fit of measured tiles: the tiles see each field point only where a chart's object is in focus
 (four bands), with their noise and texture scatter, and the fit's cross-validation would have to choose the basis.
@@ -158,7 +163,26 @@ MEASURED_BASES = (("poly 2/12, focus 2/3 (the rule's usual order, fixed)", "poly
                   BASES[0], BASES[3], BASES[4])
 
 
-def measured_maps(variant: str, truth_path: str, tile_px: int, log, bases=MEASURED_BASES) -> dict:
+# with extra charts (--extra): more bands of focus at every field point, so the edge's quartic and quintic in focus
+EXTRA_BASES = MEASURED_BASES + (("spline 3 + 5 knots, focus 2/4", "spline", (3, 2, 4, KNOTS)),)
+
+
+def with_charts(rig, extra: list):
+    """The rig with extra charts [(distance m, (tilt x, tilt y) deg)] appended after the four (which keep their
+    sweeps, seeds and tapes), their distances fitted from the tape start (`~`), as `more_charts --fit-extra` adds
+    them; part a's frames unchanged (`inside_m` fixed)."""
+    import dataclasses
+
+    s = rig.setup
+    n0 = len(s.distances_m)
+    return rig.with_setup(dataclasses.replace(
+        s, distances_m=tuple(s.distances_m) + tuple(d for d, _ in extra),
+        tilts=tuple(s.tilts) + tuple(t for _, t in extra),
+        inside_m=s.inside_m or (min(s.distances_m), max(s.distances_m)),
+        fit_distance=tuple(s.fit_distance) + tuple(range(n0, n0 + len(extra)))))
+
+
+def measured_maps(variant: str, truth_path: str, tile_px: int, log, bases=MEASURED_BASES, extra=()) -> dict:
     """Part a's fit (bench_calibrate's sweeps and tapes, tiles of tile_px, `fit_calibration` without bootstrap) and,
     on its kept tiles with its focus error fixed (each tile's on-axis diopters t = the fit's g(reported)), each basis
     fitted by weighted least squares to the tiles' object minus t, held beyond the farthest kept tile's radius as
@@ -171,6 +195,8 @@ def measured_maps(variant: str, truth_path: str, tile_px: int, log, bases=MEASUR
 
     t0 = time.time()
     rig, v = rig_for(B.Rig(B.LENSES["cellphone_near"], truth=truth_path), variant)
+    if extra:
+        rig = with_charts(rig, list(extra))
     s = rig.setup
     eff = B.effects_for(s, v)
     sweeps = [B.sweep(rig, v, i, log) for i in range(len(s.distances_m))]
@@ -184,7 +210,9 @@ def measured_maps(variant: str, truth_path: str, tile_px: int, log, bases=MEASUR
     gx, gy = field_grid(rig.h, rig.w)
     prad = field_radius_of(gx, gy, aspect)
     score = lambda m: by_bin((m - truth).reshape(len(inside), -1), prad.ravel())
-    out = {"variant": variant, "tile_px": tile_px, "kept": int(len(o)), "r_max": r_max,
+    out = {"variant": variant, "tile_px": tile_px, "charts_m": list(s.distances_m),
+           "charts_fitted_mm": [float(1000 * m.chart_distance_m) for m in res.measures],
+           "kept": int(len(o)), "r_max": r_max,
            "order": [res.model.degree, res.model.radial, res.model.focus_degree, res.model.low_focus_degree],
            "maps": {"the fit (its orders blended, as part a)": score(
                in_focus_diopters(cal, rep_m, rig.h, rig.w).astype(np.float64))}}
@@ -238,7 +266,17 @@ def main(argv=None) -> int:
     ap = cli.parser(__doc__, ",".join(VARIANTS), "the development variants (no judging copy: this is development)")
     ap.add_argument("--measured", default="", help="tile sizes (px, comma-separated): instead of the truth, part a's "
                     "fit of the measured tiles at each and MEASURED_BASES fitted to its kept tiles (renders the sweeps)")
+    ap.add_argument("--extra", default="", help="with --measured: extra charts, distance_m:tilt_x:tilt_y,... "
+                    "(`more_charts`'s syntax), their distances fitted; then EXTRA_BASES")
     a = ap.parse_args(argv)
+    from benchmarks.probes.more_charts import parse_extra
+
+    try:
+        extra = parse_extra(a.extra)
+    except ValueError as e:
+        ap.error(str(e))
+    if extra and not a.measured:
+        ap.error("--extra goes with --measured")
     try:
         sizes = [int(t) for t in a.measured.split(",") if t]
     except ValueError:
@@ -247,10 +285,11 @@ def main(argv=None) -> int:
     variants = cli.variants_of(ap, a.variants, VARIANTS)
     cli.load_truth(a.truth, "outer_fit_basis")
     if sizes:
-        rows = [measured_maps(v, a.truth, t, cli.log) for v in variants for t in sizes]
-        cli.write_result(a.out, "outer_fit_basis", __doc__, a.truth, argv, rows,
+        bases = EXTRA_BASES if extra else MEASURED_BASES
+        rows = [measured_maps(v, a.truth, t, cli.log, bases, extra) for v in variants for t in sizes]
+        cli.write_result(a.out, "outer_fit_basis", __doc__, a.truth, argv, rows, extra=extra,
                          bases=[[n, k, list(p[:3]) + ([list(p[3])] if k == "spline" else [p[3]])]
-                                for n, k, p in MEASURED_BASES])
+                                for n, k, p in bases])
         print(measured_table(rows))
         return 0
     rows = [run(v, a.truth, cli.log) for v in variants]
