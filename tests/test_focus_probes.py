@@ -551,8 +551,9 @@ def test_focus_dense_subset_cutoff_takes_any_hour_and_run_starts_nothing_at_or_a
     assert ds.cutoff("01:14", at(27, 23, 30)) == at(28, 1, 14)
     assert ds.cutoff("10:20", at(28, 10, 25)) == at(28, 10, 20)
     assert ds.cutoff("23:50", at(28, 0, 10)) == at(27, 23, 50)
-    with pytest.raises(ValueError, match="not HH:MM"):
-        ds.cutoff("24:10", at(28, 11, 0))
+    for bad in ("24:10", "abc", "1230", "12:3x", "-1:10", "12:60"):
+        with pytest.raises(ValueError, match="not HH:MM"):
+            ds.cutoff(bad, at(28, 11, 0))
     for name in ("DfFModel",):
         monkeypatch.setattr(model_mod, name, getattr(model_mod, name))
     monkeypatch.setattr(lookup, "find_lens", lookup.find_lens)
@@ -571,6 +572,24 @@ def test_focus_dense_subset_cutoff_takes_any_hour_and_run_starts_nothing_at_or_a
     ran.clear()
     ds.run(cmds, "12:40", tmp_path / "lock", now=lambda: at(28, 12, 45))
     assert ran == []
+
+
+@pytest.mark.parametrize("probe", ["focus_dense_subset", "focus_exposure_subset", "focus_channel_correction"])
+def test_subset_probes_refuse_a_bad_until_in_one_line_before_running(probe, tmp_path, monkeypatch, capsys):
+    """--until that is not HH:MM is refused by the command line (one line, exit 2), before any lock or command: the
+    cut-off was parsed only inside `run`, so `--run --until 9x` ended in a traceback."""
+    import importlib
+
+    from benchmarks.probes import focus_dense_subset as ds
+
+    mod = importlib.import_module(f"benchmarks.probes.{probe}")
+    monkeypatch.setattr(ds, "run", lambda *a, **k: pytest.fail("ran"))
+    for bad in ("9x", "25:00", "1230"):
+        with pytest.raises(SystemExit) as e:
+            mod.main(["--run", "--until", bad, "--lock", str(tmp_path / "lock")])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert e.value.code == 2 and err[-1].endswith(f"--until {bad}: not HH:MM")
+    assert not (tmp_path / "lock").exists()
 
 
 def test_focus_start_invariance_step_mode_sets_the_sweeps_spacing(tmp_path, monkeypatch):

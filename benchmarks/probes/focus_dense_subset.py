@@ -139,13 +139,29 @@ def commands(order: list[tuple[str, str, str]], chunk: int = 5, mode: str = "den
     return out
 
 
+def hhmm(until: str) -> tuple[int, int]:
+    """(hour, minute) of a cut-off HH:MM (UTC); ValueError with one line otherwise."""
+    parts = until.split(":")
+    if len(parts) != 2 or not all(x.isascii() and x.isdigit() for x in parts) \
+            or not (int(parts[0]) < 24 and int(parts[1]) < 60):
+        raise ValueError(f"--until {until}: not HH:MM")
+    return int(parts[0]), int(parts[1])
+
+
+def until_arg(text: str) -> str:
+    """argparse type of --until: refused in one line at parse time, before any lock or command."""
+    try:
+        hhmm(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+    return text
+
+
 def cutoff(until: str, start: datetime.datetime) -> datetime.datetime:
     """The cut-off `until` (HH:MM UTC) as a moment: the one of that clock time nearest to `start` (a run started at
     23:30 with --until 01:14 stops at 01:14 the next day; one started at 10:25 with --until 10:20 starts nothing;
     any hour of the day, afternoon included)."""
-    h, m = (int(x) for x in until.split(":"))
-    if not (0 <= h < 24 and 0 <= m < 60):
-        raise ValueError(f"--until {until}: not HH:MM")
+    h, m = hhmm(until)
     t = start.replace(hour=h, minute=m, second=0, microsecond=0)
     day = datetime.timedelta(days=1)
     return min((t - day, t, t + day), key=lambda x: abs(x - start))
@@ -272,7 +288,8 @@ def subset_parser(doc: str, until: str, tally_help: str = "the reruns' rows") ->
     ap.add_argument("--tally", nargs="+", type=Path, help=tally_help)
     ap.add_argument("--out", type=Path, help="with --tally: also write the table here (atomically)")
     ap.add_argument("--run", action="store_true", help="run the --plan commands in this process (lane B's lock each)")
-    ap.add_argument("--until", default=until, help="with --run: start no command at or after this time (HH:MM UTC)")
+    ap.add_argument("--until", default=until, type=until_arg,
+                    help="with --run: start no command at or after this time (HH:MM UTC)")
     ap.add_argument("--lock", type=Path, default=Path("/work/heavy2.lock"), help="with --run: the lane's lock file")
     return ap
 
