@@ -92,6 +92,10 @@ def test_outer_fit_basis_refuses_bad_measured_tile_sizes_before_the_truth(tmp_pa
     with pytest.raises(SystemExit):
         O.main(["--truth", str(tmp_path / "none.json"), "--measured", "27,x", "--out", str(tmp_path / "o.json")])
     assert "--measured '27,x': whole numbers of pixels" in capsys.readouterr().err.strip().splitlines()[-1]
+    for bad in ("0", "27,-5", "27,200"):  # before: accepted, the sweeps rendered, then a failure deep in the fit
+        with pytest.raises(SystemExit):
+            O.main(["--truth", str(tmp_path / "none.json"), "--measured", bad, "--out", str(tmp_path / "o.json")])
+        assert f"--measured '{bad}': sizes of 8 to 96 px" in capsys.readouterr().err.strip().splitlines()[-1]
     assert not (tmp_path / "o.json").exists()
 
 

@@ -281,6 +281,8 @@ def main(argv=None) -> int:
         sizes = [int(t) for t in a.measured.split(",") if t]
     except ValueError:
         ap.error(f"--measured {a.measured!r}: whole numbers of pixels, comma-separated")
+    if any(not 8 <= t <= 96 for t in sizes):
+        ap.error(f"--measured {a.measured!r}: sizes of 8 to 96 px")
     cli.refuse_existing_out(ap, a.out)
     variants = cli.variants_of(ap, a.variants, VARIANTS)
     cli.load_truth(a.truth, "outer_fit_basis")
