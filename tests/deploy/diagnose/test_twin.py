@@ -83,7 +83,9 @@ def test_sources_match_torch():
 def test_surrogate_carries_the_traced_focus_table():
     table = ONNX.numpy.focus_table()
     ref = focus_table(LENS)
-    assert np.array_equal(table.diopters, ref.diopters) and np.array_equal(table.sensor_z_mm, ref.sensor_z_mm)
+    # the same trace: equal to float64 rounding (the last bits of a trace depend on the CPU's math library)
+    assert np.array_equal(table.diopters, ref.diopters)
+    np.testing.assert_allclose(table.sensor_z_mm, ref.sensor_z_mm, rtol=1e-13, atol=0)
     assert ONNX.numpy.exit_pupil_z_mm() == paraxial_data(LENS).exit_pupil_z_mm
 
 

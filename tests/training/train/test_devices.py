@@ -151,20 +151,29 @@ def _cfg(batch: int, steps: int):
 
 def _assert_same_model(a: dict, b: dict, data) -> None:
     """Same predictions (depth within 1e-4 relative on two items) and parameters within a quarter of one Adam
-    step (lr 2e-3): parameters whose true gradient is zero (a bias shared by all frames before the softmax over
-    them) take lr-sized Adam steps on rounding noise, so their values alone cannot be compared tighter."""
+    step (lr 2e-3). Left out of the parameter check: the classifiers' output biases (`classify.1.bias`), one
+    number added to every frame's score before the softmax over frames, so their true gradient is zero and Adam
+    moves them by lr-sized steps on rounding noise, which differs between CPUs (by 5.6e-4 on one, past the
+    tolerance). That they cannot change a prediction is checked here, not assumed."""
     from training.nets.model import build_model, predict
 
-    outs = []
-    for state in (a, b):
+    batch = [data[i] for i in (0, 1)]
+    stack, focus = torch.stack([x["stack"] for x in batch]), torch.stack([x["focus_m"] for x in batch])
+
+    def depth(state):
         model = _without_batchnorm(build_model)("dfvnet", "small")
         model.load_state_dict(state)
         model.eval()
-        batch = [data[i] for i in (0, 1)]
-        outs.append(predict(model, torch.stack([x["stack"] for x in batch]), torch.stack([x["focus_m"] for x in batch])))
-    torch.testing.assert_close(outs[0]["depth_m"], outs[1]["depth_m"], rtol=1e-4, atol=0)
+        return predict(model, stack, focus)["depth_m"]
+
+    torch.testing.assert_close(depth(a), depth(b), rtol=1e-4, atol=0)
+    shift_only = [k for k in b if k.endswith("classify.1.bias")]
+    assert len(shift_only) == 2
+    shifted = {k: v + 0.5 if k in shift_only else v for k, v in b.items()}
+    torch.testing.assert_close(depth(shifted), depth(b), rtol=1e-5, atol=0)  # no effect: nothing to compare
     for k in b:
-        torch.testing.assert_close(a[k], b[k], rtol=0, atol=5e-4, msg=k)
+        if k not in shift_only:
+            torch.testing.assert_close(a[k], b[k], rtol=0, atol=5e-4, msg=k)
 
 
 def _ddp_worker(rank: int, world: int, port: int, out: str) -> None:
