@@ -167,7 +167,8 @@ class SweepMeasurement:
                        geometry=geo)
 
 
-TILES_PER_WIDTH = 24  # the fit's tiles: 1/24 of the frame's width (27 px on 640); 32 a candidate (docs/calibration.md)
+# the fit's tiles: 1/24 of the frame's width (27 px on 640); 1/32 and 1/27 were judged and not adopted (docs/calibration.md)
+TILES_PER_WIDTH = 24
 
 
 def tile_px_for(width: int) -> int:
