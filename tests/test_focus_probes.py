@@ -834,6 +834,8 @@ def test_focus_channel_correction_pairs_the_code_and_the_change_on_the_same_sets
     text = cc.tally(base, var, ("code", "channel"))
     assert "3 sets (2 with an error): family right 2 -> 3, within 0.02 D with every frame determined 1 -> 1 of 2" in text
     assert "sets better 1, worse 1" in text and "not run (both): 33 of 36" in text
+    with pytest.raises(SystemExit):
+        cc.main(["--modes", "code", "dense"])  # only the probe's four modes
 
 
 def test_focus_weak_noiseless_reads_a_residual_along_the_twins_slope():

@@ -16,7 +16,7 @@ errors, and the fitted full well.
     OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 python -m benchmarks.probes.focus_channel_correction --run --until HH:MM \\
         [--exposure]
     python -m benchmarks.probes.focus_channel_correction [--exposure] [--out results/focus_channel_correction.md]
-        # neither --plan nor --run: the pairs' table
+        # neither --plan nor --run: the pairs' table (--modes BASE VAR: any two of the four modes' rows)
 """
 
 from __future__ import annotations
@@ -106,6 +106,8 @@ def tally(base: list[dict], var: list[dict], names: tuple[str, str]) -> str:
 def main(argv: list[str] | None = None) -> int:
     ap = ds.subset_parser(__doc__, "13:25")
     ap.add_argument("--exposure", action="store_true", help="with the floor at the capture's exposure on both sides")
+    ap.add_argument("--modes", nargs=2, choices=[m for x in PAIRS.values() for m in x], metavar=("BASE", "VAR"),
+                    help="without --plan or --run: the table of these two modes' rows (e.g. code ptc_exposure_channel)")
     a = ap.parse_args(argv)
     cmds = commands(a.exposure)
     if a.run:
@@ -117,7 +119,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"\n{len(plan())} sets")
         print("\n".join(cmds))
         return 0
-    names = PAIRS[a.exposure]
+    names = tuple(a.modes) if a.modes else PAIRS[a.exposure]
     files = [ds.ROOT / out_file(m) for m in names]
     for f in files:
         if not f.is_file():
