@@ -836,6 +836,8 @@ def test_focus_channel_correction_pairs_the_code_and_the_change_on_the_same_sets
     assert "sets better 1, worse 1" in text and "not run (both): 33 of 36" in text
     with pytest.raises(SystemExit):
         cc.main(["--modes", "code", "dense"])  # only the probe's four modes
+    with pytest.raises(SystemExit):
+        cc.main(["--tally", "results/focus_exposure_subset.jsonl"])  # refused, not ignored
 
 
 def test_focus_weak_noiseless_reads_a_residual_along_the_twins_slope():

@@ -109,6 +109,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--modes", nargs=2, choices=[m for x in PAIRS.values() for m in x], metavar=("BASE", "VAR"),
                     help="without --plan or --run: the table of these two modes' rows (e.g. code ptc_exposure_channel)")
     a = ap.parse_args(argv)
+    if a.tally:  # the shared parser has it; this probe's tables read each mode's own file
+        ap.error("--tally is not used here: the table pairs two modes' own files (give --modes BASE VAR, or neither)")
     cmds = commands(a.exposure)
     if a.run:
         ds.run(cmds, a.until, a.lock)
